@@ -1,0 +1,41 @@
+"""btfrs: fit, synthesize and render Bidirectional Texture Functions, with a Rust core.
+
+>>> import btfrs
+>>> btf = btfrs.materials.make("knit", size=64, seed=1)
+>>> train, test = btf.split(holdout=0.1, seed=0)
+>>> ptm = btfrs.fit.ptm(train, kind="rgb")
+>>> print(ptm.error(test), ptm.nbytes)
+"""
+
+from __future__ import annotations
+
+from . import directions, exceptions, fit, hemimap, io, materials
+from ._native import __version__
+from .btf import Btf
+from .exceptions import (
+    BtfrsError,
+    DegenerateDataError,
+    FormatError,
+    InternalError,
+    InvalidArgumentError,
+)
+from .models import ErrorReport, Ptm, load
+
+__all__ = [
+    "__version__",
+    "Btf",
+    "Ptm",
+    "ErrorReport",
+    "load",
+    "directions",
+    "exceptions",
+    "fit",
+    "hemimap",
+    "io",
+    "materials",
+    "BtfrsError",
+    "DegenerateDataError",
+    "FormatError",
+    "InternalError",
+    "InvalidArgumentError",
+]

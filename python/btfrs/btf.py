@@ -1,0 +1,225 @@
+"""The BTF container.
+
+A :class:`Btf` holds images of a flat material sample under many (view, light) direction pairs,
+stored **texel-major**: ``data[row, col, view, light, channel]``, float32 linear RGB, shape
+``[H, W, V, L, 3]``. Each texel's apparent BRDF is contiguous (what fitting, LPCA and synthesis
+read); :meth:`Btf.image` and :meth:`Btf.images` give image-major views without copying. Values
+include the cos(theta_l) foreshortening, as measured BTFs do.
+
+Row 0 is the top of the sample seen from above; in the tangent frame x runs along the columns and
+y up the rows (see :mod:`btfrs.directions`). ``mask[v, l]`` (optional) says which pairs are
+present: a train/test split is two masks over the same data, so nothing is copied.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Optional, Sequence, Union
+
+import numpy as np
+
+from . import _native
+from .exceptions import FormatError
+
+__all__ = ["Btf"]
+
+Index = Union[None, int, slice, Sequence[int], np.ndarray]
+
+
+def _directions(name: str, d) -> np.ndarray:
+    a = np.asarray(d)
+    if not np.issubdtype(a.dtype, np.floating) and not np.issubdtype(a.dtype, np.integer):
+        raise TypeError(f"{name}: expected an array of numbers, got dtype {a.dtype}")
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"{name}: expected shape (N, 3), got {a.shape}")
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+class Btf:
+    """A bidirectional texture function sample.
+
+    Parameters
+    ----------
+    data:
+        ``[H, W, V, L, 3]`` linear RGB. float32 is used as is (no copy when C-contiguous); other
+        float dtypes are converted (a copy). Integer data is rejected: convert it to linear
+        float yourself, since only you know its scale and transfer curve.
+    views, lights:
+        ``[V, 3]`` and ``[L, 3]`` unit directions with z >= 0.
+    mask:
+        Optional ``[V, L]`` bool, True where the pair is present.
+    check:
+        Scan the values for NaN/inf (a parallel pass over the data; on by default).
+    """
+
+    __slots__ = ("_data", "_views", "_lights", "_mask")
+
+    def __init__(self, data, views, lights, mask=None, *, check: bool = True) -> None:
+        a = data if isinstance(data, np.ndarray) else np.asarray(data)
+        if not np.issubdtype(a.dtype, np.floating):
+            raise TypeError(f"data: expected a float array (float32 preferred), got dtype {a.dtype}")
+        if a.ndim != 5 or a.shape[-1] != 3:
+            raise ValueError(f"data: expected shape (H, W, V, L, 3), got {a.shape}")
+        if a.dtype != np.float32 or not a.flags.c_contiguous:
+            a = np.ascontiguousarray(a, dtype=np.float32)
+        self._data = a
+        self._views = _directions("views", views)
+        self._lights = _directions("lights", lights)
+        if mask is not None:
+            m = np.asarray(mask)
+            if m.dtype != np.bool_:
+                raise TypeError(f"mask: expected a bool array, got dtype {m.dtype}")
+            mask = np.ascontiguousarray(m)
+        self._mask = mask
+        if check:
+            _native.validate_btf(self._data, self._views, self._lights, self._mask)
+        else:
+            # Shapes and directions are always checked; only the value scan is skipped.
+            self._check_shapes()
+
+    def _check_shapes(self) -> None:
+        h, w, v, l, _ = self._data.shape
+        if v != len(self._views) or l != len(self._lights):
+            raise ValueError(
+                f"data: expected (H, W, {len(self._views)}, {len(self._lights)}, 3) for the given views and lights, "
+                f"got {self._data.shape}"
+            )
+        if self._mask is not None and self._mask.shape != (v, l):
+            raise ValueError(f"mask: expected shape ({v}, {l}), got {self._mask.shape}")
+
+    # --- shape and access -------------------------------------------------------------------
+    @property
+    def data(self) -> np.ndarray:
+        """``[H, W, V, L, 3]`` float32 values (texel-major)."""
+        return self._data
+
+    @property
+    def views(self) -> np.ndarray:
+        """``[V, 3]`` view directions."""
+        return self._views
+
+    @property
+    def lights(self) -> np.ndarray:
+        """``[L, 3]`` light directions."""
+        return self._lights
+
+    @property
+    def mask(self) -> Optional[np.ndarray]:
+        """``[V, L]`` bool mask of present pairs, or None when all are present."""
+        return self._mask
+
+    @property
+    def shape(self) -> tuple:
+        """``(H, W, V, L, 3)``."""
+        return self._data.shape
+
+    @property
+    def height(self) -> int:
+        return self._data.shape[0]
+
+    @property
+    def width(self) -> int:
+        return self._data.shape[1]
+
+    @property
+    def n_views(self) -> int:
+        return self._data.shape[2]
+
+    @property
+    def n_lights(self) -> int:
+        return self._data.shape[3]
+
+    @property
+    def pairs(self) -> int:
+        """Number of present (view, light) pairs."""
+        return int(self._mask.sum()) if self._mask is not None else self.n_views * self.n_lights
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the value array (the directions and mask are negligible)."""
+        return int(self._data.nbytes)
+
+    def image(self, view: int, light: int) -> np.ndarray:
+        """The ``[H, W, 3]`` image of one (view, light) pair: a strided view, no copy."""
+        if not (0 <= view < self.n_views):
+            raise IndexError(f"view: expected an index in [0, {self.n_views}), got {view}")
+        if not (0 <= light < self.n_lights):
+            raise IndexError(f"light: expected an index in [0, {self.n_lights}), got {light}")
+        return self._data[:, :, view, light, :]
+
+    def images(self) -> np.ndarray:
+        """Image-major view ``[V, L, H, W, 3]`` of the same memory (no copy)."""
+        return self._data.transpose(2, 3, 0, 1, 4)
+
+    def abrdf(self, row: int, col: int) -> np.ndarray:
+        """The ``[V, L, 3]`` apparent BRDF of one texel (contiguous, no copy)."""
+        return self._data[row, col]
+
+    # --- derived samples ---------------------------------------------------------------------
+    def split(self, holdout: float = 0.1, seed: int = 0) -> tuple["Btf", "Btf"]:
+        """Split the present (view, light) pairs into ``(train, test)``.
+
+        ``test`` holds ``round(holdout * pairs)`` pairs drawn with ``seed``; both share this
+        sample's data (nothing is copied) and differ only in their masks.
+        """
+        tr, te = _native.split_pairs(self.n_views, self.n_lights, float(holdout), int(seed), self._mask)
+        return (Btf(self._data, self._views, self._lights, tr, check=False),
+                Btf(self._data, self._views, self._lights, te, check=False))
+
+    def select(self, views: Index = None, lights: Index = None) -> "Btf":
+        """A sample restricted to some views and/or lights (indices, slices or bool masks).
+
+        The result holds a C-contiguous copy of the selected part: the Rust core reads each
+        texel's values as one contiguous block, which a strided view would not give.
+        """
+        vi = slice(None) if views is None else views
+        li = slice(None) if lights is None else lights
+        vdirs = self._views[vi]
+        ldirs = self._lights[li]
+        if vdirs.ndim != 2 or ldirs.ndim != 2 or len(vdirs) == 0 or len(ldirs) == 0:
+            raise ValueError("views/lights: the selection must keep at least one view and one light (use a list or slice)")
+        data = np.ascontiguousarray(self._data[:, :, vi][:, :, :, li])
+        mask = None if self._mask is None else self._mask[vi][:, li]
+        return Btf(data, vdirs, ldirs, mask, check=False)
+
+    # --- files -------------------------------------------------------------------------------
+    def save(self, path: Union[str, os.PathLike]) -> None:
+        """Write to one ``.btfrs`` file (atomically: a temporary file, then a rename)."""
+        arrays = [("data", self._data), ("views", self._views), ("lights", self._lights)]
+        if self._mask is not None:
+            arrays.append(("mask", self._mask))
+        _native.save_container(os.fspath(path), "btf", json.dumps({"layout": "HWVL3"}), arrays)
+
+    @classmethod
+    def load(cls, path: Union[str, os.PathLike], mmap: bool = False) -> "Btf":
+        """Read a ``.btfrs`` BTF; ``mmap=True`` maps the values instead of reading them."""
+        kind, _, arrays = read_container(path, mmap=mmap)
+        if kind != "btf":
+            raise FormatError(f"{os.fspath(path)}: holds a {kind!r}, not a BTF (use btfrs.load)")
+        return cls(arrays["data"], arrays["views"], arrays["lights"], arrays.get("mask"))
+
+    def __repr__(self) -> str:
+        h, w, v, l, _ = self.shape
+        present = "" if self._mask is None else f", {self.pairs} of {v * l} pairs present"
+        return f"Btf({h} x {w} texels, {v} views x {l} lights{present}, {self.nbytes / 2**20:.1f} MiB)"
+
+
+def read_container(path, mmap: bool = False) -> tuple[str, dict, dict]:
+    """Read a ``.btfrs`` file: ``(kind, meta, {name: array})``. Arrays are read with one
+    ``numpy.fromfile`` each (or memory-mapped), at the offsets the Rust writer recorded."""
+    p = os.fspath(path)
+    kind, meta, infos = _native.read_container_header(p)
+    dtypes = {"f32": np.float32, "f64": np.float64, "u8": np.uint8, "u16": np.uint16, "i32": np.int32, "bool": np.bool_}
+    arrays = {}
+    for name, dt, shape, offset in infos:
+        if dt not in dtypes:
+            raise FormatError(f"{p}: array {name!r} has unknown dtype {dt!r}")
+        count = int(np.prod(shape)) if shape else 1
+        if mmap:
+            a = np.memmap(p, dtype=dtypes[dt], mode="r", offset=offset, shape=tuple(shape))
+            arrays[name] = np.asarray(a)
+        else:
+            a = np.fromfile(p, dtype=dtypes[dt], count=count, offset=offset)
+            arrays[name] = a.reshape(shape)
+    return kind, json.loads(meta), arrays

@@ -1,0 +1,46 @@
+"""Fitting reflectance models to a BTF: ``btfrs.fit.<model>(btf, ...)``.
+
+Each function fits only the pairs present in ``btf`` (its mask), so fitting the train half of a
+split never sees the held-out pairs, and returns a model with ``evaluate``, ``error``, ``nbytes``
+and ``save`` (see :mod:`btfrs.models`).
+"""
+
+from __future__ import annotations
+
+import time
+
+from . import _native
+from ._progress import Progress, callback
+from .btf import Btf
+from .models import Ptm
+
+__all__ = ["ptm"]
+
+
+def _check_btf(btf) -> Btf:
+    if not isinstance(btf, Btf):
+        raise TypeError(f"btf: expected a btfrs.Btf, got {type(btf).__name__}")
+    return btf
+
+
+def ptm(btf: Btf, kind: str = "rgb", rcond: float = 1e-6, on_degenerate: str = "raise",
+        progress: Progress = None) -> Ptm:
+    """Fit a Polynomial Texture Map per view slot (paper 000, section 3.1).
+
+    One SVD pseudo-inverse of the 6-column light design matrix per view slot, applied to every
+    texel (float64 accumulation), so the fit costs one pass over the data.
+
+    Parameters
+    ----------
+    kind: ``"rgb"`` (6 coefficients per channel) or ``"lrgb"`` (6 for the luminance + a base colour).
+    rcond: singular values below ``rcond * s_max`` count as zero.
+    on_degenerate: a view slot with fewer than 6 lights or degenerate (e.g. collinear) lights
+        raises :class:`~btfrs.exceptions.DegenerateDataError` (``"raise"``) or gets the
+        minimum-norm solution (``"clamp"``).
+    progress: None, True for a progress bar, or a callable ``(done, total)``.
+    """
+    b = _check_btf(btf)
+    t0 = time.perf_counter()
+    m = _native.fit_ptm_native(b.data, b.views, b.lights, b.mask, kind=kind, rcond=float(rcond),
+                               on_degenerate=on_degenerate, progress=callback(progress, f"PTM-{kind.upper()} fit"))
+    return Ptm(m, fit_seconds=time.perf_counter() - t0)

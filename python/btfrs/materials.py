@@ -1,0 +1,54 @@
+"""Built-in procedural materials: BTFs generated in Rust from periodic heightfields.
+
+Each preset has a periodic heightfield (the sample tiles seamlessly), per-texel albedo and a
+glossy Blinn-Phong lobe; masking, parallax and cast shadows come from marching the heightfield,
+so the BTF has the hard shadows and occlusions of a measured one. Deterministic per ``seed``.
+
+=========  =================================================================================
+knit       stocking stitch: V-shaped yarn loops with fibre ridges, deep gaps, hard shadows
+weave      plain weave of blue warp and beige weft going over and under, silky sheen
+bumps      glossy pebbles on a matte ground, round cast shadows
+grooves    brushed metal grooves along y: anisotropic and shiny
+=========  =================================================================================
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+from . import _native
+from ._progress import Progress, callback
+from .btf import Btf
+from .directions import ubo81
+
+__all__ = ["make", "names"]
+
+
+def names() -> list[str]:
+    """The names of the built-in materials."""
+    return list(_native.material_names())
+
+
+def make(name: str = "knit", size: int = 64, seed: int = 0, views=None, lights=None,
+         relief: float = 1.0, subsurface: float = 0.0, progress: Progress = None) -> Btf:
+    """Generate a built-in material.
+
+    Parameters
+    ----------
+    name: one of :func:`names`.
+    size: texels per side (16 to 256 is the intended range; 8 to 1024 are accepted).
+    seed: seed of the per-cell variation and the noise.
+    views, lights: ``[N, 3]`` unit directions (default: the 81 UBO directions each).
+    relief: multiplier of the preset's height (0 gives a flat, shadowless surface).
+    subsurface: in [0, 1), mixes each texel's values with its neighbours' (a soft blur).
+    progress: None, True for a progress bar, or a callable ``(done, total)``.
+    """
+    if not isinstance(size, (int, np.integer)) or isinstance(size, bool):
+        raise TypeError(f"size: expected an int, got {type(size).__name__}")
+    v = ubo81() if views is None else np.ascontiguousarray(views, dtype=np.float64)
+    l = ubo81() if lights is None else np.ascontiguousarray(lights, dtype=np.float64)
+    data = _native.make_material(str(name), int(size), v, l, int(seed), float(relief), float(subsurface),
+                                 callback(progress, f"material {name}"))
+    return Btf(data, v, l, check=False)

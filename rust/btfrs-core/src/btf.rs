@@ -1,0 +1,179 @@
+//! The BTF container.
+//!
+//! Canonical layout: **texel-major** `[H, W, V, L, 3]`, float32 linear RGB. Each texel's apparent
+//! BRDF (ABRDF, `V x L x 3` values) is contiguous, which is what every per-texel fit, LPCA and the
+//! synthesis read; an image for one (view, light) pair is a strided view. Values include the
+//! cos(theta_l) foreshortening, as measured BTFs do (paper 004, section 3).
+//!
+//! Row `i` of the sample is counted from the top of the image seen from above; column `j` from the
+//! left. In the tangent frame, x points along the columns (right) and y along the rows *upwards*.
+//!
+//! [`BtfRef`] borrows the arrays (a numpy buffer from Python, without copying); [`Btf`] owns them.
+
+use crate::{directions, Error, Result};
+use rayon::prelude::*;
+
+/// A borrowed BTF: the arrays may come straight from numpy.
+#[derive(Debug, Clone, Copy)]
+pub struct BtfRef<'a> {
+    /// Rows (texels along y).
+    pub height: usize,
+    /// Columns (texels along x).
+    pub width: usize,
+    /// View directions, `V`.
+    pub views: &'a [[f64; 3]],
+    /// Light directions, `L`.
+    pub lights: &'a [[f64; 3]],
+    /// `[H, W, V, L, 3]` values.
+    pub data: &'a [f32],
+    /// Optional `[V, L]` mask: `true` where the pair is measured and may be used.
+    pub mask: Option<&'a [bool]>,
+}
+
+impl<'a> BtfRef<'a> {
+    /// Wrap borrowed arrays, checking that the sizes agree and the directions are valid. The
+    /// values are not scanned here (see [`check_finite`]), so wrapping costs nothing.
+    pub fn new(
+        height: usize,
+        width: usize,
+        views: &'a [[f64; 3]],
+        lights: &'a [[f64; 3]],
+        data: &'a [f32],
+        mask: Option<&'a [bool]>,
+    ) -> Result<Self> {
+        if height == 0 || width == 0 {
+            return Err(Error::arg("data", format!("expected a non-empty sample, got {height} x {width} texels")));
+        }
+        directions::validate("views", views)?;
+        directions::validate("lights", lights)?;
+        let expect = height * width * views.len() * lights.len() * 3;
+        if data.len() != expect {
+            return Err(Error::arg(
+                "data",
+                format!(
+                    "expected {height} x {width} x {} x {} x 3 = {expect} values, got {}",
+                    views.len(),
+                    lights.len(),
+                    data.len()
+                ),
+            ));
+        }
+        if let Some(m) = mask {
+            if m.len() != views.len() * lights.len() {
+                return Err(Error::arg(
+                    "mask",
+                    format!("expected {} x {} entries, got {}", views.len(), lights.len(), m.len()),
+                ));
+            }
+            if !m.iter().any(|&b| b) {
+                return Err(Error::arg("mask", "no (view, light) pair is left: the mask is all false"));
+            }
+        }
+        Ok(BtfRef { height, width, views, lights, data, mask })
+    }
+
+    /// Number of texels, H * W.
+    #[inline]
+    pub fn texels(&self) -> usize {
+        self.height * self.width
+    }
+
+    /// Values per texel, V * L * 3.
+    #[inline]
+    pub fn abrdf_len(&self) -> usize {
+        self.views.len() * self.lights.len() * 3
+    }
+
+    /// The ABRDF of texel `t` (row-major texel index), `[V, L, 3]`.
+    #[inline]
+    pub fn texel(&self, t: usize) -> &'a [f32] {
+        let n = self.abrdf_len();
+        &self.data[t * n..(t + 1) * n]
+    }
+
+    /// Whether the pair (view `v`, light `l`) is present.
+    #[inline]
+    pub fn has(&self, v: usize, l: usize) -> bool {
+        self.mask.is_none_or(|m| m[v * self.lights.len() + l])
+    }
+
+    /// The indices of the lights present for view slot `v`.
+    pub fn lights_of_view(&self, v: usize) -> Vec<usize> {
+        (0..self.lights.len()).filter(|&l| self.has(v, l)).collect()
+    }
+
+    /// Number of present (view, light) pairs.
+    pub fn pairs(&self) -> usize {
+        self.mask.map_or(self.views.len() * self.lights.len(), |m| m.iter().filter(|&&b| b).count())
+    }
+}
+
+/// Fail with the position of the first NaN or infinity in `data` (parallel scan).
+pub fn check_finite(name: &str, data: &[f32]) -> Result<()> {
+    // Scan in large chunks: per-element rayon tasks would cost far more than the test itself.
+    const CHUNK: usize = 1 << 16;
+    let chunk = data.par_chunks(CHUNK).position_first(|c| !c.iter().all(|x| x.is_finite()));
+    match chunk.and_then(|k| data[k * CHUNK..].iter().position(|x| !x.is_finite()).map(|i| k * CHUNK + i)) {
+        None => Ok(()),
+        Some(i) => Err(Error::arg(name, format!("value {} at flat index {i} is not finite", data[i]))),
+    }
+}
+
+/// An owned BTF (what the material generator and the file loader produce).
+#[derive(Debug, Clone)]
+pub struct Btf {
+    /// Rows.
+    pub height: usize,
+    /// Columns.
+    pub width: usize,
+    /// View directions.
+    pub views: Vec<[f64; 3]>,
+    /// Light directions.
+    pub lights: Vec<[f64; 3]>,
+    /// `[H, W, V, L, 3]` values.
+    pub data: Vec<f32>,
+}
+
+impl Btf {
+    /// Borrow as a [`BtfRef`] with no mask.
+    pub fn as_ref(&self) -> BtfRef<'_> {
+        BtfRef {
+            height: self.height,
+            width: self.width,
+            views: &self.views,
+            lights: &self.lights,
+            data: &self.data,
+            mask: None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shape_errors_name_the_argument() {
+        let d = directions::ubo81();
+        let data = vec![0.0f32; 2 * 2 * 81 * 81 * 3];
+        assert!(BtfRef::new(2, 2, &d, &d, &data, None).is_ok());
+        let e = BtfRef::new(2, 3, &d, &d, &data, None).unwrap_err().to_string();
+        assert!(e.starts_with("data:") && e.contains("2 x 3 x 81 x 81 x 3"), "{e}");
+        let mask = vec![false; 81 * 81];
+        let e = BtfRef::new(2, 2, &d, &d, &data, Some(&mask)).unwrap_err().to_string();
+        assert!(e.starts_with("mask:"), "{e}");
+        let mut bad = data.clone();
+        bad[1234] = f32::INFINITY;
+        let e = check_finite("data", &bad).unwrap_err().to_string();
+        assert!(e.contains("1234"), "{e}");
+    }
+
+    #[test]
+    fn texel_slices_are_contiguous_abrdfs() {
+        let d = [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]];
+        let data: Vec<f32> = (0..3 * 2 * 2 * 2 * 3).map(|x| x as f32).collect();
+        let b = BtfRef::new(3, 2, &d, &d, &data, None).unwrap();
+        assert_eq!(b.texel(5)[0], (5 * 12) as f32);
+        assert_eq!(b.abrdf_len(), 12);
+    }
+}

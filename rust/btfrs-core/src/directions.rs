@@ -1,0 +1,160 @@
+//! Directions in the sample's local tangent frame.
+//!
+//! Convention (DESIGN.md): z is the surface normal, x the sample's u axis (image columns, to the
+//! right), y its v axis (image rows, upwards). Directions are unit vectors pointing *away* from
+//! the surface (z >= 0); theta is the elevation measured from z, phi the azimuth from x towards y.
+
+use crate::{Error, Result};
+
+/// The elevations of the UBO 2003 sampling of the Bonn BTF database, in degrees.
+pub const UBO_THETAS_DEG: [f64; 6] = [0.0, 15.0, 30.0, 45.0, 60.0, 75.0];
+/// The number of evenly spaced azimuths (starting at phi = 0) on each UBO elevation ring.
+pub const UBO_PHI_COUNTS: [usize; 6] = [1, 6, 12, 18, 20, 24];
+
+/// Unit vector for elevation `theta` and azimuth `phi`, both in radians.
+#[inline]
+pub fn from_theta_phi(theta: f64, phi: f64) -> [f64; 3] {
+    let (st, ct) = theta.sin_cos();
+    let (sp, cp) = phi.sin_cos();
+    [st * cp, st * sp, ct]
+}
+
+/// (theta, phi) in radians of a direction (need not be unit length); phi in [0, 2 pi).
+#[inline]
+pub fn to_theta_phi(d: [f64; 3]) -> (f64, f64) {
+    let r = (d[0] * d[0] + d[1] * d[1]).sqrt();
+    let theta = r.atan2(d[2]);
+    let mut phi = d[1].atan2(d[0]);
+    if phi < 0.0 {
+        phi += std::f64::consts::TAU;
+    }
+    // Points on the pole have no azimuth; report 0 rather than whatever atan2(0, 0) gives.
+    if r == 0.0 {
+        phi = 0.0;
+    }
+    (theta, phi)
+}
+
+/// The 81 UBO 2003 directions, ordered ring by ring from the pole, azimuth increasing.
+pub fn ubo81() -> Vec<[f64; 3]> {
+    let mut out = Vec::with_capacity(81);
+    for (theta, &n) in UBO_THETAS_DEG.iter().zip(UBO_PHI_COUNTS.iter()) {
+        for j in 0..n {
+            let phi = std::f64::consts::TAU * j as f64 / n as f64;
+            out.push(from_theta_phi(theta.to_radians(), phi));
+        }
+    }
+    out
+}
+
+/// Tolerance on |d| - 1 accepted for a "unit" direction.
+pub const UNIT_TOL: f64 = 1e-3;
+
+/// Check that every direction is finite, unit length within [`UNIT_TOL`] and has z >= 0
+/// (a tiny negative z from rounding is accepted). `name` is the argument name for the error.
+pub fn validate(name: &str, dirs: &[[f64; 3]]) -> Result<()> {
+    if dirs.is_empty() {
+        return Err(Error::arg(name, "expected at least one direction, got none"));
+    }
+    for (i, d) in dirs.iter().enumerate() {
+        if !d.iter().all(|x| x.is_finite()) {
+            return Err(Error::arg(name, format!("direction {i} is not finite: {d:?}")));
+        }
+        let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        if (n - 1.0).abs() > UNIT_TOL {
+            return Err(Error::arg(
+                name,
+                format!("direction {i} = {d:?} has length {n:.6}; expected unit vectors (normalise them first)"),
+            ));
+        }
+        if d[2] < -UNIT_TOL {
+            return Err(Error::arg(
+                name,
+                format!("direction {i} = {d:?} points below the surface (z < 0); expected z >= 0"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Angle in radians between two unit vectors, robust near 0 and pi.
+#[inline]
+pub fn angle_between(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let c = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+    let s = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
+    let d = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    s.atan2(d)
+}
+
+/// Interpolation weights of `query` over the `k` angularly nearest of `dirs`.
+///
+/// Weights are inverse angular distances normalised to sum 1; a query that coincides with a
+/// measured direction (within 1e-9 rad) gets that direction alone with weight 1, so evaluating a
+/// model at a measured direction reproduces exactly what was fitted there. Used wherever a model
+/// is stored per measured view slot (PTM, per-view Lafortune) and queried at any direction.
+pub fn interp_weights(dirs: &[[f64; 3]], query: [f64; 3], k: usize) -> Vec<(usize, f64)> {
+    let mut dist: Vec<(usize, f64)> =
+        dirs.iter().enumerate().map(|(i, &d)| (i, angle_between(d, query))).collect();
+    dist.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let k = k.clamp(1, dist.len().max(1));
+    dist.truncate(k);
+    if dist.is_empty() {
+        return dist;
+    }
+    if dist[0].1 < 1e-9 {
+        return vec![(dist[0].0, 1.0)];
+    }
+    let total: f64 = dist.iter().map(|(_, a)| 1.0 / a).sum();
+    dist.into_iter().map(|(i, a)| (i, (1.0 / a) / total)).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ubo81_has_the_bonn_layout() {
+        let d = ubo81();
+        assert_eq!(d.len(), 81);
+        assert_eq!(d[0], [0.0, 0.0, 1.0]);
+        // Second ring: theta 15 deg, 6 azimuths starting at phi = 0.
+        let (t, p) = to_theta_phi(d[1]);
+        assert!((t.to_degrees() - 15.0).abs() < 1e-12 && p.abs() < 1e-12);
+        let (t, p) = to_theta_phi(d[2]);
+        assert!((t.to_degrees() - 15.0).abs() < 1e-12 && (p.to_degrees() - 60.0).abs() < 1e-9);
+        let (t, _) = to_theta_phi(d[80]);
+        assert!((t.to_degrees() - 75.0).abs() < 1e-12);
+        validate("dirs", &d).unwrap();
+    }
+
+    #[test]
+    fn theta_phi_round_trip() {
+        for i in 0..50 {
+            let theta = 1.5 * i as f64 / 50.0 + 0.01;
+            let phi = 6.2 * ((i * 7) % 50) as f64 / 50.0;
+            let (t, p) = to_theta_phi(from_theta_phi(theta, phi));
+            assert!((t - theta).abs() < 1e-12 && (p - phi).abs() < 1e-12, "{theta} {phi} -> {t} {p}");
+        }
+    }
+
+    #[test]
+    fn validation_names_the_argument() {
+        let e = validate("lights", &[[0.0, 0.0, 2.0]]).unwrap_err().to_string();
+        assert!(e.starts_with("lights:") && e.contains("length 2.0"), "{e}");
+        let e = validate("views", &[[0.0, 0.0, -1.0]]).unwrap_err().to_string();
+        assert!(e.contains("z < 0"), "{e}");
+        assert!(validate("views", &[[f64::NAN, 0.0, 1.0]]).is_err());
+    }
+
+    #[test]
+    fn interp_weights_are_exact_on_measured_directions() {
+        let d = ubo81();
+        assert_eq!(interp_weights(&d, d[17], 3), vec![(17, 1.0)]);
+        let q = from_theta_phi(0.4, 0.3);
+        let w = interp_weights(&d, q, 3);
+        assert_eq!(w.len(), 3);
+        assert!((w.iter().map(|x| x.1).sum::<f64>() - 1.0).abs() < 1e-12);
+        // The nearest direction gets the largest weight.
+        assert!(w[0].1 >= w[1].1 && w[1].1 >= w[2].1);
+    }
+}

@@ -1,0 +1,82 @@
+//! Built-in procedural materials: BTFs computed from a periodic heightfield.
+//!
+//! Each preset ([`Preset`]) defines, over a sample of `size x size` texels that tiles seamlessly,
+//! a height, an albedo and a glossy Blinn-Phong lobe. A BTF image for view `v` and light `l` is then
+//! made the way a measured one is (DESIGN.md, "Built-in materials"):
+//!
+//! 1. **Masking and parallax**: the camera sees texel `(i, j)` through the point of the mean-height
+//!    reference plane above it; the ray from there along `-v` is marched through the heightfield and
+//!    the first hit is the surface point that texel shows (see [`shade::hit_points`]).
+//! 2. **Cast shadows**: for every light a visibility map over the surface is computed by marching
+//!    from each surface point towards the light, with a soft penumbra (see [`shade::shadow_maps`]).
+//! 3. **Shading**: `value = vis * max(n.l, 0) * (albedo + ks (e+8)/8 (n.h)^e) + ambient`, i.e. pi
+//!    times a normalised Blinn-Phong BRDF times cos(theta_l), so values include the foreshortening
+//!    as measured BTFs do (paper 004, section 3); a small unshadowed ambient term stands in for
+//!    inter-reflection so that shadows are dark but not black.
+//! 4. Optionally a sub-surface-like blur mixes each texel's ABRDF with its neighbours'.
+//!
+//! Everything is deterministic for a given seed and parallel over texels with rayon.
+
+mod presets;
+mod shade;
+
+pub use presets::Preset;
+
+use crate::{directions, Btf, Error, Monitor, Result};
+
+/// What to generate.
+#[derive(Debug, Clone)]
+pub struct MaterialSpec {
+    /// Which surface.
+    pub preset: Preset,
+    /// Texels per side (16 to 256 are the supported range; 8 to 1024 are accepted).
+    pub size: usize,
+    /// View directions (unit, z >= 0).
+    pub views: Vec<[f64; 3]>,
+    /// Light directions (unit, z >= 0).
+    pub lights: Vec<[f64; 3]>,
+    /// Seed of every random choice (cell variation, noise).
+    pub seed: u64,
+    /// Multiplier of the preset's relief height (1 = the preset's own; 0 = flat).
+    pub relief: f64,
+    /// Strength in [0, 1) of the sub-surface-like blur between neighbouring texels.
+    pub subsurface: f64,
+}
+
+impl MaterialSpec {
+    /// The preset at `size` texels with the UBO 81 x 81 directions, default relief, no blur.
+    pub fn new(preset: Preset, size: usize, seed: u64) -> Self {
+        let d = directions::ubo81();
+        MaterialSpec { preset, size, views: d.clone(), lights: d, seed, relief: 1.0, subsurface: 0.0 }
+    }
+
+    fn validate(&self) -> Result<()> {
+        if !(8..=1024).contains(&self.size) {
+            return Err(Error::arg("size", format!("expected 8 to 1024 texels per side, got {}", self.size)));
+        }
+        directions::validate("views", &self.views)?;
+        directions::validate("lights", &self.lights)?;
+        if !(self.relief.is_finite() && (0.0..=4.0).contains(&self.relief)) {
+            return Err(Error::arg("relief", format!("expected a multiplier in [0, 4], got {}", self.relief)));
+        }
+        if !(self.subsurface.is_finite() && (0.0..1.0).contains(&self.subsurface)) {
+            return Err(Error::arg("subsurface", format!("expected a value in [0, 1), got {}", self.subsurface)));
+        }
+        let bytes = (self.size * self.size * self.views.len() * self.lights.len() * 3) as u128 * 4;
+        if bytes > 16u128 << 30 {
+            return Err(Error::arg("size", format!("the BTF would take {} GiB; the limit is 16 GiB", bytes >> 30)));
+        }
+        Ok(())
+    }
+}
+
+/// Generate the BTF described by `spec`. `monitor` counts texel rows and can cancel.
+pub fn generate(spec: &MaterialSpec, monitor: &Monitor) -> Result<Btf> {
+    spec.validate()?;
+    let surface = presets::surface(spec.preset, spec.size, spec.seed, spec.relief);
+    let data = shade::render_btf(&surface, &spec.views, &spec.lights, spec.subsurface, monitor)?;
+    Ok(Btf { height: spec.size, width: spec.size, views: spec.views.clone(), lights: spec.lights.clone(), data })
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,89 @@
+//! Properties of the generated materials that can be checked in closed form.
+
+use super::*;
+use crate::directions::from_theta_phi;
+
+fn one(preset: Preset, relief: f64, views: Vec<[f64; 3]>, lights: Vec<[f64; 3]>) -> Btf {
+    let spec = MaterialSpec { preset, size: 16, views, lights, seed: 3, relief, subsurface: 0.0 };
+    generate(&spec, &Monitor::new()).unwrap()
+}
+
+#[test]
+fn flat_surface_is_lambert_plus_blinn_phong() {
+    // With no relief there is no shadow and no parallax: every value is the closed-form shading.
+    let v = from_theta_phi(0.5, 0.3);
+    let l = from_theta_phi(0.7, 2.0);
+    let b = one(Preset::Weave, 0.0, vec![v], vec![l]);
+    let s = presets::surface(Preset::Weave, 16, 3, 0.0);
+    for t in 0..16 * 16 {
+        let (row, col) = (t / 16, t % 16);
+        let g = (15 - row) * 16 + col;
+        let a = s.albedo[g];
+        let (ks, e) = (s.ks[g] as f64, s.exponent[g] as f64);
+        let h = [l[0] + v[0], l[1] + v[1], l[2] + v[2]];
+        let hn = h[2] / (h[0] * h[0] + h[1] * h[1] + h[2] * h[2]).sqrt();
+        let spec = ks * (e + 8.0) / 8.0 * hn.powf(e);
+        for c in 0..3 {
+            let want = l[2] * (a[c] as f64 + spec) + 0.04 * l[2] * a[c] as f64;
+            let got = b.data[t * 3 + c] as f64;
+            assert!((got - want).abs() < 1e-4 * (1.0 + want), "texel {t} channel {c}: {got} vs {want}");
+        }
+    }
+}
+
+#[test]
+fn deterministic_per_seed_and_different_across_seeds() {
+    let d = directions::ubo81();
+    let mk = |seed| {
+        let spec = MaterialSpec { preset: Preset::Knit, size: 16, views: d.clone(), lights: d.clone(), seed, relief: 1.0, subsurface: 0.0 };
+        generate(&spec, &Monitor::new()).unwrap().data
+    };
+    let a = mk(1);
+    assert_eq!(a, mk(1));
+    assert_ne!(a, mk(2));
+    assert!(a.iter().all(|x| x.is_finite() && *x >= 0.0));
+}
+
+#[test]
+fn grazing_lights_cast_shadows_and_overhead_light_does_not() {
+    // Under a light from the pole nothing is occluded, so the shadowed fraction is zero; at 75
+    // degrees the relief of the knit must shadow a real part of the sample.
+    let b_top = one(Preset::Knit, 1.0, vec![[0.0, 0.0, 1.0]], vec![[0.0, 0.0, 1.0]]);
+    let s = presets::surface(Preset::Knit, 16, 3, 1.0);
+    let sm = shade::shadow_maps(&s, &[[0.0, 0.0, 1.0], from_theta_phi(75f64.to_radians(), 0.0)]);
+    let dark_top = sm.chunks(2).filter(|v| v[0] < 0.5).count();
+    let dark_low = sm.chunks(2).filter(|v| v[1] < 0.5).count();
+    assert_eq!(dark_top, 0);
+    assert!(dark_low > 16 * 16 / 10, "only {dark_low} of 256 texels in shadow at 75 degrees");
+    assert!(b_top.data.iter().all(|&x| x > 0.0));
+}
+
+#[test]
+fn the_sample_tiles_seamlessly() {
+    // Heights across the wrap-around differ no more than heights between inner neighbours do.
+    for p in Preset::ALL {
+        let s = presets::surface(p, 32, 1, 1.0);
+        let h = |x: usize, y: usize| s.height[y * 32 + x] as f64;
+        let inner: f64 = (0..32).map(|y| (0..31).map(|x| (h(x + 1, y) - h(x, y)).abs()).fold(0.0, f64::max)).fold(0.0, f64::max);
+        let wrap: f64 = (0..32).map(|y| (h(0, y) - h(31, y)).abs()).fold(0.0, f64::max);
+        assert!(wrap <= inner * 1.5 + 1e-6, "{p:?}: jump {wrap} across the seam, {inner} inside");
+    }
+}
+
+#[test]
+fn bad_specs_are_rejected() {
+    let mut spec = MaterialSpec::new(Preset::Bumps, 4, 0);
+    assert!(generate(&spec, &Monitor::new()).unwrap_err().to_string().starts_with("size:"));
+    spec.size = 16;
+    spec.subsurface = 1.5;
+    assert!(generate(&spec, &Monitor::new()).unwrap_err().to_string().starts_with("subsurface:"));
+    assert!(Preset::from_name("velvet").unwrap_err().to_string().contains("knit, weave"));
+}
+
+#[test]
+fn cancellation_stops_the_work() {
+    let m = Monitor::new();
+    m.cancel();
+    let e = generate(&MaterialSpec::new(Preset::Knit, 16, 0), &m).unwrap_err();
+    assert!(matches!(e, crate::Error::Interrupted));
+}

@@ -1,0 +1,57 @@
+//! Progress and cancellation for long work.
+//!
+//! Long functions take a `&Monitor`: they add to its counter as they go and stop with
+//! [`crate::Error::Interrupted`] once it is cancelled. The Python layer runs the work on a worker
+//! thread and polls the monitor from the main thread, so Ctrl-C and progress bars work while the
+//! GIL is released and no Python callback ever runs on a rayon thread.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+
+/// Shared progress counter and cancel flag.
+#[derive(Debug, Default)]
+pub struct Monitor {
+    done: AtomicU64,
+    total: AtomicU64,
+    cancelled: AtomicBool,
+}
+
+impl Monitor {
+    /// A monitor nobody watches (for Rust callers and benches).
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Announce the total amount of work (in any unit) and reset the counter.
+    pub fn start(&self, total: u64) {
+        self.total.store(total, Ordering::Relaxed);
+        self.done.store(0, Ordering::Relaxed);
+    }
+
+    /// Add `n` units of finished work.
+    #[inline]
+    pub fn advance(&self, n: u64) {
+        self.done.fetch_add(n, Ordering::Relaxed);
+    }
+
+    /// (done, total) so far.
+    pub fn progress(&self) -> (u64, u64) {
+        (self.done.load(Ordering::Relaxed), self.total.load(Ordering::Relaxed))
+    }
+
+    /// Ask the work to stop at its next check.
+    pub fn cancel(&self) {
+        self.cancelled.store(true, Ordering::Relaxed);
+    }
+
+    /// Whether [`Monitor::cancel`] was called.
+    #[inline]
+    pub fn is_cancelled(&self) -> bool {
+        self.cancelled.load(Ordering::Relaxed)
+    }
+
+    /// `Err(Interrupted)` once cancelled, for `?` at chunk boundaries.
+    #[inline]
+    pub fn check(&self) -> crate::Result<()> {
+        if self.is_cancelled() { Err(crate::Error::Interrupted) } else { Ok(()) }
+    }
+}

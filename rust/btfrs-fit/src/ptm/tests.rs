@@ -1,0 +1,110 @@
+use super::*;
+use crate::model::{evaluate_image, model_error};
+use btfrs_core::directions::{from_theta_phi, ubo81};
+use btfrs_core::rng::Rng;
+
+/// A BTF whose every texel, view and channel is an exact biquadratic of the light.
+fn polynomial_btf(h: usize, w: usize, seed: u64) -> (Vec<[f64; 3]>, Vec<f32>, Vec<f64>) {
+    let d = ubo81();
+    let mut rng = Rng::new(seed);
+    let truth: Vec<f64> = (0..h * w * d.len() * 3 * NCOEF).map(|_| rng.next_f64() - 0.3).collect();
+    let mut data = vec![0.0f32; h * w * d.len() * d.len() * 3];
+    for t in 0..h * w {
+        for v in 0..d.len() {
+            for (l, ld) in d.iter().enumerate() {
+                let b = basis(*ld);
+                for c in 0..3 {
+                    let a = &truth[((t * d.len() + v) * 3 + c) * NCOEF..][..NCOEF];
+                    data[((t * d.len() + v) * d.len() + l) * 3 + c] = (0..NCOEF).map(|k| a[k] * b[k]).sum::<f64>() as f32;
+                }
+            }
+        }
+    }
+    (d, data, truth)
+}
+
+#[test]
+fn recovers_a_biquadratic_exactly() {
+    let (d, data, truth) = polynomial_btf(3, 4, 1);
+    let btf = BtfRef::new(3, 4, &d, &d, &data, None).unwrap();
+    let ptm = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap();
+    let worst = ptm.coeffs.iter().zip(&truth).map(|(a, b)| (*a as f64 - b).abs()).fold(0.0, f64::max);
+    assert!(worst < 2e-5, "largest coefficient error {worst}");
+    let e = model_error(&ptm, &btf).unwrap();
+    assert!(e.relative() < 1e-5, "relative error {}", e.relative());
+}
+
+#[test]
+fn held_out_pairs_do_not_influence_the_fit() {
+    let (d, mut data, _) = polynomial_btf(2, 2, 2);
+    let (train, test) = btfrs_core::split::split_pairs(81, 81, None, 0.2, 0).unwrap();
+    let a = fit_ptm(&BtfRef::new(2, 2, &d, &d, &data, Some(&train)).unwrap(), &PtmOptions::default(), &Monitor::new()).unwrap();
+    for (i, x) in data.iter_mut().enumerate() {
+        if test[(i / 3) % (81 * 81)] {
+            *x = 1e6;
+        }
+    }
+    let b = fit_ptm(&BtfRef::new(2, 2, &d, &d, &data, Some(&train)).unwrap(), &PtmOptions::default(), &Monitor::new()).unwrap();
+    assert_eq!(a.coeffs, b.coeffs);
+}
+
+#[test]
+fn lrgb_recovers_a_modulated_luminance() {
+    // rgb(l) = L(l) * base with base's largest channel 1: LRGB must find both.
+    let d = ubo81();
+    let a = [0.1, -0.2, 0.05, 0.3, -0.1, 0.6];
+    let base = [1.0, 0.5, 0.25];
+    let mut data = vec![0.0f32; d.len() * d.len() * 3];
+    for v in 0..d.len() {
+        for (l, ld) in d.iter().enumerate() {
+            let lum: f64 = basis(*ld).iter().zip(&a).map(|(b, a)| b * a).sum();
+            for c in 0..3 {
+                data[(v * d.len() + l) * 3 + c] = (lum * base[c]) as f32;
+            }
+        }
+    }
+    let btf = BtfRef::new(1, 1, &d, &d, &data, None).unwrap();
+    let ptm = fit_ptm(&btf, &PtmOptions { kind: PtmKind::Lrgb, ..Default::default() }, &Monitor::new()).unwrap();
+    for v in 0..d.len() {
+        for k in 0..NCOEF {
+            assert!((ptm.coeffs[v * NCOEF + k] as f64 - a[k]).abs() < 1e-5);
+        }
+        for c in 0..3 {
+            assert!((ptm.rgb.as_ref().unwrap()[v * 3 + c] as f64 - base[c]).abs() < 1e-5);
+        }
+    }
+}
+
+#[test]
+fn too_few_or_collinear_lights_are_errors() {
+    let d = ubo81();
+    let five: Vec<[f64; 3]> = d[..5].to_vec();
+    let data = vec![0.5f32; 81 * 5 * 3];
+    let btf = BtfRef::new(1, 1, &d, &five, &data, None).unwrap();
+    let e = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap_err().to_string();
+    assert!(e.contains("has 5 lights") && e.contains("at least 6"), "{e}");
+    // Twelve lights on the arc phi = 0: (lu, lv) all on the line lv = 0.
+    let arc: Vec<[f64; 3]> = (0..12).map(|i| from_theta_phi(-1.2 + 0.2 * i as f64, 0.0)).map(|x| [x[0], x[1], x[2].abs()]).collect();
+    let data = vec![0.5f32; 81 * 12 * 3];
+    let btf = BtfRef::new(1, 1, &d, &arc, &data, None).unwrap();
+    let e = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap_err().to_string();
+    assert!(e.contains("collinear") && e.contains("view slot 0"), "{e}");
+    // Clamped, the same data gives the minimum-norm fit, which reproduces the constant.
+    let ptm = fit_ptm(&btf, &PtmOptions { on_degenerate: Degenerate::Clamp, ..Default::default() }, &Monitor::new()).unwrap();
+    let e = model_error(&ptm, &btf).unwrap();
+    assert!(e.rmse() < 1e-5, "{}", e.rmse());
+}
+
+#[test]
+fn evaluation_between_slots_blends_the_nearest() {
+    let (d, data, _) = polynomial_btf(1, 1, 3);
+    let btf = BtfRef::new(1, 1, &d, &d, &data, None).unwrap();
+    let ptm = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap();
+    // At a measured view the image is that slot's polynomial.
+    let l = from_theta_phi(0.3, 1.0);
+    let img = evaluate_image(&ptm, d[7], l).unwrap();
+    let b = basis(l);
+    let want: f64 = (0..NCOEF).map(|k| ptm.coeffs[(7 * 3) * NCOEF + k] as f64 * b[k]).sum();
+    assert!((img[0] as f64 - want).abs() < 1e-5);
+    assert!(evaluate_image(&ptm, [0.0, 0.0, 2.0], l).is_err());
+}

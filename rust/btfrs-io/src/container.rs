@@ -1,0 +1,265 @@
+//! The `.btfrs` container: one file holding a BTF or a fitted model.
+//!
+//! Layout: 8 bytes of magic `BTFRS01\n`, the header length as a little-endian u64, a UTF-8 JSON
+//! header, zero padding up to a multiple of 64 bytes, then the arrays, each starting on a 64-byte
+//! boundary. The header names the content (`kind`), carries free-form `meta` (directions, model
+//! parameters) and lists every array with its dtype, shape and offset from the start of the data.
+//! Arrays are stored raw and little-endian, so a reader can memory-map them (numpy.memmap) instead
+//! of reading a 1 GB BTF into memory. Files are written atomically ([`crate::atomic`]).
+
+use crate::atomic::write_atomic;
+use btfrs_core::{Error, Result};
+use serde::{Deserialize, Serialize};
+use std::io::{Read, Seek, SeekFrom};
+use std::path::Path;
+
+/// The first eight bytes of every `.btfrs` file.
+pub const MAGIC: &[u8; 8] = b"BTFRS01\n";
+const ALIGN: u64 = 64;
+
+/// Element types the container stores.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Dtype {
+    /// float32
+    F32,
+    /// float64
+    F64,
+    /// uint8
+    U8,
+    /// uint16
+    U16,
+    /// int32
+    I32,
+    /// bool, one byte each
+    Bool,
+}
+
+impl Dtype {
+    /// Bytes per element.
+    pub fn size(self) -> usize {
+        match self {
+            Dtype::F32 | Dtype::I32 => 4,
+            Dtype::F64 => 8,
+            Dtype::U8 | Dtype::Bool => 1,
+            Dtype::U16 => 2,
+        }
+    }
+}
+
+/// One array to write: raw little-endian bytes plus what they mean.
+#[derive(Debug, Clone, Copy)]
+pub struct ArrayRef<'a> {
+    /// Name, unique in the file.
+    pub name: &'a str,
+    /// Element type.
+    pub dtype: Dtype,
+    /// Shape; the product times the dtype size must equal `bytes.len()`.
+    pub shape: &'a [usize],
+    /// The data.
+    pub bytes: &'a [u8],
+}
+
+/// Where an array lies in a file.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ArrayInfo {
+    /// Name.
+    pub name: String,
+    /// Element type.
+    pub dtype: Dtype,
+    /// Shape.
+    pub shape: Vec<usize>,
+    /// Absolute byte offset in the file.
+    pub offset: u64,
+    /// Length in bytes.
+    pub nbytes: u64,
+}
+
+#[derive(Serialize, Deserialize)]
+struct Header {
+    kind: String,
+    meta: serde_json::Value,
+    arrays: Vec<ArrayInfo>,
+}
+
+/// A container's header: what it holds and where.
+#[derive(Debug, Clone)]
+pub struct Contents {
+    /// What the file holds ("btf", "ptm", ...).
+    pub kind: String,
+    /// Free-form metadata.
+    pub meta: serde_json::Value,
+    /// The arrays, with absolute offsets.
+    pub arrays: Vec<ArrayInfo>,
+}
+
+impl Contents {
+    /// The array called `name`, or a format error naming the file.
+    pub fn array(&self, path: &Path, name: &str) -> Result<&ArrayInfo> {
+        self.arrays
+            .iter()
+            .find(|a| a.name == name)
+            .ok_or_else(|| Error::format(path.display(), format!("no array named {name:?} in this {} file", self.kind)))
+    }
+}
+
+fn align(x: u64) -> u64 {
+    x.div_ceil(ALIGN) * ALIGN
+}
+
+/// Write a container atomically.
+pub fn write(path: &Path, kind: &str, meta: serde_json::Value, arrays: &[ArrayRef<'_>]) -> Result<()> {
+    let mut infos = Vec::with_capacity(arrays.len());
+    let mut rel = 0u64;
+    for a in arrays {
+        let n: usize = a.shape.iter().product();
+        if n * a.dtype.size() != a.bytes.len() {
+            return Err(Error::arg(
+                a.name,
+                format!("shape {:?} of {:?} needs {} bytes, got {}", a.shape, a.dtype, n * a.dtype.size(), a.bytes.len()),
+            ));
+        }
+        if infos.iter().any(|i: &ArrayInfo| i.name == a.name) {
+            return Err(Error::arg(a.name, "array name used twice"));
+        }
+        infos.push(ArrayInfo { name: a.name.into(), dtype: a.dtype, shape: a.shape.to_vec(), offset: rel, nbytes: a.bytes.len() as u64 });
+        rel = align(rel + a.bytes.len() as u64);
+    }
+    // Offsets are stored absolute; they depend on the header length, which depends on the
+    // offsets' digits. Iterate until the data start no longer moves (at most a few rounds).
+    let mut data_start = 0u64;
+    let header = loop {
+        let abs: Vec<ArrayInfo> = infos.iter().map(|i| ArrayInfo { offset: i.offset + data_start, ..i.clone() }).collect();
+        let h = Header { kind: kind.into(), meta: meta.clone(), arrays: abs };
+        let text = serde_json::to_vec(&h).map_err(|e| Error::arg("meta", e))?;
+        let start = align(16 + text.len() as u64);
+        if start == data_start {
+            break text;
+        }
+        data_start = start;
+    };
+    write_atomic(path, |w| {
+        w.write_all(MAGIC)?;
+        w.write_all(&(header.len() as u64).to_le_bytes())?;
+        w.write_all(&header)?;
+        let mut pos = 16 + header.len() as u64;
+        let zeros = [0u8; ALIGN as usize];
+        for (a, info) in arrays.iter().zip(&infos) {
+            let at = data_start + info.offset;
+            w.write_all(&zeros[..(at - pos) as usize])?;
+            w.write_all(a.bytes)?;
+            pos = at + a.bytes.len() as u64;
+        }
+        Ok(())
+    })
+}
+
+/// Read a container's header (the arrays stay on disk).
+pub fn read_contents(path: &Path) -> Result<Contents> {
+    let shown = &path.display().to_string();
+    let mut f = std::fs::File::open(path).map_err(|e| Error::io(shown, e))?;
+    let len = f.metadata().map_err(|e| Error::io(shown, e))?.len();
+    let mut head = [0u8; 16];
+    f.read_exact(&mut head).map_err(|_| Error::format(shown, "too short to be a .btfrs file"))?;
+    if &head[..8] != MAGIC {
+        return Err(Error::format(shown, "not a .btfrs file (bad magic bytes)"));
+    }
+    let hlen = u64::from_le_bytes(head[8..16].try_into().expect("8 bytes"));
+    if hlen > len.saturating_sub(16) || hlen > 1 << 30 {
+        return Err(Error::format(shown, format!("header length {hlen} exceeds the file ({len} bytes)")));
+    }
+    let mut text = vec![0u8; hlen as usize];
+    f.read_exact(&mut text).map_err(|e| Error::io(shown, e))?;
+    let h: Header = serde_json::from_slice(&text).map_err(|e| Error::format(shown, format!("bad header: {e}")))?;
+    for a in &h.arrays {
+        let n: u64 = a.shape.iter().map(|&s| s as u64).product();
+        if n * a.dtype.size() as u64 != a.nbytes || a.offset.checked_add(a.nbytes).is_none_or(|end| end > len) {
+            return Err(Error::format(shown, format!("array {:?} is truncated or inconsistent", a.name)));
+        }
+    }
+    Ok(Contents { kind: h.kind, meta: h.meta, arrays: h.arrays })
+}
+
+/// Read one array's bytes.
+pub fn read_array(path: &Path, info: &ArrayInfo) -> Result<Vec<u8>> {
+    let shown = &path.display().to_string();
+    let mut f = std::fs::File::open(path).map_err(|e| Error::io(shown, e))?;
+    f.seek(SeekFrom::Start(info.offset)).map_err(|e| Error::io(shown, e))?;
+    let mut buf = vec![0u8; info.nbytes as usize];
+    f.read_exact(&mut buf).map_err(|e| Error::io(shown, e))?;
+    Ok(buf)
+}
+
+/// View a slice of plain numbers as little-endian bytes (all supported targets are little-endian).
+pub fn as_bytes<T: Plain>(x: &[T]) -> &[u8] {
+    // SAFETY: `Plain` types have no padding and every bit pattern is a valid u8.
+    unsafe { std::slice::from_raw_parts(x.as_ptr() as *const u8, std::mem::size_of_val(x)) }
+}
+
+/// Decode little-endian bytes into numbers.
+pub fn from_bytes<T: Plain>(b: &[u8]) -> Vec<T> {
+    let n = b.len() / std::mem::size_of::<T>();
+    let mut out = vec![T::default(); n];
+    // SAFETY: `out` has room for exactly `n * size_of::<T>()` bytes and any bit pattern is a
+    // valid `T` for the `Plain` types.
+    unsafe { std::ptr::copy_nonoverlapping(b.as_ptr(), out.as_mut_ptr() as *mut u8, n * std::mem::size_of::<T>()) };
+    out
+}
+
+/// Numbers whose every bit pattern is valid and which have no padding.
+pub trait Plain: Copy + Default + 'static {}
+impl Plain for f32 {}
+impl Plain for f64 {}
+impl Plain for u8 {}
+impl Plain for u16 {}
+impl Plain for i32 {}
+
+#[cfg(not(target_endian = "little"))]
+compile_error!("the .btfrs container assumes a little-endian target");
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_with_alignment() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.btfrs");
+        let a: Vec<f32> = (0..7).map(|x| x as f32 * 0.5).collect();
+        let b: Vec<u16> = vec![1, 2, 65535];
+        let meta = serde_json::json!({"views": [[0.0, 0.0, 1.0]], "note": "hi"});
+        write(&p, "test", meta.clone(), &[
+            ArrayRef { name: "a", dtype: Dtype::F32, shape: &[7], bytes: as_bytes(&a) },
+            ArrayRef { name: "b", dtype: Dtype::U16, shape: &[3, 1], bytes: as_bytes(&b) },
+        ])
+        .unwrap();
+        let c = read_contents(&p).unwrap();
+        assert_eq!(c.kind, "test");
+        assert_eq!(c.meta, meta);
+        for info in &c.arrays {
+            assert_eq!(info.offset % 64, 0);
+        }
+        assert_eq!(from_bytes::<f32>(&read_array(&p, c.array(&p, "a").unwrap()).unwrap()), a);
+        assert_eq!(from_bytes::<u16>(&read_array(&p, c.array(&p, "b").unwrap()).unwrap()), b);
+        assert!(c.array(&p, "zz").is_err());
+        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names.len(), 1, "temporary files left: {names:?}");
+    }
+
+    #[test]
+    fn bad_files_are_format_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("bad.btfrs");
+        std::fs::write(&p, b"hello world, this is not it").unwrap();
+        assert!(matches!(read_contents(&p), Err(Error::Format { .. })));
+        let a = [1.0f32; 16];
+        write(&p, "t", serde_json::json!({}), &[ArrayRef { name: "a", dtype: Dtype::F32, shape: &[16], bytes: as_bytes(&a) }]).unwrap();
+        let full = std::fs::read(&p).unwrap();
+        std::fs::write(&p, &full[..full.len() - 4]).unwrap();
+        assert!(read_contents(&p).unwrap_err().to_string().contains("truncated"));
+        let e = read_contents(&dir.path().join("missing.btfrs")).unwrap_err();
+        assert!(matches!(e, Error::Io { ref source, .. } if source.kind() == std::io::ErrorKind::NotFound));
+        let bad = write(&p, "t", serde_json::json!({}), &[ArrayRef { name: "a", dtype: Dtype::F32, shape: &[3], bytes: as_bytes(&a) }]);
+        assert!(bad.unwrap_err().to_string().starts_with("a:"));
+    }
+}

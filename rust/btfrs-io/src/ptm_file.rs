@@ -1,0 +1,1270 @@
+//! Reading and writing Polynomial Texture Maps (`.ptm`, version `PTM_1.2`), the format that
+//! RTIViewer (ISTI-CNR and Cultural Heritage Imaging) and relight (ISTI-CNR) open.
+//!
+//! # The model
+//!
+//! A PTM stores, per texel, the six coefficients of a biquadratic in the light direction
+//! (Malzbender, Gelb and Wolters, "Polynomial Texture Maps", SIGGRAPH 2001, pp. 519-528):
+//!
+//! ```text
+//! L(lu, lv) = a0 lu^2 + a1 lv^2 + a2 lu lv + a3 lu + a4 lv + a5
+//! ```
+//!
+//! where `(lu, lv)` are the x and y components of the unit vector towards the light, in the
+//! texture's tangent frame. In the PTM convention the texture's origin is its bottom-left corner
+//! (see the row order below), so `u` points right and `v` towards the *top* of the image; this
+//! module stores the coefficients as given and does not change frames. The format is described in T. Malzbender, D. Gelb, H. Wolters,
+//! "Polynomial Texture Map (.ptm) File Format", HP Labs technical report HPL-2001-104, version 1.2
+//! (November 2001), distributed as `PtmFormat12.pdf`.
+//!
+//! # The file
+//!
+//! ```text
+//! PTM_1.2\n
+//! PTM_FORMAT_LRGB\n          (or PTM_FORMAT_RGB)
+//! <width>\n
+//! <height>\n
+//! <scale0> ... <scale5>\n    six floats
+//! <bias0> ... <bias5>\n      six integers
+//! <binary data, uncompressed>
+//! ```
+//!
+//! A stored byte `c` of coefficient index `k` decodes to `(c - bias_k) * scale_k`; the same
+//! `scale_k`/`bias_k` serve all texels and, for RGB, all three channels.
+//!
+//! * `PTM_FORMAT_LRGB`: a block of `W*H*6` bytes (`a0..a5` of the luminance polynomial, texel
+//!   after texel), then a block of `W*H*3` bytes (`r, g, b` per texel).
+//! * `PTM_FORMAT_RGB`: three blocks of `W*H*6` bytes, red, then green, then blue.
+//!
+//! Within every block the texels are in "reversed scanline order": the first row in the file is
+//! the *bottom* row of the image, rows run left to right. [`PtmImage`] holds rows top to bottom
+//! (row 0 = top), so the reader and the writer flip the rows.
+//!
+//! # Units (what the readers compute)
+//!
+//! The project's units are linear values where 1.0 is the viewer's white (byte 255). The
+//! decoded coefficients of a PTM file are in *byte* units (0..255 = black..white), as the real
+//! readers show:
+//!
+//! * RTIViewer (`rtiviewer/src/ptm.cpp`, `util.h`, `defaultrendering.h`; read in the
+//!   `olvidalo/RTIViewer` copy on GitHub) decodes `static_cast<int>((c - bias[i]) * scale[i])`,
+//!   evaluates the polynomial and, for `PTM_FORMAT_RGB`, writes the result straight to an 8-bit
+//!   channel (`tobyte`: clamp to 0..255, truncate). For `PTM_FORMAT_LRGB` it computes
+//!   `lum = poly / 255` and shows `tobyte(rgb_byte * lum)` per channel.
+//! * relight (`cnr-isti-vclab/relight`, `src/legacy_rti.cpp`, `src/cli/convert_rti.cpp`) reads
+//!   the same fields and turns the bias into `bias / 255` so that its texture values in 0..1
+//!   decode to coefficients in 0..1 (i.e. the file's byte units divided by 255); the LRGB colour
+//!   planes get scale 1, bias 0.
+//! * The LRGB shaders of other viewers (e.g. `ksjogo/oxrti`) likewise compute
+//!   `rgb01 * poly_bytes / 255`, and Perathoner's `ptmlib` fits the polynomial to 8-bit samples.
+//!
+//! So, writing `A_k` for the file's decoded coefficient and `a_k` for ours:
+//!
+//! * `A_k = 255 * a_k` for both formats; the header's scale is `255 *` [`PtmQuantization::scale`]
+//!   (the quantization step in our units) and the bias is the same integer.
+//! * RGB: the viewer shows `L_file = 255 * L_ours` per channel, i.e. our value 1.0 is white.
+//! * LRGB: the colour byte is `round(255 * rgb)`, and the viewer shows
+//!   `rgb_byte * L_file / 255 = 255 * rgb * L_ours`, i.e. the image is `rgb * L(lu, lv)` in our
+//!   units. [`read_ptm`] returns exactly these quantities, so write and read are inverse up to
+//!   the 8-bit quantization.
+//!
+//! The viewers apply no transfer function: the byte goes to the screen as is. Whether our
+//! "linear" values should be sRGB-encoded before writing is the caller's choice.
+//! RTIViewer also truncates each decoded coefficient to an integer number of byte units, so a
+//! scale below 1 (a coefficient range narrower than 1.0 in our units) buys no extra precision
+//! in RTIViewer, though it does in relight and in [`read_ptm`].
+//!
+//! # Choosing scale and bias
+//!
+//! Per coefficient index `k`, over all texels (and channels), with `lo`, `hi` the minimum and
+//! maximum in byte units: `scale = (hi - lo) / 255` and `bias = round(-lo / scale)`. Because the
+//! bias must be an integer, rounding it shifts the 256 codes by at most half a step; every value
+//! in `[lo, hi]` then maps into `[-0.5, 255.5]` before rounding, so the error is at most
+//! `scale / 2` even at the two ends (where a code of -1 or 256 clips to 0 or 255 with an error of
+//! exactly half a step). The bias may be negative or above 255 (a coefficient that is all
+//! positive, e.g. `a5`, gets a negative bias). All readers examined parse the bias as a signed
+//! number (RTIViewer `QString::toInt` into an `int`, relight `strtod` into a `float`, `ptmlib`
+//! `fscanf("%d")`, ptmconvert `operator>>(int&)`), and `ptmlib` itself writes unclamped, possibly
+//! negative biases (`-256 * min / (max - min)`). To keep the bias within a 16-bit range, the
+//! step is never made smaller than `max(|lo|, |hi|) / 32767`, which bounds `|bias| <= 32767`;
+//! this only matters for coefficients whose spread is tiny compared with their magnitude
+//! (including constant ones, `hi == lo`, which need no division by `hi - lo`). An all-zero
+//! coefficient gets scale 1 (byte units), bias 0.
+//!
+//! # What the reader accepts
+//!
+//! The spec separates the five header sections by newlines "with an optional space before the
+//! newline" and allows width and height on one line or two. RTIViewer reads line by line (width
+//! and height on separate lines, scale and bias each on one line, split on spaces, with no `\r`
+//! stripping), relight likewise line by line; ptmconvert and `ptmlib` read whitespace-separated
+//! tokens. This reader is token based: any ASCII whitespace (spaces, tabs, `\r\n`, one number
+//! per line, width and height on one line) separates the header fields, and the binary data start
+//! right after the first `\n` that follows the last bias value (spaces, tabs and `\r` before it
+//! are skipped). The writer emits the strictest form (the RTIViewer layout: one field per line,
+//! `\n` only, no trailing spaces).
+//!
+//! * Version: `PTM_1.2`, and `PTM_1.1`, which RTIViewer and relight both still read: identical
+//!   except that an LRGB file interleaves the colour with the coefficients (9 bytes per texel,
+//!   `a0..a5 r g b`) instead of using a separate colour block. Other versions are rejected.
+//! * Further header lines: none of the readers examined (RTIViewer, relight, ptmconvert,
+//!   `ptmlib`) expects or skips any line between the bias line and the data of an uncompressed
+//!   RGB/LRGB file, and no writer examined (relight, `ptmlib`, libvips' `writeptm`) emits one,
+//!   so this reader does not skip any either. Extra lines exist only for other formats: the JPEG
+//!   formats add the compression parameter, transforms, motion
+//!   vectors, order, reference planes, compressed sizes and side-information sizes after the bias
+//!   line, and `ptmlib` writes a 16-float colour matrix for `PTM_FORMAT_LUM`. Those formats
+//!   (`PTM_FORMAT_LUM`, `_PTM_LUT`, `_PTM_C_LUT`, `_JPEG_RGB`, `_JPEG_LRGB`, `_JPEGLS_RGB`,
+//!   `_JPEGLS_LRGB`) are rejected with an error naming the format.
+//! * Bias values are read as any finite number (`128.0` too, as relight's `strtod` reads them;
+//!   RTIViewer would reject a non-integer); scale values must be finite numbers too.
+//! * Bytes after the expected data are ignored, as the viewers ignore them; missing bytes are an
+//!   error.
+
+use std::fs;
+use std::path::Path;
+
+use btfrs_core::{Error, Result};
+
+/// Coefficients per polynomial.
+const NCOEF: usize = 6;
+
+/// The largest `|bias|` the writer produces (see the module doc, "Choosing scale and bias").
+const BIAS_LIMIT: f64 = 32767.0;
+
+/// Header tokens longer than this are not PTM header fields (probably binary data).
+const MAX_TOKEN: usize = 64;
+
+/// Which PTM variant.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum PtmFormat {
+    /// `PTM_FORMAT_RGB`: one polynomial per colour channel.
+    Rgb,
+    /// `PTM_FORMAT_LRGB`: one luminance polynomial and a base colour per texel.
+    Lrgb,
+}
+
+impl PtmFormat {
+    /// The format string of the header, e.g. `PTM_FORMAT_LRGB`.
+    pub fn header_name(self) -> &'static str {
+        match self {
+            PtmFormat::Rgb => "PTM_FORMAT_RGB",
+            PtmFormat::Lrgb => "PTM_FORMAT_LRGB",
+        }
+    }
+
+    /// Polynomial coefficients per texel in [`PtmImage::coeffs`].
+    fn coeffs_per_texel(self) -> usize {
+        match self {
+            PtmFormat::Rgb => 3 * NCOEF,
+            PtmFormat::Lrgb => NCOEF,
+        }
+    }
+}
+
+/// One PTM image in memory, in the project's units: the polynomial evaluates to linear values where
+/// 1.0 corresponds to byte 255 (the viewer's white). Rows top to bottom (row 0 = top of the image).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PtmImage {
+    /// Texels per row.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Which variant; decides the layout of `coeffs` and whether `rgb` is present.
+    pub format: PtmFormat,
+    /// Rgb: `[height][width][3 channels][6 coefficients]`; Lrgb: `[height][width][6]` (luminance)
+    pub coeffs: Vec<f32>,
+    /// Lrgb only: `[height][width][3]` base colour in [0, 1]; None for Rgb.
+    pub rgb: Option<Vec<f32>>,
+}
+
+impl PtmImage {
+    /// The colour a viewer shows at texel `(x, y)` (row `y` from the top) for the light direction
+    /// `(lu, lv)`, in the project's units and before the viewer's clamping to [0, 1]:
+    /// Rgb: the three channel polynomials; Lrgb: `rgb * L(lu, lv)`.
+    ///
+    /// Panics if `(x, y)` is outside the image or the buffers do not have the documented lengths.
+    pub fn eval(&self, x: usize, y: usize, lu: f32, lv: f32) -> [f32; 3] {
+        assert!(
+            x < self.width && y < self.height,
+            "texel ({x}, {y}) outside the image"
+        );
+        let texel = y * self.width + x;
+        let m = [lu * lu, lv * lv, lu * lv, lu, lv, 1.0];
+        let poly = |a: &[f32]| a.iter().zip(m).map(|(a, m)| a * m).sum::<f32>();
+        match self.format {
+            PtmFormat::Rgb => {
+                let base = texel * 3 * NCOEF;
+                let c = &self.coeffs[base..base + 3 * NCOEF];
+                [poly(&c[0..6]), poly(&c[6..12]), poly(&c[12..18])]
+            }
+            PtmFormat::Lrgb => {
+                let l = poly(&self.coeffs[texel * NCOEF..(texel + 1) * NCOEF]);
+                let rgb = self.rgb.as_ref().expect("an Lrgb PtmImage has rgb");
+                [
+                    rgb[texel * 3] * l,
+                    rgb[texel * 3 + 1] * l,
+                    rgb[texel * 3 + 2] * l,
+                ]
+            }
+        }
+    }
+}
+
+/// The scale and bias chosen per coefficient index, so that a caller (and a test) knows the bound
+/// of the 8-bit error: |a - decoded(a)| <= scale_k / 2 for every coefficient that was not clipped.
+///
+/// `scale` is in the project's units (the quantization step of `a_k`); the file header stores
+/// `255 * scale[k]` because the file's coefficients are in byte units (see the module doc).
+/// `bias` is the header's integer bias. With the writer's choice nothing is clipped by more
+/// than half a step, so the bound holds for every coefficient.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PtmQuantization {
+    /// Quantization step per coefficient index, in the project's units.
+    pub scale: [f32; 6],
+    /// Bias per coefficient index, as written in the header.
+    pub bias: [i32; 6],
+}
+
+/// Write `img` to `path` as an uncompressed `PTM_1.2` file.
+///
+/// The bytes go to a temporary file in the same directory, which is then renamed over `path`, so
+/// a failure never leaves a half-written target; the temporary file is removed on error.
+pub fn write_ptm(path: &Path, img: &PtmImage) -> Result<PtmQuantization> {
+    let (bytes, quant) = encode_ptm(img)?;
+    crate::atomic::write_atomic(path, |w| w.write_all(&bytes))?;
+    Ok(quant)
+}
+
+/// Read a `.ptm` file (uncompressed `PTM_FORMAT_RGB` or `PTM_FORMAT_LRGB`, version 1.2 or 1.1).
+///
+/// A missing or unreadable file gives [`Error::Io`] (whose `source.kind()` tells `NotFound`
+/// apart); a file that is not a supported PTM gives [`Error::Format`].
+pub fn read_ptm(path: &Path) -> Result<PtmImage> {
+    let shown = path.display().to_string();
+    let bytes = fs::read(path).map_err(|e| Error::io(&shown, e))?;
+    decode_ptm(&bytes, &shown)
+}
+
+/// Encode `img` as the bytes of an uncompressed `PTM_1.2` file, and report the scale and bias
+/// chosen per coefficient index.
+pub fn encode_ptm(img: &PtmImage) -> Result<(Vec<u8>, PtmQuantization)> {
+    let texels = validate(img)?;
+    let (w, h) = (img.width, img.height);
+
+    // Per coefficient index k: min and max over all texels and channels, in byte units.
+    let mut lo = [f64::INFINITY; NCOEF];
+    let mut hi = [f64::NEG_INFINITY; NCOEF];
+    for poly in img.coeffs.chunks_exact(NCOEF) {
+        for k in 0..NCOEF {
+            let v = 255.0 * f64::from(poly[k]);
+            lo[k] = lo[k].min(v);
+            hi[k] = hi[k].max(v);
+        }
+    }
+    let mut file_scale = [0f32; NCOEF];
+    let mut bias = [0i32; NCOEF];
+    for k in 0..NCOEF {
+        let (s, b) = choose_scale_bias(lo[k], hi[k]).ok_or_else(|| {
+            Error::arg(
+                "coeffs",
+                format!(
+                    "coefficient a{k} spans [{}, {}], too wide to store",
+                    lo[k] / 255.0,
+                    hi[k] / 255.0
+                ),
+            )
+        })?;
+        file_scale[k] = s;
+        bias[k] = b;
+    }
+    let quant = PtmQuantization {
+        scale: file_scale.map(|s| (f64::from(s) / 255.0) as f32),
+        bias,
+    };
+
+    let mut header = String::new();
+    header.push_str("PTM_1.2\n");
+    header.push_str(img.format.header_name());
+    header.push('\n');
+    header.push_str(&format!("{w}\n{h}\n"));
+    let scales: Vec<String> = file_scale.iter().map(|&s| format_scale(s)).collect();
+    header.push_str(&scales.join(" "));
+    header.push('\n');
+    let biases: Vec<String> = bias.iter().map(i32::to_string).collect();
+    header.push_str(&biases.join(" "));
+    header.push('\n');
+
+    // Step 255 / scale per byte unit of our coefficient (our a is 1/255 of the file's A).
+    let mul: [f64; NCOEF] = std::array::from_fn(|k| 255.0 / f64::from(file_scale[k]));
+    let quantize = |k: usize, a: f32| -> u8 {
+        let code = (f64::from(a) * mul[k] + f64::from(bias[k])).round();
+        code.clamp(0.0, 255.0) as u8
+    };
+
+    let data_len = texels
+        * if img.format == PtmFormat::Rgb {
+            3 * NCOEF
+        } else {
+            NCOEF + 3
+        };
+    let mut out = Vec::with_capacity(header.len() + data_len);
+    out.extend_from_slice(header.as_bytes());
+    match img.format {
+        PtmFormat::Rgb => {
+            for ch in 0..3 {
+                for file_row in 0..h {
+                    let y = h - 1 - file_row; // the file starts with the bottom row
+                    for x in 0..w {
+                        let base = ((y * w + x) * 3 + ch) * NCOEF;
+                        for k in 0..NCOEF {
+                            out.push(quantize(k, img.coeffs[base + k]));
+                        }
+                    }
+                }
+            }
+        }
+        PtmFormat::Lrgb => {
+            let rgb = img.rgb.as_ref().expect("validated");
+            for file_row in 0..h {
+                let y = h - 1 - file_row;
+                for x in 0..w {
+                    let base = (y * w + x) * NCOEF;
+                    for k in 0..NCOEF {
+                        out.push(quantize(k, img.coeffs[base + k]));
+                    }
+                }
+            }
+            for file_row in 0..h {
+                let y = h - 1 - file_row;
+                for x in 0..w {
+                    let base = (y * w + x) * 3;
+                    for c in 0..3 {
+                        // Validated to lie in [0, 1].
+                        out.push((f64::from(rgb[base + c]) * 255.0).round() as u8);
+                    }
+                }
+            }
+        }
+    }
+    debug_assert_eq!(out.len(), header.len() + data_len);
+    Ok((out, quant))
+}
+
+/// Check the shape and values of `img`; return the number of texels.
+fn validate(img: &PtmImage) -> Result<usize> {
+    if img.width == 0 {
+        return Err(Error::arg("width", "must be positive, got 0"));
+    }
+    if img.height == 0 {
+        return Err(Error::arg("height", "must be positive, got 0"));
+    }
+    let too_big = || {
+        Error::arg(
+            "width",
+            format!("{} x {} texels is too large", img.width, img.height),
+        )
+    };
+    let texels = img.width.checked_mul(img.height).ok_or_else(too_big)?;
+    // The largest buffer we will build: 18 bytes per texel plus the header.
+    texels.checked_mul(3 * NCOEF + 1).ok_or_else(too_big)?;
+    let per = img.format.coeffs_per_texel();
+    let want = texels * per;
+    if img.coeffs.len() != want {
+        return Err(Error::arg(
+            "coeffs",
+            format!(
+                "expected {want} values ({} x {} texels x {per} for {:?}), got {}",
+                img.height,
+                img.width,
+                img.format,
+                img.coeffs.len()
+            ),
+        ));
+    }
+    if let Some(i) = img.coeffs.iter().position(|v| !v.is_finite()) {
+        return Err(Error::arg(
+            "coeffs",
+            format!("value {i} is {}, not finite", img.coeffs[i]),
+        ));
+    }
+    match (img.format, &img.rgb) {
+        (PtmFormat::Rgb, Some(_)) => {
+            return Err(Error::arg(
+                "rgb",
+                "must be None for PtmFormat::Rgb (the colour is in the coefficients)",
+            ));
+        }
+        (PtmFormat::Rgb, None) => {}
+        (PtmFormat::Lrgb, None) => {
+            return Err(Error::arg("rgb", "is required for PtmFormat::Lrgb"));
+        }
+        (PtmFormat::Lrgb, Some(rgb)) => {
+            if rgb.len() != texels * 3 {
+                return Err(Error::arg(
+                    "rgb",
+                    format!(
+                        "expected {} values ({} x {} texels x 3), got {}",
+                        texels * 3,
+                        img.height,
+                        img.width,
+                        rgb.len()
+                    ),
+                ));
+            }
+            if let Some(i) = rgb.iter().position(|v| !(0.0..=1.0).contains(v)) {
+                return Err(Error::arg(
+                    "rgb",
+                    format!("value {i} is {}, outside [0, 1]", rgb[i]),
+                ));
+            }
+        }
+    }
+    Ok(texels)
+}
+
+/// Scale (in byte units, as written in the header) and bias for a coefficient whose values (in
+/// byte units) lie in `[lo, hi]`. `None` if the scale does not fit in an f32.
+fn choose_scale_bias(lo: f64, hi: f64) -> Option<(f32, i32)> {
+    let max_abs = lo.abs().max(hi.abs());
+    if max_abs == 0.0 {
+        // All zero: any scale decodes byte `bias` to exactly 0.
+        return Some((1.0, 0));
+    }
+    // 256 codes, 255 steps across the range; but never so fine a step that |bias| would exceed
+    // BIAS_LIMIT (this is also what handles hi == lo without dividing by zero).
+    let s = ((hi - lo) / 255.0).max(max_abs / BIAS_LIMIT);
+    let mut s32 = s as f32;
+    if !s32.is_finite() {
+        return None;
+    }
+    if f64::from(s32) < s {
+        // Round the f32 up rather than down, so the range still fits in 0..=255.
+        s32 = f32::from_bits(s32.to_bits() + 1);
+        if !s32.is_finite() {
+            return None;
+        }
+    }
+    if s32 == 0.0 {
+        s32 = f32::MIN_POSITIVE;
+    }
+    // Decoding is (c - bias) * s, so the code of lo is lo / s + bias: put it within half a step
+    // of code 0. Then hi lands within half a step of code 255 (hi - lo <= 255 s).
+    let b = (-lo / f64::from(s32)).round();
+    Some((s32, b.clamp(-BIAS_LIMIT, BIAS_LIMIT) as i32))
+}
+
+/// The shortest decimal that reads back as exactly `s` (Rust's `Display` for f32, never an
+/// exponent), unless that is long (very small or large values): then the exponent form, which
+/// `strtod` and `QString::toDouble` read too. Keeps the scale line well under relight's 256-byte
+/// line buffer.
+fn format_scale(s: f32) -> String {
+    let plain = s.to_string();
+    if plain.len() <= 24 {
+        plain
+    } else {
+        format!("{s:e}")
+    }
+}
+
+/// Decode the bytes of a `.ptm` file. `path_for_errors` names the file in [`Error::Format`].
+pub fn decode_ptm(bytes: &[u8], path_for_errors: &str) -> Result<PtmImage> {
+    let mut hdr = Header {
+        bytes,
+        pos: 0,
+        path: path_for_errors,
+    };
+
+    let version = hdr.token("version string")?;
+    let interleaved_lrgb = match version {
+        b"PTM_1.2" => false,
+        b"PTM_1.1" => true,
+        v if v.starts_with(b"PTM_") => {
+            return Err(hdr.err(format!(
+                "unsupported PTM version {} (this reader knows PTM_1.1 and PTM_1.2)",
+                show(v)
+            )));
+        }
+        v => {
+            return Err(hdr.err(format!(
+                "not a PTM file: it starts with {}, not PTM_1.2",
+                show(v)
+            )));
+        }
+    };
+
+    let format = match hdr.token("format string")? {
+        b"PTM_FORMAT_RGB" => PtmFormat::Rgb,
+        b"PTM_FORMAT_LRGB" => PtmFormat::Lrgb,
+        f @ (b"PTM_FORMAT_LUM"
+        | b"PTM_FORMAT_PTM_LUT"
+        | b"PTM_FORMAT_PTM_C_LUT"
+        | b"PTM_FORMAT_JPEG_RGB"
+        | b"PTM_FORMAT_JPEG_LRGB"
+        | b"PTM_FORMAT_JPEGLS_RGB"
+        | b"PTM_FORMAT_JPEGLS_LRGB") => {
+            return Err(hdr.err(format!(
+                "PTM format {} is not supported (only uncompressed PTM_FORMAT_RGB and PTM_FORMAT_LRGB)",
+                show(f)
+            )));
+        }
+        f => return Err(hdr.err(format!("unknown PTM format {}", show(f)))),
+    };
+
+    let width = hdr.size("width")?;
+    let height = hdr.size("height")?;
+    let mut scale = [0f32; NCOEF];
+    for (k, s) in scale.iter_mut().enumerate() {
+        let what = format!("scale value {} of 6", k + 1);
+        let t = hdr.token(&what)?;
+        *s = std::str::from_utf8(t)
+            .ok()
+            .and_then(|t| t.parse::<f32>().ok())
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| hdr.err(format!("{what} is not a finite number: {}", show(t))))?;
+    }
+    let mut bias = [0f64; NCOEF];
+    for (k, b) in bias.iter_mut().enumerate() {
+        let what = format!("bias value {} of 6", k + 1);
+        let t = hdr.token(&what)?;
+        *b = std::str::from_utf8(t)
+            .ok()
+            .and_then(|t| t.parse::<f64>().ok())
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| hdr.err(format!("{what} is not a number: {}", show(t))))?;
+    }
+    hdr.end_of_header()?;
+
+    let too_big = || hdr.err(format!("{width} x {height} texels is too large"));
+    let texels = width.checked_mul(height).ok_or_else(too_big)?;
+    let per_texel = match format {
+        PtmFormat::Rgb => 3 * NCOEF,
+        PtmFormat::Lrgb => NCOEF + 3,
+    };
+    let need = texels.checked_mul(per_texel).ok_or_else(too_big)?;
+    let data = &bytes[hdr.pos..];
+    if data.len() < need {
+        return Err(hdr.err(format!(
+            "truncated: a {width} x {height} {} needs {need} bytes of data after the header, the file has {}",
+            format.header_name(),
+            data.len()
+        )));
+    }
+
+    // Byte -> coefficient in our units, per coefficient index: (c - bias) * scale is in byte
+    // units, / 255 makes 255 = 1.0.
+    let lut: Vec<[f32; 256]> = (0..NCOEF)
+        .map(|k| {
+            std::array::from_fn(|c| ((c as f64 - bias[k]) * f64::from(scale[k]) / 255.0) as f32)
+        })
+        .collect();
+
+    let (w, h) = (width, height);
+    let mut coeffs = vec![0f32; texels * format.coeffs_per_texel()];
+    let rgb = match format {
+        PtmFormat::Rgb => {
+            let block_len = texels * NCOEF;
+            for ch in 0..3 {
+                let block = &data[ch * block_len..(ch + 1) * block_len];
+                for file_row in 0..h {
+                    let y = h - 1 - file_row; // the file starts with the bottom row
+                    for x in 0..w {
+                        let src = (file_row * w + x) * NCOEF;
+                        let dst = ((y * w + x) * 3 + ch) * NCOEF;
+                        for k in 0..NCOEF {
+                            coeffs[dst + k] = lut[k][usize::from(block[src + k])];
+                        }
+                    }
+                }
+            }
+            None
+        }
+        PtmFormat::Lrgb => {
+            let mut rgb = vec![0f32; texels * 3];
+            // PTM_1.2: coefficient block then colour block; PTM_1.1: 9 bytes per texel.
+            for file_row in 0..h {
+                let y = h - 1 - file_row;
+                for x in 0..w {
+                    let t = file_row * w + x; // texel index in file order
+                    let (src, c_src) = if interleaved_lrgb {
+                        (t * (NCOEF + 3), t * (NCOEF + 3) + NCOEF)
+                    } else {
+                        (t * NCOEF, texels * NCOEF + t * 3)
+                    };
+                    let dst = (y * w + x) * NCOEF;
+                    for k in 0..NCOEF {
+                        coeffs[dst + k] = lut[k][usize::from(data[src + k])];
+                    }
+                    let c_dst = (y * w + x) * 3;
+                    for c in 0..3 {
+                        rgb[c_dst + c] = f32::from(data[c_src + c]) / 255.0;
+                    }
+                }
+            }
+            Some(rgb)
+        }
+    };
+    Ok(PtmImage {
+        width,
+        height,
+        format,
+        coeffs,
+        rgb,
+    })
+}
+
+/// A cursor over the text header.
+struct Header<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+    path: &'a str,
+}
+
+impl<'a> Header<'a> {
+    fn err(&self, msg: impl std::fmt::Display) -> Error {
+        Error::format(self.path, msg)
+    }
+
+    /// The next whitespace-separated token.
+    fn token(&mut self, what: &str) -> Result<&'a [u8]> {
+        while self.pos < self.bytes.len() && self.bytes[self.pos].is_ascii_whitespace() {
+            self.pos += 1;
+        }
+        if self.pos == self.bytes.len() {
+            return Err(self.err(format!(
+                "truncated: the file ends in the header, before the {what}"
+            )));
+        }
+        let start = self.pos;
+        while self.pos < self.bytes.len() && !self.bytes[self.pos].is_ascii_whitespace() {
+            self.pos += 1;
+            if self.pos - start > MAX_TOKEN {
+                return Err(self.err(format!(
+                    "the {what} is not a header field (starts with {}...)",
+                    show(&self.bytes[start..start + 16])
+                )));
+            }
+        }
+        Ok(&self.bytes[start..self.pos])
+    }
+
+    /// A positive integer (width or height).
+    fn size(&mut self, what: &str) -> Result<usize> {
+        let t = self.token(what)?;
+        let v = std::str::from_utf8(t)
+            .ok()
+            .and_then(|t| t.parse::<usize>().ok())
+            .ok_or_else(|| {
+                self.err(format!(
+                    "the {what} is not a non-negative integer: {}",
+                    show(t)
+                ))
+            })?;
+        if v == 0 {
+            return Err(self.err(format!("the {what} is 0")));
+        }
+        Ok(v)
+    }
+
+    /// After the last bias value: optional spaces, tabs or `\r`, then exactly one `\n`. Binary
+    /// data follow, so nothing beyond that newline may be skipped.
+    fn end_of_header(&mut self) -> Result<()> {
+        while self.pos < self.bytes.len() && matches!(self.bytes[self.pos], b' ' | b'\t' | b'\r') {
+            self.pos += 1;
+        }
+        match self.bytes.get(self.pos) {
+            Some(b'\n') => {
+                self.pos += 1;
+                Ok(())
+            }
+            None => Err(self.err("truncated: the file ends after the header, with no data")),
+            Some(_) => Err(self.err(
+                "expected the end of the line after the six bias values (a newline before the binary data)",
+            )),
+        }
+    }
+}
+
+/// A header token for an error message: quoted, lossy UTF-8, shortened.
+fn show(t: &[u8]) -> String {
+    let s = String::from_utf8_lossy(&t[..t.len().min(40)]);
+    format!("{:?}{}", s, if t.len() > 40 { "..." } else { "" })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A small deterministic generator (xorshift64*), so the tests need no extra crate.
+    struct Rng(u64);
+    impl Rng {
+        fn next_f32(&mut self) -> f32 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            let v = self.0.wrapping_mul(0x2545_F491_4F6C_DD1D);
+            (v >> 40) as f32 / (1u64 << 24) as f32
+        }
+        fn uniform(&mut self, lo: f32, hi: f32) -> f32 {
+            lo + (hi - lo) * self.next_f32()
+        }
+    }
+
+    /// Typical ranges per coefficient index: quadratic terms negative-ish, a5 positive.
+    const RANGES: [(f32, f32); 6] = [
+        (-0.8, 0.1),
+        (-0.6, 0.3),
+        (-0.2, 0.25),
+        (-0.5, 0.9),
+        (-0.9, 0.4),
+        (0.05, 1.3),
+    ];
+
+    fn random_image(format: PtmFormat, w: usize, h: usize, seed: u64) -> PtmImage {
+        let mut rng = Rng(seed);
+        let n = w * h * format.coeffs_per_texel();
+        let coeffs = (0..n)
+            .map(|i| {
+                let (lo, hi) = RANGES[i % 6];
+                rng.uniform(lo, hi)
+            })
+            .collect();
+        let rgb =
+            (format == PtmFormat::Lrgb).then(|| (0..w * h * 3).map(|_| rng.next_f32()).collect());
+        PtmImage {
+            width: w,
+            height: h,
+            format,
+            coeffs,
+            rgb,
+        }
+    }
+
+    /// The header's six lines and the offset of the binary data.
+    fn split_header(bytes: &[u8]) -> (Vec<String>, usize) {
+        let mut lines = Vec::new();
+        let mut start = 0;
+        for (i, &b) in bytes.iter().enumerate() {
+            if b == b'\n' {
+                lines.push(String::from_utf8(bytes[start..i].to_vec()).unwrap());
+                start = i + 1;
+                if lines.len() == 6 {
+                    return (lines, start);
+                }
+            }
+        }
+        panic!("fewer than six header lines");
+    }
+
+    fn assert_roundtrip(img: &PtmImage) {
+        let (bytes, q) = encode_ptm(img).unwrap();
+        let back = decode_ptm(&bytes, "mem.ptm").unwrap();
+        assert_eq!(
+            (back.width, back.height, back.format),
+            (img.width, img.height, img.format)
+        );
+        assert_eq!(back.coeffs.len(), img.coeffs.len());
+        for (i, (&a, &d)) in img.coeffs.iter().zip(&back.coeffs).enumerate() {
+            let k = i % 6;
+            let bound = q.scale[k] / 2.0 + 1e-6 * a.abs().max(1.0);
+            assert!(
+                (a - d).abs() <= bound,
+                "coefficient {i} (a{k}): {a} -> {d}, bound {bound}"
+            );
+        }
+        match (&img.rgb, &back.rgb) {
+            (None, None) => {}
+            (Some(a), Some(b)) => {
+                for (i, (&x, &y)) in a.iter().zip(b).enumerate() {
+                    assert!((x - y).abs() <= 0.5 / 255.0 + 1e-6, "rgb {i}: {x} -> {y}");
+                }
+            }
+            _ => panic!("rgb presence changed"),
+        }
+    }
+
+    #[test]
+    fn roundtrip_rgb_random() {
+        assert_roundtrip(&random_image(PtmFormat::Rgb, 7, 5, 1));
+    }
+
+    #[test]
+    fn roundtrip_lrgb_random() {
+        assert_roundtrip(&random_image(PtmFormat::Lrgb, 9, 4, 2));
+    }
+
+    #[test]
+    fn quantization_uses_the_full_byte_range() {
+        // scale = (max - min) / 255 and every index reaches (within one code) both 0 and 255.
+        for format in [PtmFormat::Rgb, PtmFormat::Lrgb] {
+            let img = random_image(format, 16, 16, 3);
+            let (bytes, q) = encode_ptm(&img).unwrap();
+            let (_, data_at) = split_header(&bytes);
+            let nblocks = if format == PtmFormat::Rgb { 3 } else { 1 };
+            let coef_bytes = &bytes[data_at..data_at + 16 * 16 * 6 * nblocks];
+            for k in 0..6 {
+                let vals = img.coeffs.iter().skip(k).step_by(6);
+                let lo = vals.clone().fold(f32::INFINITY, |m, &v| m.min(v));
+                let hi = vals.fold(f32::NEG_INFINITY, |m, &v| m.max(v));
+                let ideal = (hi - lo) / 255.0;
+                assert!(
+                    (q.scale[k] - ideal).abs() <= 1e-6 * ideal,
+                    "a{k}: scale {} vs {ideal}",
+                    q.scale[k]
+                );
+                let codes = coef_bytes.iter().skip(k).step_by(6);
+                let cmin = *codes.clone().min().unwrap();
+                let cmax = *codes.max().unwrap();
+                assert!(cmin <= 1 && cmax >= 254, "a{k}: codes {cmin}..{cmax}");
+            }
+        }
+    }
+
+    #[test]
+    fn constant_and_narrow_coefficients() {
+        // a0 all zero, a1 constant positive, a2 constant negative, a3 a narrow range far from 0,
+        // a4 tiny values, a5 ordinary.
+        let (w, h) = (4, 3);
+        let mut coeffs = Vec::new();
+        for i in 0..w * h {
+            let t = i as f32 / (w * h) as f32;
+            coeffs.extend_from_slice(&[0.0, 0.7, -0.3, 1000.0 + 0.001 * t, 1e-30 * t, t]);
+        }
+        let img = PtmImage {
+            width: w,
+            height: h,
+            format: PtmFormat::Lrgb,
+            coeffs,
+            rgb: Some(vec![0.5; w * h * 3]),
+        };
+        let (bytes, q) = encode_ptm(&img).unwrap();
+        for k in 0..6 {
+            assert!(
+                q.scale[k] > 0.0 && q.scale[k].is_finite(),
+                "a{k}: scale {}",
+                q.scale[k]
+            );
+            assert!(q.bias[k].abs() <= 32767, "a{k}: bias {}", q.bias[k]);
+        }
+        // The header stays short and parseable by line-based readers.
+        let (lines, _) = split_header(&bytes);
+        assert!(lines[4].len() < 200, "scale line {:?}", lines[4]);
+        assert_roundtrip(&img);
+        let back = decode_ptm(&bytes, "mem").unwrap();
+        assert!(
+            back.coeffs.iter().step_by(6).all(|&v| v == 0.0),
+            "all-zero a0 decodes exactly"
+        );
+    }
+
+    #[test]
+    fn row_order_bottom_row_first() {
+        // 3 x 2 image whose a5 (and colour) grows with the row index (row 0 = top).
+        let (w, h) = (3, 2);
+        for format in [PtmFormat::Lrgb, PtmFormat::Rgb] {
+            let per = format.coeffs_per_texel();
+            let mut coeffs = vec![0f32; w * h * per];
+            for y in 0..h {
+                for x in 0..w {
+                    for p in 0..per / 6 {
+                        coeffs[(y * w + x) * per + p * 6 + 5] =
+                            0.2 + 0.6 * y as f32 + 0.01 * x as f32;
+                    }
+                }
+            }
+            let rgb = (format == PtmFormat::Lrgb).then(|| {
+                (0..w * h * 3)
+                    .map(|i| if i / (w * 3) == 0 { 0.2 } else { 0.8 })
+                    .collect::<Vec<f32>>()
+            });
+            let img = PtmImage {
+                width: w,
+                height: h,
+                format,
+                coeffs,
+                rgb,
+            };
+            let (bytes, _) = encode_ptm(&img).unwrap();
+            let (_, at) = split_header(&bytes);
+            let data = &bytes[at..];
+            // a5 byte of the file's first texel belongs to the bottom row (y = 1, larger a5),
+            // that of the file's second row to the top row (y = 0).
+            let first_row_a5 = data[5];
+            let second_row_a5 = data[w * 6 + 5];
+            assert!(
+                first_row_a5 > second_row_a5,
+                "{format:?}: first row a5 byte {first_row_a5}, second {second_row_a5}"
+            );
+            // Within a row, left to right.
+            assert!(data[6 + 5] > data[5], "{format:?}: x order");
+            if format == PtmFormat::Lrgb {
+                let colour = &data[w * h * 6..];
+                assert_eq!(colour.len(), w * h * 3);
+                assert_eq!(colour[0], 204); // bottom row 0.8
+                assert_eq!(colour[w * 3], 51); // top row 0.2
+            } else {
+                assert_eq!(data.len(), 3 * w * h * 6);
+                // Each of the three channel blocks starts with the bottom row again.
+                for ch in 0..3 {
+                    let block = &data[ch * w * h * 6..];
+                    assert_eq!(block[5], first_row_a5, "channel {ch}");
+                }
+            }
+            let back = decode_ptm(&bytes, "mem").unwrap();
+            assert!(
+                back.coeffs[5] < back.coeffs[w * per + 5],
+                "{format:?}: decoded rows flipped back"
+            );
+        }
+    }
+
+    #[test]
+    fn header_is_exactly_the_format() {
+        let img = random_image(PtmFormat::Lrgb, 3, 2, 4);
+        let (bytes, q) = encode_ptm(&img).unwrap();
+        let (lines, at) = split_header(&bytes);
+        assert_eq!(lines[0], "PTM_1.2");
+        assert_eq!(lines[1], "PTM_FORMAT_LRGB");
+        assert_eq!(lines[2], "3");
+        assert_eq!(lines[3], "2");
+        let scales: Vec<f32> = lines[4].split(' ').map(|t| t.parse().unwrap()).collect();
+        assert_eq!(scales.len(), 6);
+        for (k, &s) in scales.iter().enumerate() {
+            // The header's scale is in byte units: 255 x the step in our units.
+            let ours = (f64::from(s) / 255.0) as f32;
+            assert_eq!(ours, q.scale[k], "a{k}");
+        }
+        let biases: Vec<i32> = lines[5].split(' ').map(|t| t.parse().unwrap()).collect();
+        assert_eq!(biases, q.bias.to_vec());
+        assert_eq!(bytes.len() - at, 3 * 2 * 9);
+
+        let (rgb_bytes, _) = encode_ptm(&random_image(PtmFormat::Rgb, 3, 2, 5)).unwrap();
+        let (lines, at) = split_header(&rgb_bytes);
+        assert_eq!(lines[1], "PTM_FORMAT_RGB");
+        assert_eq!(rgb_bytes.len() - at, 3 * 2 * 18);
+    }
+
+    #[test]
+    fn viewer_brightness_matches_our_units() {
+        // Emulate RTIViewer on the encoded bytes: LRGB shows rgb_byte * poly_bytes / 255, RGB shows
+        // poly_bytes. Both must be 255 x our eval().
+        for format in [PtmFormat::Lrgb, PtmFormat::Rgb] {
+            let img = random_image(format, 4, 3, 6);
+            let (bytes, q) = encode_ptm(&img).unwrap();
+            let (lines, at) = split_header(&bytes);
+            let scale: Vec<f64> = lines[4].split(' ').map(|t| t.parse().unwrap()).collect();
+            let bias: Vec<f64> = lines[5].split(' ').map(|t| t.parse().unwrap()).collect();
+            let data = &bytes[at..];
+            let (w, h) = (4, 3);
+            let (lu, lv) = (0.3f64, -0.5f64);
+            let m = [lu * lu, lv * lv, lu * lv, lu, lv, 1.0];
+            let poly = |s: &[u8]| {
+                (0..6)
+                    .map(|k| (f64::from(s[k]) - bias[k]) * scale[k] * m[k])
+                    .sum::<f64>()
+            };
+            // Worst-case quantization error of the polynomial, in our units.
+            let tol: f64 = (0..6)
+                .map(|k| f64::from(q.scale[k]) / 2.0 * m[k].abs())
+                .sum::<f64>()
+                + 0.5 / 255.0 * 2.0;
+            for y in 0..h {
+                for x in 0..w {
+                    let want = img.eval(x, y, lu as f32, lv as f32);
+                    let t = (h - 1 - y) * w + x;
+                    let shown: [f64; 3] = match format {
+                        PtmFormat::Lrgb => {
+                            let l = poly(&data[t * 6..]) / 255.0;
+                            let c = &data[w * h * 6 + t * 3..];
+                            [
+                                f64::from(c[0]) * l,
+                                f64::from(c[1]) * l,
+                                f64::from(c[2]) * l,
+                            ]
+                        }
+                        PtmFormat::Rgb => {
+                            std::array::from_fn(|ch| poly(&data[ch * w * h * 6 + t * 6..]))
+                        }
+                    };
+                    for c in 0..3 {
+                        let got = shown[c] / 255.0;
+                        assert!(
+                            (got - f64::from(want[c])).abs() <= tol * 1.5,
+                            "{format:?} ({x},{y}) ch {c}: viewer {got}, ours {}",
+                            want[c]
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn hand_written_files_decode() {
+        // As another tool might write it: CRLF, trailing spaces, width and height on one line,
+        // one number per line, a float bias.
+        let mut lrgb =
+            b"PTM_1.2 \r\nPTM_FORMAT_LRGB\r\n2 1\r\n2.0\n1 \n 1\n1\n1\n0.5\n0 0\n0 0 0 128.0 \r\n"
+                .to_vec();
+        // texel 0 (x=0), texel 1 (x=1): a0..a5
+        lrgb.extend_from_slice(&[10, 20, 30, 40, 50, 60, 255, 0, 1, 2, 3, 100]);
+        lrgb.extend_from_slice(&[255, 0, 51, 1, 2, 3]);
+        let img = decode_ptm(&lrgb, "hand.ptm").unwrap();
+        assert_eq!((img.width, img.height, img.format), (2, 1, PtmFormat::Lrgb));
+        let scale = [2.0, 1.0, 1.0, 1.0, 1.0, 0.5];
+        let bias = [0.0, 0.0, 0.0, 0.0, 0.0, 128.0];
+        let raw: [u8; 12] = [10, 20, 30, 40, 50, 60, 255, 0, 1, 2, 3, 100];
+        for (i, &r) in raw.iter().enumerate() {
+            let k = i % 6;
+            let want = ((f64::from(r) - bias[k]) * scale[k] / 255.0) as f32;
+            assert_eq!(img.coeffs[i], want, "coefficient {i}");
+        }
+        assert_eq!(
+            img.rgb.as_deref().unwrap(),
+            &[1.0, 0.0, 0.2, 1.0 / 255.0, 2.0 / 255.0, 3.0 / 255.0]
+        );
+
+        // PTM_FORMAT_RGB, 1 x 2: the file's first row is the image's bottom row (row 1).
+        let mut rgb = b"PTM_1.2\nPTM_FORMAT_RGB\n1\n2\n1 1 1 1 1 1\n0 0 0 0 0 0\n".to_vec();
+        for ch in 0..3u8 {
+            rgb.extend_from_slice(&[0, 0, 0, 0, 0, 200 + ch]); // bottom
+            rgb.extend_from_slice(&[0, 0, 0, 0, 0, 10 + ch]); // top
+        }
+        let img = decode_ptm(&rgb, "rgb.ptm").unwrap();
+        assert!(img.rgb.is_none());
+        for ch in 0..3 {
+            assert_eq!(
+                img.coeffs[ch * 6 + 5],
+                (10 + ch) as f32 / 255.0,
+                "top row, channel {ch}"
+            );
+            assert_eq!(
+                img.coeffs[18 + ch * 6 + 5],
+                (200 + ch) as f32 / 255.0,
+                "bottom row, channel {ch}"
+            );
+        }
+
+        // PTM_1.1 LRGB interleaves the colour with the coefficients.
+        let mut old = b"PTM_1.1\nPTM_FORMAT_LRGB\n1\n1\n1 1 1 1 1 1\n0 0 0 0 0 0\n".to_vec();
+        old.extend_from_slice(&[1, 2, 3, 4, 5, 6, 7, 8, 9]);
+        let img = decode_ptm(&old, "old.ptm").unwrap();
+        assert_eq!(
+            img.coeffs,
+            [1.0, 2.0, 3.0, 4.0, 5.0, 6.0].map(|v: f32| v / 255.0)
+        );
+        assert_eq!(img.rgb.unwrap(), [7.0, 8.0, 9.0].map(|v: f32| v / 255.0));
+    }
+
+    #[test]
+    fn data_starting_with_whitespace_bytes_is_not_skipped() {
+        // The first data bytes are '\n', ' ' and '\r': only the header's own newline is consumed.
+        let mut f = b"PTM_1.2\nPTM_FORMAT_LRGB\n1\n1\n1 1 1 1 1 1\n0 0 0 0 0 0\n".to_vec();
+        f.extend_from_slice(&[b'\n', b' ', b'\r', 4, 5, 6, 7, 8, 9]);
+        let img = decode_ptm(&f, "ws.ptm").unwrap();
+        assert_eq!(img.coeffs[0], 10.0 / 255.0);
+        assert_eq!(img.coeffs[2], 13.0 / 255.0);
+        assert_eq!(img.rgb.unwrap()[2], 9.0 / 255.0);
+    }
+
+    fn format_error(bytes: &[u8]) -> String {
+        match decode_ptm(bytes, "bad.ptm") {
+            Err(Error::Format { path, msg }) => {
+                assert_eq!(path, "bad.ptm");
+                msg
+            }
+            other => panic!("expected a format error, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn decode_errors() {
+        let (good, _) = encode_ptm(&random_image(PtmFormat::Lrgb, 3, 2, 7)).unwrap();
+        assert!(format_error(&good[..good.len() - 1]).contains("truncated"));
+        let (lines, at) = split_header(&good);
+        assert!(
+            format_error(&good[..at - 1]).contains("truncated"),
+            "cut inside the header"
+        );
+
+        let unknown = b"PTM_1.2\nPTM_FORMAT_FOO\n1\n1\n1 1 1 1 1 1\n0 0 0 0 0 0\n";
+        assert!(format_error(unknown).contains("PTM_FORMAT_FOO"));
+        let jpeg = b"PTM_1.2\nPTM_FORMAT_JPEG_LRGB\n1\n1\n1 1 1 1 1 1\n0 0 0 0 0 0\n";
+        let msg = format_error(jpeg);
+        assert!(
+            msg.contains("PTM_FORMAT_JPEG_LRGB") && msg.contains("not supported"),
+            "{msg}"
+        );
+        assert!(format_error(b"PTM_1.2\nPTM_FORMAT_LUM\n").contains("PTM_FORMAT_LUM"));
+        assert!(format_error(b"PTM_1.0\nPTM_FORMAT_LRGB\n").contains("PTM_1.0"));
+        assert!(format_error(b"\x89PNG\r\n\x1a\n").contains("not a PTM file"));
+
+        let bad_scale = format!(
+            "PTM_1.2\nPTM_FORMAT_LRGB\n1\n1\n1 1 x 1 1 1\n{}\n",
+            lines[5]
+        );
+        assert!(format_error(bad_scale.as_bytes()).contains("scale value 3"));
+        let nan_scale = b"PTM_1.2\nPTM_FORMAT_LRGB\n1\n1\n1 1 NaN 1 1 1\n0 0 0 0 0 0\n";
+        assert!(format_error(nan_scale).contains("scale value 3"));
+        let zero_w = b"PTM_1.2\nPTM_FORMAT_LRGB\n0\n1\n1 1 1 1 1 1\n0 0 0 0 0 0\n";
+        assert!(format_error(zero_w).contains("width"));
+        let neg_h = b"PTM_1.2\nPTM_FORMAT_LRGB\n1\n-1\n1 1 1 1 1 1\n0 0 0 0 0 0\n";
+        assert!(format_error(neg_h).contains("height"));
+        let huge =
+            b"PTM_1.2\nPTM_FORMAT_RGB\n99999999999\n99999999999\n1 1 1 1 1 1\n0 0 0 0 0 0\n\0";
+        let msg = format_error(huge);
+        assert!(
+            msg.contains("too large") || msg.contains("truncated"),
+            "{msg}"
+        );
+        let no_newline = b"PTM_1.2\nPTM_FORMAT_LRGB\n1\n1\n1 1 1 1 1 1\n0 0 0 0 0 0 7";
+        assert!(format_error(no_newline).contains("bias"));
+    }
+
+    fn arg_error(img: &PtmImage) -> (String, String) {
+        match encode_ptm(img) {
+            Err(Error::InvalidArgument { name, msg }) => (name, msg),
+            other => panic!("expected an invalid-argument error, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn encode_validation_errors() {
+        let good = random_image(PtmFormat::Lrgb, 2, 2, 8);
+        assert_eq!(
+            arg_error(&PtmImage {
+                width: 0,
+                ..good.clone()
+            })
+            .0,
+            "width"
+        );
+        assert_eq!(
+            arg_error(&PtmImage {
+                height: 0,
+                ..good.clone()
+            })
+            .0,
+            "height"
+        );
+        let mut nan = good.clone();
+        nan.coeffs[5] = f32::NAN;
+        let (name, msg) = arg_error(&nan);
+        assert_eq!(name, "coeffs");
+        assert!(msg.contains("NaN"), "{msg}");
+        let mut inf = good.clone();
+        inf.coeffs[0] = f32::INFINITY;
+        assert_eq!(arg_error(&inf).0, "coeffs");
+        let mut short = good.clone();
+        short.coeffs.pop();
+        assert_eq!(arg_error(&short).0, "coeffs");
+        assert_eq!(
+            arg_error(&PtmImage {
+                rgb: None,
+                ..good.clone()
+            })
+            .0,
+            "rgb"
+        );
+        assert_eq!(
+            arg_error(&PtmImage {
+                rgb: Some(vec![0.5; 11]),
+                ..good.clone()
+            })
+            .0,
+            "rgb"
+        );
+        let mut bright = good.clone();
+        bright.rgb.as_mut().unwrap()[3] = 1.5;
+        assert_eq!(arg_error(&bright).0, "rgb");
+        let mut nan_rgb = good.clone();
+        nan_rgb.rgb.as_mut().unwrap()[0] = f32::NAN;
+        assert_eq!(arg_error(&nan_rgb).0, "rgb");
+        let rgb_with_colour = PtmImage {
+            rgb: Some(vec![0.5; 12]),
+            ..random_image(PtmFormat::Rgb, 2, 2, 9)
+        };
+        assert_eq!(arg_error(&rgb_with_colour).0, "rgb");
+        // The Rgb layout needs 18 values per texel, not 6.
+        let wrong_layout = PtmImage {
+            format: PtmFormat::Rgb,
+            rgb: None,
+            ..good
+        };
+        assert_eq!(arg_error(&wrong_layout).0, "coeffs");
+    }
+
+    #[test]
+    fn read_missing_file_keeps_not_found() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("absent.ptm");
+        match read_ptm(&path) {
+            Err(Error::Io { path: p, source }) => {
+                assert_eq!(source.kind(), std::io::ErrorKind::NotFound);
+                assert!(p.ends_with("absent.ptm"));
+            }
+            other => panic!("expected an I/O error, got {other:?}"),
+        }
+    }
+
+    fn dir_entries(dir: &Path) -> Vec<String> {
+        let mut names: Vec<String> = fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        names
+    }
+
+    #[test]
+    fn write_and_read_file_leave_no_temp() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("out.ptm");
+        let img = random_image(PtmFormat::Rgb, 5, 3, 10);
+        let q = write_ptm(&path, &img).unwrap();
+        assert_eq!(dir_entries(dir.path()), ["out.ptm"]);
+        let back = read_ptm(&path).unwrap();
+        for (i, (&a, &d)) in img.coeffs.iter().zip(&back.coeffs).enumerate() {
+            assert!(
+                (a - d).abs() <= q.scale[i % 6] / 2.0 + 1e-6,
+                "coefficient {i}"
+            );
+        }
+        // Overwriting an existing target replaces it.
+        let img2 = random_image(PtmFormat::Lrgb, 2, 2, 11);
+        write_ptm(&path, &img2).unwrap();
+        assert_eq!(dir_entries(dir.path()), ["out.ptm"]);
+        assert_eq!(read_ptm(&path).unwrap().format, PtmFormat::Lrgb);
+    }
+
+    #[test]
+    fn failed_writes_leave_no_temp() {
+        let dir = tempfile::tempdir().unwrap();
+        let img = random_image(PtmFormat::Lrgb, 2, 2, 12);
+
+        // The target's directory does not exist: the temporary file cannot even be created.
+        let missing = dir.path().join("no_such_dir").join("out.ptm");
+        match write_ptm(&missing, &img) {
+            Err(Error::Io { source, .. }) => {
+                assert_eq!(source.kind(), std::io::ErrorKind::NotFound)
+            }
+            other => panic!("expected an I/O error, got {other:?}"),
+        }
+        assert!(dir_entries(dir.path()).is_empty());
+
+        // The target is a directory: the temporary file is written, the rename fails, and the
+        // temporary file must be removed.
+        let target = dir.path().join("taken.ptm");
+        fs::create_dir(&target).unwrap();
+        fs::write(target.join("keep"), b"x").unwrap();
+        assert!(matches!(write_ptm(&target, &img), Err(Error::Io { .. })));
+        assert_eq!(dir_entries(dir.path()), ["taken.ptm"]);
+
+        // An invalid image fails before touching the disk.
+        let bad = PtmImage { width: 0, ..img };
+        assert!(matches!(
+            write_ptm(&dir.path().join("x.ptm"), &bad),
+            Err(Error::InvalidArgument { .. })
+        ));
+        assert_eq!(dir_entries(dir.path()), ["taken.ptm"]);
+    }
+}

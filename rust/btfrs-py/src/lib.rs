@@ -1,0 +1,38 @@
+//! `btfrs._native`: the PyO3 translation layer.
+//!
+//! Nothing here computes: each function converts Python arguments (numpy arrays are borrowed
+//! without copying where their layout allows), releases the GIL around the Rust call, and maps
+//! errors onto the exception classes of `btfrs.exceptions`. Algorithms live in the plain crates.
+
+mod arrays;
+mod core;
+mod errors;
+mod fit;
+mod hemimap;
+mod io;
+mod run;
+
+use pyo3::prelude::*;
+
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_function(wrap_pyfunction!(core::ubo81, m)?)?;
+    m.add_function(wrap_pyfunction!(core::validate_btf, m)?)?;
+    m.add_function(wrap_pyfunction!(core::split_pairs, m)?)?;
+    m.add_function(wrap_pyfunction!(core::material_names, m)?)?;
+    m.add_function(wrap_pyfunction!(core::make_material, m)?)?;
+    m.add_function(wrap_pyfunction!(hemimap::square_to_disk, m)?)?;
+    m.add_function(wrap_pyfunction!(hemimap::disk_to_square, m)?)?;
+    m.add_function(wrap_pyfunction!(hemimap::square_to_hemisphere, m)?)?;
+    m.add_function(wrap_pyfunction!(hemimap::hemisphere_to_square, m)?)?;
+    m.add_class::<fit::PyPtm>()?;
+    m.add_function(wrap_pyfunction!(fit::fit_ptm_native, m)?)?;
+    m.add_function(wrap_pyfunction!(io::save_container, m)?)?;
+    m.add_function(wrap_pyfunction!(io::read_container_header, m)?)?;
+    m.add_function(wrap_pyfunction!(io::write_ptm, m)?)?;
+    m.add_function(wrap_pyfunction!(io::read_ptm, m)?)?;
+    m.add_function(wrap_pyfunction!(io::write_png, m)?)?;
+    m.add_function(wrap_pyfunction!(io::read_png, m)?)?;
+    Ok(())
+}

@@ -1,0 +1,20 @@
+import numpy as np
+import pytest
+
+import btfrs
+
+
+@pytest.fixture(scope="session")
+def knit():
+    """The built-in knit at 32^2 (UBO 81 x 81), shared by the tests that only read it."""
+    return btfrs.materials.make("knit", size=32, seed=1)
+
+
+def biquadratic_data(h, w, views, lights, seed=0):
+    """Data that is exactly a biquadratic PTM per texel, view and channel, and its coefficients."""
+    rng = np.random.default_rng(seed)
+    coef = rng.uniform(-0.3, 0.7, size=(h, w, len(views), 3, 6))
+    lx, ly = lights[:, 0], lights[:, 1]
+    basis = np.stack([lx * lx, ly * ly, lx * ly, lx, ly, np.ones_like(lx)], axis=-1)  # [L, 6]
+    data = np.einsum("hwvck,lk->hwvlc", coef, basis)
+    return data.astype(np.float32), coef
