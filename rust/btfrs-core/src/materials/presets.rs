@@ -103,12 +103,12 @@ fn knit(seed: u64, size: usize, x: f64, y: f64) -> Sample {
     let mut best = (0.0f64, 0.0f64, 0.0f64); // (height, along, stitch key)
     for dj in -1..=1 {
         let vv = v - dj as f64;
-        for (cx, ang) in [(0.3, -0.42f64), (0.7, 0.42f64)] {
+        for (cx, ang) in [(0.3, -0.5f64), (0.7, 0.5f64)] {
             let (du, dv) = (u - cx, vv - 0.5);
             let (s, c) = ang.sin_cos();
             let across = c * du - s * dv;
             let along = s * du + c * dv;
-            let r2 = (across / 0.2).powi(2) + (along / 0.62).powi(2);
+            let r2 = (across / 0.2).powi(2) + (along / 0.5).powi(2);
             let key = hash01(seed, ci.rem_euclid(n as f64) as i64, (cj + dj as f64).rem_euclid(n as f64) as i64);
             let hh = cap(r2) * (0.85 + 0.3 * key);
             if hh > best.0 {

@@ -1,0 +1,164 @@
+"""``btfrs demo``: the main job on a built-in material, written to a folder.
+
+The demo is a list of steps (:data:`STEPS`) run in order over one :class:`Context`; each step
+adds models, table rows, images or notes. Later features (more models, renders, synthesis,
+charts) add steps here rather than growing one long function.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Optional
+
+import numpy as np
+
+from . import __version__, baselines, fit, io, materials
+from .btf import Btf
+
+__all__ = ["Context", "STEPS", "run"]
+
+
+@dataclass
+class Context:
+    out: Path
+    material: str
+    size: int
+    seed: int
+    progress: bool
+    log: Callable[[str], None]
+    btf: Optional[Btf] = None
+    train: Optional[Btf] = None
+    test: Optional[Btf] = None
+    models: dict = field(default_factory=dict)
+    rows: list = field(default_factory=list)
+    images: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
+    gen_seconds: float = 0.0
+
+
+def _tile(images: list, scale: int = 4, gap: int = 4) -> np.ndarray:
+    """Images side by side, enlarged by pixel repetition, separated by white gaps."""
+    big = [np.repeat(np.repeat(im, scale, 0), scale, 1) for im in images]
+    h = big[0].shape[0]
+    sep = np.ones((h, gap, 3), np.float32) * 10.0  # clips to white whatever the exposure
+    parts = []
+    for i, b in enumerate(big):
+        if i:
+            parts.append(sep)
+        parts.append(b)
+    return np.concatenate(parts, axis=1)
+
+
+def _pct(x: Optional[float]) -> str:
+    return "exact" if x is None else f"{100 * x:.2f}%"
+
+
+def step_material(ctx: Context) -> None:
+    t0 = time.perf_counter()
+    ctx.btf = materials.make(ctx.material, size=ctx.size, seed=ctx.seed, progress=ctx.progress)
+    ctx.gen_seconds = time.perf_counter() - t0
+    ctx.train, ctx.test = ctx.btf.split(holdout=0.1, seed=0)
+    ctx.log(f"material {ctx.material} {ctx.size}^2: {ctx.btf} in {ctx.gen_seconds:.2f} s; "
+            f"{ctx.test.pairs} of {ctx.btf.n_views * ctx.btf.n_lights} pairs held out")
+
+
+def step_baseline(ctx: Context) -> None:
+    t0 = time.perf_counter()
+    rel, rmse = baselines.nearest_lights_interpolation(ctx.train, ctx.test)
+    ctx.rows.append(dict(model="raw data, 3 nearest lights (numpy)", fit_s=time.perf_counter() - t0,
+                         nbytes=ctx.btf.nbytes, reconstruction=None, held_out=rel, rmse=rmse))
+
+
+def step_ptm(ctx: Context) -> None:
+    for kind in ("rgb", "lrgb"):
+        m = fit.ptm(ctx.train, kind=kind, progress=ctx.progress)
+        ctx.models[f"PTM-{kind.upper()}"] = m
+        held, rec = m.error(ctx.test), m.error(ctx.train)
+        ctx.rows.append(dict(model=f"PTM-{kind.upper()}", fit_s=m.fit_seconds, nbytes=m.nbytes,
+                             reconstruction=rec.relative, held_out=held.relative, rmse=held.rmse))
+        ctx.log(f"PTM-{kind.upper()}: fit {m.fit_seconds:.3f} s, {m.nbytes / 2**20:.1f} MiB, held-out {held}")
+        m.save_ptm(ctx.out / f"ptm_{kind}_top.ptm", view=0)
+    ctx.notes.append("`ptm_rgb_top.ptm` and `ptm_lrgb_top.ptm` hold the view-from-above slot as PTM_1.2 files "
+                     "(open them in RTIViewer or relight).")
+
+
+def step_compare_images(ctx: Context) -> None:
+    """Ground truth next to every model for a few held-out (view, light) pairs."""
+    assert ctx.test is not None and ctx.test.mask is not None
+    views_theta = np.degrees(np.arccos(np.clip(ctx.btf.views[:, 2], -1, 1)))
+    picks = []
+    for want in (0.0, 30.0, 60.0):
+        v = int(np.argmin(np.abs(views_theta - want)))
+        ls = np.flatnonzero(ctx.test.mask[v])
+        if len(ls) == 0:
+            continue
+        # The held-out light of this view slot that is furthest from the pole: the hardest case.
+        l = int(ls[np.argmin(ctx.btf.lights[ls, 2])])
+        picks.append((v, l))
+    names = list(ctx.models)
+    for i, (v, l) in enumerate(picks):
+        gt = ctx.btf.image(v, l)
+        row = [gt] + [ctx.models[n].evaluate(ctx.btf.views[v], ctx.btf.lights[l]) for n in names]
+        exposure = 0.9 / max(float(np.percentile(gt, 99)), 1e-6)
+        name = f"compare_{i}_view{v}_light{l}.png"
+        io.save_image(ctx.out / name, _tile(row), exposure=exposure)
+        ctx.images.append((name, f"held-out view {v}, light {l}: ground truth | " + " | ".join(names)))
+
+
+def step_materials_overview(ctx: Context) -> None:
+    """Every built-in material under three lights (view from above), to see what they are."""
+    from .directions import from_theta_phi
+
+    lights = from_theta_phi(np.radians([0.0, 60.0, 75.0]), np.radians([0.0, 45.0, 200.0]))
+    top = np.array([[0.0, 0.0, 1.0]])
+    rows = []
+    for name in materials.names():
+        b = materials.make(name, size=min(ctx.size, 64), seed=ctx.seed, views=top, lights=lights)
+        rows.append(_tile([b.image(0, i) for i in range(3)], scale=3))
+    io.save_image(ctx.out / "materials.png", np.concatenate(rows, axis=0), exposure=1.2)
+    ctx.images.append(("materials.png", "built-in materials (rows: " + ", ".join(materials.names()) +
+                       "), lit from above, at 60 and at 75 degrees"))
+
+
+def step_summary(ctx: Context) -> None:
+    raw = ctx.btf.nbytes
+    lines = [
+        f"# btfrs demo ({__version__})",
+        "",
+        f"Material **{ctx.material}**, {ctx.size}^2 texels, {ctx.btf.n_views} views x {ctx.btf.n_lights} lights, "
+        f"seed {ctx.seed}; generated in {ctx.gen_seconds:.2f} s. Held-out: {ctx.test.pairs} random (view, light) pairs "
+        f"(10%, seed 0); every model is fitted on the other {ctx.train.pairs}.",
+        "",
+        "| model | fit s | size | ratio | reconstruction rel. error | held-out rel. error | held-out RMSE |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in ctx.rows:
+        lines.append(f"| {r['model']} | {r['fit_s']:.3f} | {r['nbytes'] / 2**20:.2f} MiB | 1:{raw / r['nbytes']:.1f} | "
+                     f"{_pct(r['reconstruction'])} | {_pct(r['held_out'])} | {r['rmse']:.4f} |")
+    lines += ["", "## Images", ""]
+    lines += [f"- `{n}`: {d}" for n, d in ctx.images]
+    if ctx.notes:
+        lines += ["", "## Notes", ""] + [f"- {n}" for n in ctx.notes]
+    (ctx.out / "summary.md").write_text("\n".join(lines) + "\n")
+    ctx.log(f"wrote {ctx.out / 'summary.md'}")
+
+
+STEPS: list = [step_material, step_baseline, step_ptm, step_compare_images, step_materials_overview, step_summary]
+
+
+def run(out, material: str = "knit", size: int = 64, seed: int = 1, progress: bool = True,
+        log: Callable[[str], None] = print) -> Context:
+    """Run every step into folder ``out`` (created if missing); returns the context."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    ctx = Context(out=out, material=material, size=size, seed=seed, progress=progress, log=log)
+    for step in STEPS:
+        step(ctx)
+    return ctx
+
+
+if __name__ == "__main__":  # pragma: no cover
+    run(os.environ.get("BTFRS_DEMO_OUT", "demo"))

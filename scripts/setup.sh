@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# Set up everything btfrs needs on a fresh Debian machine, skipping what is already there:
+# Debian packages, a virtual environment in .venv with the Python packages, and the release
+# build of the Rust extension (maturin develop; cargo rebuilds only what changed).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+log() { printf '\033[1m[setup]\033[0m %s\n' "$*" >&2; }
+
+# --- Debian packages -------------------------------------------------------------------------
+# mesa-vulkan-drivers: lavapipe, the software Vulkan driver the wgpu renderer falls back to.
+# pkg-config + a C compiler: for -sys crates. python3-venv: for the virtual environment.
+missing=()
+for p in mesa-vulkan-drivers pkg-config gcc; do
+  dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  if command -v apt-get >/dev/null 2>&1; then
+    SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+    log "installing Debian packages: ${missing[*]}"
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+  else
+    log "warning: no apt-get; please install ${missing[*]} yourself"
+  fi
+fi
+
+# --- Rust ------------------------------------------------------------------------------------
+if ! command -v cargo >/dev/null 2>&1; then
+  [ -x "$HOME/.cargo/bin/cargo" ] && export PATH="$HOME/.cargo/bin:$PATH"
+fi
+command -v cargo >/dev/null 2>&1 || { log "error: cargo (Rust >= 1.85) is required: https://rustup.rs"; exit 1; }
+
+# --- Python ----------------------------------------------------------------------------------
+PY="${PYTHON:-python3}"
+if [ ! -x .venv/bin/python ]; then
+  log "creating .venv with $($PY --version 2>&1)"
+  "$PY" -m venv .venv
+fi
+if ! .venv/bin/python -c "import maturin, numpy, pytest, scipy, mypy" >/dev/null 2>&1; then
+  log "installing Python packages into .venv"
+  .venv/bin/python -m pip install -q --disable-pip-version-check "maturin>=1.7,<2" "numpy>=1.22" "pytest>=7" "scipy>=1.9" "mypy>=1.10"
+fi
+
+# --- Build -----------------------------------------------------------------------------------
+log "building the extension (release)"
+VIRTUAL_ENV="$PWD/.venv" .venv/bin/maturin develop --release --quiet 2>&1 | grep -v "^📦\|^✏️\|^🛠\|^🔗\|^🐍" >&2 || true
+.venv/bin/python -c "import btfrs" || { log "error: the build did not produce an importable btfrs"; exit 1; }

@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# Every test of btfrs: the Rust workspace (cargo test, without the PyO3 crate, so no Python is
+# linked), the stub check of the native module, and the Python suite (pytest).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/setup.sh
+[ -x "$HOME/.cargo/bin/cargo" ] && export PATH="$HOME/.cargo/bin:$PATH"
+
+echo "== cargo test (workspace) =="
+cargo test --quiet
+
+echo "== stubtest btfrs._native =="
+.venv/bin/python -m mypy.stubtest btfrs._native
+
+echo "== pytest =="
+.venv/bin/python -m pytest -q "$@"

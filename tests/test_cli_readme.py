@@ -1,0 +1,43 @@
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+import btfrs
+from btfrs.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_demo_writes_images_and_a_summary_with_numbers(tmp_path):
+    assert main(["demo", "--out", str(tmp_path), "--size", "24", "--quiet"]) == 0
+    summary = (tmp_path / "summary.md").read_text()
+    rows = {m.group(1): m for m in re.finditer(r"^\| (PTM-\w+) \| ([\d.]+) \| ([\d.]+) MiB \| 1:([\d.]+) \| ([\d.]+)% \| ([\d.]+)% \|", summary, re.M)}
+    assert set(rows) == {"PTM-RGB", "PTM-LRGB"}
+    # The table's numbers are the models' own: LRGB stores half of RGB; errors are percentages.
+    assert abs(float(rows["PTM-LRGB"].group(4)) / float(rows["PTM-RGB"].group(4)) - 2.0) < 0.01
+    assert 1.0 < float(rows["PTM-RGB"].group(6)) < 60.0
+    pngs = sorted(p.name for p in tmp_path.glob("*.png"))
+    assert "materials.png" in pngs and len([p for p in pngs if p.startswith("compare_")]) == 3
+    img = btfrs.io.load_image(tmp_path / "materials.png")
+    assert img.shape[0] == 4 * 24 * 3 and img.std() > 0.05  # four materials, not a blank image
+    back = btfrs.io.load_ptm(tmp_path / "ptm_rgb_top.ptm")
+    assert back.height == 24
+
+
+def test_cli_reports_errors_without_a_traceback(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "btfrs.cli", "demo", "--out", str(tmp_path), "--material", "velvet", "--quiet"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "unknown material" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_readme_python_snippet_runs():
+    text = (ROOT / "README.md").read_text()
+    block = re.search(r"## Python in a few lines\s+```python\n(.*?)```", text, re.S).group(1)
+    ns: dict = {}
+    exec(compile(block, "README.md", "exec"), ns)
+    img, ptm, test = ns["img"], ns["ptm"], ns["test"]
+    assert img.shape == (64, 64, 3) and img.dtype == np.float32 and np.all(np.isfinite(img))
+    assert 0 < ptm.error(test).relative < 0.5
