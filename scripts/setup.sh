@@ -29,7 +29,7 @@ fi
 if ! command -v cargo >/dev/null 2>&1; then
   [ -x "$HOME/.cargo/bin/cargo" ] && export PATH="$HOME/.cargo/bin:$PATH"
 fi
-command -v cargo >/dev/null 2>&1 || { log "error: cargo (Rust >= 1.85) is required: https://rustup.rs"; exit 1; }
+command -v cargo >/dev/null 2>&1 || { log "error: cargo (Rust >= 1.89) is required: https://rustup.rs"; exit 1; }
 
 # --- Python ----------------------------------------------------------------------------------
 PY="${PYTHON:-python3}"

@@ -43,3 +43,30 @@ def test_model_from_bad_arrays():
         btfrs.Ptm.from_arrays("rgb", bad, d)
     with pytest.raises(ValueError, match="rgb"):
         btfrs.Ptm.from_arrays("lrgb", np.zeros((2, 2, 2, 6), np.float32), d)
+
+
+def test_ctrl_c_interrupts_long_work_promptly():
+    # A real SIGINT while Rust generates a large material (GIL released): the call must stop
+    # within a fraction of the full run time and raise KeyboardInterrupt.
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    code = (
+        "import sys, btfrs\n"
+        "def tick(d, t):\n"
+        "    print('started', flush=True)\n"
+        "try:\n"
+        "    btfrs.materials.make('knit', size=256, progress=tick)\n"
+        "    print('finished', flush=True)\n"
+        "except KeyboardInterrupt:\n"
+        "    print('interrupted', flush=True)\n"
+    )
+    p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip() == "started"
+    t0 = time.perf_counter()
+    p.send_signal(signal.SIGINT)
+    out, _ = p.communicate(timeout=30)
+    assert "interrupted" in out and "finished" not in out
+    assert time.perf_counter() - t0 < 2.0

@@ -118,3 +118,17 @@ def test_save_load_and_nbytes(tmp_path, knit):
         assert isinstance(back, btfrs.Ptm) and back.kind == kind
         np.testing.assert_array_equal(back.coeffs, ptm.coeffs)
         np.testing.assert_array_equal(back.evaluate(D[1], D[9]), ptm.evaluate(D[1], D[9]))
+
+
+def test_black_texels_give_zero_coefficients_not_nan():
+    data = np.zeros((2, 3, 2, 81, 3), np.float32)
+    data[1, 2] = 0.25  # one lit texel
+    b = btfrs.Btf(data, D[:2], D)
+    for kind in ("rgb", "lrgb"):
+        m = btfrs.fit.ptm(b, kind=kind)
+        assert np.all(np.isfinite(m.coeffs))
+        assert np.all(m.coeffs[0, 0] == 0)
+        np.testing.assert_allclose(m.evaluate(D[1], D[30])[1, 2], 0.25, rtol=1e-5)
+        if kind == "lrgb":
+            np.testing.assert_array_equal(m.rgb[0, 0], 0)
+            np.testing.assert_allclose(m.rgb[1, 2], 1.0, rtol=1e-6)

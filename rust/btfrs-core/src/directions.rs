@@ -93,8 +93,7 @@ pub fn angle_between(a: [f64; 3], b: [f64; 3]) -> f64 {
 /// model at a measured direction reproduces exactly what was fitted there. Used wherever a model
 /// is stored per measured view slot (PTM, per-view Lafortune) and queried at any direction.
 pub fn interp_weights(dirs: &[[f64; 3]], query: [f64; 3], k: usize) -> Vec<(usize, f64)> {
-    let mut dist: Vec<(usize, f64)> =
-        dirs.iter().enumerate().map(|(i, &d)| (i, angle_between(d, query))).collect();
+    let mut dist: Vec<(usize, f64)> = dirs.iter().enumerate().map(|(i, &d)| (i, angle_between(d, query))).collect();
     dist.sort_by(|a, b| a.1.total_cmp(&b.1));
     let k = k.clamp(1, dist.len().max(1));
     dist.truncate(k);

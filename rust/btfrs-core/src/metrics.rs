@@ -37,13 +37,21 @@ impl ErrorSums {
 
     /// Root mean squared error.
     pub fn rmse(&self) -> f64 {
-        if self.n == 0 { f64::NAN } else { (self.sse / self.n as f64).sqrt() }
+        if self.n == 0 {
+            f64::NAN
+        } else {
+            (self.sse / self.n as f64).sqrt()
+        }
     }
 
     /// Relative L2 error; 0 for a perfect match of all-zero data.
     pub fn relative(&self) -> f64 {
         if self.sgt == 0.0 {
-            if self.sse == 0.0 { 0.0 } else { f64::INFINITY }
+            if self.sse == 0.0 {
+                0.0
+            } else {
+                f64::INFINITY
+            }
         } else {
             (self.sse / self.sgt).sqrt()
         }
@@ -52,7 +60,11 @@ impl ErrorSums {
     /// Peak signal-to-noise ratio in dB against the largest ground-truth value.
     pub fn psnr(&self) -> f64 {
         let mse = self.sse / self.n.max(1) as f64;
-        if mse == 0.0 { f64::INFINITY } else { 10.0 * (self.peak * self.peak / mse).log10() }
+        if mse == 0.0 {
+            f64::INFINITY
+        } else {
+            10.0 * (self.peak * self.peak / mse).log10()
+        }
     }
 }
 

@@ -52,6 +52,10 @@ impl Monitor {
     /// `Err(Interrupted)` once cancelled, for `?` at chunk boundaries.
     #[inline]
     pub fn check(&self) -> crate::Result<()> {
-        if self.is_cancelled() { Err(crate::Error::Interrupted) } else { Ok(()) }
+        if self.is_cancelled() {
+            Err(crate::Error::Interrupted)
+        } else {
+            Ok(())
+        }
     }
 }

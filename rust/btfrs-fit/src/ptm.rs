@@ -292,7 +292,10 @@ impl Ptm {
         }
         directions::validate("views", &self.views)?;
         if self.coeffs.len() != t * self.per_coef() {
-            return Err(Error::arg("coeffs", format!("expected {} values, got {}", t * self.per_coef(), self.coeffs.len())));
+            return Err(Error::arg(
+                "coeffs",
+                format!("expected {} values, got {}", t * self.per_coef(), self.coeffs.len()),
+            ));
         }
         match (&self.rgb, self.kind) {
             (Some(r), PtmKind::Lrgb) if r.len() == t * 3 => {}

@@ -3,9 +3,7 @@
 
 use std::hint::black_box;
 
-use btfrs_hemimap::{
-    hemisphere_to_square_batch, square_to_hemisphere, square_to_hemisphere_batch, Real,
-};
+use btfrs_hemimap::{hemisphere_to_square_batch, square_to_hemisphere, square_to_hemisphere_batch, Real};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 
 const N: usize = 1 << 20;
@@ -17,20 +15,14 @@ fn square_points<T: Real>() -> Vec<[T; 2]> {
     (0..N)
         .map(|i| {
             let i = i as f64;
-            [
-                T::from_f64((0.5 + A1 * i).fract()),
-                T::from_f64((0.5 + A2 * i).fract()),
-            ]
+            [T::from_f64((0.5 + A1 * i).fract()), T::from_f64((0.5 + A2 * i).fract())]
         })
         .collect()
 }
 
 fn bench_type<T: Real>(c: &mut Criterion, name: &str) {
     let st = square_points::<T>();
-    let dirs: Vec<[T; 3]> = st
-        .iter()
-        .map(|&[s, t]| square_to_hemisphere(s, t))
-        .collect();
+    let dirs: Vec<[T; 3]> = st.iter().map(|&[s, t]| square_to_hemisphere(s, t)).collect();
     let mut out3 = vec![[T::ZERO; 3]; N];
     let mut out2 = vec![[T::ZERO; 2]; N];
 

@@ -67,18 +67,11 @@ fn radius_azimuth_to_square<T: Real>(rho: T, x: T, y: T) -> [T; 2] {
     // single atan2 call and no data-dependent control flow around it.
     let swap = y.abs() > x.abs();
     let (u, v) = if swap { (y, x) } else { (x, y) };
-    let (r, u, v) = if u < T::ZERO {
-        (-rho, -u, -v)
-    } else {
-        (rho, u, v)
-    };
+    let (r, u, v) = if u < T::ZERO { (-rho, -u, -v) } else { (rho, u, v) };
     let side = r * (v.atan2(u) * T::FRAC_4_PI);
     let (a, b) = if swap { (side, r) } else { (r, side) };
     // phi * 4/pi can exceed 1 by an ulp on the diagonals; clamp so the result stays in the square.
-    [
-        ((a + T::ONE) * T::HALF).clamp(T::ZERO, T::ONE),
-        ((b + T::ONE) * T::HALF).clamp(T::ZERO, T::ONE),
-    ]
+    [((a + T::ONE) * T::HALF).clamp(T::ZERO, T::ONE), ((b + T::ONE) * T::HALF).clamp(T::ZERO, T::ONE)]
 }
 
 /// Disk radius `rho` of the elevation map's preimage of direction `(x, y, z)`, i.e. the inverse
@@ -130,11 +123,7 @@ pub fn disk_to_square<T: Real>(x: T, y: T) -> [T; 2] {
 pub fn square_to_polar<T: Real>(s: T, t: T) -> [T; 2] {
     let (r, phi) = square_to_signed_polar(s, t);
     // Undo the signed-radius folding: a negative radius is the same point at phi + pi.
-    let (rho, phi) = if r < T::ZERO {
-        (-r, phi + T::PI)
-    } else {
-        (r, phi)
-    };
+    let (rho, phi) = if r < T::ZERO { (-r, phi + T::PI) } else { (r, phi) };
     // phi is now in [-pi/4, 7pi/4]; move the sliver below 0 up by a full turn.
     let phi = if phi < T::ZERO { phi + T::TAU } else { phi };
     [rho, phi]

@@ -34,8 +34,8 @@ mod concentric;
 mod real;
 
 pub use concentric::{
-    disk_to_hemisphere, disk_to_square, hemisphere_to_disk, hemisphere_to_square, polar_to_square,
-    square_to_disk, square_to_hemisphere, square_to_polar,
+    disk_to_hemisphere, disk_to_square, hemisphere_to_disk, hemisphere_to_square, polar_to_square, square_to_disk,
+    square_to_hemisphere, square_to_polar,
 };
 pub use real::Real;
 
@@ -61,11 +61,7 @@ pub struct LengthMismatch {
 
 impl core::fmt::Display for LengthMismatch {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        write!(
-            f,
-            "length mismatch: {} input points but an output slice of length {}",
-            self.input, self.output
-        )
+        write!(f, "length mismatch: {} input points but an output slice of length {}", self.input, self.output)
     }
 }
 
@@ -80,23 +76,18 @@ where
     F: Fn(&I) -> O + Sync,
 {
     if input.len() != out.len() {
-        return Err(LengthMismatch {
-            input: input.len(),
-            output: out.len(),
-        });
+        return Err(LengthMismatch { input: input.len(), output: out.len() });
     }
     if input.len() < PARALLEL_THRESHOLD {
         for (o, i) in out.iter_mut().zip(input) {
             *o = f(i);
         }
     } else {
-        out.par_chunks_mut(CHUNK)
-            .zip(input.par_chunks(CHUNK))
-            .for_each(|(o, i)| {
-                for (o, i) in o.iter_mut().zip(i) {
-                    *o = f(i);
-                }
-            });
+        out.par_chunks_mut(CHUNK).zip(input.par_chunks(CHUNK)).for_each(|(o, i)| {
+            for (o, i) in o.iter_mut().zip(i) {
+                *o = f(i);
+            }
+        });
     }
     Ok(())
 }
@@ -127,10 +118,7 @@ pub fn hemisphere_to_square_batch<T: Real + Send + Sync>(
 ///
 /// # Errors
 /// [`LengthMismatch`] if `st.len() != out.len()` (then `out` is not modified).
-pub fn square_to_disk_batch<T: Real + Send + Sync>(
-    st: &[[T; 2]],
-    out: &mut [[T; 2]],
-) -> Result<(), LengthMismatch> {
+pub fn square_to_disk_batch<T: Real + Send + Sync>(st: &[[T; 2]], out: &mut [[T; 2]]) -> Result<(), LengthMismatch> {
     map_into(st, out, |&[s, t]| square_to_disk(s, t))
 }
 
@@ -138,10 +126,7 @@ pub fn square_to_disk_batch<T: Real + Send + Sync>(
 ///
 /// # Errors
 /// [`LengthMismatch`] if `xy.len() != out.len()` (then `out` is not modified).
-pub fn disk_to_square_batch<T: Real + Send + Sync>(
-    xy: &[[T; 2]],
-    out: &mut [[T; 2]],
-) -> Result<(), LengthMismatch> {
+pub fn disk_to_square_batch<T: Real + Send + Sync>(xy: &[[T; 2]], out: &mut [[T; 2]]) -> Result<(), LengthMismatch> {
     map_into(xy, out, |&[x, y]| disk_to_square(x, y))
 }
 

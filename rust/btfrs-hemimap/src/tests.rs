@@ -33,10 +33,7 @@ impl SplitMix {
 /// pseudo-random points.
 fn square_test_points() -> Vec<[f64; 2]> {
     let g = unit_grid(257);
-    let mut pts: Vec<[f64; 2]> = g
-        .iter()
-        .flat_map(|&s| g.iter().map(move |&t| [s, t]))
-        .collect();
+    let mut pts: Vec<[f64; 2]> = g.iter().flat_map(|&s| g.iter().map(move |&t| [s, t])).collect();
     for &e in &[1e-9, 1e-6, 1e-4, 1e-2] {
         for &(ds, dt) in &[(1.0, 0.0), (0.0, 1.0), (1.0, 1.0), (1.0, -1.0), (0.3, -0.7)] {
             for &sign in &[1.0, -1.0] {
@@ -58,11 +55,7 @@ fn square_test_points() -> Vec<[f64; 2]> {
 }
 
 fn dir_from_angles(theta: f64, phi: f64) -> [f64; 3] {
-    [
-        theta.sin() * phi.cos(),
-        theta.sin() * phi.sin(),
-        theta.cos(),
-    ]
+    [theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos()]
 }
 
 fn normalize(v: [f64; 3]) -> [f64; 3] {
@@ -137,20 +130,10 @@ fn hemisphere_test_dirs() -> Vec<[f64; 3]> {
 
 #[test]
 fn round_trip_square_hemisphere_square() {
-    let e32 = max_square_round_trip_error::<f32>(|[s, t]| {
-        hemisphere_to_square(square_to_hemisphere(s, t))
-    });
-    let e64 = max_square_round_trip_error::<f64>(|[s, t]| {
-        hemisphere_to_square(square_to_hemisphere(s, t))
-    });
-    assert!(
-        e32 < 1e-5,
-        "f32 square->hemisphere->square max error {e32:e}"
-    );
-    assert!(
-        e64 < 1e-12,
-        "f64 square->hemisphere->square max error {e64:e}"
-    );
+    let e32 = max_square_round_trip_error::<f32>(|[s, t]| hemisphere_to_square(square_to_hemisphere(s, t)));
+    let e64 = max_square_round_trip_error::<f64>(|[s, t]| hemisphere_to_square(square_to_hemisphere(s, t)));
+    assert!(e32 < 1e-5, "f32 square->hemisphere->square max error {e32:e}");
+    assert!(e64 < 1e-12, "f64 square->hemisphere->square max error {e64:e}");
 }
 
 #[test]
@@ -185,19 +168,10 @@ fn round_trip_square_polar_square() {
 fn polar_form_agrees_with_disk_form() {
     for p in square_test_points() {
         let [rho, phi] = square_to_polar(p[0], p[1]);
-        assert!(
-            (0.0..=1.0).contains(&rho),
-            "rho {rho} out of range at {p:?}"
-        );
-        assert!(
-            (0.0..=TAU).contains(&phi),
-            "phi {phi} out of range at {p:?}"
-        );
+        assert!((0.0..=1.0).contains(&rho), "rho {rho} out of range at {p:?}");
+        assert!((0.0..=TAU).contains(&phi), "phi {phi} out of range at {p:?}");
         let [x, y] = square_to_disk(p[0], p[1]);
-        assert!(
-            dist2([rho * phi.cos(), rho * phi.sin()], [x, y]) < 1e-14,
-            "at {p:?}"
-        );
+        assert!(dist2([rho * phi.cos(), rho * phi.sin()], [x, y]) < 1e-14, "at {p:?}");
     }
 }
 
@@ -216,14 +190,8 @@ fn max_hemisphere_round_trip_angle<T: Real>() -> f64 {
 fn round_trip_hemisphere_square_hemisphere() {
     let a32 = max_hemisphere_round_trip_angle::<f32>();
     let a64 = max_hemisphere_round_trip_angle::<f64>();
-    assert!(
-        a32 < 1e-5,
-        "f32 hemisphere->square->hemisphere max angle {a32:e} rad"
-    );
-    assert!(
-        a64 < 1e-12,
-        "f64 hemisphere->square->hemisphere max angle {a64:e} rad"
-    );
+    assert!(a32 < 1e-5, "f32 hemisphere->square->hemisphere max angle {a32:e} rad");
+    assert!(a64 < 1e-12, "f64 hemisphere->square->hemisphere max angle {a64:e} rad");
 }
 
 #[test]
@@ -258,12 +226,7 @@ fn forward_output_is_unit_and_upper() {
 /// Maps the centres of an `n x n` grid of square cells through `map` and bins the directions
 /// into `bands` bands of equal height in z times `sectors` equal azimuth sectors. Area on the
 /// unit sphere is dz * dphi, so all bins have equal area; returns max |count - mean| / mean.
-fn max_bin_deviation(
-    map: impl Fn(f64, f64) -> [f64; 3],
-    n: usize,
-    bands: usize,
-    sectors: usize,
-) -> f64 {
+fn max_bin_deviation(map: impl Fn(f64, f64) -> [f64; 3], n: usize, bands: usize, sectors: usize) -> f64 {
     let mut counts = vec![0usize; bands * sectors];
     for i in 0..n {
         for j in 0..n {
@@ -275,10 +238,7 @@ fn max_bin_deviation(
         }
     }
     let mean = (n * n) as f64 / counts.len() as f64;
-    counts
-        .iter()
-        .map(|&c| (c as f64 - mean).abs() / mean)
-        .fold(0.0, f64::max)
+    counts.iter().map(|&c| (c as f64 - mean).abs() / mean).fold(0.0, f64::max)
 }
 
 const EQUAL_AREA_N: usize = 2048;
@@ -294,16 +254,8 @@ fn equal_area_hemisphere_bins() {
     // equal-area; the count is not), at N = 2048 it is 0.8%.
     let dev64 = max_bin_deviation(fwd::<f64>, EQUAL_AREA_N, 8, 16);
     let dev32 = max_bin_deviation(fwd::<f32>, EQUAL_AREA_N, 8, 16);
-    assert!(
-        dev64 < 0.02,
-        "f64: a bin deviates {:.2}% from the mean",
-        100.0 * dev64
-    );
-    assert!(
-        dev32 < 0.02,
-        "f32: a bin deviates {:.2}% from the mean",
-        100.0 * dev32
-    );
+    assert!(dev64 < 0.02, "f64: a bin deviates {:.2}% from the mean", 100.0 * dev64);
+    assert!(dev32 < 0.02, "f32: a bin deviates {:.2}% from the mean", 100.0 * dev32);
 }
 
 #[test]
@@ -317,10 +269,7 @@ fn equal_area_check_rejects_a_map_that_is_not_equal_area() {
         [h * phi.cos(), h * phi.sin(), z]
     };
     let dev = max_bin_deviation(not_equal_area, EQUAL_AREA_N, 8, 16);
-    assert!(
-        dev > 0.02,
-        "the control map passed the equal-area check ({dev})"
-    );
+    assert!(dev > 0.02, "the control map passed the equal-area check ({dev})");
 }
 
 #[test]
@@ -331,11 +280,7 @@ fn concentric_map_is_equal_area_on_the_disk() {
         [x, y, 1.0 - (x * x + y * y)]
     };
     let dev = max_bin_deviation(as_dir, EQUAL_AREA_N, 8, 16);
-    assert!(
-        dev < 0.02,
-        "a disk bin deviates {:.2}% from the mean",
-        100.0 * dev
-    );
+    assert!(dev < 0.02, "a disk bin deviates {:.2}% from the mean", 100.0 * dev);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -348,10 +293,7 @@ fn max_ratio<P: Copy, Q>(
     dp: impl Fn(P, P) -> f64,
     dq: impl Fn(&Q, &Q) -> f64,
 ) -> f64 {
-    pairs
-        .iter()
-        .map(|&(p, q)| dq(&f(p), &f(q)) / dp(p, q))
-        .fold(0.0, f64::max)
+    pairs.iter().map(|&(p, q)| dq(&f(p), &f(q)) / dp(p, q)).fold(0.0, f64::max)
 }
 
 /// Pairs of square points `eps` either side of the region borders s = t and s = 1 - t, and of
@@ -393,27 +335,11 @@ const C_INVERSE: f64 = 2.0;
 
 fn forward_continuity<T: Real>(eps: f64) {
     let sq = |p: [f64; 2], q: [f64; 2]| dist2(p, q);
-    for (name, pairs) in [
-        ("borders", square_border_pairs(eps)),
-        ("centre", square_centre_pairs(eps)),
-    ] {
+    for (name, pairs) in [("borders", square_border_pairs(eps)), ("centre", square_centre_pairs(eps))] {
         let r = max_ratio(&pairs, |p| fwd::<T>(p[0], p[1]), sq, |a, b| dist3(*a, *b));
-        assert!(
-            r < C_FORWARD,
-            "{} forward ratio {r} at the {name}",
-            core::any::type_name::<T>()
-        );
-        let r = max_ratio(
-            &pairs,
-            |p| fwd_disk::<T>(p[0], p[1]),
-            sq,
-            |a, b| dist2(*a, *b),
-        );
-        assert!(
-            r < C_FORWARD,
-            "{} disk ratio {r} at the {name}",
-            core::any::type_name::<T>()
-        );
+        assert!(r < C_FORWARD, "{} forward ratio {r} at the {name}", core::any::type_name::<T>());
+        let r = max_ratio(&pairs, |p| fwd_disk::<T>(p[0], p[1]), sq, |a, b| dist2(*a, *b));
+        assert!(r < C_FORWARD, "{} disk ratio {r} at the {name}", core::any::type_name::<T>());
     }
 }
 
@@ -431,22 +357,13 @@ fn interior_lipschitz_constant_is_below_the_bound() {
     let (mut fwd_max, mut inv_max): (f64, f64) = (0.0, 0.0);
     for _ in 0..20_000 {
         let p = [rng.next_f64(), rng.next_f64()];
-        let q = [
-            p[0] + 1e-7 * (rng.next_f64() - 0.5),
-            p[1] + 1e-7 * (rng.next_f64() - 0.5),
-        ];
+        let q = [p[0] + 1e-7 * (rng.next_f64() - 0.5), p[1] + 1e-7 * (rng.next_f64() - 0.5)];
         let (dp, dq) = (fwd::<f64>(p[0], p[1]), fwd::<f64>(q[0], q[1]));
         fwd_max = fwd_max.max(dist3(dp, dq) / dist2(p, q));
         inv_max = inv_max.max(dist2(inv::<f64>(dp), inv::<f64>(dq)) / angle_between(dp, dq));
     }
-    assert!(
-        fwd_max > 3.0 && fwd_max < C_FORWARD,
-        "forward Lipschitz estimate {fwd_max}"
-    );
-    assert!(
-        inv_max > 0.5 && inv_max < C_INVERSE,
-        "inverse Lipschitz estimate {inv_max}"
-    );
+    assert!(fwd_max > 3.0 && fwd_max < C_FORWARD, "forward Lipschitz estimate {fwd_max}");
+    assert!(inv_max > 0.5 && inv_max < C_INVERSE, "inverse Lipschitz estimate {inv_max}");
 }
 
 /// Direction pairs `eps` (in azimuth) either side of the inverse's region borders (the disk
@@ -458,10 +375,7 @@ fn direction_pairs(eps: f64) -> Vec<([f64; 3], [f64; 3])> {
         let phi = FRAC_PI_4 * k as f64;
         for i in 1..=90 {
             let theta = FRAC_PI_2 * i as f64 / 90.0;
-            pairs.push((
-                dir_from_angles(theta, phi - eps),
-                dir_from_angles(theta, phi + eps),
-            ));
+            pairs.push((dir_from_angles(theta, phi - eps), dir_from_angles(theta, phi + eps)));
         }
     }
     for k in 0..64 {
@@ -475,11 +389,7 @@ fn direction_pairs(eps: f64) -> Vec<([f64; 3], [f64; 3])> {
 fn inverse_continuity<T: Real>(eps: f64) {
     let pairs = direction_pairs(eps);
     let r = max_ratio(&pairs, inv::<T>, angle_between, |a, b| dist2(*a, *b));
-    assert!(
-        r < C_INVERSE,
-        "{} inverse ratio {r}",
-        core::any::type_name::<T>()
-    );
+    assert!(r < C_INVERSE, "{} inverse ratio {r}", core::any::type_name::<T>());
     let r = max_ratio(
         &pairs,
         |d| inv_disk::<T>([d[0], d[1]]),
@@ -487,11 +397,7 @@ fn inverse_continuity<T: Real>(eps: f64) {
         |a, b| dist2(*a, *b),
     );
     // The disk inverse is Lipschitz with constant 4/pi * sqrt(1 + (pi/4)^2)/2 ~ 0.81 per unit.
-    assert!(
-        r < C_INVERSE,
-        "{} disk inverse ratio {r}",
-        core::any::type_name::<T>()
-    );
+    assert!(r < C_INVERSE, "{} disk inverse ratio {r}", core::any::type_name::<T>());
 }
 
 #[test]
@@ -508,10 +414,7 @@ fn inverse_pole_is_exact() {
     assert_eq!(hemisphere_to_square([0.0f64, 0.0, 1.0]), [0.5, 0.5]);
     assert_eq!(hemisphere_to_square([0.0f32, 0.0, 1.0]), [0.5, 0.5]);
     // Non-unit and signed-zero poles too: no 0/0 anywhere.
-    assert_eq!(
-        hemisphere_to_square([-0.0f64, -0.0, 1.0 + 1e-9]),
-        [0.5, 0.5]
-    );
+    assert_eq!(hemisphere_to_square([-0.0f64, -0.0, 1.0 + 1e-9]), [0.5, 0.5]);
     assert_eq!(hemisphere_to_square([0.0f32, -0.0, 0.999_999]), [0.5, 0.5]);
     assert_eq!(hemisphere_to_disk([0.0f64, 0.0, 1.0]), [0.0, 0.0]);
     assert_eq!(disk_to_square(0.0f64, 0.0), [0.5, 0.5]);
@@ -533,13 +436,7 @@ fn horizon_maps_to_boundary<T: Real>() {
     phis.extend((0..200).map(|_| TAU * rng.next_f64()));
     for phi in phis {
         // exact horizon, z slightly negative, slightly non-unit, and a below-horizon direction
-        for (scale, z) in [
-            (1.0, 0.0),
-            (1.0, -1e-7),
-            (1.0 + 1e-6, 0.0),
-            (1.0 - 1e-6, -0.0),
-            (1.0, -0.3),
-        ] {
+        for (scale, z) in [(1.0, 0.0), (1.0, -1e-7), (1.0 + 1e-6, 0.0), (1.0 - 1e-6, -0.0), (1.0, -0.3)] {
             let d = [scale * phi.cos(), scale * phi.sin(), z];
             let st = inv::<T>(d);
             let m = boundary_distance(st);
@@ -551,10 +448,7 @@ fn horizon_maps_to_boundary<T: Real>() {
             assert!(st.iter().all(|v| (0.0..=1.0).contains(v)));
             // and it is the boundary point with that azimuth
             let back = fwd::<T>(st[0], st[1]);
-            assert!(
-                angle_between(back, [phi.cos(), phi.sin(), 0.0]) < 1e-5,
-                "phi {phi}: back to {back:?}"
-            );
+            assert!(angle_between(back, [phi.cos(), phi.sin(), 0.0]) < 1e-5, "phi {phi}: back to {back:?}");
         }
     }
 }
@@ -567,12 +461,7 @@ fn inverse_horizon_lands_on_square_boundary() {
 
 #[test]
 fn inverse_horizon_cardinal_points() {
-    let cases = [
-        (0.0, [1.0, 0.5]),
-        (FRAC_PI_2, [0.5, 1.0]),
-        (PI, [0.0, 0.5]),
-        (3.0 * FRAC_PI_2, [0.5, 0.0]),
-    ];
+    let cases = [(0.0, [1.0, 0.5]), (FRAC_PI_2, [0.5, 1.0]), (PI, [0.0, 0.5]), (3.0 * FRAC_PI_2, [0.5, 0.0])];
     for (phi, want) in cases {
         let d = [phi.cos(), phi.sin(), 0.0];
         for got in [inv::<f64>(d), inv::<f32>(d)] {
@@ -580,18 +469,10 @@ fn inverse_horizon_cardinal_points() {
         }
     }
     // The diagonals reach the corners.
-    for (k, want) in [
-        (1.0, [1.0, 1.0]),
-        (3.0, [0.0, 1.0]),
-        (5.0, [0.0, 0.0]),
-        (7.0, [1.0, 0.0]),
-    ] {
+    for (k, want) in [(1.0, [1.0, 1.0]), (3.0, [0.0, 1.0]), (5.0, [0.0, 0.0]), (7.0, [1.0, 0.0])] {
         let phi = FRAC_PI_4 * k;
         let got = inv::<f64>([phi.cos(), phi.sin(), 0.0]);
-        assert!(
-            dist2(got, want) < 1e-12,
-            "phi {phi}: {got:?}, want {want:?}"
-        );
+        assert!(dist2(got, want) < 1e-12, "phi {phi}: {got:?}, want {want:?}");
     }
 }
 
@@ -622,18 +503,12 @@ fn orientation_of_the_tangent_frame() {
             assert!(dist3(got, want) < 1e-7, "{p:?} -> {got:?}, want {want:?}");
         }
         let disk = fwd_disk::<f64>(p[0], p[1]);
-        assert!(
-            dist2(disk, [want[0], want[1]]) < 1e-15,
-            "disk {p:?} -> {disk:?}"
-        );
+        assert!(dist2(disk, [want[0], want[1]]) < 1e-15, "disk {p:?} -> {disk:?}");
     }
     // phi grows from +x towards +y (counter-clockwise seen from +z): along the right edge,
     // t = 0.75 is a quarter of the way from +x to the corner, i.e. phi = pi/8.
     let [rho, phi] = square_to_polar(1.0f64, 0.75);
-    assert!(
-        (rho - 1.0).abs() < 1e-15 && (phi - PI / 8.0).abs() < 1e-15,
-        "{rho} {phi}"
-    );
+    assert!((rho - 1.0).abs() < 1e-15 && (phi - PI / 8.0).abs() < 1e-15, "{rho} {phi}");
     let d = fwd::<f64>(0.75, 0.6);
     assert!(d[0] > 0.0 && d[1] > 0.0 && d[0] > d[1], "{d:?}");
 }
@@ -644,10 +519,7 @@ fn orientation_of_the_tangent_frame() {
 #[test]
 fn out_of_range_and_non_finite_inputs_do_not_panic() {
     // Outside the square: clamped.
-    assert_eq!(
-        square_to_hemisphere(1.5f64, 0.5),
-        square_to_hemisphere(1.0, 0.5)
-    );
+    assert_eq!(square_to_hemisphere(1.5f64, 0.5), square_to_hemisphere(1.0, 0.5));
     assert_eq!(square_to_disk(-0.1f32, 2.0), square_to_disk(0.0, 1.0));
     // Outside the disk: radially onto the circle.
     let st = disk_to_square(2.0f64, 0.0);
@@ -661,18 +533,10 @@ fn out_of_range_and_non_finite_inputs_do_not_panic() {
     assert_eq!(hemisphere_to_square([0.0f64, 0.0, 0.0]), [1.0, 0.5]);
     assert_eq!(hemisphere_to_disk([0.0f64, 0.0, 0.0]), [1.0, 0.0]);
     // NaN in, NaN out (no panic, no silent valid-looking value).
-    assert!(square_to_hemisphere(f64::NAN, 0.5)
-        .iter()
-        .any(|v| v.is_nan()));
-    assert!(hemisphere_to_square([f32::NAN, 0.0, 1.0])
-        .iter()
-        .any(|v| v.is_nan()));
-    assert!(hemisphere_to_square([0.1f64, 0.0, f64::NAN])
-        .iter()
-        .any(|v| v.is_nan()));
-    assert!(disk_to_square(f64::NAN, f64::NAN)
-        .iter()
-        .any(|v| v.is_nan()));
+    assert!(square_to_hemisphere(f64::NAN, 0.5).iter().any(|v| v.is_nan()));
+    assert!(hemisphere_to_square([f32::NAN, 0.0, 1.0]).iter().any(|v| v.is_nan()));
+    assert!(hemisphere_to_square([0.1f64, 0.0, f64::NAN]).iter().any(|v| v.is_nan()));
+    assert!(disk_to_square(f64::NAN, f64::NAN).iter().any(|v| v.is_nan()));
     let _ = polar_to_square(f64::INFINITY, f64::INFINITY);
     let _ = hemisphere_to_square([f64::INFINITY, 1.0, 1.0]);
 }
@@ -694,9 +558,7 @@ fn hemisphere_to_disk_inverts_disk_to_hemisphere() {
 
 fn batch_equals_scalar<T: Real + PartialEq>(n: usize) {
     let mut rng = SplitMix(n as u64);
-    let st: Vec<[T; 2]> = (0..n)
-        .map(|_| [T::from_f64(rng.next_f64()), T::from_f64(rng.next_f64())])
-        .collect();
+    let st: Vec<[T; 2]> = (0..n).map(|_| [T::from_f64(rng.next_f64()), T::from_f64(rng.next_f64())]).collect();
     let mut dirs = vec![[T::ZERO; 3]; n];
     square_to_hemisphere_batch(&st, &mut dirs).expect("same lengths");
     let mut back = vec![[T::ZERO; 2]; n];
@@ -710,24 +572,13 @@ fn batch_equals_scalar<T: Real + PartialEq>(n: usize) {
         assert_eq!(dirs[i], square_to_hemisphere(s, t), "element {i}");
         assert_eq!(back[i], hemisphere_to_square(dirs[i]), "element {i}");
         assert_eq!(disk[i], square_to_disk(s, t), "element {i}");
-        assert_eq!(
-            back_disk[i],
-            disk_to_square(disk[i][0], disk[i][1]),
-            "element {i}"
-        );
+        assert_eq!(back_disk[i], disk_to_square(disk[i][0], disk[i][1]), "element {i}");
     }
 }
 
 #[test]
 fn batches_equal_scalar_maps() {
-    for n in [
-        0,
-        1,
-        1000,
-        PARALLEL_THRESHOLD - 1,
-        PARALLEL_THRESHOLD,
-        3 * PARALLEL_THRESHOLD + 17,
-    ] {
+    for n in [0, 1, 1000, PARALLEL_THRESHOLD - 1, PARALLEL_THRESHOLD, 3 * PARALLEL_THRESHOLD + 17] {
         batch_equals_scalar::<f32>(n);
         batch_equals_scalar::<f64>(n);
     }
@@ -738,24 +589,12 @@ fn batch_length_mismatch_is_an_error_and_leaves_output_alone() {
     let st = vec![[0.25f64, 0.75]; 10];
     let mut out3 = vec![[7.0f64; 3]; 9];
     let err = square_to_hemisphere_batch(&st, &mut out3).unwrap_err();
-    assert_eq!(
-        err,
-        LengthMismatch {
-            input: 10,
-            output: 9
-        }
-    );
+    assert_eq!(err, LengthMismatch { input: 10, output: 9 });
     assert!(out3.iter().all(|v| *v == [7.0; 3]), "output was modified");
 
     let dirs = vec![[0.0f32, 0.0, 1.0]; 3];
     let mut out2 = vec![[7.0f32; 2]; 4];
-    assert_eq!(
-        hemisphere_to_square_batch(&dirs, &mut out2),
-        Err(LengthMismatch {
-            input: 3,
-            output: 4
-        })
-    );
+    assert_eq!(hemisphere_to_square_batch(&dirs, &mut out2), Err(LengthMismatch { input: 3, output: 4 }));
     assert!(out2.iter().all(|v| *v == [7.0; 2]));
 
     let big = vec![[0.5f64, 0.5]; PARALLEL_THRESHOLD + 1];

@@ -13,8 +13,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// Write `path` through `fill`, atomically (temporary file + rename).
 pub fn write_atomic(path: &Path, fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>) -> Result<()> {
     let shown = path.display().to_string();
-    let file_name =
-        path.file_name().ok_or_else(|| Error::arg("path", format!("{shown} does not name a file")))?;
+    let file_name = path.file_name().ok_or_else(|| Error::arg("path", format!("{shown} does not name a file")))?;
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),

@@ -116,20 +116,33 @@ pub fn write(path: &Path, kind: &str, meta: serde_json::Value, arrays: &[ArrayRe
         if n * a.dtype.size() != a.bytes.len() {
             return Err(Error::arg(
                 a.name,
-                format!("shape {:?} of {:?} needs {} bytes, got {}", a.shape, a.dtype, n * a.dtype.size(), a.bytes.len()),
+                format!(
+                    "shape {:?} of {:?} needs {} bytes, got {}",
+                    a.shape,
+                    a.dtype,
+                    n * a.dtype.size(),
+                    a.bytes.len()
+                ),
             ));
         }
         if infos.iter().any(|i: &ArrayInfo| i.name == a.name) {
             return Err(Error::arg(a.name, "array name used twice"));
         }
-        infos.push(ArrayInfo { name: a.name.into(), dtype: a.dtype, shape: a.shape.to_vec(), offset: rel, nbytes: a.bytes.len() as u64 });
+        infos.push(ArrayInfo {
+            name: a.name.into(),
+            dtype: a.dtype,
+            shape: a.shape.to_vec(),
+            offset: rel,
+            nbytes: a.bytes.len() as u64,
+        });
         rel = align(rel + a.bytes.len() as u64);
     }
     // Offsets are stored absolute; they depend on the header length, which depends on the
     // offsets' digits. Iterate until the data start no longer moves (at most a few rounds).
     let mut data_start = 0u64;
     let header = loop {
-        let abs: Vec<ArrayInfo> = infos.iter().map(|i| ArrayInfo { offset: i.offset + data_start, ..i.clone() }).collect();
+        let abs: Vec<ArrayInfo> =
+            infos.iter().map(|i| ArrayInfo { offset: i.offset + data_start, ..i.clone() }).collect();
         let h = Header { kind: kind.into(), meta: meta.clone(), arrays: abs };
         let text = serde_json::to_vec(&h).map_err(|e| Error::arg("meta", e))?;
         let start = align(16 + text.len() as u64);
@@ -228,10 +241,15 @@ mod tests {
         let a: Vec<f32> = (0..7).map(|x| x as f32 * 0.5).collect();
         let b: Vec<u16> = vec![1, 2, 65535];
         let meta = serde_json::json!({"views": [[0.0, 0.0, 1.0]], "note": "hi"});
-        write(&p, "test", meta.clone(), &[
-            ArrayRef { name: "a", dtype: Dtype::F32, shape: &[7], bytes: as_bytes(&a) },
-            ArrayRef { name: "b", dtype: Dtype::U16, shape: &[3, 1], bytes: as_bytes(&b) },
-        ])
+        write(
+            &p,
+            "test",
+            meta.clone(),
+            &[
+                ArrayRef { name: "a", dtype: Dtype::F32, shape: &[7], bytes: as_bytes(&a) },
+                ArrayRef { name: "b", dtype: Dtype::U16, shape: &[3, 1], bytes: as_bytes(&b) },
+            ],
+        )
         .unwrap();
         let c = read_contents(&p).unwrap();
         assert_eq!(c.kind, "test");
@@ -253,13 +271,24 @@ mod tests {
         std::fs::write(&p, b"hello world, this is not it").unwrap();
         assert!(matches!(read_contents(&p), Err(Error::Format { .. })));
         let a = [1.0f32; 16];
-        write(&p, "t", serde_json::json!({}), &[ArrayRef { name: "a", dtype: Dtype::F32, shape: &[16], bytes: as_bytes(&a) }]).unwrap();
+        write(
+            &p,
+            "t",
+            serde_json::json!({}),
+            &[ArrayRef { name: "a", dtype: Dtype::F32, shape: &[16], bytes: as_bytes(&a) }],
+        )
+        .unwrap();
         let full = std::fs::read(&p).unwrap();
         std::fs::write(&p, &full[..full.len() - 4]).unwrap();
         assert!(read_contents(&p).unwrap_err().to_string().contains("truncated"));
         let e = read_contents(&dir.path().join("missing.btfrs")).unwrap_err();
         assert!(matches!(e, Error::Io { ref source, .. } if source.kind() == std::io::ErrorKind::NotFound));
-        let bad = write(&p, "t", serde_json::json!({}), &[ArrayRef { name: "a", dtype: Dtype::F32, shape: &[3], bytes: as_bytes(&a) }]);
+        let bad = write(
+            &p,
+            "t",
+            serde_json::json!({}),
+            &[ArrayRef { name: "a", dtype: Dtype::F32, shape: &[3], bytes: as_bytes(&a) }],
+        );
         assert!(bad.unwrap_err().to_string().starts_with("a:"));
     }
 }

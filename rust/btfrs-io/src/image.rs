@@ -8,7 +8,11 @@ use std::path::Path;
 #[inline]
 pub fn linear_to_srgb(x: f32) -> f32 {
     let x = x.clamp(0.0, 1.0);
-    if x <= 0.003_130_8 { 12.92 * x } else { 1.055 * x.powf(1.0 / 2.4) - 0.055 }
+    if x <= 0.003_130_8 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    }
 }
 
 /// Write a `[height, width, 3]` linear RGB image as an 8-bit sRGB PNG, multiplying by `exposure`
@@ -53,7 +57,11 @@ pub fn read_png(path: &Path) -> Result<(Vec<f32>, usize, usize)> {
     let (w, h) = (info.width as usize, info.height as usize);
     let srgb_to_linear = |b: u8| {
         let x = b as f32 / 255.0;
-        if x <= 0.04045 { x / 12.92 } else { ((x + 0.055) / 1.055).powf(2.4) }
+        if x <= 0.04045 {
+            x / 12.92
+        } else {
+            ((x + 0.055) / 1.055).powf(2.4)
+        }
     };
     let out = buf[..w * h * ch].chunks(ch).flat_map(|p| [p[0], p[1], p[2]].map(srgb_to_linear)).collect();
     Ok((out, w, h))

@@ -184,10 +184,7 @@ impl PtmImage {
     ///
     /// Panics if `(x, y)` is outside the image or the buffers do not have the documented lengths.
     pub fn eval(&self, x: usize, y: usize, lu: f32, lv: f32) -> [f32; 3] {
-        assert!(
-            x < self.width && y < self.height,
-            "texel ({x}, {y}) outside the image"
-        );
+        assert!(x < self.width && y < self.height, "texel ({x}, {y}) outside the image");
         let texel = y * self.width + x;
         let m = [lu * lu, lv * lv, lu * lv, lu, lv, 1.0];
         let poly = |a: &[f32]| a.iter().zip(m).map(|(a, m)| a * m).sum::<f32>();
@@ -200,11 +197,7 @@ impl PtmImage {
             PtmFormat::Lrgb => {
                 let l = poly(&self.coeffs[texel * NCOEF..(texel + 1) * NCOEF]);
                 let rgb = self.rgb.as_ref().expect("an Lrgb PtmImage has rgb");
-                [
-                    rgb[texel * 3] * l,
-                    rgb[texel * 3 + 1] * l,
-                    rgb[texel * 3 + 2] * l,
-                ]
+                [rgb[texel * 3] * l, rgb[texel * 3 + 1] * l, rgb[texel * 3 + 2] * l]
             }
         }
     }
@@ -267,20 +260,13 @@ pub fn encode_ptm(img: &PtmImage) -> Result<(Vec<u8>, PtmQuantization)> {
         let (s, b) = choose_scale_bias(lo[k], hi[k]).ok_or_else(|| {
             Error::arg(
                 "coeffs",
-                format!(
-                    "coefficient a{k} spans [{}, {}], too wide to store",
-                    lo[k] / 255.0,
-                    hi[k] / 255.0
-                ),
+                format!("coefficient a{k} spans [{}, {}], too wide to store", lo[k] / 255.0, hi[k] / 255.0),
             )
         })?;
         file_scale[k] = s;
         bias[k] = b;
     }
-    let quant = PtmQuantization {
-        scale: file_scale.map(|s| (f64::from(s) / 255.0) as f32),
-        bias,
-    };
+    let quant = PtmQuantization { scale: file_scale.map(|s| (f64::from(s) / 255.0) as f32), bias };
 
     let mut header = String::new();
     header.push_str("PTM_1.2\n");
@@ -301,12 +287,7 @@ pub fn encode_ptm(img: &PtmImage) -> Result<(Vec<u8>, PtmQuantization)> {
         code.clamp(0.0, 255.0) as u8
     };
 
-    let data_len = texels
-        * if img.format == PtmFormat::Rgb {
-            3 * NCOEF
-        } else {
-            NCOEF + 3
-        };
+    let data_len = texels * if img.format == PtmFormat::Rgb { 3 * NCOEF } else { NCOEF + 3 };
     let mut out = Vec::with_capacity(header.len() + data_len);
     out.extend_from_slice(header.as_bytes());
     match img.format {
@@ -358,12 +339,7 @@ fn validate(img: &PtmImage) -> Result<usize> {
     if img.height == 0 {
         return Err(Error::arg("height", "must be positive, got 0"));
     }
-    let too_big = || {
-        Error::arg(
-            "width",
-            format!("{} x {} texels is too large", img.width, img.height),
-        )
-    };
+    let too_big = || Error::arg("width", format!("{} x {} texels is too large", img.width, img.height));
     let texels = img.width.checked_mul(img.height).ok_or_else(too_big)?;
     // The largest buffer we will build: 18 bytes per texel plus the header.
     texels.checked_mul(3 * NCOEF + 1).ok_or_else(too_big)?;
@@ -382,17 +358,11 @@ fn validate(img: &PtmImage) -> Result<usize> {
         ));
     }
     if let Some(i) = img.coeffs.iter().position(|v| !v.is_finite()) {
-        return Err(Error::arg(
-            "coeffs",
-            format!("value {i} is {}, not finite", img.coeffs[i]),
-        ));
+        return Err(Error::arg("coeffs", format!("value {i} is {}, not finite", img.coeffs[i])));
     }
     match (img.format, &img.rgb) {
         (PtmFormat::Rgb, Some(_)) => {
-            return Err(Error::arg(
-                "rgb",
-                "must be None for PtmFormat::Rgb (the colour is in the coefficients)",
-            ));
+            return Err(Error::arg("rgb", "must be None for PtmFormat::Rgb (the colour is in the coefficients)"));
         }
         (PtmFormat::Rgb, None) => {}
         (PtmFormat::Lrgb, None) => {
@@ -412,10 +382,7 @@ fn validate(img: &PtmImage) -> Result<usize> {
                 ));
             }
             if let Some(i) = rgb.iter().position(|v| !(0.0..=1.0).contains(v)) {
-                return Err(Error::arg(
-                    "rgb",
-                    format!("value {i} is {}, outside [0, 1]", rgb[i]),
-                ));
+                return Err(Error::arg("rgb", format!("value {i} is {}, outside [0, 1]", rgb[i])));
             }
         }
     }
@@ -468,27 +435,17 @@ fn format_scale(s: f32) -> String {
 
 /// Decode the bytes of a `.ptm` file. `path_for_errors` names the file in [`Error::Format`].
 pub fn decode_ptm(bytes: &[u8], path_for_errors: &str) -> Result<PtmImage> {
-    let mut hdr = Header {
-        bytes,
-        pos: 0,
-        path: path_for_errors,
-    };
+    let mut hdr = Header { bytes, pos: 0, path: path_for_errors };
 
     let version = hdr.token("version string")?;
     let interleaved_lrgb = match version {
         b"PTM_1.2" => false,
         b"PTM_1.1" => true,
         v if v.starts_with(b"PTM_") => {
-            return Err(hdr.err(format!(
-                "unsupported PTM version {} (this reader knows PTM_1.1 and PTM_1.2)",
-                show(v)
-            )));
+            return Err(hdr.err(format!("unsupported PTM version {} (this reader knows PTM_1.1 and PTM_1.2)", show(v))));
         }
         v => {
-            return Err(hdr.err(format!(
-                "not a PTM file: it starts with {}, not PTM_1.2",
-                show(v)
-            )));
+            return Err(hdr.err(format!("not a PTM file: it starts with {}, not PTM_1.2", show(v))));
         }
     };
 
@@ -553,9 +510,7 @@ pub fn decode_ptm(bytes: &[u8], path_for_errors: &str) -> Result<PtmImage> {
     // Byte -> coefficient in our units, per coefficient index: (c - bias) * scale is in byte
     // units, / 255 makes 255 = 1.0.
     let lut: Vec<[f32; 256]> = (0..NCOEF)
-        .map(|k| {
-            std::array::from_fn(|c| ((c as f64 - bias[k]) * f64::from(scale[k]) / 255.0) as f32)
-        })
+        .map(|k| std::array::from_fn(|c| ((c as f64 - bias[k]) * f64::from(scale[k]) / 255.0) as f32))
         .collect();
 
     let (w, h) = (width, height);
@@ -603,13 +558,7 @@ pub fn decode_ptm(bytes: &[u8], path_for_errors: &str) -> Result<PtmImage> {
             Some(rgb)
         }
     };
-    Ok(PtmImage {
-        width,
-        height,
-        format,
-        coeffs,
-        rgb,
-    })
+    Ok(PtmImage { width, height, format, coeffs, rgb })
 }
 
 /// A cursor over the text header.
@@ -630,9 +579,7 @@ impl<'a> Header<'a> {
             self.pos += 1;
         }
         if self.pos == self.bytes.len() {
-            return Err(self.err(format!(
-                "truncated: the file ends in the header, before the {what}"
-            )));
+            return Err(self.err(format!("truncated: the file ends in the header, before the {what}")));
         }
         let start = self.pos;
         while self.pos < self.bytes.len() && !self.bytes[self.pos].is_ascii_whitespace() {
@@ -653,12 +600,7 @@ impl<'a> Header<'a> {
         let v = std::str::from_utf8(t)
             .ok()
             .and_then(|t| t.parse::<usize>().ok())
-            .ok_or_else(|| {
-                self.err(format!(
-                    "the {what} is not a non-negative integer: {}",
-                    show(t)
-                ))
-            })?;
+            .ok_or_else(|| self.err(format!("the {what} is not a non-negative integer: {}", show(t))))?;
         if v == 0 {
             return Err(self.err(format!("the {what} is 0")));
         }
@@ -677,9 +619,10 @@ impl<'a> Header<'a> {
                 Ok(())
             }
             None => Err(self.err("truncated: the file ends after the header, with no data")),
-            Some(_) => Err(self.err(
-                "expected the end of the line after the six bias values (a newline before the binary data)",
-            )),
+            Some(_) => {
+                Err(self
+                    .err("expected the end of the line after the six bias values (a newline before the binary data)"))
+            }
         }
     }
 }
@@ -710,14 +653,7 @@ mod tests {
     }
 
     /// Typical ranges per coefficient index: quadratic terms negative-ish, a5 positive.
-    const RANGES: [(f32, f32); 6] = [
-        (-0.8, 0.1),
-        (-0.6, 0.3),
-        (-0.2, 0.25),
-        (-0.5, 0.9),
-        (-0.9, 0.4),
-        (0.05, 1.3),
-    ];
+    const RANGES: [(f32, f32); 6] = [(-0.8, 0.1), (-0.6, 0.3), (-0.2, 0.25), (-0.5, 0.9), (-0.9, 0.4), (0.05, 1.3)];
 
     fn random_image(format: PtmFormat, w: usize, h: usize, seed: u64) -> PtmImage {
         let mut rng = Rng(seed);
@@ -728,15 +664,8 @@ mod tests {
                 rng.uniform(lo, hi)
             })
             .collect();
-        let rgb =
-            (format == PtmFormat::Lrgb).then(|| (0..w * h * 3).map(|_| rng.next_f32()).collect());
-        PtmImage {
-            width: w,
-            height: h,
-            format,
-            coeffs,
-            rgb,
-        }
+        let rgb = (format == PtmFormat::Lrgb).then(|| (0..w * h * 3).map(|_| rng.next_f32()).collect());
+        PtmImage { width: w, height: h, format, coeffs, rgb }
     }
 
     /// The header's six lines and the offset of the binary data.
@@ -758,18 +687,12 @@ mod tests {
     fn assert_roundtrip(img: &PtmImage) {
         let (bytes, q) = encode_ptm(img).unwrap();
         let back = decode_ptm(&bytes, "mem.ptm").unwrap();
-        assert_eq!(
-            (back.width, back.height, back.format),
-            (img.width, img.height, img.format)
-        );
+        assert_eq!((back.width, back.height, back.format), (img.width, img.height, img.format));
         assert_eq!(back.coeffs.len(), img.coeffs.len());
         for (i, (&a, &d)) in img.coeffs.iter().zip(&back.coeffs).enumerate() {
             let k = i % 6;
             let bound = q.scale[k] / 2.0 + 1e-6 * a.abs().max(1.0);
-            assert!(
-                (a - d).abs() <= bound,
-                "coefficient {i} (a{k}): {a} -> {d}, bound {bound}"
-            );
+            assert!((a - d).abs() <= bound, "coefficient {i} (a{k}): {a} -> {d}, bound {bound}");
         }
         match (&img.rgb, &back.rgb) {
             (None, None) => {}
@@ -806,11 +729,7 @@ mod tests {
                 let lo = vals.clone().fold(f32::INFINITY, |m, &v| m.min(v));
                 let hi = vals.fold(f32::NEG_INFINITY, |m, &v| m.max(v));
                 let ideal = (hi - lo) / 255.0;
-                assert!(
-                    (q.scale[k] - ideal).abs() <= 1e-6 * ideal,
-                    "a{k}: scale {} vs {ideal}",
-                    q.scale[k]
-                );
+                assert!((q.scale[k] - ideal).abs() <= 1e-6 * ideal, "a{k}: scale {} vs {ideal}", q.scale[k]);
                 let codes = coef_bytes.iter().skip(k).step_by(6);
                 let cmin = *codes.clone().min().unwrap();
                 let cmax = *codes.max().unwrap();
@@ -829,20 +748,10 @@ mod tests {
             let t = i as f32 / (w * h) as f32;
             coeffs.extend_from_slice(&[0.0, 0.7, -0.3, 1000.0 + 0.001 * t, 1e-30 * t, t]);
         }
-        let img = PtmImage {
-            width: w,
-            height: h,
-            format: PtmFormat::Lrgb,
-            coeffs,
-            rgb: Some(vec![0.5; w * h * 3]),
-        };
+        let img = PtmImage { width: w, height: h, format: PtmFormat::Lrgb, coeffs, rgb: Some(vec![0.5; w * h * 3]) };
         let (bytes, q) = encode_ptm(&img).unwrap();
         for k in 0..6 {
-            assert!(
-                q.scale[k] > 0.0 && q.scale[k].is_finite(),
-                "a{k}: scale {}",
-                q.scale[k]
-            );
+            assert!(q.scale[k] > 0.0 && q.scale[k].is_finite(), "a{k}: scale {}", q.scale[k]);
             assert!(q.bias[k].abs() <= 32767, "a{k}: bias {}", q.bias[k]);
         }
         // The header stays short and parseable by line-based readers.
@@ -850,10 +759,7 @@ mod tests {
         assert!(lines[4].len() < 200, "scale line {:?}", lines[4]);
         assert_roundtrip(&img);
         let back = decode_ptm(&bytes, "mem").unwrap();
-        assert!(
-            back.coeffs.iter().step_by(6).all(|&v| v == 0.0),
-            "all-zero a0 decodes exactly"
-        );
+        assert!(back.coeffs.iter().step_by(6).all(|&v| v == 0.0), "all-zero a0 decodes exactly");
     }
 
     #[test]
@@ -866,23 +772,13 @@ mod tests {
             for y in 0..h {
                 for x in 0..w {
                     for p in 0..per / 6 {
-                        coeffs[(y * w + x) * per + p * 6 + 5] =
-                            0.2 + 0.6 * y as f32 + 0.01 * x as f32;
+                        coeffs[(y * w + x) * per + p * 6 + 5] = 0.2 + 0.6 * y as f32 + 0.01 * x as f32;
                     }
                 }
             }
-            let rgb = (format == PtmFormat::Lrgb).then(|| {
-                (0..w * h * 3)
-                    .map(|i| if i / (w * 3) == 0 { 0.2 } else { 0.8 })
-                    .collect::<Vec<f32>>()
-            });
-            let img = PtmImage {
-                width: w,
-                height: h,
-                format,
-                coeffs,
-                rgb,
-            };
+            let rgb = (format == PtmFormat::Lrgb)
+                .then(|| (0..w * h * 3).map(|i| if i / (w * 3) == 0 { 0.2 } else { 0.8 }).collect::<Vec<f32>>());
+            let img = PtmImage { width: w, height: h, format, coeffs, rgb };
             let (bytes, _) = encode_ptm(&img).unwrap();
             let (_, at) = split_header(&bytes);
             let data = &bytes[at..];
@@ -910,10 +806,7 @@ mod tests {
                 }
             }
             let back = decode_ptm(&bytes, "mem").unwrap();
-            assert!(
-                back.coeffs[5] < back.coeffs[w * per + 5],
-                "{format:?}: decoded rows flipped back"
-            );
+            assert!(back.coeffs[5] < back.coeffs[w * per + 5], "{format:?}: decoded rows flipped back");
         }
     }
 
@@ -957,16 +850,9 @@ mod tests {
             let (w, h) = (4, 3);
             let (lu, lv) = (0.3f64, -0.5f64);
             let m = [lu * lu, lv * lv, lu * lv, lu, lv, 1.0];
-            let poly = |s: &[u8]| {
-                (0..6)
-                    .map(|k| (f64::from(s[k]) - bias[k]) * scale[k] * m[k])
-                    .sum::<f64>()
-            };
+            let poly = |s: &[u8]| (0..6).map(|k| (f64::from(s[k]) - bias[k]) * scale[k] * m[k]).sum::<f64>();
             // Worst-case quantization error of the polynomial, in our units.
-            let tol: f64 = (0..6)
-                .map(|k| f64::from(q.scale[k]) / 2.0 * m[k].abs())
-                .sum::<f64>()
-                + 0.5 / 255.0 * 2.0;
+            let tol: f64 = (0..6).map(|k| f64::from(q.scale[k]) / 2.0 * m[k].abs()).sum::<f64>() + 0.5 / 255.0 * 2.0;
             for y in 0..h {
                 for x in 0..w {
                     let want = img.eval(x, y, lu as f32, lv as f32);
@@ -975,15 +861,9 @@ mod tests {
                         PtmFormat::Lrgb => {
                             let l = poly(&data[t * 6..]) / 255.0;
                             let c = &data[w * h * 6 + t * 3..];
-                            [
-                                f64::from(c[0]) * l,
-                                f64::from(c[1]) * l,
-                                f64::from(c[2]) * l,
-                            ]
+                            [f64::from(c[0]) * l, f64::from(c[1]) * l, f64::from(c[2]) * l]
                         }
-                        PtmFormat::Rgb => {
-                            std::array::from_fn(|ch| poly(&data[ch * w * h * 6 + t * 6..]))
-                        }
+                        PtmFormat::Rgb => std::array::from_fn(|ch| poly(&data[ch * w * h * 6 + t * 6..])),
                     };
                     for c in 0..3 {
                         let got = shown[c] / 255.0;
@@ -1002,9 +882,7 @@ mod tests {
     fn hand_written_files_decode() {
         // As another tool might write it: CRLF, trailing spaces, width and height on one line,
         // one number per line, a float bias.
-        let mut lrgb =
-            b"PTM_1.2 \r\nPTM_FORMAT_LRGB\r\n2 1\r\n2.0\n1 \n 1\n1\n1\n0.5\n0 0\n0 0 0 128.0 \r\n"
-                .to_vec();
+        let mut lrgb = b"PTM_1.2 \r\nPTM_FORMAT_LRGB\r\n2 1\r\n2.0\n1 \n 1\n1\n1\n0.5\n0 0\n0 0 0 128.0 \r\n".to_vec();
         // texel 0 (x=0), texel 1 (x=1): a0..a5
         lrgb.extend_from_slice(&[10, 20, 30, 40, 50, 60, 255, 0, 1, 2, 3, 100]);
         lrgb.extend_from_slice(&[255, 0, 51, 1, 2, 3]);
@@ -1018,10 +896,7 @@ mod tests {
             let want = ((f64::from(r) - bias[k]) * scale[k] / 255.0) as f32;
             assert_eq!(img.coeffs[i], want, "coefficient {i}");
         }
-        assert_eq!(
-            img.rgb.as_deref().unwrap(),
-            &[1.0, 0.0, 0.2, 1.0 / 255.0, 2.0 / 255.0, 3.0 / 255.0]
-        );
+        assert_eq!(img.rgb.as_deref().unwrap(), &[1.0, 0.0, 0.2, 1.0 / 255.0, 2.0 / 255.0, 3.0 / 255.0]);
 
         // PTM_FORMAT_RGB, 1 x 2: the file's first row is the image's bottom row (row 1).
         let mut rgb = b"PTM_1.2\nPTM_FORMAT_RGB\n1\n2\n1 1 1 1 1 1\n0 0 0 0 0 0\n".to_vec();
@@ -1032,26 +907,15 @@ mod tests {
         let img = decode_ptm(&rgb, "rgb.ptm").unwrap();
         assert!(img.rgb.is_none());
         for ch in 0..3 {
-            assert_eq!(
-                img.coeffs[ch * 6 + 5],
-                (10 + ch) as f32 / 255.0,
-                "top row, channel {ch}"
-            );
-            assert_eq!(
-                img.coeffs[18 + ch * 6 + 5],
-                (200 + ch) as f32 / 255.0,
-                "bottom row, channel {ch}"
-            );
+            assert_eq!(img.coeffs[ch * 6 + 5], (10 + ch) as f32 / 255.0, "top row, channel {ch}");
+            assert_eq!(img.coeffs[18 + ch * 6 + 5], (200 + ch) as f32 / 255.0, "bottom row, channel {ch}");
         }
 
         // PTM_1.1 LRGB interleaves the colour with the coefficients.
         let mut old = b"PTM_1.1\nPTM_FORMAT_LRGB\n1\n1\n1 1 1 1 1 1\n0 0 0 0 0 0\n".to_vec();
         old.extend_from_slice(&[1, 2, 3, 4, 5, 6, 7, 8, 9]);
         let img = decode_ptm(&old, "old.ptm").unwrap();
-        assert_eq!(
-            img.coeffs,
-            [1.0, 2.0, 3.0, 4.0, 5.0, 6.0].map(|v: f32| v / 255.0)
-        );
+        assert_eq!(img.coeffs, [1.0, 2.0, 3.0, 4.0, 5.0, 6.0].map(|v: f32| v / 255.0));
         assert_eq!(img.rgb.unwrap(), [7.0, 8.0, 9.0].map(|v: f32| v / 255.0));
     }
 
@@ -1081,27 +945,18 @@ mod tests {
         let (good, _) = encode_ptm(&random_image(PtmFormat::Lrgb, 3, 2, 7)).unwrap();
         assert!(format_error(&good[..good.len() - 1]).contains("truncated"));
         let (lines, at) = split_header(&good);
-        assert!(
-            format_error(&good[..at - 1]).contains("truncated"),
-            "cut inside the header"
-        );
+        assert!(format_error(&good[..at - 1]).contains("truncated"), "cut inside the header");
 
         let unknown = b"PTM_1.2\nPTM_FORMAT_FOO\n1\n1\n1 1 1 1 1 1\n0 0 0 0 0 0\n";
         assert!(format_error(unknown).contains("PTM_FORMAT_FOO"));
         let jpeg = b"PTM_1.2\nPTM_FORMAT_JPEG_LRGB\n1\n1\n1 1 1 1 1 1\n0 0 0 0 0 0\n";
         let msg = format_error(jpeg);
-        assert!(
-            msg.contains("PTM_FORMAT_JPEG_LRGB") && msg.contains("not supported"),
-            "{msg}"
-        );
+        assert!(msg.contains("PTM_FORMAT_JPEG_LRGB") && msg.contains("not supported"), "{msg}");
         assert!(format_error(b"PTM_1.2\nPTM_FORMAT_LUM\n").contains("PTM_FORMAT_LUM"));
         assert!(format_error(b"PTM_1.0\nPTM_FORMAT_LRGB\n").contains("PTM_1.0"));
         assert!(format_error(b"\x89PNG\r\n\x1a\n").contains("not a PTM file"));
 
-        let bad_scale = format!(
-            "PTM_1.2\nPTM_FORMAT_LRGB\n1\n1\n1 1 x 1 1 1\n{}\n",
-            lines[5]
-        );
+        let bad_scale = format!("PTM_1.2\nPTM_FORMAT_LRGB\n1\n1\n1 1 x 1 1 1\n{}\n", lines[5]);
         assert!(format_error(bad_scale.as_bytes()).contains("scale value 3"));
         let nan_scale = b"PTM_1.2\nPTM_FORMAT_LRGB\n1\n1\n1 1 NaN 1 1 1\n0 0 0 0 0 0\n";
         assert!(format_error(nan_scale).contains("scale value 3"));
@@ -1109,13 +964,9 @@ mod tests {
         assert!(format_error(zero_w).contains("width"));
         let neg_h = b"PTM_1.2\nPTM_FORMAT_LRGB\n1\n-1\n1 1 1 1 1 1\n0 0 0 0 0 0\n";
         assert!(format_error(neg_h).contains("height"));
-        let huge =
-            b"PTM_1.2\nPTM_FORMAT_RGB\n99999999999\n99999999999\n1 1 1 1 1 1\n0 0 0 0 0 0\n\0";
+        let huge = b"PTM_1.2\nPTM_FORMAT_RGB\n99999999999\n99999999999\n1 1 1 1 1 1\n0 0 0 0 0 0\n\0";
         let msg = format_error(huge);
-        assert!(
-            msg.contains("too large") || msg.contains("truncated"),
-            "{msg}"
-        );
+        assert!(msg.contains("too large") || msg.contains("truncated"), "{msg}");
         let no_newline = b"PTM_1.2\nPTM_FORMAT_LRGB\n1\n1\n1 1 1 1 1 1\n0 0 0 0 0 0 7";
         assert!(format_error(no_newline).contains("bias"));
     }
@@ -1130,22 +981,8 @@ mod tests {
     #[test]
     fn encode_validation_errors() {
         let good = random_image(PtmFormat::Lrgb, 2, 2, 8);
-        assert_eq!(
-            arg_error(&PtmImage {
-                width: 0,
-                ..good.clone()
-            })
-            .0,
-            "width"
-        );
-        assert_eq!(
-            arg_error(&PtmImage {
-                height: 0,
-                ..good.clone()
-            })
-            .0,
-            "height"
-        );
+        assert_eq!(arg_error(&PtmImage { width: 0, ..good.clone() }).0, "width");
+        assert_eq!(arg_error(&PtmImage { height: 0, ..good.clone() }).0, "height");
         let mut nan = good.clone();
         nan.coeffs[5] = f32::NAN;
         let (name, msg) = arg_error(&nan);
@@ -1157,39 +994,18 @@ mod tests {
         let mut short = good.clone();
         short.coeffs.pop();
         assert_eq!(arg_error(&short).0, "coeffs");
-        assert_eq!(
-            arg_error(&PtmImage {
-                rgb: None,
-                ..good.clone()
-            })
-            .0,
-            "rgb"
-        );
-        assert_eq!(
-            arg_error(&PtmImage {
-                rgb: Some(vec![0.5; 11]),
-                ..good.clone()
-            })
-            .0,
-            "rgb"
-        );
+        assert_eq!(arg_error(&PtmImage { rgb: None, ..good.clone() }).0, "rgb");
+        assert_eq!(arg_error(&PtmImage { rgb: Some(vec![0.5; 11]), ..good.clone() }).0, "rgb");
         let mut bright = good.clone();
         bright.rgb.as_mut().unwrap()[3] = 1.5;
         assert_eq!(arg_error(&bright).0, "rgb");
         let mut nan_rgb = good.clone();
         nan_rgb.rgb.as_mut().unwrap()[0] = f32::NAN;
         assert_eq!(arg_error(&nan_rgb).0, "rgb");
-        let rgb_with_colour = PtmImage {
-            rgb: Some(vec![0.5; 12]),
-            ..random_image(PtmFormat::Rgb, 2, 2, 9)
-        };
+        let rgb_with_colour = PtmImage { rgb: Some(vec![0.5; 12]), ..random_image(PtmFormat::Rgb, 2, 2, 9) };
         assert_eq!(arg_error(&rgb_with_colour).0, "rgb");
         // The Rgb layout needs 18 values per texel, not 6.
-        let wrong_layout = PtmImage {
-            format: PtmFormat::Rgb,
-            rgb: None,
-            ..good
-        };
+        let wrong_layout = PtmImage { format: PtmFormat::Rgb, rgb: None, ..good };
         assert_eq!(arg_error(&wrong_layout).0, "coeffs");
     }
 
@@ -1207,10 +1023,8 @@ mod tests {
     }
 
     fn dir_entries(dir: &Path) -> Vec<String> {
-        let mut names: Vec<String> = fs::read_dir(dir)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect();
+        let mut names: Vec<String> =
+            fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
         names.sort();
         names
     }
@@ -1224,10 +1038,7 @@ mod tests {
         assert_eq!(dir_entries(dir.path()), ["out.ptm"]);
         let back = read_ptm(&path).unwrap();
         for (i, (&a, &d)) in img.coeffs.iter().zip(&back.coeffs).enumerate() {
-            assert!(
-                (a - d).abs() <= q.scale[i % 6] / 2.0 + 1e-6,
-                "coefficient {i}"
-            );
+            assert!((a - d).abs() <= q.scale[i % 6] / 2.0 + 1e-6, "coefficient {i}");
         }
         // Overwriting an existing target replaces it.
         let img2 = random_image(PtmFormat::Lrgb, 2, 2, 11);
@@ -1261,10 +1072,7 @@ mod tests {
 
         // An invalid image fails before touching the disk.
         let bad = PtmImage { width: 0, ..img };
-        assert!(matches!(
-            write_ptm(&dir.path().join("x.ptm"), &bad),
-            Err(Error::InvalidArgument { .. })
-        ));
+        assert!(matches!(write_ptm(&dir.path().join("x.ptm"), &bad), Err(Error::InvalidArgument { .. })));
         assert_eq!(dir_entries(dir.path()), ["taken.ptm"]);
     }
 }

@@ -53,7 +53,7 @@ impl<'py> BtfArgs<'py> {
 #[pyfunction]
 pub fn ubo81(py: Python<'_>) -> PyResult<Bound<'_, PyArray2<f64>>> {
     let d = directions::ubo81();
-    Ok(PyArray2::from_vec2(py, &d.iter().map(|x| x.to_vec()).collect::<Vec<_>>()).map_err(|e| arg("ubo81", e))?)
+    PyArray2::from_vec2(py, &d.iter().map(|x| x.to_vec()).collect::<Vec<_>>()).map_err(|e| arg("ubo81", e))
 }
 
 /// Validate a BTF's arrays: shapes, unit directions with z >= 0, finite values (parallel scan).
@@ -71,6 +71,8 @@ pub fn validate_btf(
     detach(py, || btf::check_finite("data", b.data))
 }
 
+type MaskArray<'py> = Bound<'py, PyArrayDyn<bool>>;
+
 /// Split the present (view, light) pairs into train and test masks, `[V, L]` each.
 #[pyfunction]
 #[pyo3(signature = (n_views, n_lights, holdout, seed, mask=None))]
@@ -81,7 +83,7 @@ pub fn split_pairs<'py>(
     holdout: f64,
     seed: u64,
     mask: Option<&Bound<'py, PyAny>>,
-) -> PyResult<(Bound<'py, PyArrayDyn<bool>>, Bound<'py, PyArrayDyn<bool>>)> {
+) -> PyResult<(MaskArray<'py>, MaskArray<'py>)> {
     let m = mask.map(|m| borrow::<bool>("mask", m)).transpose()?;
     let ms = match &m {
         Some(m) => Some(m.as_slice().map_err(|e| arg("mask", e))?),
@@ -129,5 +131,5 @@ pub fn make_material<'py>(
     };
     let btf = monitored(py, progress, |m| generate(&spec, m))?;
     let shape = [btf.height, btf.width, btf.views.len(), btf.lights.len(), 3];
-    Ok(btf.data.into_pyarray(py).reshape(shape.to_vec())?)
+    btf.data.into_pyarray(py).reshape(shape.to_vec())
 }

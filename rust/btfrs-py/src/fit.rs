@@ -105,7 +105,7 @@ impl PyPtm {
             PtmKind::Rgb => vec![p.height, p.width, nv, 3, 6],
             PtmKind::Lrgb => vec![p.height, p.width, nv, 6],
         };
-        Ok(p.coeffs.clone().into_pyarray(py).reshape(shape)?)
+        p.coeffs.clone().into_pyarray(py).reshape(shape)
     }
 
     /// A copy of the LRGB base colours, or None.
@@ -120,7 +120,7 @@ impl PyPtm {
     /// The view slots' directions `[V, 3]`.
     fn views<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let v: Vec<f64> = self.inner.views.iter().flatten().copied().collect();
-        Ok(v.into_pyarray(py).reshape(vec![self.inner.views.len(), 3])?)
+        v.into_pyarray(py).reshape(vec![self.inner.views.len(), 3])
     }
 
     /// `[H, W, 3]` image for one view and one light.
@@ -132,7 +132,7 @@ impl PyPtm {
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let (v, l) = (vec3("view", view)?, vec3("light", light)?);
         let img = detach(py, || evaluate_image(&self.inner, v, l))?;
-        Ok(img.into_pyarray(py).reshape(vec![self.inner.height, self.inner.width, 3])?)
+        img.into_pyarray(py).reshape(vec![self.inner.height, self.inner.width, 3])
     }
 
     /// Error against the present pairs of a BTF: dict of rmse, relative, psnr, samples.

@@ -20,13 +20,20 @@ fn apply<'py, const IN: usize, const OUT: usize>(
             let shape = a.shape().to_vec();
             if shape.last() != Some(&IN) {
                 let mut want: Vec<Option<usize>> = shape.iter().map(|_| None).collect();
-                if let Some(w) = want.last_mut() { *w = Some(IN) } else { want.push(Some(IN)) }
+                if let Some(w) = want.last_mut() {
+                    *w = Some(IN)
+                } else {
+                    want.push(Some(IN))
+                }
                 check_shape(name, &shape, &want)?;
             }
             let owned;
             let s: &[$t] = match a.as_slice() {
                 Ok(s) => s,
-                Err(_) => { owned = a.as_array().iter().copied().collect::<Vec<$t>>(); &owned }
+                Err(_) => {
+                    owned = a.as_array().iter().copied().collect::<Vec<$t>>();
+                    &owned
+                }
             };
             if let Some(i) = s.iter().position(|v| !v.is_finite()) {
                 return Err(arg(name, format!("value at flat index {i} is not finite")));

@@ -4,9 +4,9 @@ use crate::arrays::{borrow, check_shape};
 use crate::errors::{arg, IntoPy};
 use crate::fit::PyPtm;
 use crate::run::detach;
+use btfrs_fit::PtmKind;
 use btfrs_io::container::{self, as_bytes, ArrayRef, Dtype};
 use btfrs_io::ptm_file::{self, PtmFormat, PtmImage};
-use btfrs_fit::PtmKind;
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use std::path::PathBuf;
@@ -153,5 +153,5 @@ pub fn write_png(py: Python<'_>, path: PathBuf, image: &Bound<'_, PyAny>, exposu
 #[pyfunction]
 pub fn read_png(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyArrayDyn<f32>>> {
     let (v, w, h) = detach(py, || btfrs_io::image::read_png(&path))?;
-    Ok(v.into_pyarray(py).reshape(vec![h, w, 3])?)
+    v.into_pyarray(py).reshape(vec![h, w, 3])
 }

@@ -85,11 +85,19 @@ fn fbm(seed: u64, cells: i64, x: f64, y: f64) -> f64 {
 /// How many whole repetitions of a pattern of period `period` texels fit the sample.
 fn repeats(size: usize, period: f64, even: bool) -> i64 {
     let n = (size as f64 / period).round().max(1.0) as i64;
-    if even { (n + (n & 1)).max(2) } else { n }
+    if even {
+        (n + (n & 1)).max(2)
+    } else {
+        n
+    }
 }
 
 fn cap(d2: f64) -> f64 {
-    if d2 < 1.0 { (1.0 - d2).sqrt() } else { 0.0 }
+    if d2 < 1.0 {
+        (1.0 - d2).sqrt()
+    } else {
+        0.0
+    }
 }
 
 fn knit(seed: u64, size: usize, x: f64, y: f64) -> Sample {

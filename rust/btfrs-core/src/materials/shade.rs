@@ -45,15 +45,19 @@ fn range(s: &Surface) -> (f64, f64, f64) {
 
 /// For every view and grid texel, the (x, y) of the surface point that texel shows: the first
 /// intersection of the ray through the mean-height plane above the texel, travelling along `-v`.
-/// Layout `[V][texel]`.
-pub(super) fn hit_points(s: &Surface, views: &[[f64; 3]]) -> Vec<Vec<[f64; 2]>> {
+/// Layout `[V][texel]`. Counts one unit per view on `monitor`; once cancelled, the remaining
+/// views are skipped (left empty) and the caller's `monitor.check()` reports the interruption.
+pub(super) fn hit_points(s: &Surface, views: &[[f64; 3]], monitor: &Monitor) -> Vec<Vec<[f64; 2]>> {
     let (lo, hi, zref) = range(s);
     let n = s.size;
     views
         .par_iter()
         .map(|v| {
+            if monitor.is_cancelled() {
+                return Vec::new();
+            }
             let vz = v[2].max(MIN_COS);
-            (0..n * n)
+            let hits = (0..n * n)
                 .map(|g| {
                     let (x, y) = ((g % n) as f64 + 0.5, (g / n) as f64 + 0.5);
                     if hi - lo < 1e-9 || v[2] >= 1.0 - 1e-12 {
@@ -76,7 +80,11 @@ pub(super) fn hit_points(s: &Surface, views: &[[f64; 3]]) -> Vec<Vec<[f64; 2]>> 
                             let (mut a, mut b) = (t_prev, t);
                             for _ in 0..10 {
                                 let m = 0.5 * (a + b);
-                                if below(m) { b = m } else { a = m }
+                                if below(m) {
+                                    b = m
+                                } else {
+                                    a = m
+                                }
                             }
                             hit = 0.5 * (a + b);
                             break;
@@ -86,37 +94,47 @@ pub(super) fn hit_points(s: &Surface, views: &[[f64; 3]]) -> Vec<Vec<[f64; 2]>> 
                     let q = at(hit);
                     [q[0], q[1]]
                 })
-                .collect()
+                .collect();
+            monitor.advance(1);
+            hits
         })
         .collect()
 }
 
 /// Soft visibility of every light from every grid texel's surface point, layout `[texel][L]`.
-pub(super) fn shadow_maps(s: &Surface, lights: &[[f64; 3]]) -> Vec<f32> {
+/// Counts one unit per grid row on `monitor` and stops early once it is cancelled.
+pub(super) fn shadow_maps(s: &Surface, lights: &[[f64; 3]], monitor: &Monitor) -> Vec<f32> {
     let (_, hi, _) = range(s);
     let n = s.size;
     let nl = lights.len();
     let mut out = vec![1.0f32; n * n * nl];
-    out.par_chunks_mut(nl).enumerate().for_each(|(g, row)| {
-        let (x, y) = ((g % n) as f64 + 0.5, (g / n) as f64 + 0.5);
-        let z = s.height[g] as f64;
-        for (l, d) in lights.iter().enumerate() {
-            let lz = d[2].max(MIN_COS);
-            let mut vis: f64 = 1.0;
-            let mut t = 0.5 * STEP;
-            // Once the ray is above the highest point nothing can occlude it any more.
-            while z + t * lz <= hi {
-                let q = [x + t * d[0], y + t * d[1], z + t * lz];
-                let gap = q[2] - height_at(s, q[0], q[1]);
-                vis = vis.min(PENUMBRA * gap / t);
-                if vis <= 0.0 {
-                    vis = 0.0;
-                    break;
-                }
-                t += STEP;
-            }
-            row[l] = vis.clamp(0.0, 1.0) as f32;
+    out.par_chunks_mut(nl * n).enumerate().for_each(|(gy, grid_row)| {
+        if monitor.is_cancelled() {
+            return;
         }
+        for (gx, row) in grid_row.chunks_mut(nl).enumerate() {
+            let g = gy * n + gx;
+            let (x, y) = (gx as f64 + 0.5, gy as f64 + 0.5);
+            let z = s.height[g] as f64;
+            for (l, d) in lights.iter().enumerate() {
+                let lz = d[2].max(MIN_COS);
+                let mut vis: f64 = 1.0;
+                let mut t = 0.5 * STEP;
+                // Once the ray is above the highest point nothing can occlude it any more.
+                while z + t * lz <= hi {
+                    let q = [x + t * d[0], y + t * d[1], z + t * lz];
+                    let gap = q[2] - height_at(s, q[0], q[1]);
+                    vis = vis.min(PENUMBRA * gap / t);
+                    if vis <= 0.0 {
+                        vis = 0.0;
+                        break;
+                    }
+                    t += STEP;
+                }
+                row[l] = vis.clamp(0.0, 1.0) as f32;
+            }
+        }
+        monitor.advance(1);
     });
     out
 }
@@ -131,12 +149,11 @@ pub(super) fn render_btf(
 ) -> Result<Vec<f32>> {
     let n = s.size;
     let (nv, nl) = (views.len(), lights.len());
-    monitor.start(n as u64 + 2);
-    let hits = hit_points(s, views);
-    monitor.advance(1);
+    // Progress units: one per view (masking), one per grid row (shadows), one per output row.
+    monitor.start((nv + 2 * n) as u64);
+    let hits = hit_points(s, views, monitor);
     monitor.check()?;
-    let shadow = shadow_maps(s, lights);
-    monitor.advance(1);
+    let shadow = shadow_maps(s, lights, monitor);
     monitor.check()?;
     let per_texel = nv * nl * 3;
     let lf: Vec<[f32; 3]> = lights.iter().map(|d| d.map(|c| c as f32)).collect();
@@ -203,12 +220,7 @@ fn blur(data: &[f32], n: usize, per: usize, a: f32) -> Vec<f32> {
     let mut out = vec![0.0f32; data.len()];
     out.par_chunks_mut(per).enumerate().for_each(|(t, o)| {
         let (r, c) = (t / n, t % n);
-        let nb = [
-            ((r + n - 1) % n) * n + c,
-            ((r + 1) % n) * n + c,
-            r * n + (c + n - 1) % n,
-            r * n + (c + 1) % n,
-        ];
+        let nb = [((r + n - 1) % n) * n + c, ((r + 1) % n) * n + c, r * n + (c + n - 1) % n, r * n + (c + 1) % n];
         let me = &data[t * per..(t + 1) * per];
         for k in 0..per {
             let m: f32 = nb.iter().map(|&q| data[q * per + k]).sum::<f32>() * 0.25;

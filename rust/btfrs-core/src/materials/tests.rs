@@ -1,4 +1,5 @@
 //! Properties of the generated materials that can be checked in closed form.
+#![allow(clippy::needless_range_loop)] // index loops mirror the formulas being checked
 
 use super::*;
 use crate::directions::from_theta_phi;
@@ -35,7 +36,15 @@ fn flat_surface_is_lambert_plus_blinn_phong() {
 fn deterministic_per_seed_and_different_across_seeds() {
     let d = directions::ubo81();
     let mk = |seed| {
-        let spec = MaterialSpec { preset: Preset::Knit, size: 16, views: d.clone(), lights: d.clone(), seed, relief: 1.0, subsurface: 0.0 };
+        let spec = MaterialSpec {
+            preset: Preset::Knit,
+            size: 16,
+            views: d.clone(),
+            lights: d.clone(),
+            seed,
+            relief: 1.0,
+            subsurface: 0.0,
+        };
         generate(&spec, &Monitor::new()).unwrap().data
     };
     let a = mk(1);
@@ -50,7 +59,7 @@ fn grazing_lights_cast_shadows_and_overhead_light_does_not() {
     // degrees the relief of the knit must shadow a real part of the sample.
     let b_top = one(Preset::Knit, 1.0, vec![[0.0, 0.0, 1.0]], vec![[0.0, 0.0, 1.0]]);
     let s = presets::surface(Preset::Knit, 16, 3, 1.0);
-    let sm = shade::shadow_maps(&s, &[[0.0, 0.0, 1.0], from_theta_phi(75f64.to_radians(), 0.0)]);
+    let sm = shade::shadow_maps(&s, &[[0.0, 0.0, 1.0], from_theta_phi(75f64.to_radians(), 0.0)], &Monitor::new());
     let dark_top = sm.chunks(2).filter(|v| v[0] < 0.5).count();
     let dark_low = sm.chunks(2).filter(|v| v[1] < 0.5).count();
     assert_eq!(dark_top, 0);
@@ -64,7 +73,8 @@ fn the_sample_tiles_seamlessly() {
     for p in Preset::ALL {
         let s = presets::surface(p, 32, 1, 1.0);
         let h = |x: usize, y: usize| s.height[y * 32 + x] as f64;
-        let inner: f64 = (0..32).map(|y| (0..31).map(|x| (h(x + 1, y) - h(x, y)).abs()).fold(0.0, f64::max)).fold(0.0, f64::max);
+        let inner: f64 =
+            (0..32).map(|y| (0..31).map(|x| (h(x + 1, y) - h(x, y)).abs()).fold(0.0, f64::max)).fold(0.0, f64::max);
         let wrap: f64 = (0..32).map(|y| (h(0, y) - h(31, y)).abs()).fold(0.0, f64::max);
         assert!(wrap <= inner * 1.5 + 1e-6, "{p:?}: jump {wrap} across the seam, {inner} inside");
     }

@@ -1,3 +1,4 @@
+#![allow(clippy::needless_range_loop)] // index loops mirror the formulas being checked
 use super::*;
 use crate::model::{evaluate_image, model_error};
 use btfrs_core::directions::{from_theta_phi, ubo81};
@@ -15,7 +16,8 @@ fn polynomial_btf(h: usize, w: usize, seed: u64) -> (Vec<[f64; 3]>, Vec<f32>, Ve
                 let b = basis(*ld);
                 for c in 0..3 {
                     let a = &truth[((t * d.len() + v) * 3 + c) * NCOEF..][..NCOEF];
-                    data[((t * d.len() + v) * d.len() + l) * 3 + c] = (0..NCOEF).map(|k| a[k] * b[k]).sum::<f64>() as f32;
+                    data[((t * d.len() + v) * d.len() + l) * 3 + c] =
+                        (0..NCOEF).map(|k| a[k] * b[k]).sum::<f64>() as f32;
                 }
             }
         }
@@ -38,13 +40,15 @@ fn recovers_a_biquadratic_exactly() {
 fn held_out_pairs_do_not_influence_the_fit() {
     let (d, mut data, _) = polynomial_btf(2, 2, 2);
     let (train, test) = btfrs_core::split::split_pairs(81, 81, None, 0.2, 0).unwrap();
-    let a = fit_ptm(&BtfRef::new(2, 2, &d, &d, &data, Some(&train)).unwrap(), &PtmOptions::default(), &Monitor::new()).unwrap();
+    let a = fit_ptm(&BtfRef::new(2, 2, &d, &d, &data, Some(&train)).unwrap(), &PtmOptions::default(), &Monitor::new())
+        .unwrap();
     for (i, x) in data.iter_mut().enumerate() {
         if test[(i / 3) % (81 * 81)] {
             *x = 1e6;
         }
     }
-    let b = fit_ptm(&BtfRef::new(2, 2, &d, &d, &data, Some(&train)).unwrap(), &PtmOptions::default(), &Monitor::new()).unwrap();
+    let b = fit_ptm(&BtfRef::new(2, 2, &d, &d, &data, Some(&train)).unwrap(), &PtmOptions::default(), &Monitor::new())
+        .unwrap();
     assert_eq!(a.coeffs, b.coeffs);
 }
 
@@ -84,13 +88,15 @@ fn too_few_or_collinear_lights_are_errors() {
     let e = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap_err().to_string();
     assert!(e.contains("has 5 lights") && e.contains("at least 6"), "{e}");
     // Twelve lights on the arc phi = 0: (lu, lv) all on the line lv = 0.
-    let arc: Vec<[f64; 3]> = (0..12).map(|i| from_theta_phi(-1.2 + 0.2 * i as f64, 0.0)).map(|x| [x[0], x[1], x[2].abs()]).collect();
+    let arc: Vec<[f64; 3]> =
+        (0..12).map(|i| from_theta_phi(-1.2 + 0.2 * i as f64, 0.0)).map(|x| [x[0], x[1], x[2].abs()]).collect();
     let data = vec![0.5f32; 81 * 12 * 3];
     let btf = BtfRef::new(1, 1, &d, &arc, &data, None).unwrap();
     let e = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap_err().to_string();
     assert!(e.contains("collinear") && e.contains("view slot 0"), "{e}");
     // Clamped, the same data gives the minimum-norm fit, which reproduces the constant.
-    let ptm = fit_ptm(&btf, &PtmOptions { on_degenerate: Degenerate::Clamp, ..Default::default() }, &Monitor::new()).unwrap();
+    let ptm =
+        fit_ptm(&btf, &PtmOptions { on_degenerate: Degenerate::Clamp, ..Default::default() }, &Monitor::new()).unwrap();
     let e = model_error(&ptm, &btf).unwrap();
     assert!(e.rmse() < 1e-5, "{}", e.rmse());
 }
