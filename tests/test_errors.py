@@ -70,3 +70,41 @@ def test_ctrl_c_interrupts_long_work_promptly():
     out, _ = p.communicate(timeout=30)
     assert "interrupted" in out and "finished" not in out
     assert time.perf_counter() - t0 < 2.0
+
+
+def test_argument_checks_in_the_python_layer(knit):
+    with pytest.raises(ValueError, match="kind"):
+        btfrs.fit.ptm(knit, kind=None)
+    with pytest.raises(ValueError, match="seed"):
+        knit.split(0.1, seed=-1)
+    with pytest.raises(TypeError, match="seed"):
+        btfrs.materials.make("knit", size=16, seed=1.7)
+    with pytest.raises(ValueError, match=r"st: expected shape"):
+        btfrs.hemimap.square_to_hemisphere(0.5)
+    with pytest.raises(TypeError, match="real numbers"):
+        btfrs.hemimap.square_to_disk(np.array([0.5 + 1j, 0.5]))
+    ptm = btfrs.fit.ptm(knit.select(views=[0, 1]))
+    with pytest.raises(TypeError, match="bool"):
+        ptm.slot(True)
+
+
+def test_masks_from_raw_bytes_are_normalised():
+    d = btfrs.directions.ubo81()
+    raw = np.full((81, 81), 2, np.uint8)  # numpy reads every byte as True
+    raw[0, 0] = 0
+    b = btfrs.Btf(np.ones((1, 1, 81, 81, 3), np.float32), d, d, mask=raw.view(bool))
+    assert b.pairs == 81 * 81 - 1
+    train, test = b.split(0.1, seed=0)
+    assert train.pairs + test.pairs == 81 * 81 - 1
+
+
+def test_unchecked_samples_still_check_directions_and_shapes():
+    d = btfrs.directions.ubo81()
+    with pytest.raises(ValueError, match="views"):
+        btfrs.Btf(np.ones((1, 1, 81, 81, 3), np.float32), d * 2, d, check=False)
+    with pytest.raises(ValueError, match="non-empty"):
+        btfrs.Btf(np.ones((0, 1, 81, 81, 3), np.float32), d, d, check=False)
+    # check=False skips only the value scan.
+    bad = np.ones((1, 1, 81, 81, 3), np.float32)
+    bad[0, 0, 0, 0, 0] = np.nan
+    assert btfrs.Btf(bad, d, d, check=False).data is bad

@@ -85,7 +85,6 @@ def test_evaluate_at_a_slot_is_the_polynomial(knit):
     l = light / np.linalg.norm(light)
     basis = np.array([l[0] ** 2, l[1] ** 2, l[0] * l[1], l[0], l[1], 1.0])
     np.testing.assert_allclose(img, ptm.coeffs[:, :, 4] @ basis, rtol=1e-5, atol=1e-6)
-    # Between slots, the blend stays between the slots' values.
     assert img.shape == (32, 32, 3) and img.dtype == np.float32
     with pytest.raises(InvalidArgumentError, match="view"):
         ptm.evaluate(view=[0, 0, 0], light=light)
@@ -132,3 +131,20 @@ def test_black_texels_give_zero_coefficients_not_nan():
         if kind == "lrgb":
             np.testing.assert_array_equal(m.rgb[0, 0], 0)
             np.testing.assert_allclose(m.rgb[1, 2], 1.0, rtol=1e-6)
+
+
+def test_between_slots_the_image_is_a_blend_of_the_nearest_slots(knit):
+    # Between measured views, every pixel lies within the range of the nearest slots' values
+    # (a convex combination), and a small move of the view moves the image a little.
+    ptm = btfrs.fit.ptm(knit)
+    light = D[30]
+    theta = np.radians(37.0)
+    v = np.array([np.sin(theta) * np.cos(0.3), np.sin(theta) * np.sin(0.3), np.cos(theta)])
+    img = ptm.evaluate(v, light)
+    ang = np.arccos(np.clip(D @ v, -1, 1))
+    near = np.argsort(ang)[:3]
+    slots = np.stack([ptm.evaluate(D[i], light) for i in near])
+    assert np.all(img >= slots.min(0) - 1e-5) and np.all(img <= slots.max(0) + 1e-5)
+    assert not np.allclose(img, slots[0])
+    v2 = v + np.array([1e-4, 0, 0])
+    assert np.max(np.abs(ptm.evaluate(v2, light) - img)) < 1e-2

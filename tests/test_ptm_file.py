@@ -32,20 +32,34 @@ def test_round_trip_within_the_8bit_bound(tmp_path, knit, kind):
         assert np.max(np.abs(back.rgb[:, :, 0] - ptm.rgb[:, :, 1])) <= 0.5 / 255 + 1e-6
 
 
-def test_rows_are_stored_bottom_to_top(tmp_path):
-    # A 3 x 2 PTM whose constant term grows with the row index (row 0 = top).
-    coeffs = np.zeros((3, 2, 1, 3, 6), np.float32)
-    coeffs[..., 5] = np.array([0.1, 0.5, 0.9])[:, None, None, None]
-    coeffs[..., 3] = 0.05  # keep scale non-trivial
-    ptm = btfrs.Ptm.from_arrays("rgb", coeffs, D[:1])
+@pytest.mark.parametrize("kind", ["rgb", "lrgb"])
+def test_rows_are_stored_bottom_to_top(tmp_path, kind):
+    # A 3 x 2 image whose constant term (and LRGB colour) depends on both row and column, so a
+    # flip in either direction changes the bytes. Row 0 is the top of the image.
+    a5 = np.array([[0.1, 0.2], [0.5, 0.6], [0.8, 0.9]], np.float32)
+    if kind == "rgb":
+        coeffs = np.zeros((3, 2, 1, 3, 6), np.float32)
+        coeffs[..., 5] = a5[:, :, None, None]
+        rgb = None
+    else:
+        coeffs = np.zeros((3, 2, 1, 6), np.float32)
+        coeffs[..., 5] = a5[:, :, None]
+        rgb = np.zeros((3, 2, 1, 3), np.float32)
+        rgb[..., 0] = (a5 / 0.9)[:, :, None]
+    coeffs[..., 3] = 0.05  # keep the other scales non-trivial
+    ptm = btfrs.Ptm.from_arrays(kind, coeffs, D[:1], rgb)
     p = tmp_path / "rows.ptm"
     ptm.save_ptm(p, view=0)
     _, body = header_and_body(p)
-    # RGB: the R block first, 6 bytes per pixel; the first two pixels are the bottom row.
-    a5 = np.frombuffer(body[: 3 * 2 * 6], np.uint8).reshape(3, 2, 6)[:, :, 5]
-    assert a5[0, 0] > a5[1, 0] > a5[2, 0]
+    # The first block (R for RGB, luminance for LRGB), 6 bytes per pixel, file row 0 = bottom.
+    got = np.frombuffer(body[: 3 * 2 * 6], np.uint8).reshape(3, 2, 6)[:, :, 5].astype(int)
+    order = np.argsort(got.ravel())
+    np.testing.assert_array_equal(order, np.argsort(a5[::-1].ravel()))
+    if kind == "lrgb":
+        red = np.frombuffer(body[3 * 2 * 6 : 3 * 2 * 9], np.uint8).reshape(3, 2, 3)[:, :, 0]
+        np.testing.assert_array_equal(red, np.round(255 * a5[::-1] / 0.9))
     back = btfrs.io.load_ptm(p)
-    np.testing.assert_allclose(back.coeffs[:, 0, 0, 0, 5], [0.1, 0.5, 0.9], atol=0.01)
+    np.testing.assert_allclose(back.coeffs[:, :, 0, ..., 5].reshape(3, 2, -1)[:, :, 0], a5, atol=0.01)
 
 
 def test_reads_a_file_written_by_another_tool(tmp_path):

@@ -20,11 +20,20 @@ from typing import Optional, Sequence, Union
 import numpy as np
 
 from . import _native
-from .exceptions import FormatError
+from .exceptions import FormatError, InvalidArgumentError
 
 __all__ = ["Btf"]
 
 Index = Union[None, int, slice, Sequence[int], np.ndarray]
+
+
+def check_seed(seed) -> int:
+    """A seed as the Rust side takes it: an int in [0, 2**64)."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise TypeError(f"seed: expected an int, got {type(seed).__name__}")
+    if not 0 <= int(seed) < 2**64:
+        raise InvalidArgumentError(f"seed: expected an int in [0, 2**64), got {seed}")
+    return int(seed)
 
 
 def _directions(name: str, d) -> np.ndarray:
@@ -70,23 +79,12 @@ class Btf:
             m = np.asarray(mask)
             if m.dtype != np.bool_:
                 raise TypeError(f"mask: expected a bool array, got dtype {m.dtype}")
-            mask = np.ascontiguousarray(m)
+            # Normalise to bytes 0/1: a bool array viewed from other bytes may hold e.g. 2, which
+            # numpy reads as True but Rust's bool may not.
+            mask = np.ascontiguousarray(m.view(np.uint8) != 0) if m.ndim else m
         self._mask = mask
-        if check:
-            _native.validate_btf(self._data, self._views, self._lights, self._mask)
-        else:
-            # Shapes and directions are always checked; only the value scan is skipped.
-            self._check_shapes()
-
-    def _check_shapes(self) -> None:
-        h, w, v, l, _ = self._data.shape
-        if v != len(self._views) or l != len(self._lights):
-            raise ValueError(
-                f"data: expected (H, W, {len(self._views)}, {len(self._lights)}, 3) for the given views and lights, "
-                f"got {self._data.shape}"
-            )
-        if self._mask is not None and self._mask.shape != (v, l):
-            raise ValueError(f"mask: expected shape ({v}, {l}), got {self._mask.shape}")
+        # Shapes, directions and the mask are always checked; `check` adds the value scan.
+        _native.validate_btf(self._data, self._views, self._lights, self._mask, scan_values=check)
 
     # --- shape and access -------------------------------------------------------------------
     @property
@@ -163,7 +161,7 @@ class Btf:
         ``test`` holds ``round(holdout * pairs)`` pairs drawn with ``seed``; both share this
         sample's data (nothing is copied) and differ only in their masks.
         """
-        tr, te = _native.split_pairs(self.n_views, self.n_lights, float(holdout), int(seed), self._mask)
+        tr, te = _native.split_pairs(self.n_views, self.n_lights, float(holdout), check_seed(seed), self._mask)
         return (Btf(self._data, self._views, self._lights, tr, check=False),
                 Btf(self._data, self._views, self._lights, te, check=False))
 
@@ -197,7 +195,15 @@ class Btf:
         kind, _, arrays = read_container(path, mmap=mmap)
         if kind != "btf":
             raise FormatError(f"{os.fspath(path)}: holds a {kind!r}, not a BTF (use btfrs.load)")
-        return cls(arrays["data"], arrays["views"], arrays["lights"], arrays.get("mask"))
+        return cls.from_arrays(path, arrays)
+
+    @classmethod
+    def from_arrays(cls, path, arrays: dict) -> "Btf":
+        """Build from the arrays of a ``.btfrs`` file; a missing array is a FormatError."""
+        try:
+            return cls(arrays["data"], arrays["views"], arrays["lights"], arrays.get("mask"))
+        except KeyError as e:
+            raise FormatError(f"{os.fspath(path)}: the BTF file has no array {e}") from None
 
     def __repr__(self) -> str:
         h, w, v, l, _ = self.shape

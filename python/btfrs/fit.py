@@ -12,6 +12,7 @@ import time
 from . import _native
 from ._progress import Progress, callback
 from .btf import Btf
+from .exceptions import InvalidArgumentError
 from .models import Ptm
 
 __all__ = ["ptm"]
@@ -40,6 +41,8 @@ def ptm(btf: Btf, kind: str = "rgb", rcond: float = 1e-6, on_degenerate: str = "
     progress: None, True for a progress bar, or a callable ``(done, total)``.
     """
     b = _check_btf(btf)
+    if kind not in ("rgb", "lrgb"):
+        raise InvalidArgumentError(f"kind: expected \"rgb\" or \"lrgb\", got {kind!r}")
     t0 = time.perf_counter()
     m = _native.fit_ptm_native(b.data, b.views, b.lights, b.mask, kind=kind, rcond=float(rcond),
                                on_degenerate=on_degenerate, progress=callback(progress, f"PTM-{kind.upper()} fit"))

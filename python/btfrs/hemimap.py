@@ -19,28 +19,31 @@ from . import _native
 __all__ = ["square_to_disk", "disk_to_square", "square_to_hemisphere", "hemisphere_to_square"]
 
 
-def _arr(x) -> np.ndarray:
+def _arr(name: str, x) -> np.ndarray:
     a = np.asarray(x)
+    if a.dtype.kind not in "fiu":
+        raise TypeError(f"{name}: expected real numbers, got dtype {a.dtype}")
     if a.dtype not in (np.float32, np.float64):
         a = a.astype(np.float64)
-    return np.ascontiguousarray(a)
+    # np.require keeps a 0-d input 0-d, so the shape error names what was passed.
+    return np.require(a, requirements="C")
 
 
 def square_to_disk(st) -> np.ndarray:
     """``[..., 2]`` points of the unit square to ``[..., 2]`` points of the unit disk."""
-    return _native.square_to_disk(_arr(st))
+    return _native.square_to_disk(_arr("st", st))
 
 
 def disk_to_square(xy) -> np.ndarray:
     """Inverse of :func:`square_to_disk`."""
-    return _native.disk_to_square(_arr(xy))
+    return _native.disk_to_square(_arr("xy", xy))
 
 
 def square_to_hemisphere(st) -> np.ndarray:
     """The elevated concentric map: ``[..., 2]`` square points to ``[..., 3]`` unit directions."""
-    return _native.square_to_hemisphere(_arr(st))
+    return _native.square_to_hemisphere(_arr("st", st))
 
 
 def hemisphere_to_square(d) -> np.ndarray:
     """Inverse of :func:`square_to_hemisphere`: ``[..., 3]`` directions (z >= 0) to the square."""
-    return _native.hemisphere_to_square(_arr(d))
+    return _native.hemisphere_to_square(_arr("directions", d))

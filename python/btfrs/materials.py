@@ -20,7 +20,7 @@ import numpy as np
 
 from . import _native
 from ._progress import Progress, callback
-from .btf import Btf
+from .btf import Btf, check_seed
 from .directions import ubo81
 
 __all__ = ["make", "names"]
@@ -49,6 +49,6 @@ def make(name: str = "knit", size: int = 64, seed: int = 0, views=None, lights=N
         raise TypeError(f"size: expected an int, got {type(size).__name__}")
     v = ubo81() if views is None else np.ascontiguousarray(views, dtype=np.float64)
     l = ubo81() if lights is None else np.ascontiguousarray(lights, dtype=np.float64)
-    data = _native.make_material(str(name), int(size), v, l, int(seed), float(relief), float(subsurface),
+    data = _native.make_material(str(name), int(size), v, l, check_seed(seed), float(relief), float(subsurface),
                                  callback(progress, f"material {name}"))
     return Btf(data, v, l, check=False)

@@ -29,7 +29,8 @@ class ErrorReport:
     """Accuracy of a model against a BTF (f64 accumulation over every present value).
 
     ``relative`` is ``||pred - gt|| / ||gt||``; ``psnr`` is in dB against the largest
-    ground-truth value; ``samples`` counts compared values (texels x pairs x 3).
+    ground-truth value (``-inf`` when no ground-truth value is positive); ``samples`` counts
+    compared values (texels x pairs x 3).
     """
 
     rmse: float
@@ -122,6 +123,8 @@ class Ptm:
         """The index of the view slot for ``view``: an int index, or a direction within 0.5
         degrees of a slot's."""
         n = len(self.views)
+        if isinstance(view, bool):
+            raise TypeError("view: expected a slot index or a direction, got a bool")
         if isinstance(view, (int, np.integer)):
             if not 0 <= int(view) < n:
                 raise InvalidArgumentError(f"view: expected a slot index in [0, {n}), got {view}")
@@ -164,9 +167,12 @@ def load(path: PathLike):
     """Load any ``.btfrs`` file: a :class:`~btfrs.Btf` or a fitted model."""
     kind, meta, arrays = read_container(path)
     if kind == "btf":
-        return Btf(arrays["data"], arrays["views"], arrays["lights"], arrays.get("mask"))
+        return Btf.from_arrays(path, arrays)
     if kind == "ptm":
-        p = Ptm.from_arrays(meta["kind"], arrays["coeffs"], arrays["views"], arrays.get("rgb"))
+        try:
+            p = Ptm.from_arrays(meta["kind"], arrays["coeffs"], arrays["views"], arrays.get("rgb"))
+        except KeyError as e:
+            raise FormatError(f"{os.fspath(path)}: the PTM file has no entry {e}") from None
         p.fit_seconds = meta.get("fit_seconds")
         return p
     raise FormatError(f"{os.fspath(path)}: unknown content {kind!r}")

@@ -88,23 +88,36 @@ pub fn angle_between(a: [f64; 3], b: [f64; 3]) -> f64 {
 
 /// Interpolation weights of `query` over the `k` angularly nearest of `dirs`.
 ///
-/// Weights are inverse angular distances normalised to sum 1; a query that coincides with a
-/// measured direction (within 1e-9 rad) gets that direction alone with weight 1, so evaluating a
-/// model at a measured direction reproduces exactly what was fitted there. Used wherever a model
-/// is stored per measured view slot (PTM, per-view Lafortune) and queried at any direction.
+/// The weight of the i-th nearest is `1/d_i - 1/d_(k+1)` (normalised to sum 1), where `d_(k+1)`
+/// is the distance of the first direction *not* used: a direction's weight falls to zero just as
+/// it leaves the neighbour set, so the weights, and every image blended with them, change
+/// continuously as the query moves (plain inverse-distance weights over the k nearest would jump
+/// when the k-th and (k+1)-th nearest swap). A query that coincides with a measured direction
+/// (within 1e-9 rad) gets that direction alone with weight 1, so evaluating a model at a measured
+/// direction reproduces exactly what was fitted there. Used wherever a model is stored per
+/// measured view slot (PTM, per-view Lafortune) and queried at any direction.
 pub fn interp_weights(dirs: &[[f64; 3]], query: [f64; 3], k: usize) -> Vec<(usize, f64)> {
     let mut dist: Vec<(usize, f64)> = dirs.iter().enumerate().map(|(i, &d)| (i, angle_between(d, query))).collect();
     dist.sort_by(|a, b| a.1.total_cmp(&b.1));
-    let k = k.clamp(1, dist.len().max(1));
-    dist.truncate(k);
     if dist.is_empty() {
         return dist;
     }
     if dist[0].1 < 1e-9 {
         return vec![(dist[0].0, 1.0)];
     }
-    let total: f64 = dist.iter().map(|(_, a)| 1.0 / a).sum();
-    dist.into_iter().map(|(i, a)| (i, (1.0 / a) / total)).collect()
+    let k = k.clamp(1, dist.len());
+    let cut = dist.get(k).map_or(0.0, |x| 1.0 / x.1);
+    dist.truncate(k);
+    let mut w: Vec<(usize, f64)> = dist.iter().map(|&(i, a)| (i, (1.0 / a - cut).max(0.0))).collect();
+    let total: f64 = w.iter().map(|x| x.1).sum();
+    if total > 0.0 {
+        w.iter_mut().for_each(|x| x.1 /= total);
+    } else {
+        // All k nearest tie with the (k+1)-th: any convex choice is continuous here; take equal.
+        w.iter_mut().for_each(|x| x.1 = 1.0 / k as f64);
+    }
+    w.retain(|x| x.1 > 0.0);
+    w
 }
 
 #[cfg(test)]

@@ -98,6 +98,10 @@ fn pinv(slot: usize, view: [f64; 3], lights: &[[f64; 3]], opts: &PtmOptions) -> 
             "{name} has {n} lights; a biquadratic PTM needs at least {NCOEF} (pass on_degenerate=\"clamp\" for a minimum-norm fit)"
         )));
     }
+    if n == 0 {
+        // Clamp policy and no light at all: the minimum-norm solution is all zeros.
+        return Ok(Vec::new());
+    }
     let a = DMatrix::from_fn(n, NCOEF, |i, k| basis(lights[i])[k]);
     let svd = a.svd(true, true);
     let (u, vt) = match (svd.u, svd.v_t) {

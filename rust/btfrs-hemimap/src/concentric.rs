@@ -74,6 +74,20 @@ fn radius_azimuth_to_square<T: Real>(rho: T, x: T, y: T) -> [T; 2] {
     [((a + T::ONE) * T::HALF).clamp(T::ZERO, T::ONE), ((b + T::ONE) * T::HALF).clamp(T::ZERO, T::ONE)]
 }
 
+/// Scale a direction by its largest component so that squaring it can neither overflow (huge
+/// vectors) nor underflow to zero (tiny ones); only the direction matters to the inverses.
+#[inline]
+fn rescale<T: Real>(d: [T; 3]) -> [T; 3] {
+    let m = d[0].abs();
+    let m = if d[1].abs() > m { d[1].abs() } else { m };
+    let m = if d[2].abs() > m { d[2].abs() } else { m };
+    if m > T::ZERO {
+        [d[0] / m, d[1] / m, d[2] / m]
+    } else {
+        d
+    }
+}
+
 /// Disk radius `rho` of the elevation map's preimage of direction `(x, y, z)`, i.e. the inverse
 /// of `z = 1 - rho^2`, computed without cancellation and independent of the vector's length.
 ///
@@ -162,7 +176,7 @@ pub fn disk_to_hemisphere<T: Real>(x: T, y: T) -> [T; 3] {
 /// For `d = (0, 0, z <= 0)`, whose azimuth is undefined, the result is `(1, 0)`.
 #[inline]
 pub fn hemisphere_to_disk<T: Real>(d: [T; 3]) -> [T; 2] {
-    let [x, y, z] = d;
+    let [x, y, z] = rescale(d);
     let rho = elevation_radius(x, y, z);
     let h2 = x * x + y * y;
     if h2 > T::ZERO {
@@ -197,7 +211,7 @@ pub fn square_to_hemisphere<T: Real>(s: T, t: T) -> [T; 3] {
 /// `d = (0, 0, z <= 0)`, whose azimuth is undefined, the result is `(1, 0.5)`.
 #[inline]
 pub fn hemisphere_to_square<T: Real>(d: [T; 3]) -> [T; 2] {
-    let [x, y, z] = d;
+    let [x, y, z] = rescale(d);
     // The elevation map keeps the azimuth, so the direction's own (x, y) serves as the
     // azimuth vector: no need to build the disk point.
     radius_azimuth_to_square(elevation_radius(x, y, z), x, y)

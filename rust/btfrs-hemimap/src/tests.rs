@@ -607,3 +607,20 @@ fn batch_length_mismatch_is_an_error_and_leaves_output_alone() {
     assert!(msg.contains("10") && msg.contains('9'), "{msg}");
     let _: &dyn std::error::Error = &err;
 }
+
+#[test]
+fn inverse_is_scale_invariant_even_for_extreme_lengths() {
+    // Only the direction counts: tiny and huge vectors must not underflow or overflow to NaN.
+    for k in [1e-30f32, 1e-20, 1.0, 1e20, 3e37] {
+        let st = hemisphere_to_square([k, 0.5 * k, k]);
+        let want = hemisphere_to_square([1.0f32, 0.5, 1.0]);
+        assert!((st[0] - want[0]).abs() < 1e-6 && (st[1] - want[1]).abs() < 1e-6, "{k}: {st:?} vs {want:?}");
+        let xy = hemisphere_to_disk([k, 0.5 * k, k]);
+        assert!(xy.iter().all(|v| v.is_finite()));
+    }
+    for k in [1e-300f64, 1e300] {
+        let st = hemisphere_to_square([k, k, k]);
+        let want = hemisphere_to_square([1.0f64, 1.0, 1.0]);
+        assert!((st[0] - want[0]).abs() < 1e-12 && (st[1] - want[1]).abs() < 1e-12, "{k}: {st:?}");
+    }
+}

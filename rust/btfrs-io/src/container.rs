@@ -185,8 +185,9 @@ pub fn read_contents(path: &Path) -> Result<Contents> {
     f.read_exact(&mut text).map_err(|e| Error::io(shown, e))?;
     let h: Header = serde_json::from_slice(&text).map_err(|e| Error::format(shown, format!("bad header: {e}")))?;
     for a in &h.arrays {
-        let n: u64 = a.shape.iter().map(|&s| s as u64).product();
-        if n * a.dtype.size() as u64 != a.nbytes || a.offset.checked_add(a.nbytes).is_none_or(|end| end > len) {
+        // Checked arithmetic: a crafted header must not wrap around into a "consistent" size.
+        let n = a.shape.iter().try_fold(a.dtype.size() as u64, |acc, &s| acc.checked_mul(s as u64));
+        if n != Some(a.nbytes) || a.offset.checked_add(a.nbytes).is_none_or(|end| end > len) {
             return Err(Error::format(shown, format!("array {:?} is truncated or inconsistent", a.name)));
         }
     }
@@ -209,23 +210,35 @@ pub fn as_bytes<T: Plain>(x: &[T]) -> &[u8] {
     unsafe { std::slice::from_raw_parts(x.as_ptr() as *const u8, std::mem::size_of_val(x)) }
 }
 
-/// Decode little-endian bytes into numbers.
-pub fn from_bytes<T: Plain>(b: &[u8]) -> Vec<T> {
+/// Decode little-endian bytes into numbers; `None` if the length is not a whole number of them.
+pub fn from_bytes<T: Plain>(b: &[u8]) -> Option<Vec<T>> {
+    if !b.len().is_multiple_of(std::mem::size_of::<T>()) {
+        return None;
+    }
     let n = b.len() / std::mem::size_of::<T>();
     let mut out = vec![T::default(); n];
     // SAFETY: `out` has room for exactly `n * size_of::<T>()` bytes and any bit pattern is a
     // valid `T` for the `Plain` types.
     unsafe { std::ptr::copy_nonoverlapping(b.as_ptr(), out.as_mut_ptr() as *mut u8, n * std::mem::size_of::<T>()) };
-    out
+    Some(out)
 }
 
 /// Numbers whose every bit pattern is valid and which have no padding.
-pub trait Plain: Copy + Default + 'static {}
-impl Plain for f32 {}
-impl Plain for f64 {}
-impl Plain for u8 {}
-impl Plain for u16 {}
-impl Plain for i32 {}
+///
+/// # Safety
+/// Implement only for types without padding bytes for which every bit pattern is a valid value
+/// (`as_bytes` reads every byte, `from_bytes` writes arbitrary ones).
+pub unsafe trait Plain: Copy + Default + 'static {}
+// SAFETY: primitive numbers: no padding, every bit pattern valid.
+unsafe impl Plain for f32 {}
+// SAFETY: as above.
+unsafe impl Plain for f64 {}
+// SAFETY: as above.
+unsafe impl Plain for u8 {}
+// SAFETY: as above.
+unsafe impl Plain for u16 {}
+// SAFETY: as above.
+unsafe impl Plain for i32 {}
 
 #[cfg(not(target_endian = "little"))]
 compile_error!("the .btfrs container assumes a little-endian target");
@@ -257,8 +270,9 @@ mod tests {
         for info in &c.arrays {
             assert_eq!(info.offset % 64, 0);
         }
-        assert_eq!(from_bytes::<f32>(&read_array(&p, c.array(&p, "a").unwrap()).unwrap()), a);
-        assert_eq!(from_bytes::<u16>(&read_array(&p, c.array(&p, "b").unwrap()).unwrap()), b);
+        assert_eq!(from_bytes::<f32>(&read_array(&p, c.array(&p, "a").unwrap()).unwrap()), Some(a));
+        assert_eq!(from_bytes::<u16>(&read_array(&p, c.array(&p, "b").unwrap()).unwrap()), Some(b));
+        assert_eq!(from_bytes::<u16>(&[1, 2, 3]), None);
         assert!(c.array(&p, "zz").is_err());
         let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
         assert_eq!(names.len(), 1, "temporary files left: {names:?}");
@@ -281,6 +295,14 @@ mod tests {
         let full = std::fs::read(&p).unwrap();
         std::fs::write(&p, &full[..full.len() - 4]).unwrap();
         assert!(read_contents(&p).unwrap_err().to_string().contains("truncated"));
+        // A header whose shape product overflows u64 is rejected, not wrapped to a small size.
+        let hdr = br#"{"kind":"t","meta":{},"arrays":[{"name":"a","dtype":"f32","shape":[4294967296,4294967296,4],"offset":64,"nbytes":0}]}"#;
+        let mut f = MAGIC.to_vec();
+        f.extend_from_slice(&(hdr.len() as u64).to_le_bytes());
+        f.extend_from_slice(hdr);
+        f.resize(256, 0);
+        std::fs::write(&p, &f).unwrap();
+        assert!(read_contents(&p).unwrap_err().to_string().contains("inconsistent"));
         let e = read_contents(&dir.path().join("missing.btfrs")).unwrap_err();
         assert!(matches!(e, Error::Io { ref source, .. } if source.kind() == std::io::ErrorKind::NotFound));
         let bad = write(

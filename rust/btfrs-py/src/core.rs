@@ -56,19 +56,24 @@ pub fn ubo81(py: Python<'_>) -> PyResult<Bound<'_, PyArray2<f64>>> {
     PyArray2::from_vec2(py, &d.iter().map(|x| x.to_vec()).collect::<Vec<_>>()).map_err(|e| arg("ubo81", e))
 }
 
-/// Validate a BTF's arrays: shapes, unit directions with z >= 0, finite values (parallel scan).
+/// Validate a BTF's arrays: shapes, unit directions with z >= 0, a non-empty mask and, when
+/// `scan_values`, finite values (a parallel scan: the only part that reads the data).
 #[pyfunction]
-#[pyo3(signature = (data, views, lights, mask=None))]
+#[pyo3(signature = (data, views, lights, mask=None, scan_values=true))]
 pub fn validate_btf(
     py: Python<'_>,
     data: &Bound<'_, PyAny>,
     views: &Bound<'_, PyAny>,
     lights: &Bound<'_, PyAny>,
     mask: Option<&Bound<'_, PyAny>>,
+    scan_values: bool,
 ) -> PyResult<()> {
     let args = BtfArgs::new(data, views, lights, mask)?;
     let b = args.btf()?;
-    detach(py, || btf::check_finite("data", b.data))
+    if scan_values {
+        detach(py, || btf::check_finite("data", b.data))?;
+    }
+    Ok(())
 }
 
 type MaskArray<'py> = Bound<'py, PyArrayDyn<bool>>;

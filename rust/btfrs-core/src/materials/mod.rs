@@ -63,8 +63,11 @@ impl MaterialSpec {
             return Err(Error::arg("subsurface", format!("expected a value in [0, 1), got {}", self.subsurface)));
         }
         let bytes = (self.size * self.size * self.views.len() * self.lights.len() * 3) as u128 * 4;
-        if bytes > 16u128 << 30 {
-            return Err(Error::arg("size", format!("the BTF would take {} GiB; the limit is 16 GiB", bytes >> 30)));
+        if bytes > 8u128 << 30 {
+            return Err(Error::arg(
+                "size",
+                format!("the BTF would take {:.1} GiB; the limit is 8 GiB", bytes as f64 / (1u64 << 30) as f64),
+            ));
         }
         Ok(())
     }

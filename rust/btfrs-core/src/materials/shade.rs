@@ -157,7 +157,16 @@ pub(super) fn render_btf(
     monitor.check()?;
     let per_texel = nv * nl * 3;
     let lf: Vec<[f32; 3]> = lights.iter().map(|d| d.map(|c| c as f32)).collect();
-    let mut data = vec![0.0f32; n * n * per_texel];
+    // Fallible allocation: running out of memory must be an error, not an abort of the process.
+    let len = n * n * per_texel;
+    let mut data = Vec::new();
+    data.try_reserve_exact(len).map_err(|_| {
+        crate::Error::arg(
+            "size",
+            format!("cannot allocate {:.1} GiB for the BTF", (len * 4) as f64 / (1u64 << 30) as f64),
+        )
+    })?;
+    data.resize(len, 0.0f32);
     data.par_chunks_mut(n * per_texel).enumerate().for_each(|(row, out_row)| {
         if monitor.is_cancelled() {
             return;

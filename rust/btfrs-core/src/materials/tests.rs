@@ -97,3 +97,60 @@ fn cancellation_stops_the_work() {
     let e = generate(&MaterialSpec::new(Preset::Knit, 16, 0), &m).unwrap_err();
     assert!(matches!(e, crate::Error::Interrupted));
 }
+
+/// A surface with height `amp * sin(2 pi x / size)`, constant along y, white and matte.
+fn sine_surface(size: usize, amp: f64) -> presets::Surface {
+    let n = size * size;
+    let height = (0..n)
+        .map(|g| (amp * (std::f64::consts::TAU * ((g % size) as f64 + 0.5) / size as f64).sin()) as f32)
+        .collect();
+    presets::Surface {
+        size,
+        height,
+        normal: vec![[0.0, 0.0, 1.0]; n],
+        albedo: vec![[1.0; 3]; n],
+        ks: vec![0.0; n],
+        exponent: vec![1.0; n],
+    }
+}
+
+/// Periodic linear interpolation of the sine surface's samples along x (independent of shade.rs).
+fn sine_height(s: &presets::Surface, x: f64) -> f64 {
+    let n = s.size as f64;
+    let f = (x - 0.5).rem_euclid(n);
+    let (i, t) = (f.floor() as usize, f - f.floor());
+    let a = s.height[i % s.size] as f64;
+    let b = s.height[(i + 1) % s.size] as f64;
+    a * (1.0 - t) + b * t
+}
+
+#[test]
+fn masking_finds_the_first_surface_point_along_the_view_ray() {
+    // A grazing view (75 degrees) over slopes steeper than the ray: the ray crosses the surface
+    // several times, and the hit must be the first crossing seen from the camera.
+    let s = sine_surface(32, 4.0);
+    let v = from_theta_phi(75f64.to_radians(), 0.0);
+    let hits = shade::hit_points(&s, &[v], &Monitor::new());
+    let zref: f64 = s.height.iter().map(|&h| h as f64).sum::<f64>() / s.height.len() as f64;
+    for g in 0..32 * 32 {
+        let (cx, cy) = ((g % 32) as f64 + 0.5, (g / 32) as f64 + 0.5);
+        let [px, py] = hits[0][g];
+        assert!((py - cy).abs() < 1e-9, "the ray stays in its xz plane");
+        let t = (px - cx) / v[0];
+        let z = zref + t * v[2];
+        assert!((z - sine_height(&s, px)).abs() < 1e-3, "texel {g}: hit not on the surface");
+        // Every point of the ray before the hit (closer to the camera) is above the surface.
+        let top = (4.0 - zref) / v[2];
+        let mut u = top;
+        while u > t + 0.05 {
+            assert!(
+                zref + u * v[2] > sine_height(&s, cx + u * v[0]) - 1e-6,
+                "texel {g}: an earlier crossing at t = {u}"
+            );
+            u -= 0.05;
+        }
+    }
+    // Seen from straight above there is no parallax at all.
+    let top = shade::hit_points(&s, &[[0.0, 0.0, 1.0]], &Monitor::new());
+    assert!(top[0].iter().enumerate().all(|(g, p)| p[0] == (g % 32) as f64 + 0.5));
+}

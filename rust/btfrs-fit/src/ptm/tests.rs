@@ -114,3 +114,43 @@ fn evaluation_between_slots_blends_the_nearest() {
     assert!((img[0] as f64 - want).abs() < 1e-5);
     assert!(evaluate_image(&ptm, [0.0, 0.0, 2.0], l).is_err());
 }
+
+#[test]
+fn a_view_slot_without_lights_is_an_error_or_zero() {
+    let d = ubo81();
+    let data = vec![0.5f32; 81 * 81 * 3];
+    let mut mask = vec![true; 81 * 81];
+    mask[5 * 81..6 * 81].iter_mut().for_each(|m| *m = false);
+    let btf = BtfRef::new(1, 1, &d, &d, &data, Some(&mask)).unwrap();
+    let e = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap_err().to_string();
+    assert!(e.contains("view slot 5") && e.contains("has 0 lights"), "{e}");
+    let ptm =
+        fit_ptm(&btf, &PtmOptions { on_degenerate: Degenerate::Clamp, ..Default::default() }, &Monitor::new()).unwrap();
+    assert!(ptm.coeffs[5 * 18..6 * 18].iter().all(|&c| c == 0.0));
+    assert!((ptm.coeffs[4 * 18 + 5] - 0.5).abs() < 1e-6);
+}
+
+#[test]
+fn evaluation_is_continuous_between_slots() {
+    // Sweep the view along a path that changes its set of three nearest slots many times; with
+    // each slot's value fixed, the blended value must change by no more than a Lipschitz bound.
+    let (d, data, _) = polynomial_btf(1, 1, 4);
+    let btf = BtfRef::new(1, 1, &d, &d, &data, None).unwrap();
+    let ptm = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap();
+    let l = from_theta_phi(0.2, 0.4);
+    let steps = 4000;
+    let mut prev: Option<f32> = None;
+    let mut worst = 0.0f32;
+    for i in 0..=steps {
+        let theta = 1.3 * i as f64 / steps as f64;
+        let v = from_theta_phi(theta, 0.17 + 0.8 * theta);
+        let x = evaluate_image(&ptm, v, l).unwrap()[0];
+        if let Some(p) = prev {
+            worst = worst.max((x - p).abs());
+        }
+        prev = Some(x);
+    }
+    // The slots' values differ by O(1); a jump would show up as a step of that size, while a
+    // continuous blend moves by about (value range) * (step / slot spacing) ~ 1e-2 per step.
+    assert!(worst < 0.05, "largest step {worst}");
+}
