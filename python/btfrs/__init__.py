@@ -20,6 +20,7 @@ from .exceptions import (
     InvalidArgumentError,
 )
 from .models import ErrorReport, Ptm, load
+from .rendering import Camera, DirectionalLight, PointLight, Scene, gpu_info, last_timings, render
 
 __all__ = [
     "__version__",
@@ -27,6 +28,13 @@ __all__ = [
     "Ptm",
     "ErrorReport",
     "load",
+    "render",
+    "gpu_info",
+    "last_timings",
+    "Scene",
+    "Camera",
+    "PointLight",
+    "DirectionalLight",
     "directions",
     "exceptions",
     "fit",

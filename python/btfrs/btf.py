@@ -62,7 +62,7 @@ class Btf:
         Scan the values for NaN/inf (a parallel pass over the data; on by default).
     """
 
-    __slots__ = ("_data", "_views", "_lights", "_mask")
+    __slots__ = ("_data", "_views", "_lights", "_mask", "__weakref__")
 
     def __init__(self, data, views, lights, mask=None, *, check: bool = True) -> None:
         a = data if isinstance(data, np.ndarray) else np.asarray(data)

@@ -14,6 +14,7 @@ __all__ = [
     "DegenerateDataError",
     "FormatError",
     "InternalError",
+    "DeviceError",
 ]
 
 
@@ -31,6 +32,10 @@ class DegenerateDataError(BtfrsError, ValueError):
 
 class FormatError(BtfrsError, ValueError):
     """A file is not what it claims to be (bad header, truncated, unsupported variant)."""
+
+
+class DeviceError(BtfrsError, RuntimeError):
+    """No graphics adapter could be used, or the GPU device failed; the message says what to install."""
 
 
 class InternalError(BtfrsError, RuntimeError):

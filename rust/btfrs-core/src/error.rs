@@ -21,6 +21,9 @@ pub enum Error {
     /// An operating-system I/O error, with the path it concerned.
     #[error("{path}: {source}")]
     Io { path: String, source: std::io::Error },
+    /// No usable graphics adapter, or the GPU device failed (out of memory, lost, invalid use).
+    #[error("{0}")]
+    Device(String),
     /// Long work was cancelled (Ctrl-C in Python, or a progress callback asked to stop).
     #[error("interrupted")]
     Interrupted,

@@ -7,5 +7,5 @@
 pub mod model;
 pub mod ptm;
 
-pub use model::{evaluate_image, model_error, ReflectanceModel};
+pub use model::{evaluate_image, model_error, RawModel, ReflectanceModel};
 pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions};

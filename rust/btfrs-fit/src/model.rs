@@ -59,3 +59,66 @@ pub fn model_error<M: ReflectanceModel>(m: &M, btf: &BtfRef<'_>) -> Result<Error
         .reduce(ErrorSums::default, ErrorSums::merge);
     Ok(sums)
 }
+
+/// The measured BTF itself as a model: the value at any (view, light) is interpolated between
+/// the three nearest measured views times the three nearest measured lights (weights of
+/// [`btfrs_core::directions::interp_weights`]). The quality reference of every renderer and
+/// model; it stores the whole BTF.
+#[derive(Debug, Clone, Copy)]
+pub struct RawModel<'a> {
+    btf: BtfRef<'a>,
+}
+
+impl<'a> RawModel<'a> {
+    /// Wrap a BTF; every (view, light) pair must be present (interpolating over a masked grid
+    /// would silently use pairs the user held out).
+    pub fn new(btf: BtfRef<'a>) -> Result<Self> {
+        if btf.mask.is_some_and(|m| !m.iter().all(|&b| b)) {
+            return Err(Error::arg("btf", "raw interpolation needs every (view, light) pair; this sample has a mask"));
+        }
+        Ok(RawModel { btf })
+    }
+
+    /// The wrapped BTF.
+    pub fn btf(&self) -> &BtfRef<'a> {
+        &self.btf
+    }
+}
+
+/// View and light weights of a raw query.
+#[derive(Debug, Clone)]
+pub struct RawQuery {
+    views: Vec<(usize, f32)>,
+    lights: Vec<(usize, f32)>,
+}
+
+impl ReflectanceModel for RawModel<'_> {
+    type Query = RawQuery;
+
+    fn dims(&self) -> (usize, usize) {
+        (self.btf.height, self.btf.width)
+    }
+
+    fn query(&self, view: [f64; 3], light: [f64; 3]) -> RawQuery {
+        let w = |d: &[[f64; 3]], q| {
+            btfrs_core::directions::interp_weights(d, q, 3).into_iter().map(|(i, w)| (i, w as f32)).collect()
+        };
+        RawQuery { views: w(self.btf.views, view), lights: w(self.btf.lights, light) }
+    }
+
+    #[inline]
+    fn eval(&self, t: usize, q: &RawQuery) -> [f32; 3] {
+        let nl = self.btf.lights.len();
+        let texel = self.btf.texel(t);
+        let mut out = [0.0f32; 3];
+        for &(v, wv) in &q.views {
+            for &(l, wl) in &q.lights {
+                let s = &texel[(v * nl + l) * 3..(v * nl + l) * 3 + 3];
+                for c in 0..3 {
+                    out[c] += wv * wl * s[c];
+                }
+            }
+        }
+        out
+    }
+}

@@ -11,6 +11,7 @@ pyo3::import_exception!(btfrs.exceptions, InvalidArgumentError);
 pyo3::import_exception!(btfrs.exceptions, DegenerateDataError);
 pyo3::import_exception!(btfrs.exceptions, FormatError);
 pyo3::import_exception!(btfrs.exceptions, InternalError);
+pyo3::import_exception!(btfrs.exceptions, DeviceError);
 
 /// Convert a btfrs error into the Python exception a user should see.
 pub fn to_py(e: Error) -> PyErr {
@@ -21,6 +22,7 @@ pub fn to_py(e: Error) -> PyErr {
         Error::Format { .. } => FormatError::new_err(msg),
         Error::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound => PyFileNotFoundError::new_err(msg),
         Error::Io { .. } => PyOSError::new_err(msg),
+        Error::Device(_) => DeviceError::new_err(msg),
         Error::Interrupted => PyKeyboardInterrupt::new_err("interrupted"),
     }
 }

@@ -10,6 +10,7 @@ mod errors;
 mod fit;
 mod hemimap;
 mod io;
+mod render;
 mod run;
 
 use pyo3::prelude::*;
@@ -34,5 +35,14 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(io::read_ptm, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_png, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_png, m)?)?;
+    m.add_class::<render::PyScene>()?;
+    m.add_class::<render::PyCamera>()?;
+    m.add_class::<render::PyGpuModel>()?;
+    m.add_function(wrap_pyfunction!(render::gpu_info, m)?)?;
+    m.add_function(wrap_pyfunction!(render::gpu_upload_ptm, m)?)?;
+    m.add_function(wrap_pyfunction!(render::gpu_upload_raw, m)?)?;
+    m.add_function(wrap_pyfunction!(render::gpu_render, m)?)?;
+    m.add_function(wrap_pyfunction!(render::cpu_render_ptm, m)?)?;
+    m.add_function(wrap_pyfunction!(render::cpu_render_raw, m)?)?;
     Ok(())
 }

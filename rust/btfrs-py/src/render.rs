@@ -1,0 +1,306 @@
+//! Bindings of btfrs-render: scenes, cameras, GPU upload and rendering, the CPU reference.
+
+use crate::arrays::{borrow, check_shape, dirs};
+use crate::core::BtfArgs;
+use crate::errors::{arg, IntoPy};
+use crate::fit::PyPtm;
+use crate::run::detach;
+use btfrs_fit::RawModel;
+use btfrs_render::cpu::render_cpu;
+use btfrs_render::scene::{Camera, Light, Mesh};
+use btfrs_render::{gpu, Gpu, UploadedModel, View};
+use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use std::sync::Arc;
+
+/// A triangle mesh with UV-aligned tangent frames.
+#[derive(Debug)]
+#[pyclass(name = "Scene", module = "btfrs._native", frozen)]
+pub struct PyScene {
+    mesh: Mesh,
+}
+
+#[pymethods]
+impl PyScene {
+    /// A square of side `size` in the z = 0 plane, normal +z.
+    #[staticmethod]
+    #[pyo3(signature = (size=2.0))]
+    fn plane(size: f32) -> PyResult<Self> {
+        if !(size.is_finite() && size > 0.0) {
+            return Err(arg("size", format!("expected a positive number, got {size}")));
+        }
+        Ok(PyScene { mesh: Mesh::plane(size) })
+    }
+
+    /// A UV sphere centred at the origin, poles on z.
+    #[staticmethod]
+    #[pyo3(signature = (radius=1.0, segments=64, rings=32))]
+    fn sphere(radius: f32, segments: u32, rings: u32) -> PyResult<Self> {
+        Ok(PyScene { mesh: Mesh::sphere(radius, segments, rings).py()? })
+    }
+
+    /// An open cylinder around the z axis.
+    #[staticmethod]
+    #[pyo3(signature = (radius=1.0, height=2.0, segments=64))]
+    fn cylinder(radius: f32, height: f32, segments: u32) -> PyResult<Self> {
+        Ok(PyScene { mesh: Mesh::cylinder(radius, height, segments).py()? })
+    }
+
+    /// An indexed mesh: vertices `[N, 3]`, uvs `[N, 2]`, faces `[F, 3]` (int), normals `[N, 3]`.
+    #[staticmethod]
+    #[pyo3(signature = (vertices, uvs, faces, normals=None))]
+    fn mesh(
+        vertices: &Bound<'_, PyAny>,
+        uvs: &Bound<'_, PyAny>,
+        faces: &Bound<'_, PyAny>,
+        normals: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        let v = borrow::<f32>("vertices", vertices)?;
+        check_shape("vertices", v.shape(), &[None, Some(3)])?;
+        let u = borrow::<f32>("uvs", uvs)?;
+        check_shape("uvs", u.shape(), &[None, Some(2)])?;
+        let f = borrow::<u32>("faces", faces)?;
+        check_shape("faces", f.shape(), &[None, Some(3)])?;
+        let n = normals.map(|n| borrow::<f32>("normals", n)).transpose()?;
+        if let Some(n) = &n {
+            check_shape("normals", n.shape(), &[None, Some(3)])?;
+        }
+        let vs = v.as_slice().map_err(|e| arg("vertices", e))?.as_chunks::<3>().0;
+        let us = u.as_slice().map_err(|e| arg("uvs", e))?.as_chunks::<2>().0;
+        let fs = f.as_slice().map_err(|e| arg("faces", e))?.as_chunks::<3>().0;
+        let ns = match &n {
+            Some(n) => Some(n.as_slice().map_err(|e| arg("normals", e))?.as_chunks::<3>().0),
+            None => None,
+        };
+        Ok(PyScene { mesh: Mesh::from_arrays(vs, us, fs, ns).py()? })
+    }
+
+    /// Number of triangles.
+    #[getter]
+    fn triangles(&self) -> usize {
+        self.mesh.triangle_count()
+    }
+
+    /// Number of vertices.
+    #[getter]
+    fn vertices(&self) -> usize {
+        self.mesh.positions.len()
+    }
+}
+
+/// A perspective camera.
+#[derive(Debug)]
+#[pyclass(name = "Camera", module = "btfrs._native", frozen)]
+pub struct PyCamera {
+    cam: Camera,
+}
+
+#[pymethods]
+impl PyCamera {
+    /// Look from `eye` at `target` with a vertical field of view of `fov_deg` degrees (z up).
+    #[staticmethod]
+    #[pyo3(signature = (eye, target, fov_deg=40.0))]
+    fn look_at(eye: [f32; 3], target: [f32; 3], fov_deg: f32) -> PyResult<Self> {
+        Ok(PyCamera { cam: Camera::look_at(eye, target, fov_deg).py()? })
+    }
+
+    #[getter]
+    fn eye(&self) -> [f32; 3] {
+        self.cam.eye
+    }
+
+    #[getter]
+    fn target(&self) -> [f32; 3] {
+        self.cam.target
+    }
+
+    #[getter]
+    fn fov_deg(&self) -> f32 {
+        self.cam.fov_y_deg
+    }
+}
+
+/// A model uploaded to the GPU.
+#[derive(Debug)]
+#[pyclass(name = "GpuModel", module = "btfrs._native", frozen)]
+pub struct PyGpuModel {
+    gpu: Arc<Gpu>,
+    up: UploadedModel,
+}
+
+#[pymethods]
+impl PyGpuModel {
+    /// Bytes held on the device.
+    #[getter]
+    fn device_bytes(&self) -> u64 {
+        self.up.device_bytes
+    }
+}
+
+/// Name, backend and type of the adapter in use.
+#[pyfunction]
+pub fn gpu_info(py: Python<'_>) -> PyResult<String> {
+    detach(py, || Ok(Gpu::shared()?.describe()))
+}
+
+/// Upload a PTM.
+#[pyfunction]
+pub fn gpu_upload_ptm(py: Python<'_>, model: &PyPtm) -> PyResult<PyGpuModel> {
+    detach(py, || {
+        let gpu = Gpu::shared()?;
+        let up = gpu::upload(&gpu, &model.inner)?;
+        Ok(PyGpuModel { gpu, up })
+    })
+}
+
+/// Upload a raw BTF (every pair present).
+#[pyfunction]
+pub fn gpu_upload_raw(
+    py: Python<'_>,
+    data: &Bound<'_, PyAny>,
+    views: &Bound<'_, PyAny>,
+    lights: &Bound<'_, PyAny>,
+) -> PyResult<PyGpuModel> {
+    let args = BtfArgs::new(data, views, lights, None)?;
+    let b = args.btf()?;
+    let raw = RawModel::new(b).py()?;
+    detach(py, || {
+        let gpu = Gpu::shared()?;
+        let up = gpu::upload(&gpu, &raw)?;
+        Ok(PyGpuModel { gpu, up })
+    })
+}
+
+/// Lights from Python tuples (kind, vector, intensity): kind "point" (vector = position) or
+/// "directional" (vector = direction towards the light).
+fn lights_of(items: Vec<(String, [f32; 3], [f32; 3])>) -> PyResult<Vec<Light>> {
+    items
+        .into_iter()
+        .map(|(k, v, i)| match k.as_str() {
+            "point" => Ok(Light::Point { position: v, intensity: i }),
+            "directional" => Ok(Light::Directional { direction: v, intensity: i }),
+            o => Err(arg("lights", format!("unknown light kind {o:?}"))),
+        })
+        .collect()
+}
+
+/// Pack a `[H, W, 2]` uint16 coordinate map (x, y) into `x | y << 16` entries.
+fn coords_of(coords: Option<&Bound<'_, PyAny>>) -> PyResult<Option<(usize, usize, Vec<u32>)>> {
+    let Some(c) = coords else { return Ok(None) };
+    let a = borrow::<u16>("coords", c)?;
+    check_shape("coords", a.shape(), &[None, None, Some(2)])?;
+    let (h, w) = (a.shape()[0], a.shape()[1]);
+    let s = a.as_slice().map_err(|e| arg("coords", e))?;
+    Ok(Some((w, h, s.chunks_exact(2).map(|p| p[0] as u32 | (p[1] as u32) << 16).collect())))
+}
+
+type Image<'py> = Bound<'py, PyArrayDyn<f32>>;
+
+fn image(py: Python<'_>, v: Vec<f32>, w: usize, h: usize) -> PyResult<Image<'_>> {
+    v.into_pyarray(py).reshape(vec![h, w, 3])
+}
+
+/// Render an uploaded model on the GPU: (image, draw ms, read-back ms).
+#[pyfunction]
+#[pyo3(signature = (model, scene, camera, lights, width, height, uv_scale, coords=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn gpu_render<'py>(
+    py: Python<'py>,
+    model: &PyGpuModel,
+    scene: &PyScene,
+    camera: &PyCamera,
+    lights: Vec<(String, [f32; 3], [f32; 3])>,
+    width: usize,
+    height: usize,
+    uv_scale: [f32; 2],
+    coords: Option<&Bound<'py, PyAny>>,
+) -> PyResult<(Image<'py>, f64, f64)> {
+    let lights = lights_of(lights)?;
+    let coords = coords_of(coords)?;
+    let view = View {
+        mesh: &scene.mesh,
+        camera: &camera.cam,
+        lights: &lights,
+        width,
+        height,
+        uv_scale,
+        coords: coords.as_ref().map(|(w, h, m)| (*w, *h, &m[..])),
+    };
+    let (img, t) = detach(py, || gpu::render(&model.gpu, &model.up, &view))?;
+    Ok((image(py, img, width, height)?, t.draw_ms, t.readback_ms))
+}
+
+/// Render a PTM with the CPU reference renderer.
+#[pyfunction]
+#[pyo3(signature = (model, scene, camera, lights, width, height, uv_scale, coords=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn cpu_render_ptm<'py>(
+    py: Python<'py>,
+    model: &PyPtm,
+    scene: &PyScene,
+    camera: &PyCamera,
+    lights: Vec<(String, [f32; 3], [f32; 3])>,
+    width: usize,
+    height: usize,
+    uv_scale: [f32; 2],
+    coords: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Image<'py>> {
+    let lights = lights_of(lights)?;
+    let coords = coords_of(coords)?;
+    let view = View {
+        mesh: &scene.mesh,
+        camera: &camera.cam,
+        lights: &lights,
+        width,
+        height,
+        uv_scale,
+        coords: coords.as_ref().map(|(w, h, m)| (*w, *h, &m[..])),
+    };
+    check_size(width, height)?;
+    let img = detach(py, || render_cpu(&model.inner, &view))?;
+    image(py, img, width, height)
+}
+
+/// Render a raw BTF with the CPU reference renderer.
+#[pyfunction]
+#[pyo3(signature = (data, views, btf_lights, scene, camera, lights, width, height, uv_scale, coords=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn cpu_render_raw<'py>(
+    py: Python<'py>,
+    data: &Bound<'py, PyAny>,
+    views: &Bound<'py, PyAny>,
+    btf_lights: &Bound<'py, PyAny>,
+    scene: &PyScene,
+    camera: &PyCamera,
+    lights: Vec<(String, [f32; 3], [f32; 3])>,
+    width: usize,
+    height: usize,
+    uv_scale: [f32; 2],
+    coords: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Image<'py>> {
+    let args = BtfArgs::new(data, views, btf_lights, None)?;
+    let b = args.btf()?;
+    let _ = dirs("views", &args.views)?;
+    let raw = RawModel::new(b).py()?;
+    let lights = lights_of(lights)?;
+    let coords = coords_of(coords)?;
+    let view = View {
+        mesh: &scene.mesh,
+        camera: &camera.cam,
+        lights: &lights,
+        width,
+        height,
+        uv_scale,
+        coords: coords.as_ref().map(|(w, h, m)| (*w, *h, &m[..])),
+    };
+    check_size(width, height)?;
+    let img = detach(py, || render_cpu(&raw, &view))?;
+    image(py, img, width, height)
+}
+
+fn check_size(width: usize, height: usize) -> PyResult<()> {
+    if width == 0 || height == 0 || width > 16384 || height > 16384 {
+        return Err(arg("size", format!("expected 1 to 16384 pixels per side, got {width} x {height}")));
+    }
+    Ok(())
+}

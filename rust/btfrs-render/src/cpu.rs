@@ -1,0 +1,111 @@
+//! The CPU reference renderer: the same scene, the same sample points, the same shading.
+//!
+//! [`crate::raster`] rasterises the mesh with the GPU's rules (pixel centres, top-left fill
+//! rule, sub-pixel snapping, perspective-correct interpolation), so each pixel here shades the
+//! point the fragment shader shades; the shading below is `fs_main` of `common.wgsl` line by line
+//! in f32, and the model is evaluated by its own Rust code ([`ReflectanceModel`]), which is the
+//! independent implementation each WGSL model file is tested against.
+
+use crate::gpu::View;
+use crate::raster;
+use btfrs_core::{Error, Result};
+use btfrs_fit::ReflectanceModel;
+use glam::Vec3;
+use rayon::prelude::*;
+
+/// Checks shared by both renderers: lights, mesh, uv scale, coordinate map.
+pub fn validate_common(view: &View<'_>, dims: (usize, usize)) -> Result<()> {
+    if view.lights.is_empty() {
+        return Err(Error::arg("lights", "expected at least one light"));
+    }
+    for l in view.lights {
+        l.validate()?;
+    }
+    view.mesh.validate()?;
+    if !view.uv_scale.iter().all(|s| s.is_finite() && *s > 0.0) {
+        return Err(Error::arg("uv_scale", format!("expected positive finite repetitions, got {:?}", view.uv_scale)));
+    }
+    if let Some((mw, mh, map)) = view.coords {
+        if mw == 0 || mh == 0 || map.len() != mw * mh {
+            return Err(Error::arg(
+                "coords",
+                format!("expected a non-empty {mh} x {mw} map, got {} entries", map.len()),
+            ));
+        }
+        let (h, w) = dims;
+        if let Some(i) = map.iter().position(|&e| (e & 0xffff) as usize >= w || (e >> 16) as usize >= h) {
+            return Err(Error::arg(
+                "coords",
+                format!(
+                    "entry ({}, {}) at map row {}, column {} points outside the {h} x {w} sample",
+                    map[i] & 0xffff,
+                    map[i] >> 16,
+                    i / mw,
+                    i % mw
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// `texel_index` of common.wgsl, in the same f32 arithmetic.
+#[inline]
+pub fn texel_index(
+    uv: [f32; 2],
+    uv_scale: [f32; 2],
+    dims: (usize, usize),
+    coords: Option<(usize, usize, &[u32])>,
+) -> usize {
+    let s = [uv[0] * uv_scale[0], uv[1] * uv_scale[1]];
+    let f = [s[0] - s[0].floor(), s[1] - s[1].floor()];
+    let (h, w) = (dims.0 as u32, dims.1 as u32);
+    // `as u32` saturates like WGSL's f32 -> u32 conversion of values in range; inputs are >= 0.
+    if let Some((mw, mh, map)) = coords {
+        let (mw, mh) = (mw as u32, mh as u32);
+        let mc = ((f[0] * mw as f32) as u32).min(mw - 1);
+        let mr = (((1.0 - f[1]) * mh as f32) as u32).min(mh - 1);
+        let e = map[(mr * mw + mc) as usize];
+        return ((e >> 16) * w + (e & 0xffff)) as usize;
+    }
+    let c = ((f[0] * w as f32) as u32).min(w - 1);
+    let r = (((1.0 - f[1]) * h as f32) as u32).min(h - 1);
+    (r * w + c) as usize
+}
+
+fn to_local(w: Vec3, t: Vec3, b: Vec3, n: Vec3) -> Vec3 {
+    Vec3::new(w.dot(t), w.dot(b), w.dot(n)).normalize()
+}
+
+/// Render `model` on the CPU into a `[height][width][3]` image.
+pub fn render_cpu<M: ReflectanceModel>(model: &M, view: &View<'_>) -> Result<Vec<f32>> {
+    validate_common(view, model.dims())?;
+    let gb = raster::rasterize(view.mesh, view.camera, view.width, view.height)?;
+    let eye = Vec3::from(view.camera.eye);
+    let mut img = vec![0.0f32; view.width * view.height * 3];
+    img.par_chunks_mut(3).zip(gb.pixels.par_iter()).for_each(|(px, frag)| {
+        let Some(f) = frag else { return };
+        let n = Vec3::from(f.normal).normalize();
+        let t = Vec3::from(f.tangent).normalize();
+        let b = Vec3::from(f.bitangent).normalize();
+        let p = Vec3::from(f.position);
+        let v = to_local((eye - p).normalize(), t, b, n);
+        if v.z <= 0.0 {
+            return;
+        }
+        let texel = texel_index(f.uv, view.uv_scale, model.dims(), view.coords);
+        let vd = v.as_dvec3().to_array();
+        let mut sum = Vec3::ZERO;
+        for light in view.lights {
+            let (lw, irr) = light.at(p);
+            let l = to_local(lw, t, b, n);
+            if l.z <= 0.0 {
+                continue;
+            }
+            let q = model.query(vd, l.as_dvec3().to_array());
+            sum += Vec3::from(model.eval(texel, &q)) * irr;
+        }
+        px.copy_from_slice(&sum.to_array());
+    });
+    Ok(img)
+}

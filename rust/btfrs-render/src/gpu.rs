@@ -1,0 +1,511 @@
+//! The wgpu renderer: one render pipeline per model shader, an offscreen float target, read-back.
+//!
+//! A model is uploaded once ([`upload`]) as its parameter words plus a *store*: its arrays
+//! concatenated and split into at most [`MAX_CHUNKS`] storage buffers no larger than the
+//! adapter's storage-binding limit (128 MiB on lavapipe), so a 300 MiB raw BTF still binds.
+//! [`render`] then draws a mesh with a camera and lights into an `Rgba32Float` target with a
+//! `Depth32Float` buffer and reads the image back as `[height][width][3]` f32.
+
+use crate::device::Gpu;
+use crate::model::{GpuModel, Shader};
+use crate::scene::{Camera, Light, Mesh};
+use btfrs_core::{Error, Result};
+use bytemuck::{Pod, Zeroable};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use wgpu::util::DeviceExt;
+
+/// Storage buffers in a model's store (bindings 1..=8 of group 1 in `common.wgsl`).
+pub const MAX_CHUNKS: usize = 8;
+
+const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
+const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+
+/// `Globals` of common.wgsl (std140-compatible layout, 112 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable, Debug)]
+struct Globals {
+    view_proj: [[f32; 4]; 4],
+    eye: [f32; 4],
+    uv_scale: [f32; 2],
+    sample_size: [u32; 2],
+    map_size: [u32; 2],
+    n_lights: u32,
+    chunk_len: u32,
+}
+
+/// `Light` of common.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable, Debug)]
+struct GpuLight {
+    pos: [f32; 4],
+    intensity: [f32; 4],
+}
+
+/// Interleaved vertex: position, normal, tangent, bitangent, uv.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable, Debug)]
+struct Vertex {
+    pos: [f32; 3],
+    nrm: [f32; 3],
+    tan: [f32; 3],
+    bit: [f32; 3],
+    uv: [f32; 2],
+}
+
+/// The WGSL of a shader: `common.wgsl` followed by the model's file (WGSL has no includes).
+pub fn shader_source(shader: Shader) -> String {
+    format!("{}\n{}", crate::shaders::COMMON, shader.source())
+}
+
+/// A model's data on the device.
+#[derive(Debug)]
+pub struct UploadedModel {
+    shader: Shader,
+    dims: (usize, usize),
+    chunk_len: u32,
+    bind_group: wgpu::BindGroup,
+    /// Bytes held on the device.
+    pub device_bytes: u64,
+}
+
+struct Pipelines {
+    globals_layout: wgpu::BindGroupLayout,
+    model_layout: wgpu::BindGroupLayout,
+    by_shader: HashMap<Shader, wgpu::RenderPipeline>,
+}
+
+fn pipelines(gpu: &Gpu) -> &'static Mutex<HashMap<usize, Arc<Mutex<Pipelines>>>> {
+    let _ = gpu;
+    static P: std::sync::OnceLock<Mutex<HashMap<usize, Arc<Mutex<Pipelines>>>>> = std::sync::OnceLock::new();
+    P.get_or_init(|| Mutex::new(HashMap::new()))
+}
+
+fn storage_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::FRAGMENT,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only: true },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+fn uniform_entry(binding: u32, vis: wgpu::ShaderStages) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: vis,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+/// The layouts and pipelines of `gpu`, created once per device.
+fn state(gpu: &Gpu) -> Arc<Mutex<Pipelines>> {
+    let key = gpu as *const Gpu as usize;
+    let mut all = pipelines(gpu).lock().unwrap_or_else(|e| e.into_inner());
+    all.entry(key)
+        .or_insert_with(|| {
+            let d = &gpu.device;
+            let globals_layout = d.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("btfrs globals"),
+                entries: &[uniform_entry(0, wgpu::ShaderStages::VERTEX_FRAGMENT), storage_entry(1), storage_entry(2)],
+            });
+            let mut entries = vec![uniform_entry(0, wgpu::ShaderStages::FRAGMENT)];
+            entries.extend((1..=MAX_CHUNKS as u32 + 1).map(storage_entry));
+            let model_layout = d.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("btfrs model"),
+                entries: &entries,
+            });
+            Arc::new(Mutex::new(Pipelines { globals_layout, model_layout, by_shader: HashMap::new() }))
+        })
+        .clone()
+}
+
+fn pipeline(gpu: &Gpu, st: &mut Pipelines, shader: Shader) -> Result<wgpu::RenderPipeline> {
+    if let Some(p) = st.by_shader.get(&shader) {
+        return Ok(p.clone());
+    }
+    let d = &gpu.device;
+    let p = gpu.checked(&format!("building the {} pipeline", shader.name()), || {
+        let module = d.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(shader.name()),
+            source: wgpu::ShaderSource::Wgsl(shader_source(shader).into()),
+        });
+        let layout = d.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("btfrs"),
+            bind_group_layouts: &[Some(&st.globals_layout), Some(&st.model_layout)],
+            immediate_size: 0,
+        });
+        let attrs =
+            wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Float32x3, 4 => Float32x2];
+        d.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some(shader.name()),
+            layout: Some(&layout),
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: Some("vs_main"),
+                compilation_options: Default::default(),
+                buffers: &[wgpu::VertexBufferLayout {
+                    array_stride: std::mem::size_of::<Vertex>() as u64,
+                    step_mode: wgpu::VertexStepMode::Vertex,
+                    attributes: &attrs,
+                }],
+            },
+            primitive: wgpu::PrimitiveState {
+                topology: wgpu::PrimitiveTopology::TriangleList,
+                cull_mode: None,
+                ..Default::default()
+            },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: DEPTH_FORMAT,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Less),
+                stencil: Default::default(),
+                bias: Default::default(),
+            }),
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs_main"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: COLOR_FORMAT,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        })
+    })?;
+    st.by_shader.insert(shader, p.clone());
+    Ok(p)
+}
+
+/// Upload a model's store and parameters.
+pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
+    let parts = model.gpu_parts();
+    let mut offsets = Vec::with_capacity(parts.len());
+    let mut total = 0usize;
+    for p in &parts {
+        offsets.push(u32::try_from(total).map_err(|_| Error::Device("the model has more than 2^32 values".into()))?);
+        total += p.len();
+    }
+    let params = model.gpu_params(&offsets);
+    // Chunks no larger than the binding limit, nor than the largest buffer, and 4-byte aligned.
+    let max_binding = gpu.limits.max_storage_buffer_binding_size.min(gpu.limits.max_buffer_size) as usize;
+    let chunk_len = (max_binding / 4).clamp(1, u32::MAX as usize);
+    let n_chunks = total.div_ceil(chunk_len).max(1);
+    if n_chunks > MAX_CHUNKS {
+        return Err(Error::Device(format!(
+            "the {} model needs {:.0} MiB on the device, more than {MAX_CHUNKS} storage buffers of {:.0} MiB that {} can bind",
+            model.shader().name(),
+            (total * 4) as f64 / 1048576.0,
+            max_binding as f64 / 1048576.0,
+            gpu.info.name
+        )));
+    }
+    let d = &gpu.device;
+    let st = state(gpu);
+    let st = st.lock().unwrap_or_else(|e| e.into_inner());
+    gpu.checked("uploading the model", || {
+        let chunks: Vec<wgpu::Buffer> = (0..MAX_CHUNKS)
+            .map(|c| {
+                let len = if c < n_chunks { chunk_len.min(total - c * chunk_len).max(1) } else { 1 };
+                d.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("btfrs model store"),
+                    size: (len * 4) as u64,
+                    usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                })
+            })
+            .collect();
+        // Write each part into the chunks it spans.
+        let mut at = 0usize;
+        for p in &parts {
+            let mut done = 0usize;
+            while done < p.len() {
+                let pos = at + done;
+                let (c, o) = (pos / chunk_len, pos % chunk_len);
+                let n = (chunk_len - o).min(p.len() - done);
+                gpu.queue.write_buffer(&chunks[c], (o * 4) as u64, bytemuck::cast_slice(&p[done..done + n]));
+                done += n;
+            }
+            at += p.len();
+        }
+        let pbuf = d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("btfrs model params"),
+            contents: bytemuck::cast_slice(&params),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let dirs = model.gpu_dirs();
+        let dbuf = d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("btfrs model directions"),
+            contents: bytemuck::cast_slice(if dirs.is_empty() { &[[0.0f32; 4]][..] } else { &dirs[..] }),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let mut entries = vec![
+            wgpu::BindGroupEntry { binding: 0, resource: pbuf.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: MAX_CHUNKS as u32 + 1, resource: dbuf.as_entire_binding() },
+        ];
+        entries.extend(
+            chunks
+                .iter()
+                .enumerate()
+                .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32 + 1, resource: b.as_entire_binding() }),
+        );
+        let bind_group = d.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("btfrs model"),
+            layout: &st.model_layout,
+            entries: &entries,
+        });
+        UploadedModel {
+            shader: model.shader(),
+            dims: model.dims(),
+            chunk_len: chunk_len as u32,
+            bind_group,
+            device_bytes: (total * 4) as u64,
+        }
+    })
+}
+
+/// What to draw, besides the model.
+#[derive(Debug, Clone, Copy)]
+pub struct View<'a> {
+    /// The surface.
+    pub mesh: &'a Mesh,
+    /// The camera.
+    pub camera: &'a Camera,
+    /// The lights (at least one).
+    pub lights: &'a [Light],
+    /// Image width in pixels.
+    pub width: usize,
+    /// Image height in pixels.
+    pub height: usize,
+    /// Texture repetitions over the UV square.
+    pub uv_scale: [f32; 2],
+    /// Optional coordinate map: (width, height, entries `x | y << 16`, row 0 at the top).
+    pub coords: Option<(usize, usize, &'a [u32])>,
+}
+
+/// Times of one frame, in milliseconds.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct FrameTimes {
+    /// Recording, submitting and waiting for the draw.
+    pub draw_ms: f64,
+    /// Copying the target into a buffer, mapping it and unpacking it.
+    pub readback_ms: f64,
+}
+
+/// Check a view's sizes against the device and the model.
+pub fn validate_view(gpu: &Gpu, view: &View<'_>, dims: (usize, usize)) -> Result<()> {
+    let max = gpu.limits.max_texture_dimension_2d as usize;
+    if view.width == 0 || view.height == 0 || view.width > max || view.height > max {
+        return Err(Error::arg(
+            "size",
+            format!("expected 1 to {max} pixels per side on {}, got {} x {}", gpu.info.name, view.width, view.height),
+        ));
+    }
+    crate::cpu::validate_common(view, dims)
+}
+
+/// Render `model` (uploaded with [`upload`]) into a `[height][width][3]` image.
+pub fn render(gpu: &Gpu, model: &UploadedModel, view: &View<'_>) -> Result<(Vec<f32>, FrameTimes)> {
+    validate_view(gpu, view, model.dims)?;
+    let d = &gpu.device;
+    let st_arc = state(gpu);
+    let mut st = st_arc.lock().unwrap_or_else(|e| e.into_inner());
+    let pipe = pipeline(gpu, &mut st, model.shader)?;
+    let (w, h) = (view.width as u32, view.height as u32);
+    let t0 = std::time::Instant::now();
+    let out = gpu.checked("rendering", || {
+        let vp = view.camera.view_proj(view.width as f32 / view.height as f32);
+        let (mw, mh) = view.coords.map_or((0, 0), |(mw, mh, _)| (mw as u32, mh as u32));
+        let globals = Globals {
+            view_proj: vp.to_cols_array_2d(),
+            eye: [view.camera.eye[0], view.camera.eye[1], view.camera.eye[2], 1.0],
+            uv_scale: view.uv_scale,
+            sample_size: [model.dims.1 as u32, model.dims.0 as u32],
+            map_size: [mw, mh],
+            n_lights: view.lights.len() as u32,
+            chunk_len: model.chunk_len,
+        };
+        let lights: Vec<GpuLight> = view
+            .lights
+            .iter()
+            .map(|l| match *l {
+                Light::Point { position: p, intensity: i } => {
+                    GpuLight { pos: [p[0], p[1], p[2], 1.0], intensity: [i[0], i[1], i[2], 0.0] }
+                }
+                Light::Directional { direction: p, intensity: i } => {
+                    // Normalised here as Light::at does for the CPU (validate() rejects zero).
+                    let p = glam::Vec3::from(p).normalize().to_array();
+                    GpuLight { pos: [p[0], p[1], p[2], 0.0], intensity: [i[0], i[1], i[2], 0.0] }
+                }
+            })
+            .collect();
+        let empty = [0u32];
+        let map: &[u32] = view.coords.map_or(&empty[..], |(_, _, m)| m);
+        let gbuf = d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("globals"),
+            contents: bytemuck::bytes_of(&globals),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let lbuf = d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("lights"),
+            contents: bytemuck::cast_slice(&lights),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let mbuf = d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("coordinate map"),
+            contents: bytemuck::cast_slice(map),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let globals_bg = d.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("globals"),
+            layout: &st.globals_layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: gbuf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: lbuf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: mbuf.as_entire_binding() },
+            ],
+        });
+        let verts: Vec<Vertex> = (0..view.mesh.positions.len())
+            .map(|i| Vertex {
+                pos: view.mesh.positions[i],
+                nrm: view.mesh.normals[i],
+                tan: view.mesh.tangents[i],
+                bit: view.mesh.bitangents[i],
+                uv: view.mesh.uvs[i],
+            })
+            .collect();
+        let vbuf = d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("vertices"),
+            contents: bytemuck::cast_slice(&verts),
+            usage: wgpu::BufferUsages::VERTEX,
+        });
+        let ibuf = d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("indices"),
+            contents: bytemuck::cast_slice(&view.mesh.indices),
+            usage: wgpu::BufferUsages::INDEX,
+        });
+        let size = wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 };
+        let target = d.create_texture(&wgpu::TextureDescriptor {
+            label: Some("target"),
+            size,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: COLOR_FORMAT,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+            view_formats: &[],
+        });
+        let depth = d.create_texture(&wgpu::TextureDescriptor {
+            label: Some("depth"),
+            size,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: DEPTH_FORMAT,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+            view_formats: &[],
+        });
+        let tview = target.create_view(&Default::default());
+        let dview = depth.create_view(&Default::default());
+        let mut enc = d.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("btfrs frame") });
+        {
+            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("btfrs frame"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &tview,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &dview,
+                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(1.0), store: wgpu::StoreOp::Discard }),
+                    stencil_ops: None,
+                }),
+                ..Default::default()
+            });
+            pass.set_pipeline(&pipe);
+            pass.set_bind_group(0, &globals_bg, &[]);
+            pass.set_bind_group(1, &model.bind_group, &[]);
+            pass.set_vertex_buffer(0, vbuf.slice(..));
+            pass.set_index_buffer(ibuf.slice(..), wgpu::IndexFormat::Uint32);
+            pass.draw_indexed(0..view.mesh.indices.len() as u32, 0, 0..1);
+        }
+        gpu.queue.submit([enc.finish()]);
+        target
+    })?;
+    let _ = d.poll(wgpu::PollType::wait_indefinitely());
+    let draw_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let t1 = std::time::Instant::now();
+    let img = read_back(gpu, &out, w, h)?;
+    let readback_ms = t1.elapsed().as_secs_f64() * 1e3;
+    Ok((img, FrameTimes { draw_ms, readback_ms }))
+}
+
+/// Copy an `Rgba32Float` texture into host memory as `[h][w][3]`.
+fn read_back(gpu: &Gpu, tex: &wgpu::Texture, w: u32, h: u32) -> Result<Vec<f32>> {
+    let d = &gpu.device;
+    // Rows of a texture-to-buffer copy must be padded to 256 bytes.
+    let row = w * 16;
+    let padded = row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+    let buf = gpu.checked("reading the image back", || {
+        let buf = d.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("read-back"),
+            size: padded as u64 * h as u64,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let mut enc = d.create_command_encoder(&Default::default());
+        enc.copy_texture_to_buffer(
+            wgpu::TexelCopyTextureInfo {
+                texture: tex,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            wgpu::TexelCopyBufferInfo {
+                buffer: &buf,
+                layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(padded), rows_per_image: Some(h) },
+            },
+            wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
+        );
+        gpu.queue.submit([enc.finish()]);
+        buf
+    })?;
+    let slice = buf.slice(..);
+    let (tx, rx) = std::sync::mpsc::channel();
+    slice.map_async(wgpu::MapMode::Read, move |r| {
+        let _ = tx.send(r);
+    });
+    d.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| Error::Device(format!("waiting for the GPU: {e}")))?;
+    rx.recv()
+        .map_err(|_| Error::Device("the read-back was dropped".into()))?
+        .map_err(|e| Error::Device(format!("mapping the read-back buffer: {e}")))?;
+    let data = slice.get_mapped_range();
+    let mut img = Vec::with_capacity((w * h * 3) as usize);
+    for y in 0..h as usize {
+        let r: &[f32] = bytemuck::cast_slice(&data[y * padded as usize..y * padded as usize + row as usize]);
+        for px in r.chunks_exact(4) {
+            img.extend_from_slice(&px[..3]);
+        }
+    }
+    drop(data);
+    buf.unmap();
+    Ok(img)
+}

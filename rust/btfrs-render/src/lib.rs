@@ -1,0 +1,24 @@
+//! btfrs-render: rendering BTF models onto surfaces, on the GPU with wgpu and on the CPU.
+//!
+//! * [`device`]: the headless wgpu device (a real GPU, else Mesa's lavapipe; `BTFRS_ADAPTER`).
+//! * [`scene`]: meshes (plane, sphere, cylinder, indexed triangle meshes) whose per-vertex
+//!   tangent frames follow the UV parameterisation (paper 002, section 4.2), a perspective
+//!   camera, point and directional lights.
+//! * [`gpu`]: one render pipeline per model shader (`shaders_wgsl/`), model upload, read-back.
+//! * [`model`]: what a model provides to be drawn ([`GpuModel`]).
+//! * [`raster`] and [`cpu`]: the CPU reference renderer, which shades the same points with the
+//!   same formulas, so every shader is tested against it.
+//! * Coordinate maps (paper 000, section 5): an optional map of u16 (x, y) texel coordinates
+//!   applied as one extra lookup, for synthesised BTFs of any size.
+
+pub mod cpu;
+pub mod device;
+pub mod gpu;
+pub mod model;
+pub mod raster;
+pub mod scene;
+pub mod shaders;
+
+pub use device::{AdapterChoice, Gpu};
+pub use gpu::{render, upload, FrameTimes, UploadedModel, View};
+pub use model::{GpuModel, Shader};

@@ -1,0 +1,238 @@
+// common.wgsl: what every BTF model shader shares (prepended to the model's own file).
+//
+// The mesh is rasterised with its per-vertex tangent frame (T = dP/du, B = dP/dv, N), which
+// follows the UV parameterisation as paper 002, section 4.2 requires; each fragment expresses
+// the view and light directions in that frame and asks the model for the BTF value there. The
+// texel comes from the UV coordinate, optionally through a coordinate map (paper 000, section
+// 5: a synthesised BTF is the sample plus a map of u16 (x, y) texel coordinates).
+//
+// A model file provides:
+//   struct ViewQuery { ... }                                  per-fragment view preparation
+//   fn view_query(v: vec3<f32>) -> ViewQuery
+//   fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32>
+// and reads its data through `load(i)` (the model store) and `mp` (its parameter words).
+// The CPU reference (rust/btfrs-render/src/cpu.rs) mirrors every formula here.
+
+struct Globals {
+    view_proj: mat4x4<f32>,
+    eye: vec4<f32>,
+    uv_scale: vec2<f32>,
+    sample_size: vec2<u32>,   // model texels (width, height)
+    map_size: vec2<u32>,      // coordinate map (width, height); (0, 0) = no map
+    n_lights: u32,
+    chunk_len: u32,           // f32 elements per store chunk
+};
+
+struct Light {
+    pos: vec4<f32>,           // w = 1: point light at xyz; w = 0: directional, xyz towards the light
+    intensity: vec4<f32>,
+};
+
+@group(0) @binding(0) var<uniform> g: Globals;
+@group(0) @binding(1) var<storage, read> lights: array<Light>;
+@group(0) @binding(2) var<storage, read> coord_map: array<u32>;
+
+// Model parameters (16 words, meaning defined by the model) and its data store: the model's
+// arrays concatenated and split into chunks no larger than the adapter's storage binding limit
+// (128 MiB on lavapipe), so that a large BTF still fits.
+@group(1) @binding(0) var<uniform> mp: array<vec4<u32>, 4>;
+@group(1) @binding(1) var<storage, read> s0: array<f32>;
+@group(1) @binding(2) var<storage, read> s1: array<f32>;
+@group(1) @binding(3) var<storage, read> s2: array<f32>;
+@group(1) @binding(4) var<storage, read> s3: array<f32>;
+@group(1) @binding(5) var<storage, read> s4: array<f32>;
+@group(1) @binding(6) var<storage, read> s5: array<f32>;
+@group(1) @binding(7) var<storage, read> s6: array<f32>;
+@group(1) @binding(8) var<storage, read> s7: array<f32>;
+// The model's measured direction sets (xyz, w unused), searched once or more per fragment: kept
+// apart from the store so the search reads them as whole vectors without the chunk switch.
+@group(1) @binding(9) var<storage, read> mdirs: array<vec4<f32>>;
+
+fn load(i: u32) -> f32 {
+    let c = i / g.chunk_len;
+    let o = i - c * g.chunk_len;
+    switch c {
+        case 0u: { return s0[o]; }
+        case 1u: { return s1[o]; }
+        case 2u: { return s2[o]; }
+        case 3u: { return s3[o]; }
+        case 4u: { return s4[o]; }
+        case 5u: { return s5[o]; }
+        case 6u: { return s6[o]; }
+        default: { return s7[o]; }
+    }
+}
+
+fn param(k: u32) -> u32 {
+    return mp[k / 4u][k % 4u];
+}
+
+fn load_dir(i: u32) -> vec3<f32> {
+    return vec3<f32>(load(i), load(i + 1u), load(i + 2u));
+}
+
+// --- Interpolation over measured directions (mirrors btfrs_core::directions::interp_weights) --
+
+fn angle_between(a: vec3<f32>, b: vec3<f32>) -> f32 {
+    return atan2(length(cross(a, b)), dot(a, b));
+}
+
+// The four nearest directions so far, by cosine (largest first). Plain fields and straight-line
+// insertion instead of arrays: dynamically indexed local arrays are slow on software rasterisers.
+struct Near4 {
+    i0: u32, i1: u32, i2: u32, i3: u32,
+    c0: f32, c1: f32, c2: f32, c3: f32,
+};
+
+// The four directions of mdirs[first .. first + count] nearest to q. Nearest by cosine, which
+// orders exactly as the angle does; angles are computed afterwards for the four only.
+fn nearest4(first: u32, count: u32, q: vec3<f32>) -> Near4 {
+    var n = Near4(0u, 0u, 0u, 0u, -2.0, -2.0, -2.0, -2.0);
+    for (var i = 0u; i < count; i++) {
+        let c = dot(mdirs[first + i].xyz, q);
+        if (c <= n.c3) {
+            continue;
+        }
+        if (c > n.c0) {
+            n.i3 = n.i2; n.c3 = n.c2; n.i2 = n.i1; n.c2 = n.c1; n.i1 = n.i0; n.c1 = n.c0; n.i0 = i; n.c0 = c;
+        } else if (c > n.c1) {
+            n.i3 = n.i2; n.c3 = n.c2; n.i2 = n.i1; n.c2 = n.c1; n.i1 = i; n.c1 = c;
+        } else if (c > n.c2) {
+            n.i3 = n.i2; n.c3 = n.c2; n.i2 = i; n.c2 = c;
+        } else {
+            n.i3 = i; n.c3 = c;
+        }
+    }
+    return n;
+}
+
+// Up to three directions and their weights (unused entries have weight 0).
+struct Weights3 {
+    i0: u32, i1: u32, i2: u32,
+    w0: f32, w1: f32, w2: f32,
+};
+
+// Mirrors btfrs_core::directions::interp_weights with k = 3: w_k = 1/d_k - 1/d_4 over the
+// three nearest (d = angle), normalised, so a direction's weight reaches zero as it leaves the
+// neighbour set and images change continuously with the query.
+fn interp3(first: u32, count: u32, q: vec3<f32>) -> Weights3 {
+    let n = nearest4(first, count, q);
+    var out = Weights3(n.i0, n.i1, n.i2, 0.0, 0.0, 0.0);
+    let d0 = angle_between(mdirs[first + n.i0].xyz, q);
+    if (d0 < 1e-9 || count == 1u) {
+        out.w0 = 1.0;
+        return out;
+    }
+    let d1 = angle_between(mdirs[first + n.i1].xyz, q);
+    var cut = 0.0;
+    var d2 = 0.0;
+    if (count >= 3u) {
+        d2 = angle_between(mdirs[first + n.i2].xyz, q);
+    }
+    if (count >= 4u) {
+        cut = 1.0 / angle_between(mdirs[first + n.i3].xyz, q);
+    }
+    out.w0 = max(1.0 / d0 - cut, 0.0);
+    out.w1 = max(1.0 / d1 - cut, 0.0);
+    if (count >= 3u) {
+        out.w2 = max(1.0 / d2 - cut, 0.0);
+    }
+    let total = out.w0 + out.w1 + out.w2;
+    if (total > 0.0) {
+        out.w0 /= total;
+        out.w1 /= total;
+        out.w2 /= total;
+    } else {
+        let k = f32(min(count, 3u));
+        out.w0 = 1.0 / k;
+        out.w1 = 1.0 / k;
+        if (count >= 3u) {
+            out.w2 = 1.0 / k;
+        }
+    }
+    return out;
+}
+
+// --- Texel addressing ------------------------------------------------------------------------
+
+// The model texel for a surface UV: repeat `uv_scale` times, v up the texture (row 0 = top).
+fn texel_index(uv: vec2<f32>) -> u32 {
+    let s = uv * g.uv_scale;
+    let f = s - floor(s);
+    if (g.map_size.x > 0u) {
+        let mc = min(u32(f.x * f32(g.map_size.x)), g.map_size.x - 1u);
+        let mr = min(u32((1.0 - f.y) * f32(g.map_size.y)), g.map_size.y - 1u);
+        let e = coord_map[mr * g.map_size.x + mc];
+        return (e >> 16u) * g.sample_size.x + (e & 0xffffu);
+    }
+    let c = min(u32(f.x * f32(g.sample_size.x)), g.sample_size.x - 1u);
+    let r = min(u32((1.0 - f.y) * f32(g.sample_size.y)), g.sample_size.y - 1u);
+    return r * g.sample_size.x + c;
+}
+
+// --- Vertex and fragment stages --------------------------------------------------------------
+
+struct VsIn {
+    @location(0) pos: vec3<f32>,
+    @location(1) nrm: vec3<f32>,
+    @location(2) tan: vec3<f32>,
+    @location(3) bit: vec3<f32>,
+    @location(4) uv: vec2<f32>,
+};
+
+struct VsOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) pos: vec3<f32>,
+    @location(1) nrm: vec3<f32>,
+    @location(2) tan: vec3<f32>,
+    @location(3) bit: vec3<f32>,
+    @location(4) uv: vec2<f32>,
+};
+
+@vertex
+fn vs_main(v: VsIn) -> VsOut {
+    var o: VsOut;
+    o.clip = g.view_proj * vec4<f32>(v.pos, 1.0);
+    o.pos = v.pos;
+    o.nrm = v.nrm;
+    o.tan = v.tan;
+    o.bit = v.bit;
+    o.uv = v.uv;
+    return o;
+}
+
+fn to_local(w: vec3<f32>, t: vec3<f32>, b: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    return normalize(vec3<f32>(dot(w, t), dot(w, b), dot(w, n)));
+}
+
+@fragment
+fn fs_main(f: VsOut) -> @location(0) vec4<f32> {
+    let n = normalize(f.nrm);
+    let t = normalize(f.tan);
+    let b = normalize(f.bit);
+    let v = to_local(normalize(g.eye.xyz - f.pos), t, b, n);
+    if (v.z <= 0.0) {
+        // The back of the surface: a BTF is defined over the upper hemisphere only.
+        return vec4<f32>(0.0, 0.0, 0.0, 1.0);
+    }
+    let texel = texel_index(f.uv);
+    let vq = view_query(v);
+    var sum = vec3<f32>(0.0);
+    for (var i = 0u; i < g.n_lights; i++) {
+        let light = lights[i];
+        var lw = light.pos.xyz;
+        var irr = light.intensity.xyz;
+        if (light.pos.w > 0.5) {
+            let d = light.pos.xyz - f.pos;
+            let d2 = dot(d, d);
+            lw = d / sqrt(d2);
+            irr = light.intensity.xyz / d2;
+        }
+        let l = to_local(lw, t, b, n);
+        if (l.z <= 0.0) {
+            continue;
+        }
+        sum += eval_model(texel, vq, l) * irr;
+    }
+    return vec4<f32>(sum, 1.0);
+}
