@@ -3,6 +3,8 @@
 # linked), the stub check of the native module, and the Python suite (pytest).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# Mesa warns on every adapter query when XDG_RUNTIME_DIR is unset (headless machines, CI).
+export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}"
 bash scripts/setup.sh
 [ -x "$HOME/.cargo/bin/cargo" ] && export PATH="$HOME/.cargo/bin:$PATH"
 

@@ -47,7 +47,11 @@ struct Light {
 // The model's measured direction sets (xyz, w unused), searched once or more per fragment: kept
 // apart from the store so the search reads them as whole vectors without the chunk switch.
 @group(1) @binding(9) var<storage, read> mdirs: array<vec4<f32>>;
+// Per direction set, a candidate table over the concentric-map square (see nearest4).
+@group(1) @binding(10) var<storage, read> tables: array<u32>;
 
+// <load> (replaced by `return s0[i];` when the store is a single chunk: a per-lane switch costs a
+// software rasteriser all eight loads, the direct read costs one)
 fn load(i: u32) -> f32 {
     let c = i / g.chunk_len;
     let o = i - c * g.chunk_len;
@@ -62,6 +66,7 @@ fn load(i: u32) -> f32 {
         default: { return s7[o]; }
     }
 }
+// </load>
 
 fn param(k: u32) -> u32 {
     return mp[k / 4u][k % 4u];
@@ -84,11 +89,60 @@ struct Near4 {
     c0: f32, c1: f32, c2: f32, c3: f32,
 };
 
-// The four directions of mdirs[first .. first + count] nearest to q. Nearest by cosine, which
+// --- The elevated concentric map (paper 004, section 6.1; mirrors rust/btfrs-hemimap) ----------
+
+// Direction (any length, z >= 0) to the square [0, 1]^2: inverse of the elevation map (rho from
+// z without cancellation), then of Shirley and Chiu's concentric map, one atan2 per call.
+fn hemisphere_to_square(d0: vec3<f32>) -> vec2<f32> {
+    let m = max(max(abs(d0.x), abs(d0.y)), abs(d0.z));
+    var d = d0;
+    if (m > 0.0) {
+        d = d0 / m;
+    }
+    var rho = 1.0;
+    if (d.z > 0.0) {
+        let h2 = d.x * d.x + d.y * d.y;
+        let n2 = h2 + d.z * d.z;
+        rho = clamp(sqrt(h2 / (n2 + sqrt(n2) * d.z)), 0.0, 1.0);
+    }
+    let swap = abs(d.y) > abs(d.x);
+    var u = d.x;
+    var v = d.y;
+    if (swap) {
+        u = d.y;
+        v = d.x;
+    }
+    var r = rho;
+    if (u < 0.0) {
+        r = -rho;
+        u = -u;
+        v = -v;
+    }
+    let side = r * (atan2(v, u) * 1.2732395447351628);
+    var a = r;
+    var b = side;
+    if (swap) {
+        a = side;
+        b = r;
+    }
+    return clamp(vec2<f32>((a + 1.0) * 0.5, (b + 1.0) * 0.5), vec2<f32>(0.0), vec2<f32>(1.0));
+}
+
+// The four directions of mdirs[first .. first + count] nearest to q. Only the candidates that
+// the table lists for q's cell of the concentric-map square are tested: a conservative superset
+// of every point of the cell's four nearest (rust/btfrs-render/src/model.rs, candidate_table),
+// so the result is the brute-force one at a fraction of the cost. Nearest by cosine, which
 // orders exactly as the angle does; angles are computed afterwards for the four only.
-fn nearest4(first: u32, count: u32, q: vec3<f32>) -> Near4 {
+fn nearest4(first: u32, table: u32, q: vec3<f32>) -> Near4 {
     var n = Near4(0u, 0u, 0u, 0u, -2.0, -2.0, -2.0, -2.0);
-    for (var i = 0u; i < count; i++) {
+    let gsz = tables[table];
+    let st = hemisphere_to_square(q);
+    let cx = min(u32(st.x * f32(gsz)), gsz - 1u);
+    let cy = min(u32(st.y * f32(gsz)), gsz - 1u);
+    let cell = table + 1u + cy * gsz + cx;
+    let list = table + 2u + gsz * gsz;
+    for (var k = tables[cell]; k < tables[cell + 1u]; k++) {
+        let i = tables[list + k];
         let c = dot(mdirs[first + i].xyz, q);
         if (c <= n.c3) {
             continue;
@@ -115,8 +169,8 @@ struct Weights3 {
 // Mirrors btfrs_core::directions::interp_weights with k = 3: w_k = 1/d_k - 1/d_4 over the
 // three nearest (d = angle), normalised, so a direction's weight reaches zero as it leaves the
 // neighbour set and images change continuously with the query.
-fn interp3(first: u32, count: u32, q: vec3<f32>) -> Weights3 {
-    let n = nearest4(first, count, q);
+fn interp3(first: u32, count: u32, table: u32, q: vec3<f32>) -> Weights3 {
+    let n = nearest4(first, table, q);
     var out = Weights3(n.i0, n.i1, n.i2, 0.0, 0.0, 0.0);
     let d0 = angle_between(mdirs[first + n.i0].xyz, q);
     if (d0 < 1e-9 || count == 1u) {

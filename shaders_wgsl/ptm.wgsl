@@ -1,7 +1,7 @@
 // ptm.wgsl: Polynomial Texture Maps per view slot (paper 000, section 3.1).
 //
 // Parameters: word 0 = kind (0 RGB, 1 LRGB), 1 = number of view slots V (their directions are
-// mdirs[0 .. V]), 3 = store offset of the coefficients (RGB [texel][V][3][6], LRGB
+// mdirs[0 .. V]), 2 = their candidate table in `tables`, 3 = store offset of the coefficients (RGB [texel][V][3][6], LRGB
 // [texel][V][6]), 4 = store offset of the LRGB base colours ([texel][V][3]).
 // Between view slots the three nearest are blended (interp3); the light enters through the
 // biquadratic basis (lu^2, lv^2, lu lv, lu, lv, 1) of its tangent-frame x and y.
@@ -11,7 +11,7 @@ struct ViewQuery {
 };
 
 fn view_query(v: vec3<f32>) -> ViewQuery {
-    return ViewQuery(interp3(0u, param(1u), v));
+    return ViewQuery(interp3(0u, param(1u), param(2u), v));
 }
 
 fn ptm_slot(slot: u32, l: vec3<f32>) -> vec3<f32> {

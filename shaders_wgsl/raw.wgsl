@@ -2,7 +2,8 @@
 // reference every model is judged against).
 //
 // Parameters: word 0 = number of views V (directions mdirs[0 .. V]), 1 = number of lights L
-// (directions mdirs[V .. V + L]), 4 = store offset of the data ([texel][V][L][3], the Btf's own
+// (directions mdirs[V .. V + L]), 2 and 3 = the candidate tables of the views and the lights in
+// `tables`, 4 = store offset of the data ([texel][V][L][3], the Btf's own
 // texel-major layout). The value is the weighted sum over the three nearest views times the
 // three nearest lights (nine samples).
 
@@ -11,7 +12,7 @@ struct ViewQuery {
 };
 
 fn view_query(v: vec3<f32>) -> ViewQuery {
-    return ViewQuery(interp3(0u, param(0u), v));
+    return ViewQuery(interp3(0u, param(0u), param(2u), v));
 }
 
 fn raw_view(texel: u32, view: u32, lw: Weights3) -> vec3<f32> {
@@ -28,7 +29,7 @@ fn raw_view(texel: u32, view: u32, lw: Weights3) -> vec3<f32> {
 }
 
 fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
-    let lw = interp3(param(0u), param(1u), l);
+    let lw = interp3(param(0u), param(1u), param(3u), l);
     var out = vq.w.w0 * raw_view(texel, vq.w.i0, lw);
     if (vq.w.w1 > 0.0) {
         out += vq.w.w1 * raw_view(texel, vq.w.i1, lw);

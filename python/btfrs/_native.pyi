@@ -13,7 +13,7 @@ _F32 = npt.NDArray[np.float32]
 _F64 = npt.NDArray[np.float64]
 _Bool = npt.NDArray[np.bool_]
 
-__all__ = ['__version__', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'PtmModel', 'fit_ptm_native', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_png', 'read_png']
+__all__ = ['__version__', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'PtmModel', 'fit_ptm_native', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_png', 'read_png', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_ptm', 'gpu_upload_raw', 'gpu_render', 'cpu_render_ptm', 'cpu_render_raw']
 __version__: str
 
 def ubo81() -> _F64: ...
@@ -71,3 +71,77 @@ def write_ptm(path: _Path, model: PtmModel, view: int) -> tuple[list[float], lis
 def read_ptm(path: _Path) -> PtmModel: ...
 def write_png(path: _Path, image: _F32, exposure: float = 1.0) -> None: ...
 def read_png(path: _Path) -> _F32: ...
+
+@final
+class Scene:
+    @staticmethod
+    def plane(size: float = 2.0) -> Scene: ...
+    @staticmethod
+    def sphere(radius: float = 1.0, segments: int = 64, rings: int = 32) -> Scene: ...
+    @staticmethod
+    def cylinder(radius: float = 1.0, height: float = 2.0, segments: int = 64) -> Scene: ...
+    @staticmethod
+    def mesh(
+        vertices: npt.NDArray[np.float32],
+        uvs: npt.NDArray[np.float32],
+        faces: npt.NDArray[np.uint32],
+        normals: Optional[npt.NDArray[np.float32]] = None,
+    ) -> Scene: ...
+    @property
+    def triangles(self) -> int: ...
+    @property
+    def vertices(self) -> int: ...
+
+@final
+class Camera:
+    @staticmethod
+    def look_at(eye: Any, target: Any, fov_deg: float = 40.0) -> Camera: ...
+    @property
+    def eye(self) -> list[float]: ...
+    @property
+    def target(self) -> list[float]: ...
+    @property
+    def fov_deg(self) -> float: ...
+
+@final
+class GpuModel:
+    @property
+    def device_bytes(self) -> int: ...
+
+_Lights = list[tuple[str, list[float], list[float]]]
+
+def gpu_info() -> str: ...
+def gpu_upload_ptm(model: PtmModel) -> GpuModel: ...
+def gpu_upload_raw(data: _F32, views: _F64, lights: _F64) -> GpuModel: ...
+def gpu_render(
+    model: GpuModel,
+    scene: Scene,
+    camera: Camera,
+    lights: _Lights,
+    width: int,
+    height: int,
+    uv_scale: list[float],
+    coords: Optional[npt.NDArray[np.uint16]] = None,
+) -> tuple[_F32, float, float]: ...
+def cpu_render_ptm(
+    model: PtmModel,
+    scene: Scene,
+    camera: Camera,
+    lights: _Lights,
+    width: int,
+    height: int,
+    uv_scale: list[float],
+    coords: Optional[npt.NDArray[np.uint16]] = None,
+) -> _F32: ...
+def cpu_render_raw(
+    data: _F32,
+    views: _F64,
+    btf_lights: _F64,
+    scene: Scene,
+    camera: Camera,
+    lights: _Lights,
+    width: int,
+    height: int,
+    uv_scale: list[float],
+    coords: Optional[npt.NDArray[np.uint16]] = None,
+) -> _F32: ...

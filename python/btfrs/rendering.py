@@ -140,6 +140,9 @@ def render(model: Union[Ptm, Btf], scene, camera, lights, size=(512, 512), uv_sc
         if not isinstance(light, (PointLight, DirectionalLight)):
             raise TypeError(f"lights: expected PointLight or DirectionalLight, got {type(light).__name__}")
         items.append(light._native())
+    if isinstance(model, Btf) and model.mask is not None and not model.mask.all():
+        raise InvalidArgumentError("model: rendering the raw BTF needs every (view, light) pair; this sample has a "
+                                   "mask (render the full sample, or a model fitted to the train half)")
     w, h = _size(size)
     us = np.broadcast_to(np.asarray(uv_scale, dtype=np.float64), (2,))
     uvs = [float(us[0]), float(us[1])]

@@ -54,8 +54,20 @@ struct Vertex {
 }
 
 /// The WGSL of a shader: `common.wgsl` followed by the model's file (WGSL has no includes).
-pub fn shader_source(shader: Shader) -> String {
-    format!("{}\n{}", crate::shaders::COMMON, shader.source())
+/// With `single_chunk`, the store's `load` reads the first buffer directly.
+pub fn shader_source(shader: Shader, single_chunk: bool) -> String {
+    let common = crate::shaders::COMMON;
+    let common = match (single_chunk, common.find("// <load>"), common.find("// </load>")) {
+        (true, Some(a), Some(b)) => {
+            format!(
+                "{}fn load(i: u32) -> f32 {{\n    return s0[i];\n}}\n{}",
+                &common[..a],
+                &common[b + "// </load>".len()..]
+            )
+        }
+        _ => common.to_string(),
+    };
+    format!("{common}\n{}", shader.source())
 }
 
 /// A model's data on the device.
@@ -64,6 +76,7 @@ pub struct UploadedModel {
     shader: Shader,
     dims: (usize, usize),
     chunk_len: u32,
+    chunks: usize,
     bind_group: wgpu::BindGroup,
     /// Bytes held on the device.
     pub device_bytes: u64,
@@ -72,7 +85,7 @@ pub struct UploadedModel {
 struct Pipelines {
     globals_layout: wgpu::BindGroupLayout,
     model_layout: wgpu::BindGroupLayout,
-    by_shader: HashMap<Shader, wgpu::RenderPipeline>,
+    by_shader: HashMap<(Shader, bool), wgpu::RenderPipeline>,
 }
 
 fn pipelines(gpu: &Gpu) -> &'static Mutex<HashMap<usize, Arc<Mutex<Pipelines>>>> {
@@ -119,7 +132,7 @@ fn state(gpu: &Gpu) -> Arc<Mutex<Pipelines>> {
                 entries: &[uniform_entry(0, wgpu::ShaderStages::VERTEX_FRAGMENT), storage_entry(1), storage_entry(2)],
             });
             let mut entries = vec![uniform_entry(0, wgpu::ShaderStages::FRAGMENT)];
-            entries.extend((1..=MAX_CHUNKS as u32 + 1).map(storage_entry));
+            entries.extend((1..=MAX_CHUNKS as u32 + 2).map(storage_entry));
             let model_layout = d.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                 label: Some("btfrs model"),
                 entries: &entries,
@@ -129,15 +142,15 @@ fn state(gpu: &Gpu) -> Arc<Mutex<Pipelines>> {
         .clone()
 }
 
-fn pipeline(gpu: &Gpu, st: &mut Pipelines, shader: Shader) -> Result<wgpu::RenderPipeline> {
-    if let Some(p) = st.by_shader.get(&shader) {
+fn pipeline(gpu: &Gpu, st: &mut Pipelines, shader: Shader, single_chunk: bool) -> Result<wgpu::RenderPipeline> {
+    if let Some(p) = st.by_shader.get(&(shader, single_chunk)) {
         return Ok(p.clone());
     }
     let d = &gpu.device;
     let p = gpu.checked(&format!("building the {} pipeline", shader.name()), || {
         let module = d.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(shader.name()),
-            source: wgpu::ShaderSource::Wgsl(shader_source(shader).into()),
+            source: wgpu::ShaderSource::Wgsl(shader_source(shader, single_chunk).into()),
         });
         let layout = d.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("btfrs"),
@@ -186,7 +199,7 @@ fn pipeline(gpu: &Gpu, st: &mut Pipelines, shader: Shader) -> Result<wgpu::Rende
             cache: None,
         })
     })?;
-    st.by_shader.insert(shader, p.clone());
+    st.by_shader.insert((shader, single_chunk), p.clone());
     Ok(p)
 }
 
@@ -199,7 +212,16 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
         offsets.push(u32::try_from(total).map_err(|_| Error::Device("the model has more than 2^32 values".into()))?);
         total += p.len();
     }
-    let params = model.gpu_params(&offsets);
+    let sets = model.gpu_dir_sets();
+    let mut dirs: Vec<[f32; 4]> = Vec::new();
+    let mut tables: Vec<u32> = Vec::new();
+    let mut table_at = Vec::with_capacity(sets.len());
+    for set in &sets {
+        dirs.extend(set.iter().map(|v| [v[0] as f32, v[1] as f32, v[2] as f32, 0.0]));
+        table_at.push(tables.len() as u32);
+        tables.extend(crate::model::candidate_table(set, crate::model::TABLE_GRID));
+    }
+    let params = model.gpu_params(&offsets, &table_at);
     // Chunks no larger than the binding limit, nor than the largest buffer, and 4-byte aligned.
     let max_binding = gpu.limits.max_storage_buffer_binding_size.min(gpu.limits.max_buffer_size) as usize;
     let chunk_len = (max_binding / 4).clamp(1, u32::MAX as usize);
@@ -246,15 +268,20 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
             contents: bytemuck::cast_slice(&params),
             usage: wgpu::BufferUsages::UNIFORM,
         });
-        let dirs = model.gpu_dirs();
         let dbuf = d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("btfrs model directions"),
             contents: bytemuck::cast_slice(if dirs.is_empty() { &[[0.0f32; 4]][..] } else { &dirs[..] }),
             usage: wgpu::BufferUsages::STORAGE,
         });
+        let tbuf = d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("btfrs candidate tables"),
+            contents: bytemuck::cast_slice(if tables.is_empty() { &[0u32][..] } else { &tables[..] }),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
         let mut entries = vec![
             wgpu::BindGroupEntry { binding: 0, resource: pbuf.as_entire_binding() },
             wgpu::BindGroupEntry { binding: MAX_CHUNKS as u32 + 1, resource: dbuf.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: MAX_CHUNKS as u32 + 2, resource: tbuf.as_entire_binding() },
         ];
         entries.extend(
             chunks
@@ -271,6 +298,7 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
             shader: model.shader(),
             dims: model.dims(),
             chunk_len: chunk_len as u32,
+            chunks: n_chunks,
             bind_group,
             device_bytes: (total * 4) as u64,
         }
@@ -323,7 +351,7 @@ pub fn render(gpu: &Gpu, model: &UploadedModel, view: &View<'_>) -> Result<(Vec<
     let d = &gpu.device;
     let st_arc = state(gpu);
     let mut st = st_arc.lock().unwrap_or_else(|e| e.into_inner());
-    let pipe = pipeline(gpu, &mut st, model.shader)?;
+    let pipe = pipeline(gpu, &mut st, model.shader, model.chunks == 1)?;
     let (w, h) = (view.width as u32, view.height as u32);
     let t0 = std::time::Instant::now();
     let out = gpu.checked("rendering", || {

@@ -47,14 +47,65 @@ pub trait GpuModel: Sync {
     fn dims(&self) -> (usize, usize);
     /// The arrays the shader reads, in order; they are concatenated into the model store.
     fn gpu_parts(&self) -> Vec<Cow<'_, [f32]>>;
-    /// The measured direction sets the shader searches (`mdirs`), concatenated.
-    fn gpu_dirs(&self) -> Vec<[f32; 4]>;
-    /// The 16 parameter words, given the store offset of each part.
-    fn gpu_params(&self, offsets: &[u32]) -> [u32; 16];
+    /// The measured direction sets the shader searches, in order; they are concatenated into
+    /// `mdirs` and each gets a candidate table ([`candidate_table`]) in `tables`.
+    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]>;
+    /// The 16 parameter words, given the store offset of each part and the `tables` offset of
+    /// each direction set's candidate table.
+    fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16];
 }
 
-fn dirs4(d: &[[f64; 3]]) -> impl Iterator<Item = [f32; 4]> + '_ {
-    d.iter().map(|v| [v[0] as f32, v[1] as f32, v[2] as f32, 0.0])
+/// Cells per side of the candidate tables.
+pub const TABLE_GRID: usize = 32;
+
+/// For a direction set, the candidates of each cell of a `grid x grid` partition of the
+/// concentric-map square (paper 004, section 6.1): every direction that can be among the four
+/// nearest of *some* point of the cell. Layout: `[grid, offsets[grid^2 + 1], indices...]`,
+/// offsets relative to the index list, cells row-major with t (the square's second coordinate)
+/// as the row, indices ascending so ties resolve to the lower index as the brute-force sort does.
+///
+/// Why it is exact: let c be the cell's centre direction and r bound the angle from c to any
+/// point of the cell (the largest over a dense sampling of the cell's boundary, plus a margin:
+/// on the sphere the distance from c has no interior maximum). For q in the cell, the four
+/// directions nearest to c lie within d4(c) + r of q, so q's four nearest lie within that too,
+/// hence within d4(c) + 2r of c: the list `{ j : angle(j, c) <= d4(c) + 2r }` contains them.
+pub fn candidate_table(dirs: &[[f64; 3]], grid: usize) -> Vec<u32> {
+    use btfrs_core::directions::angle_between;
+    use btfrs_hemimap::square_to_hemisphere;
+    let mut offsets = Vec::with_capacity(grid * grid + 1);
+    let mut list = Vec::new();
+    offsets.push(0u32);
+    for cy in 0..grid {
+        for cx in 0..grid {
+            let at =
+                |fx: f64, fy: f64| square_to_hemisphere((cx as f64 + fx) / grid as f64, (cy as f64 + fy) / grid as f64);
+            let c = at(0.5, 0.5);
+            let mut r = 0.0f64;
+            for k in 0..=16 {
+                let f = k as f64 / 16.0;
+                for p in [at(f, 0.0), at(f, 1.0), at(0.0, f), at(1.0, f)] {
+                    r = r.max(angle_between(c, p));
+                }
+            }
+            // Margin: the boundary sampling's gaps, and f32 rounding on the GPU near cell edges.
+            let r = r * 1.05 + 1e-3;
+            let mut d: Vec<f64> = dirs.iter().map(|&j| angle_between(j, c)).collect();
+            let mut sorted = d.clone();
+            sorted.sort_by(f64::total_cmp);
+            let d4 = sorted.get(3).or(sorted.last()).copied().unwrap_or(0.0);
+            for (j, dj) in d.iter_mut().enumerate() {
+                if *dj <= d4 + 2.0 * r {
+                    list.push(j as u32);
+                }
+            }
+            offsets.push(list.len() as u32);
+        }
+    }
+    let mut out = Vec::with_capacity(1 + offsets.len() + list.len());
+    out.push(grid as u32);
+    out.extend(offsets);
+    out.extend(list);
+    out
 }
 
 impl GpuModel for Ptm {
@@ -74,12 +125,13 @@ impl GpuModel for Ptm {
         p
     }
 
-    fn gpu_dirs(&self) -> Vec<[f32; 4]> {
-        dirs4(&self.views).collect()
+    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
+        vec![&self.views]
     }
 
-    fn gpu_params(&self, offsets: &[u32]) -> [u32; 16] {
+    fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16] {
         let mut w = [0u32; 16];
+        w[2] = tables[0];
         w[0] = match self.kind {
             PtmKind::Rgb => 0,
             PtmKind::Lrgb => 1,
@@ -104,16 +156,58 @@ impl GpuModel for RawModel<'_> {
         vec![Cow::Borrowed(self.btf().data)]
     }
 
-    fn gpu_dirs(&self) -> Vec<[f32; 4]> {
-        dirs4(self.btf().views).chain(dirs4(self.btf().lights)).collect()
+    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
+        vec![self.btf().views, self.btf().lights]
     }
 
-    fn gpu_params(&self, offsets: &[u32]) -> [u32; 16] {
+    fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16] {
         let b = self.btf();
         let mut w = [0u32; 16];
         w[0] = b.views.len() as u32;
         w[1] = b.lights.len() as u32;
+        w[2] = tables[0];
+        w[3] = tables[1];
         w[4] = offsets[0];
         w
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use btfrs_core::directions::{interp_weights, ubo81};
+    use btfrs_core::rng::Rng;
+
+    #[test]
+    fn candidate_tables_hold_the_four_nearest_of_every_query() {
+        // Random queries, each looked up in its cell: the brute-force four nearest must all be
+        // listed there, for the UBO set and for an irregular one.
+        let mut rng = Rng::new(9);
+        let irregular: Vec<[f64; 3]> =
+            (0..40).map(|_| btfrs_hemimap::square_to_hemisphere(rng.next_f64(), rng.next_f64())).collect();
+        for dirs in [ubo81(), irregular] {
+            let t = candidate_table(&dirs, TABLE_GRID);
+            let g = t[0] as usize;
+            let mut total = 0usize;
+            for _ in 0..20000 {
+                let (s, u) = (rng.next_f64(), rng.next_f64());
+                let q = btfrs_hemimap::square_to_hemisphere(s, u);
+                let cell = ((u * g as f64) as usize).min(g - 1) * g + ((s * g as f64) as usize).min(g - 1);
+                let (a, b) = (t[1 + cell] as usize, t[2 + cell] as usize);
+                let list = &t[2 + g * g + a..2 + g * g + b];
+                total += list.len();
+                let mut near: Vec<(usize, f64)> =
+                    dirs.iter().enumerate().map(|(i, &d)| (i, btfrs_core::directions::angle_between(d, q))).collect();
+                near.sort_by(|x, y| x.1.total_cmp(&y.1));
+                for &(i, _) in &near[..4] {
+                    assert!(list.contains(&(i as u32)), "direction {i} missing from cell {cell}");
+                }
+                // The weights only ever use the three nearest.
+                assert!(interp_weights(&dirs, q, 3).iter().all(|(i, _)| list.contains(&(*i as u32))));
+            }
+            // And the table is worth having: far fewer candidates than directions.
+            let mean = total as f64 / 20000.0;
+            assert!(mean < dirs.len() as f64 / 3.0, "{mean} candidates on average of {}", dirs.len());
+        }
     }
 }

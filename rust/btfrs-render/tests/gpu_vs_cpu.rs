@@ -142,11 +142,11 @@ impl GpuModel for Broken<'_> {
     fn gpu_parts(&self) -> Vec<Cow<'_, [f32]>> {
         self.0.gpu_parts()
     }
-    fn gpu_dirs(&self) -> Vec<[f32; 4]> {
-        self.0.gpu_dirs()
+    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
+        self.0.gpu_dir_sets()
     }
-    fn gpu_params(&self, offsets: &[u32]) -> [u32; 16] {
-        self.0.gpu_params(offsets)
+    fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16] {
+        self.0.gpu_params(offsets, tables)
     }
 }
 

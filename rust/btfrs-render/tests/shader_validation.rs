@@ -15,8 +15,12 @@ fn validate(src: &str) -> Result<(), String> {
 #[test]
 fn every_model_shader_validates() {
     for s in [Shader::Raw, Shader::Ptm] {
-        if let Err(e) = validate(&shader_source(s)) {
-            panic!("{}.wgsl does not validate:\n{e}", s.name());
+        for single in [false, true] {
+            let src = shader_source(s, single);
+            assert_eq!(src.contains("switch c"), !single, "the single-chunk variant replaces the chunk switch");
+            if let Err(e) = validate(&src) {
+                panic!("{}.wgsl (single chunk: {single}) does not validate:\n{e}", s.name());
+            }
         }
     }
 }
@@ -24,6 +28,6 @@ fn every_model_shader_validates() {
 #[test]
 fn a_broken_shader_is_caught() {
     // The check is real: a model file that calls an undefined function fails it.
-    let bad = shader_source(Shader::Ptm).replace("load_dir(param(4u)", "load_dirr(param(4u)");
+    let bad = shader_source(Shader::Ptm, true).replace("load_dir(param(4u)", "load_dirr(param(4u)");
     assert!(validate(&bad).is_err());
 }

@@ -1,0 +1,59 @@
+//! Where a frame's time goes on this adapter: the same scene with the PTM shader, with a shader
+//! whose model does nothing, and with a model that only searches the view slots.
+//! `cargo run --release -p btfrs-render --example frame_cost`
+use btfrs_core::materials::{generate, MaterialSpec, Preset};
+use btfrs_core::Monitor;
+use btfrs_fit::{fit_ptm, Ptm, PtmOptions};
+use btfrs_render::scene::{Camera, Light, Mesh};
+use btfrs_render::{gpu, Gpu, GpuModel, Shader, View};
+use std::borrow::Cow;
+
+struct With<'a>(&'a Ptm, &'static str);
+impl GpuModel for With<'_> {
+    fn shader(&self) -> Shader {
+        Shader::Custom(self.1)
+    }
+    fn dims(&self) -> (usize, usize) {
+        GpuModel::dims(self.0)
+    }
+    fn gpu_parts(&self) -> Vec<Cow<'_, [f32]>> {
+        self.0.gpu_parts()
+    }
+    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
+        self.0.gpu_dir_sets()
+    }
+    fn gpu_params(&self, o: &[u32], t: &[u32]) -> [u32; 16] {
+        self.0.gpu_params(o, t)
+    }
+}
+
+fn main() {
+    let gpu = Gpu::shared().expect("adapter");
+    println!("{}", gpu.describe());
+    let btf = generate(&MaterialSpec::new(Preset::Weave, 64, 2), &Monitor::new()).unwrap();
+    let ptm = fit_ptm(&btf.as_ref(), &PtmOptions::default(), &Monitor::new()).unwrap();
+    let mesh = Mesh::sphere(1.0, 64, 32).unwrap();
+    let cam = Camera::look_at([0.0, -3.0, 2.0], [0.0, 0.0, 0.0], 40.0).unwrap();
+    let lights = [Light::Point { position: [2.0, -2.0, 3.0], intensity: [8.0; 3] }];
+    let view = View {
+        mesh: &mesh,
+        camera: &cam,
+        lights: &lights,
+        width: 512,
+        height: 512,
+        uv_scale: [4.0, 4.0],
+        coords: None,
+    };
+    let nothing = "struct ViewQuery { x: f32 };\nfn view_query(v: vec3<f32>) -> ViewQuery { return ViewQuery(v.z); }\nfn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> { return vec3<f32>(vq.x * l.z); }\n";
+    let search = "struct ViewQuery { w: Weights3 };\nfn view_query(v: vec3<f32>) -> ViewQuery { return ViewQuery(interp3(0u, param(1u), param(2u), v)); }\nfn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> { return vec3<f32>(vq.w.w0, vq.w.w1, f32(vq.w.i0)); }\n";
+    for (name, src) in [("nothing", nothing), ("view search only", search), ("ptm", btfrs_render::shaders::PTM)] {
+        let m = With(&ptm, src);
+        let up = gpu::upload(&gpu, &m).unwrap();
+        let mut best = f64::INFINITY;
+        for _ in 0..4 {
+            let (_, t) = gpu::render(&gpu, &up, &view).unwrap();
+            best = best.min(t.draw_ms);
+        }
+        println!("{name:<18} {best:8.1} ms draw (best of 4, 512^2 sphere)");
+    }
+}
