@@ -108,6 +108,33 @@ def step_compare_images(ctx: Context) -> None:
         ctx.images.append((name, f"held-out view {v}, light {l}: ground truth | " + " | ".join(names)))
 
 
+def step_render(ctx: Context) -> None:
+    """The material on a sphere and a plane: the raw BTF (the reference) next to each model."""
+    from . import rendering
+
+    lights = [rendering.PointLight(position=[2.0, -2.0, 3.0], intensity=8.0)]
+    shots = [("sphere", rendering.Scene.sphere(), rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40), 4.0),
+             ("plane", rendering.Scene.plane(2.0), rendering.Camera.look_at([0, -2.2, 1.6], [0, 0, 0], 45), 3.0)]
+    names = ["raw BTF"] + list(ctx.models)
+    renders, times = [], {}
+    for scene_name, scene, cam, reps in shots:
+        row = []
+        for name, model in [("raw BTF", ctx.btf)] + list(ctx.models.items()):
+            row.append(rendering.render(model, scene, cam, lights, size=(320, 320), uv_scale=reps))
+            times[(scene_name, name)] = rendering.last_timings()
+        renders.append(row)
+    # One exposure for all, from the reference renders' lit pixels.
+    ref = np.concatenate([r[0][r[0].sum(-1) > 0] for r in renders])
+    exposure = 0.9 / max(float(np.percentile(ref, 99)), 1e-6)
+    img = np.concatenate([_tile(row, scale=1, gap=6) for row in renders], axis=0)
+    io.save_image(ctx.out / "render.png", img, exposure=exposure)
+    ctx.images.append(("render.png", f"rendered with wgpu on {rendering.gpu_info()}: rows sphere, plane; columns "
+                       + " | ".join(names)))
+    draw = ", ".join(f"{n} {times[('sphere', n)].draw_ms:.0f} ms" for n in names)
+    ctx.notes.append(f"Draw time per 320^2 sphere frame: {draw}.")
+    ctx.log(f"rendered {len(shots) * len(names)} frames on {rendering.gpu_info()}")
+
+
 def step_materials_overview(ctx: Context) -> None:
     """Every built-in material under three lights (view from above), to see what they are."""
     from .directions import from_theta_phi
@@ -146,7 +173,8 @@ def step_summary(ctx: Context) -> None:
     ctx.log(f"wrote {ctx.out / 'summary.md'}")
 
 
-STEPS: list = [step_material, step_baseline, step_ptm, step_compare_images, step_materials_overview, step_summary]
+STEPS: list = [step_material, step_baseline, step_ptm, step_compare_images, step_render, step_materials_overview,
+               step_summary]
 
 
 def run(out, material: str = "knit", size: int = 64, seed: int = 1, progress: bool = True,
