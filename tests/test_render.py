@@ -121,3 +121,13 @@ def test_plane_from_above_shows_the_sample(weave):
     img = btfrs.render(weave, btfrs.Scene.plane(2.0), cam, [light], size=(32, 32))
     want = weave.image(0, 0).repeat(2, 0).repeat(2, 1)
     assert np.abs(img - want).mean() / want.mean() < 0.05
+
+
+def test_renders_save_as_png_and_exact_exr(tmp_path, models):
+    img = btfrs.render(models["ptm-rgb"], btfrs.Scene.sphere(), btfrs.Camera.look_at(**CAM), LIGHTS, size=(48, 40))
+    btfrs.io.save_image(tmp_path / "a.exr", img)
+    np.testing.assert_array_equal(btfrs.io.load_image(tmp_path / "a.exr"), img)
+    btfrs.io.save_image(tmp_path / "a.png", img)
+    assert btfrs.io.load_image(tmp_path / "a.png").shape == (40, 48, 3)
+    with pytest.raises(ValueError, match="path: expected a .png or .exr"):
+        btfrs.io.save_image(tmp_path / "a.tif", img)

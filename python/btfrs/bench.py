@@ -65,6 +65,41 @@ def run(sizes: list, repeat: int) -> list:
     return rows
 
 
+def render_bench(repeat: int) -> list:
+    """ms per frame on this machine's adapter: raw BTF and PTM-RGB, 512^2 and 1024^2, with and
+    without a coordinate map; draw and read-back timed separately (the first, pipeline-compiling
+    frame is not counted)."""
+    from . import rendering
+
+    btf = materials.make("knit", size=64, seed=1)
+    ptm = fit.ptm(btf, kind="rgb")
+    scene = rendering.Scene.sphere()
+    cam = rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
+    lights = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
+    rng = np.random.default_rng(0)
+    cmap = rng.integers(0, 64, size=(256, 256, 2)).astype(np.uint16)
+    rows = []
+    for name, model in (("raw", btf), ("PTM-RGB", ptm)):
+        for size in (512, 1024):
+            for coords in (None, cmap):
+                rendering.render(model, scene, cam, lights, size=size, uv_scale=4, coords=coords)  # warm-up
+                best = None
+                for _ in range(repeat):
+                    rendering.render(model, scene, cam, lights, size=size, uv_scale=4, coords=coords)
+                    t = rendering.last_timings()
+                    best = t if best is None or t.draw_ms < best.draw_ms else best
+                rows.append(dict(model=name, size=size, coords=coords is not None, draw_ms=best.draw_ms,
+                                 readback_ms=best.readback_ms, adapter=rendering.gpu_info()))
+    return rows
+
+
+def render_table(rows: list) -> str:
+    out = [f"{'model':<8} {'size':>6} {'map':>4} {'draw ms':>9} {'read-back ms':>13}"]
+    for r in rows:
+        out.append(f"{r['model']:<8} {r['size']:>6} {'yes' if r['coords'] else 'no':>4} {r['draw_ms']:>9.1f} {r['readback_ms']:>13.1f}")
+    return "\n".join(out)
+
+
 def accuracy(size: int) -> list:
     """Held-out and reconstruction error of every model on every built-in material, beside the
     raw-data baseline (3 nearest measured lights of the same view slot)."""
@@ -111,9 +146,12 @@ def main(argv=None) -> int:
     acc = accuracy(max(sizes))
     print(f"\naccuracy at {max(sizes)}^2, 10% of the pairs held out (seed 0):")
     print(accuracy_table(acc))
+    ren = render_bench(max(1, a.repeat))
+    print(f"\nrendering a sphere (64^2 knit, uv_scale 4, 1 point light) on {ren[0]['adapter']}:")
+    print(render_table(ren))
     os.makedirs(os.path.dirname(a.json) or ".", exist_ok=True)
     with open(a.json, "w") as f:
-        json.dump({"machine": machine(), "speed": rows, "accuracy": acc}, f, indent=2)
+        json.dump({"machine": machine(), "speed": rows, "accuracy": acc, "render": ren}, f, indent=2)
     print(f"\nwrote {a.json}", file=sys.stderr)
     return 0
 

@@ -24,16 +24,23 @@ def load_ptm(path: PathLike) -> Ptm:
 
 
 def save_image(path: PathLike, image, exposure: float = 1.0) -> None:
-    """Write an ``[H, W, 3]`` linear image as an 8-bit sRGB PNG (``.png``), times ``exposure``,
-    clipped to [0, 1]. Written atomically."""
+    """Write an ``[H, W, 3]`` linear image, chosen by the extension: ``.png`` (8-bit sRGB, times
+    ``exposure``, clipped to [0, 1]) or ``.exr`` (32-bit float OpenEXR, HDR values kept exactly,
+    times ``exposure``). Written atomically."""
     p = os.fspath(path)
     ext = os.path.splitext(p)[1].lower()
-    if ext != ".png":
-        raise ValueError(f"path: expected a .png file name, got {ext or 'no extension'!r}")
     img = np.ascontiguousarray(image, dtype=np.float32)
-    _native.write_png(p, img, float(exposure))
+    if ext == ".png":
+        _native.write_png(p, img, float(exposure))
+    elif ext == ".exr":
+        _native.write_exr(p, img if exposure == 1.0 else np.ascontiguousarray(img * np.float32(exposure)))
+    else:
+        raise ValueError(f"path: expected a .png or .exr file name, got {ext or 'no extension'!r}")
 
 
 def load_image(path: PathLike) -> np.ndarray:
-    """Read an 8-bit RGB(A) PNG as an ``[H, W, 3]`` float32 linear image."""
-    return _native.read_png(os.fspath(path))
+    """Read an ``[H, W, 3]`` float32 linear image from an 8-bit PNG or an OpenEXR file."""
+    p = os.fspath(path)
+    if os.path.splitext(p)[1].lower() == ".exr":
+        return _native.read_exr(p)
+    return _native.read_png(p)

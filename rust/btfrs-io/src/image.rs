@@ -1,4 +1,4 @@
-//! Image files: 8-bit sRGB PNG from linear float RGB.
+//! Image files: 8-bit sRGB PNG (for looking at) and float OpenEXR (HDR, exact) from linear RGB.
 
 use crate::atomic::write_atomic;
 use btfrs_core::{Error, Result};
@@ -67,6 +67,48 @@ pub fn read_png(path: &Path) -> Result<(Vec<f32>, usize, usize)> {
     Ok((out, w, h))
 }
 
+/// Write a `[height, width, 3]` linear RGB image as a 32-bit float OpenEXR file (the `exr`
+/// crate; encoded in memory, then written atomically). Non-finite pixels are an error.
+pub fn write_exr(path: &Path, rgb: &[f32], width: usize, height: usize) -> Result<()> {
+    use exr::prelude::{Image, SpecificChannels, Vec2, WritableImage};
+    if width == 0 || height == 0 || rgb.len() != width * height * 3 {
+        return Err(Error::arg("image", format!("expected {height} x {width} x 3 values, got {}", rgb.len())));
+    }
+    if let Some(i) = rgb.iter().position(|x| !x.is_finite()) {
+        return Err(Error::arg("image", format!("pixel value at flat index {i} is not finite")));
+    }
+    let channels = SpecificChannels::rgb(|Vec2(x, y): Vec2<usize>| {
+        let i = (y * width + x) * 3;
+        (rgb[i], rgb[i + 1], rgb[i + 2])
+    });
+    let mut buf = std::io::Cursor::new(Vec::new());
+    Image::from_channels((width, height), channels)
+        .write()
+        .to_buffered(&mut buf)
+        .map_err(|e| Error::arg("image", format!("could not encode OpenEXR: {e}")))?;
+    write_atomic(path, |w| w.write_all(buf.get_ref()))
+}
+
+/// Read the first RGB(A) layer of an OpenEXR file as `[height, width, 3]` f32 (alpha dropped).
+pub fn read_exr(path: &Path) -> Result<(Vec<f32>, usize, usize)> {
+    use exr::prelude::{read_first_rgba_layer_from_file, Vec2};
+    let shown = &path.display().to_string();
+    if !path.exists() {
+        return Err(Error::io(shown, std::io::Error::from(std::io::ErrorKind::NotFound)));
+    }
+    let img = read_first_rgba_layer_from_file(
+        path,
+        |res: Vec2<usize>, _| (vec![0.0f32; res.0 * res.1 * 3], res.0, res.1),
+        |px: &mut (Vec<f32>, usize, usize), Vec2(x, y): Vec2<usize>, (r, g, b, _a): (f32, f32, f32, f32)| {
+            let i = (y * px.1 + x) * 3;
+            px.0[i..i + 3].copy_from_slice(&[r, g, b]);
+        },
+    )
+    .map_err(|e| Error::format(shown, e))?;
+    let (data, w, h) = img.layer_data.channel_data.pixels;
+    Ok((data, w, h))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -86,5 +128,26 @@ mod tests {
         let mut bad = img.clone();
         bad[5] = f32::NAN;
         assert!(write_png(&p, &bad, 4, 3, 1.0).unwrap_err().to_string().contains("index 5"));
+    }
+}
+
+#[cfg(test)]
+mod exr_tests {
+    use super::*;
+
+    #[test]
+    fn exr_round_trip_is_exact_and_keeps_hdr_values() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.exr");
+        // Values above 1 and tiny ones survive: no clipping, no quantisation (32-bit float).
+        let img: Vec<f32> = (0..5 * 3 * 3).map(|i| (i as f32 - 7.0) * 0.37 + 1e-6 * i as f32).collect();
+        write_exr(&p, &img, 5, 3).unwrap();
+        let (back, w, h) = read_exr(&p).unwrap();
+        assert_eq!((w, h), (5, 3));
+        assert_eq!(back, img);
+        assert!(write_exr(&p, &img[..10], 5, 3).unwrap_err().to_string().starts_with("image:"));
+        assert!(matches!(read_exr(&dir.path().join("none.exr")), Err(Error::Io { .. })));
+        std::fs::write(&p, b"not an exr").unwrap();
+        assert!(matches!(read_exr(&p), Err(Error::Format { .. })));
     }
 }

@@ -155,3 +155,20 @@ pub fn read_png(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyArrayDyn<
     let (v, w, h) = detach(py, || btfrs_io::image::read_png(&path))?;
     v.into_pyarray(py).reshape(vec![h, w, 3])
 }
+
+/// Write a `[H, W, 3]` float32 linear image as a float OpenEXR file.
+#[pyfunction]
+pub fn write_exr(py: Python<'_>, path: PathBuf, image: &Bound<'_, PyAny>) -> PyResult<()> {
+    let a = borrow::<f32>("image", image)?;
+    check_shape("image", a.shape(), &[None, None, Some(3)])?;
+    let (h, w) = (a.shape()[0], a.shape()[1]);
+    let s = a.as_slice().map_err(|e| arg("image", e))?;
+    detach(py, || btfrs_io::image::write_exr(&path, s, w, h))
+}
+
+/// Read an OpenEXR file's first RGB(A) layer as a `[H, W, 3]` float32 image.
+#[pyfunction]
+pub fn read_exr(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyArrayDyn<f32>>> {
+    let (v, w, h) = detach(py, || btfrs_io::image::read_exr(&path))?;
+    v.into_pyarray(py).reshape(vec![h, w, 3])
+}
