@@ -41,3 +41,16 @@ def test_readme_python_snippet_runs():
     img, ptm, test = ns["img"], ns["ptm"], ns["test"]
     assert img.shape == (64, 64, 3) and img.dtype == np.float32 and np.all(np.isfinite(img))
     assert 0 < ptm.error(test).relative < 0.5
+
+
+def test_readme_rendering_snippet_runs(tmp_path, monkeypatch):
+    text = (ROOT / "README.md").read_text()
+    block = re.search(r"## Rendering\s+```python\n(.*?)```", text, re.S).group(1)
+    monkeypatch.chdir(tmp_path)
+    ns: dict = {}
+    exec(compile(block, "README.md", "exec"), ns)
+    img, ref = ns["img"], ns["ref"]
+    assert img.shape == (512, 512, 3) and (img.sum(-1) > 0).mean() > 0.2
+    mse = float(np.mean((img - ref) ** 2))
+    assert 10 * np.log10(float(ref.max()) ** 2 / mse) > 40
+    assert (tmp_path / "sphere.png").exists()
