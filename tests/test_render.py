@@ -131,3 +131,20 @@ def test_renders_save_as_png_and_exact_exr(tmp_path, models):
     assert btfrs.io.load_image(tmp_path / "a.png").shape == (40, 48, 3)
     with pytest.raises(ValueError, match="path: expected a .png or .exr"):
         btfrs.io.save_image(tmp_path / "a.tif", img)
+
+
+def test_a_missing_adapter_is_a_clear_device_error():
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import btfrs\n"
+        "try:\n"
+        "    btfrs.gpu_info()\n"
+        "except btfrs.exceptions.DeviceError as e:\n"
+        "    print('DeviceError:', e)\n"
+    )
+    env = dict(os.environ, BTFRS_ADAPTER="no-such-adapter", XDG_RUNTIME_DIR="/tmp")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env).stdout
+    assert out.startswith("DeviceError:") and "matches none of the adapters found" in out

@@ -15,6 +15,7 @@ from .btf import Btf
 from .exceptions import (
     BtfrsError,
     DegenerateDataError,
+    DeviceError,
     FormatError,
     InternalError,
     InvalidArgumentError,
@@ -43,6 +44,7 @@ __all__ = [
     "materials",
     "BtfrsError",
     "DegenerateDataError",
+    "DeviceError",
     "FormatError",
     "InternalError",
     "InvalidArgumentError",
