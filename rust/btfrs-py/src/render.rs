@@ -196,6 +196,36 @@ fn coords_of(coords: Option<&Bound<'_, PyAny>>) -> PyResult<Option<(usize, usize
 
 type Image<'py> = Bound<'py, PyArrayDyn<f32>>;
 
+/// The owned parts of a [`View`] converted from Python arguments.
+struct ViewArgs {
+    lights: Vec<Light>,
+    coords: Option<(usize, usize, Vec<u32>)>,
+}
+
+impl ViewArgs {
+    fn new(lights: Vec<(String, [f32; 3], [f32; 3])>, coords: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+        Ok(ViewArgs { lights: lights_of(lights)?, coords: coords_of(coords)? })
+    }
+
+    fn view<'a>(
+        &'a self,
+        scene: &'a PyScene,
+        camera: &'a PyCamera,
+        size: (usize, usize),
+        uv_scale: [f32; 2],
+    ) -> View<'a> {
+        View {
+            mesh: &scene.mesh,
+            camera: &camera.cam,
+            lights: &self.lights,
+            width: size.0,
+            height: size.1,
+            uv_scale,
+            coords: self.coords.as_ref().map(|(w, h, m)| (*w, *h, &m[..])),
+        }
+    }
+}
+
 fn image(py: Python<'_>, v: Vec<f32>, w: usize, h: usize) -> PyResult<Image<'_>> {
     v.into_pyarray(py).reshape(vec![h, w, 3])
 }
@@ -215,17 +245,8 @@ pub fn gpu_render<'py>(
     uv_scale: [f32; 2],
     coords: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<(Image<'py>, f64, f64)> {
-    let lights = lights_of(lights)?;
-    let coords = coords_of(coords)?;
-    let view = View {
-        mesh: &scene.mesh,
-        camera: &camera.cam,
-        lights: &lights,
-        width,
-        height,
-        uv_scale,
-        coords: coords.as_ref().map(|(w, h, m)| (*w, *h, &m[..])),
-    };
+    let args = ViewArgs::new(lights, coords)?;
+    let view = args.view(scene, camera, (width, height), uv_scale);
     let (img, t) = detach(py, || gpu::render(&model.gpu, &model.up, &view))?;
     Ok((image(py, img, width, height)?, t.draw_ms, t.readback_ms))
 }
@@ -245,17 +266,8 @@ pub fn cpu_render_ptm<'py>(
     uv_scale: [f32; 2],
     coords: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Image<'py>> {
-    let lights = lights_of(lights)?;
-    let coords = coords_of(coords)?;
-    let view = View {
-        mesh: &scene.mesh,
-        camera: &camera.cam,
-        lights: &lights,
-        width,
-        height,
-        uv_scale,
-        coords: coords.as_ref().map(|(w, h, m)| (*w, *h, &m[..])),
-    };
+    let args = ViewArgs::new(lights, coords)?;
+    let view = args.view(scene, camera, (width, height), uv_scale);
     check_size(width, height)?;
     let img = detach(py, || render_cpu(&model.inner, &view))?;
     image(py, img, width, height)
@@ -282,17 +294,8 @@ pub fn cpu_render_raw<'py>(
     let b = args.btf()?;
     let _ = dirs("views", &args.views)?;
     let raw = RawModel::new(b).py()?;
-    let lights = lights_of(lights)?;
-    let coords = coords_of(coords)?;
-    let view = View {
-        mesh: &scene.mesh,
-        camera: &camera.cam,
-        lights: &lights,
-        width,
-        height,
-        uv_scale,
-        coords: coords.as_ref().map(|(w, h, m)| (*w, *h, &m[..])),
-    };
+    let args = ViewArgs::new(lights, coords)?;
+    let view = args.view(scene, camera, (width, height), uv_scale);
     check_size(width, height)?;
     let img = detach(py, || render_cpu(&raw, &view))?;
     image(py, img, width, height)

@@ -3,29 +3,9 @@
 //! `cargo run --release -p btfrs-render --example frame_cost`
 use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::Monitor;
-use btfrs_fit::{fit_ptm, Ptm, PtmOptions};
+use btfrs_fit::{fit_ptm, PtmOptions};
 use btfrs_render::scene::{Camera, Light, Mesh};
-use btfrs_render::{gpu, Gpu, GpuModel, Shader, View};
-use std::borrow::Cow;
-
-struct With<'a>(&'a Ptm, &'static str);
-impl GpuModel for With<'_> {
-    fn shader(&self) -> Shader {
-        Shader::Custom(self.1)
-    }
-    fn dims(&self) -> (usize, usize) {
-        GpuModel::dims(self.0)
-    }
-    fn gpu_parts(&self) -> Vec<Cow<'_, [f32]>> {
-        self.0.gpu_parts()
-    }
-    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
-        self.0.gpu_dir_sets()
-    }
-    fn gpu_params(&self, o: &[u32], t: &[u32]) -> [u32; 16] {
-        self.0.gpu_params(o, t)
-    }
-}
+use btfrs_render::{gpu, Gpu, View, WithShader};
 
 fn main() {
     let gpu = Gpu::shared().expect("adapter");
@@ -47,7 +27,7 @@ fn main() {
     let nothing = "struct ViewQuery { x: f32 };\nfn view_query(v: vec3<f32>) -> ViewQuery { return ViewQuery(v.z); }\nfn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> { return vec3<f32>(vq.x * l.z); }\n";
     let search = "struct ViewQuery { w: Weights3 };\nfn view_query(v: vec3<f32>) -> ViewQuery { return ViewQuery(interp3(0u, param(1u), param(2u), v)); }\nfn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> { return vec3<f32>(vq.w.w0, vq.w.w1, f32(vq.w.i0)); }\n";
     for (name, src) in [("nothing", nothing), ("view search only", search), ("ptm", btfrs_render::shaders::PTM)] {
-        let m = With(&ptm, src);
+        let m = WithShader(&ptm, src);
         let up = gpu::upload(&gpu, &m).unwrap();
         let mut best = f64::INFINITY;
         for _ in 0..4 {

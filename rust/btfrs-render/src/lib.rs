@@ -21,4 +21,4 @@ pub mod shaders;
 
 pub use device::{AdapterChoice, Gpu};
 pub use gpu::{render, upload, FrameTimes, UploadedModel, View};
-pub use model::{GpuModel, Shader};
+pub use model::{GpuModel, Shader, WithShader};

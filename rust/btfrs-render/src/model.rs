@@ -55,6 +55,29 @@ pub trait GpuModel: Sync {
     fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16];
 }
 
+/// Any model drawn with another shader source: for testing shaders against the CPU reference
+/// (a deliberately wrong one must fail) and for measuring parts of a shader.
+#[derive(Debug, Clone, Copy)]
+pub struct WithShader<'a, M>(pub &'a M, pub &'static str);
+
+impl<M: GpuModel> GpuModel for WithShader<'_, M> {
+    fn shader(&self) -> Shader {
+        Shader::Custom(self.1)
+    }
+    fn dims(&self) -> (usize, usize) {
+        self.0.dims()
+    }
+    fn gpu_parts(&self) -> Vec<Cow<'_, [f32]>> {
+        self.0.gpu_parts()
+    }
+    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
+        self.0.gpu_dir_sets()
+    }
+    fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16] {
+        self.0.gpu_params(offsets, tables)
+    }
+}
+
 /// Cells per side of the candidate tables.
 pub const TABLE_GRID: usize = 32;
 

@@ -4,11 +4,10 @@
 
 use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::{Btf, Monitor};
-use btfrs_fit::{fit_ptm, Ptm, PtmKind, PtmOptions, RawModel, ReflectanceModel};
+use btfrs_fit::{fit_ptm, PtmKind, PtmOptions, RawModel, ReflectanceModel};
 use btfrs_render::cpu::render_cpu;
 use btfrs_render::scene::{Camera, Light, Mesh};
-use btfrs_render::{gpu, Gpu, GpuModel, Shader, View};
-use std::borrow::Cow;
+use btfrs_render::{gpu, Gpu, GpuModel, View, WithShader};
 
 fn psnr(a: &[f32], b: &[f32]) -> f64 {
     let peak = a.iter().chain(b).fold(0.0f32, |m, &x| m.max(x)) as f64;
@@ -129,27 +128,6 @@ fn every_model_matches_the_cpu_reference_on_every_scene() {
     }
 }
 
-/// A PTM drawn with a deliberately wrong shader (the bitangent's sign flipped).
-struct Broken<'a>(&'a Ptm, &'static str);
-
-impl GpuModel for Broken<'_> {
-    fn shader(&self) -> Shader {
-        Shader::Custom(self.1)
-    }
-    fn dims(&self) -> (usize, usize) {
-        GpuModel::dims(self.0)
-    }
-    fn gpu_parts(&self) -> Vec<Cow<'_, [f32]>> {
-        self.0.gpu_parts()
-    }
-    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
-        self.0.gpu_dir_sets()
-    }
-    fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16] {
-        self.0.gpu_params(offsets, tables)
-    }
-}
-
 #[test]
 fn a_wrong_shader_fails_the_comparison() {
     let gpu = Gpu::shared().expect("a wgpu adapter");
@@ -158,7 +136,7 @@ fn a_wrong_shader_fails_the_comparison() {
     // Mirror the light's y in the basis: a plausible bug that still renders a sensible image.
     let src = btfrs_render::shaders::PTM.replace("let b2 = l.x * l.y;", "let b2 = -l.x * l.y;");
     assert_ne!(src, btfrs_render::shaders::PTM);
-    let bad = Broken(&ptm, Box::leak(src.into_boxed_str()));
+    let bad = WithShader(&ptm, Box::leak(src.into_boxed_str()));
     let up = gpu::upload(&gpu, &bad).unwrap();
     let lights = lights();
     let (_, mesh, cam) = scenes().swap_remove(1);
