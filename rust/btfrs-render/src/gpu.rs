@@ -486,8 +486,14 @@ pub fn render(gpu: &Gpu, model: &UploadedModel, view: &View<'_>) -> Result<(Vec<
     Ok((img, FrameTimes { draw_ms, readback_ms }))
 }
 
-/// Copy an `Rgba32Float` texture into host memory as `[h][w][3]`.
+/// Copy an `Rgba32Float` texture into host memory as `[h][w][3]` (alpha dropped).
 fn read_back(gpu: &Gpu, tex: &wgpu::Texture, w: u32, h: u32) -> Result<Vec<f32>> {
+    Ok(read_back_rgba(gpu, tex, w, h)?.into_iter().flat_map(|p| [p[0], p[1], p[2]]).collect())
+}
+
+/// Copy an `Rgba32Float` texture (with `COPY_SRC` usage) into host memory, row 0 first, waiting
+/// for all submitted work that writes it.
+pub fn read_back_rgba(gpu: &Gpu, tex: &wgpu::Texture, w: u32, h: u32) -> Result<Vec<[f32; 4]>> {
     let d = &gpu.device;
     // Rows of a texture-to-buffer copy must be padded to 256 bytes.
     let row = w * 16;
@@ -526,12 +532,10 @@ fn read_back(gpu: &Gpu, tex: &wgpu::Texture, w: u32, h: u32) -> Result<Vec<f32>>
         .map_err(|_| Error::Device("the read-back was dropped".into()))?
         .map_err(|e| Error::Device(format!("mapping the read-back buffer: {e}")))?;
     let data = slice.get_mapped_range();
-    let mut img = Vec::with_capacity((w * h * 3) as usize);
+    let mut img = Vec::with_capacity((w * h) as usize);
     for y in 0..h as usize {
         let r: &[f32] = bytemuck::cast_slice(&data[y * padded as usize..y * padded as usize + row as usize]);
-        for px in r.chunks_exact(4) {
-            img.extend_from_slice(&px[..3]);
-        }
+        img.extend(r.chunks_exact(4).map(|p| [p[0], p[1], p[2], p[3]]));
     }
     drop(data);
     buf.unmap();

@@ -6,8 +6,10 @@
 //! installed (apt-get install mesa-vulkan-drivers). `BTFRS_RASTER_ADAPTER=gpu` compares against a
 //! hardware adapter instead, whose sub-pixel snapping may round differently.
 
+use btfrs_render::gpu::read_back_rgba;
 use btfrs_render::raster::{rasterize, GBuffer};
 use btfrs_render::scene::{Camera, Mesh};
+use btfrs_render::{AdapterChoice, Gpu};
 
 const SHADER: &str = r#"
 struct U { vp: mat4x4<f32> };
@@ -24,29 +26,17 @@ struct VOut { @builtin(position) pos: vec4<f32>, @location(0) uv: vec2<f32> };
 }
 "#;
 
-struct Device {
-    device: wgpu::Device,
-    queue: wgpu::Queue,
-    name: String,
-}
-
 /// lavapipe (a software Vulkan adapter) by default: the rules [`rasterize`] mirrors are its rules.
 /// Hardware rasterisers may round snapped positions differently, so they are compared only on
 /// request (`BTFRS_RASTER_ADAPTER=gpu`).
-fn device() -> Option<Device> {
-    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
-    desc.backends = wgpu::Backends::PRIMARY;
-    let instance = wgpu::Instance::new(desc);
-    let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::PRIMARY));
+fn device() -> Gpu {
     let want_gpu = std::env::var("BTFRS_RASTER_ADAPTER").is_ok_and(|v| v == "gpu");
-    let adapter = adapters.into_iter().find(|a| (a.get_info().device_type == wgpu::DeviceType::Cpu) != want_gpu)?;
-    let name = format!("{} ({:?})", adapter.get_info().name, adapter.get_info().device_type);
-    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor::default())).ok()?;
-    Some(Device { device, queue, name })
+    Gpu::new(if want_gpu { &AdapterChoice::Gpu } else { &AdapterChoice::Cpu })
+        .expect("no software Vulkan adapter: install lavapipe (apt-get install mesa-vulkan-drivers)")
 }
 
 /// Draws `mesh` and returns per pixel (u, v, depth, covered).
-fn gpu_draw(dev: &Device, mesh: &Mesh, camera: &Camera, w: u32, h: u32) -> Vec<[f32; 4]> {
+fn gpu_draw(dev: &Gpu, mesh: &Mesh, camera: &Camera, w: u32, h: u32) -> Vec<[f32; 4]> {
     use wgpu::util::DeviceExt;
     let d = &dev.device;
     let vp = camera.view_proj(w as f32 / h as f32);
@@ -157,14 +147,6 @@ fn gpu_draw(dev: &Device, mesh: &Mesh, camera: &Camera, w: u32, h: u32) -> Vec<[
     );
     let depth = texture(wgpu::TextureFormat::Depth32Float, wgpu::TextureUsages::RENDER_ATTACHMENT);
     let (tview, dview) = (target.create_view(&Default::default()), depth.create_view(&Default::default()));
-    let row = w * 16;
-    let padded = row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
-    let readback = d.create_buffer(&wgpu::BufferDescriptor {
-        label: None,
-        size: padded as u64 * h as u64,
-        usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-        mapped_at_creation: false,
-    });
     let mut enc = d.create_command_encoder(&Default::default());
     {
         let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -191,30 +173,8 @@ fn gpu_draw(dev: &Device, mesh: &Mesh, camera: &Camera, w: u32, h: u32) -> Vec<[
         pass.set_index_buffer(ibuf.slice(..), wgpu::IndexFormat::Uint32);
         pass.draw_indexed(0..mesh.indices.len() as u32, 0, 0..1);
     }
-    enc.copy_texture_to_buffer(
-        wgpu::TexelCopyTextureInfo {
-            texture: &target,
-            mip_level: 0,
-            origin: wgpu::Origin3d::ZERO,
-            aspect: wgpu::TextureAspect::All,
-        },
-        wgpu::TexelCopyBufferInfo {
-            buffer: &readback,
-            layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(padded), rows_per_image: Some(h) },
-        },
-        size,
-    );
     dev.queue.submit([enc.finish()]);
-    let slice = readback.slice(..);
-    slice.map_async(wgpu::MapMode::Read, |_| {});
-    d.poll(wgpu::PollType::wait_indefinitely()).expect("poll");
-    let data = slice.get_mapped_range();
-    let mut out = Vec::with_capacity((w * h) as usize);
-    for y in 0..h as usize {
-        let r: &[f32] = bytemuck::cast_slice(&data[y * padded as usize..y * padded as usize + row as usize]);
-        out.extend(r.chunks_exact(4).map(|p| [p[0], p[1], p[2], p[3]]));
-    }
-    out
+    read_back_rgba(dev, &target, w, h).expect("read-back")
 }
 
 struct Diff {
@@ -224,7 +184,7 @@ struct Diff {
     max_depth: f32,
 }
 
-fn compare(dev: &Device, mesh: &Mesh, camera: &Camera, w: usize, h: usize) -> Diff {
+fn compare(dev: &Gpu, mesh: &Mesh, camera: &Camera, w: usize, h: usize) -> Diff {
     let gpu = gpu_draw(dev, mesh, camera, w as u32, h as u32);
     let cpu: GBuffer = rasterize(mesh, camera, w, h).unwrap();
     let mut d = Diff { coverage_mismatches: 0, covered: 0, max_uv: 0.0, max_depth: 0.0 };
@@ -291,8 +251,8 @@ fn soup() -> (Mesh, Camera) {
 
 #[test]
 fn cpu_raster_matches_the_vulkan_rasteriser() {
-    let dev = device().expect("no software Vulkan adapter: install lavapipe (apt-get install mesa-vulkan-drivers)");
-    eprintln!("adapter: {}", dev.name);
+    let dev = device();
+    eprintln!("adapter: {}", dev.describe());
     let floor = |z: f32, half: f32, near: f32| {
         let p = [[-half, -half, z], [half, -half, z], [half, half, z], [-half, half, z]];
         let uv = p.map(|q| [q[0] / (2.0 * half) + 0.5, q[1] / (2.0 * half) + 0.5]);
