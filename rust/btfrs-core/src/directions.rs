@@ -120,6 +120,51 @@ pub fn interp_weights(dirs: &[[f64; 3]], query: [f64; 3], k: usize) -> Vec<(usiz
     w
 }
 
+/// Interpolation weights of the BTF value at (`view`, `light`) over the *present* pairs of a
+/// `[V, L]` mask (`None` = all present), as `(view index, light index, weight)`.
+///
+/// The 3 x 3 product of [`interp_weights`] over views and lights, restricted to the present pairs
+/// and renormalised; where none of those is present (a held-out pair queried at its own
+/// directions, or a hole in the mask), inverse-distance weights over the 4 present pairs nearest
+/// in summed angle, excluding a pair at distance 0 (which is absent). Used to fill held-out
+/// entries of a fitted basis (LPCA) and to densify the angular sampling before a non-linear fit
+/// (Lafortune), so that neither ever reads a pair the mask excludes.
+pub fn present_pair_weights(
+    views: &[[f64; 3]],
+    lights: &[[f64; 3]],
+    mask: Option<&[bool]>,
+    view: [f64; 3],
+    light: [f64; 3],
+) -> Vec<(usize, usize, f64)> {
+    let nl = lights.len();
+    let has = |v: usize, l: usize| mask.is_none_or(|m| m[v * nl + l]);
+    let mut out = Vec::with_capacity(9);
+    for (v, wv) in interp_weights(views, view, 3) {
+        for &(l, wl) in &interp_weights(lights, light, 3) {
+            if has(v, l) && wv * wl > 0.0 {
+                out.push((v, l, wv * wl));
+            }
+        }
+    }
+    let total: f64 = out.iter().map(|x| x.2).sum();
+    if total > 0.0 {
+        out.iter_mut().for_each(|x| x.2 /= total);
+        return out;
+    }
+    let dv: Vec<f64> = views.iter().map(|&d| angle_between(d, view)).collect();
+    let dl: Vec<f64> = lights.iter().map(|&d| angle_between(d, light)).collect();
+    let mut near: Vec<(usize, usize, f64)> = (0..views.len())
+        .flat_map(|v| (0..nl).map(move |l| (v, l)))
+        .filter(|&(v, l)| has(v, l))
+        .map(|(v, l)| (v, l, dv[v] + dl[l]))
+        .filter(|x| x.2 > 1e-9)
+        .collect();
+    near.sort_by(|a, b| a.2.total_cmp(&b.2));
+    near.truncate(4);
+    let total: f64 = near.iter().map(|x| 1.0 / x.2).sum();
+    near.into_iter().map(|(v, l, d)| (v, l, (1.0 / d) / total)).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -168,5 +213,27 @@ mod tests {
         assert!((w.iter().map(|x| x.1).sum::<f64>() - 1.0).abs() < 1e-12);
         // The nearest direction gets the largest weight.
         assert!(w[0].1 >= w[1].1 && w[1].1 >= w[2].1);
+    }
+    #[test]
+    fn present_pair_weights_avoid_absent_pairs() {
+        let d = ubo81();
+        let n = d.len();
+        // Everything present: the plain 3 x 3 product, exact at measured pairs.
+        assert_eq!(present_pair_weights(&d, &d, None, d[4], d[9]), vec![(4, 9, 1.0)]);
+        // Pair (4, 9) held out: its value comes from other present pairs only, weights sum to 1.
+        let mut mask = vec![true; n * n];
+        mask[4 * n + 9] = false;
+        let w = present_pair_weights(&d, &d, Some(&mask), d[4], d[9]);
+        assert_eq!(w.len(), 4);
+        assert!(w.iter().all(|&(v, l, x)| (v, l) != (4, 9) && x > 0.0));
+        assert!((w.iter().map(|x| x.2).sum::<f64>() - 1.0).abs() < 1e-12);
+        // Between measured directions with one of the 9 neighbours absent: renormalised over 8.
+        let (q, r) = (from_theta_phi(0.4, 0.3), from_theta_phi(0.7, 2.0));
+        let full = present_pair_weights(&d, &d, None, q, r);
+        let (v0, l0, _) = full[0];
+        mask[v0 * n + l0] = false;
+        let part = present_pair_weights(&d, &d, Some(&mask), q, r);
+        assert_eq!(part.len(), full.len() - 1);
+        assert!((part.iter().map(|x| x.2).sum::<f64>() - 1.0).abs() < 1e-12);
     }
 }
