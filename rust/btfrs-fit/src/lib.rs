@@ -1,11 +1,14 @@
 //! btfrs-fit: compact per-texel reflectance models fitted to a BTF.
 //!
 //! * [`ptm`]: Polynomial Texture Maps, RGB and LRGB, one per view slot (paper 000, section 3.1).
+//! * [`srf`]: Phong + spatially-varying residual function (paper 003, sections 4 and 5).
 //! * [`model`]: what every model shares: evaluation at any (view, light) and the error against a
 //!   BTF, computed in parallel with f64 accumulation.
 
 pub mod model;
 pub mod ptm;
+pub mod srf;
 
 pub use model::{evaluate_image, model_error, RawModel, ReflectanceModel};
 pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions};
+pub use srf::{fit_srf, Phong, Srf, SrfReport};
