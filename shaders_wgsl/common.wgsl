@@ -36,23 +36,26 @@ struct Light {
 // arrays concatenated and split into chunks no larger than the adapter's storage binding limit
 // (128 MiB on lavapipe), so that a large BTF still fits.
 @group(1) @binding(0) var<uniform> mp: array<vec4<u32>, 4>;
-@group(1) @binding(1) var<storage, read> s0: array<f32>;
-@group(1) @binding(2) var<storage, read> s1: array<f32>;
-@group(1) @binding(3) var<storage, read> s2: array<f32>;
-@group(1) @binding(4) var<storage, read> s3: array<f32>;
-@group(1) @binding(5) var<storage, read> s4: array<f32>;
-@group(1) @binding(6) var<storage, read> s5: array<f32>;
-@group(1) @binding(7) var<storage, read> s6: array<f32>;
-@group(1) @binding(8) var<storage, read> s7: array<f32>;
+@group(1) @binding(1) var<storage, read> s0: array<u32>;
+@group(1) @binding(2) var<storage, read> s1: array<u32>;
+@group(1) @binding(3) var<storage, read> s2: array<u32>;
+@group(1) @binding(4) var<storage, read> s3: array<u32>;
+@group(1) @binding(5) var<storage, read> s4: array<u32>;
+@group(1) @binding(6) var<storage, read> s5: array<u32>;
+@group(1) @binding(7) var<storage, read> s6: array<u32>;
+@group(1) @binding(8) var<storage, read> s7: array<u32>;
 // The model's measured direction sets (xyz, w unused), searched once or more per fragment: kept
 // apart from the store so the search reads them as whole vectors without the chunk switch.
 @group(1) @binding(9) var<storage, read> mdirs: array<vec4<f32>>;
 // Per direction set, a candidate table over the concentric-map square (see nearest4).
 @group(1) @binding(10) var<storage, read> tables: array<u32>;
+// An optional RGBA8 3D texture with its trilinear sampler (the resampled LPCA Eigen-BRDFs of
+// paper 004, section 6.2); a 1 x 1 x 1 placeholder for the other models.
+@group(1) @binding(11) var vol: texture_3d<f32>;
+@group(1) @binding(12) var vol_sampler: sampler;
 
-// <load> (replaced by `return s0[i];` when the store is a single chunk: a per-lane switch costs a
-// software rasteriser all eight loads, the direct read costs one)
-fn load(i: u32) -> f32 {
+// <load>
+fn load_u32(i: u32) -> u32 {
     let c = i / g.chunk_len;
     let o = i - c * g.chunk_len;
     switch c {
@@ -67,6 +70,12 @@ fn load(i: u32) -> f32 {
     }
 }
 // </load>
+
+// The store holds 32-bit words: f32 values bit for bit, or packed integers (8-bit quantized
+// models read `load_u32` and unpack).
+fn load(i: u32) -> f32 {
+    return bitcast<f32>(load_u32(i));
+}
 
 fn param(k: u32) -> u32 {
     return mp[k / 4u][k % 4u];

@@ -17,6 +17,8 @@ use wgpu::util::DeviceExt;
 
 /// Storage buffers in a model's store (bindings 1..=8 of group 1 in `common.wgsl`).
 pub const MAX_CHUNKS: usize = 8;
+/// Binding of the optional 3D texture (its sampler is the next binding).
+const VOLUME_BINDING: u32 = 11;
 
 const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
@@ -54,13 +56,13 @@ struct Vertex {
 }
 
 /// The WGSL of a shader: `common.wgsl` followed by the model's file (WGSL has no includes).
-/// With `single_chunk`, the store's `load` reads the first buffer directly.
+/// With `single_chunk`, the store's `load_u32` reads the first buffer directly.
 pub fn shader_source(shader: Shader, single_chunk: bool) -> String {
     let common = crate::shaders::COMMON;
     let common = match (single_chunk, common.find("// <load>"), common.find("// </load>")) {
         (true, Some(a), Some(b)) => {
             format!(
-                "{}fn load(i: u32) -> f32 {{\n    return s0[i];\n}}\n{}",
+                "{}fn load_u32(i: u32) -> u32 {{\n    return s0[i];\n}}\n{}",
                 &common[..a],
                 &common[b + "// </load>".len()..]
             )
@@ -133,6 +135,22 @@ fn state(gpu: &Gpu) -> Arc<Mutex<Pipelines>> {
             });
             let mut entries = vec![uniform_entry(0, wgpu::ShaderStages::FRAGMENT)];
             entries.extend((1..=MAX_CHUNKS as u32 + 2).map(storage_entry));
+            entries.push(wgpu::BindGroupLayoutEntry {
+                binding: VOLUME_BINDING,
+                visibility: wgpu::ShaderStages::FRAGMENT,
+                ty: wgpu::BindingType::Texture {
+                    sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                    view_dimension: wgpu::TextureViewDimension::D3,
+                    multisampled: false,
+                },
+                count: None,
+            });
+            entries.push(wgpu::BindGroupLayoutEntry {
+                binding: VOLUME_BINDING + 1,
+                visibility: wgpu::ShaderStages::FRAGMENT,
+                ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                count: None,
+            });
             let model_layout = d.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                 label: Some("btfrs model"),
                 entries: &entries,
@@ -222,6 +240,10 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
         tables.extend(crate::model::candidate_table(set, crate::model::TABLE_GRID));
     }
     let params = model.gpu_params(&offsets, &table_at);
+    let volume = model.gpu_volume();
+    if let Some(v) = &volume {
+        v.validate(gpu.limits.max_texture_dimension_3d)?;
+    }
     // Chunks no larger than the binding limit, nor than the largest buffer, and 4-byte aligned.
     let max_binding = gpu.limits.max_storage_buffer_binding_size.min(gpu.limits.max_buffer_size) as usize;
     let chunk_len = (max_binding / 4).clamp(1, u32::MAX as usize);
@@ -278,7 +300,50 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
             contents: bytemuck::cast_slice(if tables.is_empty() { &[0u32][..] } else { &tables[..] }),
             usage: wgpu::BufferUsages::STORAGE,
         });
+        let placeholder = crate::model::Volume { size: [1, 1, 1], texels: vec![0; 4] };
+        let vol = volume.as_ref().unwrap_or(&placeholder);
+        let extent = wgpu::Extent3d { width: vol.size[0], height: vol.size[1], depth_or_array_layers: vol.size[2] };
+        let texture = d.create_texture(&wgpu::TextureDescriptor {
+            label: Some("btfrs model volume"),
+            size: extent,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D3,
+            format: wgpu::TextureFormat::Rgba8Unorm,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        gpu.queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            &vol.texels,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(4 * vol.size[0]),
+                rows_per_image: Some(vol.size[1]),
+            },
+            extent,
+        );
+        let texture_view = texture.create_view(&Default::default());
+        // Trilinear within the volume; clamping at the edges (the shader keeps its coordinates
+        // inside each block, so neighbouring blocks never bleed in).
+        let sampler = d.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("btfrs model volume"),
+            address_mode_u: wgpu::AddressMode::ClampToEdge,
+            address_mode_v: wgpu::AddressMode::ClampToEdge,
+            address_mode_w: wgpu::AddressMode::ClampToEdge,
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            mipmap_filter: wgpu::MipmapFilterMode::Nearest,
+            ..Default::default()
+        });
         let mut entries = vec![
+            wgpu::BindGroupEntry { binding: VOLUME_BINDING, resource: wgpu::BindingResource::TextureView(&texture_view) },
+            wgpu::BindGroupEntry { binding: VOLUME_BINDING + 1, resource: wgpu::BindingResource::Sampler(&sampler) },
             wgpu::BindGroupEntry { binding: 0, resource: pbuf.as_entire_binding() },
             wgpu::BindGroupEntry { binding: MAX_CHUNKS as u32 + 1, resource: dbuf.as_entire_binding() },
             wgpu::BindGroupEntry { binding: MAX_CHUNKS as u32 + 2, resource: tbuf.as_entire_binding() },
@@ -300,7 +365,7 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
             chunk_len: chunk_len as u32,
             chunks: n_chunks,
             bind_group,
-            device_bytes: (total * 4) as u64,
+            device_bytes: (total * 4 + volume.as_ref().map_or(0, |v| v.texels.len())) as u64,
         }
     })
 }

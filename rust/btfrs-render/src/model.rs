@@ -45,14 +45,48 @@ pub trait GpuModel: Sync {
     fn shader(&self) -> Shader;
     /// (height, width) of the sample in texels.
     fn dims(&self) -> (usize, usize);
-    /// The arrays the shader reads, in order; they are concatenated into the model store.
-    fn gpu_parts(&self) -> Vec<Cow<'_, [f32]>>;
+    /// The arrays the shader reads, as 32-bit words (f32 values bit for bit, or packed
+    /// integers), in order; they are concatenated into the model store.
+    fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>>;
     /// The measured direction sets the shader searches, in order; they are concatenated into
     /// `mdirs` and each gets a candidate table ([`candidate_table`]) in `tables`.
     fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]>;
     /// The 16 parameter words, given the store offset of each part and the `tables` offset of
     /// each direction set's candidate table.
     fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16];
+    /// An RGBA8 3D texture the shader samples with trilinear filtering (`vol` in common.wgsl).
+    fn gpu_volume(&self) -> Option<Volume> {
+        None
+    }
+}
+
+/// An RGBA8 3D texture: `size` = (width, height, depth), texels x fastest, then y, then z.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Volume {
+    /// Width, height, depth in texels.
+    pub size: [u32; 3],
+    /// `4 * width * height * depth` bytes.
+    pub texels: Vec<u8>,
+}
+
+impl Volume {
+    /// Check the size against the data and the device's 3D texture limit.
+    pub fn validate(&self, max_dim: u32) -> btfrs_core::Result<()> {
+        let n = self.size.iter().map(|&x| x as usize).product::<usize>();
+        if self.size.iter().any(|&x| x == 0 || x > max_dim) || self.texels.len() != 4 * n {
+            return Err(btfrs_core::Error::Device(format!(
+                "a 3D texture of {:?} texels ({} bytes) does not fit the device's limit of {max_dim} per side",
+                self.size,
+                self.texels.len()
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// f32 arrays as store words (no copy).
+pub fn words(x: &[f32]) -> Cow<'_, [u32]> {
+    Cow::Borrowed(bytemuck::cast_slice(x))
 }
 
 /// Any model drawn with another shader source: for testing shaders against the CPU reference
@@ -67,7 +101,7 @@ impl<M: GpuModel> GpuModel for WithShader<'_, M> {
     fn dims(&self) -> (usize, usize) {
         self.0.dims()
     }
-    fn gpu_parts(&self) -> Vec<Cow<'_, [f32]>> {
+    fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
         self.0.gpu_parts()
     }
     fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
@@ -75,6 +109,9 @@ impl<M: GpuModel> GpuModel for WithShader<'_, M> {
     }
     fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16] {
         self.0.gpu_params(offsets, tables)
+    }
+    fn gpu_volume(&self) -> Option<Volume> {
+        self.0.gpu_volume()
     }
 }
 
@@ -140,10 +177,10 @@ impl GpuModel for Ptm {
         ReflectanceModel::dims(self)
     }
 
-    fn gpu_parts(&self) -> Vec<Cow<'_, [f32]>> {
-        let mut p = vec![Cow::Borrowed(&self.coeffs[..])];
+    fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
+        let mut p = vec![words(&self.coeffs)];
         if let Some(rgb) = &self.rgb {
-            p.push(Cow::Borrowed(&rgb[..]));
+            p.push(words(rgb));
         }
         p
     }
@@ -175,8 +212,8 @@ impl GpuModel for RawModel<'_> {
         ReflectanceModel::dims(self)
     }
 
-    fn gpu_parts(&self) -> Vec<Cow<'_, [f32]>> {
-        vec![Cow::Borrowed(self.btf().data)]
+    fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
+        vec![words(self.btf().data)]
     }
 
     fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
