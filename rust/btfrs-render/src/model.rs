@@ -5,7 +5,7 @@
 //! and the parameter words the shader reads. The CPU reference needs nothing more: it uses the
 //! model's own [`ReflectanceModel`] evaluation.
 
-use btfrs_fit::{Ptm, PtmKind, RawModel, ReflectanceModel};
+use btfrs_fit::{Ptm, PtmKind, RawModel, ReflectanceModel, Srf};
 use std::borrow::Cow;
 
 /// The model shaders.
@@ -15,6 +15,8 @@ pub enum Shader {
     Raw,
     /// `ptm.wgsl`
     Ptm,
+    /// `srf.wgsl`
+    Srf,
     /// A model shader given as source (tests and experiments; the pipeline is cached per source).
     Custom(&'static str),
 }
@@ -25,6 +27,7 @@ impl Shader {
         match self {
             Shader::Raw => "raw",
             Shader::Ptm => "ptm",
+            Shader::Srf => "srf",
             Shader::Custom(_) => "custom",
         }
     }
@@ -34,6 +37,7 @@ impl Shader {
         match self {
             Shader::Raw => crate::shaders::RAW,
             Shader::Ptm => crate::shaders::PTM,
+            Shader::Srf => crate::shaders::SRF,
             Shader::Custom(src) => src,
         }
     }
@@ -228,6 +232,34 @@ impl GpuModel for RawModel<'_> {
         w[2] = tables[0];
         w[3] = tables[1];
         w[4] = offsets[0];
+        w
+    }
+}
+
+impl GpuModel for Srf {
+    fn shader(&self) -> Shader {
+        Shader::Srf
+    }
+
+    fn dims(&self) -> (usize, usize) {
+        ReflectanceModel::dims(self)
+    }
+
+    fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
+        let p = &self.phong;
+        let material: Vec<u32> =
+            p.kd.iter().chain(&p.ks).chain([&p.n]).map(|&x| (x as f32).to_bits()).collect();
+        vec![Cow::Owned(material), words(&self.s)]
+    }
+
+    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
+        Vec::new()
+    }
+
+    fn gpu_params(&self, offsets: &[u32], _tables: &[u32]) -> [u32; 16] {
+        let mut w = [0u32; 16];
+        w[0] = offsets[0];
+        w[1] = offsets[1];
         w
     }
 }

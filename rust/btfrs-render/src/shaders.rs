@@ -6,3 +6,5 @@ pub const COMMON: &str = include_str!("../../../shaders_wgsl/common.wgsl");
 pub const PTM: &str = include_str!("../../../shaders_wgsl/ptm.wgsl");
 /// The raw BTF, interpolated between measured directions.
 pub const RAW: &str = include_str!("../../../shaders_wgsl/raw.wgsl");
+/// Phong + spatially-varying residual function.
+pub const SRF: &str = include_str!("../../../shaders_wgsl/srf.wgsl");

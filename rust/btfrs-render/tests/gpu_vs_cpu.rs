@@ -4,7 +4,7 @@
 
 use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::{Btf, Monitor};
-use btfrs_fit::{fit_ptm, PtmKind, PtmOptions, RawModel, ReflectanceModel};
+use btfrs_fit::{fit_ptm, fit_srf, PtmKind, PtmOptions, RawModel, ReflectanceModel};
 use btfrs_render::cpu::render_cpu;
 use btfrs_render::scene::{Camera, Light, Mesh};
 use btfrs_render::{gpu, Gpu, GpuModel, View, WithShader};
@@ -119,7 +119,9 @@ fn every_model_matches_the_cpu_reference_on_every_scene() {
     let rgb = fit_ptm(&btf.as_ref(), &PtmOptions::default(), &Monitor::new()).unwrap();
     let lrgb =
         fit_ptm(&btf.as_ref(), &PtmOptions { kind: PtmKind::Lrgb, ..Default::default() }, &Monitor::new()).unwrap();
+    let (srf, _) = fit_srf(&btf.as_ref(), &Monitor::new()).unwrap();
     for (name, p) in [
+        ("srf", check(&gpu, "srf", &srf)),
         ("raw", check(&gpu, "raw", &raw)),
         ("ptm-rgb", check(&gpu, "ptm-rgb", &rgb)),
         ("ptm-lrgb", check(&gpu, "ptm-lrgb", &lrgb)),
