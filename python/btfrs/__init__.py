@@ -20,13 +20,17 @@ from .exceptions import (
     InternalError,
     InvalidArgumentError,
 )
-from .models import ErrorReport, Ptm, load
+from .models import ErrorReport, Lafortune, Lpca, Ptm, Sh, Srf, load
 from .rendering import Camera, DirectionalLight, PointLight, Scene, gpu_info, last_timings, render
 
 __all__ = [
     "__version__",
     "Btf",
     "Ptm",
+    "Lafortune",
+    "Srf",
+    "Sh",
+    "Lpca",
     "ErrorReport",
     "load",
     "render",

@@ -6,11 +6,14 @@ ratios and accuracy comparisons are against a fair reference rather than a straw
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from .btf import Btf
 
-__all__ = ["ptm_rgb_numpy", "nearest_lights_interpolation"]
+__all__ = ["ptm_rgb_numpy", "nearest_lights_interpolation", "crop", "lafortune_scipy", "real_sh", "sh_numpy_lstsq",
+           "sh_error", "lpca_sklearn"]
 
 
 def _basis(lights: np.ndarray) -> np.ndarray:
@@ -53,3 +56,168 @@ def nearest_lights_interpolation(train: Btf, test: Btf, k: int = 3) -> tuple[flo
         den += float(np.sum(gt**2))
         n += gt.size
     return float(np.sqrt(num / den)), float(np.sqrt(num / max(n, 1)))
+
+
+def crop(btf: Btf, rows: slice, cols: slice) -> Btf:
+    """A texel window of ``btf`` (a copy), same directions and mask."""
+    return Btf(np.ascontiguousarray(btf.data[rows, cols]), btf.views, btf.lights, btf.mask)
+
+
+def _present(btf: Btf) -> tuple[np.ndarray, np.ndarray]:
+    """(view index, light index) of every present pair."""
+    if btf.mask is None:
+        v, l = np.meshgrid(np.arange(btf.n_views), np.arange(btf.n_lights), indexing="ij")
+        return v.ravel(), l.ravel()
+    return np.nonzero(btf.mask)
+
+
+def lafortune_scipy(train: Btf, test: Btf, lobes: int = 2, jac: str = "2-point") -> dict:
+    """The Lafortune luminance model fitted per texel with ``scipy.optimize.least_squares(method="lm")``,
+    the way a scipy user writes it: a vectorised numpy residual over the texel's present samples,
+    ``value = l_z (kd + sum_i max(Cx lx vx + Cy ly vy + Cz lz vz, 0)^n_i)`` times a base colour
+    (least-squares modulation of the luminance), the exponent clipped to [1, 200] inside the
+    model (MINPACK's LM has no bounds). ``jac="2-point"`` is scipy's default (finite differences);
+    pass a callable-free ``"analytic"`` to give it the exact Jacobian.
+
+    Returns ``{"seconds_per_texel", "held_out", "reconstruction", "texels"}`` (relative errors
+    over all texels of the window, RGB)."""
+    from scipy.optimize import least_squares
+
+    vi, li = _present(train)
+    tv, tl = _present(test)
+
+    def geom(v_idx, l_idx, b):
+        vv, ll = b.views[v_idx], b.lights[l_idx]
+        return vv * ll, ll[:, 2]
+
+    p_tr, lz_tr = geom(vi, li, train)
+    p_te, lz_te = geom(tv, tl, test)
+
+    def model(x, p, lz):
+        out = np.full(len(lz), x[0])
+        for i in range(lobes):
+            c = x[1 + 4 * i: 4 + 4 * i]
+            n = np.clip(x[4 + 4 * i], 1.0, 200.0)
+            s = np.maximum(p @ c, 0.0)
+            out = out + s**n
+        return lz * out
+
+    def jacobian(x, p, lz, _y):
+        j = np.zeros((len(lz), len(x)))
+        j[:, 0] = lz
+        for i in range(lobes):
+            c = x[1 + 4 * i: 4 + 4 * i]
+            n = np.clip(x[4 + 4 * i], 1.0, 200.0)
+            s = p @ c
+            pos = s > 0
+            sp = np.where(pos, s, 1.0)
+            sn = np.where(pos, sp**n, 0.0)
+            j[:, 1 + 4 * i: 4 + 4 * i] = (lz * np.where(pos, n * sn / sp, 0.0))[:, None] * p
+            j[:, 4 + 4 * i] = lz * np.where(pos, sn * np.log(sp), 0.0)
+        return j
+
+    h, w = train.height, train.width
+    num_te = den_te = num_tr = den_tr = 0.0
+    t0 = time.perf_counter()
+    for r in range(h):
+        for c in range(w):
+            y_rgb = train.data[r, c][vi, li].astype(np.float64)  # [n, 3]
+            y = y_rgb.mean(axis=1)
+            den = float(np.sum(y * y))
+            base = (y @ y_rgb) / den if den > 0 else np.zeros(3)
+            x0 = [0.5 * float(np.mean(y / np.maximum(lz_tr, 1e-3)))]
+            for i in range(lobes):
+                x0 += [-0.8, -0.8, 0.9, 4.0 * 4**i]
+            kw = {"jac": (lambda x, p=p_tr, lz=lz_tr, yy=y: jacobian(x, p, lz, yy))} if jac == "analytic" else {}
+            fit = least_squares(lambda x: model(x, p_tr, lz_tr) - y, np.array(x0), method="lm", **kw)
+            pred_tr = model(fit.x, p_tr, lz_tr)[:, None] * base
+            pred_te = model(fit.x, p_te, lz_te)[:, None] * base
+            gt_te = test.data[r, c][tv, tl].astype(np.float64)
+            num_tr += float(np.sum((pred_tr - y_rgb) ** 2))
+            den_tr += float(np.sum(y_rgb**2))
+            num_te += float(np.sum((pred_te - gt_te) ** 2))
+            den_te += float(np.sum(gt_te**2))
+    secs = time.perf_counter() - t0
+    return {"seconds_per_texel": secs / (h * w), "held_out": float(np.sqrt(num_te / den_te)),
+            "reconstruction": float(np.sqrt(num_tr / den_tr)), "texels": h * w}
+
+
+def real_sh(n: int, dirs: np.ndarray) -> np.ndarray:
+    """``[len(dirs), n]`` real orthonormal spherical harmonics (n a perfect square) from scipy's
+    complex ones: an independent construction of the basis btfrs computes by recurrences."""
+    from scipy import special
+
+    d = np.asarray(dirs, dtype=np.float64)
+    theta = np.arccos(np.clip(d[:, 2], -1, 1))
+    phi = np.arctan2(d[:, 1], d[:, 0])
+    deg = int(round(np.sqrt(n))) - 1
+    out = np.empty((len(d), n))
+    for L in range(deg + 1):
+        for M in range(-L, L + 1):
+            y = special.sph_harm_y(L, abs(M), theta, phi)
+            if M == 0:
+                v = y.real
+            elif M > 0:
+                v = np.sqrt(2) * (-1) ** M * y.real
+            else:
+                v = np.sqrt(2) * (-1) ** M * y.imag
+            out[:, L * (L + 1) + M] = v
+    return out
+
+
+def sh_numpy_lstsq(train: Btf, view_coeffs: int = 25, light_coeffs: int = 25) -> dict:
+    """Double SH by plain least squares the numpy way: the Kronecker design matrix over the
+    present pairs and one ``numpy.linalg.lstsq`` for every texel and channel at once.
+    Returns ``{"seconds", "coeffs" [H, W, 3, kv, kl], "predict": f(view_idx, light_idx) ...}``."""
+    vi, li = _present(train)
+    t0 = time.perf_counter()
+    yv = real_sh(view_coeffs, train.views)
+    yl = real_sh(light_coeffs, train.lights)
+    a = (yv[vi][:, :, None] * yl[li][:, None, :]).reshape(len(vi), -1)  # [M, kv*kl]
+    h, w = train.height, train.width
+    b = train.data[:, :, vi, li, :].astype(np.float64)  # [h, w, M, 3]
+    b = np.moveaxis(b, 2, 0).reshape(len(vi), -1)
+    coef, *_ = np.linalg.lstsq(a, b, rcond=None)  # [kv*kl, h*w*3]
+    secs = time.perf_counter() - t0
+    c = coef.reshape(view_coeffs, light_coeffs, h, w, 3).transpose(2, 3, 4, 0, 1)
+    return {"seconds": secs, "coeffs": c}
+
+
+def sh_error(coeffs: np.ndarray, btf: Btf) -> float:
+    """Relative error of double-SH coefficients ``[H, W, 3, kv, kl]`` against ``btf``'s present pairs."""
+    kv, kl = coeffs.shape[3], coeffs.shape[4]
+    vi, li = _present(btf)
+    yv = real_sh(kv, btf.views)[vi]
+    yl = real_sh(kl, btf.lights)[li]
+    pred = np.einsum("hwcij,mi,mj->hwmc", coeffs, yv, yl, optimize=True)
+    gt = btf.data[:, :, vi, li, :].astype(np.float64)
+    return float(np.linalg.norm(pred - gt) / np.linalg.norm(gt))
+
+
+def lpca_sklearn(btf: Btf, clusters: int = 32, components: int = 4, seed: int = 0) -> dict:
+    """Local PCA the scikit-learn way: ``KMeans(k-means++)`` over the texels' ABRDFs, then a
+    ``PCA(components)`` per cluster, float32 throughout. Reconstruction error over all present
+    samples (as paper 004 reports it); ``nbytes`` counts float32 Eigen-BRDFs and weights and a
+    2-byte cluster id per texel. Returns ``{"seconds", "reconstruction", "nbytes"}``."""
+    from sklearn.cluster import KMeans
+    from sklearn.decomposition import PCA
+
+    vi, li = _present(btf)
+    x = btf.data[:, :, vi, li, :].reshape(btf.height * btf.width, -1)
+    t0 = time.perf_counter()
+    km = KMeans(n_clusters=clusters, init="k-means++", n_init=1, random_state=seed).fit(x)
+    rec = np.empty_like(x)
+    for k in range(clusters):
+        idx = np.flatnonzero(km.labels_ == k)
+        if len(idx) == 0:
+            continue
+        c = min(components, len(idx))
+        if c == 0 or len(idx) < 2:
+            rec[idx] = x[idx].mean(axis=0)
+            continue
+        pca = PCA(n_components=min(c, len(idx) - 1) or 1, random_state=seed).fit(x[idx])
+        rec[idx] = pca.inverse_transform(pca.transform(x[idx]))
+    secs = time.perf_counter() - t0
+    err = float(np.linalg.norm((rec - x).astype(np.float64)) / np.linalg.norm(x.astype(np.float64)))
+    nbytes = 4 * clusters * (components + 1) * x.shape[1] + btf.height * btf.width * (2 + 4 * components)
+    return {"seconds": secs, "reconstruction": err, "nbytes": nbytes}

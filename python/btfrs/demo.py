@@ -85,6 +85,32 @@ def step_ptm(ctx: Context) -> None:
                      "(open them in RTIViewer or relight).")
 
 
+def step_models(ctx: Context) -> None:
+    """Every other model of the papers, fitted on the same train half: Phong + SRF (003),
+    per-texel Lafortune (000), double SH with CLS (002), Local PCA (004)."""
+    fits = [
+        ("Phong+SRF", lambda: fit.srf(ctx.train, progress=ctx.progress)),
+        ("Lafortune-Lum 2", lambda: fit.lafortune(ctx.train, kind="lum", lobes=2, progress=ctx.progress)),
+        ("SH-CLS 25x25", lambda: fit.sh(ctx.train, light_coeffs=25, view_coeffs=25, progress=ctx.progress)),
+        ("LPCA 32x4", lambda: fit.lpca(ctx.train, clusters=32, components=4, seed=ctx.seed, progress=ctx.progress)),
+    ]
+    for name, make in fits:
+        m = make()
+        ctx.models[name] = m
+        held, rec = m.error(ctx.test), m.error(ctx.train)
+        ctx.rows.append(dict(model=name, fit_s=m.fit_seconds, nbytes=m.nbytes, reconstruction=rec.relative,
+                             held_out=held.relative, rmse=held.rmse))
+        ctx.log(f"{name}: fit {m.fit_seconds:.3f} s, {m.nbytes / 2**20:.2f} MiB, held-out {held}")
+        m.save(ctx.out / f"model_{name.split()[0].lower().replace('+', '_')}.btfrs")
+    srf = ctx.models["Phong+SRF"].report
+    ctx.notes.append(f"Phong alone: {100 * srf['phong_relative']:.2f}% relative error on the train pairs; "
+                     f"Phong + SRF: {100 * srf['srf_relative']:.2f}%.")
+    laf = ctx.models["Lafortune-Lum 2"].report
+    ctx.notes.append(f"Lafortune fit report: {laf.get('converged')} converged, {laf.get('fell_back')} fell back, "
+                     f"{laf.get('failed')} failed of {laf.get('fits')} texel fits.")
+    ctx.notes.append("Every model is saved as `model_*.btfrs` (`btfrs.load`).")
+
+
 def step_compare_images(ctx: Context) -> None:
     """Ground truth next to every model for a few held-out (view, light) pairs."""
     assert ctx.test is not None and ctx.test.mask is not None
@@ -173,7 +199,7 @@ def step_summary(ctx: Context) -> None:
     ctx.log(f"wrote {ctx.out / 'summary.md'}")
 
 
-STEPS: list = [step_material, step_baseline, step_ptm, step_compare_images, step_render, step_materials_overview,
+STEPS: list = [step_material, step_baseline, step_ptm, step_models, step_compare_images, step_render, step_materials_overview,
                step_summary]
 
 

@@ -13,9 +13,9 @@ from . import _native
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import InvalidArgumentError
-from .models import Ptm
+from .models import Lafortune, Lpca, Ptm, Sh, Srf
 
-__all__ = ["ptm"]
+__all__ = ["ptm", "srf", "lafortune", "sh", "lpca"]
 
 
 def _check_btf(btf) -> Btf:
@@ -47,3 +47,18 @@ def ptm(btf: Btf, kind: str = "rgb", rcond: float = 1e-6, on_degenerate: str = "
     m = _native.fit_ptm_native(b.data, b.views, b.lights, b.mask, kind=kind, rcond=float(rcond),
                                on_degenerate=on_degenerate, progress=callback(progress, f"PTM-{kind.upper()} fit"))
     return Ptm(m, fit_seconds=time.perf_counter() - t0)
+
+
+def srf(btf: Btf, progress: Progress = None) -> Srf:
+    """Fit Phong + a spatially-varying residual function (paper 003, sections 4 and 5).
+
+    One Blinn-Phong (kd, ks per channel, one shininess n) is fitted by Levenberg-Marquardt to
+    the material's mean BRDF; the residual ``BTF - Phong`` is fitted per texel and channel as
+    ``s(P) . H`` by linear least squares over the halfway vectors (one shared pseudo-inverse).
+    ``model.report`` gives the relative error of Phong alone and of Phong + SRF on the fitted
+    pairs.
+    """
+    b = _check_btf(btf)
+    t0 = time.perf_counter()
+    m, report = _native.fit_srf_native(b.data, b.views, b.lights, b.mask, progress=callback(progress, "SRF fit"))
+    return Srf(m, fit_seconds=time.perf_counter() - t0, report=report)

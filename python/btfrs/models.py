@@ -19,7 +19,7 @@ from . import _native
 from .btf import Btf, read_container
 from .exceptions import FormatError, InvalidArgumentError
 
-__all__ = ["ErrorReport", "Ptm", "load"]
+__all__ = ["ErrorReport", "Ptm", "Lafortune", "Srf", "Sh", "Lpca", "load"]
 
 PathLike = Union[str, os.PathLike]
 
@@ -163,6 +163,157 @@ class Ptm:
         return f"Ptm({self.kind}, {self.height} x {self.width} texels, {len(self.views)} view slots, {self.nbytes / 2**20:.2f} MiB)"
 
 
+class _Model:
+    """What the Rust-backed models other than PTM share: evaluation, error, storage, save/load.
+
+    Subclasses set ``_kind`` (the native model's name). ``report`` holds the fit's own
+    statistics (a dict; empty for a loaded model) and ``fit_seconds`` the wall time of the fit.
+    """
+
+    _kind = ""
+
+    def __init__(self, native: "_native.Model", fit_seconds: Optional[float] = None,
+                 report: Optional[dict] = None) -> None:
+        if native.kind != self._kind:
+            raise TypeError(f"native: expected a {self._kind} model, got {native.kind}")
+        self._m = native
+        self.fit_seconds = fit_seconds
+        self.report = dict(report or {})
+
+    @property
+    def height(self) -> int:
+        return self._m.dims[0]
+
+    @property
+    def width(self) -> int:
+        return self._m.dims[1]
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes as stored for rendering (quantized where the model quantizes)."""
+        return self._m.nbytes
+
+    @property
+    def arrays(self) -> dict:
+        """Copies of the model's arrays, by name (what :meth:`save` writes)."""
+        return self._m.arrays()
+
+    @classmethod
+    def from_arrays(cls, arrays: dict):
+        """Rebuild the model from :attr:`arrays` (validated: shapes, ranges, finite values)."""
+        return cls(_native.Model.from_arrays(cls._kind, dict(arrays)))
+
+    def evaluate(self, view, light) -> np.ndarray:
+        """The ``[H, W, 3]`` float32 image for one view and one light direction (any non-zero
+        vectors with z >= 0; they are normalised)."""
+        return self._m.evaluate(_as_dir("view", view), _as_dir("light", light))
+
+    def error(self, btf: Btf) -> ErrorReport:
+        """RMSE, relative error and PSNR against every present pair of ``btf``."""
+        if not isinstance(btf, Btf):
+            raise TypeError(f"btf: expected a btfrs.Btf, got {type(btf).__name__}")
+        d = self._m.error(btf.data, btf.views, btf.lights, btf.mask)
+        return ErrorReport(d["rmse"], d["relative"], d["psnr"], int(d["samples"]))
+
+    def save(self, path: PathLike) -> None:
+        """Write the model to one ``.btfrs`` file (atomically)."""
+        meta = {"fit_seconds": self.fit_seconds, "report": _jsonable(self.report)}
+        _native.save_container(os.fspath(path), self._kind, json.dumps(meta), list(self.arrays.items()))
+
+    @classmethod
+    def load(cls, path: PathLike):
+        """Read a model written by :meth:`save`."""
+        m = load(path)
+        if not isinstance(m, cls):
+            raise FormatError(f"{os.fspath(path)}: holds a {type(m).__name__}, not a {cls.__name__}")
+        return m
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.height} x {self.width} texels, {self.nbytes / 2**20:.2f} MiB)"
+
+
+def _jsonable(d: dict) -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, (np.integer,)):
+            v = int(v)
+        elif isinstance(v, (np.floating,)):
+            v = float(v)
+        elif isinstance(v, dict):
+            v = _jsonable(v)
+        out[k] = v
+    return out
+
+
+class Srf(_Model):
+    """Phong + spatially-varying residual function (paper 003, sections 4 and 5).
+
+    ``value = kd * l_z + ks * max(h_z, 0)^n + s(P) . h`` per colour channel, with one Blinn-Phong
+    (``phong`` = kd rgb, ks rgb, n) for the material and ``s[H, W, 3, 3]`` per texel.
+    ``report`` has ``phong_relative`` and ``srf_relative``: the relative error of Phong alone
+    and of Phong + SRF over the fitted pairs.
+    """
+
+    _kind = "srf"
+
+    @property
+    def phong(self) -> np.ndarray:
+        """``[kd_r, kd_g, kd_b, ks_r, ks_g, ks_b, n]``."""
+        return self.arrays["phong"]
+
+    @property
+    def s(self) -> np.ndarray:
+        """``[H, W, 3, 3]``: s(P) per texel and channel."""
+        return self.arrays["s"]
+
+
+class Lafortune(_Model):
+    """Per-texel Lafortune lobes (paper 000, section 3.2), fitted over all views at once.
+
+    ``value = l_z * (kd + sum_i max(Cx lx vx + Cy ly vy + Cz lz vz, 0)^n_i)``; ``kind="lum"``
+    fits the luminance and multiplies by a per-texel base colour, ``kind="rgb"`` fits each
+    channel. ``params`` is ``[H, W, P]`` (lum) or ``[H, W, 3, P]`` (rgb) with
+    ``P = 1 + 4 * lobes`` ordered ``kd, (Cx, Cy, Cz, n) per lobe``; ``status`` is 0 (converged),
+    1 (fell back: damped restart or fewer lobes) or 2 (failed: diffuse only) per fit;
+    ``report`` counts them.
+    """
+
+    _kind = "lafortune"
+
+
+class Sh(_Model):
+    """Double spherical harmonics with constrained least squares (paper 002, section 3.1 and
+    appendix), 8-bit quantized with a scale and bias per colour channel.
+
+    ``f_c(v, l) = sum_ij C[c, i, j] y_i(v) y_j(l)`` with real orthonormal SH; ``q`` is
+    ``[H, W, 3, view_coeffs, light_coeffs]`` uint8 and ``C = bias[c] + scale[c] * q``.
+    """
+
+    _kind = "sh"
+
+
+class Lpca(_Model):
+    """Local PCA: clustered Eigen-BRDFs (paper 004, section 3), 8-bit quantized per
+    Eigen-BRDF with the scales folded into the per-texel weights (section 6.3).
+
+    Rendered by the original 9-tap interpolation (section 5, ``method="9tap"``) or by the
+    Eigen-BRDFs resampled on the elevated concentric map and stored in one 3D texture
+    (section 6, ``method="3d"``).
+    """
+
+    _kind = "lpca"
+
+    @property
+    def compression(self) -> float:
+        """Raw size at one byte per value (as the measured data is stored) over :attr:`nbytes`."""
+        a = self.arrays
+        k, c1, v, l, _ = a["basis"].shape
+        return self.height * self.width * v * l * 3 / self.nbytes
+
+
+_MODEL_CLASSES = {c._kind: c for c in (Srf, Lafortune, Sh, Lpca)}
+
+
 def load(path: PathLike):
     """Load any ``.btfrs`` file: a :class:`~btfrs.Btf` or a fitted model."""
     kind, meta, arrays = read_container(path)
@@ -175,4 +326,13 @@ def load(path: PathLike):
             raise FormatError(f"{os.fspath(path)}: the PTM file has no entry {e}") from None
         p.fit_seconds = meta.get("fit_seconds")
         return p
+    if kind in _MODEL_CLASSES:
+        cls = _MODEL_CLASSES[kind]
+        try:
+            m = cls.from_arrays(arrays)
+        except InvalidArgumentError as e:
+            raise FormatError(f"{os.fspath(path)}: {e}") from None
+        m.fit_seconds = meta.get("fit_seconds")
+        m.report = dict(meta.get("report") or {})
+        return m
     raise FormatError(f"{os.fspath(path)}: unknown content {kind!r}")

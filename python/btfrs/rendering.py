@@ -24,7 +24,7 @@ import numpy as np
 from . import _native
 from .btf import Btf
 from .exceptions import InvalidArgumentError
-from .models import Ptm
+from .models import Lpca, Ptm, _Model
 
 __all__ = ["Scene", "Camera", "PointLight", "DirectionalLight", "render", "RenderResult", "gpu_info"]
 
@@ -92,17 +92,33 @@ def gpu_info() -> str:
     return _native.gpu_info()
 
 
-def _upload(model):
-    """The model's data on the device, uploaded once per model object."""
+def _upload(model, method: str):
+    """The model's data on the device, uploaded once per model object and method."""
     t0 = time.perf_counter()
-    up = _uploads.get(model)
+    per_model = _uploads.setdefault(model, {})
+    up = per_model.get(method)
     if up is None:
         if isinstance(model, Ptm):
             up = _native.gpu_upload_ptm(model._m)
+        elif isinstance(model, _Model):
+            up = _native.gpu_upload_model(model._m, method)
         else:
             up = _native.gpu_upload_raw(model.data, model.views, model.lights)
-        _uploads[model] = up
+        per_model[method] = up
     return up, (time.perf_counter() - t0) * 1e3
+
+
+def _method(model, method: Optional[str]) -> str:
+    """The renderer for ``model``: LPCA has two (paper 004): ``"3d"`` (the 3D-texture method,
+    the default) and ``"9tap"`` (the original); the other models have one, ``"default"``."""
+    if isinstance(model, Lpca):
+        m = "3d" if method is None else method
+        if m not in ("3d", "9tap"):
+            raise InvalidArgumentError(f"method: expected \"3d\" or \"9tap\" for an Lpca model, got {method!r}")
+        return m
+    if method not in (None, "default"):
+        raise InvalidArgumentError(f"method: the {type(model).__name__} model has one renderer; got {method!r}")
+    return "default"
 
 
 def _size(size) -> tuple:
@@ -115,8 +131,8 @@ def _size(size) -> tuple:
     return w, h
 
 
-def render(model: Union[Ptm, Btf], scene, camera, lights, size=(512, 512), uv_scale=1.0,
-           coords: Optional[np.ndarray] = None, backend: str = "gpu") -> np.ndarray:
+def render(model: Union[Ptm, _Model, Btf], scene, camera, lights, size=(512, 512), uv_scale=1.0,
+           coords: Optional[np.ndarray] = None, backend: str = "gpu", method: Optional[str] = None) -> np.ndarray:
     """Render ``model`` (a fitted model, or a :class:`~btfrs.Btf` for the raw measured data)
     on ``scene`` seen by ``camera`` under ``lights``; returns ``[height, width, 3]`` float32
     linear radiance (0 where no surface is seen).
@@ -128,6 +144,9 @@ def render(model: Union[Ptm, Btf], scene, camera, lights, size=(512, 512), uv_sc
     coords: optional ``[Mh, Mw, 2]`` uint16 coordinate map (x, y into the sample), repeated
         ``uv_scale`` times instead of the sample itself.
     backend: ``"gpu"`` (wgpu) or ``"cpu"`` (the reference renderer).
+    method: for :class:`~btfrs.Lpca`, ``"3d"`` (Eigen-BRDFs resampled on the elevated
+        concentric map in one 3D texture: two trilinear fetches and a lerp, paper 004 section 6,
+        the default) or ``"9tap"`` (three nearest views x three nearest lights, section 5).
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene: expected a btfrs.Scene, got {type(scene).__name__}")
@@ -151,19 +170,20 @@ def render(model: Union[Ptm, Btf], scene, camera, lights, size=(512, 512), uv_sc
         if c.dtype != np.uint16:
             raise TypeError(f"coords: expected a uint16 array [H, W, 2], got dtype {c.dtype}")
         coords = np.ascontiguousarray(c)
+    if not isinstance(model, (Ptm, Btf, _Model)):
+        raise TypeError(f"model: expected a btfrs model or Btf, got {type(model).__name__}")
+    meth = _method(model, method)
     if backend == "gpu":
-        if not isinstance(model, (Ptm, Btf)):
-            raise TypeError(f"model: expected a btfrs model or Btf, got {type(model).__name__}")
-        up, up_ms = _upload(model)
+        up, up_ms = _upload(model, meth)
         img, draw, rb = _native.gpu_render(up, scene, camera, items, w, h, uvs, coords)
         _last[:] = [RenderResult(draw, rb, up_ms)]
         return img
     if backend == "cpu":
         if isinstance(model, Ptm):
             return _native.cpu_render_ptm(model._m, scene, camera, items, w, h, uvs, coords)
-        if isinstance(model, Btf):
-            return _native.cpu_render_raw(model.data, model.views, model.lights, scene, camera, items, w, h, uvs, coords)
-        raise TypeError(f"model: expected a btfrs model or Btf, got {type(model).__name__}")
+        if isinstance(model, _Model):
+            return _native.cpu_render_model(model._m, scene, camera, items, w, h, uvs, coords, meth)
+        return _native.cpu_render_raw(model.data, model.views, model.lights, scene, camera, items, w, h, uvs, coords)
     raise InvalidArgumentError(f"backend: expected \"gpu\" or \"cpu\", got {backend!r}")
 
 

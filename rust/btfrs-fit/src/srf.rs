@@ -392,7 +392,10 @@ impl Srf {
             return Err(Error::arg("s", "the model has no texels"));
         }
         if self.s.len() != self.height * self.width * 9 {
-            return Err(Error::arg("s", format!("expected {} values, got {}", self.height * self.width * 9, self.s.len())));
+            return Err(Error::arg(
+                "s",
+                format!("expected {} values, got {}", self.height * self.width * 9, self.s.len()),
+            ));
         }
         if let Some(i) = self.s.iter().position(|x| !x.is_finite()) {
             return Err(Error::arg("s", format!("value at flat index {i} is not finite")));

@@ -10,6 +10,7 @@ mod errors;
 mod fit;
 mod hemimap;
 mod io;
+mod models;
 mod render;
 mod run;
 
@@ -29,6 +30,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(hemimap::hemisphere_to_square, m)?)?;
     m.add_class::<fit::PyPtm>()?;
     m.add_function(wrap_pyfunction!(fit::fit_ptm_native, m)?)?;
+    m.add_class::<models::PyModel>()?;
+    m.add_function(wrap_pyfunction!(models::fit_srf_native, m)?)?;
     m.add_function(wrap_pyfunction!(io::save_container, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_container_header, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_ptm, m)?)?;
@@ -46,5 +49,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render::gpu_render, m)?)?;
     m.add_function(wrap_pyfunction!(render::cpu_render_ptm, m)?)?;
     m.add_function(wrap_pyfunction!(render::cpu_render_raw, m)?)?;
+    m.add_function(wrap_pyfunction!(render::gpu_upload_model, m)?)?;
+    m.add_function(wrap_pyfunction!(render::cpu_render_model, m)?)?;
     Ok(())
 }

@@ -4,11 +4,12 @@ use crate::arrays::{borrow, check_shape, dirs};
 use crate::core::BtfArgs;
 use crate::errors::{arg, IntoPy};
 use crate::fit::PyPtm;
+use crate::models::{with_model, AnyModel, PyModel};
 use crate::run::detach;
 use btfrs_fit::RawModel;
 use btfrs_render::cpu::render_cpu;
 use btfrs_render::scene::{Camera, Light, Mesh};
-use btfrs_render::{gpu, Gpu, UploadedModel, View};
+use btfrs_render::{gpu, Gpu, GpuModel, UploadedModel, View};
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use std::sync::Arc;
@@ -306,4 +307,49 @@ fn check_size(width: usize, height: usize) -> PyResult<()> {
         return Err(arg("size", format!("expected 1 to 16384 pixels per side, got {width} x {height}")));
     }
     Ok(())
+}
+
+/// Upload any fitted model; `method` picks the renderer where a model has several ("9tap" or
+/// "3d" for LPCA; "default" otherwise).
+#[pyfunction]
+#[pyo3(signature = (model, method="default"))]
+pub fn gpu_upload_model(py: Python<'_>, model: &PyModel, method: &str) -> PyResult<PyGpuModel> {
+    let gpu_model = gpu_model_of(&model.inner, method)?;
+    detach(py, || {
+        let gpu = Gpu::shared()?;
+        let up = gpu::upload(&gpu, gpu_model.as_ref())?;
+        Ok(PyGpuModel { gpu, up })
+    })
+}
+
+/// Render any fitted model with the CPU reference renderer (`method` as for the upload).
+#[pyfunction]
+#[pyo3(signature = (model, scene, camera, lights, width, height, uv_scale, coords=None, method="default"))]
+#[allow(clippy::too_many_arguments)]
+pub fn cpu_render_model<'py>(
+    py: Python<'py>,
+    model: &PyModel,
+    scene: &PyScene,
+    camera: &PyCamera,
+    lights: Vec<(String, [f32; 3], [f32; 3])>,
+    width: usize,
+    height: usize,
+    uv_scale: [f32; 2],
+    coords: Option<&Bound<'py, PyAny>>,
+    method: &str,
+) -> PyResult<Image<'py>> {
+    let _ = gpu_model_of(&model.inner, method)?;
+    let args = ViewArgs::new(lights, coords)?;
+    let view = args.view(scene, camera, (width, height), uv_scale);
+    check_size(width, height)?;
+    let img = detach(py, || with_model!(&model.inner, m => render_cpu(m, &view)))?;
+    image(py, img, width, height)
+}
+
+/// The model as the renderer sees it for `method`.
+fn gpu_model_of<'a>(model: &'a AnyModel, method: &str) -> PyResult<Box<dyn GpuModel + 'a>> {
+    match (model, method) {
+        (AnyModel::Srf(m), "default") => Ok(Box::new(m)),
+        (m, o) => Err(arg("method", format!("the {} model has no renderer {o:?}; expected \"default\"", m.kind()))),
+    }
 }

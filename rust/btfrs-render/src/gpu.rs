@@ -300,7 +300,7 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
             contents: bytemuck::cast_slice(if tables.is_empty() { &[0u32][..] } else { &tables[..] }),
             usage: wgpu::BufferUsages::STORAGE,
         });
-        let placeholder = crate::model::Volume { size: [1, 1, 1], texels: vec![0; 4] };
+        let placeholder = crate::model::Volume { size: [1, 1, 1], texels: vec![0u8; 4].into() };
         let vol = volume.as_ref().unwrap_or(&placeholder);
         let extent = wgpu::Extent3d { width: vol.size[0], height: vol.size[1], depth_or_array_layers: vol.size[2] };
         let texture = d.create_texture(&wgpu::TextureDescriptor {
@@ -342,7 +342,10 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
             ..Default::default()
         });
         let mut entries = vec![
-            wgpu::BindGroupEntry { binding: VOLUME_BINDING, resource: wgpu::BindingResource::TextureView(&texture_view) },
+            wgpu::BindGroupEntry {
+                binding: VOLUME_BINDING,
+                resource: wgpu::BindingResource::TextureView(&texture_view),
+            },
             wgpu::BindGroupEntry { binding: VOLUME_BINDING + 1, resource: wgpu::BindingResource::Sampler(&sampler) },
             wgpu::BindGroupEntry { binding: 0, resource: pbuf.as_entire_binding() },
             wgpu::BindGroupEntry { binding: MAX_CHUNKS as u32 + 1, resource: dbuf.as_entire_binding() },

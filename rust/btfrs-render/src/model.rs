@@ -17,6 +17,14 @@ pub enum Shader {
     Ptm,
     /// `srf.wgsl`
     Srf,
+    /// `lafortune.wgsl`
+    Lafortune,
+    /// `sh.wgsl`
+    Sh,
+    /// `lpca_9tap.wgsl`
+    Lpca9,
+    /// `lpca_3d.wgsl`
+    Lpca3d,
     /// A model shader given as source (tests and experiments; the pipeline is cached per source).
     Custom(&'static str),
 }
@@ -28,6 +36,10 @@ impl Shader {
             Shader::Raw => "raw",
             Shader::Ptm => "ptm",
             Shader::Srf => "srf",
+            Shader::Lafortune => "lafortune",
+            Shader::Sh => "sh",
+            Shader::Lpca9 => "lpca_9tap",
+            Shader::Lpca3d => "lpca_3d",
             Shader::Custom(_) => "custom",
         }
     }
@@ -38,6 +50,10 @@ impl Shader {
             Shader::Raw => crate::shaders::RAW,
             Shader::Ptm => crate::shaders::PTM,
             Shader::Srf => crate::shaders::SRF,
+            Shader::Lafortune => crate::shaders::LAFORTUNE,
+            Shader::Sh => crate::shaders::SH,
+            Shader::Lpca9 => crate::shaders::LPCA_9TAP,
+            Shader::Lpca3d => crate::shaders::LPCA_3D,
             Shader::Custom(src) => src,
         }
     }
@@ -59,21 +75,21 @@ pub trait GpuModel: Sync {
     /// each direction set's candidate table.
     fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16];
     /// An RGBA8 3D texture the shader samples with trilinear filtering (`vol` in common.wgsl).
-    fn gpu_volume(&self) -> Option<Volume> {
+    fn gpu_volume(&self) -> Option<Volume<'_>> {
         None
     }
 }
 
 /// An RGBA8 3D texture: `size` = (width, height, depth), texels x fastest, then y, then z.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Volume {
+pub struct Volume<'a> {
     /// Width, height, depth in texels.
     pub size: [u32; 3],
     /// `4 * width * height * depth` bytes.
-    pub texels: Vec<u8>,
+    pub texels: Cow<'a, [u8]>,
 }
 
-impl Volume {
+impl Volume<'_> {
     /// Check the size against the data and the device's 3D texture limit.
     pub fn validate(&self, max_dim: u32) -> btfrs_core::Result<()> {
         let n = self.size.iter().map(|&x| x as usize).product::<usize>();
@@ -91,6 +107,27 @@ impl Volume {
 /// f32 arrays as store words (no copy).
 pub fn words(x: &[f32]) -> Cow<'_, [u32]> {
     Cow::Borrowed(bytemuck::cast_slice(x))
+}
+
+impl<M: GpuModel + ?Sized> GpuModel for &M {
+    fn shader(&self) -> Shader {
+        (**self).shader()
+    }
+    fn dims(&self) -> (usize, usize) {
+        (**self).dims()
+    }
+    fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
+        (**self).gpu_parts()
+    }
+    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
+        (**self).gpu_dir_sets()
+    }
+    fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16] {
+        (**self).gpu_params(offsets, tables)
+    }
+    fn gpu_volume(&self) -> Option<Volume<'_>> {
+        (**self).gpu_volume()
+    }
 }
 
 /// Any model drawn with another shader source: for testing shaders against the CPU reference
@@ -114,7 +151,7 @@ impl<M: GpuModel> GpuModel for WithShader<'_, M> {
     fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16] {
         self.0.gpu_params(offsets, tables)
     }
-    fn gpu_volume(&self) -> Option<Volume> {
+    fn gpu_volume(&self) -> Option<Volume<'_>> {
         self.0.gpu_volume()
     }
 }
@@ -247,8 +284,7 @@ impl GpuModel for Srf {
 
     fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
         let p = &self.phong;
-        let material: Vec<u32> =
-            p.kd.iter().chain(&p.ks).chain([&p.n]).map(|&x| (x as f32).to_bits()).collect();
+        let material: Vec<u32> = p.kd.iter().chain(&p.ks).chain([&p.n]).map(|&x| (x as f32).to_bits()).collect();
         vec![Cow::Owned(material), words(&self.s)]
     }
 

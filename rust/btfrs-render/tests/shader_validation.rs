@@ -14,7 +14,7 @@ fn validate(src: &str) -> Result<(), String> {
 
 #[test]
 fn every_model_shader_validates() {
-    for s in [Shader::Raw, Shader::Ptm, Shader::Srf] {
+    for s in [Shader::Raw, Shader::Ptm, Shader::Srf, Shader::Lafortune, Shader::Sh, Shader::Lpca9, Shader::Lpca3d] {
         for single in [false, true] {
             let src = shader_source(s, single);
             assert_eq!(src.contains("switch c"), !single, "the single-chunk variant replaces the chunk switch");

@@ -64,7 +64,8 @@ fn held_out_pairs_do_not_influence_the_fit() {
     let truth = Phong { kd: [0.5, 0.3, 0.2], ks: [0.4, 0.4, 0.5], n: 20.0 };
     let (d, mut data, _) = srf_data(2, 3, &truth, 5);
     let (train, test) = btfrs_core::split::split_pairs(81, 81, None, 0.2, 0).unwrap();
-    let fit = |data: &[f32]| fit_srf(&BtfRef::new(2, 3, &d, &d, data, Some(&train)).unwrap(), &Monitor::new()).unwrap().0;
+    let fit =
+        |data: &[f32]| fit_srf(&BtfRef::new(2, 3, &d, &d, data, Some(&train)).unwrap(), &Monitor::new()).unwrap().0;
     let a = fit(&data);
     for (i, x) in data.iter_mut().enumerate() {
         if test[(i / 3) % (81 * 81)] {

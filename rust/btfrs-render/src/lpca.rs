@@ -1,0 +1,251 @@
+//! The two Local-PCA renderers of paper 004.
+//!
+//! * **9-tap** (section 5): the fitted [`Lpca`] as it is: per fragment and light, three nearest
+//!   views x three nearest lights, nine lookups per Eigen-BRDF (`lpca_9tap.wgsl`; the CPU
+//!   reference is `Lpca`'s own evaluation).
+//! * **3D texture** (section 6): [`Lpca3d`] resamples every Eigen-BRDF on an `N^4` grid of the
+//!   elevated concentric map (section 6.1) and packs the grids into one RGBA8 3D texture with the
+//!   t_l slices stacked along z (section 6.2); the GPU filters three dimensions, the shader lerps
+//!   the fourth (`lpca_3d.wgsl`). Its CPU reference below samples the same texels with the same
+//!   trilinear weights, so the shader is tested against it like any other model.
+//!
+//! The grid values are the 9-tap interpolation of the measured Eigen-BRDFs at the grid's
+//! directions, rounded to 8 bits with each Eigen-BRDF's own scale and bias, so the texel weights
+//! (which fold those in, section 6.3) are shared by both renderers.
+
+use crate::model::{words, GpuModel, Shader, Volume};
+use btfrs_core::directions::interp_weights;
+use btfrs_core::{Error, Result};
+use btfrs_fit::{Lpca, ReflectanceModel};
+use btfrs_hemimap::{hemisphere_to_square, square_to_hemisphere};
+use rayon::prelude::*;
+use std::borrow::Cow;
+
+impl GpuModel for Lpca {
+    fn shader(&self) -> Shader {
+        Shader::Lpca9
+    }
+
+    fn dims(&self) -> (usize, usize) {
+        ReflectanceModel::dims(self)
+    }
+
+    fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
+        vec![Cow::Borrowed(&self.ids[..]), words(&self.weights), Cow::Borrowed(bytemuck::cast_slice(&self.basis))]
+    }
+
+    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
+        vec![&self.views, &self.lights]
+    }
+
+    fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16] {
+        let mut w = [0u32; 16];
+        w[0] = self.views.len() as u32;
+        w[1] = self.lights.len() as u32;
+        w[2] = tables[0];
+        w[3] = tables[1];
+        w[4] = offsets[0];
+        w[5] = offsets[1];
+        w[6] = offsets[2];
+        w[7] = self.components as u32;
+        w
+    }
+}
+
+/// Default grid resolution per axis of the resampled Eigen-BRDFs: 16 x 16 directions per
+/// hemisphere, about 11 degrees apart, finer than the UBO's 15-degree rings.
+pub const DEFAULT_GRID: usize = 16;
+
+/// An LPCA model with its Eigen-BRDFs resampled into a 3D texture (paper 004, section 6).
+#[derive(Debug, Clone)]
+pub struct Lpca3d<'a> {
+    lpca: &'a Lpca,
+    n: usize,
+    gx: usize,
+    gy: usize,
+    /// RGBA8 texels, x fastest: `[N * N][N * gy][N * gx][4]`.
+    vol: Vec<u8>,
+}
+
+impl<'a> Lpca3d<'a> {
+    /// Resample `lpca`'s Eigen-BRDFs on an `n^4` grid. `max_dim` is the device's 3D texture
+    /// limit per side (2048 in WebGPU's defaults).
+    pub fn new(lpca: &'a Lpca, n: usize, max_dim: usize) -> Result<Self> {
+        if !(2..=64).contains(&n) || n * n > max_dim {
+            return Err(Error::arg(
+                "grid",
+                format!("expected 2 to {} samples per axis (N^2 <= {max_dim}), got {n}", (max_dim as f64).sqrt() as usize),
+            ));
+        }
+        let e = lpca.clusters * (lpca.components + 1);
+        let gx = (e as f64).sqrt().ceil() as usize;
+        let gy = e.div_ceil(gx);
+        if n * gx > max_dim || n * gy > max_dim {
+            return Err(Error::arg(
+                "grid",
+                format!("{e} Eigen-BRDFs of {n} x {n} need a {} x {} texture plane, more than {max_dim}", n * gx, n * gy),
+            ));
+        }
+        let (nv, nl) = (lpca.views.len(), lpca.lights.len());
+        let at = |i: usize| square_to_hemisphere((i % n) as f64 / n as f64 + 0.5 / n as f64, (i / n) as f64 / n as f64 + 0.5 / n as f64);
+        // Interpolation weights of every grid direction over the measured ones (the 9-tap rule).
+        let wv: Vec<Vec<(usize, f64)>> = (0..n * n).map(|i| interp_weights(&lpca.views, at(i), 3)).collect();
+        let wl: Vec<Vec<(usize, f64)>> = (0..n * n).map(|i| interp_weights(&lpca.lights, at(i), 3)).collect();
+        let (w, h, d) = (n * gx, n * gy, n * n);
+        let mut vol = vec![0u8; w * h * d * 4];
+        // One z slice (a light grid direction) at a time: z = t_l * N + s_l = the light grid index.
+        vol.par_chunks_mut(w * h * 4).enumerate().for_each(|(z, slice)| {
+            for ei in 0..e {
+                let (tx, ty) = (ei % gx, ei / gx);
+                for (vi, wvi) in wv.iter().enumerate() {
+                    let (x, y) = (tx * n + vi % n, ty * n + vi / n);
+                    let mut rgb = [0.0f64; 3];
+                    for &(v, a) in wvi {
+                        for &(l, b) in &wl[z] {
+                            let o = ((ei * nv + v) * nl + l) * 4;
+                            for c in 0..3 {
+                                rgb[c] += a * b * lpca.basis[o + c] as f64;
+                            }
+                        }
+                    }
+                    let px = &mut slice[(y * w + x) * 4..(y * w + x) * 4 + 4];
+                    for c in 0..3 {
+                        px[c] = rgb[c].round().clamp(0.0, 255.0) as u8;
+                    }
+                    px[3] = 255;
+                }
+            }
+        });
+        Ok(Lpca3d { lpca, n, gx, gy, vol })
+    }
+
+    /// Samples per axis.
+    pub fn grid(&self) -> usize {
+        self.n
+    }
+
+    /// Bytes of the 3D texture.
+    pub fn texture_bytes(&self) -> usize {
+        self.vol.len()
+    }
+
+    /// Clamp-to-edge trilinear sample of the texture at texel coordinates (x, y, z) (sample
+    /// centres at i + 0.5), as the GPU's linear sampler computes it.
+    fn sample(&self, p: [f32; 3]) -> [f32; 3] {
+        let size = [self.n * self.gx, self.n * self.gy, self.n * self.n];
+        let mut idx = [[0usize; 2]; 3];
+        let mut f = [0.0f32; 3];
+        for a in 0..3 {
+            let u = p[a] - 0.5;
+            let i = u.floor();
+            f[a] = u - i;
+            let clampi = |v: f32| (v.max(0.0) as usize).min(size[a] - 1);
+            idx[a] = [clampi(i), clampi(i + 1.0)];
+        }
+        let mut out = [0.0f32; 3];
+        for (dz, wz) in [(0, 1.0 - f[2]), (1, f[2])] {
+            for (dy, wy) in [(0, 1.0 - f[1]), (1, f[1])] {
+                for (dx, wx) in [(0, 1.0 - f[0]), (1, f[0])] {
+                    let o = ((idx[2][dz] * size[1] + idx[1][dy]) * size[0] + idx[0][dx]) * 4;
+                    for c in 0..3 {
+                        out[c] += wx * wy * wz * self.vol[o + c] as f32 / 255.0;
+                    }
+                }
+            }
+        }
+        out
+    }
+}
+
+fn grid_coord(x: f32, n: f32) -> f32 {
+    (x * n).clamp(0.5, n - 0.5)
+}
+
+/// A prepared 3D-texture query: the view's (s_v, t_v) and the light's slices and weight.
+#[derive(Debug, Clone, Copy)]
+pub struct Lpca3dQuery {
+    xy: [f32; 2],
+    zs: f32,
+    i0: usize,
+    i1: usize,
+    w: f32,
+}
+
+impl ReflectanceModel for Lpca3d<'_> {
+    type Query = Lpca3dQuery;
+
+    fn dims(&self) -> (usize, usize) {
+        ReflectanceModel::dims(self.lpca)
+    }
+
+    fn query(&self, view: [f64; 3], light: [f64; 3]) -> Lpca3dQuery {
+        let nf = self.n as f32;
+        let sv = hemisphere_to_square(view);
+        let sl = hemisphere_to_square(light);
+        let ft = (sl[1] as f32 * nf - 0.5).clamp(0.0, nf - 1.0);
+        let i0 = (ft as usize).min(self.n - 1);
+        Lpca3dQuery {
+            xy: [grid_coord(sv[0] as f32, nf), grid_coord(sv[1] as f32, nf)],
+            zs: grid_coord(sl[0] as f32, nf),
+            i0,
+            i1: (i0 + 1).min(self.n - 1),
+            w: ft - i0 as f32,
+        }
+    }
+
+    fn eval(&self, t: usize, q: &Lpca3dQuery) -> [f32; 3] {
+        let m = self.lpca;
+        let c = m.components;
+        let k = m.ids[t] as usize;
+        let wt = &m.weights[t * (c + 2)..(t + 1) * (c + 2)];
+        let mut out = [wt[0]; 3];
+        let nf = self.n as f32;
+        for j in 0..=c {
+            let e = k * (c + 1) + j;
+            let tile = [(e % self.gx) as f32 * nf, (e / self.gx) as f32 * nf];
+            let p = [tile[0] + q.xy[0], tile[1] + q.xy[1]];
+            let a = self.sample([p[0], p[1], q.i0 as f32 * nf + q.zs]);
+            let b = self.sample([p[0], p[1], q.i1 as f32 * nf + q.zs]);
+            for ch in 0..3 {
+                out[ch] += wt[1 + j] * (a[ch] + (b[ch] - a[ch]) * q.w);
+            }
+        }
+        out
+    }
+}
+
+impl GpuModel for Lpca3d<'_> {
+    fn shader(&self) -> Shader {
+        Shader::Lpca3d
+    }
+
+    fn dims(&self) -> (usize, usize) {
+        ReflectanceModel::dims(self.lpca)
+    }
+
+    fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
+        vec![Cow::Borrowed(&self.lpca.ids[..]), words(&self.lpca.weights)]
+    }
+
+    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
+        Vec::new()
+    }
+
+    fn gpu_params(&self, offsets: &[u32], _tables: &[u32]) -> [u32; 16] {
+        let mut w = [0u32; 16];
+        w[0] = self.n as u32;
+        w[1] = self.gx as u32;
+        w[2] = self.gy as u32;
+        w[3] = offsets[0];
+        w[4] = offsets[1];
+        w[5] = self.lpca.components as u32;
+        w
+    }
+
+    fn gpu_volume(&self) -> Option<Volume<'_>> {
+        Some(Volume {
+            size: [(self.n * self.gx) as u32, (self.n * self.gy) as u32, (self.n * self.n) as u32],
+            texels: Cow::Borrowed(&self.vol),
+        })
+    }
+}

@@ -1,0 +1,105 @@
+// sh.wgsl: double spherical harmonics (paper 002, sections 3.1 and 4.2), 8-bit coefficients.
+//
+// f_c(v, l) = sum_ij C[c][i][j] y_i(v) y_j(l), C = bias[c] + scale[c] * q with q in 0..255.
+// The real orthonormal SH are evaluated here independently of the Rust code (which the CPU
+// reference uses): degree L, order M, index L(L+1)+M; cos(M phi) sin^M(theta) and
+// sin(M phi) sin^M(theta) from the powers of (x + i y), and Q_L^M = P_L^M / sin^M(theta), a
+// polynomial in z, by Q_M^M = (-1)^M (2M-1)!!, Q_{M+1}^M = (2M+1) z Q_M^M,
+// Q_L^M = ((2L-1) z Q_{L-1}^M - (L+M-1) Q_{L-2}^M) / (L-M).
+//
+// Storage: per texel and channel, kv rows of ceil(kl / 4) words, four 8-bit coefficients per word
+// (the row padded with zeros), so a row is read with whole-word loads and unpack4x8unorm.
+// Parameters: word 0 = kv, 1 = kl, 2 = store offset of scale[3] and bias[3] (f32), 3 = store
+// offset of the coefficient words.
+
+struct ViewQuery {
+    y: array<f32, 64>,
+    sum: f32,
+};
+
+fn sh_basis(n: u32, d: vec3<f32>) -> array<f32, 64> {
+    var y: array<f32, 64>;
+    let deg = u32(round(sqrt(f32(n)))) - 1u;
+    var cm = 1.0;   // Re (x + i y)^m
+    var sm = 0.0;   // Im (x + i y)^m
+    var qmm = 1.0;  // Q_m^m
+    for (var m = 0u; m <= deg; m++) {
+        if (m > 0u) {
+            let c = cm * d.x - sm * d.y;
+            sm = cm * d.y + sm * d.x;
+            cm = c;
+            qmm = -qmm * f32(2u * m - 1u);
+        }
+        var q_prev = 0.0;
+        var q = qmm;
+        for (var l = m; l <= deg; l++) {
+            if (l == m + 1u) {
+                q_prev = q;
+                q = f32(2u * m + 1u) * d.z * qmm;
+            } else if (l > m + 1u) {
+                let qn = (f32(2u * l - 1u) * d.z * q - f32(l + m - 1u) * q_prev) / f32(l - m);
+                q_prev = q;
+                q = qn;
+            }
+            // K_l^m^2 = (2l+1) / (4 pi) * (l-m)! / (l+m)!
+            var k2 = f32(2u * l + 1u) / 12.566370614359172;
+            for (var i = l - m + 1u; i <= l + m; i++) {
+                k2 /= f32(i);
+            }
+            let k = sqrt(k2);
+            if (m == 0u) {
+                y[l * (l + 1u)] = k * q;
+            } else {
+                y[l * (l + 1u) + m] = 1.4142135623730951 * k * q * cm;
+                y[l * (l + 1u) - m] = 1.4142135623730951 * k * q * sm;
+            }
+        }
+    }
+    return y;
+}
+
+fn view_query(v: vec3<f32>) -> ViewQuery {
+    let kv = param(0u);
+    let y = sh_basis(kv, v);
+    var s = 0.0;
+    for (var i = 0u; i < kv; i++) {
+        s += y[i];
+    }
+    return ViewQuery(y, s);
+}
+
+fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
+    let kv = param(0u);
+    let kl = param(1u);
+    let rw = (kl + 3u) / 4u;
+    let yl = sh_basis(kl, l);
+    // The light basis in groups of four (zero beyond kl), matching the padded rows.
+    var yl4: array<vec4<f32>, 16>;
+    var sl = 0.0;
+    for (var w = 0u; w < rw; w++) {
+        var g = vec4<f32>(0.0);
+        for (var s = 0u; s < 4u; s++) {
+            let j = 4u * w + s;
+            if (j < kl) {
+                g[s] = yl[j];
+            }
+        }
+        yl4[w] = g;
+        sl += g.x + g.y + g.z + g.w;
+    }
+    let sb = param(2u);
+    var out = vec3<f32>(0.0);
+    for (var ch = 0u; ch < 3u; ch++) {
+        let base = param(3u) + (texel * 3u + ch) * kv * rw;
+        var acc = 0.0;
+        for (var i = 0u; i < kv; i++) {
+            var r = 0.0;
+            for (var w = 0u; w < rw; w++) {
+                r += dot(unpack4x8unorm(load_u32(base + i * rw + w)), yl4[w]);
+            }
+            acc += vq.y[i] * r;
+        }
+        out[ch] = load(sb + 3u + ch) * vq.sum * sl + 255.0 * load(sb + ch) * acc;
+    }
+    return out;
+}
