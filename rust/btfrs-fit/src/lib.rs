@@ -1,11 +1,15 @@
 //! btfrs-fit: compact per-texel reflectance models fitted to a BTF.
 //!
 //! * [`ptm`]: Polynomial Texture Maps, RGB and LRGB, one per view slot (paper 000, section 3.1).
+//! * [`sh`]: double spherical harmonics fitted by constrained least squares, 8-bit quantized
+//!   (paper 002, section 3.1 and appendix).
 //! * [`model`]: what every model shares: evaluation at any (view, light) and the error against a
 //!   BTF, computed in parallel with f64 accumulation.
 
 pub mod model;
 pub mod ptm;
+pub mod sh;
 
 pub use model::{evaluate_image, model_error, RawModel, ReflectanceModel};
 pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions};
+pub use sh::{fit_sh, quantize, sh_basis, Sh, ShCoeffs, ShOptions};
