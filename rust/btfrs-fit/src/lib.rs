@@ -2,13 +2,17 @@
 //!
 //! * [`ptm`]: Polynomial Texture Maps, RGB and LRGB, one per view slot (paper 000, section 3.1).
 //! * [`srf`]: Phong + spatially-varying residual function (paper 003, sections 4 and 5).
+//! * [`sh`]: double spherical harmonics fitted by constrained least squares, 8-bit quantized
+//!   (paper 002, section 3.1 and appendix).
 //! * [`model`]: what every model shares: evaluation at any (view, light) and the error against a
 //!   BTF, computed in parallel with f64 accumulation.
 
 pub mod model;
 pub mod ptm;
+pub mod sh;
 pub mod srf;
 
 pub use model::{evaluate_image, model_error, RawModel, ReflectanceModel};
 pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions};
+pub use sh::{fit_sh, quantize, sh_basis, Sh, ShCoeffs, ShOptions};
 pub use srf::{fit_srf, Phong, Srf, SrfReport};

@@ -1,0 +1,1012 @@
+//! Double spherical harmonics fitted by constrained least squares (paper 002, section 3.1 and
+//! the appendix), quantized to 8 bits per coefficient (section 5.2).
+//!
+//! Each texel's ABRDF is projected on real spherical harmonics over *both* the view and the light
+//! direction ("double SH projection", 002 section 3.1): per colour channel
+//!
+//! ```text
+//! f(v, l) = sum_{i < kv} sum_{j < kl} C[i][j] y_i(v) y_j(l)
+//! ```
+//!
+//! with `y` the real orthonormal SH of the full sphere ([`sh_basis`]). The BTF value itself,
+//! cos(theta_l) included, is fitted. Measured BTFs cover only the upper hemisphere, so the
+//! projection cannot be an integral: it is a least-squares fit over the present (view, light)
+//! pairs, and the lower hemisphere is unconstrained. A plain least-squares fit then puts large
+//! coefficients of opposite sign into combinations that nearly cancel on the upper hemisphere;
+//! they reproduce the samples but fall apart once quantized. The constrained least squares (CLS)
+//! of the appendix bounds the coefficient energy by the function's own:
+//!
+//! ```text
+//! c = (A + lambda I)^-1 b,   A = Y^T Y,   b = Y^T beta,   smallest lambda >= 0 with c^T c <= E
+//! ```
+//!
+//! where `E` is the energy of the sampled function, estimated by solid-angle quadrature over the
+//! present pairs ([`solid_angle_weights`]). `||c(lambda)||^2` decreases monotonically in lambda,
+//! so lambda is found by bisection (in log space, to 1e-6 relative).
+//!
+//! **Fitting in the eigenbasis.** `A` depends only on the directions and the mask, which every
+//! texel shares: it is eigen-decomposed once, `A = Q D Q^T`, and per texel and channel
+//! `c~ = Q^T b`, `||c(lambda)||^2 = sum_k c~_k^2 / (d_k + lambda)^2`, so each bisection step costs
+//! O(k). With the complete (view, light) grid `A` is a Kronecker product,
+//! `A = (Yv^T Yv) kron (Yl^T Yl)`, and only the two small factors are decomposed; the texel's
+//! `[V, L]` data matrix `F` is then rotated by `b~ = (Yv Qv)^T F (Yl Ql)`, two matrix products that
+//! are batched over a block of texels into two large GEMMs (`matrixmultiply` through nalgebra's
+//! strided views), with `d_ij = dv_i dl_j`. A mask breaks the Kronecker structure: the general
+//! `(kv kl)^2` matrix `A` over the present pairs is decomposed instead, `b` is computed by the same
+//! separable products on data with the absent pairs zeroed, and rotated by a GEMM per block.
+//!
+//! **Streaming.** Texels are processed in chunks of [`ShOptions::chunk_texels`], in order, with
+//! rayon inside a chunk (paper 002 section 5.2 processes its BTFs scanline by scanline so they
+//! need not fit in memory); a memory-mapped BTF is read once. Quantization (per colour channel,
+//! uniform over all texels and coefficients) runs after the last chunk.
+//!
+//! **Rendering** (002 section 4.2): unquantize, then the double sum at the tangent-frame view and
+//! light ([`ReflectanceModel`] for [`Sh`]; mirrored by the WGSL shader).
+
+use crate::model::ReflectanceModel;
+use btfrs_core::{BtfRef, Error, Monitor, Result};
+use nalgebra::{DMatrix, Dyn, MatrixView, MatrixViewMut, SymmetricEigen};
+use rayon::prelude::*;
+
+/// Highest supported SH degree per direction.
+pub const MAX_DEGREE: usize = 7;
+/// Most coefficients per direction, `(MAX_DEGREE + 1)^2`.
+pub const MAX_COEFFS: usize = (MAX_DEGREE + 1) * (MAX_DEGREE + 1);
+
+/// Fit options.
+#[derive(Debug, Clone, Copy)]
+pub struct ShOptions {
+    /// SH coefficients over the light direction, a perfect square in 1..=64 (degree <= 7).
+    pub light_coeffs: usize,
+    /// SH coefficients over the view direction, a perfect square in 1..=64.
+    pub view_coeffs: usize,
+    /// Constrained least squares (the paper's); `false` = plain least squares, for comparison.
+    pub cls: bool,
+    /// Store 8-bit coefficients (per channel scale and bias) instead of f32.
+    pub quantize: bool,
+    /// Texels processed per chunk: working memory besides the output is O(chunk).
+    pub chunk_texels: usize,
+}
+
+impl Default for ShOptions {
+    fn default() -> Self {
+        ShOptions { light_coeffs: 25, view_coeffs: 25, cls: true, quantize: true, chunk_texels: 1024 }
+    }
+}
+
+/// Stored coefficients.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ShCoeffs {
+    /// f32 coefficients.
+    Float(Vec<f32>),
+    /// 8-bit coefficients: value = `bias[ch] + scale[ch] * q`.
+    Quantized {
+        /// One byte per coefficient.
+        q: Vec<u8>,
+        /// Per colour channel step.
+        scale: [f32; 3],
+        /// Per colour channel offset (the smallest coefficient of the channel).
+        bias: [f32; 3],
+    },
+}
+
+/// A fitted double-SH BTF.
+#[derive(Debug, Clone)]
+pub struct Sh {
+    /// Rows.
+    pub height: usize,
+    /// Columns.
+    pub width: usize,
+    /// Coefficients over the view direction, `kv`.
+    pub view_coeffs: usize,
+    /// Coefficients over the light direction, `kl`.
+    pub light_coeffs: usize,
+    /// layout [H, W, 3, view_coeffs, light_coeffs] (light index innermost); value = bias[ch] + scale[ch] * q
+    pub coeffs: ShCoeffs,
+    /// fit statistics: fraction of (texel, channel) fits where the constraint was active (lambda > 0), mean lambda
+    pub constrained_fraction: f64,
+    /// Mean lambda over all (texel, channel) fits, zeros included. (An infinite lambda, nonzero
+    /// data under a zero energy bound, which only direction sets with weightless members allow,
+    /// counts as constrained but not in the mean.)
+    pub mean_lambda: f64,
+}
+
+// ---------------------------------------------------------------------------------------------
+// The basis
+// ---------------------------------------------------------------------------------------------
+
+/// The first `n` real orthonormal spherical harmonics at the unit direction `d`, into `out`.
+///
+/// Index `i = L (L + 1) + M` for degree `L` and order `M` in `[-L, L]`:
+///
+/// ```text
+/// M > 0:  sqrt(2) K_L^M cos(M phi) P_L^M(cos theta)
+/// M < 0:  sqrt(2) K_L^|M| sin(|M| phi) P_L^|M|(cos theta)
+/// M = 0:  K_L^0 P_L(cos theta)
+/// K_L^M = sqrt((2L + 1) / (4 pi) (L - M)! / (L + M)!)
+/// ```
+///
+/// with `P_L^M` the associated Legendre functions *with* the Condon-Shortley phase `(-1)^M`
+/// (so `y_1 = -0.4886 y`, `y_2 = 0.4886 z`, `y_3 = -0.4886 x`). No angles are formed: with
+/// `s = sin(theta)`, both `P_L^M(z) = s^M Q_L^M(z)` and the azimuthal factor `s^M e^{i M phi}`
+/// carry `s^M`, so the product is computed from polynomials in `x`, `y`, `z`:
+///
+/// * `C_M + i S_M = (x + i y)^M = s^M (cos(M phi) + i sin(M phi))`, by
+///   `C_{M+1} = x C_M - y S_M`, `S_{M+1} = x S_M + y C_M`, `C_0 = 1`, `S_0 = 0`;
+/// * `Q_M^M = (-1)^M (2M - 1)!!`, `Q_{M+1}^M = (2M + 1) z Q_M^M`,
+///   `Q_L^M = ((2L - 1) z Q_{L-1}^M - (L + M - 1) Q_{L-2}^M) / (L - M)`: the standard
+///   recurrences of `P_L^M` divided by `s^M`;
+/// * `y = sqrt(2) K_L^M Q_L^M C_M` (M > 0), `sqrt(2) K_L^M Q_L^M S_M` (M < 0), `K_L^0 Q_L^0`.
+///
+/// At most `min(n, 64, out.len())` entries are written (degree <= 7); `n` need not be a perfect
+/// square. Plain loops over fixed arrays: the WGSL shader mirrors this function line by line.
+pub fn sh_basis(n: usize, d: [f64; 3], out: &mut [f64]) {
+    let n = n.min(MAX_COEFFS).min(out.len());
+    if n == 0 {
+        return;
+    }
+    let (x, y, z) = (d[0], d[1], d[2]);
+    // Smallest degree lmax with (lmax + 1)^2 >= n.
+    let mut lmax = 0;
+    while (lmax + 1) * (lmax + 1) < n {
+        lmax += 1;
+    }
+    // Azimuthal parts times sin^m(theta): C_m + i S_m = (x + i y)^m.
+    let mut cm = [0.0f64; MAX_DEGREE + 1];
+    let mut sm = [0.0f64; MAX_DEGREE + 1];
+    cm[0] = 1.0;
+    for m in 1..=lmax {
+        cm[m] = x * cm[m - 1] - y * sm[m - 1];
+        sm[m] = x * sm[m - 1] + y * cm[m - 1];
+    }
+    let mut qmm = 1.0; // Q_m^m = (-1)^m (2m - 1)!!
+    for m in 0..=lmax {
+        if m > 0 {
+            qmm *= -((2 * m - 1) as f64);
+        }
+        let mut q2 = 0.0; // Q_{l-2}^m
+        let mut q1 = 0.0; // Q_{l-1}^m
+        for l in m..=lmax {
+            let q = if l == m {
+                qmm
+            } else if l == m + 1 {
+                (2 * m + 1) as f64 * z * qmm
+            } else {
+                ((2 * l - 1) as f64 * z * q1 - (l + m - 1) as f64 * q2) / (l - m) as f64
+            };
+            q2 = q1;
+            q1 = q;
+            // K_l^m^2 = (2l + 1) / (4 pi) * (l - m)! / (l + m)!.
+            let mut k2 = (2 * l + 1) as f64 / (4.0 * std::f64::consts::PI);
+            for f in (l - m + 1)..=(l + m) {
+                k2 /= f as f64;
+            }
+            let center = l * (l + 1);
+            if m == 0 {
+                if center < n {
+                    out[center] = k2.sqrt() * q;
+                }
+            } else {
+                let kq = std::f64::consts::SQRT_2 * k2.sqrt() * q;
+                if center + m < n {
+                    out[center + m] = kq * cm[m];
+                }
+                if center - m < n {
+                    out[center - m] = kq * sm[m];
+                }
+            }
+        }
+    }
+}
+
+/// The basis of every direction, `[dirs.len(), n]` row-major.
+fn basis_matrix(dirs: &[[f64; 3]], n: usize) -> Vec<f64> {
+    let mut y = vec![0.0f64; dirs.len() * n];
+    for (row, d) in y.chunks_mut(n).zip(dirs) {
+        sh_basis(n, *d, row);
+    }
+    y
+}
+
+/// Grid cells per side of the equal-area hemisphere grid used by [`solid_angle_weights`].
+const WEIGHT_GRID: usize = 256;
+
+/// Solid-angle quadrature weights of a set of hemisphere directions, summing to 2 pi.
+///
+/// A uniform `256 x 256` grid of the unit square is mapped to the hemisphere by the equal-area
+/// elevated concentric map (`btfrs_hemimap::square_to_hemisphere`), so every cell covers
+/// `2 pi / 256^2` sr; each cell goes to its angularly nearest direction (a Voronoi partition of
+/// the hemisphere). Identical directions share their cell's weight equally.
+pub fn solid_angle_weights(dirs: &[[f64; 3]]) -> Vec<f64> {
+    let n = dirs.len();
+    if n == 0 {
+        return Vec::new();
+    }
+    let g = WEIGHT_GRID;
+    let counts = (0..g)
+        .into_par_iter()
+        .fold(
+            || vec![0u64; n],
+            |mut acc, r| {
+                let t = (r as f64 + 0.5) / g as f64;
+                for c in 0..g {
+                    let s = (c as f64 + 0.5) / g as f64;
+                    let p: [f64; 3] = btfrs_hemimap::square_to_hemisphere(s, t);
+                    let (mut best, mut arg) = (f64::NEG_INFINITY, 0);
+                    for (k, d) in dirs.iter().enumerate() {
+                        let dot = p[0] * d[0] + p[1] * d[1] + p[2] * d[2];
+                        if dot > best {
+                            best = dot;
+                            arg = k;
+                        }
+                    }
+                    acc[arg] += 1;
+                }
+                acc
+            },
+        )
+        .reduce(
+            || vec![0u64; n],
+            |mut a, b| {
+                a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+                a
+            },
+        );
+    let cell = std::f64::consts::TAU / (g * g) as f64;
+    let mut w: Vec<f64> = counts.iter().map(|&k| k as f64 * cell).collect();
+    // Ties go to the first of identical directions; spread each group's weight over its members.
+    for i in 0..n {
+        let same: Vec<usize> = (i..n).filter(|&j| dirs[j] == dirs[i]).collect();
+        if same.len() > 1 && w[i] > 0.0 {
+            let share = same.iter().map(|&j| w[j]).sum::<f64>() / same.len() as f64;
+            same.iter().for_each(|&j| w[j] = share);
+        }
+    }
+    w
+}
+
+// ---------------------------------------------------------------------------------------------
+// Dense helpers
+// ---------------------------------------------------------------------------------------------
+
+/// Products with a dimension this small or smaller are not sent to nalgebra's GEMM.
+const GEMM_SMALL: usize = 5;
+
+/// A strided matrix operand: (data, rows, cols, row stride, column stride).
+type Operand<'a> = (&'a [f64], usize, usize, usize, usize);
+
+/// `c = a * b` for strided f64 matrices; `c` is `(rows of a) x (cols of b)` with strides
+/// (`rsc`, `csc`). Goes to `matrixmultiply::dgemm` through nalgebra's dynamic-stride views.
+fn gemm(a: Operand<'_>, b: Operand<'_>, c: &mut [f64], rsc: usize, csc: usize) {
+    let (m, k, n) = (a.1, a.2, b.2);
+    debug_assert_eq!(k, b.1);
+    if m == 0 || n == 0 {
+        return;
+    }
+    if m <= GEMM_SMALL || k <= GEMM_SMALL || n <= GEMM_SMALL {
+        // nalgebra hands only larger products to matrixmultiply; its own fallback for small
+        // dimensions does not take arbitrary strides, so small products are done here.
+        for r in 0..m {
+            for col in 0..n {
+                let mut s = 0.0;
+                for p in 0..k {
+                    s += a.0[r * a.3 + p * a.4] * b.0[p * b.3 + col * b.4];
+                }
+                c[r * rsc + col * csc] = s;
+            }
+        }
+        return;
+    }
+    let av = MatrixView::<f64, Dyn, Dyn, Dyn, Dyn>::from_slice_with_strides(a.0, m, k, a.3, a.4);
+    let bv = MatrixView::<f64, Dyn, Dyn, Dyn, Dyn>::from_slice_with_strides(b.0, k, n, b.3, b.4);
+    let mut cv = MatrixViewMut::<f64, Dyn, Dyn, Dyn, Dyn>::from_slice_with_strides_mut(c, m, n, rsc, csc);
+    cv.gemm(1.0, &av, &bv, 0.0);
+}
+
+/// Row-major copy of a column-major nalgebra matrix.
+fn row_major(m: &DMatrix<f64>) -> Vec<f64> {
+    let (r, c) = m.shape();
+    let mut out = vec![0.0; r * c];
+    for i in 0..r {
+        for j in 0..c {
+            out[i * c + j] = m[(i, j)];
+        }
+    }
+    out
+}
+
+/// `Y^T Y` of a `[rows, k]` row-major matrix, k x k.
+fn gram(y: &[f64], rows: usize, k: usize) -> DMatrix<f64> {
+    let mut g = DMatrix::<f64>::zeros(k, k);
+    for r in 0..rows {
+        let yr = &y[r * k..(r + 1) * k];
+        for i in 0..k {
+            for j in 0..k {
+                g[(i, j)] += yr[i] * yr[j];
+            }
+        }
+    }
+    g
+}
+
+/// Eigenvalues (clamped at 0: `A` is a Gram matrix, negative values are rounding) and
+/// eigenvectors (row-major, column `k` the k-th eigenvector) of a symmetric matrix.
+fn eigen(a: DMatrix<f64>) -> (Vec<f64>, Vec<f64>) {
+    let e = SymmetricEigen::new(a);
+    (e.eigenvalues.iter().map(|&x| x.max(0.0)).collect(), row_major(&e.eigenvectors))
+}
+
+// ---------------------------------------------------------------------------------------------
+// The fit
+// ---------------------------------------------------------------------------------------------
+
+/// Eigenvalues of `A = Y^T Y` below this fraction of the largest count as zero for plain least
+/// squares: a few f64 epsilons, the resolution of a symmetric eigensolver. (On UBO 81 the
+/// smallest/largest ratio is 1.6e-14 for 25 x 25 coefficients, 1e-17 for 36 x 25.)
+const LS_RCOND: f64 = 1e-15;
+/// Texels per rayon task inside a chunk: enough rows for the GEMMs to run at full speed while
+/// the block's f64 copy (`16 x 81 x 81 x 3 x 8` bytes = 2.5 MB at UBO 81) stays cache friendly.
+const BLOCK_TEXELS: usize = 16;
+/// Relative width at which the bisection for lambda stops (the brief asks for 1e-6).
+const LAMBDA_RTOL: f64 = 1e-7;
+
+/// How `A` is diagonalised.
+enum Rotation {
+    /// Complete grid: `A = Av kron Al`; `pv = Yv Qv`, `pl = Yl Ql` (row-major V x kv, L x kl);
+    /// `qv`, `ql` row-major eigenvectors.
+    Separable { qv: Vec<f64>, ql: Vec<f64> },
+    /// Masked grid: `pv = Yv`, `pl = Yl` (unrotated), `q` the n x n eigenvectors of `A`.
+    General { q: Vec<f64> },
+}
+
+/// Everything shared by all texels.
+struct Plan {
+    nv: usize,
+    nl: usize,
+    kv: usize,
+    kl: usize,
+    /// `[V, L]` present pairs (None = all present).
+    mask: Option<Vec<bool>>,
+    /// Quadrature weights of views and lights, and the factor that scales the energy over the
+    /// present pairs up to the whole grid.
+    wv: Vec<f64>,
+    wl: Vec<f64>,
+    energy_scale: f64,
+    pv: Vec<f64>,
+    pl: Vec<f64>,
+    rot: Rotation,
+    /// Eigenvalues of `A`, in the order of the rotated coefficients (separable: `dv_i dl_j` at
+    /// `i * kl + j`).
+    d: Vec<f64>,
+    cls: bool,
+}
+
+/// Test hooks: not options a user needs.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Knobs {
+    /// Use the general (masked) path even for a complete grid.
+    pub force_general: bool,
+    /// Multiplies the energy bound `E` (1 = the paper's).
+    pub energy_factor: f64,
+}
+
+impl Default for Knobs {
+    fn default() -> Self {
+        Knobs { force_general: false, energy_factor: 1.0 }
+    }
+}
+
+/// Per (texel, channel) lambda and energy bound, `[T, 3]` (read by the tests).
+#[derive(Debug, Clone, Default)]
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) struct Detail {
+    pub lambda: Vec<f64>,
+    pub energy: Vec<f64>,
+}
+
+fn check_coeffs(name: &str, k: usize) -> Result<()> {
+    let r = (k as f64).sqrt().round() as usize;
+    if !(1..=MAX_COEFFS).contains(&k) || r * r != k {
+        return Err(Error::arg(
+            name,
+            format!("expected a perfect square in 1..=64 (1, 4, 9, 16, 25, 36, 49 or 64: degree 0 to 7), got {k}"),
+        ));
+    }
+    Ok(())
+}
+
+impl Plan {
+    fn new(btf: &BtfRef<'_>, opts: &ShOptions, knobs: &Knobs) -> Result<Plan> {
+        let (nv, nl) = (btf.views.len(), btf.lights.len());
+        let (kv, kl) = (opts.view_coeffs, opts.light_coeffs);
+        let n = kv * kl;
+        let present = btf.pairs();
+        if !opts.cls && n > present {
+            return Err(Error::Degenerate(format!(
+                "plain least squares with {kv} x {kl} = {n} coefficients needs at least {n} present (view, light) \
+                 pairs, got {present}; use cls=true (the constraint keeps the fit well posed) or fewer coefficients"
+            )));
+        }
+        let mask: Option<Vec<bool>> = btf.mask.filter(|m| !m.iter().all(|&b| b)).map(|m| m.to_vec());
+        let wv = solid_angle_weights(btf.views);
+        let wl = solid_angle_weights(btf.lights);
+        let all: f64 = wv.iter().sum::<f64>() * wl.iter().sum::<f64>();
+        let part: f64 = wv
+            .iter()
+            .enumerate()
+            .flat_map(|(v, &a)| wl.iter().enumerate().filter(move |&(l, _)| btf.has(v, l)).map(move |(_, &b)| a * b))
+            .sum();
+        // The present pairs carry no quadrature weight only in pathological direction sets (a
+        // direction owning no grid cell); then E cannot be scaled and stays the unscaled sum.
+        let energy_scale = knobs.energy_factor * if part > 0.0 { all / part } else { 1.0 };
+        let yv = basis_matrix(btf.views, kv);
+        let yl = basis_matrix(btf.lights, kl);
+        let (pv, pl, rot, d) = if mask.is_none() && !knobs.force_general {
+            let (dv, qv) = eigen(gram(&yv, nv, kv));
+            let (dl, ql) = eigen(gram(&yl, nl, kl));
+            let mut pv = vec![0.0; nv * kv];
+            gemm((&yv, nv, kv, kv, 1), (&qv, kv, kv, kv, 1), &mut pv, kv, 1);
+            let mut pl = vec![0.0; nl * kl];
+            gemm((&yl, nl, kl, kl, 1), (&ql, kl, kl, kl, 1), &mut pl, kl, 1);
+            let d = dv.iter().flat_map(|&a| dl.iter().map(move |&b| a * b)).collect();
+            (pv, pl, Rotation::Separable { qv, ql }, d)
+        } else {
+            let a = general_gram(&yv, &yl, nv, nl, kv, kl, mask.as_deref());
+            let (d, q) = eigen(a);
+            (yv, yl, Rotation::General { q }, d)
+        };
+        if !opts.cls {
+            let dmax = d.iter().copied().fold(0.0f64, f64::max);
+            let rank = d.iter().filter(|&&x| x > LS_RCOND * dmax).count();
+            if rank < n {
+                return Err(Error::Degenerate(format!(
+                    "plain least squares: the {nv} views and {nl} lights ({present} present pairs) determine only \
+                     {rank} of the {kv} x {kl} = {n} SH coefficients (the directions are too few or too clustered \
+                     for this degree); use cls=true or fewer coefficients"
+                )));
+            }
+        }
+        Ok(Plan { nv, nl, kv, kl, mask, wv, wl, energy_scale, pv, pl, rot, d, cls: opts.cls })
+    }
+
+    fn n(&self) -> usize {
+        self.kv * self.kl
+    }
+
+    /// Fit a block of `nb` texels: `data` their ABRDFs, `out` their `[nb, 3, kv, kl]`
+    /// coefficients, `lambda` and `energy` their `[nb, 3]` statistics.
+    fn block(&self, data: &[f32], nb: usize, out: &mut [f32], lambda: &mut [f64], energy: &mut [f64]) {
+        let (nv, nl, kv, kl, n) = (self.nv, self.nl, self.kv, self.kl, self.n());
+        // Columns of the batched products: (channel, texel) pairs, channel-major.
+        let cols = 3 * nb;
+        // 1. De-interleave into x[v][ch][t][l] (f64, absent pairs zeroed) and sum the energy.
+        let mut x = vec![0.0f64; nv * cols * nl];
+        energy.iter_mut().for_each(|e| *e = 0.0);
+        for t in 0..nb {
+            let abrdf = &data[t * nv * nl * 3..(t + 1) * nv * nl * 3];
+            for v in 0..nv {
+                let mut ev = [0.0f64; 3];
+                for l in 0..nl {
+                    // Absent pairs are skipped, not multiplied by 0: they may hold NaN.
+                    if self.mask.as_ref().is_some_and(|m| !m[v * nl + l]) {
+                        continue;
+                    }
+                    let s = &abrdf[(v * nl + l) * 3..(v * nl + l) * 3 + 3];
+                    for ch in 0..3 {
+                        let f = s[ch] as f64;
+                        x[((v * 3 + ch) * nb + t) * nl + l] = f;
+                        ev[ch] += self.wl[l] * f * f;
+                    }
+                }
+                for ch in 0..3 {
+                    energy[t * 3 + ch] += self.wv[v] * ev[ch];
+                }
+            }
+        }
+        energy.iter_mut().for_each(|e| *e *= self.energy_scale);
+        // 2. g[v][(ch, t)][j] = sum_l x[v][(ch, t)][l] pl[l][j]: one GEMM over all rows.
+        let mut g = vec![0.0f64; nv * cols * kl];
+        gemm((&x, nv * cols, nl, nl, 1), (&self.pl, nl, kl, kl, 1), &mut g, kl, 1);
+        drop(x);
+        // 3. bt[i][(ch, t)][j] = sum_v pv[v][i] g[v][(ch, t)][j]: the second GEMM.
+        let w = cols * kl;
+        let mut bt = vec![0.0f64; kv * w];
+        gemm((&self.pv, kv, nv, 1, kv), (&g, nv, w, w, 1), &mut bt, w, 1);
+        drop(g);
+        // 4. Solve in the eigenbasis, rotate back and scatter into [t][ch][i][j].
+        let mut scratch = Solver::new(n);
+        let mut coef = vec![0.0f64; n];
+        match &self.rot {
+            Rotation::Separable { qv, ql } => {
+                for col in 0..cols {
+                    for i in 0..kv {
+                        coef[i * kl..(i + 1) * kl].copy_from_slice(&bt[i * w + col * kl..i * w + (col + 1) * kl]);
+                    }
+                    let (t, ch) = (col % nb, col / nb);
+                    lambda[t * 3 + ch] = scratch.solve(&mut coef, &self.d, energy[t * 3 + ch], self.cls);
+                    for i in 0..kv {
+                        bt[i * w + col * kl..i * w + (col + 1) * kl].copy_from_slice(&coef[i * kl..(i + 1) * kl]);
+                    }
+                }
+                // c = Qv c~ Ql^T, batched: first every (i, ch, t) row times Ql^T, then Qv times all.
+                let mut tmp = vec![0.0f64; kv * w];
+                gemm((&bt, kv * cols, kl, kl, 1), (ql, kl, kl, 1, kl), &mut tmp, kl, 1);
+                gemm((qv, kv, kv, kv, 1), (&tmp, kv, w, w, 1), &mut bt, w, 1);
+                for col in 0..cols {
+                    let (t, ch) = (col % nb, col / nb);
+                    let dst = &mut out[(t * 3 + ch) * n..(t * 3 + ch + 1) * n];
+                    for i in 0..kv {
+                        for j in 0..kl {
+                            dst[i * kl + j] = bt[i * w + col * kl + j] as f32;
+                        }
+                    }
+                }
+            }
+            Rotation::General { q } => {
+                // b as an n x cols matrix, then b~ = Q^T b.
+                let mut b = vec![0.0f64; n * cols];
+                for i in 0..kv {
+                    for col in 0..cols {
+                        for j in 0..kl {
+                            b[(i * kl + j) * cols + col] = bt[i * w + col * kl + j];
+                        }
+                    }
+                }
+                drop(bt);
+                let mut rb = vec![0.0f64; n * cols];
+                gemm((q, n, n, 1, n), (&b, n, cols, cols, 1), &mut rb, cols, 1);
+                for col in 0..cols {
+                    for k in 0..n {
+                        coef[k] = rb[k * cols + col];
+                    }
+                    let (t, ch) = (col % nb, col / nb);
+                    lambda[t * 3 + ch] = scratch.solve(&mut coef, &self.d, energy[t * 3 + ch], self.cls);
+                    for k in 0..n {
+                        rb[k * cols + col] = coef[k];
+                    }
+                }
+                gemm((q, n, n, n, 1), (&rb, n, cols, cols, 1), &mut b, cols, 1);
+                for col in 0..cols {
+                    let (t, ch) = (col % nb, col / nb);
+                    let dst = &mut out[(t * 3 + ch) * n..(t * 3 + ch + 1) * n];
+                    for k in 0..n {
+                        dst[k] = b[k * cols + col] as f32;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// `A = sum over present (v, l) of (yv yv^T) kron (yl yl^T)`, built as
+/// `A[(i, j), (i', j')] = sum_v yv_i yv_i' M_v[j, j']` with `M_v = Yl^T diag(mask_v) Yl`:
+/// V kl^2 L + V (kv kl)^2 operations instead of V L (kv kl)^2.
+fn general_gram(
+    yv: &[f64],
+    yl: &[f64],
+    nv: usize,
+    nl: usize,
+    kv: usize,
+    kl: usize,
+    mask: Option<&[bool]>,
+) -> DMatrix<f64> {
+    let n = kv * kl;
+    let mv: Vec<Vec<f64>> = (0..nv)
+        .into_par_iter()
+        .map(|v| {
+            let mut m = vec![0.0f64; kl * kl];
+            for l in 0..nl {
+                if mask.is_some_and(|mk| !mk[v * nl + l]) {
+                    continue;
+                }
+                let y = &yl[l * kl..(l + 1) * kl];
+                for j in 0..kl {
+                    for jj in 0..kl {
+                        m[j * kl + jj] += y[j] * y[jj];
+                    }
+                }
+            }
+            m
+        })
+        .collect();
+    // Row (i, j) of A, in parallel over rows; A is symmetric so row-major == column-major.
+    let mut a = vec![0.0f64; n * n];
+    a.par_chunks_mut(n).enumerate().for_each(|(r, row)| {
+        let (i, j) = (r / kl, r % kl);
+        for (v, m) in mv.iter().enumerate() {
+            let yvi = yv[v * kv + i];
+            if yvi == 0.0 {
+                continue;
+            }
+            let yvr = &yv[v * kv..(v + 1) * kv];
+            let mj = &m[j * kl..(j + 1) * kl];
+            for ii in 0..kv {
+                let s = yvi * yvr[ii];
+                for jj in 0..kl {
+                    row[ii * kl + jj] += s * mj[jj];
+                }
+            }
+        }
+    });
+    DMatrix::from_vec(n, n, a)
+}
+
+/// Per-(texel, channel) solve in the eigenbasis, with reusable scratch.
+struct Solver {
+    /// Squared rotated right-hand sides and eigenvalues of the nonzero entries.
+    b2: Vec<f64>,
+    d: Vec<f64>,
+}
+
+impl Solver {
+    fn new(n: usize) -> Self {
+        Solver { b2: Vec::with_capacity(n), d: Vec::with_capacity(n) }
+    }
+
+    /// `||c(lambda)||^2 = sum b~_k^2 / (d_k + lambda)^2` over the nonzero `b~_k` (a zero one
+    /// contributes nothing even where `d_k + lambda = 0`). Four independent partial sums, so
+    /// that the divisions run as SIMD lanes instead of one long dependency chain.
+    #[inline]
+    fn norm2(&self, lambda: f64) -> f64 {
+        let mut acc = [0.0f64; 4];
+        let (bb, dd) = (self.b2.chunks_exact(4), self.d.chunks_exact(4));
+        let tail: f64 =
+            bb.remainder().iter().zip(dd.remainder()).map(|(&b2, &d)| b2 / ((d + lambda) * (d + lambda))).sum();
+        for (b, d) in bb.zip(dd) {
+            for k in 0..4 {
+                let den = d[k] + lambda;
+                acc[k] += b[k] / (den * den);
+            }
+        }
+        acc[0] + acc[1] + acc[2] + acc[3] + tail
+    }
+
+    /// Replace `coef` (the rotated `b~`) by `c~ = b~ / (d + lambda)` and return lambda: 0 for
+    /// plain least squares or when the least-squares solution meets `||c||^2 <= energy`,
+    /// otherwise the smallest lambda that meets it (to 1e-6 relative, on the feasible side).
+    fn solve(&mut self, coef: &mut [f64], d: &[f64], energy: f64, cls: bool) -> f64 {
+        self.b2.clear();
+        self.d.clear();
+        for (&b, &dk) in coef.iter().zip(d) {
+            if b != 0.0 {
+                self.b2.push(b * b);
+                self.d.push(dk);
+            }
+        }
+        let lambda = if !cls || self.b2.is_empty() || self.norm2(0.0) <= energy {
+            0.0
+        } else if energy.is_nan() || energy <= 0.0 {
+            // Nonzero data with no quadrature weight (pathological direction sets only): the
+            // only coefficients within a zero energy bound are zeros.
+            coef.iter_mut().for_each(|c| *c = 0.0);
+            return f64::INFINITY;
+        } else {
+            self.bisect(energy)
+        };
+        for (c, &dk) in coef.iter_mut().zip(d) {
+            let den = dk + lambda;
+            *c = if *c == 0.0 || den <= 0.0 { 0.0 } else { *c / den };
+        }
+        lambda
+    }
+
+    /// The smallest lambda > 0 with `norm2(lambda) <= energy`, given `norm2(0) > energy > 0`.
+    ///
+    /// With `B = sum b~^2` and the eigenvalues in `[d_min, d_max]`,
+    /// `B / (d_max + lambda)^2 <= norm2(lambda) <= B / (d_min + lambda)^2`, so the root lies in
+    /// `[sqrt(B / E) - d_max, sqrt(B / E) - d_min]`: that bracket (or, when its lower end is not
+    /// positive, one found by stepping down from its upper end by factors of 1e3) is bisected in
+    /// log space until its ends agree to 1e-7 relative; the feasible end is returned.
+    fn bisect(&self, energy: f64) -> f64 {
+        let (dmin, dmax) = self.d.iter().fold((f64::INFINITY, 0.0f64), |(a, b), &d| (a.min(d), b.max(d)));
+        let root = (self.b2.iter().sum::<f64>() / energy).sqrt();
+        let mut hi = (root - dmin).max(root * 1e-3);
+        for _ in 0..64 {
+            // The bound holds exactly; this only absorbs rounding.
+            if self.norm2(hi) <= energy {
+                break;
+            }
+            hi *= 2.0;
+        }
+        let mut lo = root - dmax;
+        if !(lo > 0.0 && lo < hi && self.norm2(lo) > energy) {
+            let mut found = false;
+            for _ in 0..110 {
+                lo = hi * 1e-3;
+                if self.norm2(lo) > energy {
+                    found = true;
+                    break;
+                }
+                hi = lo;
+            }
+            if !found {
+                // norm2(0) exceeds the bound by a rounding error only: the tiny hi is the answer.
+                return hi;
+            }
+        }
+        for _ in 0..64 {
+            if hi <= lo * (1.0 + LAMBDA_RTOL) {
+                break;
+            }
+            let mid = (lo * hi).sqrt();
+            if self.norm2(mid) > energy {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        hi
+    }
+}
+
+fn check_options(opts: &ShOptions) -> Result<()> {
+    check_coeffs("light_coeffs", opts.light_coeffs)?;
+    check_coeffs("view_coeffs", opts.view_coeffs)?;
+    if opts.chunk_texels == 0 {
+        return Err(Error::arg("chunk_texels", "expected at least 1 texel per chunk, got 0"));
+    }
+    Ok(())
+}
+
+/// Fit double SH to the present (view, light) pairs of `btf`; `monitor` counts texels and is
+/// checked between chunks.
+pub fn fit_sh(btf: &BtfRef<'_>, opts: &ShOptions, monitor: &Monitor) -> Result<Sh> {
+    fit_sh_with(btf, opts, monitor, &Knobs::default(), false).map(|(sh, _)| sh)
+}
+
+/// [`fit_sh`] with test hooks; `detail` keeps the per-fit lambda and energy bound.
+pub(crate) fn fit_sh_with(
+    btf: &BtfRef<'_>,
+    opts: &ShOptions,
+    monitor: &Monitor,
+    knobs: &Knobs,
+    detail: bool,
+) -> Result<(Sh, Option<Detail>)> {
+    check_options(opts)?;
+    let plan = Plan::new(btf, opts, knobs)?;
+    let n = plan.n();
+    let texels = btf.texels();
+    let abrdf = btf.abrdf_len();
+    let mut coeffs = vec![0.0f32; texels * 3 * n];
+    let mut kept = Detail::default();
+    let (mut constrained, mut lambda_sum) = (0usize, 0.0f64);
+    monitor.start(texels as u64);
+    let chunk = opts.chunk_texels;
+    for start in (0..texels).step_by(chunk) {
+        monitor.check()?;
+        let end = (start + chunk).min(texels);
+        let data = &btf.data[start * abrdf..end * abrdf];
+        let mut lambda = vec![0.0f64; (end - start) * 3];
+        let mut energy = vec![0.0f64; (end - start) * 3];
+        coeffs[start * 3 * n..end * 3 * n]
+            .par_chunks_mut(BLOCK_TEXELS * 3 * n)
+            .zip(lambda.par_chunks_mut(BLOCK_TEXELS * 3))
+            .zip(energy.par_chunks_mut(BLOCK_TEXELS * 3))
+            .zip(data.par_chunks(BLOCK_TEXELS * abrdf))
+            .for_each(|(((out, lam), en), d)| plan.block(d, d.len() / abrdf, out, lam, en));
+        // The energy sums every present value squared: it is not finite exactly when one of
+        // the texel's present values is not (absent pairs are never read).
+        if let Some(i) = energy.iter().position(|e| !e.is_finite()) {
+            let t = start + i / 3;
+            return Err(Error::arg(
+                "data",
+                format!(
+                    "texel {t} (row {}, column {}) has a value that is not finite in channel {} at a present \
+                     (view, light) pair",
+                    t / btf.width,
+                    t % btf.width,
+                    i % 3
+                ),
+            ));
+        }
+        constrained += lambda.iter().filter(|&&l| l > 0.0).count();
+        // One running sum in texel order, so that the chunk size cannot change the rounding.
+        lambda_sum = lambda.iter().filter(|l| l.is_finite()).fold(lambda_sum, |a, &l| a + l);
+        if detail {
+            kept.lambda.extend_from_slice(&lambda);
+            kept.energy.extend_from_slice(&energy);
+        }
+        monitor.advance((end - start) as u64);
+    }
+    monitor.check()?;
+    let fits = (texels * 3) as f64;
+    let (constrained_fraction, mean_lambda) = (constrained as f64 / fits, lambda_sum / fits);
+    let coeffs = if opts.quantize {
+        let (q, scale, bias) = quantize(&coeffs, n);
+        ShCoeffs::Quantized { q, scale, bias }
+    } else {
+        ShCoeffs::Float(coeffs)
+    };
+    let sh = Sh {
+        height: btf.height,
+        width: btf.width,
+        view_coeffs: opts.view_coeffs,
+        light_coeffs: opts.light_coeffs,
+        coeffs,
+        constrained_fraction,
+        mean_lambda,
+    };
+    Ok((sh, detail.then_some(kept)))
+}
+
+/// Uniform 8-bit quantization per colour channel of coefficients in the `[.., 3, kv, kl]`
+/// layout, `per_channel = kv * kl` values per channel block: value `x` becomes
+/// `q = round((x - bias) / scale)` with `bias` the channel's minimum and
+/// `scale = (max - min) / 255`, so `|bias + scale * q - x| <= scale / 2`. A channel whose
+/// values are all equal gets `scale = 0` and `q = 0` (no division). `per_channel = 0` is
+/// treated as 1.
+pub fn quantize(coeffs: &[f32], per_channel: usize) -> (Vec<u8>, [f32; 3], [f32; 3]) {
+    let pc = per_channel.max(1);
+    let chan = |k: usize| (k / pc) % 3;
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for (k, &x) in coeffs.iter().enumerate() {
+        let c = chan(k);
+        if x.is_finite() {
+            lo[c] = lo[c].min(x);
+            hi[c] = hi[c].max(x);
+        }
+    }
+    let mut scale = [0.0f32; 3];
+    let mut bias = [0.0f32; 3];
+    for c in 0..3 {
+        if lo[c] <= hi[c] {
+            bias[c] = lo[c];
+            scale[c] = ((hi[c] as f64 - lo[c] as f64) / 255.0) as f32;
+        }
+    }
+    let q = coeffs
+        .par_iter()
+        .enumerate()
+        .map(|(k, &x)| {
+            let c = chan(k);
+            if scale[c] > 0.0 && x.is_finite() {
+                ((x as f64 - bias[c] as f64) / scale[c] as f64).round().clamp(0.0, 255.0) as u8
+            } else {
+                0
+            }
+        })
+        .collect();
+    (q, scale, bias)
+}
+
+impl Sh {
+    /// Coefficients per colour channel, `kv * kl`.
+    fn per_channel(&self) -> usize {
+        self.view_coeffs * self.light_coeffs
+    }
+
+    /// Bytes as stored for rendering: one per quantized coefficient plus the 24 bytes of
+    /// scale and bias, or 4 per f32 coefficient.
+    pub fn nbytes(&self) -> usize {
+        match &self.coeffs {
+            ShCoeffs::Float(c) => 4 * c.len(),
+            ShCoeffs::Quantized { q, .. } => q.len() + 24,
+        }
+    }
+
+    /// Check that the arrays agree with the dimensions (for models built from loaded files).
+    pub fn validate(&self) -> Result<()> {
+        if self.height == 0 || self.width == 0 {
+            return Err(Error::arg("coeffs", "the SH model has no texels"));
+        }
+        check_coeffs("light_coeffs", self.light_coeffs)?;
+        check_coeffs("view_coeffs", self.view_coeffs)?;
+        let expect = self.height * self.width * 3 * self.per_channel();
+        let len = match &self.coeffs {
+            ShCoeffs::Float(c) => {
+                if let Some(i) = c.iter().position(|x| !x.is_finite()) {
+                    return Err(Error::arg("coeffs", format!("coefficient {i} is not finite: {}", c[i])));
+                }
+                c.len()
+            }
+            ShCoeffs::Quantized { q, scale, bias } => {
+                if !scale.iter().all(|s| s.is_finite() && *s >= 0.0) {
+                    return Err(Error::arg("scale", format!("expected finite values >= 0, got {scale:?}")));
+                }
+                if !bias.iter().all(|b| b.is_finite()) {
+                    return Err(Error::arg("bias", format!("expected finite values, got {bias:?}")));
+                }
+                q.len()
+            }
+        };
+        if len != expect {
+            return Err(Error::arg(
+                "coeffs",
+                format!(
+                    "expected {} x {} x 3 x {} x {} = {expect} coefficients, got {len}",
+                    self.height, self.width, self.view_coeffs, self.light_coeffs
+                ),
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.constrained_fraction) {
+            return Err(Error::arg(
+                "constrained_fraction",
+                format!("expected a fraction in [0, 1], got {}", self.constrained_fraction),
+            ));
+        }
+        if !(self.mean_lambda.is_finite() && self.mean_lambda >= 0.0) {
+            return Err(Error::arg("mean_lambda", format!("expected a finite value >= 0, got {}", self.mean_lambda)));
+        }
+        Ok(())
+    }
+
+    /// All coefficients as f32, `[H, W, 3, kv, kl]` (a copy for float models).
+    pub fn dequantized(&self) -> Vec<f32> {
+        match &self.coeffs {
+            ShCoeffs::Float(c) => c.clone(),
+            ShCoeffs::Quantized { q, scale, bias } => {
+                let pc = self.per_channel().max(1);
+                q.iter()
+                    .enumerate()
+                    .map(|(k, &x)| {
+                        let c = (k / pc) % 3;
+                        bias[c] + scale[c] * x as f32
+                    })
+                    .collect()
+            }
+        }
+    }
+}
+
+/// A prepared query: the products `y_i(view) y_j(light)` in coefficient order, so that a
+/// texel's value per channel is one dot product with its coefficients, and
+/// `sum(yv) * sum(yl)` (what a per-channel bias contributes to the double sum).
+#[derive(Debug, Clone)]
+pub struct ShQuery {
+    w: Vec<f32>,
+    bias_gain: f32,
+}
+
+/// `sum_k to_f32(c_k) w_k` with eight independent accumulators (the sums do not wait on each
+/// other, and the compiler can map the lanes onto SIMD registers).
+#[inline]
+fn dot<T: Copy>(c: &[T], w: &[f32], to_f32: impl Fn(T) -> f32) -> f32 {
+    let mut acc = [0.0f32; 8];
+    let (cc, ww) = (c.chunks_exact(8), w.chunks_exact(8));
+    let tail: f32 = cc.remainder().iter().zip(ww.remainder()).map(|(&a, b)| to_f32(a) * b).sum();
+    for (a, b) in cc.zip(ww) {
+        for k in 0..8 {
+            acc[k] += to_f32(a[k]) * b[k];
+        }
+    }
+    acc.iter().sum::<f32>() + tail
+}
+
+impl ReflectanceModel for Sh {
+    type Query = ShQuery;
+
+    fn dims(&self) -> (usize, usize) {
+        (self.height, self.width)
+    }
+
+    fn query(&self, view: [f64; 3], light: [f64; 3]) -> ShQuery {
+        let mut yv = vec![0.0f64; self.view_coeffs];
+        let mut yl = vec![0.0f64; self.light_coeffs];
+        sh_basis(self.view_coeffs, view, &mut yv);
+        sh_basis(self.light_coeffs, light, &mut yl);
+        let bias_gain = (yv.iter().sum::<f64>() * yl.iter().sum::<f64>()) as f32;
+        let w = yv.iter().flat_map(|&a| yl.iter().map(move |&b| (a * b) as f32)).collect();
+        ShQuery { w, bias_gain }
+    }
+
+    #[inline]
+    fn eval(&self, t: usize, q: &ShQuery) -> [f32; 3] {
+        let pc = self.view_coeffs * self.light_coeffs;
+        let mut out = [0.0f32; 3];
+        for (ch, o) in out.iter_mut().enumerate() {
+            let base = (t * 3 + ch) * pc;
+            *o = match &self.coeffs {
+                ShCoeffs::Float(c) => dot(&c[base..base + pc], &q.w, |x| x),
+                // sum (bias + scale q) yv yl = bias sum(yv) sum(yl) + scale sum q yv yl.
+                ShCoeffs::Quantized { q: qc, scale, bias } => {
+                    bias[ch] * q.bias_gain + scale[ch] * dot(&qc[base..base + pc], &q.w, |x| x as f32)
+                }
+            };
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests;
