@@ -629,3 +629,19 @@ fn sh_timing_128() {
         assert!(sh.validate().is_ok());
     }
 }
+
+/// Setup cost of the masked (general eigenbasis) path, which decomposes the (kv kl)^2 matrix A:
+/// `cargo test -p btfrs-fit --release sh_masked_setup_timing -- --ignored --nocapture`
+#[test]
+#[ignore]
+fn sh_masked_setup_timing() {
+    let d = ubo81();
+    let data = vec![0.5f32; 81 * 81 * 3];
+    let (train, _) = btfrs_core::split::split_pairs(81, 81, None, 0.1, 0).unwrap();
+    let btf = BtfRef::new(1, 1, &d, &d, &data, Some(&train)).unwrap();
+    for k in [16, 25, 36, 49, 64] {
+        let t0 = std::time::Instant::now();
+        fit_sh(&btf, &opts(k, k, true, false), &Monitor::new()).unwrap();
+        println!("{k} x {k} masked, one texel: {:.2} s", t0.elapsed().as_secs_f64());
+    }
+}
