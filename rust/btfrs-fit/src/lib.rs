@@ -4,14 +4,21 @@
 //! * [`srf`]: Phong + spatially-varying residual function (paper 003, sections 4 and 5).
 //! * [`sh`]: double spherical harmonics fitted by constrained least squares, 8-bit quantized
 //!   (paper 002, section 3.1 and appendix).
+//! * [`lpca`]: local PCA, clustered Eigen-BRDFs quantized to 8 bits (paper 004, sections 3 and 6).
+//! * [`kmeans`]: k-means++ and Lloyd on column-major points (the clustering of [`lpca`]).
 //! * [`model`]: what every model shares: evaluation at any (view, light) and the error against a
 //!   BTF, computed in parallel with f64 accumulation.
 
+mod dense;
+pub mod kmeans;
+pub mod lpca;
 pub mod model;
 pub mod ptm;
 pub mod sh;
 pub mod srf;
 
+pub use kmeans::{kmeans, KMeans};
+pub use lpca::{fit_lpca, Lpca, LpcaOptions, LpcaQuery};
 pub use model::{evaluate_image, model_error, RawModel, ReflectanceModel};
 pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions};
 pub use sh::{fit_sh, quantize, sh_basis, Sh, ShCoeffs, ShOptions};

@@ -1,0 +1,790 @@
+//! Local PCA: clustered Eigen-BRDFs (Müller et al.), as paper 004 uses them (sections 3, 5, 6.3).
+//!
+//! Each texel's ABRDF `x` (its `V x L x 3` values) is approximated in the PCA basis of its
+//! cluster `k`:
+//!
+//! ```text
+//! x ~ mean_k + sum_{j=1..c} a_j E_{k,j}
+//! ```
+//!
+//! **Storage** (section 6.3): every Eigen-BRDF, the cluster mean counting as `j = 0`, is quantized
+//! separately to 8 bits. Eigen-BRDFs are signed, so besides the paper's scale we keep a bias:
+//! `E_{k,j}[p] ~ bias[k][j] + scale[k][j] * q[k][j][p] / 255`. As in the paper the scales are folded
+//! into the per-texel weights, and so are the biases, into one offset per texel:
+//!
+//! ```text
+//! value_t[p] = offset_t + sum_{j=0..c} w_t[j] * q[k][j][p] / 255,
+//!     w_t[j] = a_j scale[k][j],  offset_t = sum_j a_j bias[k][j],  a_0 = 1,
+//! ```
+//!
+//! so a renderer needs one multiply-add per Eigen-BRDF and never rescales. After quantizing, each
+//! texel's `a_j` (`j >= 1`) are re-solved by least squares against the *dequantized* basis (a
+//! `c x c` system per cluster, applied to every member), which recovers most of what rounding the
+//! basis lost.
+//!
+//! **Evaluation** between measured directions is the 9-tap interpolation of section 5 (three
+//! nearest views times three nearest lights, [`directions::interp_weights`]), exactly as
+//! [`crate::RawModel`] interpolates the raw data.
+//!
+//! **Fit.** Clustering ABRDFs of `D = 3 V L` values (19683 for UBO 81 x 81) must not cost `D` per
+//! distance, and the clusters should minimise what LPCA actually stores, the reconstruction error
+//! in the cluster's subspace, not the distance to a centre. So:
+//!
+//! 1. *Reduce*: a randomized PCA of the centred `texels x D` matrix (Halko, Martinsson and Tropp's
+//!    range finder: Gaussian test matrix from the seed, one power iteration, orthonormalisation,
+//!    small eigenproblem) gives every texel `reduced_dims` principal coordinates. Four GEMM passes
+//!    over the data, which is read in place.
+//! 2. *k-means* ([`crate::kmeans`]: k-means++ seeding, Lloyd) on those coordinates.
+//! 3. *Refine* (Kambhatla and Leen's local PCA, the objective of Müller et al.): per cluster PCA
+//!    of `c` components, then every texel moves to the cluster whose affine subspace reconstructs it
+//!    best, `|x - m_k|^2 - |E_k^T (x - m_k)|^2`; repeated `refine_iterations` times. Each half-step
+//!    lowers (never raises) the summed reconstruction error, which is why, at equal size, the fit
+//!    beats k-means followed by PCA.
+//! 4. *Final PCA* of every cluster in the full space, on its member ABRDFs: exactly (eigenvectors of
+//!    the member Gram matrix) for clusters of at most 512 texels, by randomized subspace iteration
+//!    for larger ones. The `D x D` covariance is never formed.
+//! 5. *Quantize and re-solve* as above.
+//!
+//! Clusters that end up empty are dropped (`clusters` is the number used, which is also below the
+//! requested one when the sample has fewer distinct ABRDFs). A cluster of `n <= c` texels has only
+//! `n - 1` meaningful components; the others are zero Eigen-BRDFs (all `q = 0`, scale and bias 0).
+//!
+//! **Held-out pairs.** With a mask, the ABRDF vector is the present pairs only, so the fit never
+//! reads an absent value; afterwards every Eigen-BRDF is filled at the absent pairs by
+//! interpolating its present pairs ([`directions::present_pair_weights`]). That is linear, so it
+//! equals interpolating the data, and the model answers every (view, light) pair.
+
+use crate::dense::{cols, cols_t, gaussian, gemm, gram_t, orthonormalize, sym_eigen_desc, view, view_t};
+use crate::kmeans::{kmeans, members_of};
+use crate::model::ReflectanceModel;
+use btfrs_core::{
+    directions,
+    rng::{mix, Rng},
+    BtfRef, Error, Monitor, Result,
+};
+use nalgebra::DMatrix;
+use rayon::prelude::*;
+use std::borrow::Cow;
+
+/// The most Eigen-BRDFs per cluster (besides the mean) a fit may ask for.
+pub const MAX_COMPONENTS: usize = 16;
+
+/// Clusters of at most this many texels (or spaces of at most this dimension) get an exact PCA
+/// from a Gram or covariance matrix; an `n x n` symmetric eigenproblem of this size takes about
+/// 0.1 s, and above it the randomized subspace iteration is cheaper.
+const EXACT_MAX: usize = 512;
+/// Extra columns of every randomized range finder.
+const OVERSAMPLE: usize = 10;
+/// Power (subspace) iterations of the randomized PCA of a large cluster.
+const POWER_ITERS: usize = 2;
+/// Texels the reduction's range finder samples (see `reduce`).
+const RANGE_SAMPLE: usize = 2048;
+/// Progress units of the reduction (one per pass over the data).
+const REDUCE_UNITS: u64 = 4;
+
+/// Fit options.
+#[derive(Debug, Clone, Copy)]
+pub struct LpcaOptions {
+    /// Clusters asked for, 1 to the number of texels.
+    pub clusters: usize,
+    /// Eigen-BRDFs per cluster besides the mean, 0 to [`MAX_COMPONENTS`].
+    pub components: usize,
+    /// Most Lloyd iterations of the k-means (at least 1; stops earlier once stable).
+    pub kmeans_iterations: usize,
+    /// Local-PCA reassignment passes after the k-means (0 = plain k-means + PCA).
+    pub refine_iterations: usize,
+    /// Principal coordinates the clustering works in; 0 = cluster the full ABRDFs (slow).
+    pub reduced_dims: usize,
+    /// Seed of every random choice.
+    pub seed: u64,
+}
+
+impl Default for LpcaOptions {
+    fn default() -> Self {
+        LpcaOptions {
+            clusters: 32,
+            components: 4,
+            kmeans_iterations: 25,
+            refine_iterations: 2,
+            reduced_dims: 64,
+            seed: 0,
+        }
+    }
+}
+
+/// A fitted local-PCA BTF (see the module doc for the formula).
+#[derive(Debug, Clone)]
+pub struct Lpca {
+    /// Rows.
+    pub height: usize,
+    /// Columns.
+    pub width: usize,
+    /// View directions of the basis, `V`.
+    pub views: Vec<[f64; 3]>,
+    /// Light directions of the basis, `L`.
+    pub lights: Vec<[f64; 3]>,
+    /// Clusters used, `K`.
+    pub clusters: usize,
+    /// Eigen-BRDFs per cluster besides the mean, `c`.
+    pub components: usize,
+    /// `[H, W]` cluster of each texel.
+    pub ids: Vec<u32>,
+    /// `[H, W, c + 2]`: `[offset, w_0, w_1 .. w_c]` per texel.
+    pub weights: Vec<f32>,
+    /// `[K, c + 1, V, L, 4]`: quantized RGB and one zero pad byte per pair (one `u32` per pair
+    /// for the GPU); Eigen-BRDF 0 is the cluster mean.
+    pub basis: Vec<u8>,
+    /// `[K, c + 1]` quantization scale of each Eigen-BRDF (folded into the weights already).
+    pub scale: Vec<f32>,
+    /// `[K, c + 1]` quantization bias of each Eigen-BRDF (folded into the offsets already).
+    pub bias: Vec<f32>,
+}
+
+/// Fit a local-PCA model to the present (view, light) pairs of `btf`.
+///
+/// `monitor` counts `4` units for the reduction (none with `reduced_dims = 0`), one per k-means
+/// iteration, one per refinement pass, one per requested cluster for the final PCA and one for
+/// the quantization; it can cancel between stages and between clusters.
+pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Result<Lpca> {
+    let t = btf.texels();
+    if opts.clusters == 0 || opts.clusters > t {
+        return Err(Error::arg(
+            "clusters",
+            format!("expected 1 to {t} (the number of texels, {} x {}), got {}", btf.height, btf.width, opts.clusters),
+        ));
+    }
+    if opts.components > MAX_COMPONENTS {
+        return Err(Error::arg("components", format!("expected 0 to {MAX_COMPONENTS}, got {}", opts.components)));
+    }
+    if opts.kmeans_iterations == 0 {
+        return Err(Error::arg("kmeans_iterations", "expected at least 1, got 0"));
+    }
+    let (nv, nl) = (btf.views.len(), btf.lights.len());
+    let pairs: Vec<usize> = (0..nv * nl).filter(|&i| btf.has(i / nl, i % nl)).collect();
+    let d = pairs.len() * 3;
+    let compact = (pairs.len() < nv * nl).then(|| gather_pairs(btf, &pairs));
+    let data: &[f32] = compact.as_deref().unwrap_or(btf.data);
+    check_values(data, d, &pairs, nl)?;
+
+    let reduce_units = if opts.reduced_dims > 0 { REDUCE_UNITS } else { 0 };
+    let total = reduce_units + (opts.kmeans_iterations + opts.refine_iterations + opts.clusters + 1) as u64;
+    monitor.start(total);
+
+    // 1. The space the clustering works in: principal coordinates, or the ABRDFs themselves.
+    let (space, dim): (Cow<'_, [f32]>, usize) = if opts.reduced_dims > 0 {
+        let (p, r) = reduce(data, d, t, opts.reduced_dims, sub_seed(opts.seed, 1), monitor)?;
+        (Cow::Owned(p), r)
+    } else {
+        (Cow::Borrowed(data), d)
+    };
+    monitor.check()?;
+
+    // 2. k-means. A space of dimension 0 means every texel has the same ABRDF: one cluster.
+    let (mut ids, k) = if dim == 0 {
+        monitor.advance(opts.kmeans_iterations as u64);
+        (vec![0u32; t], 1)
+    } else {
+        let km = kmeans(&space, dim, opts.clusters, opts.kmeans_iterations, sub_seed(opts.seed, 2), monitor)?;
+        let k = km.k();
+        (km.assign, k)
+    };
+
+    // 3. Local-PCA refinement.
+    if dim > 0 && opts.refine_iterations > 0 {
+        let r = refine(&space, dim, ids, k, opts.components, opts.refine_iterations, sub_seed(opts.seed, 3), monitor)?;
+        ids = r.0;
+    } else {
+        monitor.advance(opts.refine_iterations as u64);
+    }
+    drop(space);
+    monitor.check()?;
+
+    // Drop the clusters the refinement emptied; the others keep their order.
+    let mut members: Vec<Vec<u32>> = members_of(&ids, k).into_iter().filter(|m| !m.is_empty()).collect();
+    members.shrink_to_fit();
+    let k = members.len();
+    for (c, m) in members.iter().enumerate() {
+        for &i in m {
+            ids[i as usize] = c as u32;
+        }
+    }
+
+    // 4. + 5. Final PCA per cluster in the full space, quantization, weights.
+    let c = opts.components;
+    let cc = c + 1;
+    let fits: Vec<ClusterFit> = members
+        .par_iter()
+        .enumerate()
+        .map(|(ci, m)| {
+            if monitor.is_cancelled() {
+                return ClusterFit::default();
+            }
+            let f = fit_cluster(data, d, m, c, sub_seed(opts.seed, 1000 + ci as u64));
+            monitor.advance(1);
+            f
+        })
+        .collect();
+    monitor.check()?;
+
+    let mut weights = vec![0.0f32; t * (c + 2)];
+    let mut scale = vec![0.0f32; k * cc];
+    let mut bias = vec![0.0f32; k * cc];
+    let vl = nv * nl;
+    let mut basis = vec![0u8; k * cc * vl * 4];
+    for (ci, (f, m)) in fits.iter().zip(&members).enumerate() {
+        scale[ci * cc..(ci + 1) * cc].copy_from_slice(&f.scale);
+        bias[ci * cc..(ci + 1) * cc].copy_from_slice(&f.bias);
+        for (slot, &texel) in m.iter().enumerate() {
+            let w = texel as usize * (c + 2);
+            weights[w..w + c + 2].copy_from_slice(&f.weights[slot * (c + 2)..(slot + 1) * (c + 2)]);
+        }
+    }
+    // Scatter the present pairs into the [K, c + 1, V, L, 4] layout, then fill the absent ones.
+    let absent: Vec<(usize, Vec<(usize, f64)>)> = (0..vl)
+        .filter(|&i| !btf.has(i / nl, i % nl))
+        .collect::<Vec<_>>()
+        .into_par_iter()
+        .map(|i| {
+            let w = directions::present_pair_weights(
+                btf.views,
+                btf.lights,
+                btf.mask,
+                btf.views[i / nl],
+                btf.lights[i % nl],
+            );
+            (i, w.into_iter().map(|(v, l, x)| (v * nl + l, x)).collect())
+        })
+        .collect();
+    basis.par_chunks_mut(vl * 4).enumerate().for_each(|(kj, out)| {
+        let q = &fits[kj / cc].q[(kj % cc) * d..(kj % cc + 1) * d];
+        for (p, &pair) in pairs.iter().enumerate() {
+            out[pair * 4..pair * 4 + 3].copy_from_slice(&q[p * 3..p * 3 + 3]);
+        }
+        for (pair, w) in &absent {
+            for ch in 0..3 {
+                let v: f64 = w.iter().map(|&(src, x)| x * out[src * 4 + ch] as f64).sum();
+                out[pair * 4 + ch] = v.round().clamp(0.0, 255.0) as u8;
+            }
+        }
+    });
+    monitor.advance((opts.clusters - k) as u64 + 1);
+
+    Ok(Lpca {
+        height: btf.height,
+        width: btf.width,
+        views: btf.views.to_vec(),
+        lights: btf.lights.to_vec(),
+        clusters: k,
+        components: c,
+        ids,
+        weights,
+        basis,
+        scale,
+        bias,
+    })
+}
+
+/// A seed for one stage of the fit, independent of the others.
+fn sub_seed(seed: u64, stage: u64) -> u64 {
+    mix(seed ^ mix(stage.wrapping_add(0x5EED)))
+}
+
+/// The present pairs of every texel, `[T, P, 3]` (only called when some pair is absent).
+fn gather_pairs(btf: &BtfRef<'_>, pairs: &[usize]) -> Vec<f32> {
+    let d = pairs.len() * 3;
+    let mut out = vec![0.0f32; btf.texels() * d];
+    out.par_chunks_mut(d).enumerate().for_each(|(t, o)| {
+        let x = btf.texel(t);
+        for (p, &pair) in pairs.iter().enumerate() {
+            o[p * 3..p * 3 + 3].copy_from_slice(&x[pair * 3..pair * 3 + 3]);
+        }
+    });
+    out
+}
+
+/// Fail on the first NaN or infinity among the values the fit reads, naming texel and pair.
+fn check_values(data: &[f32], d: usize, pairs: &[usize], nl: usize) -> Result<()> {
+    let bad = data.par_chunks(d).position_first(|x| !x.iter().all(|v| v.is_finite()));
+    if let Some(t) = bad {
+        let x = &data[t * d..(t + 1) * d];
+        if let Some(i) = x.iter().position(|v| !v.is_finite()) {
+            let pair = pairs[i / 3];
+            return Err(Error::arg(
+                "data",
+                format!("value {} at texel {t}, view {}, light {} is not finite", x[i], pair / nl, pair % nl),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Per-row means of a column-major `rows x n` matrix over the given columns (all when `None`),
+/// accumulated in `f64` in column order (deterministic).
+fn column_mean(data: &[f32], rows: usize, columns: Option<&[u32]>) -> Vec<f32> {
+    let n = columns.map_or(data.len() / rows.max(1), |c| c.len());
+    let mut out = vec![0.0f32; rows];
+    const BAND: usize = 2048;
+    out.par_chunks_mut(BAND).enumerate().for_each(|(b, o)| {
+        let r0 = b * BAND;
+        let mut acc = vec![0.0f64; o.len()];
+        let mut add = |j: usize| {
+            for (a, &x) in acc.iter_mut().zip(&data[j * rows + r0..j * rows + r0 + o.len()]) {
+                *a += x as f64;
+            }
+        };
+        match columns {
+            Some(cs) => cs.iter().for_each(|&j| add(j as usize)),
+            None => (0..n).for_each(&mut add),
+        }
+        let inv = 1.0 / n.max(1) as f64;
+        for (x, a) in o.iter_mut().zip(acc) {
+            *x = (a * inv) as f32;
+        }
+    });
+    out
+}
+
+/// `m -= u s^T` for a column vector `u` (rows) and the column sums `s` of `x`.
+fn subtract_mean_outer(m: &mut DMatrix<f32>, u: &[f32], x: &DMatrix<f32>) {
+    let s: Vec<f64> = x.column_iter().map(|c| c.iter().map(|&v| v as f64).sum()).collect();
+    m.column_iter_mut().zip(s).for_each(|(mut col, sj)| {
+        for (v, &ui) in col.iter_mut().zip(u) {
+            *v -= (ui as f64 * sj) as f32;
+        }
+    });
+}
+
+/// `A_c^T q` for the centred data `A_c = A - mu 1^T` (`A` is `d x t` over `data`): `t x l`.
+fn centred_t_times(data: &[f32], d: usize, t: usize, mu: &[f32], q: &DMatrix<f32>) -> DMatrix<f32> {
+    let mut z = gemm(&cols_t(data, d, t), &view(q));
+    // Subtract 1 (mu^T q): the same number from every row of a column.
+    for (j, mut col) in z.column_iter_mut().enumerate() {
+        let mq: f64 = q.column(j).iter().zip(mu).map(|(&a, &b)| a as f64 * b as f64).sum();
+        col.iter_mut().for_each(|v| *v -= mq as f32);
+    }
+    z
+}
+
+/// Step 1: `[T, r']` principal coordinates (`r' <= r`; 0 when all texels are equal) of the
+/// columns of the `d x t` matrix over `data`, by a randomized PCA with one power iteration.
+///
+/// The subspace is found on a random subset of at most [`RANGE_SAMPLE`] texels (all of them in a
+/// smaller sample), then every texel is projected on it: `3 s / t + 1` passes over the data
+/// instead of 4, and the cost of the reduction stops growing with the sample size beyond one
+/// projection pass. A few thousand ABRDFs pin down the leading principal directions of a
+/// material well; the coordinates only steer the clustering, never the stored basis.
+fn reduce(data: &[f32], d: usize, t: usize, r: usize, seed: u64, monitor: &Monitor) -> Result<(Vec<f32>, usize)> {
+    let mut rng = Rng::new(seed);
+    let s = t.min(RANGE_SAMPLE);
+    let sub: Cow<'_, [f32]> = if s < t {
+        // Partial Fisher-Yates: a uniform subset, kept in texel order.
+        let mut idx: Vec<u32> = (0..t as u32).collect();
+        for i in 0..s {
+            idx.swap(i, i + rng.below(t - i));
+        }
+        let mut pick = idx[..s].to_vec();
+        pick.sort_unstable();
+        let mut g = vec![0.0f32; s * d];
+        g.par_chunks_mut(d).zip(pick.par_iter()).for_each(|(o, &j)| {
+            o.copy_from_slice(&data[j as usize * d..(j as usize + 1) * d]);
+        });
+        Cow::Owned(g)
+    } else {
+        Cow::Borrowed(data)
+    };
+    let l = (r + OVERSAMPLE).min(s).min(d);
+    // Centre on the subset's mean: any fixed centre gives the same clustering, and this one
+    // costs no pass over the whole data.
+    let mu = column_mean(&sub, d, None);
+    let omega = gaussian(s, l, rng.next_u64());
+    let mut y = gemm(&cols(&sub, d, s), &view(&omega));
+    subtract_mean_outer(&mut y, &mu, &omega);
+    let q = orthonormalize(&y);
+    monitor.advance(1);
+    monitor.check()?;
+    // One power iteration sharpens the subspace towards the leading singular vectors.
+    let z = centred_t_times(&sub, d, s, &mu, &q);
+    let z = orthonormalize(&z);
+    monitor.advance(1);
+    monitor.check()?;
+    let mut y = gemm(&cols(&sub, d, s), &view(&z));
+    subtract_mean_outer(&mut y, &mu, &z);
+    let q = orthonormalize(&y);
+    drop(sub);
+    monitor.advance(1);
+    monitor.check()?;
+    let z = centred_t_times(data, d, t, &mu, &q);
+    monitor.advance(1);
+    // Rotate to principal axes within the subspace and keep the r strongest.
+    let (vals, vecs) = sym_eigen_desc(gram_t(&z));
+    let top = vals.first().copied().unwrap_or(0.0);
+    let keep = vals.iter().take(r).take_while(|&&v| top > 0.0 && v > 1e-10 * top).count();
+    if keep == 0 {
+        return Ok((Vec::new(), 0));
+    }
+    let vr = DMatrix::<f32>::from_fn(vecs.nrows(), keep, |i, j| vecs[(i, j)] as f32);
+    let p = gemm(&view_t(&vr), &view_t(&z));
+    Ok((p.as_slice().to_vec(), keep))
+}
+
+/// The mean of the member columns and the centred members as a `dim x n` matrix.
+fn gather_centred(points: &[f32], dim: usize, members: &[u32]) -> (Vec<f32>, DMatrix<f32>) {
+    let mean = column_mean(points, dim, Some(members));
+    let mut xc = DMatrix::<f32>::zeros(dim, members.len());
+    xc.as_mut_slice().par_chunks_mut(dim.max(1)).zip(members.par_iter()).for_each(|(o, &m)| {
+        let x = &points[m as usize * dim..(m as usize + 1) * dim];
+        for ((o, &x), &mu) in o.iter_mut().zip(x).zip(&mean) {
+            *o = x - mu;
+        }
+    });
+    (mean, xc)
+}
+
+/// The `c` leading principal directions (orthonormal columns, `dim x c`; zero columns where the
+/// members span fewer) of the centred members `xc` (`dim x n`).
+fn top_components(xc: &DMatrix<f32>, c: usize, seed: u64) -> DMatrix<f32> {
+    let (dim, n) = xc.shape();
+    let mut e = DMatrix::<f32>::zeros(dim, c);
+    if c == 0 || n < 2 || dim == 0 {
+        return e;
+    }
+    // Eigenvalues below this fraction of the largest are f32 rounding, not directions.
+    const CUT: f64 = 1e-8;
+    if dim <= EXACT_MAX && dim <= n {
+        // Covariance (dim x dim).
+        let cov = gemm(&view(xc), &view_t(xc));
+        let cov = DMatrix::from_fn(dim, dim, |i, j| 0.5 * (cov[(i, j)] as f64 + cov[(j, i)] as f64));
+        let (vals, vecs) = sym_eigen_desc(cov);
+        for j in 0..c.min(dim) {
+            if vals[j] > CUT * vals[0] && vals[0] > 0.0 {
+                e.column_mut(j).iter_mut().zip(vecs.column(j).iter()).for_each(|(o, &v)| *o = v as f32);
+            }
+        }
+    } else if n <= EXACT_MAX {
+        // Gram (n x n): e_j = xc v_j / sqrt(lambda_j).
+        let (vals, vecs) = sym_eigen_desc(gram_t(xc));
+        let keep = (0..c.min(n)).take_while(|&j| vals[0] > 0.0 && vals[j] > CUT * vals[0]).count();
+        let w = DMatrix::<f32>::from_fn(n, keep, |i, j| (vecs[(i, j)] / vals[j].sqrt()) as f32);
+        let ek = gemm(&view(xc), &view(&w));
+        e.columns_mut(0, keep).copy_from(&ek);
+    } else {
+        // Randomized subspace iteration (Halko et al., algorithm 4.4) then Rayleigh-Ritz.
+        let l = (c + OVERSAMPLE).min(n).min(dim);
+        let omega = gaussian(n, l, seed);
+        let mut q = orthonormalize(&gemm(&view(xc), &view(&omega)));
+        for _ in 0..POWER_ITERS {
+            let z = orthonormalize(&gemm(&view_t(xc), &view(&q)));
+            q = orthonormalize(&gemm(&view(xc), &view(&z)));
+        }
+        let b = gemm(&view_t(&q), &view(xc));
+        let s = gemm(&view(&b), &view_t(&b));
+        let s = DMatrix::from_fn(s.nrows(), s.ncols(), |i, j| 0.5 * (s[(i, j)] as f64 + s[(j, i)] as f64));
+        let (vals, vecs) = sym_eigen_desc(s);
+        let keep = (0..c.min(vals.len())).take_while(|&j| vals[0] > 0.0 && vals[j] > CUT * vals[0]).count();
+        let u = DMatrix::<f32>::from_fn(q.ncols(), keep, |i, j| vecs[(i, j)] as f32);
+        let ek = gemm(&view(&q), &view(&u));
+        e.columns_mut(0, keep).copy_from(&ek);
+    }
+    e
+}
+
+/// One cluster's affine subspace: mean and orthonormal (or zero) directions.
+#[derive(Debug, Clone)]
+pub(crate) struct LocalPca {
+    pub(crate) mean: Vec<f32>,
+    pub(crate) basis: DMatrix<f32>,
+}
+
+/// Mean and `c` principal directions of the member columns of the `dim x n` matrix `points`.
+pub(crate) fn local_pca(points: &[f32], dim: usize, members: &[u32], c: usize, seed: u64) -> LocalPca {
+    let (mean, xc) = gather_centred(points, dim, members);
+    LocalPca { mean, basis: top_components(&xc, c, seed) }
+}
+
+/// The LPCA error `|x - m_k|^2 - |E_k^T (x - m_k)|^2` of every point (columns of `points`) for
+/// every cluster, `[n, K]`; `+inf` for a cluster without a subspace (empty).
+pub(crate) fn lpca_errors(points: &[f32], dim: usize, pcas: &[Option<LocalPca>], c: usize) -> Vec<f64> {
+    let n = points.len() / dim;
+    let k = pcas.len();
+    let cc = c + 1;
+    // All means and directions side by side: one GEMM gives every dot product needed.
+    let mut w = DMatrix::<f32>::zeros(dim, k * cc);
+    let mut consts = vec![(f64::INFINITY, vec![0.0f64; c]); k];
+    for (ci, p) in pcas.iter().enumerate() {
+        let Some(p) = p else { continue };
+        w.column_mut(ci * cc).copy_from_slice(&p.mean);
+        w.columns_mut(ci * cc + 1, c).copy_from(&p.basis);
+        let mn: f64 = p.mean.iter().map(|&x| x as f64 * x as f64).sum();
+        let em =
+            (0..c).map(|j| p.basis.column(j).iter().zip(&p.mean).map(|(&a, &b)| a as f64 * b as f64).sum()).collect();
+        consts[ci] = (mn, em);
+    }
+    let g = gemm(&view_t(&w), &cols(points, dim, n));
+    let mut out = vec![0.0f64; n * k];
+    out.par_chunks_mut(k).zip(g.as_slice().par_chunks(k * cc)).zip(points.par_chunks(dim)).for_each(|((o, gi), x)| {
+        let xn: f64 = x.iter().map(|&v| v as f64 * v as f64).sum();
+        for ci in 0..k {
+            let (mn, em) = &consts[ci];
+            if mn.is_infinite() {
+                o[ci] = f64::INFINITY;
+                continue;
+            }
+            let g = &gi[ci * cc..(ci + 1) * cc];
+            let proj: f64 = (0..c).map(|j| (g[1 + j] as f64 - em[j]).powi(2)).sum();
+            o[ci] = (xn - 2.0 * g[0] as f64 + mn - proj).max(0.0);
+        }
+    });
+    out
+}
+
+/// Step 3: local-PCA reassignment passes. Returns the assignment and the objective (summed LPCA
+/// error) before and after each reassignment: `[J(P_0, A_0), J(P_0, A_1), J(P_1, A_1), ...]`
+/// where `P_i` is the PCA of assignment `A_i`; the sequence never increases. A point moves only
+/// to a strictly better cluster, so ties (e.g. when `c` fills the reduced space) keep it in place.
+#[allow(clippy::too_many_arguments)] // the fit's stage parameters, passed through once
+pub(crate) fn refine(
+    points: &[f32],
+    dim: usize,
+    mut assign: Vec<u32>,
+    k: usize,
+    c: usize,
+    iterations: usize,
+    seed: u64,
+    monitor: &Monitor,
+) -> Result<(Vec<u32>, Vec<f64>)> {
+    let mut history = Vec::with_capacity(2 * iterations);
+    for it in 0..iterations {
+        monitor.check()?;
+        let members = members_of(&assign, k);
+        let pcas: Vec<Option<LocalPca>> = members
+            .par_iter()
+            .enumerate()
+            .map(|(ci, m)| (!m.is_empty()).then(|| local_pca(points, dim, m, c, mix(seed ^ ci as u64))))
+            .collect();
+        let err = lpca_errors(points, dim, &pcas, c);
+        let before: f64 = assign.iter().enumerate().map(|(i, &a)| err[i * k + a as usize]).sum();
+        let moved: usize = assign
+            .par_iter_mut()
+            .zip(err.par_chunks(k))
+            .map(|(a, e)| {
+                let best = (0..k).fold(*a as usize, |b, ci| if e[ci] < e[b] { ci } else { b });
+                let moved = best != *a as usize;
+                *a = best as u32;
+                usize::from(moved)
+            })
+            .sum();
+        let after: f64 = assign.iter().enumerate().map(|(i, &a)| err[i * k + a as usize]).sum();
+        history.push(before);
+        history.push(after);
+        monitor.advance(1);
+        if moved == 0 {
+            monitor.advance((iterations - it - 1) as u64);
+            break;
+        }
+    }
+    Ok((assign, history))
+}
+
+/// One cluster's share of the model.
+#[derive(Debug, Clone, Default)]
+struct ClusterFit {
+    /// `[c + 1, D]` quantized present values.
+    q: Vec<u8>,
+    /// `[c + 1]`.
+    scale: Vec<f32>,
+    /// `[c + 1]`.
+    bias: Vec<f32>,
+    /// `[n, c + 2]` per member, in member order.
+    weights: Vec<f32>,
+}
+
+/// Steps 4 and 5 for the members `m` of one cluster of the `d x T` data.
+fn fit_cluster(data: &[f32], d: usize, m: &[u32], c: usize, seed: u64) -> ClusterFit {
+    let cc = c + 1;
+    let (mean, xc) = gather_centred(data, d, m);
+    let e = top_components(&xc, c, seed);
+    // Quantize each Eigen-BRDF (the mean first) over its own range.
+    let mut q = vec![0u8; cc * d];
+    let mut scale = vec![0.0f32; cc];
+    let mut bias = vec![0.0f32; cc];
+    let mut deq = DMatrix::<f32>::zeros(d, cc);
+    for j in 0..cc {
+        let src: &[f32] = if j == 0 { &mean } else { &e.as_slice()[(j - 1) * d..j * d] };
+        let (lo, hi) = src.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+        let s = hi - lo;
+        bias[j] = lo;
+        scale[j] = if s > 0.0 && s.is_finite() { s } else { 0.0 };
+        let qj = &mut q[j * d..(j + 1) * d];
+        let mut col = deq.column_mut(j);
+        for p in 0..d {
+            let level = if scale[j] > 0.0 { ((src[p] - lo) / scale[j] * 255.0).round().clamp(0.0, 255.0) } else { 0.0 };
+            qj[p] = level as u8;
+            col[p] = lo + scale[j] * (level / 255.0);
+        }
+    }
+    // Re-solve a_1..a_c against the dequantized basis: (F^T F) a = F^T (x - e~_0), F = e~_1..c.
+    let n = m.len();
+    let mut a = DMatrix::<f64>::zeros(c, n);
+    if c > 0 {
+        let f = deq.columns(1, c).into_owned();
+        let ntn = DMatrix::<f64>::from_fn(c, c, |i, j| {
+            f.column(i).iter().zip(f.column(j).iter()).map(|(&x, &y)| x as f64 * y as f64).sum()
+        });
+        let (vals, vecs) = sym_eigen_desc(ntn);
+        let top = vals.first().copied().unwrap_or(0.0);
+        // Pseudo-inverse: a zero Eigen-BRDF (or a degenerate pair) gets weight 0, never NaN.
+        let mut pinv = DMatrix::<f64>::zeros(c, c);
+        for (l, &lam) in vals.iter().enumerate() {
+            if top > 0.0 && lam > 1e-9 * top {
+                let v = vecs.column(l);
+                pinv += (v * v.transpose()) / lam;
+            }
+        }
+        // x - e~_0 = xc + (mean - e~_0).
+        let shift: Vec<f64> = (0..c)
+            .map(|j| {
+                f.column(j)
+                    .iter()
+                    .zip(&mean)
+                    .zip(deq.column(0).iter())
+                    .map(|((&fv, &mu), &e0)| fv as f64 * (mu as f64 - e0 as f64))
+                    .sum()
+            })
+            .collect();
+        let ftx = gemm(&view_t(&f), &view(&xc));
+        for i in 0..n {
+            let rhs = nalgebra::DVector::<f64>::from_fn(c, |j, _| ftx[(j, i)] as f64 + shift[j]);
+            a.column_mut(i).copy_from(&(&pinv * rhs));
+        }
+    }
+    let mut weights = vec![0.0f32; n * (c + 2)];
+    for (i, w) in weights.chunks_mut(c + 2).enumerate() {
+        let mut offset = bias[0] as f64;
+        w[1] = scale[0];
+        for j in 1..cc {
+            let aj = a[(j - 1, i)];
+            offset += aj * bias[j] as f64;
+            w[1 + j] = (aj * scale[j] as f64) as f32;
+        }
+        w[0] = offset as f32;
+    }
+    ClusterFit { q, scale, bias, weights }
+}
+
+/// A prepared query: the 9 (view, light) taps and their weights.
+#[derive(Debug, Clone)]
+pub struct LpcaQuery {
+    /// (pair index `v * L + l`, interpolation weight).
+    taps: Vec<(usize, f32)>,
+}
+
+impl Lpca {
+    /// `V * L`.
+    fn pairs(&self) -> usize {
+        self.views.len() * self.lights.len()
+    }
+
+    /// Bytes as stored for rendering: cluster ids as `u16` (2 bytes; 4 when `K > 65536`), the
+    /// `f32` weights, 3 bytes per basis value (the pad bytes are not counted) and the `f32` scale
+    /// and bias of every Eigen-BRDF.
+    pub fn nbytes(&self) -> usize {
+        let id = if self.clusters <= 65536 { 2 } else { 4 };
+        let cc = self.components + 1;
+        id * self.ids.len() + 4 * self.weights.len() + 3 * self.clusters * cc * self.pairs() + 8 * self.clusters * cc
+    }
+
+    /// Check that the arrays agree with the dimensions (for models built from loaded files).
+    pub fn validate(&self) -> Result<()> {
+        if self.height == 0 || self.width == 0 {
+            return Err(Error::arg("ids", "the model has no texels"));
+        }
+        directions::validate("views", &self.views)?;
+        directions::validate("lights", &self.lights)?;
+        if self.clusters == 0 {
+            return Err(Error::arg("clusters", "expected at least 1 cluster, got 0"));
+        }
+        if self.components > MAX_COMPONENTS {
+            return Err(Error::arg("components", format!("expected 0 to {MAX_COMPONENTS}, got {}", self.components)));
+        }
+        let t = self.height * self.width;
+        let cc = self.components + 1;
+        let expect = |name: &str, got: usize, want: usize| {
+            if got == want {
+                Ok(())
+            } else {
+                Err(Error::arg(name, format!("expected {want} values, got {got}")))
+            }
+        };
+        expect("ids", self.ids.len(), t)?;
+        expect("weights", self.weights.len(), t * (cc + 1))?;
+        expect("basis", self.basis.len(), self.clusters * cc * self.pairs() * 4)?;
+        expect("scale", self.scale.len(), self.clusters * cc)?;
+        expect("bias", self.bias.len(), self.clusters * cc)?;
+        if let Some(i) = self.ids.iter().position(|&k| k as usize >= self.clusters) {
+            return Err(Error::arg(
+                "ids",
+                format!("texel {i} has cluster {}, but there are {} clusters", self.ids[i], self.clusters),
+            ));
+        }
+        for (name, v) in [("weights", &self.weights), ("scale", &self.scale), ("bias", &self.bias)] {
+            if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+                return Err(Error::arg(name, format!("value {} at flat index {i} is not finite", v[i])));
+            }
+        }
+        Ok(())
+    }
+
+    /// The quantized Eigen-BRDF `j` (0 = mean) of cluster `k` at pair (`v`, `l`), as `q / 255`.
+    ///
+    /// # Panics
+    /// If an index is out of range (like slice indexing).
+    pub fn basis_value(&self, k: usize, j: usize, v: usize, l: usize) -> [f32; 3] {
+        assert!(k < self.clusters && j <= self.components && v < self.views.len() && l < self.lights.len());
+        let o = ((k * (self.components + 1) + j) * self.pairs() + v * self.lights.len() + l) * 4;
+        [0, 1, 2].map(|c| self.basis[o + c] as f32 / 255.0)
+    }
+}
+
+impl ReflectanceModel for Lpca {
+    type Query = LpcaQuery;
+
+    fn dims(&self) -> (usize, usize) {
+        (self.height, self.width)
+    }
+
+    fn query(&self, view: [f64; 3], light: [f64; 3]) -> LpcaQuery {
+        let nl = self.lights.len();
+        let lw = directions::interp_weights(&self.lights, light, 3);
+        let taps = directions::interp_weights(&self.views, view, 3)
+            .into_iter()
+            .flat_map(|(v, wv)| lw.iter().map(move |&(l, wl)| (v * nl + l, (wv * wl) as f32)))
+            .collect();
+        LpcaQuery { taps }
+    }
+
+    #[inline]
+    fn eval(&self, t: usize, q: &LpcaQuery) -> [f32; 3] {
+        let cc = self.components + 1;
+        let vl = self.pairs();
+        let w = &self.weights[t * (cc + 1)..(t + 1) * (cc + 1)];
+        let base = self.ids[t] as usize * cc * vl;
+        let mut out = [0.0f32; 3];
+        for &(pair, wt) in &q.taps {
+            let mut s = [0.0f32; 3];
+            for j in 0..cc {
+                let o = ((base + j * vl) + pair) * 4;
+                let b = &self.basis[o..o + 3];
+                for ch in 0..3 {
+                    s[ch] += w[1 + j] * b[ch] as f32;
+                }
+            }
+            for ch in 0..3 {
+                out[ch] += wt * (w[0] + s[ch] * (1.0 / 255.0));
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests;

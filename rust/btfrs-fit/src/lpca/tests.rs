@@ -1,0 +1,350 @@
+#![allow(clippy::needless_range_loop)] // index loops mirror the formulas being checked
+use super::*;
+use crate::kmeans::kmeans;
+use crate::model::{evaluate_image, model_error};
+use btfrs_core::directions::ubo81;
+use btfrs_core::materials::{generate, MaterialSpec, Preset};
+use btfrs_core::Btf;
+use nalgebra::DVector;
+
+/// `n` texels drawn from `k` clusters, each an exact mean + `c` components (model data):
+/// returns the `[n, D]` data and the true cluster of each texel. Means differ by O(1) per value
+/// and the components are small, so the clusters are well apart.
+fn model_data(n: usize, d: usize, k: usize, c: usize, seed: u64) -> (Vec<f32>, Vec<u32>) {
+    let mut rng = Rng::new(seed);
+    let means: Vec<Vec<f64>> = (0..k).map(|_| (0..d).map(|_| 0.1 + 0.8 * rng.next_f64()).collect()).collect();
+    let comps: Vec<Vec<Vec<f64>>> =
+        (0..k).map(|_| (0..c).map(|_| (0..d).map(|_| 0.1 * (rng.next_f64() - 0.5)).collect()).collect()).collect();
+    let mut data = vec![0.0f32; n * d];
+    let mut truth = vec![0u32; n];
+    for t in 0..n {
+        // Every cluster gets texels; the order is scrambled so labels and positions differ.
+        let kk = (t * 7 + t / 3) % k;
+        truth[t] = kk as u32;
+        let a: Vec<f64> = (0..c).map(|_| 2.0 * rng.next_f64() - 1.0).collect();
+        for p in 0..d {
+            let v = means[kk][p] + (0..c).map(|j| a[j] * comps[kk][j][p]).sum::<f64>();
+            data[t * d + p] = v as f32;
+        }
+    }
+    (data, truth)
+}
+
+fn knit(size: usize) -> Btf {
+    generate(&MaterialSpec::new(Preset::Knit, size, 1), &Monitor::new()).unwrap()
+}
+
+fn opts(clusters: usize, components: usize) -> LpcaOptions {
+    LpcaOptions { clusters, components, ..Default::default() }
+}
+
+/// Largest principal angle (radians) between the column spaces of two `D x c` matrices.
+fn subspace_angle(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
+    let qa = a.clone().qr().q();
+    let qb = b.clone().qr().q();
+    let s = (qa.transpose() * qb).singular_values();
+    let smin = s.iter().copied().fold(f64::INFINITY, f64::min);
+    smin.clamp(-1.0, 1.0).acos()
+}
+
+/// Each found cluster holds texels of one true cluster, and each true cluster maps to one.
+fn assert_relabelling(found: &[u32], truth: &[u32], k: usize) {
+    let mut map = vec![u32::MAX; k];
+    for (&f, &t) in found.iter().zip(truth) {
+        assert!(map[f as usize] == u32::MAX || map[f as usize] == t, "cluster {f} mixes true clusters");
+        map[f as usize] = t;
+    }
+    let mut seen = map.clone();
+    seen.sort();
+    seen.dedup();
+    assert_eq!(seen.len(), k, "clusters {map:?}");
+}
+
+#[test]
+fn recovers_model_data_to_the_quantization_error() {
+    let d = ubo81();
+    let (h, w, k, c) = (16, 16, 4, 3);
+    let (data, truth) = model_data(h * w, 81 * 81 * 3, k, c, 1);
+    let btf = BtfRef::new(h, w, &d, &d, &data, None).unwrap();
+    let m = fit_lpca(&btf, &opts(k, c), &Monitor::new()).unwrap();
+    m.validate().unwrap();
+    assert_eq!((m.clusters, m.components), (k, c));
+    assert_relabelling(&m.ids, &truth, k);
+    let e = model_error(&m, &btf).unwrap().relative();
+    // 8 bits per Eigen-BRDF: a quantization step is 1/255 of its range.
+    assert!(e < 0.01, "relative error {e}");
+    assert!(m.weights.iter().chain(&m.scale).chain(&m.bias).all(|x| x.is_finite()));
+}
+
+#[test]
+fn one_cluster_is_a_float64_pca() {
+    // 8 views x 8 lights: D = 192, small enough for a D x D f64 covariance as the reference.
+    let dirs: Vec<[f64; 3]> = ubo81()[..8].to_vec();
+    let dd = 8 * 8 * 3;
+    let c = 3;
+    // A spectrum with clear gaps (sigma 1, 0.6, 0.35 then 0.02 noise in every direction).
+    let mut rng = Rng::new(7);
+    let mean: Vec<f64> = (0..dd).map(|_| rng.next_f64()).collect();
+    let comps: Vec<Vec<f64>> = (0..c).map(|_| (0..dd).map(|_| rng.next_f64() - 0.5).collect()).collect();
+    let sig = [1.0, 0.6, 0.35];
+    let gauss = crate::dense::gaussian(dd + c, 600, 8);
+    let make = |n: usize| -> Vec<f32> {
+        let mut x = vec![0.0f32; n * dd];
+        for t in 0..n {
+            for p in 0..dd {
+                let v = mean[p]
+                    + (0..c).map(|j| sig[j] * gauss[(dd + j, t)] as f64 * comps[j][p]).sum::<f64>()
+                    + 0.02 * gauss[(p, t)] as f64;
+                x[t * dd + p] = v as f32;
+            }
+        }
+        x
+    };
+    let reference = |x: &[f32], n: usize| -> DMatrix<f64> {
+        let xm = DMatrix::<f64>::from_fn(dd, n, |p, t| x[t * dd + p] as f64);
+        let mu = xm.column_mean();
+        let xc = DMatrix::from_fn(dd, n, |p, t| xm[(p, t)] - mu[p]);
+        let (_, vecs) = sym_eigen_desc(&xc * xc.transpose() / n as f64);
+        vecs.columns(0, c).into_owned()
+    };
+    let as64 = |m: &DMatrix<f32>| m.map(|v| v as f64);
+    // Covariance path (n >= D), Gram path (n < D) and the randomized path (forced by n > EXACT_MAX
+    // with D > EXACT_MAX is too big for an f64 reference here, so call it on the Gram-sized case).
+    for n in [256usize, 100] {
+        let x = make(n);
+        let all: Vec<u32> = (0..n as u32).collect();
+        let want = reference(&x, n);
+        let got = local_pca(&x, dd, &all, c, 0);
+        let angle = subspace_angle(&as64(&got.basis), &want);
+        assert!(angle < 1e-3, "n {n}: angle {angle}");
+        // The same through the fit: one cluster, dequantized Eigen-BRDFs 1..c.
+        let btf = BtfRef::new(n / 4, 4, &dirs, &dirs, &x, None).unwrap();
+        let m = fit_lpca(&btf, &opts(1, c), &Monitor::new()).unwrap();
+        let deq = DMatrix::<f64>::from_fn(dd, c, |p, j| {
+            let (v, l, ch) = (p / 24, (p / 3) % 8, p % 3);
+            m.basis_value(0, j + 1, v, l)[ch] as f64
+        });
+        // A constant bias is folded into the offset, so compare the centred basis span.
+        let centred = DMatrix::from_fn(dd, c, |p, j| deq[(p, j)] - deq.column(j).mean());
+        let want_c = DMatrix::from_fn(dd, c, |p, j| want[(p, j)] - want.column(j).mean());
+        let angle = subspace_angle(&centred, &want_c);
+        assert!(angle < 0.03, "n {n}: dequantized angle {angle}");
+    }
+    // Randomized subspace iteration, against the f64 covariance of the same centred data.
+    let n = 600;
+    let x = make(n);
+    let (_, xc) = gather_centred(&x, dd, &(0..n as u32).collect::<Vec<_>>());
+    let want = reference(&x, n);
+    let xc_big = DMatrix::<f32>::from_fn(dd, n, |p, t| xc[(p, t)]);
+    // top_components takes the randomized path when both sizes exceed EXACT_MAX: check it by
+    // calling the path directly through a wide embedding (D padded with zero rows to 600).
+    let pad = DMatrix::<f32>::from_fn(EXACT_MAX + 88, n, |p, t| if p < dd { xc_big[(p, t)] } else { 0.0 });
+    let e = top_components(&pad, c, 3);
+    let got = as64(&e.rows(0, dd).into_owned());
+    let angle = subspace_angle(&got, &want);
+    assert!(angle < 1e-3, "randomized: angle {angle}");
+    assert!(e.rows(dd, EXACT_MAX + 88 - dd).iter().all(|&v| v.abs() < 1e-6));
+}
+
+#[test]
+fn more_components_lower_the_error() {
+    let b = knit(16);
+    let r = b.as_ref();
+    let mut last = (f64::INFINITY, 0usize);
+    for c in [0usize, 1, 2, 4, 8] {
+        let m = fit_lpca(&r, &opts(4, c), &Monitor::new()).unwrap();
+        let e = model_error(&m, &r).unwrap().relative();
+        assert!(e < last.0 && m.nbytes() > last.1, "c {c}: error {e}, previous {}", last.0);
+        last = (e, m.nbytes());
+    }
+    assert!(last.0 < 0.2, "{}", last.0);
+}
+
+#[test]
+fn refinement_never_increases_the_lpca_objective() {
+    let b = knit(16);
+    let (t, d) = (256, 81 * 81 * 3);
+    // In the reduced space the fit clusters in, and in the full space (reduced_dims = 0).
+    let (p, r) = reduce(&b.data, d, t, 32, 5, &Monitor::new()).unwrap();
+    for (points, dim) in [(&p[..], r), (&b.data[..], d)] {
+        let km = kmeans(points, dim, 8, 25, 1, &Monitor::new()).unwrap();
+        let (assign, hist) = refine(points, dim, km.assign.clone(), km.k(), 3, 6, 2, &Monitor::new()).unwrap();
+        assert_eq!(assign.len(), t);
+        for w in hist.windows(2) {
+            assert!(w[1] <= w[0] * (1.0 + 1e-6), "dim {dim}: objective rose {hist:?}");
+        }
+        assert!(hist.last().unwrap() < &(hist[0] * 0.999), "dim {dim}: the refinement did nothing {hist:?}");
+        // The first entry is the plain k-means + PCA objective, checked against a brute-force sum.
+        let members = crate::kmeans::members_of(&km.assign, km.k());
+        let brute: f64 = members
+            .iter()
+            .map(|m| {
+                let lp = local_pca(points, dim, m, 3, 0);
+                m.iter()
+                    .map(|&i| {
+                        let x = &points[i as usize * dim..(i as usize + 1) * dim];
+                        let xc = DVector::<f64>::from_fn(dim, |q, _| x[q] as f64 - lp.mean[q] as f64);
+                        let e = lp.basis.map(|v| v as f64);
+                        let proj = e.transpose() * &xc;
+                        xc.norm_squared() - proj.norm_squared()
+                    })
+                    .sum::<f64>()
+            })
+            .sum();
+        assert!((hist[0] - brute).abs() < 1e-3 * brute, "dim {dim}: {} vs {brute}", hist[0]);
+    }
+}
+
+#[test]
+fn seeded_determinism() {
+    let b = knit(16);
+    let o = LpcaOptions { clusters: 6, components: 3, seed: 9, ..Default::default() };
+    let a = fit_lpca(&b.as_ref(), &o, &Monitor::new()).unwrap();
+    let c = fit_lpca(&b.as_ref(), &o, &Monitor::new()).unwrap();
+    assert_eq!(a.ids, c.ids);
+    assert_eq!(a.weights, c.weights);
+    assert_eq!(a.basis, c.basis);
+    assert_eq!((a.scale.clone(), a.bias.clone()), (c.scale.clone(), c.bias.clone()));
+    // Another seed is a valid fit too (it may or may not cluster the same way).
+    let e = fit_lpca(&b.as_ref(), &LpcaOptions { seed: 10, ..o }, &Monitor::new()).unwrap();
+    e.validate().unwrap();
+}
+
+#[test]
+fn held_out_pairs_are_never_read_and_are_filled() {
+    let mut b = knit(8);
+    let d = b.views.clone();
+    let n = d.len();
+    let (train, test) = btfrs_core::split::split_pairs(n, n, None, 0.2, 3).unwrap();
+    let o = opts(4, 3);
+    let fit = |data: &[f32]| fit_lpca(&BtfRef::new(8, 8, &d, &d, data, Some(&train)).unwrap(), &o, &Monitor::new());
+    let a = fit(&b.data).unwrap();
+    let clean = b.data.clone();
+    for (i, x) in b.data.iter_mut().enumerate() {
+        if test[(i / 3) % (n * n)] {
+            *x = [1e6, f32::NAN, f32::NEG_INFINITY][i % 3];
+        }
+    }
+    let g = fit(&b.data).unwrap();
+    assert_eq!(a.ids, g.ids);
+    assert_eq!(a.weights, g.weights);
+    assert_eq!(a.basis, g.basis);
+    // A held-out pair: the basis there is the interpolation of present pairs (to a rounding step).
+    let hole = test.iter().position(|&x| x).unwrap();
+    let (v, l) = (hole / n, hole % n);
+    let w = directions::present_pair_weights(&d, &d, Some(&train), d[v], d[l]);
+    assert!(w.iter().all(|&(pv, pl, _)| train[pv * n + pl]));
+    for j in 0..=3 {
+        let want: f64 = w.iter().map(|&(pv, pl, x)| x * a.basis_value(0, j, pv, pl)[0] as f64).sum();
+        assert!((a.basis_value(0, j, v, l)[0] as f64 - want).abs() <= 0.51 / 255.0);
+    }
+    // Evaluating there gives finite values close to the (never seen) truth on average.
+    let img = evaluate_image(&a, d[v], d[l]).unwrap();
+    assert!(img.iter().all(|x| x.is_finite()));
+    let truth: Vec<f32> = (0..64).flat_map(|t| clean[(t * n * n + hole) * 3..][..3].to_vec()).collect();
+    let err = btfrs_core::metrics::compare(&img, &truth).relative();
+    assert!(err < 0.6, "held-out pair relative error {err}");
+}
+
+#[test]
+fn evaluation_follows_the_stored_formula() {
+    let b = knit(8);
+    let m = fit_lpca(&b.as_ref(), &opts(3, 2), &Monitor::new()).unwrap();
+    let d = &b.views;
+    // At a measured pair: offset + sum_j w_j q / 255, the texel's own cluster.
+    let (v, l) = (17, 40);
+    let img = evaluate_image(&m, d[v], d[l]).unwrap();
+    for t in [0usize, 5, 63] {
+        let w = &m.weights[t * 4..t * 4 + 4];
+        let k = m.ids[t] as usize;
+        for ch in 0..3 {
+            let want: f32 = w[0] + (0..3).map(|j| w[1 + j] * m.basis_value(k, j, v, l)[ch]).sum::<f32>();
+            assert!((img[t * 3 + ch] - want).abs() < 1e-4 * (1.0 + want.abs()));
+        }
+    }
+    // Between directions: the 9-tap blend of the measured pairs' values.
+    let (qv, ql) = (directions::from_theta_phi(0.5, 1.0), directions::from_theta_phi(0.9, 4.0));
+    let img = evaluate_image(&m, qv, ql).unwrap();
+    let (wv, wl) = (directions::interp_weights(d, qv, 3), directions::interp_weights(d, ql, 3));
+    assert_eq!(wv.len() * wl.len(), 9);
+    let mut want = [0.0f64; 3];
+    for &(vi, a) in &wv {
+        for &(li, bw) in &wl {
+            let px = evaluate_image(&m, d[vi], d[li]).unwrap();
+            for ch in 0..3 {
+                want[ch] += a * bw * px[9 * 3 + ch] as f64;
+            }
+        }
+    }
+    for ch in 0..3 {
+        assert!((img[9 * 3 + ch] as f64 - want[ch]).abs() < 1e-4 * (1.0 + want[ch].abs()));
+    }
+}
+
+#[test]
+fn nbytes_counts_the_stored_arrays() {
+    let b = knit(8);
+    let m = fit_lpca(&b.as_ref(), &opts(5, 4), &Monitor::new()).unwrap();
+    let k = m.clusters;
+    assert_eq!(m.basis.len(), k * 5 * 81 * 81 * 4);
+    assert_eq!(m.weights.len(), 64 * 6);
+    assert_eq!(m.nbytes(), 2 * 64 + 4 * 64 * 6 + 3 * k * 5 * 81 * 81 + 8 * k * 5);
+    // More than 65536 clusters: ids take 4 bytes.
+    let big = Lpca { clusters: 70_000, basis: Vec::new(), ..m.clone() };
+    assert_eq!(big.nbytes(), 4 * 64 + 4 * 64 * 6 + 3 * 70_000 * 5 * 81 * 81 + 8 * 70_000 * 5);
+    // validate() catches a broken model.
+    let mut bad = m.clone();
+    bad.ids[3] = k as u32;
+    assert!(bad.validate().unwrap_err().to_string().starts_with("ids:"));
+    let mut bad = m.clone();
+    bad.weights.pop();
+    assert!(bad.validate().unwrap_err().to_string().starts_with("weights:"));
+    let mut bad = m;
+    bad.scale[0] = f32::NAN;
+    assert!(bad.validate().unwrap_err().to_string().starts_with("scale:"));
+}
+
+#[test]
+fn bad_arguments_name_the_parameter() {
+    let b = knit(8);
+    let r = b.as_ref();
+    let err = |o: LpcaOptions| fit_lpca(&r, &o, &Monitor::new()).unwrap_err().to_string();
+    let e = err(opts(65, 4));
+    assert!(e.starts_with("clusters:") && e.contains("64") && e.contains("65"), "{e}");
+    assert!(err(opts(0, 4)).starts_with("clusters:"));
+    let e = err(opts(4, 17));
+    assert!(e.starts_with("components:") && e.contains("16"), "{e}");
+    assert!(err(LpcaOptions { kmeans_iterations: 0, ..opts(4, 2) }).starts_with("kmeans_iterations:"));
+    let mut data = b.data.clone();
+    data[(5 * 81 * 81 + 2 * 81 + 7) * 3 + 1] = f32::NAN;
+    let e = fit_lpca(&BtfRef::new(8, 8, &b.views, &b.lights, &data, None).unwrap(), &opts(2, 2), &Monitor::new())
+        .unwrap_err()
+        .to_string();
+    assert!(e.starts_with("data:") && e.contains("texel 5, view 2, light 7"), "{e}");
+    let m = Monitor::new();
+    m.cancel();
+    assert!(matches!(fit_lpca(&r, &opts(2, 2), &m), Err(Error::Interrupted)));
+}
+
+#[test]
+fn black_and_repeated_texels() {
+    let d = ubo81();
+    // All black: one cluster, exact, no NaN.
+    let zeros = vec![0.0f32; 4 * 4 * 81 * 81 * 3];
+    let btf = BtfRef::new(4, 4, &d, &d, &zeros, None).unwrap();
+    let m = fit_lpca(&btf, &opts(3, 2), &Monitor::new()).unwrap();
+    m.validate().unwrap();
+    assert_eq!(m.clusters, 1);
+    assert_eq!(model_error(&m, &btf).unwrap().sse, 0.0);
+    // Two distinct ABRDFs repeated: two clusters used out of five asked, reproduced exactly
+    // up to the quantization of each mean.
+    let (x, truth) = model_data(16, 81 * 81 * 3, 2, 0, 4);
+    let btf = BtfRef::new(4, 4, &d, &d, &x, None).unwrap();
+    for red in [64, 0] {
+        let m = fit_lpca(&btf, &LpcaOptions { reduced_dims: red, ..opts(5, 3) }, &Monitor::new()).unwrap();
+        assert_eq!(m.clusters, 2);
+        assert_relabelling(&m.ids, &truth, 2);
+        assert!(m.weights.iter().all(|w| w.is_finite()));
+        assert!(model_error(&m, &btf).unwrap().relative() < 0.005);
+    }
+}
