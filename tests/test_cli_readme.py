@@ -54,3 +54,16 @@ def test_readme_rendering_snippet_runs(tmp_path, monkeypatch):
     mse = float(np.mean((img - ref) ** 2))
     assert 10 * np.log10(float(ref.max()) ** 2 / mse) > 40
     assert (tmp_path / "sphere.png").exists()
+
+
+def test_readme_models_snippet_runs(monkeypatch, tmp_path):
+    text = (ROOT / "README.md").read_text()
+    block = re.search(r"## The other models[^\n]*\s+```python\n(.*?)```", text, re.S).group(1)
+    monkeypatch.chdir(tmp_path)
+    ns: dict = {}
+    exec(compile(block, "README.md", "exec"), ns)
+    img, test = ns["img"], ns["test"]
+    assert img.shape == (512, 512, 3) and (img.sum(-1) > 0).mean() > 0.2
+    for name in ("laf", "srf", "sh", "lp"):
+        assert 0 < ns[name].error(test).relative < 0.6, name
+    assert set(ns["laf"].report) >= {"converged", "fell_back", "failed"}

@@ -13,7 +13,7 @@ _F32 = npt.NDArray[np.float32]
 _F64 = npt.NDArray[np.float64]
 _Bool = npt.NDArray[np.bool_]
 
-__all__ = ['__version__', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'PtmModel', 'fit_ptm_native', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_png', 'read_png', 'write_exr', 'read_exr', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_ptm', 'gpu_upload_raw', 'gpu_render', 'cpu_render_ptm', 'cpu_render_raw']
+__all__ = ['__version__', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'PtmModel', 'fit_ptm_native', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_png', 'read_png', 'write_exr', 'read_exr', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_ptm', 'gpu_upload_raw', 'gpu_render', 'cpu_render_ptm', 'cpu_render_raw', 'Model', 'fit_srf_native', 'fit_lafortune_native', 'fit_sh_native', 'fit_lpca_native', 'gpu_upload_model', 'cpu_render_model']
 __version__: str
 
 def ubo81() -> _F64: ...
@@ -65,6 +65,60 @@ def fit_ptm_native(
     on_degenerate: str = "raise",
     progress: _Progress = None,
 ) -> PtmModel: ...
+@final
+class Model:
+    @staticmethod
+    def from_arrays(kind: str, arrays: dict[str, npt.NDArray[Any]]) -> Model: ...
+    @property
+    def kind(self) -> str: ...
+    @property
+    def dims(self) -> tuple[int, int]: ...
+    @property
+    def nbytes(self) -> int: ...
+    def evaluate(self, view: list[float], light: list[float]) -> _F32: ...
+    def error(self, data: _F32, views: _F64, lights: _F64, mask: Optional[_Bool] = None) -> dict[str, float]: ...
+    def arrays(self) -> dict[str, npt.NDArray[Any]]: ...
+
+def fit_srf_native(
+    data: _F32, views: _F64, lights: _F64, mask: Optional[_Bool] = None, progress: _Progress = None
+) -> tuple[Model, dict[str, Any]]: ...
+def fit_lafortune_native(
+    data: _F32,
+    views: _F64,
+    lights: _F64,
+    mask: Optional[_Bool] = None,
+    kind: str = "lum",
+    lobes: int = 2,
+    diffuse: bool = True,
+    max_iter: int = 60,
+    densify: int = 0,
+    progress: _Progress = None,
+) -> tuple[Model, dict[str, Any]]: ...
+def fit_sh_native(
+    data: _F32,
+    views: _F64,
+    lights: _F64,
+    mask: Optional[_Bool] = None,
+    light_coeffs: int = 25,
+    view_coeffs: int = 25,
+    cls: bool = True,
+    quantize: bool = True,
+    chunk_texels: int = 1024,
+    progress: _Progress = None,
+) -> tuple[Model, dict[str, Any]]: ...
+def fit_lpca_native(
+    data: _F32,
+    views: _F64,
+    lights: _F64,
+    mask: Optional[_Bool] = None,
+    clusters: int = 32,
+    components: int = 4,
+    kmeans_iterations: int = 25,
+    refine_iterations: int = 2,
+    reduced_dims: int = 64,
+    seed: int = 0,
+    progress: _Progress = None,
+) -> tuple[Model, dict[str, Any]]: ...
 def save_container(path: _Path, kind: str, meta_json: str, arrays: list[tuple[str, npt.NDArray[Any]]]) -> None: ...
 def read_container_header(path: _Path) -> tuple[str, str, list[tuple[str, str, list[int], int]]]: ...
 def write_ptm(path: _Path, model: PtmModel, view: int) -> tuple[list[float], list[int]]: ...
@@ -146,4 +200,16 @@ def cpu_render_raw(
     height: int,
     uv_scale: list[float],
     coords: Optional[npt.NDArray[np.uint16]] = None,
+) -> _F32: ...
+def gpu_upload_model(model: Model, method: str = "default") -> GpuModel: ...
+def cpu_render_model(
+    model: Model,
+    scene: Scene,
+    camera: Camera,
+    lights: _Lights,
+    width: int,
+    height: int,
+    uv_scale: list[float],
+    coords: Optional[npt.NDArray[np.uint16]] = None,
+    method: str = "default",
 ) -> _F32: ...

@@ -144,7 +144,9 @@ def lafortune_scipy(train: Btf, test: Btf, lobes: int = 2, jac: str = "2-point")
 
 def real_sh(n: int, dirs: np.ndarray) -> np.ndarray:
     """``[len(dirs), n]`` real orthonormal spherical harmonics (n a perfect square) from scipy's
-    complex ones: an independent construction of the basis btfrs computes by recurrences."""
+    complex ones (Condon-Shortley phase included, as btfrs's): ``sqrt(2) Re Y_L^M`` for M > 0,
+    ``sqrt(2) Im Y_L^|M|`` for M < 0, index ``L(L+1)+M``. An independent construction of the
+    basis btfrs computes by recurrences."""
     from scipy import special
 
     d = np.asarray(dirs, dtype=np.float64)
@@ -158,9 +160,9 @@ def real_sh(n: int, dirs: np.ndarray) -> np.ndarray:
             if M == 0:
                 v = y.real
             elif M > 0:
-                v = np.sqrt(2) * (-1) ** M * y.real
+                v = np.sqrt(2) * y.real
             else:
-                v = np.sqrt(2) * (-1) ** M * y.imag
+                v = np.sqrt(2) * y.imag
             out[:, L * (L + 1) + M] = v
     return out
 

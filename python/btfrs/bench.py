@@ -124,6 +124,163 @@ def accuracy_table(rows: list) -> str:
     return "\n".join(out)
 
 
+def _render_ms(model, method=None, size=512, repeat=2) -> float:
+    """Best draw time (ms) of a 512^2 sphere frame with one point light (the first frame, which
+    compiles the pipeline, is not counted)."""
+    from . import rendering
+
+    scene = rendering.Scene.sphere()
+    cam = rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
+    lights = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
+    kw = dict(size=size, uv_scale=4, method=method)
+    img = rendering.render(model, scene, cam, lights, **kw)
+    best = float("inf")
+    for _ in range(repeat):
+        img = rendering.render(model, scene, cam, lights, **kw)
+        best = min(best, rendering.last_timings().draw_ms)
+    return best, img
+
+
+MODEL_SETTINGS = [
+    ("PTM-RGB", lambda b: fit.ptm(b, kind="rgb")),
+    ("PTM-LRGB", lambda b: fit.ptm(b, kind="lrgb")),
+    ("Phong+SRF", lambda b: fit.srf(b)),
+    ("Lafortune-Lum 1", lambda b: fit.lafortune(b, kind="lum", lobes=1)),
+    ("Lafortune-Lum 2", lambda b: fit.lafortune(b, kind="lum", lobes=2)),
+    ("Lafortune-Lum 3", lambda b: fit.lafortune(b, kind="lum", lobes=3)),
+    ("Lafortune-RGB 2", lambda b: fit.lafortune(b, kind="rgb", lobes=2)),
+    ("SH-CLS 16x16", lambda b: fit.sh(b, light_coeffs=16, view_coeffs=16)),
+    ("SH-CLS 25x25", lambda b: fit.sh(b, light_coeffs=25, view_coeffs=25)),
+    ("SH-CLS 36x25", lambda b: fit.sh(b, light_coeffs=36, view_coeffs=25)),
+    ("SH-LS 25x25 (no CLS)", lambda b: fit.sh(b, light_coeffs=25, view_coeffs=25, cls=False)),
+    ("LPCA 32x2", lambda b: fit.lpca(b, clusters=32, components=2, seed=0)),
+    ("LPCA 32x4", lambda b: fit.lpca(b, clusters=32, components=4, seed=0)),
+    ("LPCA 32x8", lambda b: fit.lpca(b, clusters=32, components=8, seed=0)),
+]
+
+
+def models_bench(size: int, material: str = "knit", lm_texels: int = 8) -> list:
+    """Every model at several settings on one material: fit seconds, bytes, held-out RMSE and
+    relative error, reconstruction error, render ms (512^2 sphere); then the numpy / scipy /
+    scikit-learn way of the same fits as rows of the same table."""
+    btf = materials.make(material, size=size, seed=1)
+    train, test = btf.split(0.1, seed=0)
+    rows = []
+    fitted = {}
+    for name, make in MODEL_SETTINGS:
+        t0 = time.perf_counter()
+        m = make(train)
+        secs = time.perf_counter() - t0
+        fitted[name] = m
+        held, rec = m.error(test), m.error(train)
+        ms = {}
+        for method in (("9tap", "3d") if name.startswith("LPCA") else (None,)):
+            ms[method or "default"], _ = _render_ms(m, method)
+        rows.append(dict(model=name, way="btfrs", fit_s=secs, nbytes=m.nbytes, held_out_rmse=held.rmse,
+                         held_out=held.relative, reconstruction=rec.relative, render_ms=ms))
+    # scipy LM on a window of texels, against btfrs on the same window.
+    w = slice(size // 2, size // 2 + 1), slice(0, lm_texels)
+    tr, te = baselines.crop(train, *w), baselines.crop(test, *w)
+    ours_t0 = time.perf_counter()
+    ours = fit.lafortune(tr, kind="lum", lobes=2)
+    ours_s = (time.perf_counter() - ours_t0) / lm_texels
+    for jac in ("2-point", "analytic"):
+        r = baselines.lafortune_scipy(tr, te, lobes=2, jac=jac)
+        rows.append(dict(model="Lafortune-Lum 2", way=f"scipy LM ({jac} Jacobian), {lm_texels} texels",
+                         fit_s=r["seconds_per_texel"], per_texel=True, nbytes=None, held_out_rmse=None,
+                         held_out=r["held_out"], reconstruction=r["reconstruction"], render_ms={},
+                         btfrs_same=dict(fit_s=ours_s, held_out=ours.error(te).relative,
+                                         reconstruction=ours.error(tr).relative)))
+    # scikit-learn KMeans + PCA at the same (clusters, components).
+    for c in (4, 8):
+        r = baselines.lpca_sklearn(train, clusters=32, components=c, seed=0)
+        rows.append(dict(model=f"LPCA 32x{c}", way="scikit-learn KMeans + PCA (float32)", fit_s=r["seconds"],
+                         nbytes=r["nbytes"], held_out_rmse=None, held_out=None, reconstruction=r["reconstruction"],
+                         render_ms={}))
+    # numpy least squares for the double SH.
+    r = baselines.sh_numpy_lstsq(train, 25, 25)
+    rows.append(dict(model="SH-LS 25x25", way="numpy lstsq (float64, unquantized)", fit_s=r["seconds"],
+                     nbytes=4 * r["coeffs"].size, held_out_rmse=None, held_out=baselines.sh_error(r["coeffs"], test),
+                     reconstruction=baselines.sh_error(r["coeffs"], train), render_ms={}))
+    return rows
+
+
+def models_table(rows: list) -> str:
+    out = [f"{'model':<21} {'way':<44} {'fit s':>9} {'MiB':>7} {'held-out':>9} {'recon.':>8}  render ms (512^2)"]
+    for r in rows:
+        fs = f"{r['fit_s']:.4f}" + ("/tx" if r.get("per_texel") else "")
+        mib = "" if r["nbytes"] is None else f"{r['nbytes'] / 2**20:.2f}"
+        ho = "" if r["held_out"] is None else f"{100 * r['held_out']:.2f}%"
+        ms = ", ".join(f"{k} {v:.0f}" for k, v in r["render_ms"].items())
+        out.append(f"{r['model']:<21} {r['way']:<44} {fs:>9} {mib:>7} {ho:>9} {100 * r['reconstruction']:>7.2f}%  {ms}")
+        if "btfrs_same" in r:
+            o = r["btfrs_same"]
+            out.append(f"{'':<21} {'  btfrs on the same texels':<44} {o['fit_s']:.4f}/tx {'':>6} "
+                       f"{100 * o['held_out']:>8.2f}% {100 * o['reconstruction']:>7.2f}%  speed-up {r['fit_s'] / o['fit_s']:.0f}x")
+    return "\n".join(out)
+
+
+def lpca_render_bench(size: int = 64, repeat: int = 2) -> list:
+    """Paper 004, Table 1: the 9-tap and the 3D-texture LPCA renderers at 512^2 and 1024^2 for
+    c = 2, 4, 8 (32 clusters), with the PSNR between the two images."""
+    btf = materials.make("knit", size=size, seed=1)
+    rows = []
+    for c in (2, 4, 8):
+        m = fit.lpca(btf, clusters=32, components=c, seed=0)
+        for px in (512, 1024):
+            t9, a = _render_ms(m, "9tap", px, repeat)
+            t3, b = _render_ms(m, "3d", px, repeat)
+            mse = float(np.mean((a.astype(np.float64) - b) ** 2))
+            peak = float(max(a.max(), b.max()))
+            rows.append(dict(components=c, size=px, ms_9tap=t9, ms_3d=t3, speedup=t9 / t3,
+                             psnr=10 * np.log10(peak * peak / mse) if mse > 0 else float("inf")))
+    return rows
+
+
+def lpca_render_table(rows: list) -> str:
+    out = [f"{'c':>2} {'size':>5} {'9-tap ms':>9} {'3D ms':>8} {'speed-up':>9} {'PSNR 9-tap vs 3D':>17}"]
+    for r in rows:
+        out.append(f"{r['components']:>2} {r['size']:>5} {r['ms_9tap']:>9.1f} {r['ms_3d']:>8.1f} {r['speedup']:>8.2f}x "
+                   f"{r['psnr']:>14.1f} dB")
+    return "\n".join(out)
+
+
+def lpca_sweep(size: int) -> list:
+    """Which (clusters, components) reaches the paper's 2% reconstruction error on each built-in
+    material, and at what compression (raw at one byte per value over the model's bytes)."""
+    rows = []
+    for name in materials.names():
+        btf = materials.make(name, size=size, seed=1)
+        best = None
+        for k in (8, 16, 32, 64):
+            for c in (2, 4, 8, 12, 16):
+                m = fit.lpca(btf, clusters=k, components=c, seed=0)
+                e = m.error(btf).relative
+                row = dict(material=name, clusters=k, components=c, reconstruction=e, compression=m.compression,
+                           nbytes=m.nbytes)
+                rows.append(row)
+                if e <= 0.02 and (best is None or m.nbytes < best["nbytes"]):
+                    best = row
+        rows.append(dict(material=name, best_2pct=best))
+    return rows
+
+
+def lpca_sweep_table(rows: list) -> str:
+    out = []
+    for r in rows:
+        if "best_2pct" in r:
+            b = r["best_2pct"]
+            if b is None:
+                errs = [x for x in rows if x.get("material") == r["material"] and "reconstruction" in x]
+                lo = min(errs, key=lambda x: x["reconstruction"])
+                out.append(f"{r['material']:<8} 2% not reached; best {100 * lo['reconstruction']:.2f}% at "
+                           f"{lo['clusters']} x {lo['components']} (1:{lo['compression']:.0f})")
+            else:
+                out.append(f"{r['material']:<8} 2% reached by {b['clusters']} clusters x {b['components']} components: "
+                           f"{100 * b['reconstruction']:.2f}% at 1:{b['compression']:.0f}")
+    return "\n".join(out)
+
+
 def table(rows: list) -> str:
     out = [f"{'task':<36} {'btfrs s':>9} {'numpy s':>9} {'speed-up':>9}  {'target':<24} note"]
     for r in rows:
@@ -139,6 +296,8 @@ def main(argv=None) -> int:
     p.add_argument("--size", type=int, action="append", help="material sizes (default: 32 and 64)")
     p.add_argument("--repeat", type=int, default=3, help="runs per figure; the best is kept (default: 3)")
     p.add_argument("--json", default="bench-results/bench.json", help="where to write the JSON")
+    p.add_argument("--skip-models", action="store_true", help="only the foundation and renderer figures")
+    p.add_argument("--sh-big", action="store_true", help="also time double SH 25x25 on a 128^2 x 81 x 81 sample")
     a = p.parse_args(argv)
     sizes = a.size or [32, 64]
     rows = run(sizes, max(1, a.repeat))
@@ -149,9 +308,26 @@ def main(argv=None) -> int:
     ren = render_bench(max(1, a.repeat))
     print(f"\nrendering a sphere (64^2 knit, uv_scale 4, 1 point light) on {ren[0]['adapter']}:")
     print(render_table(ren))
+    out = {"machine": machine(), "speed": rows, "accuracy": acc, "render": ren}
+    if not a.skip_models:
+        mb = models_bench(max(sizes))
+        print(f"\nevery model on knit {max(sizes)}^2 (10% held out), beside the numpy / scipy / scikit-learn way:")
+        print(models_table(mb))
+        lr = lpca_render_bench(max(sizes), max(1, a.repeat))
+        print(f"\nLPCA renderers (paper 004 Table 1) on {ren[0]['adapter']}:")
+        print(lpca_render_table(lr))
+        sw = lpca_sweep(min(max(sizes), 32))
+        print(f"\nLPCA reaching 2% reconstruction error ({min(max(sizes), 32)}^2 samples):")
+        print(lpca_sweep_table(sw))
+        out.update(models=mb, lpca_render=lr, lpca_sweep=sw)
+    if a.sh_big:
+        big = materials.make("knit", size=128, seed=1)
+        t, _ = best_of(lambda: fit.sh(big, light_coeffs=25, view_coeffs=25), 1)
+        out["sh_big"] = {"task": "double SH 25x25 CLS + 8 bit, 128^2 x 81 x 81", "seconds": t, "target_s": 10}
+        print(f"\ndouble SH 25x25 on 128^2 x 81 x 81: {t:.2f} s (target <= 10 s)")
     os.makedirs(os.path.dirname(a.json) or ".", exist_ok=True)
     with open(a.json, "w") as f:
-        json.dump({"machine": machine(), "speed": rows, "accuracy": acc, "render": ren}, f, indent=2)
+        json.dump(out, f, indent=2, default=float)
     print(f"\nwrote {a.json}", file=sys.stderr)
     return 0
 

@@ -11,7 +11,7 @@ import time
 
 from . import _native
 from ._progress import Progress, callback
-from .btf import Btf
+from .btf import Btf, check_seed
 from .exceptions import InvalidArgumentError
 from .models import Lafortune, Lpca, Ptm, Sh, Srf
 
@@ -62,3 +62,65 @@ def srf(btf: Btf, progress: Progress = None) -> Srf:
     t0 = time.perf_counter()
     m, report = _native.fit_srf_native(b.data, b.views, b.lights, b.mask, progress=callback(progress, "SRF fit"))
     return Srf(m, fit_seconds=time.perf_counter() - t0, report=report)
+
+
+def lafortune(btf: Btf, kind: str = "lum", lobes: int = 2, diffuse: bool = True, max_iter: int = 60,
+              densify: int = 0, progress: Progress = None) -> Lafortune:
+    """Fit per-texel Lafortune lobes by Levenberg-Marquardt (paper 000, section 3.2).
+
+    One fit per texel over all its present (view, light) samples (``kind="lum"``: the
+    luminance with 1 to 7 lobes, times a base colour; ``kind="rgb"``: 1 to 3 lobes per
+    channel), analytic Jacobians, bounds that keep the lobes physical. Paper 000 reports LM
+    artifacts under sparse or uneven sampling: fits that diverge get a damped restart, then fewer
+    lobes, then the diffuse-only closed form; ``model.report`` counts converged / fell back /
+    failed fits and ``model.arrays["status"]`` flags each. ``densify=n`` adds an ``n x n``
+    equal-area grid of view and light directions whose values are interpolated from the present
+    pairs before fitting (the paper's remedy).
+    """
+    b = _check_btf(btf)
+    if kind not in ("lum", "rgb"):
+        raise InvalidArgumentError(f"kind: expected \"lum\" or \"rgb\", got {kind!r}")
+    t0 = time.perf_counter()
+    m, report = _native.fit_lafortune_native(b.data, b.views, b.lights, b.mask, kind=kind, lobes=int(lobes),
+                                             diffuse=bool(diffuse), max_iter=int(max_iter), densify=int(densify),
+                                             progress=callback(progress, f"Lafortune-{kind} fit"))
+    return Lafortune(m, fit_seconds=time.perf_counter() - t0, report=report)
+
+
+def sh(btf: Btf, light_coeffs: int = 25, view_coeffs: int = 25, cls: bool = True, quantize: bool = True,
+       chunk_texels: int = 1024, progress: Progress = None) -> Sh:
+    """Fit double spherical harmonics by constrained least squares (paper 002, section 3.1 and
+    appendix).
+
+    Real SH of ``light_coeffs`` and ``view_coeffs`` terms (perfect squares up to 64: 16, 25,
+    36, ...). The CLS keeps each fit's coefficient energy within the function's (lambda found
+    by bisection), which makes the coefficients robust to the 8-bit quantization that follows
+    (``quantize=False`` keeps float32; ``cls=False`` is plain least squares, for comparison).
+    Texels are processed ``chunk_texels`` at a time, so a memory-mapped BTF
+    (``btfrs.load(path, mmap=True)``) streams through.
+    """
+    b = _check_btf(btf)
+    t0 = time.perf_counter()
+    m, report = _native.fit_sh_native(b.data, b.views, b.lights, b.mask, light_coeffs=int(light_coeffs),
+                                      view_coeffs=int(view_coeffs), cls=bool(cls), quantize=bool(quantize),
+                                      chunk_texels=int(chunk_texels), progress=callback(progress, "double SH fit"))
+    return Sh(m, fit_seconds=time.perf_counter() - t0, report=report)
+
+
+def lpca(btf: Btf, clusters: int = 32, components: int = 4, seed: int = 0, kmeans_iterations: int = 25,
+         refine_iterations: int = 2, reduced_dims: int = 64, progress: Progress = None) -> Lpca:
+    """Fit Local PCA (paper 004, section 3): k-means++ (seeded) over the texels' ABRDFs, PCA per
+    cluster with ``components`` Eigen-BRDFs, then 8-bit Eigen-BRDFs with the scales folded into
+    the per-texel weights (section 6.3).
+
+    k-means runs in a ``reduced_dims``-dimensional randomized PCA projection of the ABRDFs
+    (0 = the full space) and is refined by ``refine_iterations`` passes that reassign each texel
+    to the cluster whose subspace reconstructs it best (the LPCA objective itself).
+    """
+    b = _check_btf(btf)
+    t0 = time.perf_counter()
+    m, report = _native.fit_lpca_native(b.data, b.views, b.lights, b.mask, clusters=int(clusters),
+                                        components=int(components), kmeans_iterations=int(kmeans_iterations),
+                                        refine_iterations=int(refine_iterations), reduced_dims=int(reduced_dims),
+                                        seed=check_seed(seed), progress=callback(progress, "LPCA fit"))
+    return Lpca(m, fit_seconds=time.perf_counter() - t0, report=report)

@@ -1,6 +1,8 @@
 //! btfrs-fit: compact per-texel reflectance models fitted to a BTF.
 //!
 //! * [`ptm`]: Polynomial Texture Maps, RGB and LRGB, one per view slot (paper 000, section 3.1).
+//! * [`lafortune`]: per-texel Lafortune lobes over all views, RGB and luminance, fitted by
+//!   Levenberg-Marquardt (paper 000, section 3.2).
 //! * [`srf`]: Phong + spatially-varying residual function (paper 003, sections 4 and 5).
 //! * [`sh`]: double spherical harmonics fitted by constrained least squares, 8-bit quantized
 //!   (paper 002, section 3.1 and appendix).
@@ -11,6 +13,7 @@
 
 mod dense;
 pub mod kmeans;
+pub mod lafortune;
 pub mod lpca;
 pub mod model;
 pub mod ptm;
@@ -18,6 +21,7 @@ pub mod sh;
 pub mod srf;
 
 pub use kmeans::{kmeans, KMeans};
+pub use lafortune::{fit_lafortune, FitReport, Lafortune, LafortuneKind, LafortuneOptions};
 pub use lpca::{fit_lpca, Lpca, LpcaOptions, LpcaQuery};
 pub use model::{evaluate_image, model_error, RawModel, ReflectanceModel};
 pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions};

@@ -32,6 +32,9 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(fit::fit_ptm_native, m)?)?;
     m.add_class::<models::PyModel>()?;
     m.add_function(wrap_pyfunction!(models::fit_srf_native, m)?)?;
+    m.add_function(wrap_pyfunction!(models::fit_lafortune_native, m)?)?;
+    m.add_function(wrap_pyfunction!(models::fit_sh_native, m)?)?;
+    m.add_function(wrap_pyfunction!(models::fit_lpca_native, m)?)?;
     m.add_function(wrap_pyfunction!(io::save_container, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_container_header, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_ptm, m)?)?;

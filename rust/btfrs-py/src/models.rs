@@ -9,7 +9,10 @@ use crate::core::BtfArgs;
 use crate::errors::{arg, IntoPy};
 use crate::fit::error_dict;
 use crate::run::{detach, monitored};
-use btfrs_fit::{evaluate_image, model_error, Phong, Srf};
+use btfrs_fit::lafortune::{FitReport, LafortuneOptions};
+use btfrs_fit::lpca::LpcaOptions;
+use btfrs_fit::sh::ShOptions;
+use btfrs_fit::{evaluate_image, model_error, Lafortune, LafortuneKind, Lpca, Phong, Sh, ShCoeffs, Srf};
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -19,6 +22,12 @@ use pyo3::types::PyDict;
 pub enum AnyModel {
     /// Phong + spatially-varying residual.
     Srf(Srf),
+    /// Per-texel Lafortune lobes.
+    Lafortune(Lafortune),
+    /// Double spherical harmonics.
+    Sh(Sh),
+    /// Local PCA.
+    Lpca(Lpca),
 }
 
 /// Run `$body` with `$m` bound to the concrete model.
@@ -26,6 +35,9 @@ macro_rules! with_model {
     ($any:expr, $m:ident => $body:expr) => {
         match $any {
             AnyModel::Srf($m) => $body,
+            AnyModel::Lafortune($m) => $body,
+            AnyModel::Sh($m) => $body,
+            AnyModel::Lpca($m) => $body,
         }
     };
 }
@@ -35,6 +47,9 @@ impl AnyModel {
     pub(crate) fn kind(&self) -> &'static str {
         match self {
             AnyModel::Srf(_) => "srf",
+            AnyModel::Lafortune(_) => "lafortune",
+            AnyModel::Sh(_) => "sh",
+            AnyModel::Lpca(_) => "lpca",
         }
     }
 
@@ -131,6 +146,44 @@ impl PyModel {
                 put(&d, "phong", p.kd.iter().chain(&p.ks).chain([&p.n]).copied().collect::<Vec<f64>>(), vec![7])?;
                 put(&d, "s", m.s.clone(), vec![m.height, m.width, 3, 3])?;
             }
+            AnyModel::Lafortune(m) => {
+                let p = m.params_per_fit();
+                let (h, w) = (m.height, m.width);
+                match m.kind {
+                    LafortuneKind::Lum => put(&d, "params", m.params.clone(), vec![h, w, p])?,
+                    LafortuneKind::Rgb => put(&d, "params", m.params.clone(), vec![h, w, 3, p])?,
+                }
+                if let Some(rgb) = &m.rgb {
+                    put(&d, "rgb", rgb.clone(), vec![h, w, 3])?;
+                }
+                if !m.status.is_empty() {
+                    let n = m.status.len() / (h * w);
+                    let shape = if n == 1 { vec![h, w] } else { vec![h, w, n] };
+                    put(&d, "status", m.status.clone(), shape)?;
+                }
+            }
+            AnyModel::Sh(m) => {
+                let shape = vec![m.height, m.width, 3, m.view_coeffs, m.light_coeffs];
+                match &m.coeffs {
+                    ShCoeffs::Quantized { q, scale, bias } => {
+                        put(&d, "q", q.clone(), shape)?;
+                        put(&d, "scale", scale.to_vec(), vec![3])?;
+                        put(&d, "bias", bias.to_vec(), vec![3])?;
+                    }
+                    ShCoeffs::Float(c) => put(&d, "coeffs", c.clone(), shape)?,
+                }
+            }
+            AnyModel::Lpca(m) => {
+                let (k, c1) = (m.clusters, m.components + 1);
+                let (nv, nl) = (m.views.len(), m.lights.len());
+                put(&d, "ids", m.ids.iter().map(|&x| x as i32).collect::<Vec<i32>>(), vec![m.height, m.width])?;
+                put(&d, "weights", m.weights.clone(), vec![m.height, m.width, c1 + 1])?;
+                put(&d, "basis", m.basis.clone(), vec![k, c1, nv, nl, 4])?;
+                put(&d, "scale", m.scale.clone(), vec![k, c1])?;
+                put(&d, "bias", m.bias.clone(), vec![k, c1])?;
+                put(&d, "views", m.views.iter().flatten().copied().collect::<Vec<f64>>(), vec![nv, 3])?;
+                put(&d, "lights", m.lights.iter().flatten().copied().collect::<Vec<f64>>(), vec![nl, 3])?;
+            }
         }
         Ok(d)
     }
@@ -151,9 +204,105 @@ impl PyModel {
                 m.validate().py()?;
                 AnyModel::Srf(m)
             }
+            "lafortune" => {
+                let (params, sh) = get::<f32>(arrays, "params", &[None, None, None])
+                    .or_else(|_| get::<f32>(arrays, "params", &[None, None, Some(3), None]))?;
+                let kind = if sh.len() == 3 { LafortuneKind::Lum } else { LafortuneKind::Rgb };
+                let p = *sh.last().unwrap_or(&0);
+                if p < 5 || (p - 1) % 4 != 0 {
+                    return Err(arg("params", format!("expected 1 + 4 * lobes values per fit, got {p}")));
+                }
+                let rgb = match kind {
+                    LafortuneKind::Lum => Some(get::<f32>(arrays, "rgb", &[Some(sh[0]), Some(sh[1]), Some(3)])?.0),
+                    LafortuneKind::Rgb => None,
+                };
+                let status = match arrays.get_item("status")? {
+                    Some(_) => {
+                        get::<u8>(arrays, "status", &[Some(sh[0]), Some(sh[1])])
+                            .or_else(|_| get::<u8>(arrays, "status", &[Some(sh[0]), Some(sh[1]), Some(3)]))?
+                            .0
+                    }
+                    None => Vec::new(),
+                };
+                let m = Lafortune {
+                    kind,
+                    height: sh[0],
+                    width: sh[1],
+                    lobes: (p - 1) / 4,
+                    params,
+                    rgb,
+                    status,
+                    report: FitReport::default(),
+                };
+                m.validate().py()?;
+                AnyModel::Lafortune(m)
+            }
+            "sh" => {
+                let shape = [None, None, Some(3), None, None];
+                let (coeffs, sh) = if arrays.get_item("q")?.is_some() {
+                    let (q, sh) = get::<u8>(arrays, "q", &shape)?;
+                    let (scale, _) = get::<f32>(arrays, "scale", &[Some(3)])?;
+                    let (bias, _) = get::<f32>(arrays, "bias", &[Some(3)])?;
+                    finite("scale", &scale)?;
+                    finite("bias", &bias)?;
+                    let q = ShCoeffs::Quantized {
+                        q,
+                        scale: [scale[0], scale[1], scale[2]],
+                        bias: [bias[0], bias[1], bias[2]],
+                    };
+                    (q, sh)
+                } else {
+                    let (c, sh) = get::<f32>(arrays, "coeffs", &shape)?;
+                    finite("coeffs", &c)?;
+                    (ShCoeffs::Float(c), sh)
+                };
+                let m = Sh {
+                    height: sh[0],
+                    width: sh[1],
+                    view_coeffs: sh[3],
+                    light_coeffs: sh[4],
+                    coeffs,
+                    constrained_fraction: 0.0,
+                    mean_lambda: 0.0,
+                };
+                m.validate().py()?;
+                AnyModel::Sh(m)
+            }
+            "lpca" => {
+                let (ids, sh) = get::<i32>(arrays, "ids", &[None, None])?;
+                let (weights, ws) = get::<f32>(arrays, "weights", &[Some(sh[0]), Some(sh[1]), None])?;
+                let (basis, bs) = get::<u8>(arrays, "basis", &[None, None, None, None, Some(4)])?;
+                let (scale, _) = get::<f32>(arrays, "scale", &[Some(bs[0]), Some(bs[1])])?;
+                let (bias, _) = get::<f32>(arrays, "bias", &[Some(bs[0]), Some(bs[1])])?;
+                let (views, _) = get::<f64>(arrays, "views", &[Some(bs[2]), Some(3)])?;
+                let (lights, _) = get::<f64>(arrays, "lights", &[Some(bs[3]), Some(3)])?;
+                if ws[2] != bs[1] + 1 {
+                    return Err(arg("weights", format!("expected {} values per texel, got {}", bs[1] + 1, ws[2])));
+                }
+                if let Some(i) = ids.iter().position(|&x| x < 0 || x as usize >= bs[0]) {
+                    return Err(arg("ids", format!("entry {i} is {}, not a cluster in [0, {})", ids[i], bs[0])));
+                }
+                for (n, x) in [("weights", &weights), ("scale", &scale), ("bias", &bias)] {
+                    finite(n, x)?;
+                }
+                let m = Lpca {
+                    height: sh[0],
+                    width: sh[1],
+                    views: views.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+                    lights: lights.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+                    clusters: bs[0],
+                    components: bs[1] - 1,
+                    ids: ids.into_iter().map(|x| x as u32).collect(),
+                    weights,
+                    basis,
+                    scale,
+                    bias,
+                };
+                m.validate().py()?;
+                AnyModel::Lpca(m)
+            }
             o => return Err(arg("kind", format!("expected \"srf\", \"lafortune\", \"sh\" or \"lpca\", got {o:?}"))),
         };
-        let _ = finite;
         Ok(PyModel { inner })
     }
 }
@@ -180,4 +329,107 @@ pub fn fit_srf_native<'py>(
     d.set_item("srf_relative", r.srf_relative)?;
     d.set_item("iterations", r.iterations)?;
     Ok((PyModel { inner: AnyModel::Srf(m) }, d))
+}
+
+/// Fit per-texel Lafortune lobes; returns the model and its report dict.
+#[pyfunction]
+#[pyo3(signature = (data, views, lights, mask=None, kind="lum", lobes=2, diffuse=true, max_iter=60, densify=0, progress=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn fit_lafortune_native<'py>(
+    py: Python<'py>,
+    data: &Bound<'py, PyAny>,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+    kind: &str,
+    lobes: usize,
+    diffuse: bool,
+    max_iter: usize,
+    densify: usize,
+    progress: Option<&Bound<'py, PyAny>>,
+) -> PyResult<(PyModel, Bound<'py, PyDict>)> {
+    let kind = match kind {
+        "lum" => LafortuneKind::Lum,
+        "rgb" => LafortuneKind::Rgb,
+        o => return Err(arg("kind", format!("expected \"lum\" or \"rgb\", got {o:?}"))),
+    };
+    let args = BtfArgs::new(data, views, lights, mask)?;
+    let b = args.btf()?;
+    let opts = LafortuneOptions { kind, lobes, diffuse, max_iter, densify };
+    let m = monitored(py, progress, |mon| {
+        btfrs_core::btf::check_finite("data", b.data)?;
+        btfrs_fit::fit_lafortune(&b, &opts, mon)
+    })?;
+    let r = m.report;
+    let d = PyDict::new(py);
+    d.set_item("fits", r.fits)?;
+    d.set_item("converged", r.converged)?;
+    d.set_item("fell_back", r.fell_back)?;
+    d.set_item("failed", r.failed)?;
+    d.set_item("mean_iterations", r.mean_iterations)?;
+    d.set_item("rms_residual", r.rms_residual)?;
+    Ok((PyModel { inner: AnyModel::Lafortune(m) }, d))
+}
+
+/// Fit double SH by constrained (or plain) least squares; returns the model and a report dict.
+#[pyfunction]
+#[pyo3(signature = (data, views, lights, mask=None, light_coeffs=25, view_coeffs=25, cls=true, quantize=true, chunk_texels=1024, progress=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn fit_sh_native<'py>(
+    py: Python<'py>,
+    data: &Bound<'py, PyAny>,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+    light_coeffs: usize,
+    view_coeffs: usize,
+    cls: bool,
+    quantize: bool,
+    chunk_texels: usize,
+    progress: Option<&Bound<'py, PyAny>>,
+) -> PyResult<(PyModel, Bound<'py, PyDict>)> {
+    let args = BtfArgs::new(data, views, lights, mask)?;
+    let b = args.btf()?;
+    let opts = ShOptions { light_coeffs, view_coeffs, cls, quantize, chunk_texels };
+    // The finite-value scan is done chunk by chunk inside the fit's pass when the input is
+    // memory-mapped; here it is one parallel pass first, like the other fits.
+    let m = monitored(py, progress, |mon| {
+        btfrs_core::btf::check_finite("data", b.data)?;
+        btfrs_fit::fit_sh(&b, &opts, mon)
+    })?;
+    let d = PyDict::new(py);
+    d.set_item("constrained_fraction", m.constrained_fraction)?;
+    d.set_item("mean_lambda", m.mean_lambda)?;
+    Ok((PyModel { inner: AnyModel::Sh(m) }, d))
+}
+
+/// Fit Local PCA; returns the model and a report dict.
+#[pyfunction]
+#[pyo3(signature = (data, views, lights, mask=None, clusters=32, components=4, kmeans_iterations=25, refine_iterations=2, reduced_dims=64, seed=0, progress=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn fit_lpca_native<'py>(
+    py: Python<'py>,
+    data: &Bound<'py, PyAny>,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+    clusters: usize,
+    components: usize,
+    kmeans_iterations: usize,
+    refine_iterations: usize,
+    reduced_dims: usize,
+    seed: u64,
+    progress: Option<&Bound<'py, PyAny>>,
+) -> PyResult<(PyModel, Bound<'py, PyDict>)> {
+    let args = BtfArgs::new(data, views, lights, mask)?;
+    let b = args.btf()?;
+    let opts = LpcaOptions { clusters, components, kmeans_iterations, refine_iterations, reduced_dims, seed };
+    let m = monitored(py, progress, |mon| {
+        btfrs_core::btf::check_finite("data", b.data)?;
+        btfrs_fit::fit_lpca(&b, &opts, mon)
+    })?;
+    let d = PyDict::new(py);
+    d.set_item("clusters", m.clusters)?;
+    d.set_item("components", m.components)?;
+    Ok((PyModel { inner: AnyModel::Lpca(m) }, d))
 }

@@ -8,6 +8,7 @@ use crate::models::{with_model, AnyModel, PyModel};
 use crate::run::detach;
 use btfrs_fit::RawModel;
 use btfrs_render::cpu::render_cpu;
+use btfrs_render::lpca::{Lpca3d, DEFAULT_GRID};
 use btfrs_render::scene::{Camera, Light, Mesh};
 use btfrs_render::{gpu, Gpu, GpuModel, UploadedModel, View};
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
@@ -342,7 +343,11 @@ pub fn cpu_render_model<'py>(
     let args = ViewArgs::new(lights, coords)?;
     let view = args.view(scene, camera, (width, height), uv_scale);
     check_size(width, height)?;
-    let img = detach(py, || with_model!(&model.inner, m => render_cpu(m, &view)))?;
+    let img = detach(py, || match (&model.inner, method) {
+        // The 3D-texture renderer's reference samples the resampled grid, not the model.
+        (AnyModel::Lpca(m), "3d") => render_cpu(&Lpca3d::new(m, DEFAULT_GRID, 4096)?, &view),
+        (any, _) => with_model!(any, m => render_cpu(m, &view)),
+    })?;
     image(py, img, width, height)
 }
 
@@ -350,6 +355,13 @@ pub fn cpu_render_model<'py>(
 fn gpu_model_of<'a>(model: &'a AnyModel, method: &str) -> PyResult<Box<dyn GpuModel + 'a>> {
     match (model, method) {
         (AnyModel::Srf(m), "default") => Ok(Box::new(m)),
+        (AnyModel::Lafortune(m), "default") => Ok(Box::new(m)),
+        (AnyModel::Sh(m), "default") => Ok(Box::new(m)),
+        (AnyModel::Lpca(m), "9tap") => Ok(Box::new(m)),
+        (AnyModel::Lpca(m), "3d") => {
+            let max = Gpu::shared().map(|g| g.limits.max_texture_dimension_3d as usize).unwrap_or(2048);
+            Ok(Box::new(Lpca3d::new(m, DEFAULT_GRID, max).py()?))
+        }
         (m, o) => Err(arg("method", format!("the {} model has no renderer {o:?}; expected \"default\"", m.kind()))),
     }
 }

@@ -69,7 +69,7 @@ impl GpuModel for Sh {
         let (q, scale, bias) = match &self.coeffs {
             ShCoeffs::Quantized { q, scale, bias } => (Cow::Borrowed(&q[..]), *scale, *bias),
             ShCoeffs::Float(c) => {
-                let (q, s, b) = btfrs_fit::sh::quantize(c);
+                let (q, s, b) = btfrs_fit::sh::quantize(c, self.view_coeffs * self.light_coeffs);
                 (Cow::Owned(q), s, b)
             }
         };

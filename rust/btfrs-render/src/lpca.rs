@@ -74,7 +74,10 @@ impl<'a> Lpca3d<'a> {
         if !(2..=64).contains(&n) || n * n > max_dim {
             return Err(Error::arg(
                 "grid",
-                format!("expected 2 to {} samples per axis (N^2 <= {max_dim}), got {n}", (max_dim as f64).sqrt() as usize),
+                format!(
+                    "expected 2 to {} samples per axis (N^2 <= {max_dim}), got {n}",
+                    (max_dim as f64).sqrt() as usize
+                ),
             ));
         }
         let e = lpca.clusters * (lpca.components + 1);
@@ -83,11 +86,17 @@ impl<'a> Lpca3d<'a> {
         if n * gx > max_dim || n * gy > max_dim {
             return Err(Error::arg(
                 "grid",
-                format!("{e} Eigen-BRDFs of {n} x {n} need a {} x {} texture plane, more than {max_dim}", n * gx, n * gy),
+                format!(
+                    "{e} Eigen-BRDFs of {n} x {n} need a {} x {} texture plane, more than {max_dim}",
+                    n * gx,
+                    n * gy
+                ),
             ));
         }
         let (nv, nl) = (lpca.views.len(), lpca.lights.len());
-        let at = |i: usize| square_to_hemisphere((i % n) as f64 / n as f64 + 0.5 / n as f64, (i / n) as f64 / n as f64 + 0.5 / n as f64);
+        let at = |i: usize| {
+            square_to_hemisphere((i % n) as f64 / n as f64 + 0.5 / n as f64, (i / n) as f64 / n as f64 + 0.5 / n as f64)
+        };
         // Interpolation weights of every grid direction over the measured ones (the 9-tap rule).
         let wv: Vec<Vec<(usize, f64)>> = (0..n * n).map(|i| interp_weights(&lpca.views, at(i), 3)).collect();
         let wl: Vec<Vec<(usize, f64)>> = (0..n * n).map(|i| interp_weights(&lpca.lights, at(i), 3)).collect();

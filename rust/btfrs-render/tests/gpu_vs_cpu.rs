@@ -4,8 +4,12 @@
 
 use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::{Btf, Monitor};
-use btfrs_fit::{fit_ptm, fit_srf, PtmKind, PtmOptions, RawModel, ReflectanceModel};
+use btfrs_fit::lafortune::{LafortuneKind, LafortuneOptions};
+use btfrs_fit::lpca::LpcaOptions;
+use btfrs_fit::sh::ShOptions;
+use btfrs_fit::{fit_lafortune, fit_lpca, fit_ptm, fit_sh, fit_srf, PtmKind, PtmOptions, RawModel, ReflectanceModel};
 use btfrs_render::cpu::render_cpu;
+use btfrs_render::lpca::Lpca3d;
 use btfrs_render::scene::{Camera, Light, Mesh};
 use btfrs_render::{gpu, Gpu, GpuModel, View, WithShader};
 
@@ -120,7 +124,21 @@ fn every_model_matches_the_cpu_reference_on_every_scene() {
     let lrgb =
         fit_ptm(&btf.as_ref(), &PtmOptions { kind: PtmKind::Lrgb, ..Default::default() }, &Monitor::new()).unwrap();
     let (srf, _) = fit_srf(&btf.as_ref(), &Monitor::new()).unwrap();
+    let b = btf.as_ref();
+    let mon = Monitor::new();
+    let laf_lum = fit_lafortune(&b, &LafortuneOptions { lobes: 2, ..Default::default() }, &mon).unwrap();
+    let laf_rgb =
+        fit_lafortune(&b, &LafortuneOptions { kind: LafortuneKind::Rgb, lobes: 1, ..Default::default() }, &mon)
+            .unwrap();
+    let sh = fit_sh(&b, &ShOptions { light_coeffs: 16, view_coeffs: 9, ..Default::default() }, &mon).unwrap();
+    let lpca = fit_lpca(&b, &LpcaOptions { clusters: 4, components: 3, ..Default::default() }, &mon).unwrap();
+    let lpca3d = Lpca3d::new(&lpca, 12, gpu.limits.max_texture_dimension_3d as usize).unwrap();
     for (name, p) in [
+        ("lafortune-lum", check(&gpu, "lafortune-lum", &laf_lum)),
+        ("lafortune-rgb", check(&gpu, "lafortune-rgb", &laf_rgb)),
+        ("sh", check(&gpu, "sh", &sh)),
+        ("lpca-9tap", check(&gpu, "lpca-9tap", &lpca)),
+        ("lpca-3d", check(&gpu, "lpca-3d", &lpca3d)),
         ("srf", check(&gpu, "srf", &srf)),
         ("raw", check(&gpu, "raw", &raw)),
         ("ptm-rgb", check(&gpu, "ptm-rgb", &rgb)),

@@ -1,0 +1,574 @@
+//! Per-texel Lafortune lobes fitted by Levenberg-Marquardt (paper 000, section 3.2), over all
+//! views at once as in McAllister et al.'s spatial BRDF (SBRDF).
+//!
+//! Each texel's measured values (which include the cos(theta_l) foreshortening) are modelled as
+//!
+//! ```text
+//! value(v, l) = l_z * ( kd + sum_i max(Cx_i lx vx + Cy_i ly vy + Cz_i lz vz, 0)^n_i )
+//! ```
+//!
+//! with directions in the tangent frame. Two variants, as for the PTM (paper 000, section 3.2):
+//!
+//! * **Lum**: one fit of the luminance (the mean of R, G, B) with 1 to 7 lobes, times a per-texel
+//!   base colour, the least-squares modulation of the *measured* luminance,
+//!   `base_c = sum lum x_c / sum lum^2` over the present samples (so the base's channel mean is 1
+//!   and `rgb = base * lum_model`);
+//! * **Rgb**: each channel fitted on its own with 1 to 3 lobes (the paper uses 2: 24 coefficients).
+//!
+//! The model is not linear in its parameters, so each fit is a small non-linear least-squares
+//! problem solved by Levenberg-Marquardt with an analytic Jacobian in f64 (see [`lm`] for the
+//! numerics). The paper reports that this fit is slow and "produces visual artifacts" where the
+//! sampling of the hemisphere is sparse or uneven, and interpolates extra images to cure it
+//! (section 6). Here that is handled in three ways:
+//!
+//! * **bounds**: after every step the parameters are projected onto kd >= 0,
+//!   `|Cx|, |Cy|, |Cz| <= C_MAX` and `n in [N_MIN, N_MAX]`, so no lobe can blow up between the
+//!   samples; a lobe whose cosine is <= 0 contributes 0 and a zero derivative, never a NaN;
+//! * **detection and fallback**: each fit records whether LM converged (relative cost decrease below
+//!   1e-7, or a negligible step); if not (non-finite cost, no descent, or `max_iter` reached), it is
+//!   restarted from the initialisation with strong damping, then with fewer lobes
+//!   (`lobes - 1, ..., 1`), and finally replaced by the closed-form diffuse-only fit. The per-fit
+//!   status (0 converged, 1 fell back, 2 failed) and a [`FitReport`] say how often each happened;
+//! * **densification** ([`LafortuneOptions::densify`]): an `n x n` equal-area grid of extra view
+//!   and light directions whose values are interpolated from the present pairs, added to the
+//!   measured samples, which evens out the sampling as the paper suggests.
+//!
+//! Each fit is started from a linear least-squares fit over fixed candidate lobes (specular,
+//! retro-reflective and normal-centred shapes at a few exponents, evaluated once for all texels),
+//! chosen greedily; a candidate's amplitude `A` goes into its coefficients as `A^(1/n)`.
+//!
+//! The fit works on each target divided by its RMS, so [`C_MAX`] is in those units (a lobe peaks at
+//! up to `C_MAX^n` times the texel's RMS value); stored coefficients are scaled back
+//! (`kd * rms`, `C * rms^(1/n)`).
+//!
+//! An all-black texel (or channel) has nothing to fit: its parameters are all zero (exponents 1),
+//! with status "converged". Unused lobes of a fit that fell back to fewer lobes are zero, exponent 1.
+
+mod lm;
+
+use crate::model::ReflectanceModel;
+use btfrs_core::{directions, BtfRef, Error, Monitor, Result};
+use lm::{Basis, Geometry, Layout, Work, MAXM};
+use rayon::prelude::*;
+
+/// Smallest lobe exponent: below 1 a lobe is no longer differentiable where its cosine reaches 0
+/// and behaves like a step, which the sparse samples cannot pin down.
+pub const N_MIN: f64 = 1.0;
+/// Largest lobe exponent: 200 is a lobe of about 5 degrees half-width at half maximum, already
+/// narrower than the 15-degree UBO sampling can resolve; higher values only let LM chase a single
+/// sample.
+pub const N_MAX: f64 = 200.0;
+/// Bound on each lobe coefficient, in units of the fitted target's RMS (see the module docs):
+/// generous for any lobe the data can support, yet finite, so `s^n` stays representable.
+pub const C_MAX: f64 = 1e3;
+/// Most lobes of the luminance model (7 fit a single rendering pass in paper 000).
+pub const MAX_LOBES_LUM: usize = 7;
+/// Most lobes per channel of the RGB model.
+pub const MAX_LOBES_RGB: usize = 3;
+/// Largest densification grid side (it adds `densify^4` samples per fit).
+pub const MAX_DENSIFY: usize = 32;
+/// Initial damping of a first LM run, relative to the diagonal of `J^T J`.
+const LAMBDA0: f64 = 1e-3;
+/// Initial damping of the restart after a run that did not converge: short, gradient-like steps.
+const LAMBDA_RESTART: f64 = 10.0;
+
+/// Which Lafortune variant.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LafortuneKind {
+    /// One set of lobes per colour channel.
+    Rgb,
+    /// One set of lobes for the luminance times a per-texel base colour.
+    Lum,
+}
+
+/// Fit options.
+#[derive(Debug, Clone, Copy)]
+pub struct LafortuneOptions {
+    /// The variant.
+    pub kind: LafortuneKind,
+    /// Lobes per fit: 1 to 7 for `Lum`, 1 to 3 (per channel) for `Rgb`.
+    pub lobes: usize,
+    /// Fit the diffuse term kd; without it kd is fixed at 0.
+    pub diffuse: bool,
+    /// Most LM steps per run (>= 1).
+    pub max_iter: usize,
+    /// 0 = off; else `n` in 1..=32: add an `n x n` equal-area grid of extra view and light
+    /// directions (all `n^4` pairs), values interpolated from present pairs.
+    pub densify: usize,
+}
+
+impl Default for LafortuneOptions {
+    fn default() -> Self {
+        LafortuneOptions { kind: LafortuneKind::Lum, lobes: 2, diffuse: true, max_iter: 60, densify: 0 }
+    }
+}
+
+/// How the fits went, counted over all fits (one per texel for `Lum`, three for `Rgb`).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct FitReport {
+    /// Number of fits.
+    pub fits: usize,
+    /// Fits whose first LM run converged (black texels included).
+    pub converged: usize,
+    /// Fits that converged only after a damped restart or with fewer lobes.
+    pub fell_back: usize,
+    /// Fits replaced by the closed-form diffuse-only fit (or zeros, see [`Lafortune::status`]).
+    pub failed: usize,
+    /// Mean LM steps per fit, all runs of a fit summed.
+    pub mean_iterations: f64,
+    /// RMS of the final residuals of all fits over all their samples (measured and densified), in
+    /// the data's units (`Lum`: of the luminance).
+    pub rms_residual: f64,
+}
+
+/// A fitted per-texel Lafortune model.
+#[derive(Debug, Clone)]
+pub struct Lafortune {
+    /// The variant.
+    pub kind: LafortuneKind,
+    /// Rows.
+    pub height: usize,
+    /// Columns.
+    pub width: usize,
+    /// Lobes per fit.
+    pub lobes: usize,
+    /// per texel: Lum: `[H, W, P]`; Rgb: `[H, W, 3, P]`; `P = 1 + 4 * lobes`, order
+    /// `[kd, (Cx, Cy, Cz, n) per lobe]`.
+    pub params: Vec<f32>,
+    /// Lum only: `[H, W, 3]` base colour.
+    pub rgb: Option<Vec<f32>>,
+    /// per texel (Rgb: per texel and channel, `[H, W, 3]`) status: 0 converged, 1 fell back,
+    /// 2 failed; may be empty for a model loaded without it.
+    pub status: Vec<u8>,
+    /// The fit's summary (`FitReport::default()` for a loaded model).
+    pub report: FitReport,
+}
+
+/// Fit a Lafortune model to the present (view, light) pairs of `btf`; `monitor` counts texels.
+pub fn fit_lafortune(btf: &BtfRef<'_>, opts: &LafortuneOptions, monitor: &Monitor) -> Result<Lafortune> {
+    let max_lobes = match opts.kind {
+        LafortuneKind::Lum => MAX_LOBES_LUM,
+        LafortuneKind::Rgb => MAX_LOBES_RGB,
+    };
+    if !(1..=max_lobes).contains(&opts.lobes) {
+        return Err(Error::arg(
+            "lobes",
+            format!("expected 1 to {max_lobes} lobes for the {:?} model, got {}", opts.kind, opts.lobes),
+        ));
+    }
+    if opts.max_iter == 0 {
+        return Err(Error::arg("max_iter", "expected at least 1 iteration, got 0"));
+    }
+    if opts.densify > MAX_DENSIFY {
+        return Err(Error::arg(
+            "densify",
+            format!("expected 0 (off) to {MAX_DENSIFY} grid directions per side, got {}", opts.densify),
+        ));
+    }
+    let lay = Layout { diffuse: opts.diffuse, lobes: opts.lobes };
+    let pairs = btf.pairs();
+    if pairs < lay.m() {
+        return Err(Error::Degenerate(format!(
+            "the BTF has {pairs} present (view, light) pairs but a {}-lobe Lafortune fit has {} parameters per \
+             texel{}; use fewer lobes or more directions",
+            opts.lobes,
+            lay.m(),
+            if opts.kind == LafortuneKind::Rgb { " and channel" } else { "" },
+        )));
+    }
+    let ctx = Context::new(btf, opts, lay);
+    monitor.check()?;
+
+    let (h, w) = (btf.height, btf.width);
+    let nt = h * w;
+    let pp = 1 + 4 * opts.lobes;
+    let nf = match opts.kind {
+        LafortuneKind::Lum => 1,
+        LafortuneKind::Rgb => 3,
+    };
+    let mut params = vec![0.0f32; nt * nf * pp];
+    let mut base = vec![0.0f32; nt * 3];
+    let mut status = vec![0u8; nt * nf];
+    let mut sse = vec![0.0f64; nt * nf];
+    let mut iters = vec![0u32; nt * nf];
+    monitor.start(nt as u64);
+    params
+        .par_chunks_mut(nf * pp)
+        .zip(base.par_chunks_mut(3))
+        .zip(status.par_chunks_mut(nf))
+        .zip(sse.par_chunks_mut(nf))
+        .zip(iters.par_chunks_mut(nf))
+        .enumerate()
+        .for_each_init(
+            || Work::new(ctx.geo.npad(), opts.lobes),
+            |work, (t, ((((p, rgb), st), e), it))| {
+                if monitor.is_cancelled() {
+                    return;
+                }
+                let texel = btf.texel(t);
+                match opts.kind {
+                    LafortuneKind::Lum => {
+                        ctx.gather(texel, None, &mut work.y);
+                        base_colour(texel, &ctx.meas, rgb);
+                        let r = ctx.fit(work);
+                        r.write(p, &mut st[0], &mut e[0], &mut it[0]);
+                    }
+                    LafortuneKind::Rgb => {
+                        for c in 0..3 {
+                            ctx.gather(texel, Some(c), &mut work.y);
+                            let r = ctx.fit(work);
+                            r.write(&mut p[c * pp..(c + 1) * pp], &mut st[c], &mut e[c], &mut it[c]);
+                        }
+                    }
+                }
+                monitor.advance(1);
+            },
+        );
+    monitor.check()?;
+
+    let fits = nt * nf;
+    let count = |s: u8| status.iter().filter(|&&x| x == s).count();
+    let total_sse: f64 = sse.iter().sum();
+    let report = FitReport {
+        fits,
+        converged: count(0),
+        fell_back: count(1),
+        failed: count(2),
+        mean_iterations: iters.iter().map(|&x| x as f64).sum::<f64>() / fits as f64,
+        rms_residual: (total_sse / (fits * ctx.geo.n) as f64).sqrt(),
+    };
+    Ok(Lafortune {
+        kind: opts.kind,
+        height: h,
+        width: w,
+        lobes: opts.lobes,
+        params,
+        rgb: (opts.kind == LafortuneKind::Lum).then_some(base),
+        status,
+        report,
+    })
+}
+
+/// The least-squares modulation of the measured luminance, `base_c = sum lum x_c / sum lum^2`
+/// over the present samples; 0 for a black texel.
+fn base_colour(texel: &[f32], meas: &[usize], out: &mut [f32]) {
+    let (mut num, mut den) = ([0.0f64; 3], 0.0f64);
+    for &i in meas {
+        let x = &texel[3 * i..3 * i + 3];
+        let lum = (x[0] as f64 + x[1] as f64 + x[2] as f64) / 3.0;
+        for c in 0..3 {
+            num[c] += lum * x[c] as f64;
+        }
+        den += lum * lum;
+    }
+    for c in 0..3 {
+        let b = if den > 0.0 { (num[c] / den) as f32 } else { 0.0 };
+        out[c] = if b.is_finite() { b } else { 0.0 };
+    }
+}
+
+/// Densified samples: for each, the present pairs (flat `v * L + l` indices) and weights that
+/// interpolate its value, in compressed rows.
+#[derive(Debug, Clone, Default)]
+struct Interp {
+    start: Vec<usize>,
+    idx: Vec<usize>,
+    w: Vec<f64>,
+}
+
+/// Everything shared by all texels' fits.
+#[derive(Debug)]
+struct Context {
+    /// Flat pair indices (`v * L + l`) of the present pairs, in sample order.
+    meas: Vec<usize>,
+    /// Interpolation of the densified samples, which follow the measured ones.
+    extra: Interp,
+    geo: Geometry,
+    basis: Basis,
+    lay: Layout,
+    max_iter: usize,
+}
+
+impl Context {
+    fn new(btf: &BtfRef<'_>, opts: &LafortuneOptions, lay: Layout) -> Self {
+        let (nv, nl) = (btf.views.len(), btf.lights.len());
+        let meas: Vec<usize> = (0..nv * nl).filter(|&i| btf.has(i / nl, i % nl)).collect();
+        let mut dirs: Vec<([f64; 3], [f64; 3])> =
+            meas.iter().map(|&i| (btf.views[i / nl], btf.lights[i % nl])).collect();
+        let mut extra = Interp::default();
+        if opts.densify > 0 {
+            let n = opts.densify;
+            let grid: Vec<[f64; 3]> = (0..n * n)
+                .map(|k| {
+                    let (i, j) = (k / n, k % n);
+                    btfrs_hemimap::square_to_hemisphere((i as f64 + 0.5) / n as f64, (j as f64 + 0.5) / n as f64)
+                })
+                .collect();
+            let weights: Vec<Vec<(usize, usize, f64)>> = (0..grid.len() * grid.len())
+                .into_par_iter()
+                .map(|k| {
+                    let (v, l) = (grid[k / grid.len()], grid[k % grid.len()]);
+                    directions::present_pair_weights(btf.views, btf.lights, btf.mask, v, l)
+                })
+                .collect();
+            extra.start.push(0);
+            for (k, ws) in weights.iter().enumerate() {
+                for &(v, l, x) in ws {
+                    extra.idx.push(v * nl + l);
+                    extra.w.push(x);
+                }
+                extra.start.push(extra.idx.len());
+                dirs.push((grid[k / grid.len()], grid[k % grid.len()]));
+            }
+        }
+        let geo = Geometry::new(dirs.into_iter());
+        let basis = Basis::new(&geo);
+        Context { meas, extra, geo, basis, lay, max_iter: opts.max_iter }
+    }
+
+    /// The fit's targets into `y` (padded with zeros): the luminance (`channel = None`) or one
+    /// channel, at the measured samples and interpolated at the densified ones.
+    fn gather(&self, texel: &[f32], channel: Option<usize>, y: &mut [f64]) {
+        let val = |i: usize| match channel {
+            Some(c) => texel[3 * i + c] as f64,
+            None => (texel[3 * i] as f64 + texel[3 * i + 1] as f64 + texel[3 * i + 2] as f64) / 3.0,
+        };
+        let nm = self.meas.len();
+        for (o, &i) in y.iter_mut().zip(&self.meas) {
+            *o = val(i);
+        }
+        for (k, o) in y[nm..self.geo.n].iter_mut().enumerate() {
+            let (s, e) = (self.extra.start[k], self.extra.start[k + 1]);
+            *o = self.extra.idx[s..e].iter().zip(&self.extra.w[s..e]).map(|(&i, &w)| w * val(i)).sum();
+        }
+    }
+
+    /// One fit of the targets in `w.y`, with the fallback chain of the module docs.
+    fn fit(&self, w: &mut Work) -> FitOut {
+        let n = self.geo.n;
+        let lay = self.lay;
+        let yy: f64 = w.y[..n].iter().map(|v| v * v).sum();
+        if yy == 0.0 {
+            return FitOut::zero(0);
+        }
+        if !yy.is_finite() {
+            return FitOut::zero(2);
+        }
+        let scale = (yy / n as f64).sqrt();
+        w.y[..n].iter_mut().for_each(|v| *v /= scale);
+        let fty = self.basis.fty(&w.y);
+        let guesses = lm::initial_guesses(&self.basis, &fty, lay.diffuse, lay.lobes);
+        let mut iters = 0usize;
+        let l0: f64 = std::env::var("LAF_L0").ok().and_then(|s| s.parse().ok()).unwrap_or(LAMBDA0);
+        let lr: f64 = std::env::var("LAF_LR").ok().and_then(|s| s.parse().ok()).unwrap_or(LAMBDA_RESTART);
+        let mut attempts: Vec<(Layout, f64)> = vec![(lay, l0), (lay, lr)];
+        attempts.extend((1..lay.lobes).rev().map(|l| (Layout { lobes: l, ..lay }, l0)));
+        for (a, &(la, lambda0)) in attempts.iter().enumerate() {
+            let mut th = guesses[la.lobes - 1];
+            let run = lm::levenberg_marquardt(&self.geo, la, &mut th, lambda0, self.max_iter, w);
+            iters += run.iters;
+            if run.converged && run.cost.is_finite() {
+                return FitOut::new(la, &th, scale, run.cost, u8::from(a > 0), iters);
+            }
+        }
+        // Failed: the closed-form fit with kd alone, or without kd the best single candidate lobe.
+        if lay.diffuse {
+            let g0 = self.basis.gram[0][0];
+            let kd = if g0 > 0.0 { (fty[0] / g0).max(0.0) } else { 0.0 };
+            let cost = (n as f64 - 2.0 * kd * fty[0] + kd * kd * g0).max(0.0);
+            let mut th = [0.0f64; MAXM];
+            th[0] = kd;
+            FitOut::new(Layout { lobes: 0, ..lay }, &th, scale, cost, 2, iters)
+        } else {
+            let la = Layout { lobes: 1, ..lay };
+            let mut th = guesses[0];
+            lm::project(la, &mut th);
+            let cost = lm::cost(&self.geo, la, &th, w);
+            FitOut::new(la, &th, scale, cost, 2, iters)
+        }
+    }
+}
+
+/// One fit's result in data units, laid out `[kd, (Cx, Cy, Cz, n) x lobes]`.
+#[derive(Debug, Clone, Copy)]
+struct FitOut {
+    p: [f64; MAXM],
+    status: u8,
+    sse: f64,
+    iters: usize,
+}
+
+impl FitOut {
+    /// All zero (exponents 1).
+    fn zero(status: u8) -> Self {
+        let mut p = [0.0f64; MAXM];
+        for k in 0..lm::MAX_LOBES {
+            p[4 + 4 * k] = 1.0;
+        }
+        FitOut { p, status, sse: 0.0, iters: 0 }
+    }
+
+    /// From a normalised theta of layout `la` (possibly fewer lobes than the model; exponents as
+    /// `ln n`).
+    fn new(la: Layout, th: &[f64], scale: f64, cost: f64, status: u8, iters: usize) -> Self {
+        let mut out = FitOut::zero(status);
+        out.p[0] = la.kd(th) * scale;
+        for k in 0..la.lobes {
+            let q = &th[la.off() + 4 * k..la.off() + 4 * k + 4];
+            let n = q[3].exp().clamp(N_MIN, N_MAX);
+            let f = scale.powf(1.0 / n);
+            out.p[1 + 4 * k..4 + 4 * k].copy_from_slice(&[q[0] * f, q[1] * f, q[2] * f]);
+            out.p[4 + 4 * k] = n;
+        }
+        out.sse = cost * scale * scale;
+        out.iters = iters;
+        out
+    }
+
+    /// Store into the model's arrays; a result that does not fit in f32 (data near f32's range)
+    /// is replaced by zeros and reported failed, so no NaN or infinity ever reaches `params`.
+    fn write(&self, p: &mut [f32], st: &mut u8, sse: &mut f64, it: &mut u32) {
+        let ok = p.iter_mut().zip(&self.p).fold(true, |ok, (o, &x)| {
+            *o = x as f32;
+            ok && o.is_finite()
+        });
+        *st = self.status;
+        *sse = if self.sse.is_finite() { self.sse } else { 0.0 };
+        *it = self.iters.min(u32::MAX as usize) as u32;
+        if !ok {
+            let z = FitOut::zero(2);
+            p.iter_mut().zip(&z.p).for_each(|(o, &x)| *o = x as f32);
+            *st = 2;
+        }
+    }
+}
+
+impl Lafortune {
+    /// Values per fit: `1 + 4 * lobes`.
+    pub fn params_per_fit(&self) -> usize {
+        1 + 4 * self.lobes
+    }
+
+    /// Fits per texel (1 for Lum, 3 for Rgb).
+    fn fits_per_texel(&self) -> usize {
+        match self.kind {
+            LafortuneKind::Lum => 1,
+            LafortuneKind::Rgb => 3,
+        }
+    }
+
+    /// Bytes as stored for rendering (f32 parameters and base colours).
+    pub fn nbytes(&self) -> usize {
+        4 * (self.params.len() + self.rgb.as_ref().map_or(0, |r| r.len()))
+    }
+
+    /// Check array lengths, finiteness and the exponent bounds (for models built from loaded files).
+    pub fn validate(&self) -> Result<()> {
+        if self.height == 0 || self.width == 0 {
+            return Err(Error::arg("params", "the Lafortune model has no texels"));
+        }
+        let max_lobes = match self.kind {
+            LafortuneKind::Lum => MAX_LOBES_LUM,
+            LafortuneKind::Rgb => MAX_LOBES_RGB,
+        };
+        if !(1..=max_lobes).contains(&self.lobes) {
+            return Err(Error::arg("lobes", format!("expected 1 to {max_lobes} lobes, got {}", self.lobes)));
+        }
+        let fits = self.height * self.width * self.fits_per_texel();
+        let pp = self.params_per_fit();
+        if self.params.len() != fits * pp {
+            return Err(Error::arg("params", format!("expected {} values, got {}", fits * pp, self.params.len())));
+        }
+        if let Some(i) = self.params.iter().position(|x| !x.is_finite()) {
+            return Err(Error::arg("params", format!("value {} at flat index {i} is not finite", self.params[i])));
+        }
+        for (f, p) in self.params.chunks(pp).enumerate() {
+            for k in 0..self.lobes {
+                let n = p[4 + 4 * k] as f64;
+                if !(N_MIN..=N_MAX).contains(&n) {
+                    return Err(Error::arg(
+                        "params",
+                        format!("fit {f}, lobe {k}: exponent {n} is outside [{N_MIN}, {N_MAX}]"),
+                    ));
+                }
+            }
+        }
+        match (&self.rgb, self.kind) {
+            (Some(r), LafortuneKind::Lum) if r.len() == self.height * self.width * 3 => {
+                if let Some(i) = r.iter().position(|x| !x.is_finite()) {
+                    return Err(Error::arg("rgb", format!("value {} at flat index {i} is not finite", r[i])));
+                }
+            }
+            (None, LafortuneKind::Rgb) => {}
+            _ => return Err(Error::arg("rgb", "expected a [H, W, 3] base colour for Lum and none for Rgb")),
+        }
+        if !(self.status.is_empty() || self.status.len() == fits) {
+            return Err(Error::arg("status", format!("expected {fits} entries (or none), got {}", self.status.len())));
+        }
+        if let Some(s) = self.status.iter().find(|&&s| s > 2) {
+            return Err(Error::arg("status", format!("expected 0, 1 or 2, got {s}")));
+        }
+        Ok(())
+    }
+
+    /// The lobe sum of one fit's parameters `p` at a query, `lz (kd + sum max(s, 0)^n)`.
+    #[inline]
+    fn lobe_sum(&self, p: &[f32], q: &LafortuneQuery) -> f32 {
+        let mut v = p[0];
+        for k in 0..self.lobes {
+            let c = &p[1 + 4 * k..5 + 4 * k];
+            let s = c[0] * q.a + c[1] * q.b + c[2] * q.c;
+            if s > 0.0 {
+                v += s.powf(c[3]);
+            }
+        }
+        q.lz * v
+    }
+}
+
+/// A prepared Lafortune query: the light's foreshortening and the three direction products.
+#[derive(Debug, Clone, Copy)]
+pub struct LafortuneQuery {
+    lz: f32,
+    a: f32,
+    b: f32,
+    c: f32,
+}
+
+impl ReflectanceModel for Lafortune {
+    type Query = LafortuneQuery;
+
+    fn dims(&self) -> (usize, usize) {
+        (self.height, self.width)
+    }
+
+    fn query(&self, view: [f64; 3], light: [f64; 3]) -> LafortuneQuery {
+        LafortuneQuery {
+            // As in the fit: no light arrives from at or below the horizon.
+            lz: light[2].max(0.0) as f32,
+            a: (light[0] * view[0]) as f32,
+            b: (light[1] * view[1]) as f32,
+            c: (light[2] * view[2]) as f32,
+        }
+    }
+
+    #[inline]
+    fn eval(&self, t: usize, q: &LafortuneQuery) -> [f32; 3] {
+        let pp = self.params_per_fit();
+        match self.kind {
+            LafortuneKind::Lum => {
+                let lum = self.lobe_sum(&self.params[t * pp..(t + 1) * pp], q);
+                match &self.rgb {
+                    Some(base) => [base[3 * t] * lum, base[3 * t + 1] * lum, base[3 * t + 2] * lum],
+                    None => [lum; 3],
+                }
+            }
+            LafortuneKind::Rgb => {
+                std::array::from_fn(|c| self.lobe_sum(&self.params[(3 * t + c) * pp..(3 * t + c + 1) * pp], q))
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;
