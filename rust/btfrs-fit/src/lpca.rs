@@ -35,7 +35,7 @@
 //!    small eigenproblem) gives every texel `reduced_dims` principal coordinates. The subspace is
 //!    found on at most 2048 texels drawn with the seed, then all texels are projected on it: about
 //!    two and a half GEMM passes over the data for 64^2 texels, which is read in place.
-//! 2. *k-means* ([`crate::kmeans`]: k-means++ seeding, Lloyd) on those coordinates.
+//! 2. *k-means* ([`mod@crate::kmeans`]: k-means++ seeding, Lloyd) on those coordinates.
 //! 3. *Refine* (Kambhatla and Leen's local PCA, the objective of Müller et al.): per cluster PCA
 //!    of `c` components, then every texel moves to the cluster whose affine subspace reconstructs it
 //!    best, `|x - m_k|^2 - |E_k^T (x - m_k)|^2`; repeated `refine_iterations` times. Each half-step
