@@ -4,7 +4,7 @@
 //! cluster") and meant for texton analysis too. Points are the columns of a `dim x n` `f32`
 //! matrix, i.e. point `i` is `points[i * dim..(i + 1) * dim]` (a BTF's texel-major data is such a
 //! matrix of ABRDFs). Squared distances are computed as `|x|^2 - 2 x.c + |c|^2` with one GEMM per
-//! iteration ([`crate::dense::gemm`]), so the cost is that of a matrix product even for long
+//! iteration (a parallel `matrixmultiply` GEMM), so the cost is that of a matrix product even for long
 //! vectors; sums are accumulated in `f64`, and every sum has a fixed order, so the result
 //! depends only on the seed, never on the number of threads.
 //!

@@ -7,7 +7,7 @@
 //! * [`sh`]: double spherical harmonics fitted by constrained least squares, 8-bit quantized
 //!   (paper 002, section 3.1 and appendix).
 //! * [`lpca`]: local PCA, clustered Eigen-BRDFs quantized to 8 bits (paper 004, sections 3 and 6).
-//! * [`kmeans`]: k-means++ and Lloyd on column-major points (the clustering of [`lpca`]).
+//! * [`mod@kmeans`]: k-means++ and Lloyd on column-major points (the clustering of [`lpca`]).
 //! * [`model`]: what every model shares: evaluation at any (view, light) and the error against a
 //!   BTF, computed in parallel with f64 accumulation.
 

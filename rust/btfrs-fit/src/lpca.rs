@@ -32,9 +32,10 @@
 //!
 //! 1. *Reduce*: a randomized PCA of the centred `texels x D` matrix (Halko, Martinsson and Tropp's
 //!    range finder: Gaussian test matrix from the seed, one power iteration, orthonormalisation,
-//!    small eigenproblem) gives every texel `reduced_dims` principal coordinates. Four GEMM passes
-//!    over the data, which is read in place.
-//! 2. *k-means* ([`crate::kmeans`]: k-means++ seeding, Lloyd) on those coordinates.
+//!    small eigenproblem) gives every texel `reduced_dims` principal coordinates. The subspace is
+//!    found on at most 2048 texels drawn with the seed, then all texels are projected on it: about
+//!    two and a half GEMM passes over the data for 64^2 texels, which is read in place.
+//! 2. *k-means* ([`mod@crate::kmeans`]: k-means++ seeding, Lloyd) on those coordinates.
 //! 3. *Refine* (Kambhatla and Leen's local PCA, the objective of Müller et al.): per cluster PCA
 //!    of `c` components, then every texel moves to the cluster whose affine subspace reconstructs it
 //!    best, `|x - m_k|^2 - |E_k^T (x - m_k)|^2`; repeated `refine_iterations` times. Each half-step

@@ -205,6 +205,14 @@ fn seeded_determinism() {
     assert_eq!(a.weights, c.weights);
     assert_eq!(a.basis, c.basis);
     assert_eq!((a.scale.clone(), a.bias.clone()), (c.scale.clone(), c.bias.clone()));
+    // The same on one thread and on three: block splits follow the thread count, sums do not.
+    let on = |n: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
+        pool.install(|| fit_lpca(&b.as_ref(), &o, &Monitor::new()).unwrap())
+    };
+    let (one, three) = (on(1), on(3));
+    assert_eq!((&one.ids, &one.weights, &one.basis), (&a.ids, &a.weights, &a.basis));
+    assert_eq!((&three.ids, &three.weights, &three.basis), (&a.ids, &a.weights, &a.basis));
     // Another seed is a valid fit too (it may or may not cluster the same way).
     let e = fit_lpca(&b.as_ref(), &LpcaOptions { seed: 10, ..o }, &Monitor::new()).unwrap();
     e.validate().unwrap();
