@@ -16,8 +16,8 @@
 //! * **Rgb**: each channel fitted on its own with 1 to 3 lobes (the paper uses 2: 24 coefficients).
 //!
 //! The model is not linear in its parameters, so each fit is a small non-linear least-squares
-//! problem solved by Levenberg-Marquardt with an analytic Jacobian in f64 (see [`lm`] for the
-//! numerics). The paper reports that this fit is slow and "produces visual artifacts" where the
+//! problem solved by Levenberg-Marquardt with an analytic Jacobian in f64 (the numerics, and why
+//! the exponent is solved for as `ln n`, are in `lafortune/lm.rs`). The paper reports that this fit is slow and "produces visual artifacts" where the
 //! sampling of the hemisphere is sparse or uneven, and interpolates extra images to cure it
 //! (section 6). Here that is handled in three ways:
 //!
@@ -37,9 +37,9 @@
 //! retro-reflective and normal-centred shapes at a few exponents, evaluated once for all texels),
 //! chosen greedily; a candidate's amplitude `A` goes into its coefficients as `A^(1/n)`.
 //!
-//! The fit works on each target divided by its RMS, so [`C_MAX`] is in those units (a lobe peaks at
-//! up to `C_MAX^n` times the texel's RMS value); stored coefficients are scaled back
-//! (`kd * rms`, `C * rms^(1/n)`).
+//! The fit works on each target divided by its RMS, so that tolerances, damping and [`C_MAX`] do not
+//! depend on the data's units; the stored coefficients are scaled back (`kd * rms`,
+//! `C * rms^(1/n)`).
 //!
 //! An all-black texel (or channel) has nothing to fit: its parameters are all zero (exponents 1),
 //! with status "converged". Unused lobes of a fit that fell back to fewer lobes are zero, exponent 1.
@@ -58,8 +58,10 @@ pub const N_MIN: f64 = 1.0;
 /// narrower than the 15-degree UBO sampling can resolve; higher values only let LM chase a single
 /// sample.
 pub const N_MAX: f64 = 200.0;
-/// Bound on each lobe coefficient, in units of the fitted target's RMS (see the module docs):
-/// generous for any lobe the data can support, yet finite, so `s^n` stays representable.
+/// Bound on each lobe coefficient during the fit, in units of the fitted target's RMS (see the
+/// module docs): a linear lobe (n = 1) with |C| = 1000 already peaks at a thousand times the
+/// texel's RMS value, so the bound never binds on a lobe the data supports; it only keeps a
+/// runaway lobe finite.
 pub const C_MAX: f64 = 1e3;
 /// Most lobes of the luminance model (7 fit a single rendering pass in paper 000).
 pub const MAX_LOBES_LUM: usize = 7;
@@ -67,8 +69,10 @@ pub const MAX_LOBES_LUM: usize = 7;
 pub const MAX_LOBES_RGB: usize = 3;
 /// Largest densification grid side (it adds `densify^4` samples per fit).
 pub const MAX_DENSIFY: usize = 32;
-/// Initial damping of a first LM run, relative to the diagonal of `J^T J`.
-const LAMBDA0: f64 = 1e-3;
+/// Initial damping of a first LM run, relative to the diagonal of `J^T J`. The linear
+/// initialisation is far from the optimum and undamped Gauss-Newton steps from it mostly overshoot;
+/// on the built-in materials 1e-1 took a few steps less than 1e-3 (and 1e-2, 1) for 2 lobes.
+const LAMBDA0: f64 = 1e-1;
 /// Initial damping of the restart after a run that did not converge: short, gradient-like steps.
 const LAMBDA_RESTART: f64 = 10.0;
 
@@ -112,9 +116,9 @@ pub struct FitReport {
     pub converged: usize,
     /// Fits that converged only after a damped restart or with fewer lobes.
     pub fell_back: usize,
-    /// Fits replaced by the closed-form diffuse-only fit (or zeros, see [`Lafortune::status`]).
+    /// Fits replaced by a closed-form fit (see [`Lafortune::status`]).
     pub failed: usize,
-    /// Mean LM steps per fit, all runs of a fit summed.
+    /// Mean LM steps (trial steps, accepted or rejected) per fit, all runs of a fit summed.
     pub mean_iterations: f64,
     /// RMS of the final residuals of all fits over all their samples (measured and densified), in
     /// the data's units (`Lum`: of the luminance).
@@ -137,8 +141,11 @@ pub struct Lafortune {
     pub params: Vec<f32>,
     /// Lum only: `[H, W, 3]` base colour.
     pub rgb: Option<Vec<f32>>,
-    /// per texel (Rgb: per texel and channel, `[H, W, 3]`) status: 0 converged, 1 fell back,
-    /// 2 failed; may be empty for a model loaded without it.
+    /// per texel (Rgb: per texel and channel, `[H, W, 3]`) status: 0 converged (black texels
+    /// included), 1 fell back (converged after the damped restart or with fewer lobes), 2 failed
+    /// (the closed-form diffuse-only fit; without `diffuse`, the best single candidate lobe of the
+    /// initialisation; all zeros where the data were not finite). May be empty for a model loaded
+    /// without it.
     pub status: Vec<u8>,
     /// The fit's summary (`FitReport::default()` for a loaded model).
     pub report: FitReport,
@@ -359,10 +366,8 @@ impl Context {
         let fty = self.basis.fty(&w.y);
         let guesses = lm::initial_guesses(&self.basis, &fty, lay.diffuse, lay.lobes);
         let mut iters = 0usize;
-        let l0: f64 = std::env::var("LAF_L0").ok().and_then(|s| s.parse().ok()).unwrap_or(LAMBDA0);
-        let lr: f64 = std::env::var("LAF_LR").ok().and_then(|s| s.parse().ok()).unwrap_or(LAMBDA_RESTART);
-        let mut attempts: Vec<(Layout, f64)> = vec![(lay, l0), (lay, lr)];
-        attempts.extend((1..lay.lobes).rev().map(|l| (Layout { lobes: l, ..lay }, l0)));
+        let mut attempts: Vec<(Layout, f64)> = vec![(lay, LAMBDA0), (lay, LAMBDA_RESTART)];
+        attempts.extend((1..lay.lobes).rev().map(|l| (Layout { lobes: l, ..lay }, LAMBDA0)));
         for (a, &(la, lambda0)) in attempts.iter().enumerate() {
             let mut th = guesses[la.lobes - 1];
             let run = lm::levenberg_marquardt(&self.geo, la, &mut th, lambda0, self.max_iter, w);

@@ -147,9 +147,12 @@ fn to_params(th: &[f64]) -> Vec<f64> {
     th.iter().enumerate().map(|(i, &x)| if i > 0 && i % 4 == 0 { x.exp() } else { x }).collect()
 }
 
+/// (view, light) direction pairs.
+type Pairs = Vec<([f64; 3], [f64; 3])>;
+
 /// The UBO 81 x 81 geometry and theta of a 2-lobe fit with kd (exponents away from 1 so the model
 /// is twice differentiable where a lobe's cosine crosses 0 and central differences are accurate).
-fn jacobian_setup() -> (Vec<([f64; 3], [f64; 3])>, Geometry, Vec<f64>, Vec<f64>) {
+fn jacobian_setup() -> (Pairs, Geometry, Vec<f64>, Vec<f64>) {
     let d = ubo81();
     let pairs: Vec<([f64; 3], [f64; 3])> = d.iter().flat_map(|&v| d.iter().map(move |&l| (v, l))).collect();
     let geo = Geometry::new(pairs.iter().copied());
@@ -220,7 +223,7 @@ fn recovers_lum_model_data() {
         let m = fit_lafortune(&btf, &opts, &Monitor::new()).unwrap();
         m.validate().unwrap();
         let e = model_error(&m, &btf).unwrap();
-        assert!(e.relative() < 1e-3, "{lobes} lobes: relative error {}", e.relative());
+        assert!(e.relative() < 1e-5, "{lobes} lobes: relative error {}", e.relative());
         assert_eq!(m.report.converged, 4, "{:?}", m.report);
         // The fitted luminance is mean(base) times the true model, and the fitted base colour is
         // base / mean(base) (its channels sum to 3): kd scales by mean(base), C by its 1/n-th power.
@@ -240,7 +243,11 @@ fn recovers_lum_model_data() {
                 }
             }
             let (ekd, ec, en) = param_errors(&m.params[t * pp..(t + 1) * pp], &want, lobes);
-            assert!(ekd < 1e-2 && ec < 1e-2 && en < 1e-2, "texel {t}: kd {ekd:e} C {ec:e} n {en:e}");
+            println!(
+                "Lum {lobes} lobes, texel {t}: kd {ekd:.1e} C {ec:.1e} n {en:.1e}, relative error {:.1e}",
+                e.relative()
+            );
+            assert!(ekd < 1e-4 && ec < 1e-4 && en < 1e-4, "texel {t}: kd {ekd:e} C {ec:e} n {en:e}");
         }
     }
 }
@@ -256,14 +263,18 @@ fn recovers_rgb_model_data() {
         m.validate().unwrap();
         assert!(m.rgb.is_none() && m.status.len() == 6 && m.params.len() == 6 * (1 + 4 * lobes));
         let e = model_error(&m, &btf).unwrap();
-        assert!(e.relative() < 1e-3, "{lobes} lobes: relative error {}", e.relative());
+        assert!(e.relative() < 1e-5, "{lobes} lobes: relative error {}", e.relative());
         assert_eq!(m.report.fits, 6);
         assert_eq!(m.report.converged, 6, "{:?}", m.report);
         assert!(m.report.rms_residual < 1e-3, "{:?}", m.report);
         let pp = m.params_per_fit();
         for f in 0..6 {
             let (ekd, ec, en) = param_errors(&m.params[f * pp..(f + 1) * pp], &truth[f], lobes);
-            assert!(ekd < 1e-2 && ec < 1e-2 && en < 1e-2, "fit {f}: kd {ekd:e} C {ec:e} n {en:e}");
+            println!(
+                "Rgb {lobes} lobes, fit {f}: kd {ekd:.1e} C {ec:.1e} n {en:.1e}, relative error {:.1e}",
+                e.relative()
+            );
+            assert!(ekd < 1e-4 && ec < 1e-4 && en < 1e-4, "fit {f}: kd {ekd:e} C {ec:e} n {en:e}");
         }
     }
 }
@@ -352,9 +363,9 @@ fn hard_texels_fall_back_with_finite_params() {
         assert!(m.params[..nf * pp]
             .iter()
             .enumerate()
-            .all(|(i, &x)| x == if i % pp % 4 == 0 && i % pp > 0 { 1.0 } else { 0.0 }));
+            .all(|(i, &x)| x == if (i % pp).is_multiple_of(4) && i % pp > 0 { 1.0 } else { 0.0 }));
         // Infinity: zeros, failed.
-        assert!(m.status[6 * nf..7 * nf].iter().any(|&s| s == 2));
+        assert!(m.status[6 * nf..7 * nf].contains(&2));
         // Negative data: the best non-negative model is 0.
         for f in 5 * nf..6 * nf {
             assert!(m.params[f * pp] == 0.0, "kd {}", m.params[f * pp]);
@@ -566,88 +577,52 @@ fn timing_knit32() {
     }
 }
 
+/// For `scripts/lafortune_scipy_baseline.py`: times this fit (one thread) on 16 knit texels and
+/// writes their geometry, normalised luminance targets and the initial guess to the file named
+/// by `BTFRS_LAF_DUMP`, so that scipy's LM can be timed on exactly the same problems. Run with
+/// `BTFRS_LAF_DUMP=/tmp/laf.bin cargo test -p btfrs-fit --release scipy_dump -- --ignored --nocapture`.
 #[test]
 #[ignore]
-fn timing_passes() {
-    let (_, geo, th, y) = jacobian_setup();
-    let lay = Layout { diffuse: true, lobes: 2 };
-    let mut w = Work::new(geo.npad(), 2);
-    w.y[..geo.n].copy_from_slice(&y);
-    let reps = 2000;
-    let t0 = std::time::Instant::now();
-    let mut acc = 0.0;
-    for _ in 0..reps {
-        acc += lm::cost(&geo, lay, &th, &mut w);
-    }
-    let tc = t0.elapsed().as_secs_f64() / reps as f64;
-    let (mut jtj, mut jtr) = (vec![0.0; MAXM * MAXM], vec![0.0; MAXM]);
-    let t0 = std::time::Instant::now();
-    for _ in 0..reps {
-        lm::normal_equations(&geo, lay, &th, &w, &mut jtj, &mut jtr);
-        acc += jtj[3];
-    }
-    let tj = t0.elapsed().as_secs_f64() / reps as f64;
-    let t0 = std::time::Instant::now();
-    for i in 0..reps * 6561 {
-        acc += (1.0 + i as f64 * 1e-9).ln().exp();
-    }
-    let tl = t0.elapsed().as_secs_f64() / reps as f64;
-    println!(
-        "cost {:.1} us, normal equations {:.1} us, std ln+exp x6561 {:.1} us ({acc})",
-        tc * 1e6,
-        tj * 1e6,
-        tl * 1e6
-    );
-}
-
-#[test]
-#[ignore]
-fn trace_knit() {
-    let btf = generate(&MaterialSpec::new(Preset::Knit, 16, 1), &Monitor::new()).unwrap();
-    let full = btf.as_ref();
-    let t: usize = std::env::var("TEXEL").ok().and_then(|s| s.parse().ok()).unwrap_or(37);
-    let lobes: usize = std::env::var("LOBES").ok().and_then(|s| s.parse().ok()).unwrap_or(7);
-    let d = ubo81();
-    let data = full.texel(t).to_vec();
-    let r = BtfRef::new(1, 1, &d, &d, &data, None).unwrap();
-    lm::TRACE.store(true, std::sync::atomic::Ordering::Relaxed);
-    let opts = LafortuneOptions { lobes, ..Default::default() };
-    let m = fit_lafortune(&r, &opts, &Monitor::new()).unwrap();
-    lm::TRACE.store(false, std::sync::atomic::Ordering::Relaxed);
-    println!("{:?} {:?}", m.params, m.report);
-}
-
-#[test]
-#[ignore]
-fn stats_knit() {
-    let presets: Vec<Preset> = match std::env::var("PRESETS") {
-        Ok(v) if v == "all" => Preset::ALL.to_vec(),
-        _ => vec![Preset::Knit],
+fn scipy_dump() {
+    use std::io::Write;
+    let Ok(path) = std::env::var("BTFRS_LAF_DUMP") else {
+        println!("set BTFRS_LAF_DUMP to the output file");
+        return;
     };
-    let lobes_list: Vec<usize> = std::env::var("LOBES")
-        .ok()
-        .map(|s| s.split(',').map(|x| x.parse().unwrap()).collect())
-        .unwrap_or(vec![1, 2, 4, 7]);
-    for preset in presets {
-        let btf = generate(&MaterialSpec::new(preset, 16, 1), &Monitor::new()).unwrap();
-        let r = btf.as_ref();
-        for &lobes in &lobes_list {
-            let kind = LafortuneKind::Lum;
-            let opts = LafortuneOptions { kind, lobes, ..Default::default() };
-            let t0 = std::time::Instant::now();
-            let m = fit_lafortune(&r, &opts, &Monitor::new()).unwrap();
-            let e = model_error(&m, &r).unwrap();
-            let rep = m.report;
-            println!(
-                "{:?} {kind:?} {lobes}: {:.2}s rel {:.4} conv {} fb {} fail {} iters {:.1}",
-                preset,
-                t0.elapsed().as_secs_f64(),
-                e.relative(),
-                rep.converged,
-                rep.fell_back,
-                rep.failed,
-                rep.mean_iterations
-            );
-        }
+    let btf = generate(&MaterialSpec::new(Preset::Knit, 32, 1), &Monitor::new()).unwrap();
+    let r = btf.as_ref();
+    let ctx = Context::new(&r, &LafortuneOptions::default(), Layout { diffuse: true, lobes: 2 });
+    let n = ctx.geo.n;
+    let mut out = Vec::new();
+    for x in [&ctx.geo.a, &ctx.geo.b, &ctx.geo.c, &ctx.geo.lz] {
+        out.extend_from_slice(&x[..n]);
     }
+    let mut w = Work::new(ctx.geo.npad(), 2);
+    let mut total = 0.0;
+    for t in (0..16).map(|i| i * 61 + 7) {
+        ctx.gather(r.texel(t), None, &mut w.y);
+        let y = w.y[..n].to_vec();
+        let scale = (y.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
+        let yn: Vec<f64> = y.iter().map(|v| v / scale).collect();
+        // The initial guess exactly as `Context::fit` makes it (exponents as n, not ln n).
+        w.y[..n].copy_from_slice(&yn);
+        let th0 = to_params(&lm::initial_guesses(&ctx.basis, &ctx.basis.fty(&w.y), true, 2)[1][..9]);
+        let reps = 20;
+        let t0 = std::time::Instant::now();
+        let mut fit = None;
+        for _ in 0..reps {
+            w.y[..n].copy_from_slice(&y);
+            fit = Some(ctx.fit(&mut w));
+        }
+        let dt = t0.elapsed().as_secs_f64() / reps as f64;
+        total += dt;
+        let f = fit.unwrap();
+        let cost = f.sse / (scale * scale);
+        println!("texel {t}: {:.2} ms, normalised cost {cost:.2}, status {}, {} steps", dt * 1e3, f.status, f.iters);
+        out.extend_from_slice(&yn);
+        out.extend_from_slice(&th0);
+    }
+    println!("mean {:.2} ms per texel", total * 1e3 / 16.0);
+    let bytes: Vec<u8> = out.iter().flat_map(|v| v.to_le_bytes()).collect();
+    std::fs::File::create(&path).unwrap().write_all(&bytes).unwrap();
 }
