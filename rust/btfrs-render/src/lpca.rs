@@ -112,8 +112,8 @@ impl<'a> Lpca3d<'a> {
                     for &(v, a) in wvi {
                         for &(l, b) in &wl[z] {
                             let o = ((ei * nv + v) * nl + l) * 4;
-                            for c in 0..3 {
-                                rgb[c] += a * b * lpca.basis[o + c] as f64;
+                            for (x, &q) in rgb.iter_mut().zip(&lpca.basis[o..o + 3]) {
+                                *x += a * b * q as f64;
                             }
                         }
                     }
@@ -156,8 +156,8 @@ impl<'a> Lpca3d<'a> {
             for (dy, wy) in [(0, 1.0 - f[1]), (1, f[1])] {
                 for (dx, wx) in [(0, 1.0 - f[0]), (1, f[0])] {
                     let o = ((idx[2][dz] * size[1] + idx[1][dy]) * size[0] + idx[0][dx]) * 4;
-                    for c in 0..3 {
-                        out[c] += wx * wy * wz * self.vol[o + c] as f32 / 255.0;
+                    for (x, &q) in out.iter_mut().zip(&self.vol[o..o + 3]) {
+                        *x += wx * wy * wz * q as f32 / 255.0;
                     }
                 }
             }

@@ -119,17 +119,11 @@ pub(crate) fn ln_fast<const F: bool>(x: f64) -> f64 {
 }
 
 /// Whether this CPU runs the AVX2 + FMA versions of the sample passes (checked once by the
-/// standard library and cached).
+/// standard library and cached). Other architectures always run the portable versions.
+#[cfg(target_arch = "x86_64")]
 #[inline]
 pub(crate) fn have_fma() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -309,8 +303,9 @@ fn cost_fma(g: &Geometry, lay: Layout, th: &[f64], w: &mut Work) -> f64 {
     cost_impl::<true>(g, lay, th, w)
 }
 
+/// [`cost`] for kernels compiled with (`F`) or without FMA.
 #[inline(always)]
-fn cost_impl<const F: bool>(g: &Geometry, lay: Layout, th: &[f64], w: &mut Work) -> f64 {
+pub(crate) fn cost_impl<const F: bool>(g: &Geometry, lay: Layout, th: &[f64], w: &mut Work) -> f64 {
     let kd = lay.kd(th);
     let nl = lay.lobes;
     let mut acc = [0.0f64; CH];
@@ -382,8 +377,9 @@ fn normal_equations_fma(g: &Geometry, lay: Layout, th: &[f64], w: &Work, jtj: &m
     normal_equations_impl::<true>(g, lay, th, w, jtj, jtr)
 }
 
+/// [`normal_equations`] for kernels compiled with (`F`) or without FMA.
 #[inline(always)]
-fn normal_equations_impl<const F: bool>(
+pub(crate) fn normal_equations_impl<const F: bool>(
     g: &Geometry,
     lay: Layout,
     th: &[f64],

@@ -37,26 +37,27 @@ fn random_params(rng: &mut Rng, lobes: usize, diffuse: bool) -> Vec<f64> {
     p
 }
 
-/// A BTF generated from the model: per texel its own parameters (and base colour for Lum).
+/// A BTF generated from the model: per texel its own parameters (and base colour for Lum); kd = 0
+/// unless `diffuse`.
 /// Returns (data, true params per fit, base colour per texel).
 fn model_btf(
-    h: usize,
-    w: usize,
+    texels: usize,
     views: &[[f64; 3]],
     lights: &[[f64; 3]],
     kind: LafortuneKind,
     lobes: usize,
+    diffuse: bool,
     seed: u64,
 ) -> (Vec<f32>, Vec<Vec<f64>>, Vec<[f64; 3]>) {
     let mut rng = Rng::new(seed);
     let (nv, nl) = (views.len(), lights.len());
-    let mut data = vec![0.0f32; h * w * nv * nl * 3];
+    let mut data = vec![0.0f32; texels * nv * nl * 3];
     let mut truth = Vec::new();
     let mut bases = Vec::new();
-    for t in 0..h * w {
+    for t in 0..texels {
         let fits: Vec<Vec<f64>> = match kind {
-            LafortuneKind::Lum => vec![random_params(&mut rng, lobes, true)],
-            LafortuneKind::Rgb => (0..3).map(|_| random_params(&mut rng, lobes, true)).collect(),
+            LafortuneKind::Lum => vec![random_params(&mut rng, lobes, diffuse)],
+            LafortuneKind::Rgb => (0..3).map(|_| random_params(&mut rng, lobes, diffuse)).collect(),
         };
         let base = [0.6 + 0.8 * rng.next_f64(), 0.6 + 0.8 * rng.next_f64(), 0.6 + 0.8 * rng.next_f64()];
         for v in 0..nv {
@@ -175,14 +176,6 @@ fn analytic_jacobian_matches_central_differences() {
         // theta in the layout (without kd when not diffuse); full params for the reference.
         let th_l: Vec<f64> = if diffuse { th.clone() } else { th[1..].to_vec() };
         let full = |t: &[f64]| -> Vec<f64> { to_params(&if diffuse { t.to_vec() } else { [&[0.0], t].concat() }) };
-        let mut w = Work::new(geo.npad(), 2);
-        w.y[..geo.n].copy_from_slice(&y);
-        let c = lm::cost(&geo, lay, &th_l, &mut w);
-        let c_ref: f64 =
-            pairs.iter().zip(&y).map(|(&(v, l), &yy)| (reference(&full(&th_l), 2, v, l) - yy).powi(2)).sum();
-        assert!((c - c_ref).abs() < 1e-12 * c_ref, "cost {c} vs reference {c_ref}");
-        let (mut jtj, mut jtr) = (vec![0.0; MAXM * MAXM], vec![0.0; MAXM]);
-        lm::normal_equations(&geo, lay, &th_l, &w, &mut jtj, &mut jtr);
         // Central differences of the reference model, per sample and parameter.
         let mut jfd = vec![vec![0.0; m]; pairs.len()];
         for q in 0..m {
@@ -196,18 +189,40 @@ fn analytic_jacobian_matches_central_differences() {
             }
         }
         let r: Vec<f64> = pairs.iter().zip(&y).map(|(&(v, l), &yy)| reference(&full(&th_l), 2, v, l) - yy).collect();
-        let scale = (0..m).map(|q| jtj[q * m + q]).fold(0.0f64, f64::max);
-        for q in 0..m {
-            let want: f64 = (0..pairs.len()).map(|p| jfd[p][q] * r[p]).sum();
-            assert!(
-                (jtr[q] - want).abs() <= 1e-5 * (want.abs() + 1e-6 * scale.sqrt() * c.sqrt()),
-                "J^T r [{q}]: {} vs {want}",
-                jtr[q]
-            );
-            for u in 0..m {
-                let want: f64 = (0..pairs.len()).map(|p| jfd[p][q] * jfd[p][u]).sum();
-                let got = jtj[q * m + u];
-                assert!((got - want).abs() <= 1e-5 * (want.abs() + 1e-6 * scale), "J^T J [{q}, {u}]: {got} vs {want}");
+        let c_ref: f64 = r.iter().map(|x| x * x).sum();
+        // Both kernels: the one this CPU dispatches to (AVX2 + FMA where available) and the
+        // portable one every other CPU runs.
+        for portable in [false, true] {
+            let mut w = Work::new(geo.npad(), 2);
+            w.y[..geo.n].copy_from_slice(&y);
+            let (mut jtj, mut jtr) = (vec![0.0; MAXM * MAXM], vec![0.0; MAXM]);
+            let c = if portable {
+                let c = lm::cost_impl::<false>(&geo, lay, &th_l, &mut w);
+                lm::normal_equations_impl::<false>(&geo, lay, &th_l, &w, &mut jtj, &mut jtr);
+                c
+            } else {
+                let c = lm::cost(&geo, lay, &th_l, &mut w);
+                lm::normal_equations(&geo, lay, &th_l, &w, &mut jtj, &mut jtr);
+                c
+            };
+            let what = format!("diffuse {diffuse}, portable {portable}");
+            assert!((c - c_ref).abs() < 1e-12 * c_ref, "{what}: cost {c} vs reference {c_ref}");
+            let scale = (0..m).map(|q| jtj[q * m + q]).fold(0.0f64, f64::max);
+            for q in 0..m {
+                let want: f64 = (0..pairs.len()).map(|p| jfd[p][q] * r[p]).sum();
+                assert!(
+                    (jtr[q] - want).abs() <= 1e-5 * (want.abs() + 1e-6 * scale.sqrt() * c.sqrt()),
+                    "{what}: J^T r [{q}]: {} vs {want}",
+                    jtr[q]
+                );
+                for u in 0..m {
+                    let want: f64 = (0..pairs.len()).map(|p| jfd[p][q] * jfd[p][u]).sum();
+                    let got = jtj[q * m + u];
+                    assert!(
+                        (got - want).abs() <= 1e-5 * (want.abs() + 1e-6 * scale),
+                        "{what}: J^T J [{q}, {u}]: {got} vs {want}"
+                    );
+                }
             }
         }
     }
@@ -216,10 +231,11 @@ fn analytic_jacobian_matches_central_differences() {
 #[test]
 fn recovers_lum_model_data() {
     let d = ubo81();
-    for lobes in [1, 2] {
-        let (data, truth, bases) = model_btf(2, 2, &d, &d, LafortuneKind::Lum, lobes, 10 + lobes as u64);
+    for (lobes, diffuse) in [(1, true), (2, true), (2, false)] {
+        let seed = 10 + lobes as u64 + u64::from(diffuse);
+        let (data, truth, bases) = model_btf(4, &d, &d, LafortuneKind::Lum, lobes, diffuse, seed);
         let btf = BtfRef::new(2, 2, &d, &d, &data, None).unwrap();
-        let opts = LafortuneOptions { lobes, ..Default::default() };
+        let opts = LafortuneOptions { lobes, diffuse, ..Default::default() };
         let m = fit_lafortune(&btf, &opts, &Monitor::new()).unwrap();
         m.validate().unwrap();
         let e = model_error(&m, &btf).unwrap();
@@ -244,7 +260,7 @@ fn recovers_lum_model_data() {
             }
             let (ekd, ec, en) = param_errors(&m.params[t * pp..(t + 1) * pp], &want, lobes);
             println!(
-                "Lum {lobes} lobes, texel {t}: kd {ekd:.1e} C {ec:.1e} n {en:.1e}, relative error {:.1e}",
+                "Lum {lobes} lobes (diffuse {diffuse}), texel {t}: kd {ekd:.1e} C {ec:.1e} n {en:.1e}, rel. error {:.1e}",
                 e.relative()
             );
             assert!(ekd < 1e-4 && ec < 1e-4 && en < 1e-4, "texel {t}: kd {ekd:e} C {ec:e} n {en:e}");
@@ -256,7 +272,7 @@ fn recovers_lum_model_data() {
 fn recovers_rgb_model_data() {
     let d = ubo81();
     for lobes in [1, 2] {
-        let (data, truth, _) = model_btf(2, 1, &d, &d, LafortuneKind::Rgb, lobes, 20 + lobes as u64);
+        let (data, truth, _) = model_btf(2, &d, &d, LafortuneKind::Rgb, lobes, true, 20 + lobes as u64);
         let btf = BtfRef::new(2, 1, &d, &d, &data, None).unwrap();
         let opts = LafortuneOptions { kind: LafortuneKind::Rgb, lobes, ..Default::default() };
         let m = fit_lafortune(&btf, &opts, &Monitor::new()).unwrap();
@@ -282,7 +298,7 @@ fn recovers_rgb_model_data() {
 #[test]
 fn held_out_pairs_do_not_influence_the_fit() {
     let d = ubo81();
-    let (mut data, _, _) = model_btf(2, 1, &d, &d, LafortuneKind::Lum, 2, 30);
+    let (mut data, _, _) = model_btf(2, &d, &d, LafortuneKind::Lum, 2, true, 30);
     // Noise, so that the fit is not exact and any leak of the held-out values would show.
     let mut rng = Rng::new(31);
     data.iter_mut().for_each(|x| *x *= 0.8 + 0.4 * rng.next_f64() as f32);
@@ -333,7 +349,7 @@ fn hard_texels_fall_back_with_finite_params() {
     let d = ubo81();
     let n = 81 * 81 * 3;
     let nt = 8;
-    let (mut data, _, _) = model_btf(nt, 1, &d, &d, LafortuneKind::Lum, 2, 40);
+    let (mut data, _, _) = model_btf(nt, &d, &d, LafortuneKind::Lum, 2, true, 40);
     let mut rng = Rng::new(41);
     // 0: black. 1: constant (saturated) 1.0. 2: white noise. 3: huge values. 4: tiny values.
     // 5: negative values. 6: an infinity (the Python side rejects it; here it must not leak).
