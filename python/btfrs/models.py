@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass
-from typing import Optional, Union
+from typing import Any, Optional, Union
 
 import numpy as np
 
@@ -53,7 +53,25 @@ def _as_dir(name: str, d) -> list:
     return [float(x) for x in a / n]
 
 
-class Ptm:
+class _Evaluates:
+    """``evaluate`` and ``error`` over a native model ``self._m`` (every model class has them)."""
+
+    _m: Any
+
+    def evaluate(self, view, light) -> np.ndarray:
+        """The ``[H, W, 3]`` float32 image for one view and one light direction (any non-zero
+        vectors with z >= 0; they are normalised)."""
+        return self._m.evaluate(_as_dir("view", view), _as_dir("light", light))
+
+    def error(self, btf: Btf) -> ErrorReport:
+        """RMSE, relative error and PSNR against every present pair of ``btf``."""
+        if not isinstance(btf, Btf):
+            raise TypeError(f"btf: expected a btfrs.Btf, got {type(btf).__name__}")
+        d = self._m.error(btf.data, btf.views, btf.lights, btf.mask)
+        return ErrorReport(d["rmse"], d["relative"], d["psnr"], int(d["samples"]))
+
+
+class Ptm(_Evaluates):
     """A Polynomial Texture Map per view slot (paper 000, section 3.1).
 
     ``kind="rgb"``: ``coeffs[H, W, V, 3, 6]``, one biquadratic in the light's (x, y) per channel.
@@ -107,18 +125,6 @@ class Ptm:
         """``[V, 3]`` directions of the view slots."""
         return self._m.views()
 
-    def evaluate(self, view, light) -> np.ndarray:
-        """The ``[H, W, 3]`` float32 image for one view and one light direction (any non-zero
-        vectors; they are normalised)."""
-        return self._m.evaluate(_as_dir("view", view), _as_dir("light", light))
-
-    def error(self, btf: Btf) -> ErrorReport:
-        """RMSE, relative error and PSNR against every present pair of ``btf``."""
-        if not isinstance(btf, Btf):
-            raise TypeError(f"btf: expected a btfrs.Btf, got {type(btf).__name__}")
-        d = self._m.error(btf.data, btf.views, btf.lights, btf.mask)
-        return ErrorReport(d["rmse"], d["relative"], d["psnr"], int(d["samples"]))
-
     def slot(self, view) -> int:
         """The index of the view slot for ``view``: an int index, or a direction within 0.5
         degrees of a slot's."""
@@ -163,7 +169,7 @@ class Ptm:
         return f"Ptm({self.kind}, {self.height} x {self.width} texels, {len(self.views)} view slots, {self.nbytes / 2**20:.2f} MiB)"
 
 
-class _Model:
+class _Model(_Evaluates):
     """What the Rust-backed models other than PTM share: evaluation, error, storage, save/load.
 
     Subclasses set ``_kind`` (the native model's name). ``report`` holds the fit's own
@@ -202,18 +208,6 @@ class _Model:
     def from_arrays(cls, arrays: dict):
         """Rebuild the model from :attr:`arrays` (validated: shapes, ranges, finite values)."""
         return cls(_native.Model.from_arrays(cls._kind, dict(arrays)))
-
-    def evaluate(self, view, light) -> np.ndarray:
-        """The ``[H, W, 3]`` float32 image for one view and one light direction (any non-zero
-        vectors with z >= 0; they are normalised)."""
-        return self._m.evaluate(_as_dir("view", view), _as_dir("light", light))
-
-    def error(self, btf: Btf) -> ErrorReport:
-        """RMSE, relative error and PSNR against every present pair of ``btf``."""
-        if not isinstance(btf, Btf):
-            raise TypeError(f"btf: expected a btfrs.Btf, got {type(btf).__name__}")
-        d = self._m.error(btf.data, btf.views, btf.lights, btf.mask)
-        return ErrorReport(d["rmse"], d["relative"], d["psnr"], int(d["samples"]))
 
     def save(self, path: PathLike) -> None:
         """Write the model to one ``.btfrs`` file (atomically)."""

@@ -307,6 +307,25 @@ impl PyModel {
     }
 }
 
+/// Borrow the BTF arguments, check the values are finite, and run `fit` on a worker thread with
+/// progress and Ctrl-C (what every `fit_*_native` shares).
+fn run_fit<'py, M: Send>(
+    py: Python<'py>,
+    data: &Bound<'py, PyAny>,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+    progress: Option<&Bound<'py, PyAny>>,
+    fit: impl FnOnce(&btfrs_core::BtfRef<'_>, &btfrs_core::Monitor) -> btfrs_core::Result<M> + Send,
+) -> PyResult<M> {
+    let args = BtfArgs::new(data, views, lights, mask)?;
+    let b = args.btf()?;
+    monitored(py, progress, |mon| {
+        btfrs_core::btf::check_finite("data", b.data)?;
+        fit(&b, mon)
+    })
+}
+
 /// Fit Phong + SRF; returns the model and a report dict.
 #[pyfunction]
 #[pyo3(signature = (data, views, lights, mask=None, progress=None))]
@@ -318,12 +337,7 @@ pub fn fit_srf_native<'py>(
     mask: Option<&Bound<'py, PyAny>>,
     progress: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<(PyModel, Bound<'py, PyDict>)> {
-    let args = BtfArgs::new(data, views, lights, mask)?;
-    let b = args.btf()?;
-    let (m, r) = monitored(py, progress, |mon| {
-        btfrs_core::btf::check_finite("data", b.data)?;
-        btfrs_fit::fit_srf(&b, mon)
-    })?;
+    let (m, r) = run_fit(py, data, views, lights, mask, progress, btfrs_fit::fit_srf)?;
     let d = PyDict::new(py);
     d.set_item("phong_relative", r.phong_relative)?;
     d.set_item("srf_relative", r.srf_relative)?;
@@ -353,13 +367,8 @@ pub fn fit_lafortune_native<'py>(
         "rgb" => LafortuneKind::Rgb,
         o => return Err(arg("kind", format!("expected \"lum\" or \"rgb\", got {o:?}"))),
     };
-    let args = BtfArgs::new(data, views, lights, mask)?;
-    let b = args.btf()?;
     let opts = LafortuneOptions { kind, lobes, diffuse, max_iter, densify };
-    let m = monitored(py, progress, |mon| {
-        btfrs_core::btf::check_finite("data", b.data)?;
-        btfrs_fit::fit_lafortune(&b, &opts, mon)
-    })?;
+    let m = run_fit(py, data, views, lights, mask, progress, |b, mon| btfrs_fit::fit_lafortune(b, &opts, mon))?;
     let r = m.report;
     let d = PyDict::new(py);
     d.set_item("fits", r.fits)?;
@@ -388,15 +397,8 @@ pub fn fit_sh_native<'py>(
     chunk_texels: usize,
     progress: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<(PyModel, Bound<'py, PyDict>)> {
-    let args = BtfArgs::new(data, views, lights, mask)?;
-    let b = args.btf()?;
     let opts = ShOptions { light_coeffs, view_coeffs, cls, quantize, chunk_texels };
-    // The finite-value scan is done chunk by chunk inside the fit's pass when the input is
-    // memory-mapped; here it is one parallel pass first, like the other fits.
-    let m = monitored(py, progress, |mon| {
-        btfrs_core::btf::check_finite("data", b.data)?;
-        btfrs_fit::fit_sh(&b, &opts, mon)
-    })?;
+    let m = run_fit(py, data, views, lights, mask, progress, |b, mon| btfrs_fit::fit_sh(b, &opts, mon))?;
     let d = PyDict::new(py);
     d.set_item("constrained_fraction", m.constrained_fraction)?;
     d.set_item("mean_lambda", m.mean_lambda)?;
@@ -421,13 +423,8 @@ pub fn fit_lpca_native<'py>(
     seed: u64,
     progress: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<(PyModel, Bound<'py, PyDict>)> {
-    let args = BtfArgs::new(data, views, lights, mask)?;
-    let b = args.btf()?;
     let opts = LpcaOptions { clusters, components, kmeans_iterations, refine_iterations, reduced_dims, seed };
-    let m = monitored(py, progress, |mon| {
-        btfrs_core::btf::check_finite("data", b.data)?;
-        btfrs_fit::fit_lpca(&b, &opts, mon)
-    })?;
+    let m = run_fit(py, data, views, lights, mask, progress, |b, mon| btfrs_fit::fit_lpca(b, &opts, mon))?;
     let d = PyDict::new(py);
     d.set_item("clusters", m.clusters)?;
     d.set_item("components", m.components)?;
