@@ -58,6 +58,19 @@ class _Evaluates:
 
     _m: Any
 
+    @property
+    def height(self) -> int:
+        return self._m.dims[0]
+
+    @property
+    def width(self) -> int:
+        return self._m.dims[1]
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes as stored for rendering (quantized where the model quantizes)."""
+        return self._m.nbytes
+
     def evaluate(self, view, light) -> np.ndarray:
         """The ``[H, W, 3]`` float32 image for one view and one light direction (any non-zero
         vectors with z >= 0; they are normalised)."""
@@ -96,19 +109,6 @@ class Ptm(_Evaluates):
     def kind(self) -> str:
         """``"rgb"`` or ``"lrgb"``."""
         return self._m.kind
-
-    @property
-    def height(self) -> int:
-        return self._m.dims[0]
-
-    @property
-    def width(self) -> int:
-        return self._m.dims[1]
-
-    @property
-    def nbytes(self) -> int:
-        """Bytes as stored for rendering (float32 coefficients and base colours)."""
-        return self._m.nbytes
 
     @property
     def coeffs(self) -> np.ndarray:
@@ -185,19 +185,6 @@ class _Model(_Evaluates):
         self._m = native
         self.fit_seconds = fit_seconds
         self.report = dict(report or {})
-
-    @property
-    def height(self) -> int:
-        return self._m.dims[0]
-
-    @property
-    def width(self) -> int:
-        return self._m.dims[1]
-
-    @property
-    def nbytes(self) -> int:
-        """Bytes as stored for rendering (quantized where the model quantizes)."""
-        return self._m.nbytes
 
     @property
     def arrays(self) -> dict:

@@ -4,7 +4,7 @@ use crate::arrays::{borrow, check_shape, dirs, vec3};
 use crate::core::BtfArgs;
 use crate::errors::{arg, IntoPy};
 use crate::run::{detach, monitored};
-use btfrs_fit::{evaluate_image, fit_ptm, model_error, Degenerate, Ptm, PtmKind, PtmOptions};
+use btfrs_fit::{evaluate_image, fit_ptm, model_error, Degenerate, Ptm, PtmKind, PtmOptions, ReflectanceModel};
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -39,6 +39,33 @@ pub fn error_dict<'py>(py: Python<'py>, e: btfrs_core::metrics::ErrorSums) -> Py
     d.set_item("psnr", e.psnr())?;
     d.set_item("samples", e.n)?;
     Ok(d)
+}
+
+/// `[H, W, 3]` image of any model for one view and one light (GIL released).
+pub fn evaluate_py<'py, M: ReflectanceModel>(
+    py: Python<'py>,
+    m: &M,
+    view: [f64; 3],
+    light: [f64; 3],
+) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+    let (h, w) = m.dims();
+    let img = detach(py, || evaluate_image(m, view, light))?;
+    img.into_pyarray(py).reshape(vec![h, w, 3])
+}
+
+/// Error of any model against the present pairs of a BTF, as [`error_dict`] (GIL released).
+pub fn error_py<'py, M: ReflectanceModel>(
+    py: Python<'py>,
+    m: &M,
+    data: &Bound<'py, PyAny>,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let args = BtfArgs::new(data, views, lights, mask)?;
+    let b = args.btf()?;
+    let e = detach(py, || model_error(m, &b))?;
+    error_dict(py, e)
 }
 
 #[pymethods]
@@ -130,9 +157,7 @@ impl PyPtm {
         view: &Bound<'py, PyAny>,
         light: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
-        let (v, l) = (vec3("view", view)?, vec3("light", light)?);
-        let img = detach(py, || evaluate_image(&self.inner, v, l))?;
-        img.into_pyarray(py).reshape(vec![self.inner.height, self.inner.width, 3])
+        evaluate_py(py, &self.inner, vec3("view", view)?, vec3("light", light)?)
     }
 
     /// Error against the present pairs of a BTF: dict of rmse, relative, psnr, samples.
@@ -145,10 +170,7 @@ impl PyPtm {
         lights: &Bound<'py, PyAny>,
         mask: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let args = BtfArgs::new(data, views, lights, mask)?;
-        let b = args.btf()?;
-        let e = detach(py, || model_error(&self.inner, &b))?;
-        error_dict(py, e)
+        error_py(py, &self.inner, data, views, lights, mask)
     }
 }
 

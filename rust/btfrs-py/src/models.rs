@@ -7,12 +7,12 @@
 use crate::arrays::{borrow, check_shape};
 use crate::core::BtfArgs;
 use crate::errors::{arg, IntoPy};
-use crate::fit::error_dict;
-use crate::run::{detach, monitored};
+use crate::fit::{error_py, evaluate_py};
+use crate::run::monitored;
 use btfrs_fit::lafortune::{FitReport, LafortuneOptions};
 use btfrs_fit::lpca::LpcaOptions;
 use btfrs_fit::sh::ShOptions;
-use btfrs_fit::{evaluate_image, model_error, Lafortune, LafortuneKind, Lpca, Phong, Sh, ShCoeffs, Srf};
+use btfrs_fit::{Lafortune, LafortuneKind, Lpca, Phong, Sh, ShCoeffs, Srf};
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -116,9 +116,7 @@ impl PyModel {
 
     /// `[H, W, 3]` image for one view and one light.
     fn evaluate<'py>(&self, py: Python<'py>, view: [f64; 3], light: [f64; 3]) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
-        let (h, w) = self.inner.dims();
-        let img = detach(py, || with_model!(&self.inner, m => evaluate_image(m, view, light)))?;
-        img.into_pyarray(py).reshape(vec![h, w, 3])
+        with_model!(&self.inner, m => evaluate_py(py, m, view, light))
     }
 
     /// Error against the present pairs of a BTF: dict of rmse, relative, psnr, samples.
@@ -131,10 +129,7 @@ impl PyModel {
         lights: &Bound<'py, PyAny>,
         mask: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let args = BtfArgs::new(data, views, lights, mask)?;
-        let b = args.btf()?;
-        let e = detach(py, || with_model!(&self.inner, m => model_error(m, &b)))?;
-        error_dict(py, e)
+        with_model!(&self.inner, m => error_py(py, m, data, views, lights, mask))
     }
 
     /// The model's arrays (copies), by name.
