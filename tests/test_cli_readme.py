@@ -67,3 +67,15 @@ def test_readme_models_snippet_runs(monkeypatch, tmp_path):
     for name in ("laf", "srf", "sh", "lp"):
         assert 0 < ns[name].error(test).relative < 0.6, name
     assert set(ns["laf"].report) >= {"converged", "fell_back", "failed"}
+
+
+def test_readme_synthesis_snippet_runs(monkeypatch, tmp_path):
+    text = (ROOT / "README.md").read_text()
+    block = re.search(r"## Synthesis[^\n]*\s+```python\n(.*?)```", text, re.S).group(1)
+    monkeypatch.chdir(tmp_path)
+    ns: dict = {}
+    exec(compile(block, "README.md", "exec"), ns)
+    img, cmap, big = ns["img"], ns["cmap"], ns["big"]
+    assert cmap.shape == (512, 512, 2) and big.shape[:2] == (512, 512)
+    assert img.shape == (384, 384, 3) and (img.sum(-1) > 0).mean() > 0.2
+    assert (tmp_path / "knit.analysis.btfrs").exists()

@@ -9,9 +9,9 @@
 
 from __future__ import annotations
 
-from . import directions, exceptions, fit, hemimap, io, materials
+from . import directions, exceptions, fit, hemimap, io, materials, synth
 from ._native import __version__
-from .btf import Btf
+from .btf import Btf, ExpandedBtf
 from .exceptions import (
     BtfrsError,
     DegenerateDataError,
@@ -26,6 +26,7 @@ from .rendering import Camera, DirectionalLight, PointLight, Scene, gpu_info, la
 __all__ = [
     "__version__",
     "Btf",
+    "ExpandedBtf",
     "Ptm",
     "Lafortune",
     "Srf",
@@ -46,6 +47,7 @@ __all__ = [
     "hemimap",
     "io",
     "materials",
+    "synth",
     "BtfrsError",
     "DegenerateDataError",
     "DeviceError",

@@ -13,7 +13,7 @@ _F32 = npt.NDArray[np.float32]
 _F64 = npt.NDArray[np.float64]
 _Bool = npt.NDArray[np.bool_]
 
-__all__ = ['__version__', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'PtmModel', 'fit_ptm_native', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_png', 'read_png', 'write_exr', 'read_exr', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_ptm', 'gpu_upload_raw', 'gpu_render', 'cpu_render_ptm', 'cpu_render_raw', 'Model', 'fit_srf_native', 'fit_lafortune_native', 'fit_sh_native', 'fit_lpca_native', 'gpu_upload_model', 'cpu_render_model']
+__all__ = ['__version__', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'PtmModel', 'fit_ptm_native', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_png', 'read_png', 'write_exr', 'read_exr', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_ptm', 'gpu_upload_raw', 'gpu_render', 'cpu_render_ptm', 'cpu_render_raw', 'Model', 'fit_srf_native', 'fit_lafortune_native', 'fit_sh_native', 'fit_lpca_native', 'gpu_upload_model', 'cpu_render_model', 'Analysis', 'analyse_btf_native', 'analyse_features_native']
 __version__: str
 
 def ubo81() -> _F64: ...
@@ -213,3 +213,71 @@ def cpu_render_model(
     coords: Optional[npt.NDArray[np.uint16]] = None,
     method: str = "default",
 ) -> _F32: ...
+
+@final
+class Analysis:
+    @property
+    def height(self) -> int: ...
+    @property
+    def width(self) -> int: ...
+    @property
+    def levels(self) -> int: ...
+    @property
+    def textons(self) -> list[int]: ...
+    @property
+    def dim(self) -> int: ...
+    @property
+    def m(self) -> int: ...
+    @property
+    def neighbourhoods(self) -> list[tuple[int, int]]: ...
+    def options(self) -> dict[str, int]: ...
+    def texton_map(self, level: int) -> npt.NDArray[np.uint16]: ...
+    def dots(self, level: int) -> _F64: ...
+    def distances(self, level: int) -> _F32: ...
+    def similar(self, neighbourhood: int, level: int) -> tuple[npt.NDArray[np.int32], _F32]: ...
+    def ensure_neighbourhood(self, neighbourhood: int, levels: int, progress: _Progress = None) -> None: ...
+    def kcoherence(
+        self,
+        height: int,
+        width: int,
+        k: int,
+        neighbourhood: int,
+        levels: int,
+        toroidal: bool,
+        seed: int,
+        progress: _Progress = None,
+    ) -> npt.NDArray[np.uint16]: ...
+    def jump_map(self, height: int, width: int, neighbourhood: int, jump: float, seed: int) -> npt.NDArray[np.uint16]: ...
+    def quality(
+        self, coords: npt.NDArray[np.uint16], neighbourhood: int, samples: int, seed: int, progress: _Progress = None
+    ) -> dict[str, Any]: ...
+    def arrays(self) -> dict[str, npt.NDArray[Any]]: ...
+    @staticmethod
+    def from_arrays(arrays: dict[str, npt.NDArray[Any]], options: dict[str, Any]) -> Analysis: ...
+
+def analyse_btf_native(
+    data: _F32,
+    views: _F64,
+    lights: _F64,
+    mask: Optional[_Bool] = None,
+    textons: int = 1024,
+    features: str = "pca",
+    dims: int = 48,
+    images: int = 150,
+    levels: int = 3,
+    m: int = 10,
+    neighbourhoods: list[int] = ...,
+    iterations: int = 20,
+    seed: int = 0,
+    progress: _Progress = None,
+) -> Analysis: ...
+def analyse_features_native(
+    sample: _F32,
+    textons: int = 1024,
+    levels: int = 3,
+    m: int = 10,
+    neighbourhoods: list[int] = ...,
+    iterations: int = 20,
+    seed: int = 0,
+    progress: _Progress = None,
+) -> Analysis: ...

@@ -291,6 +291,74 @@ def table(rows: list) -> str:
     return "\n".join(out)
 
 
+#: Paper 000 Table 1 (3 levels, Pentium 4 2.4 GHz, analysis excluded): (size, k, neighbourhood, seconds).
+TABLE1 = [(256, 1, 2, 1.9), (256, 3, 2, 2.7), (256, 6, 2, 3.7), (256, 6, 3, 13.6), (512, 6, 2, 13.4)]
+#: DESIGN.md targets for the synthesis rows (seconds).
+SYNTH_TARGETS = {(256, 3, 2): 0.05, (512, 6, 2): 0.2}
+
+
+def synth_bench(repeat: int, material: str = "knit", size: int = 64) -> dict:
+    """Paper 000 Table 1 settings, the jump map and the analysis of a size^2 x 81 x 81 sample,
+    with the quality measures of every result beside plain tiling and random placement."""
+    from . import synth
+
+    btf = materials.make(material, size=size, seed=1)
+    t_an, an = best_of(lambda: synth.analyse(btf, textons=min(1024, size * size), seed=0), min(repeat, 2))
+    an.prepare(3, 3)
+    rows = []
+    settings = [(s, k, n, p) for (s, k, n, p) in TABLE1] + [(512, 1, 2, None), (512, 3, 2, None)]
+    for (out, k, n, paper) in settings:
+        t, cmap = best_of(lambda: synth.kcoherence(an, size=out, k=k, neighbourhood=n, levels=3, seed=7), repeat)
+        q = synth.quality(an, cmap, neighbourhood=2)
+        rows.append(dict(method="k-coherence", size=out, k=k, neighbourhood=n, seconds=t, paper_s=paper,
+                         target_s=SYNTH_TARGETS.get((out, k, n)), **q.as_dict()))
+    for out in (256, 512):
+        t, cmap = best_of(lambda: synth.jump_map(an, size=out, neighbourhood=2, seed=7), repeat)
+        rows.append(dict(method="jump map", size=out, k=None, neighbourhood=2, seconds=t, paper_s=None, target_s=None,
+                         **synth.quality(an, cmap, neighbourhood=2).as_dict()))
+    for name, cmap in [("plain tiling", synth.tiled((size, size), 512)),
+                       ("random placement", synth.random_placement((size, size), 512, seed=1))]:
+        rows.append(dict(method=name, size=512, k=None, neighbourhood=None, seconds=0.0, paper_s=None, target_s=None,
+                         **synth.quality(an, cmap, neighbourhood=2).as_dict()))
+    return dict(material=material, sample=size, analysis_s=t_an, analysis=repr(an), rows=rows)
+
+
+def synth_table(res: dict) -> str:
+    out = [f"analysis of {res['material']} {res['sample']}^2 x 81 x 81: {res['analysis_s']:.2f} s (target <= 10 s)",
+           f"{'method':<16} {'size':>5} {'k':>2} {'n':>2} {'seconds':>8} {'paper':>7} {'target':>7} "
+           f"{'nn_dist':>8} {'coher':>6} {'seam':>7} {'seam_m':>7} {'repet':>6}"]
+    for r in res["rows"]:
+        f = lambda v, fmt: "-" if v is None else format(v, fmt)
+        out.append(f"{r['method']:<16} {r['size']:>5} {f(r['k'], 'd'):>2} {f(r['neighbourhood'], 'd'):>2} "
+                   f"{r['seconds']:>8.3f} {f(r['paper_s'], '.1f'):>7} {f(r['target_s'], '.2f'):>7} "
+                   f"{r['nn_distance']:>8.4f} {r['coherence']:>6.3f} {r['seam']:>7.4f} {r['seam_mean']:>7.4f} "
+                   f"{r['repetition']:>6.3f}")
+    return "\n".join(out)
+
+
+def figure6(out_dir: str, material: str = "bumps", size: int = 64, out: int = 192) -> str:
+    """Paper 000 Figure 6 for a built-in material: rows (neighbourhood 1, one level),
+    (neighbourhood 2, one level), (neighbourhood 2, three levels); columns k = 1 and k = 5, plus
+    the tiled sample on the right of each row. Seen from above under a light at 45 degrees."""
+    from . import io, synth
+
+    btf = materials.make(material, size=size, seed=1)
+    an = synth.analyse(btf, textons=min(1024, size * size), neighbourhoods=(1, 2), seed=0)
+    light = int(np.argmin(np.abs(btf.lights[:, 2] - np.cos(np.radians(45.0)))))
+    img = btf.image(0, light)
+    gap = np.full((out, 6, 3), 10.0, np.float32)
+    rows = []
+    for n, levels in [(1, 1), (2, 1), (2, 3)]:
+        cells = [synth.apply(img, synth.kcoherence(an, size=out, k=k, neighbourhood=n, levels=levels, seed=7))
+                 for k in (1, 5)]
+        cells.append(synth.apply(img, synth.tiled((size, size), out)))
+        rows.append(np.concatenate([cells[0], gap, cells[1], gap, cells[2]], axis=1))
+        rows.append(np.full((6, rows[-1].shape[1], 3), 10.0, np.float32))
+    path = os.path.join(out_dir, f"figure6_{material}.png")
+    io.save_image(path, np.concatenate(rows[:-1], axis=0), exposure=0.8 / max(float(np.percentile(img, 99)), 1e-6))
+    return path
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m btfrs.bench", description=__doc__)
     p.add_argument("--size", type=int, action="append", help="material sizes (default: 32 and 64)")
@@ -298,8 +366,24 @@ def main(argv=None) -> int:
     p.add_argument("--json", default="bench-results/bench.json", help="where to write the JSON")
     p.add_argument("--skip-models", action="store_true", help="only the foundation and renderer figures")
     p.add_argument("--sh-big", action="store_true", help="also time double SH 25x25 on a 128^2 x 81 x 81 sample")
+    p.add_argument("--synth-only", action="store_true", help="only the synthesis figures (issue 5)")
+    p.add_argument("--figures", metavar="DIR", help="also write paper 000 Figure 6 style images into DIR")
     a = p.parse_args(argv)
     sizes = a.size or [32, 64]
+    if a.synth_only:
+        res = synth_bench(max(1, a.repeat))
+        print(f"synthesis (paper 000 Table 1 settings, 3 levels) on {res['material']} {res['sample']}^2:")
+        print(synth_table(res))
+        out = {"machine": machine(), "synthesis": res}
+        if a.figures:
+            os.makedirs(a.figures, exist_ok=True)
+            for mat in ("bumps", "knit"):
+                print(f"wrote {figure6(a.figures, mat)}")
+        os.makedirs(os.path.dirname(a.json) or ".", exist_ok=True)
+        with open(a.json, "w") as f:
+            json.dump(out, f, indent=2, default=float)
+        print(f"\nwrote {a.json}", file=sys.stderr)
+        return 0
     rows = run(sizes, max(1, a.repeat))
     print(table(rows))
     acc = accuracy(max(sizes))
@@ -320,6 +404,14 @@ def main(argv=None) -> int:
         print(f"\nLPCA reaching 2% reconstruction error ({min(max(sizes), 32)}^2 samples):")
         print(lpca_sweep_table(sw))
         out.update(models=mb, lpca_render=lr, lpca_sweep=sw)
+    res = synth_bench(max(1, a.repeat))
+    print(f"\nsynthesis (paper 000 Table 1 settings, 3 levels) on {res['material']} {res['sample']}^2:")
+    print(synth_table(res))
+    out["synthesis"] = res
+    if a.figures:
+        os.makedirs(a.figures, exist_ok=True)
+        for mat in ("bumps", "knit"):
+            print(f"wrote {figure6(a.figures, mat)}")
     if a.sh_big:
         big = materials.make("knit", size=128, seed=1)
         t, _ = best_of(lambda: fit.sh(big, light_coeffs=25, view_coeffs=25), 1)

@@ -22,7 +22,7 @@ import numpy as np
 from . import _native
 from .exceptions import FormatError, InvalidArgumentError
 
-__all__ = ["Btf"]
+__all__ = ["Btf", "ExpandedBtf"]
 
 Index = Union[None, int, slice, Sequence[int], np.ndarray]
 
@@ -205,10 +205,81 @@ class Btf:
         except KeyError as e:
             raise FormatError(f"{os.fspath(path)}: the BTF file has no array {e}") from None
 
+    def expand(self, coords) -> "ExpandedBtf":
+        """A large BTF made of this sample and a coordinate map (from :mod:`btfrs.synth`),
+        without copying the data: see :class:`ExpandedBtf`."""
+        return ExpandedBtf(self, coords)
+
     def __repr__(self) -> str:
         h, w, v, l, _ = self.shape
         present = "" if self._mask is None else f", {self.pairs} of {v * l} pairs present"
         return f"Btf({h} x {w} texels, {v} views x {l} lights{present}, {self.nbytes / 2**20:.1f} MiB)"
+
+
+class ExpandedBtf:
+    """A synthesized BTF: a sample :class:`Btf` plus a coordinate map (paper 000, section 4,
+    "Using large BTFs for rendering"). Texel ``(i, j)`` is the sample texel ``coords[i, j]``
+    (``(x, y)``, uint16). Nothing is copied: the map costs 4 bytes per texel, so a 4096 x 4096
+    BTF from a 64 x 64 sample is the sample plus 64 MiB. Images and ABRDFs are gathered on
+    request; :meth:`to_btf` materialises the whole thing (the full size, explicitly).
+    """
+
+    def __init__(self, sample: Btf, coords) -> None:
+        if not isinstance(sample, Btf):
+            raise TypeError(f"sample: expected a btfrs.Btf, got {type(sample).__name__}")
+        c = np.asarray(coords)
+        if c.dtype != np.uint16:
+            raise TypeError(f"coords: expected a uint16 array [H, W, 2], got dtype {c.dtype}")
+        if c.ndim != 3 or c.shape[2] != 2 or c.shape[0] == 0 or c.shape[1] == 0:
+            raise ValueError(f"coords: expected a non-empty shape (H, W, 2), got {c.shape}")
+        if int(c[..., 0].max()) >= sample.width or int(c[..., 1].max()) >= sample.height:
+            raise InvalidArgumentError(
+                f"coords: points outside the {sample.height} x {sample.width} sample "
+                f"(max x {int(c[..., 0].max())}, max y {int(c[..., 1].max())})")
+        self.sample = sample
+        self.coords = np.ascontiguousarray(c)
+        self.coords.flags.writeable = False
+
+    views = property(lambda self: self.sample.views, doc="``[V, 3]`` view directions.")
+    lights = property(lambda self: self.sample.lights, doc="``[L, 3]`` light directions.")
+    mask = property(lambda self: self.sample.mask, doc="Optional ``[V, L]`` mask of present pairs.")
+    height = property(lambda self: int(self.coords.shape[0]), doc="Rows.")
+    width = property(lambda self: int(self.coords.shape[1]), doc="Columns.")
+
+    @property
+    def shape(self) -> tuple:
+        """``(H, W, V, L, 3)`` of the expanded BTF."""
+        _, _, v, l, c = self.sample.shape
+        return (self.height, self.width, v, l, c)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held: the sample plus the map."""
+        return self.sample.nbytes + self.coords.nbytes
+
+    @property
+    def nbytes_expanded(self) -> int:
+        """Bytes the materialised BTF would take."""
+        return int(np.prod(self.shape)) * 4
+
+    def image(self, view: int, light: int) -> np.ndarray:
+        """``[H, W, 3]`` image for one (view, light) pair (gathered from the sample)."""
+        return self.sample.image(view, light)[self.coords[..., 1], self.coords[..., 0]]
+
+    def abrdf(self, row: int, col: int) -> np.ndarray:
+        """``[V, L, 3]`` apparent BRDF of one texel (a view into the sample)."""
+        x, y = self.coords[row, col]
+        return self.sample.abrdf(int(y), int(x))
+
+    def to_btf(self) -> Btf:
+        """Materialise the full ``[H, W, V, L, 3]`` BTF (``nbytes_expanded`` bytes)."""
+        data = self.sample.data[self.coords[..., 1], self.coords[..., 0]]
+        return Btf(data, self.sample.views, self.sample.lights, self.sample.mask, check=False)
+
+    def __repr__(self) -> str:
+        return (f"ExpandedBtf({self.height} x {self.width} texels from a {self.sample.height} x "
+                f"{self.sample.width} sample, {self.nbytes / 2**20:.1f} MiB held, "
+                f"{self.nbytes_expanded / 2**20:.0f} MiB expanded)")
 
 
 def read_container(path, mmap: bool = False) -> tuple[str, dict, dict]:

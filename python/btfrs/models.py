@@ -296,7 +296,7 @@ _MODEL_CLASSES = {c._kind: c for c in (Srf, Lafortune, Sh, Lpca)}
 
 
 def load(path: PathLike):
-    """Load any ``.btfrs`` file: a :class:`~btfrs.Btf` or a fitted model."""
+    """Load any ``.btfrs`` file: a :class:`~btfrs.Btf`, a fitted model or a synthesis analysis."""
     kind, meta, arrays = read_container(path)
     if kind == "btf":
         return Btf.from_arrays(path, arrays)
@@ -316,4 +316,8 @@ def load(path: PathLike):
         m.fit_seconds = meta.get("fit_seconds")
         m.report = dict(meta.get("report") or {})
         return m
+    if kind == "analysis":
+        from .synth import Analysis
+
+        return Analysis._from_container(path, meta, arrays)
     raise FormatError(f"{os.fspath(path)}: unknown content {kind!r}")

@@ -22,7 +22,7 @@ pub mod srf;
 
 pub use kmeans::{kmeans, KMeans};
 pub use lafortune::{fit_lafortune, FitReport, Lafortune, LafortuneKind, LafortuneOptions};
-pub use lpca::{fit_lpca, Lpca, LpcaOptions, LpcaQuery};
+pub use lpca::{fit_lpca, principal_coordinates, Lpca, LpcaOptions, LpcaQuery};
 pub use model::{evaluate_image, model_error, RawModel, ReflectanceModel};
 pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions};
 pub use sh::{fit_sh, quantize, sh_basis, Sh, ShCoeffs, ShOptions};

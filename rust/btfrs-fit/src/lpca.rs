@@ -366,6 +366,29 @@ fn centred_t_times(data: &[f32], d: usize, t: usize, mu: &[f32], q: &DMatrix<f32
     z
 }
 
+/// `[n, r']` principal coordinates (`r' <= r`, texel-major) of the `n` points of dimension `d`
+/// stored point-major in `data`, by the randomized PCA of the LPCA fit's first step (a random
+/// range finder with one power iteration, see [`reduce`]'s notes). Distances between the
+/// coordinates approximate the distances between the points, which is what the texton analysis
+/// of the synthesis (paper 000 section 4.1, "a PCA projection of them") needs. `monitor`
+/// advances by 4.
+pub fn principal_coordinates(
+    data: &[f32],
+    d: usize,
+    n: usize,
+    r: usize,
+    seed: u64,
+    monitor: &Monitor,
+) -> Result<(Vec<f32>, usize)> {
+    if d == 0 || n == 0 || data.len() != d * n {
+        return Err(Error::arg("data", format!("expected {n} x {d} values, got {}", data.len())));
+    }
+    if r == 0 {
+        return Err(Error::arg("dims", "expected at least 1 principal component, got 0"));
+    }
+    reduce(data, d, n, r, seed, monitor)
+}
+
 /// Step 1: `[T, r']` principal coordinates (`r' <= r`; 0 when all texels are equal) of the
 /// columns of the `d x t` matrix over `data`, by a randomized PCA with one power iteration.
 ///

@@ -13,6 +13,7 @@ mod io;
 mod models;
 mod render;
 mod run;
+mod synth;
 
 use pyo3::prelude::*;
 
@@ -54,5 +55,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render::cpu_render_raw, m)?)?;
     m.add_function(wrap_pyfunction!(render::gpu_upload_model, m)?)?;
     m.add_function(wrap_pyfunction!(render::cpu_render_model, m)?)?;
+    m.add_class::<synth::PyAnalysis>()?;
+    m.add_function(wrap_pyfunction!(synth::analyse_btf_native, m)?)?;
+    m.add_function(wrap_pyfunction!(synth::analyse_features_native, m)?)?;
     Ok(())
 }

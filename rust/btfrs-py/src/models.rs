@@ -69,14 +69,14 @@ pub struct PyModel {
     pub inner: AnyModel,
 }
 
-type Arrays<'py> = Bound<'py, PyDict>;
+pub(crate) type Arrays<'py> = Bound<'py, PyDict>;
 
-fn put<'py, T: numpy::Element>(d: &Arrays<'py>, name: &str, v: Vec<T>, shape: Vec<usize>) -> PyResult<()> {
+pub(crate) fn put<'py, T: numpy::Element>(d: &Arrays<'py>, name: &str, v: Vec<T>, shape: Vec<usize>) -> PyResult<()> {
     d.set_item(name, v.into_pyarray(d.py()).reshape(shape)?)
 }
 
 /// A named array of `dict`, borrowed, with its shape checked.
-fn get<'py, T: numpy::Element + Copy>(
+pub(crate) fn get<'py, T: numpy::Element + Copy>(
     d: &Arrays<'py>,
     name: &str,
     shape: &[Option<usize>],

@@ -1,0 +1,336 @@
+"""BTF synthesis into coordinate maps (paper 000, section 4).
+
+A synthesized BTF is a **coordinate map**: ``[H, W, 2]`` uint16 ``(x, y)`` pairs, each output
+texel naming the sample texel it shows. It costs 4 bytes per texel whatever the BTF's size, renders
+through :func:`btfrs.render` (``coords=``), and expands lazily with :meth:`btfrs.Btf.expand`.
+
+>>> import btfrs
+>>> btf = btfrs.materials.make("knit", size=64, seed=1)
+>>> an = btfrs.synth.analyse(btf, textons=1024, seed=0)        # reusable: an.save(...)
+>>> cmap = btfrs.synth.kcoherence(an, size=(512, 512), k=3, neighbourhood=2, levels=3, seed=7)
+>>> print(btfrs.synth.quality(an, cmap))
+
+* :func:`analyse`: per-pixel appearance vectors (a PCA projection of all images, all images, or
+  representative images), k-means textons, the texton distance table, and the ``m`` most similar
+  neighbourhoods of every sample pixel, per pyramid level (section 4.1). Works on a
+  :class:`~btfrs.Btf` or on a plain ``[H, W, 3]`` texture (the algorithm is data independent).
+* :func:`kcoherence`: hierarchical k-coherence (section 4.2, Figures 3 and 4).
+* :func:`jump_map`: the jump map (Zelinka and Garland 2002), faster, over the same analysis.
+* :func:`quality`: neighbourhood distance to the best sample match, coherence, seams,
+  repetition; :func:`tiled` and :func:`random_placement` are the baselines.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import asdict, dataclass
+from typing import Optional, Sequence, Union
+
+import numpy as np
+
+from . import _native
+from ._progress import Progress, callback
+from .btf import Btf, check_seed
+from .exceptions import FormatError, InvalidArgumentError
+
+__all__ = [
+    "Analysis",
+    "Quality",
+    "analyse",
+    "kcoherence",
+    "jump_map",
+    "quality",
+    "tiled",
+    "random_placement",
+    "apply",
+]
+
+PathLike = Union[str, os.PathLike]
+SizeLike = Union[int, Sequence[int]]
+
+
+def _int(name: str, v, lo: int, hi: Optional[int] = None) -> int:
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+        raise TypeError(f"{name}: expected an int, got {type(v).__name__}")
+    if v < lo or (hi is not None and v > hi):
+        rng = f"{lo} to {hi}" if hi is not None else f"at least {lo}"
+        raise InvalidArgumentError(f"{name}: expected {rng}, got {v}")
+    return int(v)
+
+
+def _size(size: SizeLike) -> tuple[int, int]:
+    if isinstance(size, (int, np.integer)) and not isinstance(size, bool):
+        s = _int("size", size, 1)
+        return s, s
+    try:
+        h, w = size  # type: ignore[misc]
+    except (TypeError, ValueError):
+        raise TypeError(f"size: expected an int or a (height, width) pair, got {size!r}") from None
+    return _int("size", h, 1), _int("size", w, 1)
+
+
+class Analysis:
+    """The texton analysis of a sample, reusable across syntheses (and savable).
+
+    Attributes: ``height``, ``width`` (the sample), ``levels`` (pyramid levels), ``textons``
+    (per level, finest first), ``dim`` (length of the appearance vectors), ``m`` (similar
+    neighbourhoods per pixel), ``neighbourhoods`` (``(radius, levels)`` computed so far; others
+    are computed on first use and kept), ``source`` (``"btf"`` or ``"texture"``), ``features``,
+    ``seconds`` (analysis wall time).
+    """
+
+    def __init__(self, native: "_native.Analysis", source: str, features: str,
+                 seconds: Optional[float] = None) -> None:
+        self._a = native
+        self.source = source
+        self.features = features
+        self.seconds = seconds
+
+    height = property(lambda self: self._a.height, doc="Rows of the sample.")
+    width = property(lambda self: self._a.width, doc="Columns of the sample.")
+    levels = property(lambda self: self._a.levels, doc="Pyramid levels.")
+    textons = property(lambda self: list(self._a.textons), doc="Textons per level, finest first.")
+    dim = property(lambda self: self._a.dim, doc="Length of the appearance vectors.")
+    m = property(lambda self: self._a.m, doc="Similar neighbourhoods kept per pixel.")
+    neighbourhoods = property(lambda self: list(self._a.neighbourhoods),
+                              doc="(radius, levels) of the similar-neighbourhood sets computed.")
+
+    @property
+    def options(self) -> dict:
+        """The options of the analysis (textons, levels, m, iterations, seed)."""
+        return dict(self._a.options())
+
+    def texton_map(self, level: int = 0) -> np.ndarray:
+        """``[H, W]`` uint16 texton of every pixel of a pyramid level."""
+        return self._a.texton_map(_int("level", level, 0))
+
+    def dots(self, level: int = 0) -> np.ndarray:
+        """``[T, T]`` float64 dot products of the textons' appearance vectors (the paper's M)."""
+        return self._a.dots(_int("level", level, 0))
+
+    def distances(self, level: int = 0) -> np.ndarray:
+        """``[T, T]`` float32 squared distances between textons (what the synthesis looks up)."""
+        return self._a.distances(_int("level", level, 0))
+
+    def similar(self, neighbourhood: int = 2, level: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """``([H, W, m] int32 flat pixel indices (-1 where none), [H, W, m] float32 distances)``:
+        the most similar neighbourhoods of every sample pixel, best first."""
+        return self._a.similar(_int("neighbourhood", neighbourhood, 1), _int("level", level, 0))
+
+    def prepare(self, neighbourhood: int, levels: int, progress: Progress = None) -> None:
+        """Compute the similar neighbourhoods of a radius now (synthesis does it on demand)."""
+        self._a.ensure_neighbourhood(_int("neighbourhood", neighbourhood, 1), _int("levels", levels, 1),
+                                     callback(progress, "neighbourhoods"))
+
+    def save(self, path: PathLike) -> None:
+        """Write the analysis to one ``.btfrs`` file (atomically); :func:`btfrs.load` reads it."""
+        meta = {"options": self.options, "source": self.source, "features": self.features,
+                "seconds": self.seconds}
+        arrays = self._a.arrays()
+        _native.save_container(os.fspath(path), "analysis", json.dumps(meta), list(arrays.items()))
+
+    @classmethod
+    def load(cls, path: PathLike) -> "Analysis":
+        """Read an analysis written by :meth:`save`."""
+        from .models import load
+
+        a = load(path)
+        if not isinstance(a, cls):
+            raise FormatError(f"{os.fspath(path)}: holds a {type(a).__name__}, not an Analysis")
+        return a
+
+    @classmethod
+    def _from_container(cls, path: PathLike, meta: dict, arrays: dict) -> "Analysis":
+        try:
+            native = _native.Analysis.from_arrays(arrays, meta["options"])
+        except (KeyError, InvalidArgumentError, TypeError) as e:
+            raise FormatError(f"{os.fspath(path)}: not a valid analysis ({e})") from None
+        return cls(native, meta.get("source", "btf"), meta.get("features", "?"), meta.get("seconds"))
+
+    def __repr__(self) -> str:
+        return (f"Analysis({self.source} {self.height} x {self.width}, {self.features} features of "
+                f"dim {self.dim}, textons {self.textons}, neighbourhoods {self.neighbourhoods})")
+
+
+def _texture(sample) -> np.ndarray:
+    a = np.asarray(sample)
+    if a.ndim == 2:
+        a = a[:, :, None]
+    if a.ndim != 3:
+        raise ValueError(f"sample: expected a Btf or an [H, W, C] texture, got shape {a.shape}")
+    if a.dtype == np.uint8:
+        return np.ascontiguousarray(a, dtype=np.float32) / np.float32(255.0)
+    if a.dtype == np.uint16:
+        return np.ascontiguousarray(a, dtype=np.float32) / np.float32(65535.0)
+    if not np.issubdtype(a.dtype, np.floating):
+        raise TypeError(f"sample: expected a float or uint8/uint16 texture, got dtype {a.dtype}")
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def analyse(sample: Union[Btf, np.ndarray], textons: int = 1024, *, features: str = "pca", dims: int = 48,
+            images: int = 150, levels: int = 3, m: int = 10, neighbourhoods: Sequence[int] = (2,),
+            iterations: int = 20, seed: int = 0, progress: Progress = None) -> Analysis:
+    """Analyse a sample for synthesis (paper 000, section 4.1).
+
+    Parameters
+    ----------
+    sample:
+        A :class:`~btfrs.Btf`, or a texture ``[H, W, C]`` (uint8 / uint16 scaled to [0, 1], or
+        float): each pixel's C values are its appearance vector.
+    textons:
+        k-means clusters of the finest level, 1 to the number of sample pixels (coarser levels use
+        at most one per pixel, which makes their distances exact).
+    features:
+        For a Btf: ``"pca"`` (default: the leading ``dims`` principal coordinates of all measured
+        images), ``"all"`` (every image, the paper's choice; slow, memory ``H*W*V*L*3`` floats),
+        or ``"images"`` (``images`` representative images, clustered by their thumbnails).
+    levels:
+        Pyramid levels (each half the previous resolution). The coarsest must keep more than
+        ``m`` pixels outside one window of the largest neighbourhood you will use.
+    m:
+        Most similar neighbourhoods kept per sample pixel (``k`` of :func:`kcoherence` is at most m).
+    neighbourhoods:
+        Window radii whose similar neighbourhoods are computed now (others on first use).
+    seed:
+        Seeds k-means++ and the PCA sketch: same seed, same analysis.
+    """
+    textons = _int("textons", textons, 1)
+    levels = _int("levels", levels, 1)
+    m = _int("m", m, 1)
+    iterations = _int("iterations", iterations, 1)
+    seed = check_seed(seed)
+    radii = [_int("neighbourhoods", r, 1) for r in neighbourhoods]
+    cb = callback(progress, "analysis")
+    t0 = time.perf_counter()
+    if isinstance(sample, Btf):
+        if features not in ("pca", "all", "images"):
+            raise InvalidArgumentError(f"features: expected 'pca', 'all' or 'images', got {features!r}")
+        native = _native.analyse_btf_native(sample.data, sample.views, sample.lights, sample.mask, textons,
+                                            features, _int("dims", dims, 1), _int("images", images, 1), levels, m,
+                                            radii, iterations, seed, cb)
+        name = features if features != "pca" else f"pca{dims}"
+        return Analysis(native, "btf", name, time.perf_counter() - t0)
+    if features != "pca":
+        raise InvalidArgumentError(f"features: a texture's pixels are its features; got features={features!r}")
+    tex = _texture(sample)
+    native = _native.analyse_features_native(tex, textons, levels, m, radii, iterations, seed, cb)
+    return Analysis(native, "texture", f"{tex.shape[2]} channels", time.perf_counter() - t0)
+
+
+def _analysis(an) -> Analysis:
+    if not isinstance(an, Analysis):
+        raise TypeError(f"an: expected a btfrs.synth.Analysis (from btfrs.synth.analyse), got {type(an).__name__}")
+    return an
+
+
+def kcoherence(an: Analysis, size: SizeLike = (512, 512), k: int = 3, neighbourhood: int = 2, levels: int = 3,
+               toroidal: bool = False, seed: int = 7, progress: Progress = None) -> np.ndarray:
+    """Hierarchical k-coherence synthesis (paper 000, section 4.2) into a coordinate map.
+
+    ``size`` is the output ``(height, width)`` (or one int), ``k`` the candidates per known
+    neighbour (1 = Ashikhmin's coherent candidates only; at most ``an.m``), ``neighbourhood`` the
+    window radius (the paper's neighbourhood size: 2 means 5 x 5), ``levels`` the pyramid levels
+    used (at most ``an.levels``), ``toroidal`` a tileable output. Returns ``[H, W, 2]`` uint16
+    ``(x, y)`` into the sample.
+    """
+    an = _analysis(an)
+    h, w = _size(size)
+    k = _int("k", k, 1)
+    neighbourhood = _int("neighbourhood", neighbourhood, 1)
+    levels = _int("levels", levels, 1)
+    seed = check_seed(seed)
+    if not isinstance(toroidal, (bool, np.bool_)):
+        raise TypeError(f"toroidal: expected a bool, got {type(toroidal).__name__}")
+    an._a.ensure_neighbourhood(neighbourhood, levels, callback(progress, "neighbourhoods"))
+    return an._a.kcoherence(h, w, k, neighbourhood, levels, bool(toroidal), seed, callback(progress, "k-coherence"))
+
+
+def jump_map(an: Analysis, size: SizeLike = (512, 512), neighbourhood: int = 2, jump: float = 0.05,
+             seed: int = 7) -> np.ndarray:
+    """Jump-map synthesis (Zelinka and Garland 2002) over the finest level of the analysis: each
+    pixel continues a neighbour's patch or, with probability ``jump``, jumps to a similar pixel.
+    Returns ``[H, W, 2]`` uint16 ``(x, y)``."""
+    an = _analysis(an)
+    h, w = _size(size)
+    neighbourhood = _int("neighbourhood", neighbourhood, 1)
+    if isinstance(jump, bool) or not isinstance(jump, (int, float, np.floating)):
+        raise TypeError(f"jump: expected a probability, got {type(jump).__name__}")
+    an._a.ensure_neighbourhood(neighbourhood, 1, None)
+    return an._a.jump_map(h, w, neighbourhood, float(jump), check_seed(seed))
+
+
+@dataclass(frozen=True)
+class Quality:
+    """Quality measures of a coordinate map (see :func:`quality`). Distances are normalised by
+    the mean distance between two random sample pixels."""
+
+    nn_distance: float
+    coherence: float
+    seam: float
+    seam_mean: float
+    repetition: float
+    samples: int
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+    def __str__(self) -> str:
+        return (f"nn_distance {self.nn_distance:.4f}, coherence {self.coherence:.3f}, seam {self.seam:.4f} "
+                f"(mean {self.seam_mean:.4f}), repetition {self.repetition:.3f}")
+
+
+def _coords(name: str, coords, an: Optional[Analysis] = None) -> np.ndarray:
+    c = np.asarray(coords)
+    if c.dtype != np.uint16:
+        raise TypeError(f"{name}: expected a uint16 array [H, W, 2], got dtype {c.dtype}")
+    if c.ndim != 3 or c.shape[2] != 2:
+        raise ValueError(f"{name}: expected shape (H, W, 2), got {c.shape}")
+    return np.ascontiguousarray(c)
+
+
+def quality(an: Analysis, coords, neighbourhood: int = 2, samples: int = 4096, seed: int = 0,
+            progress: Progress = None) -> Quality:
+    """Measure a coordinate map against the analysed sample (lower is better except coherence).
+
+    * ``nn_distance``: per-pixel distance from output windows (radius ``neighbourhood``) to their
+      best match anywhere in the sample, over ``samples`` output pixels chosen by ``seed``;
+    * ``coherence``: fraction of adjacent output pairs adjacent in the sample the same way;
+    * ``seam``: median seam cost along the worst straight row or column boundary (nonzero only
+      where most of a line is broken: a visible seam line), ``seam_mean`` over all adjacent pairs;
+    * ``repetition``: largest fraction of pixels repeated at one translation (1 - sample/size for
+      plain tiling).
+    """
+    an = _analysis(an)
+    c = _coords("coords", coords)
+    d = an._a.quality(c, _int("neighbourhood", neighbourhood, 1), _int("samples", samples, 1), check_seed(seed),
+                      callback(progress, "quality"))
+    return Quality(**d)
+
+
+def tiled(sample_shape: Sequence[int], size: SizeLike) -> np.ndarray:
+    """The plain-tiling baseline: output ``(x, y)`` shows sample ``(x mod w, y mod h)``."""
+    sh, sw = _int("sample_shape", sample_shape[0], 1), _int("sample_shape", sample_shape[1], 1)
+    h, w = _size(size)
+    y, x = np.mgrid[0:h, 0:w]
+    return np.stack([x % sw, y % sh], axis=-1).astype(np.uint16)
+
+
+def random_placement(sample_shape: Sequence[int], size: SizeLike, seed: int = 0) -> np.ndarray:
+    """The random-placement baseline: every output texel an independent random sample texel."""
+    sh, sw = _int("sample_shape", sample_shape[0], 1), _int("sample_shape", sample_shape[1], 1)
+    h, w = _size(size)
+    g = np.random.default_rng(check_seed(seed))
+    return np.stack([g.integers(0, sw, (h, w)), g.integers(0, sh, (h, w))], axis=-1).astype(np.uint16)
+
+
+def apply(texture, coords) -> np.ndarray:
+    """Look a coordinate map up in a texture ``[h, w, ...]``: ``texture[y, x]`` per output pixel."""
+    c = _coords("coords", coords)
+    t = np.asarray(texture)
+    if t.ndim < 2:
+        raise ValueError(f"texture: expected at least 2 dimensions, got shape {t.shape}")
+    if c.size and (int(c[..., 0].max()) >= t.shape[1] or int(c[..., 1].max()) >= t.shape[0]):
+        raise InvalidArgumentError(f"coords: point outside the {t.shape[0]} x {t.shape[1]} texture")
+    return t[c[..., 1], c[..., 0]]

@@ -1,0 +1,406 @@
+//! The reusable analysis of a sample (paper 000 sections 4.1 and 4.2).
+//!
+//! For every level of the sample pyramid: the textons (see [`crate::textons`]) and, for each
+//! neighbourhood radius asked for, the `m` most similar neighbourhoods of every sample pixel
+//! ("for each pixel in the sample, a number of (for example 10) pixels with the most similar
+//! neighborhoods"), found by brute force over the whole level as the paper does for samples up
+//! to 128 x 128, in parallel. The synthesis only reads this: its cost does not depend on the
+//! sample resolution or on the length of the appearance vectors (the paper's Table 1 remark).
+//!
+//! A neighbourhood of radius `r` is the `(2r+1) x (2r+1)` window around a pixel. Only *interior*
+//! pixels, whose window lies inside the sample, take part: the sample is not assumed to tile.
+//! A pixel's own window (pixels closer than `r + 1` in both axes) is excluded from its similar
+//! set, since overlapping windows are similar for a trivial reason and the k-coherence candidates
+//! already include the coherent shifts.
+
+use crate::pyramid::{pyramid, Features};
+use crate::textons::{btf_features, FeatureMode, Textons};
+use btfrs_core::{BtfRef, Error, Monitor, Result};
+use rayon::prelude::*;
+
+/// Largest neighbourhood radius accepted (a 17 x 17 window).
+pub const MAX_RADIUS: usize = 8;
+
+/// Parameters of the analysis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AnalysisOptions {
+    /// Textons of the finest level (coarser levels use at most one per pixel).
+    pub textons: usize,
+    /// Pyramid levels (1 = no hierarchy).
+    pub levels: usize,
+    /// Similar neighbourhoods kept per sample pixel (the largest usable `k` is `m + 1`... see
+    /// [`crate::kcoherence`]: `k - 1 <= m`).
+    pub m: usize,
+    /// Lloyd iterations of every k-means.
+    pub iterations: usize,
+    /// Seed of every random choice (k-means++ seeding, PCA sketch).
+    pub seed: u64,
+}
+
+impl Default for AnalysisOptions {
+    fn default() -> Self {
+        Self { textons: 1024, levels: 3, m: 10, iterations: 20, seed: 0 }
+    }
+}
+
+/// The `m` most similar neighbourhoods of every pixel of one level, for one radius.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Neighbours {
+    /// Window radius.
+    pub radius: usize,
+    /// Entries per pixel.
+    pub m: usize,
+    /// `[pixels, m]` row-major pixel indices, most similar first; `u32::MAX` for the pixels that
+    /// are not interior (they are never candidates).
+    pub index: Vec<u32>,
+    /// `[pixels, m]` neighbourhood distances (sum of texton distances over the window).
+    pub dist: Vec<f32>,
+}
+
+/// One pyramid level of the analysis.
+#[derive(Debug, Clone)]
+pub struct Level {
+    /// Rows.
+    pub height: usize,
+    /// Columns.
+    pub width: usize,
+    /// Textons of the level.
+    pub textons: Textons,
+    /// Similar neighbourhoods, one entry per radius computed so far (sorted by radius).
+    pub neighbours: Vec<Neighbours>,
+}
+
+impl Level {
+    /// The similar neighbourhoods for `radius`, if computed.
+    pub fn neighbours(&self, radius: usize) -> Option<&Neighbours> {
+        self.neighbours.iter().find(|n| n.radius == radius)
+    }
+
+    /// Whether pixel `(x, y)` is interior for `radius`.
+    #[inline]
+    pub fn interior(&self, x: isize, y: isize, radius: usize) -> bool {
+        let r = radius as isize;
+        x >= r && y >= r && x < self.width as isize - r && y < self.height as isize - r
+    }
+}
+
+/// The analysis of a sample: one [`Level`] per pyramid level, finest first.
+#[derive(Debug, Clone)]
+pub struct Analysis {
+    /// Finest first.
+    pub levels: Vec<Level>,
+    /// Similar neighbourhoods per pixel.
+    pub m: usize,
+    /// The options it was made with.
+    pub options: AnalysisOptions,
+}
+
+/// Smallest level side accepted by the analysis.
+const MIN_SIDE: usize = 4;
+
+impl Analysis {
+    /// Analyse a BTF sample: appearance vectors by `mode`, then [`Analysis::of_features`].
+    /// Announces its total work on `monitor` and advances it.
+    pub fn of_btf(
+        btf: &BtfRef<'_>,
+        mode: FeatureMode,
+        opts: AnalysisOptions,
+        radii: &[usize],
+        monitor: &Monitor,
+    ) -> Result<Self> {
+        check_options(btf.height, btf.width, &opts)?;
+        let feat_units = match mode {
+            FeatureMode::All => 1,
+            FeatureMode::Pca { .. } => 4,
+            FeatureMode::Images { .. } => opts.iterations as u64,
+        };
+        monitor.start(feat_units + units(btf.height, btf.width, &opts, radii));
+        let f = btf_features(btf, mode, opts.iterations, opts.seed, monitor)?;
+        Self::build(f, opts, radii, monitor)
+    }
+
+    /// Analyse a sample given as per-pixel feature vectors (an RGB texture is `dim = 3`).
+    pub fn of_features(f: Features, opts: AnalysisOptions, radii: &[usize], monitor: &Monitor) -> Result<Self> {
+        check_options(f.height, f.width, &opts)?;
+        monitor.start(units(f.height, f.width, &opts, radii));
+        Self::build(f, opts, radii, monitor)
+    }
+
+    fn build(f: Features, opts: AnalysisOptions, radii: &[usize], monitor: &Monitor) -> Result<Self> {
+        let mut levels = Vec::with_capacity(opts.levels);
+        for (l, f) in pyramid(f, opts.levels).into_iter().enumerate() {
+            monitor.check()?;
+            let t = opts.textons.min(f.pixels());
+            let seed = opts.seed.wrapping_add(l as u64);
+            let textons = Textons::fit(&f, t, opts.iterations, seed, monitor)?;
+            levels.push(Level { height: f.height, width: f.width, textons, neighbours: Vec::new() });
+        }
+        let mut an = Self { levels, m: opts.m, options: opts };
+        for &r in radii {
+            // As many levels as are big enough for this radius (a synthesis asking for more
+            // levels gets the error then); none at all is an error now.
+            match (1..=an.levels.len()).rev().find(|&l| an.check_levels(r, l).is_ok()) {
+                Some(l) => an.ensure_neighbours(r, l, monitor)?,
+                None => an.check_levels(r, 1)?,
+            }
+        }
+        Ok(an)
+    }
+
+    /// Rebuild from saved parts (validated by the caller's types; the sizes are checked here).
+    pub fn from_levels(levels: Vec<Level>, options: AnalysisOptions) -> Result<Self> {
+        if levels.is_empty() {
+            return Err(Error::arg("levels", "expected at least one level"));
+        }
+        for (l, lv) in levels.iter().enumerate() {
+            if lv.textons.assign.len() != lv.height * lv.width {
+                return Err(Error::arg(
+                    "textons",
+                    format!("level {l}: expected {} x {} texton indices", lv.height, lv.width),
+                ));
+            }
+            for n in &lv.neighbours {
+                let len = lv.height * lv.width * n.m;
+                let valid = n.index.iter().all(|&i| i == u32::MAX || (i as usize) < lv.height * lv.width);
+                if n.m != options.m || n.index.len() != len || n.dist.len() != len || !valid {
+                    return Err(Error::arg(
+                        "neighbours",
+                        format!("level {l}, radius {}: inconsistent arrays", n.radius),
+                    ));
+                }
+            }
+        }
+        Ok(Self { levels, m: options.m, options })
+    }
+
+    /// Rows and columns of the finest level (the sample).
+    pub fn size(&self) -> (usize, usize) {
+        (self.levels[0].height, self.levels[0].width)
+    }
+
+    /// Check that `levels` levels of the pyramid are big enough for windows of `radius` (each
+    /// needs more than `m` interior pixels outside any one window).
+    pub fn check_levels(&self, radius: usize, levels: usize) -> Result<()> {
+        if radius == 0 || radius > MAX_RADIUS {
+            return Err(Error::arg(
+                "neighbourhood",
+                format!("expected a window radius of 1 to {MAX_RADIUS}, got {radius}"),
+            ));
+        }
+        if levels == 0 || levels > self.levels.len() {
+            return Err(Error::arg(
+                "levels",
+                format!("expected 1 to {} levels (the levels of the analysis), got {levels}", self.levels.len()),
+            ));
+        }
+        for (l, lv) in self.levels.iter().take(levels).enumerate() {
+            let (ih, iw) = (lv.height.saturating_sub(2 * radius), lv.width.saturating_sub(2 * radius));
+            let w = (2 * radius + 1).pow(2);
+            if ih * iw < w + self.m {
+                let (h0, w0) = self.size();
+                let name = if l == 0 { "neighbourhood" } else { "levels" };
+                return Err(Error::arg(
+                    name,
+                    format!(
+                        "the {h0} x {w0} sample is {} x {} at level {l}, too small for neighbourhood {radius} \
+                         ({} x {} windows) with m = {}: use fewer levels, a smaller neighbourhood or a larger sample",
+                        lv.height,
+                        lv.width,
+                        2 * radius + 1,
+                        2 * radius + 1,
+                        self.m
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Compute (once) the similar neighbourhoods for `radius` on the first `levels` levels.
+    pub fn ensure_neighbours(&mut self, radius: usize, levels: usize, monitor: &Monitor) -> Result<()> {
+        self.check_levels(radius, levels)?;
+        let m = self.m;
+        for lv in self.levels.iter_mut().take(levels) {
+            if lv.neighbours(radius).is_none() {
+                let n = similar_neighbourhoods(lv, radius, m, monitor)?;
+                lv.neighbours.push(n);
+                lv.neighbours.sort_by_key(|n| n.radius);
+            }
+        }
+        Ok(())
+    }
+
+    /// Work units of [`Analysis::ensure_neighbours`] (for progress reporting).
+    pub fn neighbour_units(&self, radius: usize, levels: usize) -> u64 {
+        self.levels
+            .iter()
+            .take(levels)
+            .filter(|lv| lv.neighbours(radius).is_none())
+            .map(|lv| lv.height.saturating_sub(2 * radius) as u64)
+            .sum()
+    }
+}
+
+fn check_options(h: usize, w: usize, opts: &AnalysisOptions) -> Result<()> {
+    if opts.textons == 0 || opts.textons > h * w {
+        return Err(Error::arg(
+            "textons",
+            format!("expected 1 to {} textons (the {h} x {w} pixels of the sample), got {}", h * w, opts.textons),
+        ));
+    }
+    if opts.textons > crate::textons::MAX_TEXTONS {
+        return Err(Error::arg(
+            "textons",
+            format!("expected at most {} textons, got {}", crate::textons::MAX_TEXTONS, opts.textons),
+        ));
+    }
+    if opts.m == 0 || opts.m > 64 {
+        return Err(Error::arg("m", format!("expected 1 to 64 similar neighbourhoods per pixel, got {}", opts.m)));
+    }
+    if opts.iterations == 0 {
+        return Err(Error::arg("iterations", "expected at least 1 k-means iteration, got 0"));
+    }
+    let max_levels = (0..).take_while(|&l| (h >> l) >= MIN_SIDE && (w >> l) >= MIN_SIDE).count();
+    if opts.levels == 0 || opts.levels > max_levels {
+        return Err(Error::arg(
+            "levels",
+            format!(
+                "a {h} x {w} sample allows 1 to {max_levels} pyramid levels of at least {MIN_SIDE} x {MIN_SIDE} pixels, got {}",
+                opts.levels
+            ),
+        ));
+    }
+    Ok(())
+}
+
+fn units(h: usize, w: usize, opts: &AnalysisOptions, radii: &[usize]) -> u64 {
+    let _ = w;
+    let rows: u64 =
+        radii.iter().flat_map(|&r| (0..opts.levels).map(move |l| (h >> l).saturating_sub(2 * r) as u64)).sum();
+    (opts.levels * opts.iterations) as u64 + rows
+}
+
+/// One row of the index and distance outputs, with its row number.
+type RowsMut<'a> = (usize, (&'a mut [u32], &'a mut [f32]));
+
+/// Brute-force `m` most similar interior neighbourhoods of every interior pixel of a level.
+fn similar_neighbourhoods(lv: &Level, r: usize, m: usize, monitor: &Monitor) -> Result<Neighbours> {
+    let (h, w) = (lv.height, lv.width);
+    let tex = &lv.textons;
+    let t = tex.count();
+    let ri = r as isize;
+    let deltas: Vec<isize> = (-ri..=ri).flat_map(|dy| (-ri..=ri).map(move |dx| dy * w as isize + dx)).collect();
+    let side = 2 * r + 1;
+    let mut index = vec![u32::MAX; h * w * m];
+    let mut dist = vec![f32::INFINITY; h * w * m];
+    let rows: Vec<RowsMut<'_>> = index.chunks_mut(w * m).zip(dist.chunks_mut(w * m)).enumerate().collect();
+    rows.into_par_iter().filter(|(y, _)| *y >= r && *y < h - r).try_for_each(|(y, (irow, drow))| -> Result<()> {
+        monitor.check()?;
+        let mut base = vec![0usize; deltas.len()];
+        let mut best: Vec<(f32, u32)> = Vec::with_capacity(m + 1);
+        for x in r..w - r {
+            let p = (y * w + x) as isize;
+            for (b, &d) in base.iter_mut().zip(&deltas) {
+                *b = tex.assign[(p + d) as usize] as usize * t;
+            }
+            best.clear();
+            let mut worst = f32::INFINITY;
+            for qy in r..h - r {
+                for qx in r..w - r {
+                    if qy.abs_diff(y) <= r && qx.abs_diff(x) <= r {
+                        continue;
+                    }
+                    let q = (qy * w + qx) as isize;
+                    let mut s = 0.0f32;
+                    let mut pruned = false;
+                    for (rb, rd) in base.chunks_exact(side).zip(deltas.chunks_exact(side)) {
+                        for (&b, &d) in rb.iter().zip(rd) {
+                            s += tex.dist[b + tex.assign[(q + d) as usize] as usize];
+                        }
+                        if s >= worst {
+                            pruned = true;
+                            break;
+                        }
+                    }
+                    if pruned {
+                        continue;
+                    }
+                    let pos = best.partition_point(|e| e.0 <= s);
+                    best.insert(pos, (s, q as u32));
+                    if best.len() > m {
+                        best.pop();
+                    }
+                    if best.len() == m {
+                        worst = best[m - 1].0;
+                    }
+                }
+            }
+            for (j, &(d, i)) in best.iter().enumerate() {
+                irow[x * m + j] = i;
+                drow[x * m + j] = d;
+            }
+        }
+        monitor.advance(1);
+        Ok(())
+    })?;
+    Ok(Neighbours { radius: r, m, index, dist })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn noise(h: usize, w: usize, seed: u64) -> Features {
+        let data = (0..h * w).map(|i| btfrs_core::rng::hash01(seed, i as i64, 0) as f32).collect();
+        Features::new(h, w, 1, data).unwrap()
+    }
+
+    #[test]
+    fn similar_neighbourhoods_match_a_direct_search() {
+        let f = noise(14, 13, 3);
+        let opts = AnalysisOptions { textons: 14 * 13, levels: 1, m: 4, iterations: 5, seed: 0 };
+        let an = Analysis::of_features(f.clone(), opts, &[1], &Monitor::new()).unwrap();
+        let nb = an.levels[0].neighbours(1).unwrap();
+        // Direct float64 search over the raw values (one texton per pixel: exact distances).
+        let v = |x: usize, y: usize| f.data[y * 13 + x] as f64;
+        for (y, x) in [(1usize, 1usize), (5, 7), (12, 11)] {
+            let mut all: Vec<(f64, usize)> = Vec::new();
+            for qy in 1usize..13 {
+                for qx in 1usize..12 {
+                    if qy.abs_diff(y) <= 1 && qx.abs_diff(x) <= 1 {
+                        continue;
+                    }
+                    let mut s = 0.0;
+                    for dy in 0..3 {
+                        for dx in 0..3 {
+                            s += (v(x + dx - 1, y + dy - 1) - v(qx + dx - 1, qy + dy - 1)).powi(2);
+                        }
+                    }
+                    all.push((s, qy * 13 + qx));
+                }
+            }
+            all.sort_by(|a, b| a.partial_cmp(b).unwrap());
+            for (j, &(d, i)) in all.iter().take(4).enumerate() {
+                assert_eq!(nb.index[(y * 13 + x) * 4 + j] as usize, i, "pixel ({x}, {y}) rank {j}");
+                assert!((nb.dist[(y * 13 + x) * 4 + j] as f64 - d).abs() < 1e-5);
+            }
+        }
+        // Border pixels have no entries.
+        assert_eq!(nb.index[0], u32::MAX);
+    }
+
+    #[test]
+    fn bad_options_name_their_parameter() {
+        let f = noise(16, 16, 1);
+        let bad =
+            |o: AnalysisOptions| Analysis::of_features(f.clone(), o, &[], &Monitor::new()).unwrap_err().to_string();
+        let o = AnalysisOptions { textons: 16, levels: 2, m: 4, iterations: 3, seed: 0 };
+        assert!(bad(AnalysisOptions { textons: 257, ..o }).starts_with("textons:"));
+        assert!(bad(AnalysisOptions { levels: 4, ..o }).starts_with("levels:"));
+        let an = Analysis::of_features(f.clone(), o, &[], &Monitor::new()).unwrap();
+        // 8 x 8 at level 1 leaves 2 x 2 interior pixels for radius 3: too few.
+        assert!(an.check_levels(3, 2).unwrap_err().to_string().starts_with("levels:"));
+        assert!(an.check_levels(1, 2).is_ok());
+        assert!(an.check_levels(0, 1).unwrap_err().to_string().starts_with("neighbourhood:"));
+    }
+}
