@@ -375,15 +375,7 @@ def main(argv=None) -> int:
         print(f"synthesis (paper 000 Table 1 settings, 3 levels) on {res['material']} {res['sample']}^2:")
         print(synth_table(res))
         out = {"machine": machine(), "synthesis": res}
-        if a.figures:
-            os.makedirs(a.figures, exist_ok=True)
-            for mat in ("bumps", "knit"):
-                print(f"wrote {figure6(a.figures, mat)}")
-        os.makedirs(os.path.dirname(a.json) or ".", exist_ok=True)
-        with open(a.json, "w") as f:
-            json.dump(out, f, indent=2, default=float)
-        print(f"\nwrote {a.json}", file=sys.stderr)
-        return 0
+        return _finish(a, out)
     rows = run(sizes, max(1, a.repeat))
     print(table(rows))
     acc = accuracy(max(sizes))
@@ -408,15 +400,20 @@ def main(argv=None) -> int:
     print(f"\nsynthesis (paper 000 Table 1 settings, 3 levels) on {res['material']} {res['sample']}^2:")
     print(synth_table(res))
     out["synthesis"] = res
-    if a.figures:
-        os.makedirs(a.figures, exist_ok=True)
-        for mat in ("bumps", "knit"):
-            print(f"wrote {figure6(a.figures, mat)}")
     if a.sh_big:
         big = materials.make("knit", size=128, seed=1)
         t, _ = best_of(lambda: fit.sh(big, light_coeffs=25, view_coeffs=25), 1)
         out["sh_big"] = {"task": "double SH 25x25 CLS + 8 bit, 128^2 x 81 x 81", "seconds": t, "target_s": 10}
         print(f"\ndouble SH 25x25 on 128^2 x 81 x 81: {t:.2f} s (target <= 10 s)")
+    return _finish(a, out)
+
+
+def _finish(a, out: dict) -> int:
+    """Write the Figure 6 images (``--figures``) and the JSON."""
+    if a.figures:
+        os.makedirs(a.figures, exist_ok=True)
+        for mat in ("bumps", "knit"):
+            print(f"wrote {figure6(a.figures, mat)}")
     os.makedirs(os.path.dirname(a.json) or ".", exist_ok=True)
     with open(a.json, "w") as f:
         json.dump(out, f, indent=2, default=float)

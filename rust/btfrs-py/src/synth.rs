@@ -28,6 +28,15 @@ fn map_to_py<'py>(py: Python<'py>, m: CoordMap) -> PyResult<Bound<'py, PyArray3<
     m.to_xy().into_pyarray(py).reshape([m.height, m.width, 2])
 }
 
+impl PyAnalysis {
+    fn level(&self, level: usize) -> PyResult<&Level> {
+        self.inner
+            .levels
+            .get(level)
+            .ok_or_else(|| arg("level", format!("expected 0 to {}, got {level}", self.inner.levels.len() - 1)))
+    }
+}
+
 #[pymethods]
 impl PyAnalysis {
     /// Rows of the sample.
@@ -91,32 +100,20 @@ impl PyAnalysis {
 
     /// `[H, W]` texton of every pixel of a level.
     fn texton_map<'py>(&self, py: Python<'py>, level: usize) -> PyResult<Bound<'py, numpy::PyArray2<u16>>> {
-        let lv = self
-            .inner
-            .levels
-            .get(level)
-            .ok_or_else(|| arg("level", format!("expected 0 to {}", self.inner.levels.len() - 1)))?;
+        let lv = self.level(level)?;
         lv.textons.assign.clone().into_pyarray(py).reshape([lv.height, lv.width])
     }
 
     /// `[T, T]` texton dot products (the paper's matrix M) of a level.
     fn dots<'py>(&self, py: Python<'py>, level: usize) -> PyResult<Bound<'py, numpy::PyArray2<f64>>> {
-        let lv = self
-            .inner
-            .levels
-            .get(level)
-            .ok_or_else(|| arg("level", format!("expected 0 to {}", self.inner.levels.len() - 1)))?;
+        let lv = self.level(level)?;
         let t = lv.textons.count();
         lv.textons.dots().into_pyarray(py).reshape([t, t])
     }
 
     /// `[T, T]` texton squared distances of a level.
     fn distances<'py>(&self, py: Python<'py>, level: usize) -> PyResult<Bound<'py, numpy::PyArray2<f32>>> {
-        let lv = self
-            .inner
-            .levels
-            .get(level)
-            .ok_or_else(|| arg("level", format!("expected 0 to {}", self.inner.levels.len() - 1)))?;
+        let lv = self.level(level)?;
         let t = lv.textons.count();
         lv.textons.dist.clone().into_pyarray(py).reshape([t, t])
     }
@@ -124,11 +121,7 @@ impl PyAnalysis {
     /// `([H, W, m] int32 indices (-1: none), [H, W, m] float32 distances)` of a level's similar
     /// neighbourhoods for a radius.
     fn similar<'py>(&self, py: Python<'py>, neighbourhood: usize, level: usize) -> PyResult<Similar<'py>> {
-        let lv = self
-            .inner
-            .levels
-            .get(level)
-            .ok_or_else(|| arg("level", format!("expected 0 to {}", self.inner.levels.len() - 1)))?;
+        let lv = self.level(level)?;
         let n = lv.neighbours(neighbourhood).ok_or_else(|| {
             arg("neighbourhood", format!("no similar neighbourhoods of radius {neighbourhood} at level {level}"))
         })?;
