@@ -8,7 +8,7 @@ use btfrs_core::Monitor;
 use btfrs_kcoherence::{jump_map, kcoherence, quality, CoordMap, JumpOptions, SynthOptions};
 use std::time::Instant;
 
-#[path = "../benches/common.rs"]
+#[path = "../benches/common/mod.rs"]
 mod common;
 
 fn main() {
