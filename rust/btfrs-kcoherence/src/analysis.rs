@@ -114,7 +114,7 @@ impl Analysis {
             FeatureMode::Pca { .. } => 4,
             FeatureMode::Images { .. } => opts.iterations as u64,
         };
-        monitor.start(feat_units + units(btf.height, btf.width, &opts, radii));
+        monitor.start(feat_units + units(btf.height, &opts, radii));
         let f = btf_features(btf, mode, opts.iterations, opts.seed, monitor)?;
         Self::build(f, opts, radii, monitor)
     }
@@ -122,7 +122,7 @@ impl Analysis {
     /// Analyse a sample given as per-pixel feature vectors (an RGB texture is `dim = 3`).
     pub fn of_features(f: Features, opts: AnalysisOptions, radii: &[usize], monitor: &Monitor) -> Result<Self> {
         check_options(f.height, f.width, &opts)?;
-        monitor.start(units(f.height, f.width, &opts, radii));
+        monitor.start(units(f.height, &opts, radii));
         Self::build(f, opts, radii, monitor)
     }
 
@@ -273,8 +273,9 @@ fn check_options(h: usize, w: usize, opts: &AnalysisOptions) -> Result<()> {
     Ok(())
 }
 
-fn units(h: usize, w: usize, opts: &AnalysisOptions, radii: &[usize]) -> u64 {
-    let _ = w;
+/// Progress units of an analysis: the k-means iterations of every level plus one per interior
+/// row of every level whose similar neighbourhoods are computed.
+fn units(h: usize, opts: &AnalysisOptions, radii: &[usize]) -> u64 {
     let rows: u64 =
         radii.iter().flat_map(|&r| (0..opts.levels).map(move |l| (h >> l).saturating_sub(2 * r) as u64)).sum();
     (opts.levels * opts.iterations) as u64 + rows
