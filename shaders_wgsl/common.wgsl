@@ -10,7 +10,7 @@
 //   struct ViewQuery { ... }                                  per-fragment view preparation
 //   fn view_query(v: vec3<f32>) -> ViewQuery
 //   fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32>
-// and reads its data through `load(i)` (the model store) and `mp` (its parameter words).
+// and reads its data through `load(i)` (the model store) and `mp` (its parameters).
 // The CPU reference (rust/btfrs-render/src/cpu.rs) mirrors every formula here.
 
 struct Globals {
@@ -32,10 +32,11 @@ struct Light {
 @group(0) @binding(1) var<storage, read> lights: array<Light>;
 @group(0) @binding(2) var<storage, read> coord_map: array<u32>;
 
-// Model parameters (16 words, meaning defined by the model) and its data store: the model's
-// arrays concatenated and split into chunks no larger than the adapter's storage binding limit
-// (128 MiB on lavapipe), so that a large BTF still fits.
-@group(1) @binding(0) var<uniform> mp: array<vec4<u32>, 4>;
+// The model's parameters `mp` (group 1, binding 0) are a `struct Params` of 16 words generated
+// from the model's Rust parameter struct (btfrs_fit::gpu_params!) and placed after this file, so
+// each word's meaning is written once, in Rust. The data store: the model's arrays concatenated
+// and split into chunks no larger than the adapter's storage binding limit (128 MiB on
+// lavapipe), so that a large BTF still fits.
 @group(1) @binding(1) var<storage, read> s0: array<u32>;
 @group(1) @binding(2) var<storage, read> s1: array<u32>;
 @group(1) @binding(3) var<storage, read> s2: array<u32>;
@@ -77,8 +78,9 @@ fn load(i: u32) -> f32 {
     return bitcast<f32>(load_u32(i));
 }
 
-fn param(k: u32) -> u32 {
-    return mp[k / 4u][k % 4u];
+// Entry `j` of a u16 array packed two to a word from store offset `base` (low half first).
+fn load_u16(base: u32, j: u32) -> u32 {
+    return (load_u32(base + j / 2u) >> ((j & 1u) * 16u)) & 0xffffu;
 }
 
 fn load_dir(i: u32) -> vec3<f32> {

@@ -8,8 +8,8 @@
 // one lerp per Eigen-BRDF. Coordinates are clamped to the sample centres of their tile and
 // slice, so neighbouring tiles and slices never bleed in.
 //
-// Parameters: word 0 = N, 1 = gx, 2 = gy, 3 = store offset of the cluster ids (u32 per texel),
-// 4 = of the weights ([texel][c + 2] f32, as lpca_9tap.wgsl), 5 = components c.
+// Parameters: `mp`, the `Lpca3dParams` struct of rust/btfrs-fit/src/lpca/texture3d.rs (its fields and their meaning are
+// written there once; the WGSL `struct Params` is generated from it).
 
 struct ViewQuery {
     xy: vec2<f32>,    // (s_v, t_v) in texel units within a tile
@@ -20,16 +20,16 @@ fn grid_coord(x: f32, n: f32) -> f32 {
 }
 
 fn view_query(v: vec3<f32>) -> ViewQuery {
-    let n = f32(param(0u));
+    let n = f32(mp.grid);
     let st = hemisphere_to_square(v);
     return ViewQuery(vec2<f32>(grid_coord(st.x, n), grid_coord(st.y, n)));
 }
 
 fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
-    let n = param(0u);
+    let n = mp.grid;
     let nf = f32(n);
-    let gx = param(1u);
-    let size = vec3<f32>(f32(n * gx), f32(n * param(2u)), nf * nf);
+    let gx = mp.gx;
+    let size = vec3<f32>(f32(n * gx), f32(n * mp.gy), nf * nf);
     let st = hemisphere_to_square(l);
     let zs = grid_coord(st.x, nf);
     let ft = clamp(st.y * nf - 0.5, 0.0, nf - 1.0);
@@ -38,9 +38,9 @@ fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
     let w = ft - f32(i0);
     let z0 = (f32(i0) * nf + zs) / size.z;
     let z1 = (f32(i1) * nf + zs) / size.z;
-    let c = param(5u);
-    let k = load_u32(param(3u) + texel);
-    let wt = param(4u) + texel * (c + 2u);
+    let c = mp.components;
+    let k = load_u16(mp.ids, texel);
+    let wt = mp.weights + texel * (c + 2u);
     var out = vec3<f32>(load(wt));
     for (var j = 0u; j <= c; j++) {
         let e = k * (c + 1u) + j;

@@ -7,21 +7,20 @@
 // nearest views times the three nearest lights are blended (nine weighted lookups per
 // Eigen-BRDF), as the raw shader does.
 //
-// Parameters: word 0 = views V (mdirs[0 .. V]), 1 = lights L (mdirs[V .. V + L]), 2 and 3 = their
-// candidate tables, 4 = store offset of the cluster ids (one u32 per texel), 5 = of the weights
-// ([texel][c + 2] f32), 6 = of the Eigen-BRDF words ([k][j][V][L]), 7 = components c.
+// Parameters: `mp`, the `Lpca9Params` struct of rust/btfrs-fit/src/lpca.rs (its fields and their meaning are
+// written there once; the WGSL `struct Params` is generated from it).
 
 struct ViewQuery {
     w: Weights3,
 };
 
 fn view_query(v: vec3<f32>) -> ViewQuery {
-    return ViewQuery(interp3(0u, param(0u), param(2u), v));
+    return ViewQuery(interp3(0u, mp.n_views, mp.view_table, v));
 }
 
 // The light-interpolated value of Eigen-BRDF `e` (= k * (c + 1) + j) at measured view `view`.
 fn eigen_view(e: u32, view: u32, lw: Weights3) -> vec3<f32> {
-    let row = param(6u) + (e * param(0u) + view) * param(1u);
+    let row = mp.basis + (e * mp.n_views + view) * mp.n_lights;
     var out = lw.w0 * unpack4x8unorm(load_u32(row + lw.i0)).xyz;
     if (lw.w1 > 0.0) {
         out += lw.w1 * unpack4x8unorm(load_u32(row + lw.i1)).xyz;
@@ -33,10 +32,10 @@ fn eigen_view(e: u32, view: u32, lw: Weights3) -> vec3<f32> {
 }
 
 fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
-    let lw = interp3(param(0u), param(1u), param(3u), l);
-    let c = param(7u);
-    let k = load_u32(param(4u) + texel);
-    let wt = param(5u) + texel * (c + 2u);
+    let lw = interp3(mp.n_views, mp.n_lights, mp.light_table, l);
+    let c = mp.components;
+    let k = load_u16(mp.ids, texel);
+    let wt = mp.weights + texel * (c + 2u);
     var out = vec3<f32>(load(wt));
     for (var j = 0u; j <= c; j++) {
         let e = k * (c + 1u) + j;

@@ -9,8 +9,8 @@
 //
 // Storage: per texel and channel, kv rows of ceil(kl / 4) words, four 8-bit coefficients per word
 // (the row padded with zeros), so a row is read with whole-word loads and unpack4x8unorm.
-// Parameters: word 0 = kv, 1 = kl, 2 = store offset of scale[3] and bias[3] (f32), 3 = store
-// offset of the coefficient words.
+// Parameters: `mp`, the `ShParams` struct of rust/btfrs-fit/src/sh.rs (its fields and their meaning are
+// written there once; the WGSL `struct Params` is generated from it).
 
 struct ViewQuery {
     y: array<f32, 64>,
@@ -59,7 +59,7 @@ fn sh_basis(n: u32, d: vec3<f32>) -> array<f32, 64> {
 }
 
 fn view_query(v: vec3<f32>) -> ViewQuery {
-    let kv = param(0u);
+    let kv = mp.kv;
     let y = sh_basis(kv, v);
     var s = 0.0;
     for (var i = 0u; i < kv; i++) {
@@ -69,8 +69,8 @@ fn view_query(v: vec3<f32>) -> ViewQuery {
 }
 
 fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
-    let kv = param(0u);
-    let kl = param(1u);
+    let kv = mp.kv;
+    let kl = mp.kl;
     let rw = (kl + 3u) / 4u;
     let yl = sh_basis(kl, l);
     // The light basis in groups of four (zero beyond kl), matching the padded rows.
@@ -87,10 +87,10 @@ fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
         yl4[w] = g;
         sl += g.x + g.y + g.z + g.w;
     }
-    let sb = param(2u);
+    let sb = mp.scale_bias;
     var out = vec3<f32>(0.0);
     for (var ch = 0u; ch < 3u; ch++) {
-        let base = param(3u) + (texel * 3u + ch) * kv * rw;
+        let base = mp.coeffs + (texel * 3u + ch) * kv * rw;
         var acc = 0.0;
         for (var i = 0u; i < kv; i++) {
             var r = 0.0;

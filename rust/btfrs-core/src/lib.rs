@@ -10,8 +10,10 @@
 //! * [`materials`]: procedural BTFs (periodic heightfields with cast shadows and masking) used as
 //!   the built-in material of the demo and the tests.
 //! * [`monitor`]: progress counting and cancellation for long work.
+//! * [`arrays`]: named, typed arrays: how models and analyses describe themselves for saving.
 //! * [`Error`]: the error enum that the Python layer maps onto exception classes.
 
+pub mod arrays;
 pub mod btf;
 pub mod directions;
 mod error;
@@ -21,6 +23,7 @@ pub mod monitor;
 pub mod rng;
 pub mod split;
 
+pub use arrays::NamedArrays;
 pub use btf::{Btf, BtfRef};
 pub use error::{Error, Result};
 pub use monitor::Monitor;

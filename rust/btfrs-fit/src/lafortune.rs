@@ -46,8 +46,10 @@
 
 mod lm;
 
-use crate::model::ReflectanceModel;
-use btfrs_core::{directions, BtfRef, Error, Monitor, Result};
+use crate::gpu::{words, GpuLayout, Shader};
+use crate::model::{Model, ReflectanceModel};
+use btfrs_core::{directions, BtfRef, Error, Monitor, NamedArrays, Result};
+use std::borrow::Cow;
 use lm::{Basis, Geometry, Layout, Work, MAXM};
 use rayon::prelude::*;
 
@@ -77,7 +79,8 @@ const LAMBDA0: f64 = 1e-1;
 const LAMBDA_RESTART: f64 = 10.0;
 
 /// Which Lafortune variant.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum LafortuneKind {
     /// One set of lobes per colour channel.
     Rgb,
@@ -86,7 +89,8 @@ pub enum LafortuneKind {
 }
 
 /// Fit options.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct LafortuneOptions {
     /// The variant.
     pub kind: LafortuneKind,
@@ -108,7 +112,7 @@ impl Default for LafortuneOptions {
 }
 
 /// How the fits went, counted over all fits (one per texel for `Lum`, three for `Rgb`).
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
 pub struct FitReport {
     /// Number of fits.
     pub fits: usize,
@@ -462,11 +466,6 @@ impl Lafortune {
         }
     }
 
-    /// Bytes as stored for rendering (f32 parameters and base colours).
-    pub fn nbytes(&self) -> usize {
-        4 * (self.params.len() + self.rgb.as_ref().map_or(0, |r| r.len()))
-    }
-
     /// Check array lengths, finiteness and the exponent bounds (for models built from loaded files).
     pub fn validate(&self) -> Result<()> {
         if self.height == 0 || self.width == 0 {
@@ -572,6 +571,127 @@ impl ReflectanceModel for Lafortune {
                 std::array::from_fn(|c| self.lobe_sum(&self.params[(3 * t + c) * pp..(3 * t + c + 1) * pp], q))
             }
         }
+    }
+}
+
+crate::gpu_params! {
+    /// Parameters of `lafortune.wgsl`.
+    pub struct LafortuneParams {
+        /// 0 = RGB (one parameter set per channel), 1 = luminance times a base colour.
+        pub kind: u32,
+        /// Lobes per fit.
+        pub lobes: u32,
+        /// Store offset of the parameters: `[texel][P]` (lum) or `[texel][3][P]` (rgb) f32,
+        /// `P = 1 + 4 * lobes`, ordered kd, (Cx, Cy, Cz, n) per lobe.
+        pub params: u32,
+        /// Store offset of the base colours `[texel][3]` f32 (luminance kind only).
+        pub rgb: u32,
+    }
+}
+
+impl GpuLayout for Lafortune {
+    type Params = LafortuneParams;
+    const SHADER: Shader =
+        Shader::new::<LafortuneParams>("lafortune", include_str!("../../../shaders_wgsl/lafortune.wgsl"));
+
+    fn layout_dims(&self) -> (usize, usize) {
+        (self.height, self.width)
+    }
+
+    fn parts(&self) -> Vec<Cow<'_, [u32]>> {
+        let mut p = vec![words(&self.params)];
+        if let Some(rgb) = &self.rgb {
+            p.push(words(rgb));
+        }
+        p
+    }
+
+    fn params(&self, offsets: &[u32], _tables: &[u32]) -> LafortuneParams {
+        LafortuneParams {
+            kind: match self.kind {
+                LafortuneKind::Rgb => 0,
+                LafortuneKind::Lum => 1,
+            },
+            lobes: self.lobes as u32,
+            params: offsets[0],
+            rgb: offsets.get(1).copied().unwrap_or(0),
+        }
+    }
+}
+
+impl Model for Lafortune {
+    const KIND: &'static str = "lafortune";
+    const DOC: &'static str = "per-texel Lafortune lobes by Levenberg-Marquardt (paper 000, section 3.2)";
+    const EXAMPLES: &'static [(&'static str, &'static str)] = &[
+        ("Lafortune-Lum 1", r#"{"kind": "lum", "lobes": 1}"#),
+        ("Lafortune-Lum 2", r#"{"kind": "lum", "lobes": 2}"#),
+        ("Lafortune-RGB 2", r#"{"kind": "rgb", "lobes": 2}"#),
+    ];
+    type Options = LafortuneOptions;
+
+    fn fit(btf: &BtfRef<'_>, options: &LafortuneOptions, monitor: &Monitor) -> Result<Self> {
+        fit_lafortune(btf, options, monitor)
+    }
+
+    /// `params` (lum `[H, W, P]`, rgb `[H, W, 3, P]` f32, `P = 1 + 4 * lobes`), for lum `rgb`
+    /// `[H, W, 3]`, and `status` u8 (`[H, W]` or `[H, W, 3]`) when the fit recorded it.
+    fn to_arrays(&self) -> NamedArrays {
+        let mut a = NamedArrays::new();
+        let (h, w, p) = (self.height, self.width, self.params_per_fit());
+        match self.kind {
+            LafortuneKind::Lum => a.put("params", &[h, w, p], self.params.clone()),
+            LafortuneKind::Rgb => a.put("params", &[h, w, 3, p], self.params.clone()),
+        }
+        if let Some(rgb) = &self.rgb {
+            a.put("rgb", &[h, w, 3], rgb.clone());
+        }
+        if !self.status.is_empty() {
+            match self.kind {
+                LafortuneKind::Lum => a.put("status", &[h, w], self.status.clone()),
+                LafortuneKind::Rgb => a.put("status", &[h, w, 3], self.status.clone()),
+            }
+        }
+        a
+    }
+
+    fn from_arrays(a: &NamedArrays) -> Result<Self> {
+        let (params, sh) = match a.get::<f32>("params", &[None, None, None]) {
+            Ok(x) => x,
+            Err(_) => a.get::<f32>("params", &[None, None, Some(3), None]).map_err(|_| {
+                Error::arg("params", "expected shape [H, W, P] (lum) or [H, W, 3, P] (rgb) of float32")
+            })?,
+        };
+        let kind = if sh.len() == 3 { LafortuneKind::Lum } else { LafortuneKind::Rgb };
+        let p = sh[sh.len() - 1];
+        if p < 5 || (p - 1) % 4 != 0 {
+            return Err(Error::arg("params", format!("expected 1 + 4 * lobes values per fit, got {p}")));
+        }
+        let (h, w) = (Some(sh[0]), Some(sh[1]));
+        let rgb = match kind {
+            LafortuneKind::Lum => Some(a.get::<f32>("rgb", &[h, w, Some(3)])?.0.to_vec()),
+            LafortuneKind::Rgb => None,
+        };
+        let status_shape: &[Option<usize>] = match kind {
+            LafortuneKind::Lum => &[h, w],
+            LafortuneKind::Rgb => &[h, w, Some(3)],
+        };
+        let status = a.get_opt::<u8>("status", status_shape)?.map_or_else(Vec::new, |(s, _)| s.to_vec());
+        let m = Lafortune {
+            kind,
+            height: sh[0],
+            width: sh[1],
+            lobes: (p - 1) / 4,
+            params: params.to_vec(),
+            rgb,
+            status,
+            report: FitReport::default(),
+        };
+        m.validate()?;
+        Ok(m)
+    }
+
+    fn report(&self) -> serde_json::Value {
+        serde_json::to_value(self.report).unwrap_or_default()
     }
 }
 

@@ -57,11 +57,12 @@
 
 use crate::dense::{cols, cols_t, gaussian, gemm, gram_t, orthonormalize, sym_eigen_desc, view, view_t};
 use crate::kmeans::{kmeans, members_of};
-use crate::model::ReflectanceModel;
+use crate::gpu::{pack_u16, words, GpuLayout, Renderable, Shader};
+use crate::model::{unknown_renderer, Model, ReflectanceModel};
 use btfrs_core::{
     directions,
     rng::{mix, Rng},
-    BtfRef, Error, Monitor, Result,
+    BtfRef, Error, Monitor, NamedArrays, Result,
 };
 use nalgebra::DMatrix;
 use rayon::prelude::*;
@@ -83,8 +84,12 @@ const RANGE_SAMPLE: usize = 2048;
 /// Progress units of the reduction (one per pass over the data).
 const REDUCE_UNITS: u64 = 4;
 
+/// Most clusters: the renderers store cluster ids as 16-bit values.
+pub const MAX_CLUSTERS: usize = 65536;
+
 /// Fit options.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct LpcaOptions {
     /// Clusters asked for, 1 to the number of texels.
     pub clusters: usize,
@@ -708,15 +713,6 @@ impl Lpca {
         self.views.len() * self.lights.len()
     }
 
-    /// Bytes as stored for rendering: cluster ids as `u16` (2 bytes; 4 when `K > 65536`), the
-    /// `f32` weights, 3 bytes per basis value (the pad bytes are not counted) and the `f32` scale
-    /// and bias of every Eigen-BRDF.
-    pub fn nbytes(&self) -> usize {
-        let id = if self.clusters <= 65536 { 2 } else { 4 };
-        let cc = self.components + 1;
-        id * self.ids.len() + 4 * self.weights.len() + 3 * self.clusters * cc * self.pairs() + 8 * self.clusters * cc
-    }
-
     /// Check that the arrays agree with the dimensions (for models built from loaded files).
     pub fn validate(&self) -> Result<()> {
         if self.height == 0 || self.width == 0 {
@@ -724,8 +720,8 @@ impl Lpca {
         }
         directions::validate("views", &self.views)?;
         directions::validate("lights", &self.lights)?;
-        if self.clusters == 0 {
-            return Err(Error::arg("clusters", "expected at least 1 cluster, got 0"));
+        if !(1..=MAX_CLUSTERS).contains(&self.clusters) {
+            return Err(Error::arg("clusters", format!("expected 1 to {MAX_CLUSTERS} clusters, got {}", self.clusters)));
         }
         if self.components > MAX_COMPONENTS {
             return Err(Error::arg("components", format!("expected 0 to {MAX_COMPONENTS}, got {}", self.components)));
@@ -809,6 +805,150 @@ impl ReflectanceModel for Lpca {
         out
     }
 }
+
+crate::gpu_params! {
+    /// Parameters of `lpca_9tap.wgsl`.
+    pub struct Lpca9Params {
+        /// Number of views V (directions `mdirs[0 .. V]`).
+        pub n_views: u32,
+        /// Number of lights L (directions `mdirs[V .. V + L]`).
+        pub n_lights: u32,
+        /// Offset of the views' candidate table in `tables`.
+        pub view_table: u32,
+        /// Offset of the lights' candidate table in `tables`.
+        pub light_table: u32,
+        /// Store offset of the cluster ids: u16, two per word.
+        pub ids: u32,
+        /// Store offset of the weights `[texel][c + 2]` f32 (offset, w_0 .. w_c).
+        pub weights: u32,
+        /// Store offset of the Eigen-BRDF words `[k][j][V][L]` (RGBA8, alpha unused).
+        pub basis: u32,
+        /// Components c (Eigen-BRDFs per cluster besides the mean).
+        pub components: u32,
+    }
+}
+
+impl Lpca {
+    /// The cluster ids as the shaders read them: u16, two per word.
+    pub fn id_words(&self) -> Vec<u32> {
+        pack_u16(self.ids.iter().map(|&k| k as u16))
+    }
+}
+
+impl GpuLayout for Lpca {
+    type Params = Lpca9Params;
+    const SHADER: Shader = Shader::new::<Lpca9Params>("lpca_9tap", include_str!("../../../shaders_wgsl/lpca_9tap.wgsl"));
+
+    fn layout_dims(&self) -> (usize, usize) {
+        (self.height, self.width)
+    }
+
+    fn parts(&self) -> Vec<Cow<'_, [u32]>> {
+        vec![Cow::Owned(self.id_words()), words(&self.weights), Cow::Borrowed(bytemuck::cast_slice(&self.basis))]
+    }
+
+    fn dir_sets(&self) -> Vec<&[[f64; 3]]> {
+        vec![&self.views, &self.lights]
+    }
+
+    fn params(&self, offsets: &[u32], tables: &[u32]) -> Lpca9Params {
+        Lpca9Params {
+            n_views: self.views.len() as u32,
+            n_lights: self.lights.len() as u32,
+            view_table: tables[0],
+            light_table: tables[1],
+            ids: offsets[0],
+            weights: offsets[1],
+            basis: offsets[2],
+            components: self.components as u32,
+        }
+    }
+}
+
+impl Model for Lpca {
+    const KIND: &'static str = "lpca";
+    const DOC: &'static str = "local PCA, clustered 8-bit Eigen-BRDFs (paper 004, sections 3 and 6)";
+    const RENDERERS: &'static [&'static str] = &["9tap", "3d"];
+    const EXAMPLES: &'static [(&'static str, &'static str)] = &[
+        ("LPCA 8x4", r#"{"clusters": 8, "components": 4}"#),
+        ("LPCA 32x4", r#"{"clusters": 32, "components": 4}"#),
+    ];
+    type Options = LpcaOptions;
+
+    fn fit(btf: &BtfRef<'_>, options: &LpcaOptions, monitor: &Monitor) -> Result<Self> {
+        if options.clusters > MAX_CLUSTERS {
+            return Err(Error::arg("clusters", format!("expected 1 to {MAX_CLUSTERS}, got {}", options.clusters)));
+        }
+        fit_lpca(btf, options, monitor)
+    }
+
+    /// `ids` `[H, W]` i32, `weights` `[H, W, c + 2]` f32, `basis` `[K, c + 1, V, L, 4]` u8,
+    /// `scale` and `bias` `[K, c + 1]` f32, `views` `[V, 3]` and `lights` `[L, 3]` f64.
+    fn to_arrays(&self) -> NamedArrays {
+        let mut a = NamedArrays::new();
+        let (k, c1) = (self.clusters, self.components + 1);
+        let (nv, nl) = (self.views.len(), self.lights.len());
+        a.put("ids", &[self.height, self.width], self.ids.iter().map(|&x| x as i32).collect::<Vec<i32>>());
+        a.put("weights", &[self.height, self.width, c1 + 1], self.weights.clone());
+        a.put("basis", &[k, c1, nv, nl, 4], self.basis.clone());
+        a.put("scale", &[k, c1], self.scale.clone());
+        a.put("bias", &[k, c1], self.bias.clone());
+        a.put_directions("views", &self.views);
+        a.put_directions("lights", &self.lights);
+        a
+    }
+
+    fn from_arrays(a: &NamedArrays) -> Result<Self> {
+        let (ids, sh) = a.get::<i32>("ids", &[None, None])?;
+        let (basis, bs) = a.get::<u8>("basis", &[None, None, None, None, Some(4)])?;
+        // An empty component axis would underflow `components` below.
+        if bs[0] == 0 || bs[1] == 0 {
+            return Err(Error::arg("basis", format!("expected at least one cluster and one Eigen-BRDF, got shape {bs:?}")));
+        }
+        let (weights, _) = a.get::<f32>("weights", &[Some(sh[0]), Some(sh[1]), Some(bs[1] + 1)])?;
+        let (scale, _) = a.get::<f32>("scale", &[Some(bs[0]), Some(bs[1])])?;
+        let (bias, _) = a.get::<f32>("bias", &[Some(bs[0]), Some(bs[1])])?;
+        let views = a.directions("views", Some(bs[2]))?;
+        let lights = a.directions("lights", Some(bs[3]))?;
+        if let Some(i) = ids.iter().position(|&x| x < 0 || x as usize >= bs[0]) {
+            return Err(Error::arg("ids", format!("entry {i} is {}, not a cluster in [0, {})", ids[i], bs[0])));
+        }
+        let m = Lpca {
+            height: sh[0],
+            width: sh[1],
+            views,
+            lights,
+            clusters: bs[0],
+            components: bs[1] - 1,
+            ids: ids.iter().map(|&x| x as u32).collect(),
+            weights: weights.to_vec(),
+            basis: basis.to_vec(),
+            scale: scale.to_vec(),
+            bias: bias.to_vec(),
+        };
+        m.validate()?;
+        Ok(m)
+    }
+
+    fn report(&self) -> serde_json::Value {
+        serde_json::json!({"clusters": self.clusters, "components": self.components})
+    }
+
+    fn shaders() -> Vec<Shader> {
+        vec![<Self as GpuLayout>::SHADER, <Lpca3d<'static> as GpuLayout>::SHADER]
+    }
+
+    fn renderer(&self, method: &str, max_3d: usize) -> Result<Box<dyn Renderable + '_>> {
+        match method {
+            "9tap" | "default" => Ok(Box::new(self)),
+            "3d" => Ok(Box::new(Lpca3d::new(self, texture3d::DEFAULT_GRID, max_3d)?)),
+            o => Err(unknown_renderer(Self::KIND, Self::RENDERERS, o)),
+        }
+    }
+}
+
+mod texture3d;
+pub use texture3d::{Lpca3d, Lpca3dParams, DEFAULT_GRID};
 
 #[cfg(test)]
 mod tests;

@@ -1,11 +1,21 @@
-//! The contract every fitted model meets: evaluation and error against a BTF.
+//! The contract every fitted model meets, written once per model.
 //!
-//! A model answers *queries*: one (view, light) pair, prepared once (`query`), then evaluated at
-//! every texel (`eval`). Splitting the two keeps per-pair work (interpolation weights over view
-//! slots, basis functions of the light) out of the per-texel loop.
+//! * [`ReflectanceModel`]: evaluation. A model answers *queries*: one (view, light) pair,
+//!   prepared once (`query`), then evaluated at every texel (`eval`). Splitting the two keeps
+//!   per-pair work (interpolation weights over view slots, basis functions of the light) out of
+//!   the per-texel loop. The CPU reference renderer shades through it ([`Shade`]).
+//! * [`Model`]: everything else a model is: its name, its fit options and fit, its named arrays
+//!   for saving ([`btfrs_core::NamedArrays`]), its fit report, the bytes it occupies as stored
+//!   for rendering, and its renderers. Together with [`crate::gpu::GpuLayout`] (the shader and
+//!   its parameter struct) that is the whole contract; [`crate::registry`] lists the models, and
+//!   everything that iterates over models (bindings, `btfrs.load`, renderer, demo, bench) goes
+//!   through [`DynModel`], the object-safe form.
 
-use btfrs_core::{metrics::ErrorSums, BtfRef, Error, Result};
+use crate::gpu::{GpuLayout, GpuModel, Renderable};
+use btfrs_core::{metrics::ErrorSums, BtfRef, Error, Monitor, NamedArrays, Result};
 use rayon::prelude::*;
+use serde::de::DeserializeOwned;
+use std::any::Any;
 
 /// A per-texel reflectance model over a `height x width` sample.
 pub trait ReflectanceModel: Sync {
@@ -17,6 +27,178 @@ pub trait ReflectanceModel: Sync {
     fn query(&self, view: [f64; 3], light: [f64; 3]) -> Self::Query;
     /// The model's RGB value at texel `t` (row-major index).
     fn eval(&self, t: usize, q: &Self::Query) -> [f32; 3];
+}
+
+impl<M: ReflectanceModel + ?Sized> ReflectanceModel for &M {
+    type Query = M::Query;
+    fn dims(&self) -> (usize, usize) {
+        (**self).dims()
+    }
+    fn query(&self, view: [f64; 3], light: [f64; 3]) -> M::Query {
+        (**self).query(view, light)
+    }
+    #[inline]
+    fn eval(&self, t: usize, q: &M::Query) -> [f32; 3] {
+        (**self).eval(t, q)
+    }
+}
+
+/// Evaluation of one texel at one (view, light) pair without a prepared query: the object-safe
+/// form of [`ReflectanceModel`] that the CPU reference renderer uses (it prepares a query per
+/// fragment and light anyway).
+pub trait Shade: Sync {
+    /// (height, width) in texels.
+    fn shade_dims(&self) -> (usize, usize);
+    /// The RGB value at texel `t`.
+    fn shade(&self, t: usize, view: [f64; 3], light: [f64; 3]) -> [f32; 3];
+}
+
+impl<M: ReflectanceModel> Shade for M {
+    fn shade_dims(&self) -> (usize, usize) {
+        self.dims()
+    }
+    fn shade(&self, t: usize, view: [f64; 3], light: [f64; 3]) -> [f32; 3] {
+        self.eval(t, &self.query(view, light))
+    }
+}
+
+/// A fitted model: the contract a new model implements once (see CONTRIBUTING.md).
+pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
+    /// The model's name (`"ptm"`, `"lpca"`, ...): the container's `kind`, the Python name.
+    const KIND: &'static str;
+    /// One line saying what it is and which paper section it follows.
+    const DOC: &'static str;
+    /// Renderer names; the first is the default. A model with several renderers (LPCA: the 9-tap
+    /// lookup and the 3D texture) overrides [`Model::renderer`].
+    const RENDERERS: &'static [&'static str] = &["default"];
+    /// Example option sets `(label, JSON)` from small to large: what the demo and the bench fit.
+    const EXAMPLES: &'static [(&'static str, &'static str)];
+    /// Fit options, read from JSON (`{"lobes": 2}`): unknown names and wrong types are errors
+    /// naming the option.
+    type Options: DeserializeOwned + Default + std::fmt::Debug;
+
+    /// Fit to the present pairs of `btf` (its values are finite: the caller checked).
+    fn fit(btf: &BtfRef<'_>, options: &Self::Options, monitor: &Monitor) -> Result<Self>;
+    /// The arrays that describe the model completely (what a file stores).
+    fn to_arrays(&self) -> NamedArrays;
+    /// Rebuild from [`Model::to_arrays`] output, validating every array (it may come from a
+    /// corrupted file or a user).
+    fn from_arrays(arrays: &NamedArrays) -> Result<Self>;
+    /// The fit's own statistics (iterations, fallbacks, ...) as a JSON object; `Null` when none.
+    fn report(&self) -> serde_json::Value {
+        serde_json::Value::Null
+    }
+    /// Every shader its renderers use (checked by the shader validation tests).
+    fn shaders() -> Vec<crate::gpu::Shader> {
+        vec![<Self as GpuLayout>::SHADER]
+    }
+    /// Bytes as stored for rendering: exactly what the default renderer uploads.
+    fn nbytes(&self) -> usize {
+        GpuModel::gpu_bytes(self)
+    }
+    /// The model as renderer `method` draws it (GPU layout and CPU reference). `max_3d` is the
+    /// device's 3D texture limit per side.
+    fn renderer(&self, method: &str, max_3d: usize) -> Result<Box<dyn Renderable + '_>> {
+        let _ = max_3d;
+        if method == Self::RENDERERS[0] || method == "default" {
+            return Ok(Box::new(self));
+        }
+        Err(unknown_renderer(Self::KIND, Self::RENDERERS, method))
+    }
+}
+
+/// The options of a model that has none: `{}` (anything else is an error naming it).
+#[derive(Debug, Clone, Copy, Default, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NoOptions {}
+
+/// The error for a renderer name a model does not have.
+pub fn unknown_renderer(kind: &str, renderers: &[&str], method: &str) -> Error {
+    let list: Vec<String> = renderers.iter().map(|r| format!("{r:?}")).collect();
+    Error::arg("method", format!("the {kind} model has no renderer {method:?}; expected one of {}", list.join(", ")))
+}
+
+/// Parse fit options from a JSON object, naming the option at fault.
+pub fn parse_options<O: DeserializeOwned + Default>(json: &str) -> Result<O> {
+    let v: serde_json::Value =
+        serde_json::from_str(json).map_err(|e| Error::arg("options", format!("not valid JSON: {e}")))?;
+    let serde_json::Value::Object(map) = &v else {
+        return Err(Error::arg("options", "expected a JSON object of option names"));
+    };
+    match serde_json::from_value::<O>(v.clone()) {
+        Ok(o) => Ok(o),
+        Err(whole) => {
+            // serde names an unknown field but not the field of a type error: try each option
+            // alone (the others defaulted) to find the culprit.
+            for (k, x) in map {
+                let one = serde_json::Value::Object([(k.clone(), x.clone())].into_iter().collect());
+                if let Err(e) = serde_json::from_value::<O>(one) {
+                    let msg = e.to_string();
+                    let msg = msg.split(" at line ").next().unwrap_or(&msg).to_string();
+                    return Err(Error::arg(k, format!("{msg} (got {x})")));
+                }
+            }
+            Err(Error::arg("options", whole.to_string()))
+        }
+    }
+}
+
+/// The object-safe face of every [`Model`]: what the registry, the bindings and the renderer
+/// hold (`Box<dyn DynModel>`).
+pub trait DynModel: Renderable + Send + std::fmt::Debug {
+    /// [`Model::KIND`].
+    fn kind(&self) -> &'static str;
+    /// (height, width).
+    fn dims(&self) -> (usize, usize);
+    /// [`Model::nbytes`].
+    fn nbytes(&self) -> usize;
+    /// [`Model::to_arrays`].
+    fn to_arrays(&self) -> NamedArrays;
+    /// [`Model::report`].
+    fn report(&self) -> serde_json::Value;
+    /// [`Model::RENDERERS`].
+    fn renderers(&self) -> &'static [&'static str];
+    /// [`Model::renderer`].
+    fn renderer(&self, method: &str, max_3d: usize) -> Result<Box<dyn Renderable + '_>>;
+    /// [`evaluate_image`].
+    fn evaluate_image(&self, view: [f64; 3], light: [f64; 3]) -> Result<Vec<f32>>;
+    /// [`model_error`].
+    fn error(&self, btf: &BtfRef<'_>) -> Result<ErrorSums>;
+    /// For the few places that need the concrete type (writing a `.ptm` file).
+    fn as_any(&self) -> &dyn Any;
+}
+
+impl<M: Model + std::fmt::Debug> DynModel for M {
+    fn kind(&self) -> &'static str {
+        M::KIND
+    }
+    fn dims(&self) -> (usize, usize) {
+        ReflectanceModel::dims(self)
+    }
+    fn nbytes(&self) -> usize {
+        Model::nbytes(self)
+    }
+    fn to_arrays(&self) -> NamedArrays {
+        Model::to_arrays(self)
+    }
+    fn report(&self) -> serde_json::Value {
+        Model::report(self)
+    }
+    fn renderers(&self) -> &'static [&'static str] {
+        M::RENDERERS
+    }
+    fn renderer(&self, method: &str, max_3d: usize) -> Result<Box<dyn Renderable + '_>> {
+        Model::renderer(self, method, max_3d)
+    }
+    fn evaluate_image(&self, view: [f64; 3], light: [f64; 3]) -> Result<Vec<f32>> {
+        evaluate_image(self, view, light)
+    }
+    fn error(&self, btf: &BtfRef<'_>) -> Result<ErrorSums> {
+        model_error(self, btf)
+    }
+    fn as_any(&self) -> &dyn Any {
+        self
+    }
 }
 
 /// A `[height, width, 3]` image of the model for one view and light.
@@ -120,5 +302,49 @@ impl ReflectanceModel for RawModel<'_> {
             }
         }
         out
+    }
+}
+
+crate::gpu_params! {
+    /// Parameters of `raw.wgsl`.
+    pub struct RawParams {
+        /// Number of views V (directions `mdirs[0 .. V]`).
+        pub n_views: u32,
+        /// Number of lights L (directions `mdirs[V .. V + L]`).
+        pub n_lights: u32,
+        /// Offset of the views' candidate table in `tables`.
+        pub view_table: u32,
+        /// Offset of the lights' candidate table in `tables`.
+        pub light_table: u32,
+        /// Store offset of the data, `[texel][V][L][3]` f32 (the Btf's own texel-major layout).
+        pub data: u32,
+    }
+}
+
+impl GpuLayout for RawModel<'_> {
+    type Params = RawParams;
+    const SHADER: crate::gpu::Shader =
+        crate::gpu::Shader::new::<RawParams>("raw", include_str!("../../../shaders_wgsl/raw.wgsl"));
+
+    fn layout_dims(&self) -> (usize, usize) {
+        (self.btf.height, self.btf.width)
+    }
+
+    fn parts(&self) -> Vec<std::borrow::Cow<'_, [u32]>> {
+        vec![crate::gpu::words(self.btf.data)]
+    }
+
+    fn dir_sets(&self) -> Vec<&[[f64; 3]]> {
+        vec![self.btf.views, self.btf.lights]
+    }
+
+    fn params(&self, offsets: &[u32], tables: &[u32]) -> RawParams {
+        RawParams {
+            n_views: self.btf.views.len() as u32,
+            n_lights: self.btf.lights.len() as u32,
+            view_table: tables[0],
+            light_table: tables[1],
+            data: offsets[0],
+        }
     }
 }

@@ -21,8 +21,11 @@
 //! A view slot needs at least 6 lights whose (lu, lv) are not degenerate (e.g. all on one line):
 //! such a slot is an error by default, or clamped to a minimum-norm solution on request.
 
-use crate::model::ReflectanceModel;
-use btfrs_core::{directions, BtfRef, Error, Monitor, Result};
+use crate::gpu::{words, GpuLayout, Shader};
+use crate::model::{Model, ReflectanceModel};
+use btfrs_core::arrays::check_finite;
+use btfrs_core::{directions, BtfRef, Error, Monitor, NamedArrays, Result};
+use std::borrow::Cow;
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 
@@ -30,7 +33,8 @@ use rayon::prelude::*;
 pub const NCOEF: usize = 6;
 
 /// Which PTM variant.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum PtmKind {
     /// One polynomial per channel (18 coefficients).
     Rgb,
@@ -39,7 +43,8 @@ pub enum PtmKind {
 }
 
 /// What to do with a view slot whose lights do not determine the 6 coefficients.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Degenerate {
     /// Fail with [`Error::Degenerate`] naming the slot.
     Raise,
@@ -48,7 +53,8 @@ pub enum Degenerate {
 }
 
 /// Fit options.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct PtmOptions {
     /// The variant.
     pub kind: PtmKind,
@@ -283,11 +289,6 @@ impl Ptm {
         }
     }
 
-    /// Bytes as stored for rendering (f32 coefficients and base colours).
-    pub fn nbytes(&self) -> usize {
-        4 * (self.coeffs.len() + self.rgb.as_ref().map_or(0, |r| r.len()))
-    }
-
     /// Check that the arrays agree with the dimensions (for models built from loaded files).
     pub fn validate(&self) -> Result<()> {
         let t = self.height * self.width * self.views.len();
@@ -347,6 +348,108 @@ impl ReflectanceModel for Ptm {
             }
         }
         out
+    }
+}
+
+crate::gpu_params! {
+    /// Parameters of `ptm.wgsl`.
+    pub struct PtmParams {
+        /// 0 = RGB, 1 = LRGB.
+        pub kind: u32,
+        /// Number of view slots V (their directions are `mdirs[0 .. V]`).
+        pub n_views: u32,
+        /// Offset of the slots' candidate table in `tables`.
+        pub view_table: u32,
+        /// Store offset of the coefficients: RGB `[texel][V][3][6]`, LRGB `[texel][V][6]` f32.
+        pub coeffs: u32,
+        /// Store offset of the LRGB base colours `[texel][V][3]` f32.
+        pub rgb: u32,
+    }
+}
+
+impl GpuLayout for Ptm {
+    type Params = PtmParams;
+    const SHADER: Shader = Shader::new::<PtmParams>("ptm", include_str!("../../../shaders_wgsl/ptm.wgsl"));
+
+    fn layout_dims(&self) -> (usize, usize) {
+        (self.height, self.width)
+    }
+
+    fn parts(&self) -> Vec<Cow<'_, [u32]>> {
+        let mut p = vec![words(&self.coeffs)];
+        if let Some(rgb) = &self.rgb {
+            p.push(words(rgb));
+        }
+        p
+    }
+
+    fn dir_sets(&self) -> Vec<&[[f64; 3]]> {
+        vec![&self.views]
+    }
+
+    fn params(&self, offsets: &[u32], tables: &[u32]) -> PtmParams {
+        PtmParams {
+            kind: match self.kind {
+                PtmKind::Rgb => 0,
+                PtmKind::Lrgb => 1,
+            },
+            n_views: self.views.len() as u32,
+            view_table: tables[0],
+            coeffs: offsets[0],
+            rgb: offsets.get(1).copied().unwrap_or(0),
+        }
+    }
+}
+
+impl Model for Ptm {
+    const KIND: &'static str = "ptm";
+    const DOC: &'static str = "Polynomial Texture Maps per view slot (paper 000, section 3.1)";
+    const EXAMPLES: &'static [(&'static str, &'static str)] =
+        &[("PTM-LRGB", r#"{"kind": "lrgb"}"#), ("PTM-RGB", r#"{"kind": "rgb"}"#)];
+    type Options = PtmOptions;
+
+    fn fit(btf: &BtfRef<'_>, options: &PtmOptions, monitor: &Monitor) -> Result<Self> {
+        fit_ptm(btf, options, monitor)
+    }
+
+    /// `coeffs` (RGB `[H, W, V, 3, 6]`, LRGB `[H, W, V, 6]`), `views` `[V, 3]` and, for LRGB,
+    /// `rgb` `[H, W, V, 3]`. The kind follows from the shape of `coeffs`.
+    fn to_arrays(&self) -> NamedArrays {
+        let mut a = NamedArrays::new();
+        let (h, w, nv) = (self.height, self.width, self.views.len());
+        match self.kind {
+            PtmKind::Rgb => a.put("coeffs", &[h, w, nv, 3, NCOEF], self.coeffs.clone()),
+            PtmKind::Lrgb => a.put("coeffs", &[h, w, nv, NCOEF], self.coeffs.clone()),
+        }
+        a.put_directions("views", &self.views);
+        if let Some(rgb) = &self.rgb {
+            a.put("rgb", &[h, w, nv, 3], rgb.clone());
+        }
+        a
+    }
+
+    fn from_arrays(a: &NamedArrays) -> Result<Self> {
+        let views = a.directions("views", None)?;
+        let nv = Some(views.len());
+        let (coeffs, sh) = match a.get::<f32>("coeffs", &[None, None, nv, Some(3), Some(NCOEF)]) {
+            Ok(c) => c,
+            Err(_) => a.get::<f32>("coeffs", &[None, None, nv, Some(NCOEF)]).map_err(|_| {
+                Error::arg("coeffs", format!("expected shape [H, W, {}, 3, 6] (RGB) or [H, W, {}, 6] (LRGB)", views.len(), views.len()))
+            })?,
+        };
+        check_finite("coeffs", coeffs)?;
+        let kind = if sh.len() == 5 { PtmKind::Rgb } else { PtmKind::Lrgb };
+        let rgb = match kind {
+            PtmKind::Rgb => None,
+            PtmKind::Lrgb => {
+                let (r, _) = a.get::<f32>("rgb", &[Some(sh[0]), Some(sh[1]), nv, Some(3)])?;
+                check_finite("rgb", r)?;
+                Some(r.to_vec())
+            }
+        };
+        let m = Ptm { kind, height: sh[0], width: sh[1], views, coeffs: coeffs.to_vec(), rgb };
+        m.validate()?;
+        Ok(m)
     }
 }
 

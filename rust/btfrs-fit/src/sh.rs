@@ -43,8 +43,11 @@
 //! **Rendering** (002 section 4.2): unquantize, then the double sum at the tangent-frame view and
 //! light ([`ReflectanceModel`] for [`Sh`]; mirrored by the WGSL shader).
 
-use crate::model::ReflectanceModel;
-use btfrs_core::{BtfRef, Error, Monitor, Result};
+use crate::gpu::{GpuLayout, Shader};
+use crate::model::{Model, ReflectanceModel};
+use btfrs_core::arrays::check_finite;
+use btfrs_core::{BtfRef, Error, Monitor, NamedArrays, Result};
+use std::borrow::Cow;
 use nalgebra::{DMatrix, Dyn, MatrixView, MatrixViewMut, SymmetricEigen};
 use rayon::prelude::*;
 
@@ -54,7 +57,8 @@ pub const MAX_DEGREE: usize = 7;
 pub const MAX_COEFFS: usize = (MAX_DEGREE + 1) * (MAX_DEGREE + 1);
 
 /// Fit options.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct ShOptions {
     /// SH coefficients over the light direction, a perfect square in 1..=64 (degree <= 7).
     pub light_coeffs: usize,
@@ -876,15 +880,6 @@ impl Sh {
         self.view_coeffs * self.light_coeffs
     }
 
-    /// Bytes as stored for rendering: one per quantized coefficient plus the 24 bytes of
-    /// scale and bias, or 4 per f32 coefficient.
-    pub fn nbytes(&self) -> usize {
-        match &self.coeffs {
-            ShCoeffs::Float(c) => 4 * c.len(),
-            ShCoeffs::Quantized { q, .. } => q.len() + 24,
-        }
-    }
-
     /// Check that the arrays agree with the dimensions (for models built from loaded files).
     pub fn validate(&self) -> Result<()> {
         if self.height == 0 || self.width == 0 {
@@ -1005,6 +1000,124 @@ impl ReflectanceModel for Sh {
             };
         }
         out
+    }
+}
+
+crate::gpu_params! {
+    /// Parameters of `sh.wgsl`.
+    pub struct ShParams {
+        /// Coefficients over the view direction, kv.
+        pub kv: u32,
+        /// Coefficients over the light direction, kl.
+        pub kl: u32,
+        /// Store offset of scale[3] then bias[3] (f32).
+        pub scale_bias: u32,
+        /// Store offset of the coefficient words: per texel and channel, kv rows of
+        /// `ceil(kl / 4)` words, four 8-bit coefficients per word (rows zero padded).
+        pub coeffs: u32,
+    }
+}
+
+/// Repack `[texel][3][kv][kl]` bytes into rows of `ceil(kl / 4)` little-endian words (zero
+/// padded), so the shader reads each row with whole-word loads.
+pub fn sh_words(q: &[u8], kl: usize) -> Vec<u32> {
+    q.chunks_exact(kl).flat_map(crate::gpu::pack_u8).collect()
+}
+
+impl GpuLayout for Sh {
+    type Params = ShParams;
+    const SHADER: Shader = Shader::new::<ShParams>("sh", include_str!("../../../shaders_wgsl/sh.wgsl"));
+
+    fn layout_dims(&self) -> (usize, usize) {
+        (self.height, self.width)
+    }
+
+    fn parts(&self) -> Vec<Cow<'_, [u32]>> {
+        // The shader reads 8-bit coefficients; an unquantized model is quantized for the GPU.
+        let (q, scale, bias) = match &self.coeffs {
+            ShCoeffs::Quantized { q, scale, bias } => (Cow::Borrowed(&q[..]), *scale, *bias),
+            ShCoeffs::Float(c) => {
+                let (q, s, b) = quantize(c, self.per_channel());
+                (Cow::Owned(q), s, b)
+            }
+        };
+        let sb: Vec<u32> = scale.iter().chain(&bias).map(|x| x.to_bits()).collect();
+        vec![Cow::Owned(sb), Cow::Owned(sh_words(&q, self.light_coeffs))]
+    }
+
+    fn params(&self, offsets: &[u32], _tables: &[u32]) -> ShParams {
+        ShParams {
+            kv: self.view_coeffs as u32,
+            kl: self.light_coeffs as u32,
+            scale_bias: offsets[0],
+            coeffs: offsets[1],
+        }
+    }
+}
+
+impl Model for Sh {
+    const KIND: &'static str = "sh";
+    const DOC: &'static str = "double spherical harmonics by constrained least squares (paper 002, section 3.1)";
+    const EXAMPLES: &'static [(&'static str, &'static str)] = &[
+        ("SH 16x16 CLS", r#"{"view_coeffs": 16, "light_coeffs": 16}"#),
+        ("SH 25x25 CLS", r#"{"view_coeffs": 25, "light_coeffs": 25}"#),
+    ];
+    type Options = ShOptions;
+
+    fn fit(btf: &BtfRef<'_>, options: &ShOptions, monitor: &Monitor) -> Result<Self> {
+        fit_sh(btf, options, monitor)
+    }
+
+    /// Quantized: `q` `[H, W, 3, kv, kl]` u8 with `scale` and `bias` `[3]` f32; else `coeffs`
+    /// `[H, W, 3, kv, kl]` f32.
+    fn to_arrays(&self) -> NamedArrays {
+        let mut a = NamedArrays::new();
+        let shape = [self.height, self.width, 3, self.view_coeffs, self.light_coeffs];
+        match &self.coeffs {
+            ShCoeffs::Quantized { q, scale, bias } => {
+                a.put("q", &shape, q.clone());
+                a.put("scale", &[3], scale.to_vec());
+                a.put("bias", &[3], bias.to_vec());
+            }
+            ShCoeffs::Float(c) => a.put("coeffs", &shape, c.clone()),
+        }
+        a
+    }
+
+    fn from_arrays(a: &NamedArrays) -> Result<Self> {
+        let shape = [None, None, Some(3), None, None];
+        let (coeffs, sh) = if a.contains("q") {
+            let (q, sh) = a.get::<u8>("q", &shape)?;
+            let (scale, _) = a.get::<f32>("scale", &[Some(3)])?;
+            let (bias, _) = a.get::<f32>("bias", &[Some(3)])?;
+            check_finite("scale", scale)?;
+            check_finite("bias", bias)?;
+            let q = ShCoeffs::Quantized {
+                q: q.to_vec(),
+                scale: [scale[0], scale[1], scale[2]],
+                bias: [bias[0], bias[1], bias[2]],
+            };
+            (q, sh)
+        } else {
+            let (c, sh) = a.get::<f32>("coeffs", &shape)?;
+            check_finite("coeffs", c)?;
+            (ShCoeffs::Float(c.to_vec()), sh)
+        };
+        let m = Sh {
+            height: sh[0],
+            width: sh[1],
+            view_coeffs: sh[3],
+            light_coeffs: sh[4],
+            coeffs,
+            constrained_fraction: 0.0,
+            mean_lambda: 0.0,
+        };
+        m.validate()?;
+        Ok(m)
+    }
+
+    fn report(&self) -> serde_json::Value {
+        serde_json::json!({"constrained_fraction": self.constrained_fraction, "mean_lambda": self.mean_lambda})
     }
 }
 

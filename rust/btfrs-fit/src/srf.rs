@@ -21,8 +21,10 @@
 //! carries low-frequency shading (self-shadowing, shading variation) but blurs shadow boundaries
 //! (section 5).
 
-use crate::model::ReflectanceModel;
-use btfrs_core::{BtfRef, Error, Monitor, Result};
+use crate::gpu::{words, GpuLayout, Shader};
+use crate::model::{Model, NoOptions, ReflectanceModel};
+use btfrs_core::{BtfRef, Error, Monitor, NamedArrays, Result};
+use std::borrow::Cow;
 use rayon::prelude::*;
 
 /// Bounds of the shininess exponent: below 1 the lobe is not a highlight, above 2000 it is
@@ -80,10 +82,12 @@ pub struct Srf {
     pub phong: Phong,
     /// `[H, W, 3, 3]`: s(P) per texel and channel (x, y, z in the tangent frame).
     pub s: Vec<f32>,
+    /// The fit's statistics (zero for a model built from arrays).
+    pub report: SrfReport,
 }
 
 /// Statistics of an SRF fit: how much the residual function adds to Phong alone.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
 pub struct SrfReport {
     /// Relative error of Phong alone over the fitted pairs.
     pub phong_relative: f64,
@@ -363,7 +367,7 @@ pub fn fit_srf(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<(Srf, SrfReport)> 
     monitor.check()?;
     let rel = |e: f64| if sums[2] > 0.0 { (e / sums[2]).sqrt() } else { 0.0 };
     let report = SrfReport { phong_relative: rel(sums[0]), srf_relative: rel(sums[1]), iterations };
-    Ok((Srf { height: h, width: w, phong, s }, report))
+    Ok((Srf { height: h, width: w, phong, s, report }, report))
 }
 
 fn invert3(m: [[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
@@ -381,11 +385,6 @@ fn invert3(m: [[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
 }
 
 impl Srf {
-    /// Bytes as stored for rendering: 9 f32 per texel plus the 7 Phong parameters.
-    pub fn nbytes(&self) -> usize {
-        4 * (self.s.len() + 7)
-    }
-
     /// Check the arrays and parameters (for models built from loaded files).
     pub fn validate(&self) -> Result<()> {
         if self.height == 0 || self.width == 0 {
@@ -444,3 +443,70 @@ impl ReflectanceModel for Srf {
 
 #[cfg(test)]
 mod tests;
+
+crate::gpu_params! {
+    /// Parameters of `srf.wgsl`.
+    pub struct SrfParams {
+        /// Store offset of the 7 material words: kd rgb, ks rgb, n (f32).
+        pub material: u32,
+        /// Store offset of s(P): `[texel][channel][xyz]` f32.
+        pub s: u32,
+    }
+}
+
+impl GpuLayout for Srf {
+    type Params = SrfParams;
+    const SHADER: Shader = Shader::new::<SrfParams>("srf", include_str!("../../../shaders_wgsl/srf.wgsl"));
+
+    fn layout_dims(&self) -> (usize, usize) {
+        (self.height, self.width)
+    }
+
+    fn parts(&self) -> Vec<Cow<'_, [u32]>> {
+        let p = &self.phong;
+        let material: Vec<u32> = p.kd.iter().chain(&p.ks).chain([&p.n]).map(|&x| (x as f32).to_bits()).collect();
+        vec![Cow::Owned(material), words(&self.s)]
+    }
+
+    fn params(&self, offsets: &[u32], _tables: &[u32]) -> SrfParams {
+        SrfParams { material: offsets[0], s: offsets[1] }
+    }
+}
+
+impl Model for Srf {
+    const KIND: &'static str = "srf";
+    const DOC: &'static str = "Phong + spatially-varying residual function (paper 003, sections 4 and 5)";
+    const EXAMPLES: &'static [(&'static str, &'static str)] = &[("Phong+SRF", "{}")];
+    type Options = NoOptions;
+
+    fn fit(btf: &BtfRef<'_>, _options: &NoOptions, monitor: &Monitor) -> Result<Self> {
+        fit_srf(btf, monitor).map(|(m, _)| m)
+    }
+
+    /// `phong` `[7]` f64 (kd rgb, ks rgb, n) and `s` `[H, W, 3, 3]` f32.
+    fn to_arrays(&self) -> NamedArrays {
+        let mut a = NamedArrays::new();
+        let p = &self.phong;
+        a.put("phong", &[7], p.kd.iter().chain(&p.ks).chain([&p.n]).copied().collect::<Vec<f64>>());
+        a.put("s", &[self.height, self.width, 3, 3], self.s.clone());
+        a
+    }
+
+    fn from_arrays(a: &NamedArrays) -> Result<Self> {
+        let (p, _) = a.get::<f64>("phong", &[Some(7)])?;
+        let (s, sh) = a.get::<f32>("s", &[None, None, Some(3), Some(3)])?;
+        let m = Srf {
+            height: sh[0],
+            width: sh[1],
+            phong: Phong { kd: [p[0], p[1], p[2]], ks: [p[3], p[4], p[5]], n: p[6] },
+            s: s.to_vec(),
+            report: SrfReport::default(),
+        };
+        m.validate()?;
+        Ok(m)
+    }
+
+    fn report(&self) -> serde_json::Value {
+        serde_json::to_value(self.report).unwrap_or_default()
+    }
+}

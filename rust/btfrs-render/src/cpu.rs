@@ -3,13 +3,13 @@
 //! [`crate::raster`] rasterises the mesh with the GPU's rules (pixel centres, top-left fill
 //! rule, sub-pixel snapping, perspective-correct interpolation), so each pixel here shades the
 //! point the fragment shader shades; the shading below is `fs_main` of `common.wgsl` line by line
-//! in f32, and the model is evaluated by its own Rust code ([`ReflectanceModel`]), which is the
+//! in f32, and the model is evaluated by its own Rust code ([`Shade`]), which is the
 //! independent implementation each WGSL model file is tested against.
 
 use crate::gpu::View;
 use crate::raster;
 use btfrs_core::{Error, Result};
-use btfrs_fit::ReflectanceModel;
+use btfrs_fit::Shade;
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -78,8 +78,9 @@ fn to_local(w: Vec3, t: Vec3, b: Vec3, n: Vec3) -> Vec3 {
 }
 
 /// Render `model` on the CPU into a `[height][width][3]` image.
-pub fn render_cpu<M: ReflectanceModel>(model: &M, view: &View<'_>) -> Result<Vec<f32>> {
-    validate_common(view, model.dims())?;
+pub fn render_cpu<M: Shade + ?Sized>(model: &M, view: &View<'_>) -> Result<Vec<f32>> {
+    let dims = model.shade_dims();
+    validate_common(view, dims)?;
     let gb = raster::rasterize(view.mesh, view.camera, view.width, view.height)?;
     let eye = Vec3::from(view.camera.eye);
     let mut img = vec![0.0f32; view.width * view.height * 3];
@@ -93,7 +94,7 @@ pub fn render_cpu<M: ReflectanceModel>(model: &M, view: &View<'_>) -> Result<Vec
         if v.z <= 0.0 {
             return;
         }
-        let texel = texel_index(f.uv, view.uv_scale, model.dims(), view.coords);
+        let texel = texel_index(f.uv, view.uv_scale, dims, view.coords);
         let vd = v.as_dvec3().to_array();
         let mut sum = Vec3::ZERO;
         for light in view.lights {
@@ -102,8 +103,7 @@ pub fn render_cpu<M: ReflectanceModel>(model: &M, view: &View<'_>) -> Result<Vec
             if l.z <= 0.0 {
                 continue;
             }
-            let q = model.query(vd, l.as_dvec3().to_array());
-            sum += Vec3::from(model.eval(texel, &q)) * irr;
+            sum += Vec3::from(model.shade(texel, vd, l.as_dvec3().to_array())) * irr;
         }
         px.copy_from_slice(&sum.to_array());
     });

@@ -7,7 +7,7 @@
 //! `Depth32Float` buffer and reads the image back as `[height][width][3]` f32.
 
 use crate::device::Gpu;
-use crate::model::{GpuModel, Shader};
+use btfrs_fit::gpu::{GpuModel, Shader, Volume};
 use crate::scene::{Camera, Light, Mesh};
 use btfrs_core::{Error, Result};
 use bytemuck::{Pod, Zeroable};
@@ -69,7 +69,7 @@ pub fn shader_source(shader: Shader, single_chunk: bool) -> String {
         }
         _ => common.to_string(),
     };
-    format!("{common}\n{}", shader.source())
+    format!("{common}\n{}\n{}", (shader.params)(), shader.source)
 }
 
 /// A model's data on the device.
@@ -165,9 +165,9 @@ fn pipeline(gpu: &Gpu, st: &mut Pipelines, shader: Shader, single_chunk: bool) -
         return Ok(p.clone());
     }
     let d = &gpu.device;
-    let p = gpu.checked(&format!("building the {} pipeline", shader.name()), || {
+    let p = gpu.checked(&format!("building the {} pipeline", shader.name), || {
         let module = d.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some(shader.name()),
+            label: Some(shader.name),
             source: wgpu::ShaderSource::Wgsl(shader_source(shader, single_chunk).into()),
         });
         let layout = d.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -178,7 +178,7 @@ fn pipeline(gpu: &Gpu, st: &mut Pipelines, shader: Shader, single_chunk: bool) -
         let attrs =
             wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Float32x3, 4 => Float32x2];
         d.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some(shader.name()),
+            label: Some(shader.name),
             layout: Some(&layout),
             vertex: wgpu::VertexState {
                 module: &module,
@@ -251,7 +251,7 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
     if n_chunks > MAX_CHUNKS {
         return Err(Error::Device(format!(
             "the {} model needs {:.0} MiB on the device, more than {MAX_CHUNKS} storage buffers of {:.0} MiB that {} can bind",
-            model.shader().name(),
+            model.shader().name,
             (total * 4) as f64 / 1048576.0,
             max_binding as f64 / 1048576.0,
             gpu.info.name
@@ -300,7 +300,7 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
             contents: bytemuck::cast_slice(if tables.is_empty() { &[0u32][..] } else { &tables[..] }),
             usage: wgpu::BufferUsages::STORAGE,
         });
-        let placeholder = crate::model::Volume { size: [1, 1, 1], texels: vec![0u8; 4].into() };
+        let placeholder = Volume { size: [1, 1, 1], texels: vec![0u8; 4].into() };
         let vol = volume.as_ref().unwrap_or(&placeholder);
         let extent = wgpu::Extent3d { width: vol.size[0], height: vol.size[1], depth_or_array_layers: vol.size[2] };
         let texture = d.create_texture(&wgpu::TextureDescriptor {
@@ -364,7 +364,7 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
         });
         UploadedModel {
             shader: model.shader(),
-            dims: model.dims(),
+            dims: model.gpu_dims(),
             chunk_len: chunk_len as u32,
             chunks: n_chunks,
             bind_group,

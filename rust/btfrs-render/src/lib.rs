@@ -5,8 +5,9 @@
 //!   tangent frames follow the UV parameterisation (paper 002, section 4.2), a perspective
 //!   camera, point and directional lights.
 //! * [`gpu`]: one render pipeline per model shader (`shaders_wgsl/`), model upload, read-back.
-//! * [`model`]: what a model provides to be drawn ([`GpuModel`]); [`fitted`] and [`lpca`] lay out
-//!   the Lafortune, double-SH and Local-PCA models (LPCA with both renderers of paper 004).
+//! * [`model`]: what the renderer derives from a model's GPU layout (candidate tables of its
+//!   direction sets); the layouts themselves live with the models (`btfrs_fit::gpu`), so the
+//!   renderer never names a model.
 //! * [`raster`] and [`cpu`]: the CPU reference renderer, which shades the same points with the
 //!   same formulas, so every shader is tested against it.
 //! * Coordinate maps (paper 000, section 5): an optional map of u16 (x, y) texel coordinates
@@ -14,9 +15,7 @@
 
 pub mod cpu;
 pub mod device;
-pub mod fitted;
 pub mod gpu;
-pub mod lpca;
 pub mod model;
 pub mod raster;
 pub mod scene;

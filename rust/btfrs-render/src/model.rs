@@ -1,146 +1,24 @@
-//! What a model must provide to be drawn: its shader and its data, laid out for that shader.
-//!
-//! Adding a model = a WGSL file in `shaders_wgsl/` (defining `ViewQuery`, `view_query`,
-//! `eval_model`), a [`Shader`] variant naming it, and a [`GpuModel`] impl that lists the arrays
-//! and the parameter words the shader reads. The CPU reference needs nothing more: it uses the
-//! model's own [`ReflectanceModel`] evaluation.
+//! The model side of the renderer: the GPU contract every model implements lives with the models
+//! (`btfrs_fit::gpu`: [`GpuModel`], [`Shader`], [`Volume`], parameter structs); this module adds
+//! what the renderer derives from it: the candidate tables of measured direction sets, and
+//! [`WithShader`] to draw a model with another shader source.
 
-use btfrs_fit::{Ptm, PtmKind, RawModel, ReflectanceModel, Srf};
+pub use btfrs_fit::gpu::{GpuModel, Shader, Volume, PARAM_WORDS};
+use btfrs_fit::Shade;
 use std::borrow::Cow;
 
-/// The model shaders.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Shader {
-    /// `raw.wgsl`
-    Raw,
-    /// `ptm.wgsl`
-    Ptm,
-    /// `srf.wgsl`
-    Srf,
-    /// `lafortune.wgsl`
-    Lafortune,
-    /// `sh.wgsl`
-    Sh,
-    /// `lpca_9tap.wgsl`
-    Lpca9,
-    /// `lpca_3d.wgsl`
-    Lpca3d,
-    /// A model shader given as source (tests and experiments; the pipeline is cached per source).
-    Custom(&'static str),
-}
-
-impl Shader {
-    /// The file name without extension.
-    pub fn name(self) -> &'static str {
-        match self {
-            Shader::Raw => "raw",
-            Shader::Ptm => "ptm",
-            Shader::Srf => "srf",
-            Shader::Lafortune => "lafortune",
-            Shader::Sh => "sh",
-            Shader::Lpca9 => "lpca_9tap",
-            Shader::Lpca3d => "lpca_3d",
-            Shader::Custom(_) => "custom",
-        }
-    }
-
-    /// The model's WGSL (without `common.wgsl`).
-    pub fn source(self) -> &'static str {
-        match self {
-            Shader::Raw => crate::shaders::RAW,
-            Shader::Ptm => crate::shaders::PTM,
-            Shader::Srf => crate::shaders::SRF,
-            Shader::Lafortune => crate::shaders::LAFORTUNE,
-            Shader::Sh => crate::shaders::SH,
-            Shader::Lpca9 => crate::shaders::LPCA_9TAP,
-            Shader::Lpca3d => crate::shaders::LPCA_3D,
-            Shader::Custom(src) => src,
-        }
-    }
-}
-
-/// A model the GPU renderer can draw.
-pub trait GpuModel: Sync {
-    /// Which shader evaluates it.
-    fn shader(&self) -> Shader;
-    /// (height, width) of the sample in texels.
-    fn dims(&self) -> (usize, usize);
-    /// The arrays the shader reads, as 32-bit words (f32 values bit for bit, or packed
-    /// integers), in order; they are concatenated into the model store.
-    fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>>;
-    /// The measured direction sets the shader searches, in order; they are concatenated into
-    /// `mdirs` and each gets a candidate table ([`candidate_table`]) in `tables`.
-    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]>;
-    /// The 16 parameter words, given the store offset of each part and the `tables` offset of
-    /// each direction set's candidate table.
-    fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16];
-    /// An RGBA8 3D texture the shader samples with trilinear filtering (`vol` in common.wgsl).
-    fn gpu_volume(&self) -> Option<Volume<'_>> {
-        None
-    }
-}
-
-/// An RGBA8 3D texture: `size` = (width, height, depth), texels x fastest, then y, then z.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Volume<'a> {
-    /// Width, height, depth in texels.
-    pub size: [u32; 3],
-    /// `4 * width * height * depth` bytes.
-    pub texels: Cow<'a, [u8]>,
-}
-
-impl Volume<'_> {
-    /// Check the size against the data and the device's 3D texture limit.
-    pub fn validate(&self, max_dim: u32) -> btfrs_core::Result<()> {
-        let n = self.size.iter().map(|&x| x as usize).product::<usize>();
-        if self.size.iter().any(|&x| x == 0 || x > max_dim) || self.texels.len() != 4 * n {
-            return Err(btfrs_core::Error::Device(format!(
-                "a 3D texture of {:?} texels ({} bytes) does not fit the device's limit of {max_dim} per side",
-                self.size,
-                self.texels.len()
-            )));
-        }
-        Ok(())
-    }
-}
-
-/// f32 arrays as store words (no copy).
-pub fn words(x: &[f32]) -> Cow<'_, [u32]> {
-    Cow::Borrowed(bytemuck::cast_slice(x))
-}
-
-impl<M: GpuModel + ?Sized> GpuModel for &M {
-    fn shader(&self) -> Shader {
-        (**self).shader()
-    }
-    fn dims(&self) -> (usize, usize) {
-        (**self).dims()
-    }
-    fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
-        (**self).gpu_parts()
-    }
-    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
-        (**self).gpu_dir_sets()
-    }
-    fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16] {
-        (**self).gpu_params(offsets, tables)
-    }
-    fn gpu_volume(&self) -> Option<Volume<'_>> {
-        (**self).gpu_volume()
-    }
-}
-
 /// Any model drawn with another shader source: for testing shaders against the CPU reference
-/// (a deliberately wrong one must fail) and for measuring parts of a shader.
+/// (a deliberately wrong one must fail) and for measuring parts of a shader. The pipeline is
+/// cached per source.
 #[derive(Debug, Clone, Copy)]
-pub struct WithShader<'a, M>(pub &'a M, pub &'static str);
+pub struct WithShader<'a, M: ?Sized>(pub &'a M, pub &'static str);
 
-impl<M: GpuModel> GpuModel for WithShader<'_, M> {
+impl<M: GpuModel + ?Sized> GpuModel for WithShader<'_, M> {
     fn shader(&self) -> Shader {
-        Shader::Custom(self.1)
+        Shader { name: "custom", source: self.1, params: self.0.shader().params }
     }
-    fn dims(&self) -> (usize, usize) {
-        self.0.dims()
+    fn gpu_dims(&self) -> (usize, usize) {
+        self.0.gpu_dims()
     }
     fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
         self.0.gpu_parts()
@@ -148,11 +26,20 @@ impl<M: GpuModel> GpuModel for WithShader<'_, M> {
     fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
         self.0.gpu_dir_sets()
     }
-    fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16] {
+    fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; PARAM_WORDS] {
         self.0.gpu_params(offsets, tables)
     }
     fn gpu_volume(&self) -> Option<Volume<'_>> {
         self.0.gpu_volume()
+    }
+}
+
+impl<M: Shade + ?Sized> Shade for WithShader<'_, M> {
+    fn shade_dims(&self) -> (usize, usize) {
+        self.0.shade_dims()
+    }
+    fn shade(&self, t: usize, view: [f64; 3], light: [f64; 3]) -> [f32; 3] {
+        self.0.shade(t, view, light)
     }
 }
 
@@ -207,97 +94,6 @@ pub fn candidate_table(dirs: &[[f64; 3]], grid: usize) -> Vec<u32> {
     out.extend(offsets);
     out.extend(list);
     out
-}
-
-impl GpuModel for Ptm {
-    fn shader(&self) -> Shader {
-        Shader::Ptm
-    }
-
-    fn dims(&self) -> (usize, usize) {
-        ReflectanceModel::dims(self)
-    }
-
-    fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
-        let mut p = vec![words(&self.coeffs)];
-        if let Some(rgb) = &self.rgb {
-            p.push(words(rgb));
-        }
-        p
-    }
-
-    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
-        vec![&self.views]
-    }
-
-    fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16] {
-        let mut w = [0u32; 16];
-        w[2] = tables[0];
-        w[0] = match self.kind {
-            PtmKind::Rgb => 0,
-            PtmKind::Lrgb => 1,
-        };
-        w[1] = self.views.len() as u32;
-        w[3] = offsets[0];
-        w[4] = offsets.get(1).copied().unwrap_or(0);
-        w
-    }
-}
-
-impl GpuModel for RawModel<'_> {
-    fn shader(&self) -> Shader {
-        Shader::Raw
-    }
-
-    fn dims(&self) -> (usize, usize) {
-        ReflectanceModel::dims(self)
-    }
-
-    fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
-        vec![words(self.btf().data)]
-    }
-
-    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
-        vec![self.btf().views, self.btf().lights]
-    }
-
-    fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16] {
-        let b = self.btf();
-        let mut w = [0u32; 16];
-        w[0] = b.views.len() as u32;
-        w[1] = b.lights.len() as u32;
-        w[2] = tables[0];
-        w[3] = tables[1];
-        w[4] = offsets[0];
-        w
-    }
-}
-
-impl GpuModel for Srf {
-    fn shader(&self) -> Shader {
-        Shader::Srf
-    }
-
-    fn dims(&self) -> (usize, usize) {
-        ReflectanceModel::dims(self)
-    }
-
-    fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
-        let p = &self.phong;
-        let material: Vec<u32> = p.kd.iter().chain(&p.ks).chain([&p.n]).map(|&x| (x as f32).to_bits()).collect();
-        vec![Cow::Owned(material), words(&self.s)]
-    }
-
-    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
-        Vec::new()
-    }
-
-    fn gpu_params(&self, offsets: &[u32], _tables: &[u32]) -> [u32; 16] {
-        let mut w = [0u32; 16];
-        w[0] = offsets[0];
-        w[1] = offsets[1];
-        w
-    }
 }
 
 #[cfg(test)]

@@ -1,17 +1,17 @@
 //! Every model shader against the CPU reference renderer, on every kind of scene, with and
-//! without a coordinate map: the images must agree to >= 40 dB PSNR. Runs on whatever adapter
-//! the machine has (lavapipe in CI); there is no skipping: a missing adapter fails the test.
+//! without a coordinate map: the images must agree to >= 40 dB PSNR. The models come from the
+//! registry (every example option set of every model, every renderer), so a new model is tested
+//! here without naming it. Runs on whatever adapter the machine has (lavapipe in CI); there is
+//! no skipping: a missing adapter fails the test.
 
 use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::{Btf, Monitor};
-use btfrs_fit::lafortune::{LafortuneKind, LafortuneOptions};
-use btfrs_fit::lpca::LpcaOptions;
-use btfrs_fit::sh::ShOptions;
-use btfrs_fit::{fit_lafortune, fit_lpca, fit_ptm, fit_sh, fit_srf, PtmKind, PtmOptions, RawModel, ReflectanceModel};
+use btfrs_fit::gpu::GpuLayout;
+use btfrs_fit::registry::MODELS;
+use btfrs_fit::{fit_ptm, PtmOptions, RawModel, Renderable};
 use btfrs_render::cpu::render_cpu;
-use btfrs_render::lpca::Lpca3d;
 use btfrs_render::scene::{Camera, Light, Mesh};
-use btfrs_render::{gpu, Gpu, GpuModel, View, WithShader};
+use btfrs_render::{gpu, Gpu, View, WithShader};
 
 fn psnr(a: &[f32], b: &[f32]) -> f64 {
     let peak = a.iter().chain(b).fold(0.0f32, |m, &x| m.max(x)) as f64;
@@ -86,9 +86,9 @@ fn coords(h: usize, w: usize) -> (usize, usize, Vec<u32>) {
     (mw, mh, m)
 }
 
-fn check<M: ReflectanceModel + GpuModel>(gpu: &Gpu, name: &str, model: &M) -> f64 {
+fn check(gpu: &Gpu, name: &str, model: &dyn Renderable) -> f64 {
     let up = gpu::upload(gpu, model).unwrap();
-    let (h, w) = ReflectanceModel::dims(model);
+    let (h, w) = model.shade_dims();
     let (mw, mh, map) = coords(h, w);
     let lights = lights();
     let mut worst = f64::INFINITY;
@@ -119,33 +119,23 @@ fn check<M: ReflectanceModel + GpuModel>(gpu: &Gpu, name: &str, model: &M) -> f6
 fn every_model_matches_the_cpu_reference_on_every_scene() {
     let gpu = Gpu::shared().expect("a wgpu adapter (lavapipe: apt-get install mesa-vulkan-drivers)");
     let btf = material();
-    let raw = RawModel::new(btf.as_ref()).unwrap();
-    let rgb = fit_ptm(&btf.as_ref(), &PtmOptions::default(), &Monitor::new()).unwrap();
-    let lrgb =
-        fit_ptm(&btf.as_ref(), &PtmOptions { kind: PtmKind::Lrgb, ..Default::default() }, &Monitor::new()).unwrap();
-    let (srf, _) = fit_srf(&btf.as_ref(), &Monitor::new()).unwrap();
     let b = btf.as_ref();
-    let mon = Monitor::new();
-    let laf_lum = fit_lafortune(&b, &LafortuneOptions { lobes: 2, ..Default::default() }, &mon).unwrap();
-    let laf_rgb =
-        fit_lafortune(&b, &LafortuneOptions { kind: LafortuneKind::Rgb, lobes: 1, ..Default::default() }, &mon)
-            .unwrap();
-    let sh = fit_sh(&b, &ShOptions { light_coeffs: 16, view_coeffs: 9, ..Default::default() }, &mon).unwrap();
-    let lpca = fit_lpca(&b, &LpcaOptions { clusters: 4, components: 3, ..Default::default() }, &mon).unwrap();
-    let lpca3d = Lpca3d::new(&lpca, 12, gpu.limits.max_texture_dimension_3d as usize).unwrap();
-    for (name, p) in [
-        ("lafortune-lum", check(&gpu, "lafortune-lum", &laf_lum)),
-        ("lafortune-rgb", check(&gpu, "lafortune-rgb", &laf_rgb)),
-        ("sh", check(&gpu, "sh", &sh)),
-        ("lpca-9tap", check(&gpu, "lpca-9tap", &lpca)),
-        ("lpca-3d", check(&gpu, "lpca-3d", &lpca3d)),
-        ("srf", check(&gpu, "srf", &srf)),
-        ("raw", check(&gpu, "raw", &raw)),
-        ("ptm-rgb", check(&gpu, "ptm-rgb", &rgb)),
-        ("ptm-lrgb", check(&gpu, "ptm-lrgb", &lrgb)),
-    ] {
-        eprintln!("{name}: worst PSNR {p:.1} dB on {}", gpu.describe());
+    let raw = RawModel::new(b).unwrap();
+    eprintln!("raw: worst PSNR {:.1} dB on {}", check(&gpu, "raw", &raw), gpu.describe());
+    let max_3d = gpu.limits.max_texture_dimension_3d as usize;
+    let mut checked = 0;
+    for e in MODELS {
+        for (label, options) in e.examples {
+            let m = (e.fit)(&b, options, &Monitor::new()).unwrap();
+            for method in e.renderers {
+                let r = m.renderer(method, max_3d).unwrap();
+                let p = check(&gpu, label, r.as_ref());
+                eprintln!("{label} ({method}): worst PSNR {p:.1} dB");
+                checked += 1;
+            }
+        }
     }
+    assert!(checked >= 10, "every example of every model, every renderer");
 }
 
 #[test]
@@ -154,8 +144,9 @@ fn a_wrong_shader_fails_the_comparison() {
     let btf = material();
     let ptm = fit_ptm(&btf.as_ref(), &PtmOptions::default(), &Monitor::new()).unwrap();
     // Mirror the light's y in the basis: a plausible bug that still renders a sensible image.
-    let src = btfrs_render::shaders::PTM.replace("let b2 = l.x * l.y;", "let b2 = -l.x * l.y;");
-    assert_ne!(src, btfrs_render::shaders::PTM);
+    let ptm_src = <btfrs_fit::Ptm as GpuLayout>::SHADER.source;
+    let src = ptm_src.replace("let b2 = l.x * l.y;", "let b2 = -l.x * l.y;");
+    assert_ne!(src, ptm_src);
     let bad = WithShader(&ptm, Box::leak(src.into_boxed_str()));
     let up = gpu::upload(&gpu, &bad).unwrap();
     let lights = lights();

@@ -1,25 +1,66 @@
-//! Every model shader, prefixed with common.wgsl, parses and validates with naga: no GPU needed,
-//! so a broken shader fails `cargo test` on any machine.
+//! Every model shader, prefixed with common.wgsl and its generated parameter struct, parses and
+//! validates with naga: no GPU needed, so a broken shader fails `cargo test` on any machine. The
+//! parameter structs are checked against their Rust mirrors (layout and use).
 
+use btfrs_fit::gpu::{GpuLayout, Shader, PARAM_WORDS};
+use btfrs_fit::registry::MODELS;
+use btfrs_fit::RawModel;
 use btfrs_render::gpu::shader_source;
-use btfrs_render::Shader;
 
-fn validate(src: &str) -> Result<(), String> {
+fn all_shaders() -> Vec<Shader> {
+    let mut v = vec![<RawModel<'static> as GpuLayout>::SHADER];
+    for e in MODELS {
+        v.extend((e.shaders)());
+    }
+    v
+}
+
+fn parse(src: &str) -> Result<naga::Module, String> {
     let module = naga::front::wgsl::parse_str(src).map_err(|e| e.emit_to_string(src))?;
     naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::empty())
         .validate(&module)
         .map_err(|e| format!("{e:?}"))?;
-    Ok(())
+    Ok(module)
 }
 
 #[test]
 fn every_model_shader_validates() {
-    for s in [Shader::Raw, Shader::Ptm, Shader::Srf, Shader::Lafortune, Shader::Sh, Shader::Lpca9, Shader::Lpca3d] {
+    let shaders = all_shaders();
+    assert!(shaders.len() >= 7, "raw, five models, LPCA's second renderer");
+    for s in shaders {
         for single in [false, true] {
             let src = shader_source(s, single);
             assert_eq!(src.contains("switch c"), !single, "the single-chunk variant replaces the chunk switch");
-            if let Err(e) = validate(&src) {
-                panic!("{}.wgsl (single chunk: {single}) does not validate:\n{e}", s.name());
+            if let Err(e) = parse(&src) {
+                panic!("{}.wgsl (single chunk: {single}) does not validate:\n{e}", s.name);
+            }
+        }
+    }
+}
+
+#[test]
+fn parameter_structs_match_their_rust_mirrors() {
+    // naga lays out the generated `struct Params` by WGSL's uniform rules: each field must sit at
+    // the offset the Rust struct gives it (4 x its index, checked at compile time there), the
+    // block must be 64 bytes, and the shader must read every field it declares (a field the
+    // shader ignores means the two sides disagree about what the words are).
+    for s in all_shaders() {
+        let module = parse(&shader_source(s, true)).unwrap();
+        let (_, ty) = module
+            .types
+            .iter()
+            .find(|(_, t)| t.name.as_deref() == Some("Params"))
+            .unwrap_or_else(|| panic!("{}: no Params struct", s.name));
+        let naga::TypeInner::Struct { members, span } = &ty.inner else { panic!("{}: Params is not a struct", s.name) };
+        assert_eq!(*span as usize, 4 * PARAM_WORDS, "{}", s.name);
+        assert_eq!(members.len(), PARAM_WORDS, "{}", s.name);
+        let params = (s.params)();
+        for (i, m) in members.iter().enumerate() {
+            assert_eq!(m.offset as usize, 4 * i, "{}: field {:?}", s.name, m.name);
+            let name = m.name.as_deref().unwrap();
+            if !name.starts_with("_pad") {
+                assert!(params.contains(&format!("{name}: ")));
+                assert!(s.source.contains(&format!("mp.{name}")), "{}.wgsl never reads mp.{name}", s.name);
             }
         }
     }
@@ -27,7 +68,11 @@ fn every_model_shader_validates() {
 
 #[test]
 fn a_broken_shader_is_caught() {
-    // The check is real: a model file that calls an undefined function fails it.
-    let bad = shader_source(Shader::Ptm, true).replace("load_dir(param(4u)", "load_dirr(param(4u)");
-    assert!(validate(&bad).is_err());
+    // The check is real: a model file that calls an undefined function, or reads a parameter
+    // its struct does not declare, fails it.
+    let ptm = <btfrs_fit::Ptm as GpuLayout>::SHADER;
+    let src = shader_source(ptm, true);
+    assert!(parse(&src).is_ok());
+    assert!(parse(&src.replace("load_dir(mp.rgb", "load_dirr(mp.rgb")).is_err());
+    assert!(parse(&src.replace("mp.coeffs", "mp.coefs")).is_err());
 }

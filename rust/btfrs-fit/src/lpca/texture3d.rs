@@ -1,56 +1,24 @@
-//! The two Local-PCA renderers of paper 004.
+//! The revised LPCA renderer of paper 004, section 6: the Eigen-BRDFs resampled into one 3D
+//! texture.
 //!
-//! * **9-tap** (section 5): the fitted [`Lpca`] as it is: per fragment and light, three nearest
-//!   views x three nearest lights, nine lookups per Eigen-BRDF (`lpca_9tap.wgsl`; the CPU
-//!   reference is `Lpca`'s own evaluation).
-//! * **3D texture** (section 6): [`Lpca3d`] resamples every Eigen-BRDF on an `N^4` grid of the
-//!   elevated concentric map (section 6.1) and packs the grids into one RGBA8 3D texture with the
-//!   t_l slices stacked along z (section 6.2); the GPU filters three dimensions, the shader lerps
-//!   the fourth (`lpca_3d.wgsl`). Its CPU reference below samples the same texels with the same
-//!   trilinear weights, so the shader is tested against it like any other model.
+//! [`Lpca3d`] resamples every Eigen-BRDF on an `N^4` grid of the elevated concentric map
+//! (section 6.1) and packs the grids into one RGBA8 3D texture with the t_l slices stacked along
+//! z (section 6.2); the GPU filters three dimensions, the shader lerps the fourth
+//! (`lpca_3d.wgsl`). Its CPU reference ([`ReflectanceModel`] below) samples the same texels with
+//! the same trilinear weights, so the shader is tested against it like any other model.
 //!
 //! The grid values are the 9-tap interpolation of the measured Eigen-BRDFs at the grid's
 //! directions, rounded to 8 bits with each Eigen-BRDF's own scale and bias, so the texel weights
 //! (which fold those in, section 6.3) are shared by both renderers.
 
-use crate::model::{words, GpuModel, Shader, Volume};
+use super::Lpca;
+use crate::gpu::{words, GpuLayout, Shader, Volume};
+use crate::model::ReflectanceModel;
 use btfrs_core::directions::interp_weights;
 use btfrs_core::{Error, Result};
-use btfrs_fit::{Lpca, ReflectanceModel};
 use btfrs_hemimap::{hemisphere_to_square, square_to_hemisphere};
 use rayon::prelude::*;
 use std::borrow::Cow;
-
-impl GpuModel for Lpca {
-    fn shader(&self) -> Shader {
-        Shader::Lpca9
-    }
-
-    fn dims(&self) -> (usize, usize) {
-        ReflectanceModel::dims(self)
-    }
-
-    fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
-        vec![Cow::Borrowed(&self.ids[..]), words(&self.weights), Cow::Borrowed(bytemuck::cast_slice(&self.basis))]
-    }
-
-    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
-        vec![&self.views, &self.lights]
-    }
-
-    fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; 16] {
-        let mut w = [0u32; 16];
-        w[0] = self.views.len() as u32;
-        w[1] = self.lights.len() as u32;
-        w[2] = tables[0];
-        w[3] = tables[1];
-        w[4] = offsets[0];
-        w[5] = offsets[1];
-        w[6] = offsets[2];
-        w[7] = self.components as u32;
-        w
-    }
-}
 
 /// Default grid resolution per axis of the resampled Eigen-BRDFs: 16 x 16 directions per
 /// hemisphere, about 11 degrees apart, finer than the UBO's 15-degree rings.
@@ -223,35 +191,48 @@ impl ReflectanceModel for Lpca3d<'_> {
     }
 }
 
-impl GpuModel for Lpca3d<'_> {
-    fn shader(&self) -> Shader {
-        Shader::Lpca3d
+crate::gpu_params! {
+    /// Parameters of `lpca_3d.wgsl`.
+    pub struct Lpca3dParams {
+        /// Grid samples per axis N.
+        pub grid: u32,
+        /// Eigen-BRDF tiles per row of the texture's xy plane.
+        pub gx: u32,
+        /// Tile rows.
+        pub gy: u32,
+        /// Store offset of the cluster ids: u16, two per word.
+        pub ids: u32,
+        /// Store offset of the weights `[texel][c + 2]` f32 (as `lpca_9tap.wgsl`).
+        pub weights: u32,
+        /// Components c.
+        pub components: u32,
     }
+}
 
-    fn dims(&self) -> (usize, usize) {
+impl GpuLayout for Lpca3d<'_> {
+    type Params = Lpca3dParams;
+    const SHADER: Shader = Shader::new::<Lpca3dParams>("lpca_3d", include_str!("../../../../shaders_wgsl/lpca_3d.wgsl"));
+
+    fn layout_dims(&self) -> (usize, usize) {
         ReflectanceModel::dims(self.lpca)
     }
 
-    fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
-        vec![Cow::Borrowed(&self.lpca.ids[..]), words(&self.lpca.weights)]
+    fn parts(&self) -> Vec<Cow<'_, [u32]>> {
+        vec![Cow::Owned(self.lpca.id_words()), words(&self.lpca.weights)]
     }
 
-    fn gpu_dir_sets(&self) -> Vec<&[[f64; 3]]> {
-        Vec::new()
+    fn params(&self, offsets: &[u32], _tables: &[u32]) -> Lpca3dParams {
+        Lpca3dParams {
+            grid: self.n as u32,
+            gx: self.gx as u32,
+            gy: self.gy as u32,
+            ids: offsets[0],
+            weights: offsets[1],
+            components: self.lpca.components as u32,
+        }
     }
 
-    fn gpu_params(&self, offsets: &[u32], _tables: &[u32]) -> [u32; 16] {
-        let mut w = [0u32; 16];
-        w[0] = self.n as u32;
-        w[1] = self.gx as u32;
-        w[2] = self.gy as u32;
-        w[3] = offsets[0];
-        w[4] = offsets[1];
-        w[5] = self.lpca.components as u32;
-        w
-    }
-
-    fn gpu_volume(&self) -> Option<Volume<'_>> {
+    fn volume(&self) -> Option<Volume<'_>> {
         Some(Volume {
             size: [(self.n * self.gx) as u32, (self.n * self.gy) as u32, (self.n * self.n) as u32],
             texels: Cow::Borrowed(&self.vol),

@@ -1,0 +1,181 @@
+//! The model registry: the one list of models. Everything that iterates over models (the
+//! bindings, `btfrs.load`, the renderers, the demo, the bench) asks it, so a new model is
+//! registered by one line in [`MODELS`] (see CONTRIBUTING.md).
+
+use crate::model::{parse_options, DynModel, Model};
+use btfrs_core::{BtfRef, Error, Monitor, NamedArrays, Result};
+
+/// What the registry knows of one model, independent of its type.
+#[derive(Debug, Clone, Copy)]
+pub struct Entry {
+    /// [`Model::KIND`].
+    pub kind: &'static str,
+    /// [`Model::DOC`].
+    pub doc: &'static str,
+    /// [`Model::RENDERERS`].
+    pub renderers: &'static [&'static str],
+    /// [`Model::EXAMPLES`].
+    pub examples: &'static [(&'static str, &'static str)],
+    /// Fit with options given as a JSON object.
+    pub fit: fn(&BtfRef<'_>, &str, &Monitor) -> Result<Box<dyn DynModel>>,
+    /// [`Model::from_arrays`].
+    pub from_arrays: fn(&NamedArrays) -> Result<Box<dyn DynModel>>,
+    /// The defaults of its options, for display (`{:?}` of `Options::default()`).
+    pub default_options: fn() -> String,
+    /// [`Model::shaders`].
+    pub shaders: fn() -> Vec<crate::gpu::Shader>,
+}
+
+fn fit_erased<M: Model + std::fmt::Debug>(btf: &BtfRef<'_>, options: &str, mon: &Monitor) -> Result<Box<dyn DynModel>> {
+    let o: M::Options = parse_options(options)?;
+    Ok(Box::new(M::fit(btf, &o, mon)?))
+}
+
+fn from_arrays_erased<M: Model + std::fmt::Debug>(a: &NamedArrays) -> Result<Box<dyn DynModel>> {
+    Ok(Box::new(M::from_arrays(a)?))
+}
+
+fn default_options<M: Model>() -> String {
+    format!("{:?}", M::Options::default())
+}
+
+/// The registry entry of `M`.
+pub const fn entry<M: Model + std::fmt::Debug>() -> Entry {
+    Entry {
+        kind: M::KIND,
+        doc: M::DOC,
+        renderers: M::RENDERERS,
+        examples: M::EXAMPLES,
+        fit: fit_erased::<M>,
+        from_arrays: from_arrays_erased::<M>,
+        default_options: default_options::<M>,
+        shaders: M::shaders,
+    }
+}
+
+/// Every model, in the order the demo and the bench show them.
+pub const MODELS: &[Entry] = &[
+    entry::<crate::ptm::Ptm>(),
+    entry::<crate::lafortune::Lafortune>(),
+    entry::<crate::srf::Srf>(),
+    entry::<crate::sh::Sh>(),
+    entry::<crate::lpca::Lpca>(),
+];
+
+/// The entry of `kind`, or an error listing the registered models.
+pub fn lookup(kind: &str) -> Result<&'static Entry> {
+    MODELS.iter().find(|e| e.kind == kind).ok_or_else(|| {
+        let names: Vec<String> = MODELS.iter().map(|e| format!("{:?}", e.kind)).collect();
+        Error::arg("kind", format!("unknown model {kind:?}; expected one of {}", names.join(", ")))
+    })
+}
+
+/// Fit model `kind` with options as a JSON object (`"{}"` for the defaults).
+pub fn fit(kind: &str, btf: &BtfRef<'_>, options: &str, monitor: &Monitor) -> Result<Box<dyn DynModel>> {
+    (lookup(kind)?.fit)(btf, options, monitor)
+}
+
+/// Rebuild model `kind` from its arrays.
+pub fn from_arrays(kind: &str, arrays: &NamedArrays) -> Result<Box<dyn DynModel>> {
+    (lookup(kind)?.from_arrays)(arrays)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use btfrs_core::materials::{generate, MaterialSpec, Preset};
+
+    fn sample() -> btfrs_core::Btf {
+        generate(&MaterialSpec::new(Preset::Bumps, 8, 3), &Monitor::new()).unwrap()
+    }
+
+    #[test]
+    fn every_model_round_trips_through_its_arrays() {
+        // Fitted with its first example, saved as arrays and rebuilt: the rebuilt model must
+        // evaluate to the same values at a direction pair between the measured ones, report the
+        // same bytes, and produce the same arrays again.
+        let btf = sample();
+        let b = btf.as_ref();
+        let (v, l) = ([0.2, -0.1, 0.97468], [-0.3, 0.4, 0.86603]);
+        let norm = |d: [f64; 3]| {
+            let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            d.map(|x| x / n)
+        };
+        for e in MODELS {
+            let m = (e.fit)(&b, e.examples[0].1, &Monitor::new()).unwrap();
+            assert_eq!(m.kind(), e.kind);
+            let a = m.to_arrays();
+            let r = from_arrays(e.kind, &a).unwrap();
+            assert_eq!(r.to_arrays(), a, "{}", e.kind);
+            assert_eq!(r.nbytes(), m.nbytes(), "{}", e.kind);
+            let x = m.evaluate_image(norm(v), norm(l)).unwrap();
+            let y = r.evaluate_image(norm(v), norm(l)).unwrap();
+            assert_eq!(x, y, "{}", e.kind);
+            assert!(x.iter().all(|p| p.is_finite()) && x.iter().any(|&p| p > 0.0), "{}", e.kind);
+        }
+    }
+
+    #[test]
+    fn nbytes_is_what_the_default_renderer_uploads() {
+        // Counted independently from the renderer's own parts: the words it uploads, plus the
+        // 3D texture of renderers that have one.
+        let btf = sample();
+        for e in MODELS {
+            let m = (e.fit)(&btf.as_ref(), e.examples[0].1, &Monitor::new()).unwrap();
+            let r = m.renderer(e.renderers[0], 2048).unwrap();
+            let words: usize = r.gpu_parts().iter().map(|p| p.len()).sum();
+            assert_eq!(m.nbytes(), 4 * words + r.gpu_volume().map_or(0, |v| v.texels.len()), "{}", e.kind);
+        }
+    }
+
+    #[test]
+    fn options_errors_name_the_option() {
+        let btf = sample();
+        let b = btf.as_ref();
+        let err = |kind: &str, o: &str| fit(kind, &b, o, &Monitor::new()).unwrap_err().to_string();
+        assert!(err("lafortune", r#"{"lobes": 2.9}"#).starts_with("lobes: invalid type: floating point `2.9`"));
+        assert!(err("lpca", r#"{"clusters": -1}"#).starts_with("clusters: invalid value: integer `-1`"));
+        assert!(err("ptm", r#"{"knd": "rgb"}"#).starts_with("knd: unknown field `knd`"));
+        assert!(err("ptm", r#"{"kind": "xyz"}"#).starts_with("kind: unknown variant `xyz`"));
+        assert!(err("srf", r#"{"x": 1}"#).starts_with("x: unknown field `x`"));
+        assert!(err("nope", "{}").contains("unknown model \"nope\""));
+        assert!(err("ptm", "[1]").starts_with("options: expected a JSON object"));
+    }
+
+    #[test]
+    fn corrupted_arrays_are_errors_not_panics() {
+        // Every array of every model, replaced by an empty one, a wrong-dtype one, and dropped:
+        // each rebuild is an error naming some array, never a panic.
+        let btf = sample();
+        for e in MODELS {
+            let m = (e.fit)(&btf.as_ref(), e.examples[0].1, &Monitor::new()).unwrap();
+            let a = m.to_arrays();
+            for (name, arr) in a.iter() {
+                let mut shapes = vec![vec![0; arr.shape.len()]];
+                if !arr.shape.is_empty() {
+                    let mut s = arr.shape.clone();
+                    s[0] = 0;
+                    shapes.push(s);
+                    let mut s = arr.shape.clone();
+                    *s.last_mut().unwrap() = 0;
+                    shapes.push(s);
+                }
+                for shape in shapes {
+                    let mut b = a.clone();
+                    let data = match arr.data {
+                        btfrs_core::arrays::ArrayData::U8(_) => btfrs_core::arrays::ArrayData::U8(vec![]),
+                        btfrs_core::arrays::ArrayData::U16(_) => btfrs_core::arrays::ArrayData::U16(vec![]),
+                        btfrs_core::arrays::ArrayData::I32(_) => btfrs_core::arrays::ArrayData::I32(vec![]),
+                        btfrs_core::arrays::ArrayData::F32(_) => btfrs_core::arrays::ArrayData::F32(vec![]),
+                        btfrs_core::arrays::ArrayData::F64(_) => btfrs_core::arrays::ArrayData::F64(vec![]),
+                    };
+                    b.insert_checked(name, shape.clone(), data).unwrap();
+                    assert!(from_arrays(e.kind, &b).is_err(), "{} {name} {shape:?}", e.kind);
+                }
+                let mut b = a.clone();
+                b.put(name, &[1], vec![0u16]);
+                assert!(from_arrays(e.kind, &b).is_err(), "{} {name} as u16", e.kind);
+            }
+        }
+    }
+}
