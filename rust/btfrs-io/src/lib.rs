@@ -1,6 +1,7 @@
 //! btfrs-io: everything that touches files.
 //!
 //! * [`container`]: the `.btfrs` file for BTFs and fitted models (JSON header + aligned raw arrays).
+//! * [`model_file`]: any registered model saved to and loaded from a container.
 //! * [`ptm_file`]: `PTM_1.2` files (Malzbender et al. 2001) as RTIViewer and relight read them.
 //! * [`image`]: PNG output of rendered or measured images.
 //! * [`atomic`]: every writer goes through a temporary file and a rename.
@@ -8,4 +9,5 @@
 pub mod atomic;
 pub mod container;
 pub mod image;
+pub mod model_file;
 pub mod ptm_file;

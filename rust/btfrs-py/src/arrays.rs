@@ -37,9 +37,3 @@ pub fn dirs<'a>(name: &str, a: &'a PyReadonlyArrayDyn<'_, f64>) -> PyResult<&'a 
     let s = a.as_slice().map_err(|e| arg(name, e))?;
     Ok(s.as_chunks::<3>().0)
 }
-
-/// A 3-vector from any sequence of three floats.
-pub fn vec3(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<[f64; 3]> {
-    let v: Vec<f64> = obj.extract().map_err(|_| arg(name, "expected three numbers"))?;
-    v.try_into().map_err(|v: Vec<f64>| arg(name, format!("expected three numbers, got {}", v.len())))
-}

@@ -2,7 +2,7 @@
 
 use crate::arrays::{borrow, check_shape};
 use crate::errors::{arg, IntoPy};
-use crate::fit::PyPtm;
+use crate::models::PyModel;
 use crate::run::detach;
 use btfrs_fit::PtmKind;
 use btfrs_io::container::{self, as_bytes, ArrayRef, Dtype};
@@ -94,8 +94,12 @@ pub fn read_container_header(path: PathBuf) -> PyResult<(String, String, Vec<(St
 
 /// Write one view slot of a PTM as a `.ptm` file; returns (scale, bias) per coefficient index.
 #[pyfunction]
-pub fn write_ptm(py: Python<'_>, path: PathBuf, model: &PyPtm, view: usize) -> PyResult<(Vec<f32>, Vec<i32>)> {
-    let p = &model.inner;
+pub fn write_ptm(py: Python<'_>, path: PathBuf, model: &PyModel, view: usize) -> PyResult<(Vec<f32>, Vec<i32>)> {
+    let p = model
+        .inner
+        .as_any()
+        .downcast_ref::<btfrs_fit::Ptm>()
+        .ok_or_else(|| arg("model", format!("expected a PTM, got a {} model", model.inner.kind())))?;
     let nv = p.views.len();
     if view >= nv {
         return Err(arg("view", format!("expected a view slot index in [0, {nv}), got {view}")));
@@ -120,7 +124,7 @@ pub fn write_ptm(py: Python<'_>, path: PathBuf, model: &PyPtm, view: usize) -> P
 
 /// Read a `.ptm` file as a one-slot model (view = the normal).
 #[pyfunction]
-pub fn read_ptm(py: Python<'_>, path: PathBuf) -> PyResult<PyPtm> {
+pub fn read_ptm(py: Python<'_>, path: PathBuf) -> PyResult<PyModel> {
     let img = detach(py, || ptm_file::read_ptm(&path))?;
     let kind = match img.format {
         PtmFormat::Rgb => PtmKind::Rgb,
@@ -135,7 +139,7 @@ pub fn read_ptm(py: Python<'_>, path: PathBuf) -> PyResult<PyPtm> {
         rgb: img.rgb,
     };
     inner.validate().py()?;
-    Ok(PyPtm { inner })
+    Ok(PyModel { inner: Box::new(inner) })
 }
 
 /// Write a `[H, W, 3]` float32 linear image as an 8-bit sRGB PNG.

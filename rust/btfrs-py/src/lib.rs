@@ -7,7 +7,6 @@
 mod arrays;
 mod core;
 mod errors;
-mod fit;
 mod hemimap;
 mod io;
 mod models;
@@ -29,13 +28,10 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(hemimap::disk_to_square, m)?)?;
     m.add_function(wrap_pyfunction!(hemimap::square_to_hemisphere, m)?)?;
     m.add_function(wrap_pyfunction!(hemimap::hemisphere_to_square, m)?)?;
-    m.add_class::<fit::PyPtm>()?;
-    m.add_function(wrap_pyfunction!(fit::fit_ptm_native, m)?)?;
     m.add_class::<models::PyModel>()?;
-    m.add_function(wrap_pyfunction!(models::fit_srf_native, m)?)?;
-    m.add_function(wrap_pyfunction!(models::fit_lafortune_native, m)?)?;
-    m.add_function(wrap_pyfunction!(models::fit_sh_native, m)?)?;
-    m.add_function(wrap_pyfunction!(models::fit_lpca_native, m)?)?;
+    m.add_function(wrap_pyfunction!(models::fit_model, m)?)?;
+    m.add_function(wrap_pyfunction!(models::load_model, m)?)?;
+    m.add_function(wrap_pyfunction!(models::model_registry, m)?)?;
     m.add_function(wrap_pyfunction!(io::save_container, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_container_header, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_ptm, m)?)?;
@@ -48,10 +44,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<render::PyCamera>()?;
     m.add_class::<render::PyGpuModel>()?;
     m.add_function(wrap_pyfunction!(render::gpu_info, m)?)?;
-    m.add_function(wrap_pyfunction!(render::gpu_upload_ptm, m)?)?;
     m.add_function(wrap_pyfunction!(render::gpu_upload_raw, m)?)?;
     m.add_function(wrap_pyfunction!(render::gpu_render, m)?)?;
-    m.add_function(wrap_pyfunction!(render::cpu_render_ptm, m)?)?;
     m.add_function(wrap_pyfunction!(render::cpu_render_raw, m)?)?;
     m.add_function(wrap_pyfunction!(render::gpu_upload_model, m)?)?;
     m.add_function(wrap_pyfunction!(render::cpu_render_model, m)?)?;

@@ -1,102 +1,90 @@
-//! Bindings of the fitted models other than PTM: one Python class (`_native.Model`) over an enum,
-//! so evaluation, error, storage and rendering are written once for every model.
+//! Bindings of the model contract: one Python class (`_native.Model`) over `Box<dyn DynModel>`
+//! and one fit function over the registry, so no binding names a model.
 //!
-//! Each model converts to and from named numpy arrays (`arrays` / `from_arrays`): that is what
-//! `btfrs.models` saves into a `.btfrs` container, and what a user inspects.
+//! Options travel as a JSON object (the model's own `Options` parse it and name a bad option);
+//! arrays travel as a dict of numpy arrays converted one for one to the model's
+//! [`NamedArrays`]; reports come back as JSON.
 
-use crate::arrays::{borrow, check_shape};
+use crate::arrays::borrow;
 use crate::core::BtfArgs;
 use crate::errors::{arg, IntoPy};
-use crate::fit::{error_py, evaluate_py};
-use crate::run::monitored;
-use btfrs_fit::lafortune::{FitReport, LafortuneOptions};
-use btfrs_fit::lpca::LpcaOptions;
-use btfrs_fit::sh::ShOptions;
-use btfrs_fit::{Lafortune, LafortuneKind, Lpca, Phong, Sh, ShCoeffs, Srf};
+use crate::run::{detach, monitored};
+use btfrs_core::arrays::{ArrayData, NamedArrays};
+use btfrs_fit::registry;
+use btfrs_fit::DynModel;
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use std::path::PathBuf;
 
-/// Every fitted model behind `_native.Model`.
-#[derive(Debug)]
-pub enum AnyModel {
-    /// Phong + spatially-varying residual.
-    Srf(Srf),
-    /// Per-texel Lafortune lobes.
-    Lafortune(Lafortune),
-    /// Double spherical harmonics.
-    Sh(Sh),
-    /// Local PCA.
-    Lpca(Lpca),
-}
-
-/// Run `$body` with `$m` bound to the concrete model.
-macro_rules! with_model {
-    ($any:expr, $m:ident => $body:expr) => {
-        match $any {
-            AnyModel::Srf($m) => $body,
-            AnyModel::Lafortune($m) => $body,
-            AnyModel::Sh($m) => $body,
-            AnyModel::Lpca($m) => $body,
-        }
-    };
-}
-pub(crate) use with_model;
-
-impl AnyModel {
-    pub(crate) fn kind(&self) -> &'static str {
-        match self {
-            AnyModel::Srf(_) => "srf",
-            AnyModel::Lafortune(_) => "lafortune",
-            AnyModel::Sh(_) => "sh",
-            AnyModel::Lpca(_) => "lpca",
-        }
-    }
-
-    fn dims(&self) -> (usize, usize) {
-        with_model!(self, m => btfrs_fit::ReflectanceModel::dims(m))
-    }
-
-    fn nbytes(&self) -> usize {
-        with_model!(self, m => m.nbytes())
-    }
-}
-
-/// A fitted model (the Rust side of `btfrs.Srf` and the other model classes).
+/// A fitted model (the Rust side of `btfrs.Ptm`, `btfrs.Lpca` and every other model class).
 #[derive(Debug)]
 #[pyclass(name = "Model", module = "btfrs._native", frozen)]
 pub struct PyModel {
-    pub inner: AnyModel,
+    pub inner: Box<dyn DynModel>,
 }
 
-pub(crate) type Arrays<'py> = Bound<'py, PyDict>;
-
-pub(crate) fn put<'py, T: numpy::Element>(d: &Arrays<'py>, name: &str, v: Vec<T>, shape: Vec<usize>) -> PyResult<()> {
-    d.set_item(name, v.into_pyarray(d.py()).reshape(shape)?)
+/// Error sums as a dict: rmse, relative, psnr, samples.
+pub fn error_dict<'py>(py: Python<'py>, e: btfrs_core::metrics::ErrorSums) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("rmse", e.rmse())?;
+    d.set_item("relative", e.relative())?;
+    d.set_item("psnr", e.psnr())?;
+    d.set_item("samples", e.n)?;
+    Ok(d)
 }
 
-/// A named array of `dict`, borrowed, with its shape checked.
-pub(crate) fn get<'py, T: numpy::Element + Copy>(
-    d: &Arrays<'py>,
-    name: &str,
-    shape: &[Option<usize>],
-) -> PyResult<(Vec<T>, Vec<usize>)> {
-    let a = d.get_item(name)?.ok_or_else(|| arg("arrays", format!("missing the array {name:?}")))?;
-    let r = borrow::<T>(name, &a)?;
-    check_shape(name, r.shape(), shape)?;
-    Ok((r.as_slice().map_err(|e| arg(name, e))?.to_vec(), r.shape().to_vec()))
+fn json_to_py<'py>(py: Python<'py>, v: &serde_json::Value) -> PyResult<Bound<'py, PyAny>> {
+    let json = py.import("json")?;
+    json.call_method1("loads", (v.to_string(),))
 }
 
-fn finite(name: &str, x: &[f32]) -> PyResult<()> {
-    match x.iter().position(|v| !v.is_finite()) {
-        Some(i) => Err(arg(name, format!("value at flat index {i} is not finite"))),
-        None => Ok(()),
+/// A dict of numpy arrays as named arrays (copied: the model owns its data).
+fn named_arrays(d: &Bound<'_, PyDict>) -> PyResult<NamedArrays> {
+    let mut out = NamedArrays::new();
+    for (k, v) in d.iter() {
+        let name: String = k.extract().map_err(|_| arg("arrays", "expected string keys"))?;
+        macro_rules! try_dtype {
+            ($($t:ty => $var:ident),*) => {
+                'found: {
+                    $(
+                        if let Ok(a) = borrow::<$t>(&name, &v) {
+                            let data = a.as_array().iter().copied().collect::<Vec<$t>>();
+                            break 'found Some((a.shape().to_vec(), ArrayData::$var(data)));
+                        }
+                    )*
+                    None
+                }
+            };
+        }
+        let (shape, data) = try_dtype!(f32 => F32, f64 => F64, u8 => U8, u16 => U16, i32 => I32).ok_or_else(|| {
+            arg(&name, format!("expected a numpy array of float32, float64, uint8, uint16 or int32, got {}", v.get_type()))
+        })?;
+        out.insert_checked(&name, shape, data).py()?;
     }
+    Ok(out)
+}
+
+/// Named arrays as a dict of numpy arrays.
+fn arrays_dict<'py>(py: Python<'py>, a: NamedArrays) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    for (name, arr) in a.iter() {
+        let shape = arr.shape.clone();
+        let obj: Bound<'py, PyAny> = match arr.data.clone() {
+            ArrayData::U8(v) => v.into_pyarray(py).reshape(shape)?.into_any(),
+            ArrayData::U16(v) => v.into_pyarray(py).reshape(shape)?.into_any(),
+            ArrayData::I32(v) => v.into_pyarray(py).reshape(shape)?.into_any(),
+            ArrayData::F32(v) => v.into_pyarray(py).reshape(shape)?.into_any(),
+            ArrayData::F64(v) => v.into_pyarray(py).reshape(shape)?.into_any(),
+        };
+        d.set_item(name, obj)?;
+    }
+    Ok(d)
 }
 
 #[pymethods]
 impl PyModel {
-    /// The model's name: "srf", "lafortune", "sh" or "lpca".
+    /// The model's registered name ("ptm", "lpca", ...).
     #[getter]
     fn kind(&self) -> &'static str {
         self.inner.kind()
@@ -108,15 +96,31 @@ impl PyModel {
         self.inner.dims()
     }
 
-    /// Bytes as stored for rendering.
+    /// Bytes as stored for rendering (what the default renderer uploads).
     #[getter]
     fn nbytes(&self) -> usize {
         self.inner.nbytes()
     }
 
-    /// `[H, W, 3]` image for one view and one light.
+    /// Renderer names, the default first.
+    #[getter]
+    fn renderers(&self) -> Vec<&'static str> {
+        self.inner.renderers().to_vec()
+    }
+
+    /// The fit's statistics (a dict; empty for a model built from arrays).
+    fn report<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        match self.inner.report() {
+            serde_json::Value::Null => Ok(PyDict::new(py).into_any()),
+            v => json_to_py(py, &v),
+        }
+    }
+
+    /// `[H, W, 3]` image for one view and one light (unit vectors, z >= 0).
     fn evaluate<'py>(&self, py: Python<'py>, view: [f64; 3], light: [f64; 3]) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
-        with_model!(&self.inner, m => evaluate_py(py, m, view, light))
+        let (h, w) = self.inner.dims();
+        let img = detach(py, || self.inner.evaluate_image(view, light))?;
+        img.into_pyarray(py).reshape(vec![h, w, 3])
     }
 
     /// Error against the present pairs of a BTF: dict of rmse, relative, psnr, samples.
@@ -129,299 +133,68 @@ impl PyModel {
         lights: &Bound<'py, PyAny>,
         mask: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        with_model!(&self.inner, m => error_py(py, m, data, views, lights, mask))
+        let args = BtfArgs::new(data, views, lights, mask)?;
+        let b = args.btf()?;
+        let e = detach(py, || self.inner.error(&b))?;
+        error_dict(py, e)
     }
 
-    /// The model's arrays (copies), by name.
+    /// The model's arrays (copies), by name: what a file stores.
     fn arrays<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let d = PyDict::new(py);
-        match &self.inner {
-            AnyModel::Srf(m) => {
-                let p = &m.phong;
-                put(&d, "phong", p.kd.iter().chain(&p.ks).chain([&p.n]).copied().collect::<Vec<f64>>(), vec![7])?;
-                put(&d, "s", m.s.clone(), vec![m.height, m.width, 3, 3])?;
-            }
-            AnyModel::Lafortune(m) => {
-                let p = m.params_per_fit();
-                let (h, w) = (m.height, m.width);
-                match m.kind {
-                    LafortuneKind::Lum => put(&d, "params", m.params.clone(), vec![h, w, p])?,
-                    LafortuneKind::Rgb => put(&d, "params", m.params.clone(), vec![h, w, 3, p])?,
-                }
-                if let Some(rgb) = &m.rgb {
-                    put(&d, "rgb", rgb.clone(), vec![h, w, 3])?;
-                }
-                if !m.status.is_empty() {
-                    let n = m.status.len() / (h * w);
-                    let shape = if n == 1 { vec![h, w] } else { vec![h, w, n] };
-                    put(&d, "status", m.status.clone(), shape)?;
-                }
-            }
-            AnyModel::Sh(m) => {
-                let shape = vec![m.height, m.width, 3, m.view_coeffs, m.light_coeffs];
-                match &m.coeffs {
-                    ShCoeffs::Quantized { q, scale, bias } => {
-                        put(&d, "q", q.clone(), shape)?;
-                        put(&d, "scale", scale.to_vec(), vec![3])?;
-                        put(&d, "bias", bias.to_vec(), vec![3])?;
-                    }
-                    ShCoeffs::Float(c) => put(&d, "coeffs", c.clone(), shape)?,
-                }
-            }
-            AnyModel::Lpca(m) => {
-                let (k, c1) = (m.clusters, m.components + 1);
-                let (nv, nl) = (m.views.len(), m.lights.len());
-                put(&d, "ids", m.ids.iter().map(|&x| x as i32).collect::<Vec<i32>>(), vec![m.height, m.width])?;
-                put(&d, "weights", m.weights.clone(), vec![m.height, m.width, c1 + 1])?;
-                put(&d, "basis", m.basis.clone(), vec![k, c1, nv, nl, 4])?;
-                put(&d, "scale", m.scale.clone(), vec![k, c1])?;
-                put(&d, "bias", m.bias.clone(), vec![k, c1])?;
-                put(&d, "views", m.views.iter().flatten().copied().collect::<Vec<f64>>(), vec![nv, 3])?;
-                put(&d, "lights", m.lights.iter().flatten().copied().collect::<Vec<f64>>(), vec![nl, 3])?;
-            }
-        }
-        Ok(d)
+        arrays_dict(py, self.inner.to_arrays())
     }
 
-    /// Rebuild a model from `arrays()` output (as saved), validating every array.
+    /// Rebuild model `kind` from `arrays()` output, validating every array.
     #[staticmethod]
-    fn from_arrays(kind: &str, arrays: &Bound<'_, PyDict>) -> PyResult<Self> {
-        let inner = match kind {
-            "srf" => {
-                let (p, _) = get::<f64>(arrays, "phong", &[Some(7)])?;
-                let (s, sh) = get::<f32>(arrays, "s", &[None, None, Some(3), Some(3)])?;
-                let m = Srf {
-                    height: sh[0],
-                    width: sh[1],
-                    phong: Phong { kd: [p[0], p[1], p[2]], ks: [p[3], p[4], p[5]], n: p[6] },
-                    s,
-                };
-                m.validate().py()?;
-                AnyModel::Srf(m)
-            }
-            "lafortune" => {
-                let (params, sh) = get::<f32>(arrays, "params", &[None, None, None])
-                    .or_else(|_| get::<f32>(arrays, "params", &[None, None, Some(3), None]))?;
-                let kind = if sh.len() == 3 { LafortuneKind::Lum } else { LafortuneKind::Rgb };
-                let p = *sh.last().unwrap_or(&0);
-                if p < 5 || (p - 1) % 4 != 0 {
-                    return Err(arg("params", format!("expected 1 + 4 * lobes values per fit, got {p}")));
-                }
-                let rgb = match kind {
-                    LafortuneKind::Lum => Some(get::<f32>(arrays, "rgb", &[Some(sh[0]), Some(sh[1]), Some(3)])?.0),
-                    LafortuneKind::Rgb => None,
-                };
-                let status = match arrays.get_item("status")? {
-                    Some(_) => {
-                        get::<u8>(arrays, "status", &[Some(sh[0]), Some(sh[1])])
-                            .or_else(|_| get::<u8>(arrays, "status", &[Some(sh[0]), Some(sh[1]), Some(3)]))?
-                            .0
-                    }
-                    None => Vec::new(),
-                };
-                let m = Lafortune {
-                    kind,
-                    height: sh[0],
-                    width: sh[1],
-                    lobes: (p - 1) / 4,
-                    params,
-                    rgb,
-                    status,
-                    report: FitReport::default(),
-                };
-                m.validate().py()?;
-                AnyModel::Lafortune(m)
-            }
-            "sh" => {
-                let shape = [None, None, Some(3), None, None];
-                let (coeffs, sh) = if arrays.get_item("q")?.is_some() {
-                    let (q, sh) = get::<u8>(arrays, "q", &shape)?;
-                    let (scale, _) = get::<f32>(arrays, "scale", &[Some(3)])?;
-                    let (bias, _) = get::<f32>(arrays, "bias", &[Some(3)])?;
-                    finite("scale", &scale)?;
-                    finite("bias", &bias)?;
-                    let q = ShCoeffs::Quantized {
-                        q,
-                        scale: [scale[0], scale[1], scale[2]],
-                        bias: [bias[0], bias[1], bias[2]],
-                    };
-                    (q, sh)
-                } else {
-                    let (c, sh) = get::<f32>(arrays, "coeffs", &shape)?;
-                    finite("coeffs", &c)?;
-                    (ShCoeffs::Float(c), sh)
-                };
-                let m = Sh {
-                    height: sh[0],
-                    width: sh[1],
-                    view_coeffs: sh[3],
-                    light_coeffs: sh[4],
-                    coeffs,
-                    constrained_fraction: 0.0,
-                    mean_lambda: 0.0,
-                };
-                m.validate().py()?;
-                AnyModel::Sh(m)
-            }
-            "lpca" => {
-                let (ids, sh) = get::<i32>(arrays, "ids", &[None, None])?;
-                let (weights, ws) = get::<f32>(arrays, "weights", &[Some(sh[0]), Some(sh[1]), None])?;
-                let (basis, bs) = get::<u8>(arrays, "basis", &[None, None, None, None, Some(4)])?;
-                let (scale, _) = get::<f32>(arrays, "scale", &[Some(bs[0]), Some(bs[1])])?;
-                let (bias, _) = get::<f32>(arrays, "bias", &[Some(bs[0]), Some(bs[1])])?;
-                let (views, _) = get::<f64>(arrays, "views", &[Some(bs[2]), Some(3)])?;
-                let (lights, _) = get::<f64>(arrays, "lights", &[Some(bs[3]), Some(3)])?;
-                if ws[2] != bs[1] + 1 {
-                    return Err(arg("weights", format!("expected {} values per texel, got {}", bs[1] + 1, ws[2])));
-                }
-                if let Some(i) = ids.iter().position(|&x| x < 0 || x as usize >= bs[0]) {
-                    return Err(arg("ids", format!("entry {i} is {}, not a cluster in [0, {})", ids[i], bs[0])));
-                }
-                for (n, x) in [("weights", &weights), ("scale", &scale), ("bias", &bias)] {
-                    finite(n, x)?;
-                }
-                let m = Lpca {
-                    height: sh[0],
-                    width: sh[1],
-                    views: views.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
-                    lights: lights.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
-                    clusters: bs[0],
-                    components: bs[1] - 1,
-                    ids: ids.into_iter().map(|x| x as u32).collect(),
-                    weights,
-                    basis,
-                    scale,
-                    bias,
-                };
-                m.validate().py()?;
-                AnyModel::Lpca(m)
-            }
-            o => return Err(arg("kind", format!("expected \"srf\", \"lafortune\", \"sh\" or \"lpca\", got {o:?}"))),
-        };
+    fn from_arrays(py: Python<'_>, kind: &str, arrays: &Bound<'_, PyDict>) -> PyResult<Self> {
+        let a = named_arrays(arrays)?;
+        let inner = detach(py, || registry::from_arrays(kind, &a))?;
         Ok(PyModel { inner })
     }
+
+    /// Write the model to a `.btfrs` file (atomically); `meta_json` is a JSON object stored with
+    /// the fit report.
+    fn save(&self, py: Python<'_>, path: PathBuf, meta_json: &str) -> PyResult<()> {
+        let meta: serde_json::Value = serde_json::from_str(meta_json).map_err(|e| arg("meta", e))?;
+        detach(py, || btfrs_io::model_file::save_model(&path, self.inner.as_ref(), meta))
+    }
 }
 
-/// Borrow the BTF arguments, check the values are finite, and run `fit` on a worker thread with
-/// progress and Ctrl-C (what every `fit_*_native` shares).
-fn run_fit<'py, M: Send>(
+/// Read a model file: (model, meta as JSON).
+#[pyfunction]
+pub fn load_model(py: Python<'_>, path: PathBuf) -> PyResult<(PyModel, String)> {
+    let (inner, meta) = detach(py, || btfrs_io::model_file::load_model(&path))?;
+    Ok((PyModel { inner }, meta.to_string()))
+}
+
+/// The registered models: (kind, doc, renderers, [(label, options JSON)]).
+#[pyfunction]
+#[allow(clippy::type_complexity)]
+pub fn model_registry() -> Vec<(&'static str, &'static str, Vec<&'static str>, Vec<(&'static str, &'static str)>)> {
+    registry::MODELS.iter().map(|e| (e.kind, e.doc, e.renderers.to_vec(), e.examples.to_vec())).collect()
+}
+
+/// Fit model `kind` to a BTF's present pairs with options given as a JSON object; the GIL is
+/// released, progress reported, Ctrl-C honoured.
+#[pyfunction]
+#[pyo3(signature = (kind, data, views, lights, mask=None, options_json="{}", progress=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn fit_model<'py>(
     py: Python<'py>,
+    kind: &str,
     data: &Bound<'py, PyAny>,
     views: &Bound<'py, PyAny>,
     lights: &Bound<'py, PyAny>,
     mask: Option<&Bound<'py, PyAny>>,
+    options_json: &str,
     progress: Option<&Bound<'py, PyAny>>,
-    fit: impl FnOnce(&btfrs_core::BtfRef<'_>, &btfrs_core::Monitor) -> btfrs_core::Result<M> + Send,
-) -> PyResult<M> {
+) -> PyResult<PyModel> {
+    let entry = registry::lookup(kind).py()?;
     let args = BtfArgs::new(data, views, lights, mask)?;
     let b = args.btf()?;
-    monitored(py, progress, |mon| {
+    let inner = monitored(py, progress, |mon| {
         btfrs_core::btf::check_finite("data", b.data)?;
-        fit(&b, mon)
-    })
-}
-
-/// Fit Phong + SRF; returns the model and a report dict.
-#[pyfunction]
-#[pyo3(signature = (data, views, lights, mask=None, progress=None))]
-pub fn fit_srf_native<'py>(
-    py: Python<'py>,
-    data: &Bound<'py, PyAny>,
-    views: &Bound<'py, PyAny>,
-    lights: &Bound<'py, PyAny>,
-    mask: Option<&Bound<'py, PyAny>>,
-    progress: Option<&Bound<'py, PyAny>>,
-) -> PyResult<(PyModel, Bound<'py, PyDict>)> {
-    let (m, r) = run_fit(py, data, views, lights, mask, progress, btfrs_fit::fit_srf)?;
-    let d = PyDict::new(py);
-    d.set_item("phong_relative", r.phong_relative)?;
-    d.set_item("srf_relative", r.srf_relative)?;
-    d.set_item("iterations", r.iterations)?;
-    Ok((PyModel { inner: AnyModel::Srf(m) }, d))
-}
-
-/// Fit per-texel Lafortune lobes; returns the model and its report dict.
-#[pyfunction]
-#[pyo3(signature = (data, views, lights, mask=None, kind="lum", lobes=2, diffuse=true, max_iter=60, densify=0, progress=None))]
-#[allow(clippy::too_many_arguments)]
-pub fn fit_lafortune_native<'py>(
-    py: Python<'py>,
-    data: &Bound<'py, PyAny>,
-    views: &Bound<'py, PyAny>,
-    lights: &Bound<'py, PyAny>,
-    mask: Option<&Bound<'py, PyAny>>,
-    kind: &str,
-    lobes: usize,
-    diffuse: bool,
-    max_iter: usize,
-    densify: usize,
-    progress: Option<&Bound<'py, PyAny>>,
-) -> PyResult<(PyModel, Bound<'py, PyDict>)> {
-    let kind = match kind {
-        "lum" => LafortuneKind::Lum,
-        "rgb" => LafortuneKind::Rgb,
-        o => return Err(arg("kind", format!("expected \"lum\" or \"rgb\", got {o:?}"))),
-    };
-    let opts = LafortuneOptions { kind, lobes, diffuse, max_iter, densify };
-    let m = run_fit(py, data, views, lights, mask, progress, |b, mon| btfrs_fit::fit_lafortune(b, &opts, mon))?;
-    let r = m.report;
-    let d = PyDict::new(py);
-    d.set_item("fits", r.fits)?;
-    d.set_item("converged", r.converged)?;
-    d.set_item("fell_back", r.fell_back)?;
-    d.set_item("failed", r.failed)?;
-    d.set_item("mean_iterations", r.mean_iterations)?;
-    d.set_item("rms_residual", r.rms_residual)?;
-    Ok((PyModel { inner: AnyModel::Lafortune(m) }, d))
-}
-
-/// Fit double SH by constrained (or plain) least squares; returns the model and a report dict.
-#[pyfunction]
-#[pyo3(signature = (data, views, lights, mask=None, light_coeffs=25, view_coeffs=25, cls=true, quantize=true, chunk_texels=1024, progress=None))]
-#[allow(clippy::too_many_arguments)]
-pub fn fit_sh_native<'py>(
-    py: Python<'py>,
-    data: &Bound<'py, PyAny>,
-    views: &Bound<'py, PyAny>,
-    lights: &Bound<'py, PyAny>,
-    mask: Option<&Bound<'py, PyAny>>,
-    light_coeffs: usize,
-    view_coeffs: usize,
-    cls: bool,
-    quantize: bool,
-    chunk_texels: usize,
-    progress: Option<&Bound<'py, PyAny>>,
-) -> PyResult<(PyModel, Bound<'py, PyDict>)> {
-    let opts = ShOptions { light_coeffs, view_coeffs, cls, quantize, chunk_texels };
-    let m = run_fit(py, data, views, lights, mask, progress, |b, mon| btfrs_fit::fit_sh(b, &opts, mon))?;
-    let d = PyDict::new(py);
-    d.set_item("constrained_fraction", m.constrained_fraction)?;
-    d.set_item("mean_lambda", m.mean_lambda)?;
-    Ok((PyModel { inner: AnyModel::Sh(m) }, d))
-}
-
-/// Fit Local PCA; returns the model and a report dict.
-#[pyfunction]
-#[pyo3(signature = (data, views, lights, mask=None, clusters=32, components=4, kmeans_iterations=25, refine_iterations=2, reduced_dims=64, seed=0, progress=None))]
-#[allow(clippy::too_many_arguments)]
-pub fn fit_lpca_native<'py>(
-    py: Python<'py>,
-    data: &Bound<'py, PyAny>,
-    views: &Bound<'py, PyAny>,
-    lights: &Bound<'py, PyAny>,
-    mask: Option<&Bound<'py, PyAny>>,
-    clusters: usize,
-    components: usize,
-    kmeans_iterations: usize,
-    refine_iterations: usize,
-    reduced_dims: usize,
-    seed: u64,
-    progress: Option<&Bound<'py, PyAny>>,
-) -> PyResult<(PyModel, Bound<'py, PyDict>)> {
-    let opts = LpcaOptions { clusters, components, kmeans_iterations, refine_iterations, reduced_dims, seed };
-    let m = run_fit(py, data, views, lights, mask, progress, |b, mon| btfrs_fit::fit_lpca(b, &opts, mon))?;
-    let d = PyDict::new(py);
-    d.set_item("clusters", m.clusters)?;
-    d.set_item("components", m.components)?;
-    Ok((PyModel { inner: AnyModel::Lpca(m) }, d))
+        (entry.fit)(&b, options_json, mon)
+    })?;
+    Ok(PyModel { inner })
 }

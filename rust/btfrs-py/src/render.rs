@@ -3,14 +3,12 @@
 use crate::arrays::{borrow, check_shape, dirs};
 use crate::core::BtfArgs;
 use crate::errors::{arg, IntoPy};
-use crate::fit::PyPtm;
-use crate::models::{with_model, AnyModel, PyModel};
+use crate::models::PyModel;
 use crate::run::detach;
-use btfrs_fit::RawModel;
+use btfrs_fit::{RawModel, Renderable};
 use btfrs_render::cpu::render_cpu;
-use btfrs_render::lpca::{Lpca3d, DEFAULT_GRID};
 use btfrs_render::scene::{Camera, Light, Mesh};
-use btfrs_render::{gpu, Gpu, GpuModel, UploadedModel, View};
+use btfrs_render::{gpu, Gpu, UploadedModel, View};
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use std::sync::Arc;
@@ -145,16 +143,6 @@ pub fn gpu_info(py: Python<'_>) -> PyResult<String> {
     detach(py, || Ok(Gpu::shared()?.describe()))
 }
 
-/// Upload a PTM.
-#[pyfunction]
-pub fn gpu_upload_ptm(py: Python<'_>, model: &PyPtm) -> PyResult<PyGpuModel> {
-    detach(py, || {
-        let gpu = Gpu::shared()?;
-        let up = gpu::upload(&gpu, &model.inner)?;
-        Ok(PyGpuModel { gpu, up })
-    })
-}
-
 /// Upload a raw BTF (every pair present).
 #[pyfunction]
 pub fn gpu_upload_raw(
@@ -253,28 +241,6 @@ pub fn gpu_render<'py>(
     Ok((image(py, img, width, height)?, t.draw_ms, t.readback_ms))
 }
 
-/// Render a PTM with the CPU reference renderer.
-#[pyfunction]
-#[pyo3(signature = (model, scene, camera, lights, width, height, uv_scale, coords=None))]
-#[allow(clippy::too_many_arguments)]
-pub fn cpu_render_ptm<'py>(
-    py: Python<'py>,
-    model: &PyPtm,
-    scene: &PyScene,
-    camera: &PyCamera,
-    lights: Vec<(String, [f32; 3], [f32; 3])>,
-    width: usize,
-    height: usize,
-    uv_scale: [f32; 2],
-    coords: Option<&Bound<'py, PyAny>>,
-) -> PyResult<Image<'py>> {
-    let args = ViewArgs::new(lights, coords)?;
-    let view = args.view(scene, camera, (width, height), uv_scale);
-    check_size(width, height)?;
-    let img = detach(py, || render_cpu(&model.inner, &view))?;
-    image(py, img, width, height)
-}
-
 /// Render a raw BTF with the CPU reference renderer.
 #[pyfunction]
 #[pyo3(signature = (data, views, btf_lights, scene, camera, lights, width, height, uv_scale, coords=None))]
@@ -310,20 +276,27 @@ fn check_size(width: usize, height: usize) -> PyResult<()> {
     Ok(())
 }
 
+/// The 3D texture limit of the device the renderers use (WebGPU's default when there is none:
+/// the CPU reference then still builds what the GPU would).
+fn max_3d() -> usize {
+    Gpu::shared().map(|g| g.limits.max_texture_dimension_3d as usize).unwrap_or(2048)
+}
+
 /// Upload any fitted model; `method` picks the renderer where a model has several ("9tap" or
-/// "3d" for LPCA; "default" otherwise).
+/// "3d" for LPCA; "default" is the first).
 #[pyfunction]
 #[pyo3(signature = (model, method="default"))]
 pub fn gpu_upload_model(py: Python<'_>, model: &PyModel, method: &str) -> PyResult<PyGpuModel> {
-    let gpu_model = gpu_model_of(&model.inner, method)?;
     detach(py, || {
         let gpu = Gpu::shared()?;
-        let up = gpu::upload(&gpu, gpu_model.as_ref())?;
+        let r = model.inner.renderer(method, gpu.limits.max_texture_dimension_3d as usize)?;
+        let up = gpu::upload(&gpu, r.as_ref())?;
         Ok(PyGpuModel { gpu, up })
     })
 }
 
-/// Render any fitted model with the CPU reference renderer (`method` as for the upload).
+/// Render any fitted model with the CPU reference renderer (`method` as for the upload): the
+/// same object the GPU draws, evaluated by its own Rust code.
 #[pyfunction]
 #[pyo3(signature = (model, scene, camera, lights, width, height, uv_scale, coords=None, method="default"))]
 #[allow(clippy::too_many_arguments)]
@@ -339,29 +312,12 @@ pub fn cpu_render_model<'py>(
     coords: Option<&Bound<'py, PyAny>>,
     method: &str,
 ) -> PyResult<Image<'py>> {
-    let _ = gpu_model_of(&model.inner, method)?;
     let args = ViewArgs::new(lights, coords)?;
     let view = args.view(scene, camera, (width, height), uv_scale);
     check_size(width, height)?;
-    let img = detach(py, || match (&model.inner, method) {
-        // The 3D-texture renderer's reference samples the resampled grid, not the model.
-        (AnyModel::Lpca(m), "3d") => render_cpu(&Lpca3d::new(m, DEFAULT_GRID, 4096)?, &view),
-        (any, _) => with_model!(any, m => render_cpu(m, &view)),
+    let img = detach(py, || {
+        let r: Box<dyn Renderable + '_> = model.inner.renderer(method, max_3d())?;
+        render_cpu(r.as_ref(), &view)
     })?;
     image(py, img, width, height)
-}
-
-/// The model as the renderer sees it for `method`.
-fn gpu_model_of<'a>(model: &'a AnyModel, method: &str) -> PyResult<Box<dyn GpuModel + 'a>> {
-    match (model, method) {
-        (AnyModel::Srf(m), "default") => Ok(Box::new(m)),
-        (AnyModel::Lafortune(m), "default") => Ok(Box::new(m)),
-        (AnyModel::Sh(m), "default") => Ok(Box::new(m)),
-        (AnyModel::Lpca(m), "9tap") => Ok(Box::new(m)),
-        (AnyModel::Lpca(m), "3d") => {
-            let max = Gpu::shared().map(|g| g.limits.max_texture_dimension_3d as usize).unwrap_or(2048);
-            Ok(Box::new(Lpca3d::new(m, DEFAULT_GRID, max).py()?))
-        }
-        (m, o) => Err(arg("method", format!("the {} model has no renderer {o:?}; expected \"default\"", m.kind()))),
-    }
 }

@@ -4,7 +4,6 @@
 use crate::arrays::{borrow, check_shape};
 use crate::core::BtfArgs;
 use crate::errors::{arg, IntoPy};
-use crate::models::{get, put};
 use crate::run::{detach, monitored};
 use btfrs_kcoherence::{
     jump_map, kcoherence, quality, Analysis, AnalysisOptions, CoordMap, FeatureMode, Features, JumpOptions, Level,
@@ -340,4 +339,22 @@ pub fn analyse_features_native<'py>(
         Analysis::of_features(f, o, &neighbourhoods, mon)
     })?;
     Ok(PyAnalysis { inner })
+}
+
+type Arrays<'py> = Bound<'py, PyDict>;
+
+fn put<'py, T: numpy::Element>(d: &Arrays<'py>, name: &str, v: Vec<T>, shape: Vec<usize>) -> PyResult<()> {
+    d.set_item(name, numpy::IntoPyArray::into_pyarray(v, d.py()).reshape(shape)?)
+}
+
+/// A named array of `dict`, borrowed, with its shape checked.
+fn get<'py, T: numpy::Element + Copy>(
+    d: &Arrays<'py>,
+    name: &str,
+    shape: &[Option<usize>],
+) -> PyResult<(Vec<T>, Vec<usize>)> {
+    let a = d.get_item(name)?.ok_or_else(|| arg("arrays", format!("missing the array {name:?}")))?;
+    let r = crate::arrays::borrow::<T>(name, &a)?;
+    crate::arrays::check_shape(name, r.shape(), shape)?;
+    Ok((r.as_slice().map_err(|e| arg(name, e))?.to_vec(), r.shape().to_vec()))
 }
