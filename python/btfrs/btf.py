@@ -47,6 +47,8 @@ def _selection(name: str, sel, n: int):
     if isinstance(sel, slice):
         return sel
     a = np.asarray(sel)
+    if a.size == 0 and a.ndim == 1:
+        a = a.astype(np.intp)  # [] is float64 to numpy; an empty selection is reported by select
     if a.dtype == np.bool_:
         if a.shape != (n,):
             raise InvalidArgumentError(f"{name}: a bool mask must have shape ({n},), got {a.shape}")

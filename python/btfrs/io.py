@@ -54,7 +54,7 @@ def atomic_write(path: PathLike, mode: str = "wb") -> Iterator[IO]:
     else:
         raise FileExistsError(f"{p}: could not create a temporary file next to it")
     try:
-        with os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8"})) as f:
+        with os.fdopen(fd, mode, encoding=None if "b" in mode else "utf-8") as f:
             yield f
             f.flush()
             os.fsync(f.fileno())
