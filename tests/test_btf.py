@@ -74,7 +74,7 @@ def test_split_is_a_partition_sharing_the_data():
     np.testing.assert_array_equal(t2.mask, test.mask)
     assert not np.array_equal(b.split(holdout=0.1, seed=4)[1].mask, test.mask)
     # A second split of the train half stays inside it.
-    a, c = train.split(0.5, seed=0)
+    a, c = train.split(holdout=0.5, seed=0)
     assert not np.any((a.mask | c.mask) & test.mask)
     with pytest.raises(InvalidArgumentError, match="holdout"):
         b.split(holdout=1.5)
@@ -91,7 +91,7 @@ def test_select():
 
 @pytest.mark.parametrize("mmap", [False, True])
 def test_save_load_round_trip(tmp_path, mmap):
-    b, _ = small(v=D[:9], l=D[:8]).split(0.25, seed=1)
+    b, _ = small(v=D[:9], l=D[:8]).split(holdout=0.25, seed=1)
     p = tmp_path / "s.btfrs"
     b.save(p)
     c = btfrs.Btf.load(p, mmap=mmap)

@@ -50,7 +50,8 @@ def test_readme_rendering_snippet_runs(tmp_path, monkeypatch):
     ns: dict = {}
     exec(compile(block, "README.md", "exec"), ns)
     img, ref = ns["img"], ns["ref"]
-    assert img.shape == (512, 512, 3) and (img.sum(-1) > 0).mean() > 0.2
+    # size=(384, 512) is (height, width), as numpy shapes are.
+    assert img.shape == (384, 512, 3) and ref.shape == img.shape and (img.sum(-1) > 0).mean() > 0.2
     mse = float(np.mean((img - ref) ** 2))
     assert 10 * np.log10(float(ref.max()) ** 2 / mse) > 40
     assert (tmp_path / "sphere.png").exists()

@@ -76,7 +76,7 @@ def test_argument_checks_in_the_python_layer(knit):
     with pytest.raises(ValueError, match="kind"):
         btfrs.fit.ptm(knit, kind=None)
     with pytest.raises(ValueError, match="seed"):
-        knit.split(0.1, seed=-1)
+        knit.split(holdout=0.1, seed=-1)
     with pytest.raises(TypeError, match="seed"):
         btfrs.materials.make("knit", size=16, seed=1.7)
     with pytest.raises(ValueError, match=r"st: expected shape"):
@@ -94,7 +94,7 @@ def test_masks_from_raw_bytes_are_normalised():
     raw[0, 0] = 0
     b = btfrs.Btf(np.ones((1, 1, 81, 81, 3), np.float32), d, d, mask=raw.view(bool))
     assert b.pairs == 81 * 81 - 1
-    train, test = b.split(0.1, seed=0)
+    train, test = b.split(holdout=0.1, seed=0)
     assert train.pairs + test.pairs == 81 * 81 - 1
 
 

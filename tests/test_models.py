@@ -41,7 +41,7 @@ def srf_numpy(m, view, light):
 def test_srf_reduces_the_error_of_phong_alone_on_every_material():
     for name in btfrs.materials.names():
         btf = btfrs.materials.make(name, size=16, seed=1)
-        train, test = btf.split(0.1, seed=0)
+        train, test = btf.split(holdout=0.1, seed=0)
         m = btfrs.fit.srf(train)
         r = m.report
         assert r["srf_relative"] < r["phong_relative"], (name, r)
@@ -146,7 +146,7 @@ def test_lafortune_bad_input_is_a_clear_error():
 
 def test_lafortune_held_out_error_is_no_worse_than_scipy_lm():
     knit = btfrs.materials.make("knit", size=16, seed=1)
-    train, test = knit.split(0.1, seed=0)
+    train, test = knit.split(holdout=0.1, seed=0)
     tr, te = baselines.crop(train, slice(4, 5), slice(4, 8)), baselines.crop(test, slice(4, 5), slice(4, 8))
     ref = baselines.lafortune_scipy(tr, te, lobes=2, jac="analytic")
     ours = btfrs.fit.lafortune(tr, kind="lum", lobes=2).error(te).relative
@@ -263,7 +263,7 @@ def test_lpca_bad_input(bumps):
 
 
 def test_every_model_renders_like_its_cpu_reference(bumps):
-    train, _ = bumps.split(0.1, seed=0)
+    train, _ = bumps.split(holdout=0.1, seed=0)
     models = {"srf": btfrs.fit.srf(train), "lafortune": btfrs.fit.lafortune(train, lobes=1),
               "sh": btfrs.fit.sh(train, light_coeffs=16, view_coeffs=16),
               "lpca": btfrs.fit.lpca(train, clusters=4, components=2, seed=0)}
@@ -271,7 +271,7 @@ def test_every_model_renders_like_its_cpu_reference(bumps):
     lights = [btfrs.PointLight([2, -2, 3], 8.0), btfrs.DirectionalLight([-1, -0.5, 1], 0.4)]
     for name, m in models.items():
         for method in (["9tap", "3d"] if name == "lpca" else [None]):
-            kw = dict(size=(64, 48), uv_scale=2.0, method=method)
+            kw = dict(size=(48, 64), uv_scale=2.0, method=method)
             g = btfrs.render(m, scene, cam, lights, **kw)
             c = btfrs.render(m, scene, cam, lights, backend="cpu", **kw)
             assert (c > 0).mean() > 0.2

@@ -29,7 +29,7 @@ def test_recovers_a_biquadratic_exactly():
 
 
 def test_agrees_with_float64_numpy_on_a_material(knit):
-    train, test = knit.split(0.1, seed=0)
+    train, test = knit.split(holdout=0.1, seed=0)
     ours = btfrs.fit.ptm(train).coeffs.astype(np.float64)
     ref = numpy_ptm_rgb(train)
     assert np.max(np.abs(ours - ref)) / np.max(np.abs(ref)) < 1e-5
@@ -60,7 +60,7 @@ def test_held_out_error_on_every_material(name):
     # A biquadratic cannot model hard shadows or the shiny grooves' highlights: the held-out error
     # is large but bounded, and the reconstruction error (on the fitted pairs) is not above it.
     btf = btfrs.materials.make(name, size=24, seed=2)
-    train, test = btf.split(0.1, seed=0)
+    train, test = btf.split(holdout=0.1, seed=0)
     for kind in ("rgb", "lrgb"):
         ptm = btfrs.fit.ptm(train, kind=kind)
         held, rec = ptm.error(test), ptm.error(train)
@@ -70,7 +70,7 @@ def test_held_out_error_on_every_material(name):
 
 
 def test_held_out_pairs_are_not_used(knit):
-    train, test = knit.select(views=[0, 5]).split(0.2, seed=1)
+    train, test = knit.select(views=[0, 5]).split(holdout=0.2, seed=1)
     a = btfrs.fit.ptm(train).coeffs
     poisoned = train.data.copy()
     poisoned[:, :, ~train.mask] = 1e6

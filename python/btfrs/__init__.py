@@ -13,12 +13,14 @@ from . import directions, exceptions, fit, hemimap, io, materials, synth
 from ._native import __version__
 from .btf import Btf, ExpandedBtf
 from .exceptions import (
+    ArgumentTypeError,
     BtfrsError,
     DegenerateDataError,
     DeviceError,
     FormatError,
     InternalError,
     InvalidArgumentError,
+    OutOfRangeError,
 )
 from .models import ErrorReport, Lafortune, Lpca, Ptm, Sh, Srf, load
 from .rendering import Camera, DirectionalLight, PointLight, Scene, gpu_info, last_timings, render
@@ -54,4 +56,6 @@ __all__ = [
     "FormatError",
     "InternalError",
     "InvalidArgumentError",
+    "ArgumentTypeError",
+    "OutOfRangeError",
 ]

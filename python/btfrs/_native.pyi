@@ -1,11 +1,10 @@
 """Type stubs of the PyO3 extension ``btfrs._native`` (checked by ``mypy.stubtest``)."""
 
 from os import PathLike
-from typing import Any, Callable, Optional, Union
+from typing import Any, Callable, Optional, Union, final
 
 import numpy as np
 import numpy.typing as npt
-from typing_extensions import final
 
 _Path = Union[str, PathLike[str]]
 _Progress = Optional[Callable[[int, int], object]]
@@ -247,7 +246,9 @@ class Analysis:
         seed: int,
         progress: _Progress = None,
     ) -> npt.NDArray[np.uint16]: ...
-    def jump_map(self, height: int, width: int, neighbourhood: int, jump: float, seed: int) -> npt.NDArray[np.uint16]: ...
+    def jump_map(
+        self, height: int, width: int, neighbourhood: int, jump: float, seed: int, progress: _Progress = None
+    ) -> npt.NDArray[np.uint16]: ...
     def quality(
         self, coords: npt.NDArray[np.uint16], neighbourhood: int, samples: int, seed: int, progress: _Progress = None
     ) -> dict[str, Any]: ...

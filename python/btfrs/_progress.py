@@ -1,4 +1,9 @@
-"""Progress reporting for long calls: a callable, ``True`` for a bar on stderr, or nothing."""
+"""Progress reporting for long calls: a callable, ``True`` for a report on stderr, or nothing.
+
+``progress=True`` draws a bar (tqdm's when it is installed) when stderr is a terminal. When it is
+not (a log file, CI, a pipe), a redrawn bar would write hundreds of ``\\r`` updates into the log,
+so each phase writes one line when it finishes instead: its name, its final count and its time.
+"""
 
 from __future__ import annotations
 
@@ -6,11 +11,20 @@ import sys
 import time
 from typing import Callable, Optional, Union
 
+from .exceptions import ArgumentTypeError
+
 Progress = Union[None, bool, Callable[[int, int], object]]
 
 
+def _stderr_is_terminal() -> bool:
+    try:
+        return bool(sys.stderr.isatty())
+    except (AttributeError, ValueError):  # replaced by an object without isatty, or closed
+        return False
+
+
 class _Bar:
-    """A small text progress bar (tqdm is used instead when it is installed)."""
+    """A small text progress bar redrawn in place (tqdm is used instead when it is installed)."""
 
     def __init__(self, desc: str) -> None:
         self.desc = desc
@@ -31,11 +45,32 @@ class _Bar:
         sys.stderr.flush()
 
 
+class _Lines:
+    """One line per phase, written when it finishes: for stderr that is not a terminal."""
+
+    def __init__(self, desc: str) -> None:
+        self.desc = desc
+        self.t0 = time.perf_counter()
+        self.finished = False
+
+    def __call__(self, done: int, total: int) -> None:
+        # The native runner reports the final count twice (last poll, then on return): write once.
+        if self.finished or total <= 0 or done < total:
+            return
+        self.finished = True
+        sys.stderr.write(f"{self.desc}: {done}/{total} in {time.perf_counter() - self.t0:.2f} s\n")
+        sys.stderr.flush()
+
+
 def callback(progress: Progress, desc: str) -> Optional[Callable[[int, int], object]]:
-    """Turn the user's ``progress`` argument into a ``(done, total)`` callback or None."""
+    """Turn the user's ``progress`` argument into a ``(done, total)`` callback or None.
+
+    ``desc`` names the phase (one call of this function per phase)."""
     if progress is None or progress is False:
         return None
     if progress is True:
+        if not _stderr_is_terminal():
+            return _Lines(desc)
         try:
             from tqdm import tqdm  # type: ignore[import-not-found]
         except ImportError:
@@ -53,4 +88,5 @@ def callback(progress: Progress, desc: str) -> Optional[Callable[[int, int], obj
         return update
     if callable(progress):
         return progress
-    raise TypeError(f"progress: expected None, a bool or a callable(done, total), got {type(progress).__name__}")
+    raise ArgumentTypeError(
+        f"progress: expected None, a bool or a callable(done, total), got {type(progress).__name__}")

@@ -51,7 +51,7 @@ def run(sizes: list, repeat: int) -> list:
         t_gen, btf = best_of(lambda: materials.make("knit", size=size, seed=1), repeat)
         rows.append(dict(task=f"material knit {size}^2 x 81 x 81", btfrs_s=t_gen, numpy_s=None,
                          target="64^2 < 5 s", note=f"{btf.nbytes / 2**20:.0f} MiB"))
-        train, _ = btf.split(0.1, seed=0)
+        train, _ = btf.split(holdout=0.1, seed=0)
         t_np, ref = best_of(lambda: baselines.ptm_rgb_numpy(train), repeat)
         t_rgb, ptm = best_of(lambda: fit.ptm(train, kind="rgb"), repeat)
         diff = float(np.max(np.abs(ptm.coeffs - ref)) / np.max(np.abs(ref)))
@@ -106,7 +106,7 @@ def accuracy(size: int) -> list:
     rows = []
     for name in materials.names():
         btf = materials.make(name, size=size, seed=1)
-        train, test = btf.split(0.1, seed=0)
+        train, test = btf.split(holdout=0.1, seed=0)
         rel, _ = baselines.nearest_lights_interpolation(train, test)
         rows.append(dict(material=name, model="raw, 3 nearest lights", nbytes=btf.nbytes, reconstruction=None, held_out=rel))
         for kind in ("rgb", "lrgb"):
@@ -164,7 +164,7 @@ def models_bench(size: int, material: str = "knit", lm_texels: int = 8) -> list:
     relative error, reconstruction error, render ms (512^2 sphere); then the numpy / scipy /
     scikit-learn way of the same fits as rows of the same table."""
     btf = materials.make(material, size=size, seed=1)
-    train, test = btf.split(0.1, seed=0)
+    train, test = btf.split(holdout=0.1, seed=0)
     rows = []
     fitted = {}
     for name, make in MODEL_SETTINGS:

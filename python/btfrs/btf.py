@@ -20,29 +20,47 @@ from typing import Optional, Sequence, Union
 import numpy as np
 
 from . import _native
-from .exceptions import FormatError, InvalidArgumentError
+from ._checks import index as check_index
+from ._checks import instance, real
+from ._checks import seed as check_seed
+from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError, OutOfRangeError
 
 __all__ = ["Btf", "ExpandedBtf"]
 
 Index = Union[None, int, slice, Sequence[int], np.ndarray]
 
 
-def check_seed(seed) -> int:
-    """A seed as the Rust side takes it: an int in [0, 2**64)."""
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
-        raise TypeError(f"seed: expected an int, got {type(seed).__name__}")
-    if not 0 <= int(seed) < 2**64:
-        raise InvalidArgumentError(f"seed: expected an int in [0, 2**64), got {seed}")
-    return int(seed)
-
-
 def _directions(name: str, d) -> np.ndarray:
     a = np.asarray(d)
     if not np.issubdtype(a.dtype, np.floating) and not np.issubdtype(a.dtype, np.integer):
-        raise TypeError(f"{name}: expected an array of numbers, got dtype {a.dtype}")
+        raise ArgumentTypeError(f"{name}: expected an array of numbers, got dtype {a.dtype}")
     if a.ndim != 2 or a.shape[1] != 3:
-        raise ValueError(f"{name}: expected shape (N, 3), got {a.shape}")
+        raise InvalidArgumentError(f"{name}: expected shape (N, 3), got {a.shape}")
     return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def _selection(name: str, sel, n: int):
+    """A view or light selection as a numpy index that keeps the axis: a slice, or an int array
+    of indices in [0, n) (negative indices would wrap silently, so they are rejected)."""
+    if sel is None:
+        return slice(None)
+    if isinstance(sel, slice):
+        return sel
+    a = np.asarray(sel)
+    if a.size == 0 and a.ndim == 1:
+        a = a.astype(np.intp)  # [] is float64 to numpy; an empty selection is reported by select
+    if a.dtype == np.bool_:
+        if a.shape != (n,):
+            raise InvalidArgumentError(f"{name}: a bool mask must have shape ({n},), got {a.shape}")
+        return np.flatnonzero(a)
+    if not np.issubdtype(a.dtype, np.integer) or a.ndim > 1:
+        raise ArgumentTypeError(f"{name}: expected indices (an int or a list of ints), a slice or a bool mask, "
+                                f"got {type(sel).__name__} of dtype {a.dtype} and shape {a.shape}")
+    a = a.reshape(-1)
+    bad = (a < 0) | (a >= n)
+    if bad.any():
+        raise OutOfRangeError(f"{name}: expected indices in [0, {n}), got {int(a[bad][0])}")
+    return a
 
 
 class Btf:
@@ -67,9 +85,9 @@ class Btf:
     def __init__(self, data, views, lights, mask=None, *, check: bool = True) -> None:
         a = data if isinstance(data, np.ndarray) else np.asarray(data)
         if not np.issubdtype(a.dtype, np.floating):
-            raise TypeError(f"data: expected a float array (float32 preferred), got dtype {a.dtype}")
+            raise ArgumentTypeError(f"data: expected a float array (float32 preferred), got dtype {a.dtype}")
         if a.ndim != 5 or a.shape[-1] != 3:
-            raise ValueError(f"data: expected shape (H, W, V, L, 3), got {a.shape}")
+            raise InvalidArgumentError(f"data: expected shape (H, W, V, L, 3), got {a.shape}")
         if a.dtype != np.float32 or not a.flags.c_contiguous:
             a = np.ascontiguousarray(a, dtype=np.float32)
         self._data = a
@@ -78,7 +96,7 @@ class Btf:
         if mask is not None:
             m = np.asarray(mask)
             if m.dtype != np.bool_:
-                raise TypeError(f"mask: expected a bool array, got dtype {m.dtype}")
+                raise ArgumentTypeError(f"mask: expected a bool array, got dtype {m.dtype}")
             # Normalise to bytes 0/1: a bool array viewed from other bytes may hold e.g. 2, which
             # numpy reads as True but Rust's bool may not.
             mask = np.ascontiguousarray(m.view(np.uint8) != 0) if m.ndim else m
@@ -139,44 +157,47 @@ class Btf:
         return int(self._data.nbytes)
 
     def image(self, view: int, light: int) -> np.ndarray:
-        """The ``[H, W, 3]`` image of one (view, light) pair: a strided view, no copy."""
-        if not (0 <= view < self.n_views):
-            raise IndexError(f"view: expected an index in [0, {self.n_views}), got {view}")
-        if not (0 <= light < self.n_lights):
-            raise IndexError(f"light: expected an index in [0, {self.n_lights}), got {light}")
-        return self._data[:, :, view, light, :]
+        """The ``[H, W, 3]`` image of one (view, light) pair: a strided view, no copy.
+        Indices outside ``[0, n)`` raise :class:`~btfrs.exceptions.OutOfRangeError`."""
+        v = check_index("view", view, self.n_views)
+        l = check_index("light", light, self.n_lights)
+        return self._data[:, :, v, l, :]
 
     def images(self) -> np.ndarray:
         """Image-major view ``[V, L, H, W, 3]`` of the same memory (no copy)."""
         return self._data.transpose(2, 3, 0, 1, 4)
 
     def abrdf(self, row: int, col: int) -> np.ndarray:
-        """The ``[V, L, 3]`` apparent BRDF of one texel (contiguous, no copy)."""
-        return self._data[row, col]
+        """The ``[V, L, 3]`` apparent BRDF of one texel (contiguous, no copy). Indices outside
+        ``[0, height)`` / ``[0, width)`` raise :class:`~btfrs.exceptions.OutOfRangeError`."""
+        return self._data[check_index("row", row, self.height), check_index("col", col, self.width)]
 
     # --- derived samples ---------------------------------------------------------------------
-    def split(self, holdout: float = 0.1, seed: int = 0) -> tuple["Btf", "Btf"]:
+    def split(self, *, holdout: float = 0.1, seed: int = 0) -> tuple["Btf", "Btf"]:
         """Split the present (view, light) pairs into ``(train, test)``.
 
         ``test`` holds ``round(holdout * pairs)`` pairs drawn with ``seed``; both share this
-        sample's data (nothing is copied) and differ only in their masks.
+        sample's data (nothing is copied) and differ only in their masks. ``holdout`` is in (0, 1).
         """
-        tr, te = _native.split_pairs(self.n_views, self.n_lights, float(holdout), check_seed(seed), self._mask)
+        h = real("holdout", holdout, min=0.0, max=1.0, min_open=True, max_open=True)
+        tr, te = _native.split_pairs(self.n_views, self.n_lights, h, check_seed(seed), self._mask)
         return (Btf(self._data, self._views, self._lights, tr, check=False),
                 Btf(self._data, self._views, self._lights, te, check=False))
 
-    def select(self, views: Index = None, lights: Index = None) -> "Btf":
-        """A sample restricted to some views and/or lights (indices, slices or bool masks).
+    def select(self, *, views: Index = None, lights: Index = None) -> "Btf":
+        """A sample restricted to some views and/or lights: an index, a list of indices (in
+        ``[0, n)``; negative ones raise :class:`~btfrs.exceptions.OutOfRangeError` rather than
+        wrap), a slice or a bool mask of length n.
 
         The result holds a C-contiguous copy of the selected part: the Rust core reads each
         texel's values as one contiguous block, which a strided view would not give.
         """
-        vi = slice(None) if views is None else views
-        li = slice(None) if lights is None else lights
+        vi = _selection("views", views, self.n_views)
+        li = _selection("lights", lights, self.n_lights)
         vdirs = self._views[vi]
         ldirs = self._lights[li]
-        if vdirs.ndim != 2 or ldirs.ndim != 2 or len(vdirs) == 0 or len(ldirs) == 0:
-            raise ValueError("views/lights: the selection must keep at least one view and one light (use a list or slice)")
+        if len(vdirs) == 0 or len(ldirs) == 0:
+            raise InvalidArgumentError("views/lights: the selection must keep at least one view and one light")
         data = np.ascontiguousarray(self._data[:, :, vi][:, :, :, li])
         mask = None if self._mask is None else self._mask[vi][:, li]
         return Btf(data, vdirs, ldirs, mask, check=False)
@@ -225,13 +246,12 @@ class ExpandedBtf:
     """
 
     def __init__(self, sample: Btf, coords) -> None:
-        if not isinstance(sample, Btf):
-            raise TypeError(f"sample: expected a btfrs.Btf, got {type(sample).__name__}")
+        instance("sample", sample, Btf, "a btfrs.Btf")
         c = np.asarray(coords)
         if c.dtype != np.uint16:
-            raise TypeError(f"coords: expected a uint16 array [H, W, 2], got dtype {c.dtype}")
+            raise ArgumentTypeError(f"coords: expected a uint16 array [H, W, 2], got dtype {c.dtype}")
         if c.ndim != 3 or c.shape[2] != 2 or c.shape[0] == 0 or c.shape[1] == 0:
-            raise ValueError(f"coords: expected a non-empty shape (H, W, 2), got {c.shape}")
+            raise InvalidArgumentError(f"coords: expected a non-empty shape (H, W, 2), got {c.shape}")
         if int(c[..., 0].max()) >= sample.width or int(c[..., 1].max()) >= sample.height:
             raise InvalidArgumentError(
                 f"coords: points outside the {sample.height} x {sample.width} sample "
@@ -268,7 +288,7 @@ class ExpandedBtf:
 
     def abrdf(self, row: int, col: int) -> np.ndarray:
         """``[V, L, 3]`` apparent BRDF of one texel (a view into the sample)."""
-        x, y = self.coords[row, col]
+        x, y = self.coords[check_index("row", row, self.height), check_index("col", col, self.width)]
         return self.sample.abrdf(int(y), int(x))
 
     def to_btf(self) -> Btf:

@@ -1,4 +1,9 @@
-"""The ``btfrs`` command line."""
+"""The ``btfrs`` command line.
+
+Sizes of images and maps are given as numpy shapes give them, height first (``--out-size H W``);
+every file is written atomically (see :func:`btfrs.io.atomic_write`). Progress goes to stderr:
+bars on a terminal, one line per phase otherwise.
+"""
 
 from __future__ import annotations
 
@@ -29,7 +34,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     s.add_argument("--analysis", help="a .btfrs analysis file: loaded if it exists, else written after analysing")
     s.add_argument("--textons", type=int, default=1024, help="textons (default: 1024)")
     s.add_argument("--out-size", type=int, nargs=2, default=[512, 512], metavar=("H", "W"),
-                   help="output height and width (default: 512 512)")
+                   help="output height then width, as numpy shapes (default: 512 512)")
     s.add_argument("--method", choices=["kcoherence", "jump"], default="kcoherence")
     s.add_argument("-k", type=int, default=3, help="k of k-coherence (default: 3)")
     s.add_argument("--neighbourhood", type=int, default=2, help="window radius (default: 2, a 5 x 5 window)")
@@ -86,11 +91,11 @@ def synth_command(args) -> None:
             an.save(args.analysis)
     size = tuple(args.out_size)
     if args.method == "jump":
-        cmap = synth.jump_map(an, size=size, neighbourhood=args.neighbourhood, seed=args.seed)
+        cmap = synth.jump_map(an, size=size, neighbourhood=args.neighbourhood, seed=args.seed, progress=progress)
     else:
         cmap = synth.kcoherence(an, size=size, k=args.k, neighbourhood=args.neighbourhood, levels=args.levels,
                                 toroidal=args.toroidal, seed=args.seed, progress=progress)
-    np.save(os.path.join(args.out, "coords.npy"), cmap)
+    io.save_array(os.path.join(args.out, "coords.npy"), cmap)
     h, w = sample.shape[0], sample.shape[1]
     tiles = synth.tiled((h, w), size)
     if isinstance(sample, Btf):

@@ -2,7 +2,8 @@
 
 The demo is a list of steps (:data:`STEPS`) run in order over one :class:`Context`; each step
 adds models, table rows, images or notes. Later features (more models, renders, synthesis,
-charts) add steps here rather than growing one long function.
+charts) add steps here rather than growing one long function. Every file goes through an atomic
+writer (:mod:`btfrs.io`), so an interrupted demo leaves no half-written file.
 """
 
 from __future__ import annotations
@@ -190,7 +191,7 @@ def step_synthesis(ctx: Context) -> None:
     size = 8 * ctx.size
     cmap = synth.kcoherence(an, size=size, k=3, neighbourhood=2, levels=levels, seed=7)
     t_syn = time.perf_counter() - t0
-    np.save(ctx.out / "synth_coords.npy", cmap)
+    io.save_array(ctx.out / "synth_coords.npy", cmap)
     tiles = synth.tiled((ctx.size, ctx.size), size)
     q, qt = synth.quality(an, cmap), synth.quality(an, tiles)
     big = ctx.btf.expand(cmap)
@@ -236,7 +237,7 @@ def step_summary(ctx: Context) -> None:
     lines += [f"- `{n}`: {d}" for n, d in ctx.images]
     if ctx.notes:
         lines += ["", "## Notes", ""] + [f"- {n}" for n in ctx.notes]
-    (ctx.out / "summary.md").write_text("\n".join(lines) + "\n")
+    io.save_text(ctx.out / "summary.md", "\n".join(lines) + "\n")
     ctx.log(f"wrote {ctx.out / 'summary.md'}")
 
 
@@ -244,7 +245,7 @@ STEPS: list = [step_material, step_baseline, step_ptm, step_models, step_compare
                step_materials_overview, step_summary]
 
 
-def run(out, material: str = "knit", size: int = 64, seed: int = 1, progress: bool = True,
+def run(out, *, material: str = "knit", size: int = 64, seed: int = 1, progress: bool = True,
         log: Callable[[str], None] = print) -> Context:
     """Run every step into folder ``out`` (created if missing); returns the context."""
     out = Path(out)

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from . import _native
+from ._checks import boolean
+from .exceptions import InvalidArgumentError
 
 __all__ = ["ubo81", "from_theta_phi", "to_theta_phi"]
 
@@ -23,26 +25,26 @@ def ubo81() -> np.ndarray:
     return _native.ubo81()
 
 
-def from_theta_phi(theta, phi, degrees: bool = False) -> np.ndarray:
+def from_theta_phi(theta, phi, *, degrees: bool = False) -> np.ndarray:
     """Unit vectors ``[..., 3]`` for elevations ``theta`` and azimuths ``phi`` (radians unless
     ``degrees``); the inputs broadcast against each other."""
     t = np.asarray(theta, dtype=np.float64)
     p = np.asarray(phi, dtype=np.float64)
-    if degrees:
+    if boolean("degrees", degrees):
         t, p = np.radians(t), np.radians(p)
     t, p = np.broadcast_arrays(t, p)
     st = np.sin(t)
     return np.stack([st * np.cos(p), st * np.sin(p), np.cos(t)], axis=-1)
 
 
-def to_theta_phi(d, degrees: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def to_theta_phi(d, *, degrees: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(theta, phi) of directions ``[..., 3]``; phi in [0, 2 pi), 0 at the pole."""
     d = np.asarray(d, dtype=np.float64)
     if d.shape[-1:] != (3,):
-        raise ValueError(f"d: expected shape (..., 3), got {d.shape}")
+        raise InvalidArgumentError(f"d: expected shape (..., 3), got {d.shape}")
     r = np.hypot(d[..., 0], d[..., 1])
     theta = np.arctan2(r, d[..., 2])
     phi = np.where(r == 0, 0.0, np.mod(np.arctan2(d[..., 1], d[..., 0]), 2 * np.pi))
-    if degrees:
+    if boolean("degrees", degrees):
         return np.degrees(theta), np.degrees(phi)
     return theta, phi

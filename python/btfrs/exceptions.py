@@ -1,9 +1,26 @@
 """The exception hierarchy of btfrs.
 
 Every error btfrs raises on purpose is a :class:`BtfrsError`; each subclass also derives from the
-builtin a caller would catch anyway (``ValueError`` for bad arguments and unusable data), so
-``except ValueError`` keeps working. Missing files raise the builtin ``FileNotFoundError``, Ctrl-C
-raises ``KeyboardInterrupt``.
+builtin a caller would catch anyway, so ``except ValueError`` (or ``TypeError``, ``IndexError``)
+keeps working:
+
+========================  ===========================  ==============================================
+class                     also a                       raised when
+========================  ===========================  ==============================================
+``InvalidArgumentError``  ``ValueError``               an argument has the wrong shape, range or value
+``ArgumentTypeError``     ``InvalidArgumentError``,    an argument has the wrong type (a float or a
+                          ``TypeError``                bool for an integer, a list for a Btf, ...)
+``OutOfRangeError``       ``InvalidArgumentError``,    an index is outside its axis (negative indices
+                          ``IndexError``               do not wrap)
+``DegenerateDataError``   ``ValueError``               the data cannot support the requested fit
+``FormatError``           ``ValueError``               a file is not what it claims to be
+``DeviceError``           ``RuntimeError``             no usable graphics adapter, or the GPU failed
+``InternalError``         ``RuntimeError``             a bug in btfrs (a Rust panic caught at the
+                                                       boundary)
+========================  ===========================  ==============================================
+
+Every message starts with the argument's name and says what was expected. Missing files raise the
+builtin ``FileNotFoundError``, other I/O failures ``OSError``, Ctrl-C ``KeyboardInterrupt``.
 """
 
 from __future__ import annotations
@@ -11,6 +28,8 @@ from __future__ import annotations
 __all__ = [
     "BtfrsError",
     "InvalidArgumentError",
+    "ArgumentTypeError",
+    "OutOfRangeError",
     "DegenerateDataError",
     "FormatError",
     "InternalError",
@@ -24,6 +43,15 @@ class BtfrsError(Exception):
 
 class InvalidArgumentError(BtfrsError, ValueError):
     """An argument has the wrong shape, range or value; the message names it."""
+
+
+class ArgumentTypeError(InvalidArgumentError, TypeError):
+    """An argument has the wrong type (also a ``TypeError``); the message names it."""
+
+
+class OutOfRangeError(InvalidArgumentError, IndexError):
+    """An index argument is outside its axis (also an ``IndexError``); the message names it and
+    gives the valid range. Negative indices are rejected, not wrapped."""
 
 
 class DegenerateDataError(BtfrsError, ValueError):

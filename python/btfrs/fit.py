@@ -10,21 +10,20 @@ from __future__ import annotations
 import time
 
 from . import _native
+from ._checks import boolean, choice, instance, integer, real
+from ._checks import seed as check_seed
 from ._progress import Progress, callback
-from .btf import Btf, check_seed
-from .exceptions import InvalidArgumentError
+from .btf import Btf
 from .models import Lafortune, Lpca, Ptm, Sh, Srf
 
 __all__ = ["ptm", "srf", "lafortune", "sh", "lpca"]
 
 
 def _check_btf(btf) -> Btf:
-    if not isinstance(btf, Btf):
-        raise TypeError(f"btf: expected a btfrs.Btf, got {type(btf).__name__}")
-    return btf
+    return instance("btf", btf, Btf, "a btfrs.Btf")
 
 
-def ptm(btf: Btf, kind: str = "rgb", rcond: float = 1e-6, on_degenerate: str = "raise",
+def ptm(btf: Btf, *, kind: str = "rgb", rcond: float = 1e-6, on_degenerate: str = "raise",
         progress: Progress = None) -> Ptm:
     """Fit a Polynomial Texture Map per view slot (paper 000, section 3.1).
 
@@ -41,15 +40,16 @@ def ptm(btf: Btf, kind: str = "rgb", rcond: float = 1e-6, on_degenerate: str = "
     progress: None, True for a progress bar, or a callable ``(done, total)``.
     """
     b = _check_btf(btf)
-    if kind not in ("rgb", "lrgb"):
-        raise InvalidArgumentError(f"kind: expected \"rgb\" or \"lrgb\", got {kind!r}")
+    kind = choice("kind", kind, ("rgb", "lrgb"))
+    rcond = real("rcond", rcond, min=0.0)
+    on_degenerate = choice("on_degenerate", on_degenerate, ("raise", "clamp"))
     t0 = time.perf_counter()
-    m = _native.fit_ptm_native(b.data, b.views, b.lights, b.mask, kind=kind, rcond=float(rcond),
+    m = _native.fit_ptm_native(b.data, b.views, b.lights, b.mask, kind=kind, rcond=rcond,
                                on_degenerate=on_degenerate, progress=callback(progress, f"PTM-{kind.upper()} fit"))
     return Ptm(m, fit_seconds=time.perf_counter() - t0)
 
 
-def srf(btf: Btf, progress: Progress = None) -> Srf:
+def srf(btf: Btf, *, progress: Progress = None) -> Srf:
     """Fit Phong + a spatially-varying residual function (paper 003, sections 4 and 5).
 
     One Blinn-Phong (kd, ks per channel, one shininess n) is fitted by Levenberg-Marquardt to
@@ -64,7 +64,7 @@ def srf(btf: Btf, progress: Progress = None) -> Srf:
     return Srf(m, fit_seconds=time.perf_counter() - t0, report=report)
 
 
-def lafortune(btf: Btf, kind: str = "lum", lobes: int = 2, diffuse: bool = True, max_iter: int = 60,
+def lafortune(btf: Btf, *, kind: str = "lum", lobes: int = 2, diffuse: bool = True, max_iter: int = 60,
               densify: int = 0, progress: Progress = None) -> Lafortune:
     """Fit per-texel Lafortune lobes by Levenberg-Marquardt (paper 000, section 3.2).
 
@@ -78,16 +78,20 @@ def lafortune(btf: Btf, kind: str = "lum", lobes: int = 2, diffuse: bool = True,
     pairs before fitting (the paper's remedy).
     """
     b = _check_btf(btf)
-    if kind not in ("lum", "rgb"):
-        raise InvalidArgumentError(f"kind: expected \"lum\" or \"rgb\", got {kind!r}")
+    kind = choice("kind", kind, ("lum", "rgb"))
+    # The per-kind lobe limits (7 and 3) are checked in Rust, with the same message style.
+    lobes = integer("lobes", lobes, min=1)
+    diffuse = boolean("diffuse", diffuse)
+    max_iter = integer("max_iter", max_iter, min=1)
+    densify = integer("densify", densify, min=0)
     t0 = time.perf_counter()
-    m, report = _native.fit_lafortune_native(b.data, b.views, b.lights, b.mask, kind=kind, lobes=int(lobes),
-                                             diffuse=bool(diffuse), max_iter=int(max_iter), densify=int(densify),
+    m, report = _native.fit_lafortune_native(b.data, b.views, b.lights, b.mask, kind=kind, lobes=lobes,
+                                             diffuse=diffuse, max_iter=max_iter, densify=densify,
                                              progress=callback(progress, f"Lafortune-{kind} fit"))
     return Lafortune(m, fit_seconds=time.perf_counter() - t0, report=report)
 
 
-def sh(btf: Btf, light_coeffs: int = 25, view_coeffs: int = 25, cls: bool = True, quantize: bool = True,
+def sh(btf: Btf, *, light_coeffs: int = 25, view_coeffs: int = 25, cls: bool = True, quantize: bool = True,
        chunk_texels: int = 1024, progress: Progress = None) -> Sh:
     """Fit double spherical harmonics by constrained least squares (paper 002, section 3.1 and
     appendix).
@@ -100,14 +104,20 @@ def sh(btf: Btf, light_coeffs: int = 25, view_coeffs: int = 25, cls: bool = True
     (``btfrs.load(path, mmap=True)``) streams through.
     """
     b = _check_btf(btf)
+    # Perfect squares up to 64 are checked in Rust; here the type and the lower bound.
+    light_coeffs = integer("light_coeffs", light_coeffs, min=1)
+    view_coeffs = integer("view_coeffs", view_coeffs, min=1)
+    cls = boolean("cls", cls)
+    quantize = boolean("quantize", quantize)
+    chunk_texels = integer("chunk_texels", chunk_texels, min=1)
     t0 = time.perf_counter()
-    m, report = _native.fit_sh_native(b.data, b.views, b.lights, b.mask, light_coeffs=int(light_coeffs),
-                                      view_coeffs=int(view_coeffs), cls=bool(cls), quantize=bool(quantize),
-                                      chunk_texels=int(chunk_texels), progress=callback(progress, "double SH fit"))
+    m, report = _native.fit_sh_native(b.data, b.views, b.lights, b.mask, light_coeffs=light_coeffs,
+                                      view_coeffs=view_coeffs, cls=cls, quantize=quantize,
+                                      chunk_texels=chunk_texels, progress=callback(progress, "double SH fit"))
     return Sh(m, fit_seconds=time.perf_counter() - t0, report=report)
 
 
-def lpca(btf: Btf, clusters: int = 32, components: int = 4, seed: int = 0, kmeans_iterations: int = 25,
+def lpca(btf: Btf, *, clusters: int = 32, components: int = 4, seed: int = 0, kmeans_iterations: int = 25,
          refine_iterations: int = 2, reduced_dims: int = 64, progress: Progress = None) -> Lpca:
     """Fit Local PCA (paper 004, section 3): k-means++ (seeded) over the texels' ABRDFs, PCA per
     cluster with ``components`` Eigen-BRDFs, then 8-bit Eigen-BRDFs with the scales folded into
@@ -118,9 +128,16 @@ def lpca(btf: Btf, clusters: int = 32, components: int = 4, seed: int = 0, kmean
     to the cluster whose subspace reconstructs it best (the LPCA objective itself).
     """
     b = _check_btf(btf)
+    # "At most the texels" and "at most the pairs" are checked in Rust, which knows the counts.
+    clusters = integer("clusters", clusters, min=1)
+    components = integer("components", components, min=1)
+    kmeans_iterations = integer("kmeans_iterations", kmeans_iterations, min=1)
+    refine_iterations = integer("refine_iterations", refine_iterations, min=0)
+    reduced_dims = integer("reduced_dims", reduced_dims, min=0)
+    seed = check_seed(seed)
     t0 = time.perf_counter()
-    m, report = _native.fit_lpca_native(b.data, b.views, b.lights, b.mask, clusters=int(clusters),
-                                        components=int(components), kmeans_iterations=int(kmeans_iterations),
-                                        refine_iterations=int(refine_iterations), reduced_dims=int(reduced_dims),
-                                        seed=check_seed(seed), progress=callback(progress, "LPCA fit"))
+    m, report = _native.fit_lpca_native(b.data, b.views, b.lights, b.mask, clusters=clusters,
+                                        components=components, kmeans_iterations=kmeans_iterations,
+                                        refine_iterations=refine_iterations, reduced_dims=reduced_dims,
+                                        seed=seed, progress=callback(progress, "LPCA fit"))
     return Lpca(m, fit_seconds=time.perf_counter() - t0, report=report)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _native
+from .exceptions import ArgumentTypeError
 
 __all__ = ["square_to_disk", "disk_to_square", "square_to_hemisphere", "hemisphere_to_square"]
 
@@ -22,7 +23,7 @@ __all__ = ["square_to_disk", "disk_to_square", "square_to_hemisphere", "hemisphe
 def _arr(name: str, x) -> np.ndarray:
     a = np.asarray(x)
     if a.dtype.kind not in "fiu":
-        raise TypeError(f"{name}: expected real numbers, got dtype {a.dtype}")
+        raise ArgumentTypeError(f"{name}: expected real numbers, got dtype {a.dtype}")
     if a.dtype not in (np.float32, np.float64):
         a = a.astype(np.float64)
     # np.require keeps a 0-d input 0-d, so the shape error names what was passed.

@@ -22,8 +22,10 @@ from typing import Optional, Sequence, Union
 import numpy as np
 
 from . import _native
+from ._checks import choice, instance, real, size_hw
+from ._progress import Progress, callback
 from .btf import Btf
-from .exceptions import InvalidArgumentError
+from .exceptions import ArgumentTypeError, InvalidArgumentError
 from .models import Lpca, Ptm, _Model
 
 __all__ = ["Scene", "Camera", "PointLight", "DirectionalLight", "render", "RenderResult", "gpu_info"]
@@ -121,70 +123,88 @@ def _method(model, method: Optional[str]) -> str:
     return "default"
 
 
-def _size(size) -> tuple:
-    try:
-        w, h = (int(size), int(size)) if np.isscalar(size) else (int(size[0]), int(size[1]))
-    except (TypeError, ValueError, IndexError):
-        raise InvalidArgumentError(f"size: expected (width, height), got {size!r}") from None
-    if w <= 0 or h <= 0:
-        raise InvalidArgumentError(f"size: expected positive (width, height), got {size!r}")
-    return w, h
+def _uv_scale(uv_scale) -> list:
+    if np.ndim(uv_scale) == 0:
+        s = real("uv_scale", uv_scale, min=0.0, min_open=True)
+        return [s, s]
+    if np.shape(uv_scale) != (2,):
+        raise InvalidArgumentError(f"uv_scale: expected a number or a pair (su, sv), got {uv_scale!r}")
+    return [real("uv_scale[0]", uv_scale[0], min=0.0, min_open=True),
+            real("uv_scale[1]", uv_scale[1], min=0.0, min_open=True)]
 
 
-def render(model: Union[Ptm, _Model, Btf], scene, camera, lights, size=(512, 512), uv_scale=1.0,
-           coords: Optional[np.ndarray] = None, backend: str = "gpu", method: Optional[str] = None) -> np.ndarray:
+def render(model: Union[Ptm, _Model, Btf], scene, camera, lights, *, size=(512, 512), uv_scale=1.0,
+           coords: Optional[np.ndarray] = None, backend: str = "gpu", method: Optional[str] = None,
+           progress: Progress = None) -> np.ndarray:
     """Render ``model`` (a fitted model, or a :class:`~btfrs.Btf` for the raw measured data)
     on ``scene`` seen by ``camera`` under ``lights``; returns ``[height, width, 3]`` float32
     linear radiance (0 where no surface is seen).
 
     Parameters
     ----------
-    size: ``(width, height)`` in pixels.
-    uv_scale: repetitions of the sample over the UV square (a number or ``(su, sv)``).
+    size: ``(height, width)`` in pixels, as numpy shapes (the result has shape ``size + (3,)``),
+        or one int for a square.
+    uv_scale: repetitions of the sample over the UV square (a positive number or ``(su, sv)``).
     coords: optional ``[Mh, Mw, 2]`` uint16 coordinate map (x, y into the sample), repeated
         ``uv_scale`` times instead of the sample itself.
     backend: ``"gpu"`` (wgpu) or ``"cpu"`` (the reference renderer).
     method: for :class:`~btfrs.Lpca`, ``"3d"`` (Eigen-BRDFs resampled on the elevated
         concentric map in one 3D texture: two trilinear fetches and a lerp, paper 004 section 6,
         the default) or ``"9tap"`` (three nearest views x three nearest lights, section 5).
+    progress: None, True or a callable ``(done, total)`` counting the phases: for the GPU the
+        upload (immediate when the model is already on the device) and the draw with its
+        read-back; for the CPU the frame.
     """
-    if not isinstance(scene, Scene):
-        raise TypeError(f"scene: expected a btfrs.Scene, got {type(scene).__name__}")
-    if not isinstance(camera, Camera):
-        raise TypeError(f"camera: expected a btfrs.Camera, got {type(camera).__name__}")
+    instance("scene", scene, Scene, "a btfrs.Scene")
+    instance("camera", camera, Camera, "a btfrs.Camera")
     if isinstance(lights, (PointLight, DirectionalLight)):
         lights = [lights]
+    if isinstance(lights, (str, bytes)) or not hasattr(lights, "__iter__"):
+        raise ArgumentTypeError(f"lights: expected a light or a list of PointLight/DirectionalLight, got {lights!r}")
     items = []
     for light in lights:
         if not isinstance(light, (PointLight, DirectionalLight)):
-            raise TypeError(f"lights: expected PointLight or DirectionalLight, got {type(light).__name__}")
+            raise ArgumentTypeError(f"lights: expected PointLight or DirectionalLight, got {type(light).__name__}")
         items.append(light._native())
     if isinstance(model, Btf) and model.mask is not None and not model.mask.all():
         raise InvalidArgumentError("model: rendering the raw BTF needs every (view, light) pair; this sample has a "
                                    "mask (render the full sample, or a model fitted to the train half)")
-    w, h = _size(size)
-    us = np.broadcast_to(np.asarray(uv_scale, dtype=np.float64), (2,))
-    uvs = [float(us[0]), float(us[1])]
+    # (height, width) as numpy shapes; the native functions take width first, as wgpu does.
+    # 16384 is the CPU renderer's limit and wgpu's usual one; a device with a lower one says so.
+    h, w = size_hw("size", size, max=16384)
+    uvs = _uv_scale(uv_scale)
     if coords is not None:
         c = np.asarray(coords)
         if c.dtype != np.uint16:
-            raise TypeError(f"coords: expected a uint16 array [H, W, 2], got dtype {c.dtype}")
+            raise ArgumentTypeError(f"coords: expected a uint16 array [H, W, 2], got dtype {c.dtype}")
         coords = np.ascontiguousarray(c)
-    if not isinstance(model, (Ptm, Btf, _Model)):
-        raise TypeError(f"model: expected a btfrs model or Btf, got {type(model).__name__}")
+    instance("model", model, (Ptm, Btf, _Model), "a btfrs model or Btf")
     meth = _method(model, method)
+    backend = choice("backend", backend, ("gpu", "cpu"))
     if backend == "gpu":
+        cb = callback(progress, f"render {h}x{w} (upload, draw + read-back)")
+        if cb is not None:
+            cb(0, 2)
         up, up_ms = _upload(model, meth)
+        if cb is not None:
+            cb(1, 2)
         img, draw, rb = _native.gpu_render(up, scene, camera, items, w, h, uvs, coords)
         _last[:] = [RenderResult(draw, rb, up_ms)]
+        if cb is not None:
+            cb(2, 2)
         return img
-    if backend == "cpu":
-        if isinstance(model, Ptm):
-            return _native.cpu_render_ptm(model._m, scene, camera, items, w, h, uvs, coords)
-        if isinstance(model, _Model):
-            return _native.cpu_render_model(model._m, scene, camera, items, w, h, uvs, coords, meth)
-        return _native.cpu_render_raw(model.data, model.views, model.lights, scene, camera, items, w, h, uvs, coords)
-    raise InvalidArgumentError(f"backend: expected \"gpu\" or \"cpu\", got {backend!r}")
+    cb = callback(progress, f"render {h}x{w} (cpu)")
+    if cb is not None:
+        cb(0, 1)
+    if isinstance(model, Ptm):
+        img = _native.cpu_render_ptm(model._m, scene, camera, items, w, h, uvs, coords)
+    elif isinstance(model, _Model):
+        img = _native.cpu_render_model(model._m, scene, camera, items, w, h, uvs, coords, meth)
+    else:
+        img = _native.cpu_render_raw(model.data, model.views, model.lights, scene, camera, items, w, h, uvs, coords)
+    if cb is not None:
+        cb(1, 1)
+    return img
 
 
 def last_timings() -> Optional[RenderResult]:

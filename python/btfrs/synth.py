@@ -31,9 +31,11 @@ from typing import Optional, Sequence, Union
 import numpy as np
 
 from . import _native
+from ._checks import boolean, choice, index, instance, integer, real, size_hw
+from ._checks import seed as check_seed
 from ._progress import Progress, callback
-from .btf import Btf, check_seed
-from .exceptions import FormatError, InvalidArgumentError
+from .btf import Btf
+from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
 
 __all__ = [
     "Analysis",
@@ -51,24 +53,16 @@ PathLike = Union[str, os.PathLike]
 SizeLike = Union[int, Sequence[int]]
 
 
-def _int(name: str, v, lo: int, hi: Optional[int] = None) -> int:
-    if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
-        raise TypeError(f"{name}: expected an int, got {type(v).__name__}")
-    if v < lo or (hi is not None and v > hi):
-        rng = f"{lo} to {hi}" if hi is not None else f"at least {lo}"
-        raise InvalidArgumentError(f"{name}: expected {rng}, got {v}")
-    return int(v)
-
-
 def _size(size: SizeLike) -> tuple[int, int]:
-    if isinstance(size, (int, np.integer)) and not isinstance(size, bool):
-        s = _int("size", size, 1)
-        return s, s
-    try:
-        h, w = size  # type: ignore[misc]
-    except (TypeError, ValueError):
-        raise TypeError(f"size: expected an int or a (height, width) pair, got {size!r}") from None
-    return _int("size", h, 1), _int("size", w, 1)
+    """An output size, ``(height, width)`` as numpy shapes (one int for a square)."""
+    return size_hw("size", size)
+
+
+def _shape2(name: str, shape) -> tuple[int, int]:
+    """The ``(height, width)`` leading the shape of a sample or texture."""
+    if isinstance(shape, (str, bytes)) or not hasattr(shape, "__len__") or len(shape) < 2:
+        raise ArgumentTypeError(f"{name}: expected a shape (height, width, ...), got {shape!r}")
+    return integer(f"{name}[0]", shape[0], min=1), integer(f"{name}[1]", shape[1], min=1)
 
 
 class Analysis:
@@ -102,27 +96,29 @@ class Analysis:
         """The options of the analysis (textons, levels, m, iterations, seed)."""
         return dict(self._a.options())
 
+    # `level` and `neighbourhood` select what these accessors return (like Btf.image's indices),
+    # so they stay positional; a level outside [0, levels) is an OutOfRangeError.
     def texton_map(self, level: int = 0) -> np.ndarray:
         """``[H, W]`` uint16 texton of every pixel of a pyramid level."""
-        return self._a.texton_map(_int("level", level, 0))
+        return self._a.texton_map(index("level", level, self.levels))
 
     def dots(self, level: int = 0) -> np.ndarray:
         """``[T, T]`` float64 dot products of the textons' appearance vectors (the paper's M)."""
-        return self._a.dots(_int("level", level, 0))
+        return self._a.dots(index("level", level, self.levels))
 
     def distances(self, level: int = 0) -> np.ndarray:
         """``[T, T]`` float32 squared distances between textons (what the synthesis looks up)."""
-        return self._a.distances(_int("level", level, 0))
+        return self._a.distances(index("level", level, self.levels))
 
     def similar(self, neighbourhood: int = 2, level: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """``([H, W, m] int32 flat pixel indices (-1 where none), [H, W, m] float32 distances)``:
         the most similar neighbourhoods of every sample pixel, best first."""
-        return self._a.similar(_int("neighbourhood", neighbourhood, 1), _int("level", level, 0))
+        return self._a.similar(integer("neighbourhood", neighbourhood, min=1), index("level", level, self.levels))
 
-    def prepare(self, neighbourhood: int, levels: int, progress: Progress = None) -> None:
+    def prepare(self, neighbourhood: int, levels: int, *, progress: Progress = None) -> None:
         """Compute the similar neighbourhoods of a radius now (synthesis does it on demand)."""
-        self._a.ensure_neighbourhood(_int("neighbourhood", neighbourhood, 1), _int("levels", levels, 1),
-                                     callback(progress, "neighbourhoods"))
+        self._a.ensure_neighbourhood(integer("neighbourhood", neighbourhood, min=1),
+                                     integer("levels", levels, min=1), callback(progress, "neighbourhoods"))
 
     def save(self, path: PathLike) -> None:
         """Write the analysis to one ``.btfrs`` file (atomically); :func:`btfrs.load` reads it."""
@@ -159,17 +155,17 @@ def _texture(sample) -> np.ndarray:
     if a.ndim == 2:
         a = a[:, :, None]
     if a.ndim != 3:
-        raise ValueError(f"sample: expected a Btf or an [H, W, C] texture, got shape {a.shape}")
+        raise InvalidArgumentError(f"sample: expected a Btf or an [H, W, C] texture, got shape {a.shape}")
     if a.dtype == np.uint8:
         return np.ascontiguousarray(a, dtype=np.float32) / np.float32(255.0)
     if a.dtype == np.uint16:
         return np.ascontiguousarray(a, dtype=np.float32) / np.float32(65535.0)
     if not np.issubdtype(a.dtype, np.floating):
-        raise TypeError(f"sample: expected a float or uint8/uint16 texture, got dtype {a.dtype}")
+        raise ArgumentTypeError(f"sample: expected a float or uint8/uint16 texture, got dtype {a.dtype}")
     return np.ascontiguousarray(a, dtype=np.float32)
 
 
-def analyse(sample: Union[Btf, np.ndarray], textons: int = 1024, *, features: str = "pca", dims: int = 48,
+def analyse(sample: Union[Btf, np.ndarray], *, textons: int = 1024, features: str = "pca", dims: int = 48,
             images: int = 150, levels: int = 3, m: int = 10, neighbourhoods: Sequence[int] = (2,),
             iterations: int = 20, seed: int = 0, progress: Progress = None) -> Analysis:
     """Analyse a sample for synthesis (paper 000, section 4.1).
@@ -196,36 +192,37 @@ def analyse(sample: Union[Btf, np.ndarray], textons: int = 1024, *, features: st
     seed:
         Seeds k-means++ and the PCA sketch: same seed, same analysis.
     """
-    textons = _int("textons", textons, 1)
-    levels = _int("levels", levels, 1)
-    m = _int("m", m, 1)
-    iterations = _int("iterations", iterations, 1)
+    textons = integer("textons", textons, min=1)
+    levels = integer("levels", levels, min=1)
+    m = integer("m", m, min=1)
+    iterations = integer("iterations", iterations, min=1)
     seed = check_seed(seed)
-    radii = [_int("neighbourhoods", r, 1) for r in neighbourhoods]
-    cb = callback(progress, "analysis")
+    if isinstance(neighbourhoods, (str, bytes)) or not hasattr(neighbourhoods, "__iter__"):
+        raise ArgumentTypeError(f"neighbourhoods: expected a sequence of window radii, got {neighbourhoods!r}")
+    radii = [integer("neighbourhoods", r, min=1) for r in neighbourhoods]
     t0 = time.perf_counter()
     if isinstance(sample, Btf):
-        if features not in ("pca", "all", "images"):
-            raise InvalidArgumentError(f"features: expected 'pca', 'all' or 'images', got {features!r}")
+        features = choice("features", features, ("pca", "all", "images"))
+        dims = integer("dims", dims, min=1)
+        images = integer("images", images, min=1)
         native = _native.analyse_btf_native(sample.data, sample.views, sample.lights, sample.mask, textons,
-                                            features, _int("dims", dims, 1), _int("images", images, 1), levels, m,
-                                            radii, iterations, seed, cb)
+                                            features, dims, images, levels, m, radii, iterations, seed,
+                                            callback(progress, "analysis"))
         name = features if features != "pca" else f"pca{dims}"
         return Analysis(native, "btf", name, time.perf_counter() - t0)
     if features != "pca":
         raise InvalidArgumentError(f"features: a texture's pixels are its features; got features={features!r}")
     tex = _texture(sample)
-    native = _native.analyse_features_native(tex, textons, levels, m, radii, iterations, seed, cb)
+    native = _native.analyse_features_native(tex, textons, levels, m, radii, iterations, seed,
+                                             callback(progress, "analysis"))
     return Analysis(native, "texture", f"{tex.shape[2]} channels", time.perf_counter() - t0)
 
 
 def _analysis(an) -> Analysis:
-    if not isinstance(an, Analysis):
-        raise TypeError(f"an: expected a btfrs.synth.Analysis (from btfrs.synth.analyse), got {type(an).__name__}")
-    return an
+    return instance("an", an, Analysis, "a btfrs.synth.Analysis (from btfrs.synth.analyse)")
 
 
-def kcoherence(an: Analysis, size: SizeLike = (512, 512), k: int = 3, neighbourhood: int = 2, levels: int = 3,
+def kcoherence(an: Analysis, *, size: SizeLike = (512, 512), k: int = 3, neighbourhood: int = 2, levels: int = 3,
                toroidal: bool = False, seed: int = 7, progress: Progress = None) -> np.ndarray:
     """Hierarchical k-coherence synthesis (paper 000, section 4.2) into a coordinate map.
 
@@ -237,28 +234,28 @@ def kcoherence(an: Analysis, size: SizeLike = (512, 512), k: int = 3, neighbourh
     """
     an = _analysis(an)
     h, w = _size(size)
-    k = _int("k", k, 1)
-    neighbourhood = _int("neighbourhood", neighbourhood, 1)
-    levels = _int("levels", levels, 1)
+    k = integer("k", k, min=1)
+    neighbourhood = integer("neighbourhood", neighbourhood, min=1)
+    levels = integer("levels", levels, min=1)
     seed = check_seed(seed)
-    if not isinstance(toroidal, (bool, np.bool_)):
-        raise TypeError(f"toroidal: expected a bool, got {type(toroidal).__name__}")
+    toroidal = boolean("toroidal", toroidal)
     an._a.ensure_neighbourhood(neighbourhood, levels, callback(progress, "neighbourhoods"))
-    return an._a.kcoherence(h, w, k, neighbourhood, levels, bool(toroidal), seed, callback(progress, "k-coherence"))
+    return an._a.kcoherence(h, w, k, neighbourhood, levels, toroidal, seed, callback(progress, "k-coherence"))
 
 
-def jump_map(an: Analysis, size: SizeLike = (512, 512), neighbourhood: int = 2, jump: float = 0.05,
-             seed: int = 7) -> np.ndarray:
+def jump_map(an: Analysis, *, size: SizeLike = (512, 512), neighbourhood: int = 2, jump: float = 0.05,
+             seed: int = 7, progress: Progress = None) -> np.ndarray:
     """Jump-map synthesis (Zelinka and Garland 2002) over the finest level of the analysis: each
-    pixel continues a neighbour's patch or, with probability ``jump``, jumps to a similar pixel.
-    Returns ``[H, W, 2]`` uint16 ``(x, y)``."""
+    pixel continues a neighbour's patch or, with probability ``jump`` (in [0, 1]), jumps to a
+    similar pixel. ``size`` is the output ``(height, width)`` (or one int). Returns ``[H, W, 2]``
+    uint16 ``(x, y)``; ``progress`` counts output rows."""
     an = _analysis(an)
     h, w = _size(size)
-    neighbourhood = _int("neighbourhood", neighbourhood, 1)
-    if isinstance(jump, bool) or not isinstance(jump, (int, float, np.floating)):
-        raise TypeError(f"jump: expected a probability, got {type(jump).__name__}")
-    an._a.ensure_neighbourhood(neighbourhood, 1, None)
-    return an._a.jump_map(h, w, neighbourhood, float(jump), check_seed(seed))
+    neighbourhood = integer("neighbourhood", neighbourhood, min=1)
+    jump = real("jump", jump, min=0.0, max=1.0)
+    seed = check_seed(seed)
+    an._a.ensure_neighbourhood(neighbourhood, 1, callback(progress, "neighbourhoods"))
+    return an._a.jump_map(h, w, neighbourhood, jump, seed, callback(progress, "jump map"))
 
 
 @dataclass(frozen=True)
@@ -284,13 +281,13 @@ class Quality:
 def _coords(name: str, coords, an: Optional[Analysis] = None) -> np.ndarray:
     c = np.asarray(coords)
     if c.dtype != np.uint16:
-        raise TypeError(f"{name}: expected a uint16 array [H, W, 2], got dtype {c.dtype}")
+        raise ArgumentTypeError(f"{name}: expected a uint16 array [H, W, 2], got dtype {c.dtype}")
     if c.ndim != 3 or c.shape[2] != 2:
-        raise ValueError(f"{name}: expected shape (H, W, 2), got {c.shape}")
+        raise InvalidArgumentError(f"{name}: expected shape (H, W, 2), got {c.shape}")
     return np.ascontiguousarray(c)
 
 
-def quality(an: Analysis, coords, neighbourhood: int = 2, samples: int = 4096, seed: int = 0,
+def quality(an: Analysis, coords, *, neighbourhood: int = 2, samples: int = 4096, seed: int = 0,
             progress: Progress = None) -> Quality:
     """Measure a coordinate map against the analysed sample (lower is better except coherence).
 
@@ -304,22 +301,25 @@ def quality(an: Analysis, coords, neighbourhood: int = 2, samples: int = 4096, s
     """
     an = _analysis(an)
     c = _coords("coords", coords)
-    d = an._a.quality(c, _int("neighbourhood", neighbourhood, 1), _int("samples", samples, 1), check_seed(seed),
-                      callback(progress, "quality"))
+    d = an._a.quality(c, integer("neighbourhood", neighbourhood, min=1), integer("samples", samples, min=1),
+                      check_seed(seed), callback(progress, "quality"))
     return Quality(**d)
 
 
 def tiled(sample_shape: Sequence[int], size: SizeLike) -> np.ndarray:
-    """The plain-tiling baseline: output ``(x, y)`` shows sample ``(x mod w, y mod h)``."""
-    sh, sw = _int("sample_shape", sample_shape[0], 1), _int("sample_shape", sample_shape[1], 1)
+    """The plain-tiling baseline: output ``(x, y)`` shows sample ``(x mod w, y mod h)``.
+    ``sample_shape`` starts with the sample's ``(height, width)``; ``size`` is the output
+    ``(height, width)`` (or one int)."""
+    sh, sw = _shape2("sample_shape", sample_shape)
     h, w = _size(size)
     y, x = np.mgrid[0:h, 0:w]
     return np.stack([x % sw, y % sh], axis=-1).astype(np.uint16)
 
 
-def random_placement(sample_shape: Sequence[int], size: SizeLike, seed: int = 0) -> np.ndarray:
-    """The random-placement baseline: every output texel an independent random sample texel."""
-    sh, sw = _int("sample_shape", sample_shape[0], 1), _int("sample_shape", sample_shape[1], 1)
+def random_placement(sample_shape: Sequence[int], size: SizeLike, *, seed: int = 0) -> np.ndarray:
+    """The random-placement baseline: every output texel an independent random sample texel
+    (shapes and sizes ``(height, width)``, as in :func:`tiled`)."""
+    sh, sw = _shape2("sample_shape", sample_shape)
     h, w = _size(size)
     g = np.random.default_rng(check_seed(seed))
     return np.stack([g.integers(0, sw, (h, w)), g.integers(0, sh, (h, w))], axis=-1).astype(np.uint16)
@@ -330,7 +330,7 @@ def apply(texture, coords) -> np.ndarray:
     c = _coords("coords", coords)
     t = np.asarray(texture)
     if t.ndim < 2:
-        raise ValueError(f"texture: expected at least 2 dimensions, got shape {t.shape}")
+        raise InvalidArgumentError(f"texture: expected at least 2 dimensions, got shape {t.shape}")
     if c.size and (int(c[..., 0].max()) >= t.shape[1] or int(c[..., 1].max()) >= t.shape[0]):
         raise InvalidArgumentError(f"coords: point outside the {t.shape[0]} x {t.shape[1]} texture")
     return t[c[..., 1], c[..., 0]]

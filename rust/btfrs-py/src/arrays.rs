@@ -12,7 +12,7 @@ pub fn borrow<'py, T: numpy::Element>(name: &str, obj: &Bound<'py, PyAny>) -> Py
             .map(|d| d.to_string())
             .unwrap_or_else(|_| obj.get_type().name().map(|n| n.to_string()).unwrap_or_default());
         let want = numpy::dtype::<T>(obj.py()).to_string();
-        pyo3::exceptions::PyTypeError::new_err(format!("{name}: expected a numpy array of {want}, got {got}"))
+        crate::errors::arg_type(name, format!("expected a numpy array of {want}, got {got}"))
     })?;
     let r = a.readonly();
     if !r.is_c_contiguous() {

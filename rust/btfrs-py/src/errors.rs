@@ -8,6 +8,7 @@ use pyo3::exceptions::{PyFileNotFoundError, PyKeyboardInterrupt, PyOSError};
 use pyo3::PyErr;
 
 pyo3::import_exception!(btfrs.exceptions, InvalidArgumentError);
+pyo3::import_exception!(btfrs.exceptions, ArgumentTypeError);
 pyo3::import_exception!(btfrs.exceptions, DegenerateDataError);
 pyo3::import_exception!(btfrs.exceptions, FormatError);
 pyo3::import_exception!(btfrs.exceptions, InternalError);
@@ -37,6 +38,11 @@ impl<T> IntoPy<T> for btfrs_core::Result<T> {
     fn py(self) -> pyo3::PyResult<T> {
         self.map_err(to_py)
     }
+}
+
+/// An `ArgumentTypeError` (a btfrs `TypeError`) naming the argument: a wrong type was passed.
+pub fn arg_type(name: &str, msg: impl std::fmt::Display) -> PyErr {
+    ArgumentTypeError::new_err(format!("{name}: {msg}"))
 }
 
 /// An `InvalidArgumentError` naming the argument.

@@ -52,7 +52,7 @@ fn apply<'py, const IN: usize, const OUT: usize>(
     } else if x.cast::<PyArrayDyn<f64>>().is_ok() {
         go!(f64, f64f)
     } else {
-        Err(pyo3::exceptions::PyTypeError::new_err(format!("{name}: expected a float32 or float64 numpy array")))
+        Err(crate::errors::arg_type(name, "expected a float32 or float64 numpy array"))
     }
 }
 

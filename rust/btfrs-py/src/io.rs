@@ -45,9 +45,10 @@ pub fn save_container(
         } else if let Ok(x) = borrow::<bool>(name, a) {
             Held::Bool(x)
         } else {
-            return Err(pyo3::exceptions::PyTypeError::new_err(format!(
-                "{name}: expected a C-contiguous numpy array of float32, float64, uint8, uint16, int32 or bool"
-            )));
+            return Err(crate::errors::arg_type(
+                name,
+                "expected a C-contiguous numpy array of float32, float64, uint8, uint16, int32 or bool",
+            ));
         };
         held.push((name.as_str(), h));
     }

@@ -4,7 +4,7 @@
 use crate::arrays::{borrow, check_shape};
 use crate::core::BtfArgs;
 use crate::errors::{arg, IntoPy};
-use crate::run::{detach, monitored};
+use crate::run::monitored;
 use btfrs_kcoherence::{
     jump_map, kcoherence, quality, Analysis, AnalysisOptions, CoordMap, FeatureMode, Features, JumpOptions, Level,
     Neighbours, SynthOptions, Textons,
@@ -170,8 +170,9 @@ impl PyAnalysis {
         map_to_py(py, m)
     }
 
-    /// Jump-map synthesis; `[height, width, 2]` uint16 (x, y).
-    #[pyo3(signature = (height, width, neighbourhood, jump, seed))]
+    /// Jump-map synthesis; `[height, width, 2]` uint16 (x, y). Progress counts output rows.
+    #[pyo3(signature = (height, width, neighbourhood, jump, seed, progress=None))]
+    #[allow(clippy::too_many_arguments)]
     fn jump_map<'py>(
         &self,
         py: Python<'py>,
@@ -180,10 +181,11 @@ impl PyAnalysis {
         neighbourhood: usize,
         jump: f64,
         seed: u64,
+        progress: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray3<u16>>> {
         let o = JumpOptions { height, width, radius: neighbourhood, jump, seed };
         let an = &self.inner;
-        let m = detach(py, || jump_map(an, &o, &btfrs_core::Monitor::new()))?;
+        let m = monitored(py, progress, |mon| jump_map(an, &o, mon))?;
         map_to_py(py, m)
     }
 

@@ -407,7 +407,10 @@ pub fn validate_view(gpu: &Gpu, view: &View<'_>, dims: (usize, usize)) -> Result
     if view.width == 0 || view.height == 0 || view.width > max || view.height > max {
         return Err(Error::arg(
             "size",
-            format!("expected 1 to {max} pixels per side on {}, got {} x {}", gpu.info.name, view.width, view.height),
+            format!(
+                "expected 1 to {max} pixels per side on {}, got {} x {} (height x width)",
+                gpu.info.name, view.height, view.width
+            ),
         ));
     }
     crate::cpu::validate_common(view, dims)
