@@ -35,14 +35,20 @@ def test_a_failing_progress_callback_cancels_the_work():
 
 def test_model_from_bad_arrays():
     d = btfrs.directions.ubo81()[:2]
-    with pytest.raises(ValueError, match="coeffs: expected shape"):
-        btfrs.Ptm.from_arrays("rgb", np.zeros((2, 2, 2, 6), np.float32), d)
+    with pytest.raises(btfrs.InvalidArgumentError, match="coeffs: expected shape"):
+        btfrs.Ptm.from_arrays({"coeffs": np.zeros((2, 2, 3, 6), np.float32), "views": d})
     bad = np.zeros((2, 2, 2, 3, 6), np.float32)
     bad[0, 0, 0, 0, 0] = np.nan
-    with pytest.raises(ValueError, match="not finite"):
-        btfrs.Ptm.from_arrays("rgb", bad, d)
-    with pytest.raises(ValueError, match="rgb"):
-        btfrs.Ptm.from_arrays("lrgb", np.zeros((2, 2, 2, 6), np.float32), d)
+    with pytest.raises(btfrs.InvalidArgumentError, match="not finite"):
+        btfrs.Ptm.from_arrays({"coeffs": bad, "views": d})
+    with pytest.raises(btfrs.InvalidArgumentError, match="rgb: missing"):
+        btfrs.Ptm.from_arrays({"coeffs": np.zeros((2, 2, 2, 6), np.float32), "views": d})
+    with pytest.raises(btfrs.InvalidArgumentError, match="kind: Ptm holds 'ptm' models"):
+        btfrs.Ptm.from_arrays({}, kind="lpca")
+    with pytest.raises(btfrs.InvalidArgumentError, match="kind: expected the model's name"):
+        btfrs.Model.from_arrays({})
+    with pytest.raises(btfrs.InvalidArgumentError, match="views: expected dtype f64, got f32"):
+        btfrs.Ptm.from_arrays({"coeffs": bad, "views": d.astype(np.float32)})
 
 
 def test_ctrl_c_interrupts_long_work_promptly():

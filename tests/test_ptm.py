@@ -114,7 +114,7 @@ def test_save_load_and_nbytes(tmp_path, knit):
         assert ptm.nbytes == 32 * 32 * 3 * per * 4
         ptm.save(tmp_path / f"{kind}.btfrs")
         back = btfrs.load(tmp_path / f"{kind}.btfrs")
-        assert isinstance(back, btfrs.Ptm) and back.kind == kind
+        assert isinstance(back, btfrs.Ptm) and back.variant == kind
         np.testing.assert_array_equal(back.coeffs, ptm.coeffs)
         np.testing.assert_array_equal(back.evaluate(D[1], D[9]), ptm.evaluate(D[1], D[9]))
 

@@ -23,7 +23,7 @@ def test_round_trip_within_the_8bit_bound(tmp_path, knit, kind):
     head, _ = header_and_body(p)
     assert head[0] == "PTM_1.2" and head[1] == f"PTM_FORMAT_{kind.upper()}" and head[2:4] == ["32", "32"]
     back = btfrs.io.load_ptm(p)
-    assert back.kind == kind and back.height == 32 and back.width == 32
+    assert back.variant == kind and back.height == 32 and back.width == 32
     got = back.coeffs[:, :, 0]
     want = ptm.coeffs[:, :, 1]
     bound = np.asarray(scale) / 2 + 1e-6
@@ -47,7 +47,10 @@ def test_rows_are_stored_bottom_to_top(tmp_path, kind):
         rgb = np.zeros((3, 2, 1, 3), np.float32)
         rgb[..., 0] = (a5 / 0.9)[:, :, None]
     coeffs[..., 3] = 0.05  # keep the other scales non-trivial
-    ptm = btfrs.Ptm.from_arrays(kind, coeffs, D[:1], rgb)
+    arrays = {"coeffs": coeffs, "views": D[:1]}
+    if rgb is not None:
+        arrays["rgb"] = rgb
+    ptm = btfrs.Ptm.from_arrays(arrays)
     p = tmp_path / "rows.ptm"
     ptm.save_ptm(p, view=0)
     _, body = header_and_body(p)

@@ -22,13 +22,15 @@ from .exceptions import (
     InvalidArgumentError,
     OutOfRangeError,
 )
-from .models import ErrorReport, Lafortune, Lpca, Ptm, Sh, Srf, load
+from .models import ErrorReport, Lafortune, Lpca, Model, Ptm, Sh, Srf, load, model_kinds
 from .rendering import Camera, DirectionalLight, PointLight, Scene, gpu_info, last_timings, render
 
 __all__ = [
     "__version__",
     "Btf",
     "ExpandedBtf",
+    "Model",
+    "model_kinds",
     "Ptm",
     "Lafortune",
     "Srf",

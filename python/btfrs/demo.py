@@ -73,43 +73,30 @@ def step_baseline(ctx: Context) -> None:
                          nbytes=ctx.btf.nbytes, reconstruction=None, held_out=rel, rmse=rmse))
 
 
-def step_ptm(ctx: Context) -> None:
-    for kind in ("rgb", "lrgb"):
-        m = fit.ptm(ctx.train, kind=kind, progress=ctx.progress)
-        ctx.models[f"PTM-{kind.upper()}"] = m
-        held, rec = m.error(ctx.test), m.error(ctx.train)
-        ctx.rows.append(dict(model=f"PTM-{kind.upper()}", fit_s=m.fit_seconds, nbytes=m.nbytes,
-                             reconstruction=rec.relative, held_out=held.relative, rmse=held.rmse))
-        ctx.log(f"PTM-{kind.upper()}: fit {m.fit_seconds:.3f} s, {m.nbytes / 2**20:.1f} MiB, held-out {held}")
-        m.save_ptm(ctx.out / f"ptm_{kind}_top.ptm", view=0)
-    ctx.notes.append("`ptm_rgb_top.ptm` and `ptm_lrgb_top.ptm` hold the view-from-above slot as PTM_1.2 files "
-                     "(open them in RTIViewer or relight).")
-
-
 def step_models(ctx: Context) -> None:
-    """Every other model of the papers, fitted on the same train half: Phong + SRF (003),
-    per-texel Lafortune (000), double SH with CLS (002), Local PCA (004)."""
-    fits = [
-        ("Phong+SRF", lambda: fit.srf(ctx.train, progress=ctx.progress)),
-        ("Lafortune-Lum 2", lambda: fit.lafortune(ctx.train, kind="lum", lobes=2, progress=ctx.progress)),
-        ("SH-CLS 25x25", lambda: fit.sh(ctx.train, light_coeffs=25, view_coeffs=25, progress=ctx.progress)),
-        ("LPCA 32x4", lambda: fit.lpca(ctx.train, clusters=32, components=4, seed=ctx.seed, progress=ctx.progress)),
-    ]
-    for name, make in fits:
-        m = make()
-        ctx.models[name] = m
-        held, rec = m.error(ctx.test), m.error(ctx.train)
-        ctx.rows.append(dict(model=name, fit_s=m.fit_seconds, nbytes=m.nbytes, reconstruction=rec.relative,
-                             held_out=held.relative, rmse=held.rmse))
-        ctx.log(f"{name}: fit {m.fit_seconds:.3f} s, {m.nbytes / 2**20:.2f} MiB, held-out {held}")
-        m.save(ctx.out / f"model_{name.split()[0].lower().replace('+', '_')}.btfrs")
-    srf = ctx.models["Phong+SRF"].report
-    ctx.notes.append(f"Phong alone: {100 * srf['phong_relative']:.2f}% relative error on the train pairs; "
-                     f"Phong + SRF: {100 * srf['srf_relative']:.2f}%.")
-    laf = ctx.models["Lafortune-Lum 2"].report
-    ctx.notes.append(f"Lafortune fit report: {laf.get('converged')} converged, {laf.get('fell_back')} fell back, "
-                     f"{laf.get('failed')} failed of {laf.get('fits')} texel fits.")
-    ctx.notes.append("Every model is saved as `model_*.btfrs` (`btfrs.load`).")
+    """Every registered model (:func:`btfrs.model_kinds`) with each of its example option sets,
+    fitted on the same train half: PTM (000), per-texel Lafortune (000), Phong + SRF (003),
+    double SH with CLS (002), Local PCA (004), and whatever is registered next."""
+    from .models import Ptm, model_kinds
+
+    for kind, info in model_kinds().items():
+        for label, options in info["examples"]:
+            m = fit.fit(kind, ctx.train, progress=ctx.progress, **options)
+            ctx.models[label] = m
+            held, rec = m.error(ctx.test), m.error(ctx.train)
+            ctx.rows.append(dict(model=label, fit_s=m.fit_seconds, nbytes=m.nbytes, reconstruction=rec.relative,
+                                 held_out=held.relative, rmse=held.rmse))
+            ctx.log(f"{label}: fit {m.fit_seconds:.3f} s, {m.nbytes / 2**20:.2f} MiB, held-out {held}")
+            slug = label.lower().replace(" ", "_").replace("+", "_")
+            m.save(ctx.out / f"model_{slug}.btfrs")
+            if isinstance(m, Ptm):
+                m.save_ptm(ctx.out / f"{slug}_top.ptm", view=0)
+            if m.report:
+                shown = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in m.report.items())
+                ctx.notes.append(f"{label} fit report: {shown}.")
+    ctx.notes.append("Every model is saved as `model_*.btfrs` (`btfrs.load`); `ptm-rgb_top.ptm` and "
+                     "`ptm-lrgb_top.ptm` hold the view-from-above slot as PTM_1.2 files (open them in "
+                     "RTIViewer or relight).")
 
 
 def step_compare_images(ctx: Context) -> None:
@@ -241,7 +228,7 @@ def step_summary(ctx: Context) -> None:
     ctx.log(f"wrote {ctx.out / 'summary.md'}")
 
 
-STEPS: list = [step_material, step_baseline, step_ptm, step_models, step_compare_images, step_render, step_synthesis,
+STEPS: list = [step_material, step_baseline, step_models, step_compare_images, step_render, step_synthesis,
                step_materials_overview, step_summary]
 
 

@@ -3,10 +3,16 @@
 Each function fits only the pairs present in ``btf`` (its mask), so fitting the train half of a
 split never sees the held-out pairs, and returns a model with ``evaluate``, ``error``, ``nbytes``
 and ``save`` (see :mod:`btfrs.models`).
+
+Every function goes through :func:`fit`, which fits any registered model by name
+(``btfrs.fit.fit("lpca", btf, clusters=8)``); the named functions add documentation and checks
+of their options. A model registered in Rust without a function here is still reachable as
+``btfrs.fit.<kind>`` (its options are checked by the model itself).
 """
 
 from __future__ import annotations
 
+import json
 import time
 
 from . import _native
@@ -14,13 +20,35 @@ from ._checks import boolean, choice, instance, integer, real
 from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
-from .models import Lafortune, Lpca, Ptm, Sh, Srf
+from .models import Lafortune, Lpca, Model, Ptm, Sh, Srf, model_kinds, wrap
 
-__all__ = ["ptm", "srf", "lafortune", "sh", "lpca"]
+__all__ = ["fit", "ptm", "srf", "lafortune", "sh", "lpca"]
 
 
 def _check_btf(btf) -> Btf:
     return instance("btf", btf, Btf, "a btfrs.Btf")
+
+
+def fit(kind: str, btf: Btf, *, progress: Progress = None, **options) -> Model:
+    """Fit the registered model ``kind`` (see :func:`btfrs.models.model_kinds`) to the present
+    pairs of ``btf``. ``options`` are the model's own (an unknown name or a wrong type raises
+    :class:`~btfrs.exceptions.InvalidArgumentError` naming it)."""
+    return _fit(kind, btf, f"{kind} fit", progress, options)
+
+
+def _fit(kind: str, btf: Btf, label: str, progress: Progress, options: dict) -> Model:
+    b = _check_btf(btf)
+    kind = choice("kind", kind, tuple(model_kinds()))
+    t0 = time.perf_counter()
+    m = _native.fit_model(kind, b.data, b.views, b.lights, b.mask, json.dumps(options), callback(progress, label))
+    return wrap(m, fit_seconds=time.perf_counter() - t0)
+
+
+def __getattr__(name: str):
+    # A model registered in Rust without a documented function here.
+    if name in model_kinds():
+        return lambda btf, *, progress=None, **options: fit(name, btf, progress=progress, **options)
+    raise AttributeError(f"module 'btfrs.fit' has no attribute {name!r}")
 
 
 def ptm(btf: Btf, *, kind: str = "rgb", rcond: float = 1e-6, on_degenerate: str = "raise",
@@ -43,10 +71,7 @@ def ptm(btf: Btf, *, kind: str = "rgb", rcond: float = 1e-6, on_degenerate: str 
     kind = choice("kind", kind, ("rgb", "lrgb"))
     rcond = real("rcond", rcond, min=0.0)
     on_degenerate = choice("on_degenerate", on_degenerate, ("raise", "clamp"))
-    t0 = time.perf_counter()
-    m = _native.fit_ptm_native(b.data, b.views, b.lights, b.mask, kind=kind, rcond=rcond,
-                               on_degenerate=on_degenerate, progress=callback(progress, f"PTM-{kind.upper()} fit"))
-    return Ptm(m, fit_seconds=time.perf_counter() - t0)
+    return _fit("ptm", b, f"PTM-{kind.upper()} fit", progress, dict(kind=kind, rcond=rcond, on_degenerate=on_degenerate))
 
 
 def srf(btf: Btf, *, progress: Progress = None) -> Srf:
@@ -59,9 +84,7 @@ def srf(btf: Btf, *, progress: Progress = None) -> Srf:
     pairs.
     """
     b = _check_btf(btf)
-    t0 = time.perf_counter()
-    m, report = _native.fit_srf_native(b.data, b.views, b.lights, b.mask, progress=callback(progress, "SRF fit"))
-    return Srf(m, fit_seconds=time.perf_counter() - t0, report=report)
+    return _fit("srf", b, "SRF fit", progress, {})
 
 
 def lafortune(btf: Btf, *, kind: str = "lum", lobes: int = 2, diffuse: bool = True, max_iter: int = 60,
@@ -84,11 +107,8 @@ def lafortune(btf: Btf, *, kind: str = "lum", lobes: int = 2, diffuse: bool = Tr
     diffuse = boolean("diffuse", diffuse)
     max_iter = integer("max_iter", max_iter, min=1)
     densify = integer("densify", densify, min=0)
-    t0 = time.perf_counter()
-    m, report = _native.fit_lafortune_native(b.data, b.views, b.lights, b.mask, kind=kind, lobes=lobes,
-                                             diffuse=diffuse, max_iter=max_iter, densify=densify,
-                                             progress=callback(progress, f"Lafortune-{kind} fit"))
-    return Lafortune(m, fit_seconds=time.perf_counter() - t0, report=report)
+    return _fit("lafortune", b, f"Lafortune-{kind} fit", progress,
+                dict(kind=kind, lobes=lobes, diffuse=diffuse, max_iter=max_iter, densify=densify))
 
 
 def sh(btf: Btf, *, light_coeffs: int = 25, view_coeffs: int = 25, cls: bool = True, quantize: bool = True,
@@ -110,11 +130,8 @@ def sh(btf: Btf, *, light_coeffs: int = 25, view_coeffs: int = 25, cls: bool = T
     cls = boolean("cls", cls)
     quantize = boolean("quantize", quantize)
     chunk_texels = integer("chunk_texels", chunk_texels, min=1)
-    t0 = time.perf_counter()
-    m, report = _native.fit_sh_native(b.data, b.views, b.lights, b.mask, light_coeffs=light_coeffs,
-                                      view_coeffs=view_coeffs, cls=cls, quantize=quantize,
-                                      chunk_texels=chunk_texels, progress=callback(progress, "double SH fit"))
-    return Sh(m, fit_seconds=time.perf_counter() - t0, report=report)
+    return _fit("sh", b, "double SH fit", progress, dict(light_coeffs=light_coeffs, view_coeffs=view_coeffs,
+                                                         cls=cls, quantize=quantize, chunk_texels=chunk_texels))
 
 
 def lpca(btf: Btf, *, clusters: int = 32, components: int = 4, seed: int = 0, kmeans_iterations: int = 25,
@@ -135,9 +152,7 @@ def lpca(btf: Btf, *, clusters: int = 32, components: int = 4, seed: int = 0, km
     refine_iterations = integer("refine_iterations", refine_iterations, min=0)
     reduced_dims = integer("reduced_dims", reduced_dims, min=0)
     seed = check_seed(seed)
-    t0 = time.perf_counter()
-    m, report = _native.fit_lpca_native(b.data, b.views, b.lights, b.mask, clusters=clusters,
-                                        components=components, kmeans_iterations=kmeans_iterations,
-                                        refine_iterations=refine_iterations, reduced_dims=reduced_dims,
-                                        seed=seed, progress=callback(progress, "LPCA fit"))
-    return Lpca(m, fit_seconds=time.perf_counter() - t0, report=report)
+    return _fit("lpca", b, "LPCA fit", progress, dict(clusters=clusters, components=components,
+                                                      kmeans_iterations=kmeans_iterations,
+                                                      refine_iterations=refine_iterations,
+                                                      reduced_dims=reduced_dims, seed=seed))

@@ -1,9 +1,11 @@
 """Fitted reflectance models and what they share.
 
-Every model has the same contract: ``evaluate(view, light)`` gives an ``[H, W, 3]`` image at any
-directions, ``error(btf)`` compares against the present pairs of a sample (use the test half of
-:meth:`btfrs.Btf.split` for the held-out figure, the train half for reconstruction), ``nbytes``
-is the storage as stored for rendering, and ``save``/``load`` round-trip through one file.
+Every model has the same contract (:class:`Model`, the Python face of the Rust ``Model``
+trait): ``evaluate(view, light)`` gives an ``[H, W, 3]`` image at any directions, ``error(btf)``
+compares against the present pairs of a sample (use the test half of :meth:`btfrs.Btf.split` for
+the held-out figure, the train half for reconstruction), ``nbytes`` is the storage as stored for
+rendering, ``arrays``/``from_arrays`` and ``save``/``load`` round-trip. The list of models comes
+from the Rust registry (:func:`model_kinds`).
 """
 
 from __future__ import annotations
@@ -17,9 +19,10 @@ import numpy as np
 
 from . import _native
 from .btf import Btf, read_container
-from .exceptions import FormatError, InvalidArgumentError
+from ._checks import choice, index, instance
+from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
 
-__all__ = ["ErrorReport", "Ptm", "Lafortune", "Srf", "Sh", "Lpca", "load"]
+__all__ = ["ErrorReport", "Model", "Ptm", "Lafortune", "Srf", "Sh", "Lpca", "load", "model_kinds", "wrap"]
 
 PathLike = Union[str, os.PathLike]
 
@@ -53,10 +56,32 @@ def _as_dir(name: str, d) -> list:
     return [float(x) for x in a / n]
 
 
-class _Evaluates:
-    """``evaluate`` and ``error`` over a native model ``self._m`` (every model class has them)."""
+class Model:
+    """A fitted model: what every model class shares (the Rust contract, seen from Python).
 
-    _m: Any
+    ``evaluate(view, light)`` gives an ``[H, W, 3]`` image at any directions, ``error(btf)``
+    compares against the present pairs of a sample, ``nbytes`` is the storage as stored for
+    rendering (exactly what the default renderer uploads), ``arrays`` / ``from_arrays`` give and
+    take the named arrays a file stores, ``save`` / :func:`load` round-trip through one file,
+    ``report`` holds the fit's own statistics (empty for a model built from arrays) and
+    ``fit_seconds`` the wall time of the fit. Subclasses only document a model and add its own
+    accessors; a model registered in Rust without a class here gets this one.
+    """
+
+    _kind = ""
+
+    def __init__(self, native: "_native.Model", fit_seconds: Optional[float] = None,
+                 report: Optional[dict] = None) -> None:
+        if self._kind and native.kind != self._kind:
+            raise ArgumentTypeError(f"native: expected a {self._kind} model, got {native.kind}")
+        self._m = native
+        self.fit_seconds = fit_seconds
+        self.report = dict(native.report() if report is None else report)
+
+    @property
+    def kind(self) -> str:
+        """The model's registered name (``"ptm"``, ``"lpca"``, ...)."""
+        return self._m.kind
 
     @property
     def height(self) -> int:
@@ -68,8 +93,14 @@ class _Evaluates:
 
     @property
     def nbytes(self) -> int:
-        """Bytes as stored for rendering (quantized where the model quantizes)."""
+        """Bytes as stored for rendering: what the default renderer uploads (quantized where the
+        model quantizes, with the GPU's padding and packing)."""
         return self._m.nbytes
+
+    @property
+    def renderers(self) -> list:
+        """The renderer names (``method=`` of :func:`btfrs.render`), the default first."""
+        return list(self._m.renderers)
 
     def evaluate(self, view, light) -> np.ndarray:
         """The ``[H, W, 3]`` float32 image for one view and one light direction (any non-zero
@@ -78,113 +109,9 @@ class _Evaluates:
 
     def error(self, btf: Btf) -> ErrorReport:
         """RMSE, relative error and PSNR against every present pair of ``btf``."""
-        if not isinstance(btf, Btf):
-            raise TypeError(f"btf: expected a btfrs.Btf, got {type(btf).__name__}")
+        instance("btf", btf, Btf, "a btfrs.Btf")
         d = self._m.error(btf.data, btf.views, btf.lights, btf.mask)
         return ErrorReport(d["rmse"], d["relative"], d["psnr"], int(d["samples"]))
-
-
-class Ptm(_Evaluates):
-    """A Polynomial Texture Map per view slot (paper 000, section 3.1).
-
-    ``kind="rgb"``: ``coeffs[H, W, V, 3, 6]``, one biquadratic in the light's (x, y) per channel.
-    ``kind="lrgb"``: ``coeffs[H, W, V, 6]`` luminance polynomial times ``rgb[H, W, V, 3]``.
-    Between view slots, :meth:`evaluate` blends the three nearest slots (inverse angular
-    distance); at a slot's own direction it is exactly that slot's fit.
-    """
-
-    def __init__(self, native: "_native.PtmModel", fit_seconds: Optional[float] = None) -> None:
-        self._m = native
-        self.fit_seconds = fit_seconds
-
-    @classmethod
-    def from_arrays(cls, kind: str, coeffs, views, rgb=None) -> "Ptm":
-        """Build a PTM from coefficient arrays (see the class docstring for the shapes)."""
-        c = np.ascontiguousarray(coeffs, dtype=np.float32)
-        v = np.ascontiguousarray(views, dtype=np.float64)
-        r = None if rgb is None else np.ascontiguousarray(rgb, dtype=np.float32)
-        return cls(_native.PtmModel.from_arrays(kind, c, v, r))
-
-    @property
-    def kind(self) -> str:
-        """``"rgb"`` or ``"lrgb"``."""
-        return self._m.kind
-
-    @property
-    def coeffs(self) -> np.ndarray:
-        """A copy of the coefficients."""
-        return self._m.coeffs()
-
-    @property
-    def rgb(self) -> Optional[np.ndarray]:
-        """A copy of the LRGB base colours (largest channel 1), or None for RGB."""
-        return self._m.rgb()
-
-    @property
-    def views(self) -> np.ndarray:
-        """``[V, 3]`` directions of the view slots."""
-        return self._m.views()
-
-    def slot(self, view) -> int:
-        """The index of the view slot for ``view``: an int index, or a direction within 0.5
-        degrees of a slot's."""
-        n = len(self.views)
-        if isinstance(view, bool):
-            raise TypeError("view: expected a slot index or a direction, got a bool")
-        if isinstance(view, (int, np.integer)):
-            if not 0 <= int(view) < n:
-                raise InvalidArgumentError(f"view: expected a slot index in [0, {n}), got {view}")
-            return int(view)
-        d = np.asarray(_as_dir("view", view))
-        ang = np.degrees(np.arccos(np.clip(self.views @ d / np.linalg.norm(d), -1, 1)))
-        i = int(np.argmin(ang))
-        if ang[i] > 0.5:
-            raise InvalidArgumentError(f"view: {list(d)} is {ang[i]:.1f} degrees from the nearest view slot; pass a slot index")
-        return i
-
-    def save_ptm(self, path: PathLike, view=0) -> tuple[list, list]:
-        """Write one view slot as an uncompressed ``PTM_1.2`` file (``PTM_FORMAT_RGB`` or
-        ``PTM_FORMAT_LRGB``) that RTIViewer and relight open; returns the per-coefficient
-        ``(scale, bias)`` of the 8-bit quantisation. Our value 1.0 is the viewer's white (255);
-        multiply the data beforehand to choose another exposure."""
-        return _native.write_ptm(os.fspath(path), self._m, self.slot(view))
-
-    def save(self, path: PathLike) -> None:
-        """Write the model to one ``.btfrs`` file (atomically)."""
-        arrays = [("coeffs", self.coeffs), ("views", self.views)]
-        if self.kind == "lrgb":
-            arrays.append(("rgb", self.rgb))
-        meta = {"kind": self.kind, "fit_seconds": self.fit_seconds}
-        _native.save_container(os.fspath(path), "ptm", json.dumps(meta), arrays)
-
-    @classmethod
-    def load(cls, path: PathLike) -> "Ptm":
-        """Read a model written by :meth:`save`."""
-        m = load(path)
-        if not isinstance(m, Ptm):
-            raise FormatError(f"{os.fspath(path)}: holds a {type(m).__name__}, not a Ptm")
-        return m
-
-    def __repr__(self) -> str:
-        return f"Ptm({self.kind}, {self.height} x {self.width} texels, {len(self.views)} view slots, {self.nbytes / 2**20:.2f} MiB)"
-
-
-class _Model(_Evaluates):
-    """What the Rust-backed models other than PTM share: evaluation, error, storage, save/load.
-
-    Subclasses set ``_kind`` (the native model's name). ``report`` holds the fit's own
-    statistics (a dict; empty for a loaded model) and ``fit_seconds`` the wall time of the fit.
-    """
-
-    _kind = ""
-
-    def __init__(self, native: "_native.Model", fit_seconds: Optional[float] = None,
-                 report: Optional[dict] = None) -> None:
-        if native.kind != self._kind:
-            raise TypeError(f"native: expected a {self._kind} model, got {native.kind}")
-        self._m = native
-        self.fit_seconds = fit_seconds
-        self.report = dict(report or {})
 
     @property
     def arrays(self) -> dict:
@@ -192,17 +119,23 @@ class _Model(_Evaluates):
         return self._m.arrays()
 
     @classmethod
-    def from_arrays(cls, arrays: dict):
-        """Rebuild the model from :attr:`arrays` (validated: shapes, ranges, finite values)."""
-        return cls(_native.Model.from_arrays(cls._kind, dict(arrays)))
+    def from_arrays(cls, arrays: dict, *, kind: Optional[str] = None) -> "Model":
+        """Rebuild a model from :attr:`arrays` (validated: shapes, ranges, finite values).
+        ``kind`` is needed only on the base class (``Model.from_arrays(a, kind="lpca")``)."""
+        k = kind or cls._kind
+        if not k:
+            raise InvalidArgumentError("kind: expected the model's name, e.g. kind=\"lpca\"")
+        if cls._kind and kind and kind != cls._kind:
+            raise InvalidArgumentError(f"kind: {cls.__name__} holds {cls._kind!r} models, got {kind!r}")
+        instance("arrays", arrays, dict, "a dict of numpy arrays")
+        return wrap(_native.Model.from_arrays(choice("kind", k, tuple(model_kinds())), dict(arrays)))
 
     def save(self, path: PathLike) -> None:
         """Write the model to one ``.btfrs`` file (atomically)."""
-        meta = {"fit_seconds": self.fit_seconds, "report": _jsonable(self.report)}
-        _native.save_container(os.fspath(path), self._kind, json.dumps(meta), list(self.arrays.items()))
+        self._m.save(os.fspath(path), json.dumps({"fit_seconds": self.fit_seconds, "report": _jsonable(self.report)}))
 
     @classmethod
-    def load(cls, path: PathLike):
+    def load(cls, path: PathLike) -> "Model":
         """Read a model written by :meth:`save`."""
         m = load(path)
         if not isinstance(m, cls):
@@ -211,6 +144,65 @@ class _Model(_Evaluates):
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.height} x {self.width} texels, {self.nbytes / 2**20:.2f} MiB)"
+
+
+class Ptm(Model):
+    """A Polynomial Texture Map per view slot (paper 000, section 3.1).
+
+    ``kind="rgb"``: ``coeffs[H, W, V, 3, 6]``, one biquadratic in the light's (x, y) per channel.
+    ``kind="lrgb"``: ``coeffs[H, W, V, 6]`` luminance polynomial times ``rgb[H, W, V, 3]``.
+    Between view slots, :meth:`evaluate` blends the three nearest slots (inverse angular
+    distance); at a slot's own direction it is exactly that slot's fit.
+    """
+
+    _kind = "ptm"
+
+    @property
+    def variant(self) -> str:
+        """``"rgb"`` or ``"lrgb"`` (from the shape of the coefficients)."""
+        return "rgb" if self.coeffs.ndim == 5 else "lrgb"
+
+    @property
+    def coeffs(self) -> np.ndarray:
+        """A copy of the coefficients."""
+        return self.arrays["coeffs"]
+
+    @property
+    def rgb(self) -> Optional[np.ndarray]:
+        """A copy of the LRGB base colours (largest channel 1), or None for RGB."""
+        return self.arrays.get("rgb")
+
+    @property
+    def views(self) -> np.ndarray:
+        """``[V, 3]`` directions of the view slots."""
+        return self.arrays["views"]
+
+    def slot(self, view) -> int:
+        """The index of the view slot for ``view``: an int index, or a direction within 0.5
+        degrees of a slot's."""
+        views = self.views
+        n = len(views)
+        if isinstance(view, bool):
+            raise ArgumentTypeError("view: expected a slot index or a direction, got a bool")
+        if isinstance(view, (int, np.integer)):
+            return index("view", view, n)
+        d = np.asarray(_as_dir("view", view))
+        ang = np.degrees(np.arccos(np.clip(views @ d / np.linalg.norm(d), -1, 1)))
+        i = int(np.argmin(ang))
+        if ang[i] > 0.5:
+            raise InvalidArgumentError(f"view: {list(d)} is {ang[i]:.1f} degrees from the nearest view slot; pass a slot index")
+        return i
+
+    def save_ptm(self, path: PathLike, *, view=0) -> tuple[list, list]:
+        """Write one view slot as an uncompressed ``PTM_1.2`` file (``PTM_FORMAT_RGB`` or
+        ``PTM_FORMAT_LRGB``) that RTIViewer and relight open; returns the per-coefficient
+        ``(scale, bias)`` of the 8-bit quantisation. Our value 1.0 is the viewer's white (255);
+        multiply the data beforehand to choose another exposure."""
+        return _native.write_ptm(os.fspath(path), self._m, self.slot(view))
+
+    def __repr__(self) -> str:
+        return (f"Ptm({self.variant}, {self.height} x {self.width} texels, {len(self.views)} view slots, "
+                f"{self.nbytes / 2**20:.2f} MiB)")
 
 
 def _jsonable(d: dict) -> dict:
@@ -226,7 +218,7 @@ def _jsonable(d: dict) -> dict:
     return out
 
 
-class Srf(_Model):
+class Srf(Model):
     """Phong + spatially-varying residual function (paper 003, sections 4 and 5).
 
     ``value = kd * l_z + ks * max(h_z, 0)^n + s(P) . h`` per colour channel, with one Blinn-Phong
@@ -248,7 +240,7 @@ class Srf(_Model):
         return self.arrays["s"]
 
 
-class Lafortune(_Model):
+class Lafortune(Model):
     """Per-texel Lafortune lobes (paper 000, section 3.2), fitted over all views at once.
 
     ``value = l_z * (kd + sum_i max(Cx lx vx + Cy ly vy + Cz lz vz, 0)^n_i)``; ``kind="lum"``
@@ -262,7 +254,7 @@ class Lafortune(_Model):
     _kind = "lafortune"
 
 
-class Sh(_Model):
+class Sh(Model):
     """Double spherical harmonics with constrained least squares (paper 002, section 3.1 and
     appendix), 8-bit quantized with a scale and bias per colour channel.
 
@@ -273,7 +265,7 @@ class Sh(_Model):
     _kind = "sh"
 
 
-class Lpca(_Model):
+class Lpca(Model):
     """Local PCA: clustered Eigen-BRDFs (paper 004, section 3), 8-bit quantized per
     Eigen-BRDF with the scales folded into the per-texel weights (section 6.3).
 
@@ -292,32 +284,45 @@ class Lpca(_Model):
         return self.height * self.width * v * l * 3 / self.nbytes
 
 
-_MODEL_CLASSES = {c._kind: c for c in (Srf, Lafortune, Sh, Lpca)}
+def model_kinds() -> dict:
+    """The registered models: ``{kind: {"doc", "renderers", "examples"}}`` (``examples`` are
+    ``(label, options)`` pairs, what the demo and the bench fit)."""
+    global _REGISTRY
+    if _REGISTRY is None:
+        _REGISTRY = {k: {"doc": d, "renderers": list(r), "examples": [(lab, json.loads(o)) for lab, o in ex]}
+                     for k, d, r, ex in _native.model_registry()}
+    return _REGISTRY
+
+
+_REGISTRY: Optional[dict] = None
+
+
+def wrap(native: "_native.Model", fit_seconds: Optional[float] = None, report: Optional[dict] = None) -> Model:
+    """The Python object of a native model: the class documented for its kind, else
+    :class:`Model` itself (a model registered in Rust needs no Python code)."""
+    cls = next((c for c in _all_subclasses(Model) if c._kind == native.kind), Model)
+    return cls(native, fit_seconds=fit_seconds, report=report)
+
+
+def _all_subclasses(c):
+    for s in c.__subclasses__():
+        yield s
+        yield from _all_subclasses(s)
 
 
 def load(path: PathLike):
     """Load any ``.btfrs`` file: a :class:`~btfrs.Btf`, a fitted model or a synthesis analysis."""
+    p = os.fspath(path)
+    kind, _, _ = _native.read_container_header(p)
+    if kind in model_kinds():
+        m, meta = _native.load_model(p)
+        meta = json.loads(meta)
+        return wrap(m, fit_seconds=meta.get("fit_seconds"), report=meta.get("report") or {})
     kind, meta, arrays = read_container(path)
     if kind == "btf":
         return Btf.from_arrays(path, arrays)
-    if kind == "ptm":
-        try:
-            p = Ptm.from_arrays(meta["kind"], arrays["coeffs"], arrays["views"], arrays.get("rgb"))
-        except KeyError as e:
-            raise FormatError(f"{os.fspath(path)}: the PTM file has no entry {e}") from None
-        p.fit_seconds = meta.get("fit_seconds")
-        return p
-    if kind in _MODEL_CLASSES:
-        cls = _MODEL_CLASSES[kind]
-        try:
-            m = cls.from_arrays(arrays)
-        except InvalidArgumentError as e:
-            raise FormatError(f"{os.fspath(path)}: {e}") from None
-        m.fit_seconds = meta.get("fit_seconds")
-        m.report = dict(meta.get("report") or {})
-        return m
     if kind == "analysis":
         from .synth import Analysis
 
         return Analysis._from_container(path, meta, arrays)
-    raise FormatError(f"{os.fspath(path)}: unknown content {kind!r}")
+    raise FormatError(f"{p}: unknown content {kind!r}")

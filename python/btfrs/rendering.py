@@ -26,7 +26,7 @@ from ._checks import choice, instance, real, size_hw
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import ArgumentTypeError, InvalidArgumentError
-from .models import Lpca, Ptm, _Model
+from .models import Model
 
 __all__ = ["Scene", "Camera", "PointLight", "DirectionalLight", "render", "RenderResult", "gpu_info"]
 
@@ -100,9 +100,7 @@ def _upload(model, method: str):
     per_model = _uploads.setdefault(model, {})
     up = per_model.get(method)
     if up is None:
-        if isinstance(model, Ptm):
-            up = _native.gpu_upload_ptm(model._m)
-        elif isinstance(model, _Model):
+        if isinstance(model, Model):
             up = _native.gpu_upload_model(model._m, method)
         else:
             up = _native.gpu_upload_raw(model.data, model.views, model.lights)
@@ -111,16 +109,13 @@ def _upload(model, method: str):
 
 
 def _method(model, method: Optional[str]) -> str:
-    """The renderer for ``model``: LPCA has two (paper 004): ``"3d"`` (the 3D-texture method,
-    the default) and ``"9tap"`` (the original); the other models have one, ``"default"``."""
-    if isinstance(model, Lpca):
-        m = "3d" if method is None else method
-        if m not in ("3d", "9tap"):
-            raise InvalidArgumentError(f"method: expected \"3d\" or \"9tap\" for an Lpca model, got {method!r}")
-        return m
-    if method not in (None, "default"):
-        raise InvalidArgumentError(f"method: the {type(model).__name__} model has one renderer; got {method!r}")
-    return "default"
+    """The renderer for ``model``: its first (``model.renderers[0]``) unless named. LPCA has two
+    (paper 004): ``"9tap"`` (the original, the default) and ``"3d"`` (the 3D-texture method);
+    the raw BTF has one, ``"default"``."""
+    names = model.renderers if isinstance(model, Model) else ["default"]
+    if method is None or method == "default":
+        return names[0]
+    return choice("method", method, tuple(names))
 
 
 def _uv_scale(uv_scale) -> list:
@@ -133,7 +128,7 @@ def _uv_scale(uv_scale) -> list:
             real("uv_scale[1]", uv_scale[1], min=0.0, min_open=True)]
 
 
-def render(model: Union[Ptm, _Model, Btf], scene, camera, lights, *, size=(512, 512), uv_scale=1.0,
+def render(model: Union[Model, Btf], scene, camera, lights, *, size=(512, 512), uv_scale=1.0,
            coords: Optional[np.ndarray] = None, backend: str = "gpu", method: Optional[str] = None,
            progress: Progress = None) -> np.ndarray:
     """Render ``model`` (a fitted model, or a :class:`~btfrs.Btf` for the raw measured data)
@@ -148,9 +143,10 @@ def render(model: Union[Ptm, _Model, Btf], scene, camera, lights, *, size=(512, 
     coords: optional ``[Mh, Mw, 2]`` uint16 coordinate map (x, y into the sample), repeated
         ``uv_scale`` times instead of the sample itself.
     backend: ``"gpu"`` (wgpu) or ``"cpu"`` (the reference renderer).
-    method: for :class:`~btfrs.Lpca`, ``"3d"`` (Eigen-BRDFs resampled on the elevated
-        concentric map in one 3D texture: two trilinear fetches and a lerp, paper 004 section 6,
-        the default) or ``"9tap"`` (three nearest views x three nearest lights, section 5).
+    method: the renderer, one of ``model.renderers`` (the first is the default). For
+        :class:`~btfrs.Lpca`: ``"9tap"`` (three nearest views x three nearest lights, section 5,
+        the default) or ``"3d"`` (Eigen-BRDFs resampled on the elevated concentric map in one 3D
+        texture: two trilinear fetches and a lerp, paper 004 section 6).
     progress: None, True or a callable ``(done, total)`` counting the phases: for the GPU the
         upload (immediate when the model is already on the device) and the draw with its
         read-back; for the CPU the frame.
@@ -178,7 +174,7 @@ def render(model: Union[Ptm, _Model, Btf], scene, camera, lights, *, size=(512, 
         if c.dtype != np.uint16:
             raise ArgumentTypeError(f"coords: expected a uint16 array [H, W, 2], got dtype {c.dtype}")
         coords = np.ascontiguousarray(c)
-    instance("model", model, (Ptm, Btf, _Model), "a btfrs model or Btf")
+    instance("model", model, (Model, Btf), "a btfrs model or Btf")
     meth = _method(model, method)
     backend = choice("backend", backend, ("gpu", "cpu"))
     if backend == "gpu":
@@ -196,9 +192,7 @@ def render(model: Union[Ptm, _Model, Btf], scene, camera, lights, *, size=(512, 
     cb = callback(progress, f"render {h}x{w} (cpu)")
     if cb is not None:
         cb(0, 1)
-    if isinstance(model, Ptm):
-        img = _native.cpu_render_ptm(model._m, scene, camera, items, w, h, uvs, coords)
-    elif isinstance(model, _Model):
+    if isinstance(model, Model):
         img = _native.cpu_render_model(model._m, scene, camera, items, w, h, uvs, coords, meth)
     else:
         img = _native.cpu_render_raw(model.data, model.views, model.lights, scene, camera, items, w, h, uvs, coords)
