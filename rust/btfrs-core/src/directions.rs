@@ -1,6 +1,6 @@
 //! Directions in the sample's local tangent frame.
 //!
-//! Convention (DESIGN.md): z is the surface normal, x the sample's u axis (image columns, to the
+//! Convention: z is the surface normal, x the sample's u axis (image columns, to the
 //! right), y its v axis (image rows, upwards). Directions are unit vectors pointing *away* from
 //! the surface (z >= 0); theta is the elevation measured from z, phi the azimuth from x towards y.
 

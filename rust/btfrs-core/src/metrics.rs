@@ -1,8 +1,9 @@
 //! Accuracy metrics with f64 accumulation.
 //!
-//! The two accuracy figures of DESIGN.md (reconstruction and held-out) are both computed with
-//! [`ErrorSums`]: sums of squared error and squared ground truth, merged across threads, then
-//! turned into RMSE, relative L2 error `||pred - gt|| / ||gt||` and PSNR.
+//! The two accuracy figures (reconstruction and held-out; BENCHMARKS.md, "How accuracy is
+//! measured") are both computed with [`ErrorSums`]: sums of squared error and squared ground
+//! truth, merged across threads, then turned into RMSE, relative L2 error `||pred - gt|| / ||gt||`
+//! and PSNR.
 
 /// Running sums for one comparison.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

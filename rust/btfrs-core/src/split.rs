@@ -1,7 +1,7 @@
 //! Train/test splits over (view, light) pairs.
 //!
 //! The split is two masks over the same data: nothing is copied, and the test half is exactly the
-//! pairs the training half does not contain (DESIGN.md, "Two accuracy figures, always both").
+//! pairs the training half does not contain (BENCHMARKS.md, "How accuracy is measured").
 
 use crate::{rng::Rng, Error, Result};
 

@@ -2,7 +2,7 @@
 //!
 //! Each preset ([`Preset`]) defines, over a sample of `size x size` texels that tiles seamlessly,
 //! a height, an albedo and a glossy Blinn-Phong lobe. A BTF image for view `v` and light `l` is then
-//! made the way a measured one is (DESIGN.md, "Built-in materials"):
+//! made the way a measured one is:
 //!
 //! 1. **Masking and parallax**: the camera sees texel `(i, j)` through the point of the mean-height
 //!    reference plane above it; the ray from there along `-v` is marched through the heightfield and

@@ -1,0 +1,74 @@
+"""The benchmark's per-material accuracy mode and its atomic JSON writes.
+
+The accuracy figures are checked against an independent computation (PTM-RGB fitted the numpy
+way, :func:`btfrs.baselines.ptm_rgb_numpy`, and its error computed here in float64), not
+against the model's own ``error``.
+"""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from btfrs import baselines, bench, materials
+
+
+def _ptm_numpy_relative(train, test) -> tuple[float, float]:
+    """(reconstruction, held-out) relative error of the numpy PTM-RGB fit of ``train``."""
+    coeffs = baselines.ptm_rgb_numpy(train)  # [H, W, V, 3, 6]
+    out = []
+    for part in (train, test):
+        num = den = 0.0
+        for v in range(part.n_views):
+            ls = np.flatnonzero(part.mask[v])
+            lx, ly = part.lights[ls, 0], part.lights[ls, 1]
+            basis = np.stack([lx * lx, ly * ly, lx * ly, lx, ly, np.ones_like(lx)], axis=1)  # [n, 6]
+            pred = np.einsum("hwck,nk->hwnc", coeffs[:, :, v], basis)
+            gt = part.data[:, :, v][:, :, ls].astype(np.float64)
+            num += float(np.sum((pred - gt) ** 2))
+            den += float(np.sum(gt**2))
+        out.append(np.sqrt(num / den))
+    return out[0], out[1]
+
+
+def test_accuracy_mode_writes_every_model_on_every_material(tmp_path, capsys):
+    path = tmp_path / "sub" / "accuracy.json"
+    assert bench.main(["--accuracy", "--size", "8", "--json", str(path)]) == 0
+    assert "held-out below raw interpolation" in capsys.readouterr().out
+    res = json.loads(path.read_text())
+    rows = res["accuracy_models"]
+    assert {r["material"] for r in rows} == set(materials.names())
+    assert [r["model"] for r in rows if r["material"] == "knit"] == ["raw, 3 nearest lights", *bench.ACCURACY_MODELS]
+    assert os.listdir(path.parent) == ["accuracy.json"]  # no temporary file left behind
+    for name in materials.names():
+        mine = {r["model"]: r for r in rows if r["material"] == name}
+        btf = materials.make(name, size=8, seed=1)
+        train, test = btf.split(0.1, seed=0)
+        rec, held = _ptm_numpy_relative(train, test)
+        assert mine["PTM-RGB"]["reconstruction"] == pytest.approx(rec, rel=1e-4)
+        assert mine["PTM-RGB"]["held_out"] == pytest.approx(held, rel=1e-4)
+        raw = mine["raw, 3 nearest lights"]
+        assert raw["reconstruction"] is None and raw["ratio"] == 1.0 and raw["nbytes"] == btf.nbytes
+        # PTM-RGB stores 18 float32 per texel and view slot.
+        assert mine["PTM-RGB"]["ratio"] == pytest.approx(btf.nbytes / (8 * 8 * btf.n_views * 18 * 4))
+        srf = mine["Phong+SRF"]["report"]
+        assert 0 < srf["srf_relative"] < srf["phong_relative"]
+        laf = mine["Lafortune-Lum 2"]["report"]
+        assert laf["converged"] + laf["fell_back"] + laf["failed"] == laf["fits"] == 64
+        for r in mine.values():
+            assert np.isfinite(r["held_out"]) and 0 < r["held_out"] < 2
+
+
+def test_json_write_is_atomic(tmp_path):
+    path = tmp_path / "bench.json"
+    bench._write_json(str(path), {"a": 1})
+    assert json.loads(path.read_text()) == {"a": 1}
+    umask = os.umask(0)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask  # an ordinary file's mode, not mkstemp's 0600
+    # A failure half-way through the dump leaves the previous file whole and nothing else.
+    with pytest.raises(TypeError):
+        bench._write_json(str(path), {"a": 2, "b": object()})
+    assert json.loads(path.read_text()) == {"a": 1}
+    assert os.listdir(tmp_path) == ["bench.json"]
