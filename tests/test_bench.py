@@ -44,7 +44,7 @@ def test_accuracy_mode_writes_every_model_on_every_material(tmp_path, capsys):
     for name in materials.names():
         mine = {r["model"]: r for r in rows if r["material"] == name}
         btf = materials.make(name, size=8, seed=1)
-        train, test = btf.split(0.1, seed=0)
+        train, test = btf.split(holdout=0.1, seed=0)
         rec, held = _ptm_numpy_relative(train, test)
         assert mine["PTM-RGB"]["reconstruction"] == pytest.approx(rec, rel=1e-4)
         assert mine["PTM-RGB"]["held_out"] == pytest.approx(held, rel=1e-4)

@@ -144,22 +144,25 @@ def _render_ms(model, method=None, size=512, repeat=2) -> float:
     return best, img
 
 
-MODEL_SETTINGS = [
-    ("PTM-RGB", lambda b: fit.ptm(b, kind="rgb")),
-    ("PTM-LRGB", lambda b: fit.ptm(b, kind="lrgb")),
-    ("Phong+SRF", lambda b: fit.srf(b)),
-    ("Lafortune-Lum 1", lambda b: fit.lafortune(b, kind="lum", lobes=1)),
-    ("Lafortune-Lum 2", lambda b: fit.lafortune(b, kind="lum", lobes=2)),
-    ("Lafortune-Lum 3", lambda b: fit.lafortune(b, kind="lum", lobes=3)),
-    ("Lafortune-RGB 2", lambda b: fit.lafortune(b, kind="rgb", lobes=2)),
-    ("SH-CLS 16x16", lambda b: fit.sh(b, light_coeffs=16, view_coeffs=16)),
-    ("SH-CLS 25x25", lambda b: fit.sh(b, light_coeffs=25, view_coeffs=25)),
-    ("SH-CLS 36x25", lambda b: fit.sh(b, light_coeffs=36, view_coeffs=25)),
-    ("SH-LS 25x25 (no CLS)", lambda b: fit.sh(b, light_coeffs=25, view_coeffs=25, cls=False)),
-    ("LPCA 32x2", lambda b: fit.lpca(b, clusters=32, components=2, seed=0)),
-    ("LPCA 32x4", lambda b: fit.lpca(b, clusters=32, components=4, seed=0)),
-    ("LPCA 32x8", lambda b: fit.lpca(b, clusters=32, components=8, seed=0)),
+# The models of the table: every example option set of every registered model (the registry
+# names them; nothing here does), then further points of the parameter sweep as data.
+EXTRA_SETTINGS = [
+    ("Lafortune-Lum 3", "lafortune", dict(kind="lum", lobes=3)),
+    ("SH-CLS 36x25", "sh", dict(light_coeffs=36, view_coeffs=25)),
+    ("SH-LS 25x25 (no CLS)", "sh", dict(light_coeffs=25, view_coeffs=25, cls=False)),
+    ("LPCA 32x2", "lpca", dict(clusters=32, components=2, seed=0)),
+    ("LPCA 32x8", "lpca", dict(clusters=32, components=8, seed=0)),
 ]
+
+
+def _settings() -> list:
+    from .models import model_kinds
+
+    out = [(label, kind, opts) for kind, info in model_kinds().items() for label, opts in info["examples"]]
+    return [(label, (lambda b, k=kind, o=opts: fit.fit(k, b, **o))) for label, kind, opts in out + EXTRA_SETTINGS]
+
+
+MODEL_SETTINGS = _settings()
 
 
 def models_bench(size: int, material: str = "knit", lm_texels: int = 8) -> list:
@@ -297,7 +300,7 @@ def accuracy_models(size: int) -> list:
     rows = []
     for name in materials.names():
         btf = materials.make(name, size=size, seed=1)
-        train, test = btf.split(0.1, seed=0)
+        train, test = btf.split(holdout=0.1, seed=0)
         rel, _ = baselines.nearest_lights_interpolation(train, test)
         rows.append(dict(material=name, model="raw, 3 nearest lights", size=size, nbytes=btf.nbytes, ratio=1.0,
                          fit_s=None, reconstruction=None, held_out=rel, report={}))

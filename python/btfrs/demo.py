@@ -87,15 +87,15 @@ def step_models(ctx: Context) -> None:
             ctx.rows.append(dict(model=label, fit_s=m.fit_seconds, nbytes=m.nbytes, reconstruction=rec.relative,
                                  held_out=held.relative, rmse=held.rmse))
             ctx.log(f"{label}: fit {m.fit_seconds:.3f} s, {m.nbytes / 2**20:.2f} MiB, held-out {held}")
-            slug = label.lower().replace(" ", "_").replace("+", "_")
+            slug = label.lower().replace(" ", "_").replace("+", "_").replace("-", "_")
             m.save(ctx.out / f"model_{slug}.btfrs")
             if isinstance(m, Ptm):
                 m.save_ptm(ctx.out / f"{slug}_top.ptm", view=0)
             if m.report:
                 shown = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in m.report.items())
                 ctx.notes.append(f"{label} fit report: {shown}.")
-    ctx.notes.append("Every model is saved as `model_*.btfrs` (`btfrs.load`); `ptm-rgb_top.ptm` and "
-                     "`ptm-lrgb_top.ptm` hold the view-from-above slot as PTM_1.2 files (open them in "
+    ctx.notes.append("Every model is saved as `model_*.btfrs` (`btfrs.load`); `ptm_rgb_top.ptm` and "
+                     "`ptm_lrgb_top.ptm` hold the view-from-above slot as PTM_1.2 files (open them in "
                      "RTIViewer or relight).")
 
 

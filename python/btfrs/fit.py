@@ -29,16 +29,16 @@ def _check_btf(btf) -> Btf:
     return instance("btf", btf, Btf, "a btfrs.Btf")
 
 
-def fit(kind: str, btf: Btf, *, progress: Progress = None, **options) -> Model:
-    """Fit the registered model ``kind`` (see :func:`btfrs.models.model_kinds`) to the present
-    pairs of ``btf``. ``options`` are the model's own (an unknown name or a wrong type raises
-    :class:`~btfrs.exceptions.InvalidArgumentError` naming it)."""
-    return _fit(kind, btf, f"{kind} fit", progress, options)
+def fit(model: str, btf: Btf, /, *, progress: Progress = None, **options) -> Model:
+    """Fit the registered model ``model`` (a name of :func:`btfrs.models.model_kinds`) to the
+    present pairs of ``btf``. ``options`` are the model's own (an unknown name or a wrong type
+    raises :class:`~btfrs.exceptions.InvalidArgumentError` naming it)."""
+    return _fit(model, btf, f"{model} fit", progress, options)
 
 
 def _fit(kind: str, btf: Btf, label: str, progress: Progress, options: dict) -> Model:
     b = _check_btf(btf)
-    kind = choice("kind", kind, tuple(model_kinds()))
+    kind = choice("model", kind, tuple(model_kinds()))
     t0 = time.perf_counter()
     m = _native.fit_model(kind, b.data, b.views, b.lights, b.mask, json.dumps(options), callback(progress, label))
     return wrap(m, fit_seconds=time.perf_counter() - t0)
@@ -47,7 +47,7 @@ def _fit(kind: str, btf: Btf, label: str, progress: Progress, options: dict) -> 
 def __getattr__(name: str):
     # A model registered in Rust without a documented function here.
     if name in model_kinds():
-        return lambda btf, *, progress=None, **options: fit(name, btf, progress=progress, **options)
+        return lambda btf, /, *, progress=None, **options: fit(name, btf, progress=progress, **options)
     raise AttributeError(f"module 'btfrs.fit' has no attribute {name!r}")
 
 

@@ -162,9 +162,8 @@ impl NamedArrays {
     /// extent on that axis).
     pub fn get<T: Element>(&self, name: &str, shape: &[Option<usize>]) -> Result<(&[T], &[usize])> {
         let a = self.array(name).ok_or_else(|| Error::arg(name, "missing array"))?;
-        let s = T::slice(&a.data).ok_or_else(|| {
-            Error::arg(name, format!("expected dtype {}, got {}", T::DTYPE, a.data.dtype()))
-        })?;
+        let s = T::slice(&a.data)
+            .ok_or_else(|| Error::arg(name, format!("expected dtype {}, got {}", T::DTYPE, a.data.dtype())))?;
         check_shape(name, &a.shape, shape)?;
         Ok((s, &a.shape))
     }

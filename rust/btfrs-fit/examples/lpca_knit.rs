@@ -6,6 +6,7 @@
 //! of the pairs, error on the other 10%, split seed 0).
 use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::{split::split_pairs, BtfRef, Monitor};
+use btfrs_fit::Model;
 use btfrs_fit::{fit_lpca, model_error, LpcaOptions};
 use std::time::Instant;
 

@@ -49,9 +49,9 @@ mod lm;
 use crate::gpu::{words, GpuLayout, Shader};
 use crate::model::{Model, ReflectanceModel};
 use btfrs_core::{directions, BtfRef, Error, Monitor, NamedArrays, Result};
-use std::borrow::Cow;
 use lm::{Basis, Geometry, Layout, Work, MAXM};
 use rayon::prelude::*;
+use std::borrow::Cow;
 
 /// Smallest lobe exponent: below 1 a lobe is no longer differentiable where its cosine reaches 0
 /// and behaves like a step, which the sparse samples cannot pin down.
@@ -657,9 +657,9 @@ impl Model for Lafortune {
     fn from_arrays(a: &NamedArrays) -> Result<Self> {
         let (params, sh) = match a.get::<f32>("params", &[None, None, None]) {
             Ok(x) => x,
-            Err(_) => a.get::<f32>("params", &[None, None, Some(3), None]).map_err(|_| {
-                Error::arg("params", "expected shape [H, W, P] (lum) or [H, W, 3, P] (rgb) of float32")
-            })?,
+            Err(_) => a
+                .get::<f32>("params", &[None, None, Some(3), None])
+                .map_err(|_| Error::arg("params", "expected shape [H, W, P] (lum) or [H, W, 3, P] (rgb) of float32"))?,
         };
         let kind = if sh.len() == 3 { LafortuneKind::Lum } else { LafortuneKind::Rgb };
         let p = sh[sh.len() - 1];

@@ -14,20 +14,20 @@
 //! * [`registry`]: the list of models every consumer iterates over.
 
 mod dense;
+pub mod gpu;
 pub mod kmeans;
 pub mod lafortune;
 pub mod lpca;
-pub mod gpu;
 pub mod model;
-pub mod registry;
 pub mod ptm;
+pub mod registry;
 pub mod sh;
 pub mod srf;
 
+pub use gpu::{GpuLayout, GpuModel, Renderable};
 pub use kmeans::{kmeans, KMeans};
 pub use lafortune::{fit_lafortune, FitReport, Lafortune, LafortuneKind, LafortuneOptions};
 pub use lpca::{fit_lpca, principal_coordinates, Lpca, Lpca3d, LpcaOptions, LpcaQuery};
-pub use gpu::{GpuLayout, GpuModel, Renderable};
 pub use model::{evaluate_image, model_error, DynModel, Model, RawModel, ReflectanceModel, Shade};
 pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions};
 pub use sh::{fit_sh, quantize, sh_basis, Sh, ShCoeffs, ShOptions};

@@ -56,8 +56,8 @@
 //! equals interpolating the data, and the model answers every (view, light) pair.
 
 use crate::dense::{cols, cols_t, gaussian, gemm, gram_t, orthonormalize, sym_eigen_desc, view, view_t};
-use crate::kmeans::{kmeans, members_of};
 use crate::gpu::{pack_u16, words, GpuLayout, Renderable, Shader};
+use crate::kmeans::{kmeans, members_of};
 use crate::model::{unknown_renderer, Model, ReflectanceModel};
 use btfrs_core::{
     directions,
@@ -721,7 +721,10 @@ impl Lpca {
         directions::validate("views", &self.views)?;
         directions::validate("lights", &self.lights)?;
         if !(1..=MAX_CLUSTERS).contains(&self.clusters) {
-            return Err(Error::arg("clusters", format!("expected 1 to {MAX_CLUSTERS} clusters, got {}", self.clusters)));
+            return Err(Error::arg(
+                "clusters",
+                format!("expected 1 to {MAX_CLUSTERS} clusters, got {}", self.clusters),
+            ));
         }
         if self.components > MAX_COMPONENTS {
             return Err(Error::arg("components", format!("expected 0 to {MAX_COMPONENTS}, got {}", self.components)));
@@ -837,7 +840,8 @@ impl Lpca {
 
 impl GpuLayout for Lpca {
     type Params = Lpca9Params;
-    const SHADER: Shader = Shader::new::<Lpca9Params>("lpca_9tap", include_str!("../../../shaders_wgsl/lpca_9tap.wgsl"));
+    const SHADER: Shader =
+        Shader::new::<Lpca9Params>("lpca_9tap", include_str!("../../../shaders_wgsl/lpca_9tap.wgsl"));
 
     fn layout_dims(&self) -> (usize, usize) {
         (self.height, self.width)
@@ -869,10 +873,8 @@ impl Model for Lpca {
     const KIND: &'static str = "lpca";
     const DOC: &'static str = "local PCA, clustered 8-bit Eigen-BRDFs (paper 004, sections 3 and 6)";
     const RENDERERS: &'static [&'static str] = &["9tap", "3d"];
-    const EXAMPLES: &'static [(&'static str, &'static str)] = &[
-        ("LPCA 8x4", r#"{"clusters": 8, "components": 4}"#),
-        ("LPCA 32x4", r#"{"clusters": 32, "components": 4}"#),
-    ];
+    const EXAMPLES: &'static [(&'static str, &'static str)] =
+        &[("LPCA 8x4", r#"{"clusters": 8, "components": 4}"#), ("LPCA 32x4", r#"{"clusters": 32, "components": 4}"#)];
     type Options = LpcaOptions;
 
     fn fit(btf: &BtfRef<'_>, options: &LpcaOptions, monitor: &Monitor) -> Result<Self> {
@@ -903,7 +905,10 @@ impl Model for Lpca {
         let (basis, bs) = a.get::<u8>("basis", &[None, None, None, None, Some(4)])?;
         // An empty component axis would underflow `components` below.
         if bs[0] == 0 || bs[1] == 0 {
-            return Err(Error::arg("basis", format!("expected at least one cluster and one Eigen-BRDF, got shape {bs:?}")));
+            return Err(Error::arg(
+                "basis",
+                format!("expected at least one cluster and one Eigen-BRDF, got shape {bs:?}"),
+            ));
         }
         let (weights, _) = a.get::<f32>("weights", &[Some(sh[0]), Some(sh[1]), Some(bs[1] + 1)])?;
         let (scale, _) = a.get::<f32>("scale", &[Some(bs[0]), Some(bs[1])])?;

@@ -25,9 +25,9 @@ use crate::gpu::{words, GpuLayout, Shader};
 use crate::model::{Model, ReflectanceModel};
 use btfrs_core::arrays::check_finite;
 use btfrs_core::{directions, BtfRef, Error, Monitor, NamedArrays, Result};
-use std::borrow::Cow;
 use nalgebra::DMatrix;
 use rayon::prelude::*;
+use std::borrow::Cow;
 
 /// Coefficients per polynomial.
 pub const NCOEF: usize = 6;
@@ -434,7 +434,10 @@ impl Model for Ptm {
         let (coeffs, sh) = match a.get::<f32>("coeffs", &[None, None, nv, Some(3), Some(NCOEF)]) {
             Ok(c) => c,
             Err(_) => a.get::<f32>("coeffs", &[None, None, nv, Some(NCOEF)]).map_err(|_| {
-                Error::arg("coeffs", format!("expected shape [H, W, {}, 3, 6] (RGB) or [H, W, {}, 6] (LRGB)", views.len(), views.len()))
+                Error::arg(
+                    "coeffs",
+                    format!("expected shape [H, W, {}, 3, 6] (RGB) or [H, W, {}, 6] (LRGB)", views.len(), views.len()),
+                )
             })?,
         };
         check_finite("coeffs", coeffs)?;

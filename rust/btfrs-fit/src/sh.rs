@@ -47,9 +47,9 @@ use crate::gpu::{GpuLayout, Shader};
 use crate::model::{Model, ReflectanceModel};
 use btfrs_core::arrays::check_finite;
 use btfrs_core::{BtfRef, Error, Monitor, NamedArrays, Result};
-use std::borrow::Cow;
 use nalgebra::{DMatrix, Dyn, MatrixView, MatrixViewMut, SymmetricEigen};
 use rayon::prelude::*;
+use std::borrow::Cow;
 
 /// Highest supported SH degree per direction.
 pub const MAX_DEGREE: usize = 7;
@@ -1059,8 +1059,8 @@ impl Model for Sh {
     const KIND: &'static str = "sh";
     const DOC: &'static str = "double spherical harmonics by constrained least squares (paper 002, section 3.1)";
     const EXAMPLES: &'static [(&'static str, &'static str)] = &[
-        ("SH 16x16 CLS", r#"{"view_coeffs": 16, "light_coeffs": 16}"#),
-        ("SH 25x25 CLS", r#"{"view_coeffs": 25, "light_coeffs": 25}"#),
+        ("SH-CLS 16x16", r#"{"view_coeffs": 16, "light_coeffs": 16}"#),
+        ("SH-CLS 25x25", r#"{"view_coeffs": 25, "light_coeffs": 25}"#),
     ];
     type Options = ShOptions;
 

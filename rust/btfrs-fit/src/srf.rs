@@ -24,8 +24,8 @@
 use crate::gpu::{words, GpuLayout, Shader};
 use crate::model::{Model, NoOptions, ReflectanceModel};
 use btfrs_core::{BtfRef, Error, Monitor, NamedArrays, Result};
-use std::borrow::Cow;
 use rayon::prelude::*;
+use std::borrow::Cow;
 
 /// Bounds of the shininess exponent: below 1 the lobe is not a highlight, above 2000 it is
 /// narrower than any UBO-sampled BTF can resolve (and `h_z^n` underflows).

@@ -47,7 +47,8 @@ pub fn load_arrays(path: &Path) -> Result<(String, serde_json::Value, NamedArray
     let mut out = NamedArrays::new();
     for info in &c.arrays {
         let bytes = container::read_array(path, info)?;
-        let bad = || Error::format(&shown, format!("array {:?} has {} bytes, not whole elements", info.name, bytes.len()));
+        let bad =
+            || Error::format(&shown, format!("array {:?} has {} bytes, not whole elements", info.name, bytes.len()));
         let data = match info.dtype {
             Dtype::U8 | Dtype::Bool => ArrayData::U8(bytes),
             Dtype::U16 => ArrayData::U16(from_bytes(&bytes).ok_or_else(bad)?),

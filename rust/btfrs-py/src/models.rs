@@ -58,7 +58,10 @@ fn named_arrays(d: &Bound<'_, PyDict>) -> PyResult<NamedArrays> {
             };
         }
         let (shape, data) = try_dtype!(f32 => F32, f64 => F64, u8 => U8, u16 => U16, i32 => I32).ok_or_else(|| {
-            arg(&name, format!("expected a numpy array of float32, float64, uint8, uint16 or int32, got {}", v.get_type()))
+            arg(
+                &name,
+                format!("expected a numpy array of float32, float64, uint8, uint16 or int32, got {}", v.get_type()),
+            )
         })?;
         out.insert_checked(&name, shape, data).py()?;
     }

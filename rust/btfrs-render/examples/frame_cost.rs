@@ -26,7 +26,11 @@ fn main() {
     };
     let nothing = "struct ViewQuery { x: f32 };\nfn view_query(v: vec3<f32>) -> ViewQuery { return ViewQuery(v.z); }\nfn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> { return vec3<f32>(vq.x * l.z); }\n";
     let search = "struct ViewQuery { w: Weights3 };\nfn view_query(v: vec3<f32>) -> ViewQuery { return ViewQuery(interp3(0u, mp.n_views, mp.view_table, v)); }\nfn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> { return vec3<f32>(vq.w.w0, vq.w.w1, f32(vq.w.i0)); }\n";
-    for (name, src) in [("nothing", nothing), ("view search only", search), ("ptm", <btfrs_fit::Ptm as btfrs_fit::GpuLayout>::SHADER.source)] {
+    for (name, src) in [
+        ("nothing", nothing),
+        ("view search only", search),
+        ("ptm", <btfrs_fit::Ptm as btfrs_fit::GpuLayout>::SHADER.source),
+    ] {
         let m = WithShader(&ptm, src);
         let up = gpu::upload(&gpu, &m).unwrap();
         let mut best = f64::INFINITY;

@@ -7,9 +7,9 @@
 //! `Depth32Float` buffer and reads the image back as `[height][width][3]` f32.
 
 use crate::device::Gpu;
-use btfrs_fit::gpu::{GpuModel, Shader, Volume};
 use crate::scene::{Camera, Light, Mesh};
 use btfrs_core::{Error, Result};
+use btfrs_fit::gpu::{GpuModel, Shader, Volume};
 use bytemuck::{Pod, Zeroable};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -368,7 +368,12 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
             chunk_len: chunk_len as u32,
             chunks: n_chunks,
             bind_group,
-            device_bytes: (total * 4 + volume.as_ref().map_or(0, |v| v.texels.len())) as u64,
+            // Measured from what was allocated (the store chunks in use and the 3D texture), not
+            // from the model's own count, so `nbytes` can be tested against it.
+            device_bytes: chunks[..n_chunks].iter().map(|b| b.size()).sum::<u64>()
+                + volume.as_ref().map_or(0, |_| {
+                    texture.width() as u64 * texture.height() as u64 * texture.depth_or_array_layers() as u64 * 4
+                }),
         }
     })
 }

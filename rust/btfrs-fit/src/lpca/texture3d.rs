@@ -211,7 +211,8 @@ crate::gpu_params! {
 
 impl GpuLayout for Lpca3d<'_> {
     type Params = Lpca3dParams;
-    const SHADER: Shader = Shader::new::<Lpca3dParams>("lpca_3d", include_str!("../../../../shaders_wgsl/lpca_3d.wgsl"));
+    const SHADER: Shader =
+        Shader::new::<Lpca3dParams>("lpca_3d", include_str!("../../../../shaders_wgsl/lpca_3d.wgsl"));
 
     fn layout_dims(&self) -> (usize, usize) {
         ReflectanceModel::dims(self.lpca)
