@@ -206,7 +206,8 @@ fn inflate(format: Format, valid: &[u8], rng: &mut Rng) -> (Vec<u8>, String) {
     match format {
         Format::Container => {
             let hlen = u64::from_le_bytes(valid[8..16].try_into().unwrap()) as usize;
-            let data_start = valid.iter().skip(16 + hlen).position(|&b| b != 0).map_or(valid.len(), |p| p + 16 + hlen);
+            // The writer starts the data at the first 64-byte boundary after the header.
+            let data_start = (16 + hlen).div_ceil(64) * 64;
             if rng.below(8) == 0 {
                 // The header length itself.
                 let v = u64::from(*rng.pick(HUGE_U32)) << rng.below(33);

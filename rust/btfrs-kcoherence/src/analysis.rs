@@ -229,7 +229,7 @@ impl Analysis {
                         ),
                     ));
                 }
-                if let Some(p) = n.dist.iter().position(|d| !(*d >= 0.0)) {
+                if let Some(p) = n.dist.iter().position(|d| d.is_nan() || *d < 0.0) {
                     return Err(Error::arg(
                         format!("level{l}.similar{r}.dist"),
                         format!("level {l}, radius {r}: distance {p} is {}, expected >= 0", n.dist[p]),
