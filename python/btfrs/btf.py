@@ -14,6 +14,7 @@ present: a train/test split is two masks over the same data, so nothing is copie
 from __future__ import annotations
 
 import json
+import math
 import os
 from typing import Optional, Sequence, Union
 
@@ -204,7 +205,14 @@ class Btf:
 
     # --- files -------------------------------------------------------------------------------
     def save(self, path: Union[str, os.PathLike]) -> None:
-        """Write to one ``.btfrs`` file (atomically: a temporary file, then a rename)."""
+        """Write to one ``.btfrs`` file (atomically: a temporary file, then a rename).
+
+        The values are scanned first: NaN or infinite values raise
+        :class:`~btfrs.exceptions.InvalidArgumentError` (naming ``data``) and nothing is
+        written. The file's header then records that the data are finite (the container's
+        per-array ``finite`` flag), which lets :meth:`load` with ``mmap=True`` skip its scan.
+        """
+        _native.validate_btf(self._data, self._views, self._lights, self._mask, scan_values=True)
         arrays = [("data", self._data), ("views", self._views), ("lights", self._lights)]
         if self._mask is not None:
             arrays.append(("mask", self._mask))
@@ -212,19 +220,34 @@ class Btf:
 
     @classmethod
     def load(cls, path: Union[str, os.PathLike], mmap: bool = False) -> "Btf":
-        """Read a ``.btfrs`` BTF; ``mmap=True`` maps the values instead of reading them."""
-        kind, _, arrays = read_container(path, mmap=mmap)
+        """Read a ``.btfrs`` BTF; ``mmap=True`` maps the values instead of reading them.
+
+        Without ``mmap`` the values are read and scanned: NaN or infinite values are a
+        :class:`~btfrs.exceptions.FormatError`. With ``mmap`` the scan would read every page of
+        the file, so a file whose header says its data were finite when written (every file
+        :meth:`save` writes) is trusted and not scanned: loading reads only the header, the
+        directions and the mask. The flag is only as true as the file: if the data section was
+        edited or corrupted after writing, the load still succeeds and values may be non-finite
+        (the fits and :func:`btfrs.synth.analyse` scan their input and raise then). Files
+        written before the flag existed are scanned, as without ``mmap``.
+        """
+        kind, _, arrays, finite = _read_container(path, mmap=mmap)
         if kind != "btf":
             raise FormatError(f"{os.fspath(path)}: holds a {kind!r}, not a BTF (use btfrs.load)")
-        return cls.from_arrays(path, arrays)
+        return cls.from_arrays(path, arrays, check=not (mmap and "data" in finite))
 
     @classmethod
-    def from_arrays(cls, path, arrays: dict) -> "Btf":
-        """Build from the arrays of a ``.btfrs`` file; a missing array is a FormatError."""
+    def from_arrays(cls, path, arrays: dict, *, check: bool = True) -> "Btf":
+        """Build from the arrays of a ``.btfrs`` file. A missing array, or arrays that do not
+        make a valid BTF (dtypes, shapes, non-unit directions, an empty mask, and non-finite
+        values when ``check``), are a FormatError naming the file."""
+        p = os.fspath(path)
         try:
-            return cls(arrays["data"], arrays["views"], arrays["lights"], arrays.get("mask"))
+            return cls(arrays["data"], arrays["views"], arrays["lights"], arrays.get("mask"), check=check)
         except KeyError as e:
-            raise FormatError(f"{os.fspath(path)}: the BTF file has no array {e}") from None
+            raise FormatError(f"{p}: the BTF file has no array {e}") from None
+        except (TypeError, ValueError) as e:  # InvalidArgumentError is a ValueError
+            raise FormatError(f"{p}: not a valid BTF file ({e})") from None
 
     def expand(self, coords) -> "ExpandedBtf":
         """A large BTF made of this sample and a coordinate map (from :mod:`btfrs.synth`),
@@ -302,21 +325,43 @@ class ExpandedBtf:
                 f"{self.nbytes_expanded / 2**20:.0f} MiB expanded)")
 
 
+_DTYPES = {"f32": np.float32, "f64": np.float64, "u8": np.uint8, "u16": np.uint16, "i32": np.int32,
+           "bool": np.bool_}
+
+
+def _read_container(path, mmap: bool = False) -> tuple[str, dict, dict, set]:
+    """:func:`read_container` plus the names of the float arrays whose header entry says they
+    were finite when written (see :meth:`Btf.load`)."""
+    p = os.fspath(path)
+    # The Rust reader checks the header against the file: every array's size and extent fit the
+    # file, names are unique and meta is a JSON object, so nothing below allocates more than
+    # the file holds.
+    kind, meta, infos = _native.read_container_header(p)
+    arrays, finite = {}, set()
+    for name, dt, shape, offset, is_finite in infos:
+        if dt not in _DTYPES:
+            raise FormatError(f"{p}: array {name!r} has unknown dtype {dt!r}")
+        shape = tuple(shape)
+        count = math.prod(shape)
+        if count == 0:
+            a = np.zeros(shape, dtype=_DTYPES[dt])  # numpy cannot map zero bytes
+        elif mmap:
+            a = np.asarray(np.memmap(p, dtype=_DTYPES[dt], mode="r", offset=offset, shape=shape))
+        else:
+            a = np.fromfile(p, dtype=_DTYPES[dt], count=count, offset=offset)
+            if a.size != count:  # the file shrank since its header was read
+                raise FormatError(f"{p}: array {name!r} is truncated")
+            a = a.reshape(shape)
+        arrays[name] = a
+        if is_finite:
+            finite.add(name)
+    return kind, json.loads(meta), arrays, finite
+
+
 def read_container(path, mmap: bool = False) -> tuple[str, dict, dict]:
     """Read a ``.btfrs`` file: ``(kind, meta, {name: array})``. Arrays are read with one
-    ``numpy.fromfile`` each (or memory-mapped), at the offsets the Rust writer recorded."""
-    p = os.fspath(path)
-    kind, meta, infos = _native.read_container_header(p)
-    dtypes = {"f32": np.float32, "f64": np.float64, "u8": np.uint8, "u16": np.uint16, "i32": np.int32, "bool": np.bool_}
-    arrays = {}
-    for name, dt, shape, offset in infos:
-        if dt not in dtypes:
-            raise FormatError(f"{p}: array {name!r} has unknown dtype {dt!r}")
-        count = int(np.prod(shape)) if shape else 1
-        if mmap:
-            a = np.memmap(p, dtype=dtypes[dt], mode="r", offset=offset, shape=tuple(shape))
-            arrays[name] = np.asarray(a)
-        else:
-            a = np.fromfile(p, dtype=dtypes[dt], count=count, offset=offset)
-            arrays[name] = a.reshape(shape)
-    return kind, json.loads(meta), arrays
+    ``numpy.fromfile`` each (or memory-mapped), at the offsets the Rust writer recorded. A file
+    that is not a valid container (bad magic, a header inconsistent with the file, truncated)
+    raises :class:`~btfrs.exceptions.FormatError`."""
+    kind, meta, arrays, _ = _read_container(path, mmap=mmap)
+    return kind, meta, arrays

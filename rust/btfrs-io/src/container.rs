@@ -6,6 +6,18 @@
 //! parameters) and lists every array with its dtype, shape and offset from the start of the data.
 //! Arrays are stored raw and little-endian, so a reader can memory-map them (numpy.memmap) instead
 //! of reading a 1 GB BTF into memory. Files are written atomically ([`crate::atomic`]).
+//!
+//! The writer scans every float array once and records `"finite": true` in its header entry
+//! when no value is NaN or infinite (`false` otherwise), so a reader that maps a large array can
+//! trust the flag instead of reading every page to check. The flag is only as true as the file:
+//! an array edited or corrupted after writing still reads cleanly, with whatever values it now
+//! holds, and files written before the flag existed have none (readers scan those). Integer
+//! arrays carry no flag.
+//!
+//! The reader checks everything the header claims against the file before it allocates: the
+//! header length, every array's size (checked arithmetic) and extent, and that the arrays lie
+//! after the header, so a corrupted or crafted file is a [`Error::Format`], never a huge
+//! allocation or a read past the end.
 
 use crate::atomic::write_atomic;
 use btfrs_core::{Error, Result};
@@ -73,6 +85,10 @@ pub struct ArrayInfo {
     pub offset: u64,
     /// Length in bytes.
     pub nbytes: u64,
+    /// Float arrays: whether the writer found every value finite (see the module doc). `None`
+    /// for integer arrays and for files written before the flag existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub finite: Option<bool>,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -107,20 +123,40 @@ fn align(x: u64) -> u64 {
     x.div_ceil(ALIGN) * ALIGN
 }
 
-/// Write a container atomically.
+/// Whether every value of a float array is finite (`None` for integer dtypes). Looks at the
+/// exponent bits only (all ones means NaN or infinity), which needs no float decoding.
+fn all_finite(dtype: Dtype, bytes: &[u8]) -> Option<bool> {
+    match dtype {
+        Dtype::F32 => Some(bytes.chunks_exact(4).all(|c| {
+            let b = u32::from_le_bytes(c.try_into().expect("4 bytes"));
+            b & 0x7f80_0000 != 0x7f80_0000
+        })),
+        Dtype::F64 => Some(bytes.chunks_exact(8).all(|c| {
+            let b = u64::from_le_bytes(c.try_into().expect("8 bytes"));
+            b & 0x7ff0_0000_0000_0000 != 0x7ff0_0000_0000_0000
+        })),
+        Dtype::U8 | Dtype::U16 | Dtype::I32 | Dtype::Bool => None,
+    }
+}
+
+/// Write a container atomically. `meta` must be a JSON object. Float arrays are scanned once
+/// for their `finite` flag before anything is written.
 pub fn write(path: &Path, kind: &str, meta: serde_json::Value, arrays: &[ArrayRef<'_>]) -> Result<()> {
+    if !meta.is_object() {
+        return Err(Error::arg("meta", format!("expected a JSON object, got {meta}")));
+    }
     let mut infos = Vec::with_capacity(arrays.len());
     let mut rel = 0u64;
     for a in arrays {
-        let n: usize = a.shape.iter().product();
-        if n * a.dtype.size() != a.bytes.len() {
+        let n = a.shape.iter().try_fold(a.dtype.size(), |acc, &s| acc.checked_mul(s));
+        if n != Some(a.bytes.len()) {
             return Err(Error::arg(
                 a.name,
                 format!(
                     "shape {:?} of {:?} needs {} bytes, got {}",
                     a.shape,
                     a.dtype,
-                    n * a.dtype.size(),
+                    n.map_or_else(|| "more than 2^64".into(), |n| n.to_string()),
                     a.bytes.len()
                 ),
             ));
@@ -134,6 +170,7 @@ pub fn write(path: &Path, kind: &str, meta: serde_json::Value, arrays: &[ArrayRe
             shape: a.shape.to_vec(),
             offset: rel,
             nbytes: a.bytes.len() as u64,
+            finite: all_finite(a.dtype, a.bytes),
         });
         rel = align(rel + a.bytes.len() as u64);
     }
@@ -184,11 +221,19 @@ pub fn read_contents(path: &Path) -> Result<Contents> {
     let mut text = vec![0u8; hlen as usize];
     f.read_exact(&mut text).map_err(|e| Error::io(shown, e))?;
     let h: Header = serde_json::from_slice(&text).map_err(|e| Error::format(shown, format!("bad header: {e}")))?;
+    if !h.meta.is_object() {
+        return Err(Error::format(shown, "bad header: meta is not a JSON object"));
+    }
+    let data_start = 16 + hlen;
+    let mut names = std::collections::HashSet::with_capacity(h.arrays.len());
     for a in &h.arrays {
         // Checked arithmetic: a crafted header must not wrap around into a "consistent" size.
         let n = a.shape.iter().try_fold(a.dtype.size() as u64, |acc, &s| acc.checked_mul(s as u64));
-        if n != Some(a.nbytes) || a.offset.checked_add(a.nbytes).is_none_or(|end| end > len) {
+        if n != Some(a.nbytes) || a.offset < data_start || a.offset.checked_add(a.nbytes).is_none_or(|end| end > len) {
             return Err(Error::format(shown, format!("array {:?} is truncated or inconsistent", a.name)));
+        }
+        if !names.insert(a.name.as_str()) {
+            return Err(Error::format(shown, format!("array {:?} is listed twice", a.name)));
         }
     }
     Ok(Contents { kind: h.kind, meta: h.meta, arrays: h.arrays })
@@ -279,6 +324,40 @@ mod tests {
     }
 
     #[test]
+    fn float_arrays_record_whether_they_are_finite() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("f.btfrs");
+        let good = [0.5f32, -1.0, f32::MAX, f32::MIN_POSITIVE / 2.0];
+        let nan = [0.0f64, f64::NAN];
+        let inf = [f32::NEG_INFINITY];
+        let ids = [1u16, 2];
+        write(
+            &p,
+            "t",
+            serde_json::json!({}),
+            &[
+                ArrayRef { name: "good", dtype: Dtype::F32, shape: &[4], bytes: as_bytes(&good) },
+                ArrayRef { name: "nan", dtype: Dtype::F64, shape: &[2], bytes: as_bytes(&nan) },
+                ArrayRef { name: "inf", dtype: Dtype::F32, shape: &[1], bytes: as_bytes(&inf) },
+                ArrayRef { name: "ids", dtype: Dtype::U16, shape: &[2], bytes: as_bytes(&ids) },
+            ],
+        )
+        .unwrap();
+        let c = read_contents(&p).unwrap();
+        let flag = |n: &str| c.array(&p, n).unwrap().finite;
+        assert_eq!((flag("good"), flag("nan"), flag("inf"), flag("ids")), (Some(true), Some(false), Some(false), None));
+        // A file from before the flag (no "finite" key) reads with None.
+        let hdr =
+            br#"{"kind":"t","meta":{},"arrays":[{"name":"a","dtype":"f32","shape":[1],"offset":128,"nbytes":4}]}"#;
+        let mut f = MAGIC.to_vec();
+        f.extend_from_slice(&(hdr.len() as u64).to_le_bytes());
+        f.extend_from_slice(hdr);
+        f.resize(132, 0);
+        std::fs::write(&p, &f).unwrap();
+        assert_eq!(read_contents(&p).unwrap().arrays[0].finite, None);
+    }
+
+    #[test]
     fn bad_files_are_format_errors() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("bad.btfrs");
@@ -303,6 +382,23 @@ mod tests {
         f.resize(256, 0);
         std::fs::write(&p, &f).unwrap();
         assert!(read_contents(&p).unwrap_err().to_string().contains("inconsistent"));
+        // Two arrays of one name, and an array placed inside the header, are rejected.
+        let raw = |hdr: &[u8]| {
+            let mut f = MAGIC.to_vec();
+            f.extend_from_slice(&(hdr.len() as u64).to_le_bytes());
+            f.extend_from_slice(hdr);
+            f.resize(512, 0);
+            std::fs::write(&p, &f).unwrap();
+            read_contents(&p).map(|_| ()).unwrap_err().to_string()
+        };
+        let twice = br#"{"kind":"t","meta":{},"arrays":[{"name":"a","dtype":"u8","shape":[1],"offset":256,"nbytes":1},{"name":"a","dtype":"u8","shape":[1],"offset":320,"nbytes":1}]}"#;
+        assert!(raw(twice).contains("listed twice"));
+        let inside =
+            br#"{"kind":"t","meta":{},"arrays":[{"name":"a","dtype":"u8","shape":[1],"offset":20,"nbytes":1}]}"#;
+        assert!(raw(inside).contains("inconsistent"));
+        let not_object = br#"{"kind":"t","meta":[1],"arrays":[]}"#;
+        assert!(raw(not_object).contains("meta"));
+        assert!(write(&p, "t", serde_json::json!(3), &[]).unwrap_err().to_string().starts_with("meta:"));
         let e = read_contents(&dir.path().join("missing.btfrs")).unwrap_err();
         assert!(matches!(e, Error::Io { ref source, .. } if source.kind() == std::io::ErrorKind::NotFound));
         let bad = write(

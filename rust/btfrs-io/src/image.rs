@@ -1,4 +1,10 @@
 //! Image files: 8-bit sRGB PNG (for looking at) and float OpenEXR (HDR, exact) from linear RGB.
+//!
+//! The readers take untrusted files: the size a header declares is checked against what the
+//! file can hold before any pixel buffer is allocated. Both formats compress, so "can hold" is
+//! the file length times the largest expansion of the format's compression: deflate (PNG,
+//! EXR's ZIP and PXR24) inflates at most 1032 to 1, so a 100-byte PNG cannot decode to more than
+//! about 100 KB, whatever its header says.
 
 use crate::atomic::write_atomic;
 use btfrs_core::{Error, Result};
@@ -40,21 +46,63 @@ pub fn write_png(path: &Path, rgb: &[f32], width: usize, height: usize, exposure
     })
 }
 
+/// Largest ratio of decompressed to compressed bytes of deflate (RFC 1951): a 258-byte match
+/// costs at least 2 bits, so 1032 output bytes per input byte at most.
+const DEFLATE_MAX_RATIO: u64 = 1032;
+
+/// Largest ratio of decoded pixel bytes to file bytes this reader accepts for an OpenEXR layer:
+/// deflate's 1032 times PXR24's 4/3 (it deflates 24 of every 32 bits) is below it, and RLE
+/// (at most 128 bytes from 2), PIZ and B44 expand less.
+const EXR_MAX_RATIO: u64 = 2048;
+
+/// The error for a header that declares more pixel bytes than the file can hold.
+fn too_large(shown: &str, what: String, need: Option<u64>, len: u64, ratio: u64) -> Error {
+    let need = need.map_or_else(|| "more than 2^64".into(), |n| n.to_string());
+    Error::format(
+        shown,
+        format!(
+            "the header declares {what} ({need} bytes of pixels), more than a file of {len} bytes can hold \
+             (at most {ratio} times its size); the file is corrupted or truncated"
+        ),
+    )
+}
+
 /// Read an 8-bit RGB or RGBA PNG into linear float RGB `[height, width, 3]` (sRGB decoded).
+///
+/// Anything else (palette, grey, 16-bit) is an [`Error::Format`], as is a corrupted file; the
+/// pixel buffer is allocated only once the declared size is known to fit the file.
 pub fn read_png(path: &Path) -> Result<(Vec<f32>, usize, usize)> {
     let shown = &path.display().to_string();
     let f = std::fs::File::open(path).map_err(|e| Error::io(shown, e))?;
-    let dec = png::Decoder::new(std::io::BufReader::new(f));
-    let mut r = dec.read_info().map_err(|e| Error::format(shown, e))?;
-    let size = r.output_buffer_size().ok_or_else(|| Error::format(shown, "image too large"))?;
-    let mut buf = vec![0u8; size];
-    let info = r.next_frame(&mut buf).map_err(|e| Error::format(shown, e))?;
-    let ch = match (info.color_type, info.bit_depth) {
+    let len = f.metadata().map_err(|e| Error::io(shown, e))?.len();
+    let most = len.saturating_mul(DEFLATE_MAX_RATIO);
+    let mut dec = png::Decoder::new(std::io::BufReader::new(f));
+    // Text and ICC chunks are not used; skipping them avoids their (compressed) allocations.
+    dec.set_ignore_text_chunk(true);
+    dec.set_ignore_iccp_chunk(true);
+    // The decoder's own buffers (rows, chunks) within what the file can justify too.
+    dec.set_limits(png::Limits { bytes: usize::try_from(most).unwrap_or(usize::MAX).clamp(1 << 16, 64 << 20) });
+    // The IHDR chunk first: colour type and size are checked before the decoder sets up its
+    // buffers. No transformations are set, so the output has the file's colour type and depth.
+    let info = dec.read_header_info().map_err(|e| Error::format(shown, e))?;
+    let ch: u64 = match (info.color_type, info.bit_depth) {
         (png::ColorType::Rgb, png::BitDepth::Eight) => 3,
         (png::ColorType::Rgba, png::BitDepth::Eight) => 4,
         (c, d) => return Err(Error::format(shown, format!("unsupported PNG {c:?} {d:?}; expected 8-bit RGB or RGBA"))),
     };
-    let (w, h) = (info.width as usize, info.height as usize);
+    let (hw, hh) = info.size();
+    let need = u64::from(hw).checked_mul(u64::from(hh)).and_then(|p| p.checked_mul(ch));
+    if need.is_none_or(|n| n > most) {
+        return Err(too_large(shown, format!("{hw} x {hh} pixels"), need, len, DEFLATE_MAX_RATIO));
+    }
+    let mut r = dec.read_info().map_err(|e| Error::format(shown, e))?;
+    let size = r.output_buffer_size().ok_or_else(|| Error::format(shown, "image too large"))?;
+    let mut buf = vec![0u8; size];
+    let info = r.next_frame(&mut buf).map_err(|e| Error::format(shown, e))?;
+    let (w, h, ch) = (info.width as usize, info.height as usize, ch as usize);
+    if w.checked_mul(h).and_then(|p| p.checked_mul(ch)).is_none_or(|n| n > buf.len()) {
+        return Err(Error::format(shown, format!("the first frame ({w} x {h}) does not fit the image")));
+    }
     let srgb_to_linear = |b: u8| {
         let x = b as f32 / 255.0;
         if x <= 0.04045 {
@@ -90,11 +138,27 @@ pub fn write_exr(path: &Path, rgb: &[f32], width: usize, height: usize) -> Resul
 }
 
 /// Read the first RGB(A) layer of an OpenEXR file as `[height, width, 3]` f32 (alpha dropped).
+///
+/// The headers are read first and every layer's declared size is checked against the file
+/// length (see [`EXR_MAX_RATIO`]) before the pixels are decoded; a corrupted file is an
+/// [`Error::Format`].
 pub fn read_exr(path: &Path) -> Result<(Vec<f32>, usize, usize)> {
     use exr::prelude::{read_first_rgba_layer_from_file, Vec2};
     let shown = &path.display().to_string();
-    if !path.exists() {
-        return Err(Error::io(shown, std::io::Error::from(std::io::ErrorKind::NotFound)));
+    let len = std::fs::metadata(path).map_err(|e| Error::io(shown, e))?.len();
+    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| match e {
+        exr::error::Error::Io(e) if e.kind() != std::io::ErrorKind::UnexpectedEof => Error::io(shown, e),
+        e => Error::format(shown, e),
+    })?;
+    let most = len.saturating_mul(EXR_MAX_RATIO);
+    for h in &meta.headers {
+        let (w, ht) = (h.layer_size.0, h.layer_size.1);
+        let need = (w as u64).checked_mul(ht as u64).and_then(|p| p.checked_mul(h.channels.bytes_per_pixel as u64));
+        // The layer we decode has R, G and B (6 bytes per pixel or more), so our 12-byte pixels
+        // stay within twice this bound.
+        if need.is_none_or(|n| n > most) {
+            return Err(too_large(shown, format!("a {w} x {ht} layer"), need, len, EXR_MAX_RATIO));
+        }
     }
     let img = read_first_rgba_layer_from_file(
         path,

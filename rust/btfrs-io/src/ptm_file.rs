@@ -118,7 +118,8 @@
 //! * Bias values are read as any finite number (`128.0` too, as relight's `strtod` reads them;
 //!   RTIViewer would reject a non-integer); scale values must be finite numbers too.
 //! * Bytes after the expected data are ignored, as the viewers ignore them; missing bytes are an
-//!   error.
+//!   error, found before anything is allocated (the data must hold `width * height` texels).
+//! * A scale and bias whose decoded coefficients overflow `f32` are an error.
 
 use std::fs;
 use std::path::Path;
@@ -512,6 +513,17 @@ pub fn decode_ptm(bytes: &[u8], path_for_errors: &str) -> Result<PtmImage> {
     let lut: Vec<[f32; 256]> = (0..NCOEF)
         .map(|k| std::array::from_fn(|c| ((c as f64 - bias[k]) * f64::from(scale[k]) / 255.0) as f32))
         .collect();
+    // A finite scale and bias can still decode beyond the f32 range (e.g. bias 1e300): that is
+    // no PTM a writer produced, and the coefficients must not silently become infinite.
+    if let Some(k) = lut.iter().position(|t| !(t[0].is_finite() && t[255].is_finite())) {
+        return Err(hdr.err(format!(
+            "scale value {} ({}) and bias value {} ({}) decode to coefficients beyond the float range",
+            k + 1,
+            scale[k],
+            k + 1,
+            bias[k]
+        )));
+    }
 
     let (w, h) = (width, height);
     let mut coeffs = vec![0f32; texels * format.coeffs_per_texel()];
@@ -967,6 +979,11 @@ mod tests {
         let huge = b"PTM_1.2\nPTM_FORMAT_RGB\n99999999999\n99999999999\n1 1 1 1 1 1\n0 0 0 0 0 0\n\0";
         let msg = format_error(huge);
         assert!(msg.contains("too large") || msg.contains("truncated"), "{msg}");
+        // Finite scale and bias, but the decoded coefficients overflow f32.
+        let mut overflow = b"PTM_1.2\nPTM_FORMAT_LRGB\n1\n1\n1 1 1e38 1 1 1\n0 0 -1e300 0 0 0\n".to_vec();
+        overflow.extend_from_slice(&[0; 9]);
+        let msg = format_error(&overflow);
+        assert!(msg.contains("scale value 3") && msg.contains("float range"), "{msg}");
         let no_newline = b"PTM_1.2\nPTM_FORMAT_LRGB\n1\n1\n1 1 1 1 1 1\n0 0 0 0 0 0 7";
         assert!(format_error(no_newline).contains("bias"));
     }

@@ -147,25 +147,92 @@ impl Analysis {
         Ok(an)
     }
 
-    /// Rebuild from saved parts (validated by the caller's types; the sizes are checked here).
+    /// Rebuild from saved parts (a loaded file), checking everything the synthesis relies on, so
+    /// that a corrupted or hand-made analysis is an error here and not a panic or a wrong result
+    /// later. Errors name the saved array (`level{l}.textons`, `level{l}.centers`,
+    /// `level{l}.similar{r}.index`, `level{l}.similar{r}.dist`):
+    ///
+    /// * the options are valid for the finest level's size (as [`Analysis::of_features`] checks)
+    ///   and there are as many levels as they say;
+    /// * each level is half the previous one, rounded down ([`crate::pyramid::downsample`] drops
+    ///   an odd last row or column): k-coherence maps a coarse pixel `(x, y)` to `(2x, 2y)` and
+    ///   reads the coarser level as `width / 2` columns;
+    /// * every level has one texton per pixel, the same vector length, and no more textons than
+    ///   pixels or than the options ask for;
+    /// * the similar neighbourhoods have `m` entries per pixel, each empty (`u32::MAX`) or an
+    ///   interior pixel for their radius (the synthesis reads that pixel's whole window), with a
+    ///   distance that is not NaN or negative.
     pub fn from_levels(levels: Vec<Level>, options: AnalysisOptions) -> Result<Self> {
-        if levels.is_empty() {
+        let Some(first) = levels.first() else {
             return Err(Error::arg("levels", "expected at least one level"));
+        };
+        let (h0, w0, dim) = (first.height, first.width, first.textons.dim);
+        check_options(h0, w0, &options)?;
+        if levels.len() != options.levels {
+            return Err(Error::arg(
+                "levels",
+                format!("the options say {} pyramid levels, the arrays hold {}", options.levels, levels.len()),
+            ));
         }
         for (l, lv) in levels.iter().enumerate() {
-            if lv.textons.assign.len() != lv.height * lv.width {
+            let textons = format!("level{l}.textons");
+            let (eh, ew) = (h0 >> l, w0 >> l);
+            if (lv.height, lv.width) != (eh, ew) {
                 return Err(Error::arg(
-                    "textons",
+                    textons,
+                    format!(
+                        "level {l} is {} x {}, expected {eh} x {ew} (each level is half the previous one, \
+                         rounded down, from the {h0} x {w0} sample)",
+                        lv.height, lv.width
+                    ),
+                ));
+            }
+            let pixels = lv.height * lv.width;
+            if lv.textons.assign.len() != pixels {
+                return Err(Error::arg(
+                    textons,
                     format!("level {l}: expected {} x {} texton indices", lv.height, lv.width),
                 ));
             }
+            let t = lv.textons.count();
+            if lv.textons.dim != dim || t > pixels.min(options.textons) {
+                return Err(Error::arg(
+                    format!("level{l}.centers"),
+                    format!(
+                        "level {l} has {t} textons of length {}; expected at most {} of length {dim} (as level 0)",
+                        lv.textons.dim,
+                        pixels.min(options.textons)
+                    ),
+                ));
+            }
             for n in &lv.neighbours {
-                let len = lv.height * lv.width * n.m;
-                let valid = n.index.iter().all(|&i| i == u32::MAX || (i as usize) < lv.height * lv.width);
-                if n.m != options.m || n.index.len() != len || n.dist.len() != len || !valid {
+                let (r, m) = (n.radius, n.m);
+                let index = format!("level{l}.similar{r}.index");
+                let len = pixels * m;
+                if r == 0 || r > MAX_RADIUS || m != options.m || n.index.len() != len || n.dist.len() != len {
                     return Err(Error::arg(
-                        "neighbours",
-                        format!("level {l}, radius {}: inconsistent arrays", n.radius),
+                        index,
+                        format!("level {l}, radius {r}: expected {} x {} x {} entries", lv.height, lv.width, options.m),
+                    ));
+                }
+                let ok = |i: u32| {
+                    let i = i as usize;
+                    i == u32::MAX as usize
+                        || (i < pixels && lv.interior((i % lv.width) as isize, (i / lv.width) as isize, r))
+                };
+                if let Some(p) = n.index.iter().position(|&i| !ok(i)) {
+                    return Err(Error::arg(
+                        index,
+                        format!(
+                            "level {l}, radius {r}: entry {p} is {}, not an interior pixel of the {} x {} level",
+                            n.index[p] as i64, lv.height, lv.width
+                        ),
+                    ));
+                }
+                if let Some(p) = n.dist.iter().position(|d| d.is_nan() || *d < 0.0) {
+                    return Err(Error::arg(
+                        format!("level{l}.similar{r}.dist"),
+                        format!("level {l}, radius {r}: distance {p} is {}, expected >= 0", n.dist[p]),
                     ));
                 }
             }
@@ -388,6 +455,48 @@ mod tests {
         }
         // Border pixels have no entries.
         assert_eq!(nb.index[0], u32::MAX);
+    }
+
+    #[test]
+    fn loaded_levels_must_form_the_pyramid_the_synthesis_assumes() {
+        let f = noise(17, 16, 2);
+        let opts = AnalysisOptions { textons: 12, levels: 2, m: 3, iterations: 3, seed: 0 };
+        let an = Analysis::of_features(f, opts, &[1], &Monitor::new()).unwrap();
+        // Levels are 17 x 16 and 8 x 8 (the odd row dropped): a faithful copy loads.
+        assert_eq!((an.levels[1].height, an.levels[1].width), (8, 8));
+        let back = Analysis::from_levels(an.levels.clone(), opts).unwrap();
+        let o = crate::SynthOptions { height: 24, width: 24, k: 2, radius: 1, levels: 2, toroidal: false, seed: 3 };
+        let want = crate::kcoherence(&an, &o, &Monitor::new()).unwrap();
+        assert_eq!(crate::kcoherence(&back, &o, &Monitor::new()).unwrap().src, want.src);
+        let err = |levels: Vec<Level>, o: AnalysisOptions| Analysis::from_levels(levels, o).unwrap_err().to_string();
+
+        // A coarse level that is not half the finest one (here: the finest one again, which the
+        // synthesis would read with the wrong width), and one rounded up instead of down.
+        let mut same = an.levels.clone();
+        same[1] = same[0].clone();
+        let msg = err(same, opts);
+        assert!(msg.starts_with("level1.textons:") && msg.contains("expected 8 x 8"), "{msg}");
+        let mut up = an.levels.clone();
+        let textons = Textons::from_parts(1, vec![0.0], vec![0; 9 * 8]).unwrap();
+        up[1] = Level { height: 9, width: 8, textons, neighbours: Vec::new() };
+        assert!(err(up, opts).starts_with("level1.textons:"));
+        // A level missing, or the options asking for more levels than the sample allows.
+        assert!(err(an.levels[..1].to_vec(), opts).starts_with("levels:"));
+        assert!(err(an.levels.clone(), AnalysisOptions { levels: 3, ..opts }).starts_with("levels:"));
+        // Vectors of another length than level 0's.
+        let mut dim = an.levels.clone();
+        let n1 = dim[1].textons.assign.len();
+        dim[1].textons = Textons::from_parts(2, vec![0.0; 4], vec![0; n1]).unwrap();
+        assert!(err(dim, opts).starts_with("level1.centers:"));
+        // A similar-neighbourhood entry on the border (the synthesis would read outside the
+        // level), a NaN distance.
+        let mut border = an.levels.clone();
+        border[0].neighbours[0].index[16 * 5 + 5] = 0;
+        let msg = err(border, opts);
+        assert!(msg.starts_with("level0.similar1.index:") && msg.contains("not an interior pixel"), "{msg}");
+        let mut nan = an.levels.clone();
+        nan[1].neighbours[0].dist[3] = f32::NAN;
+        assert!(err(nan, opts).starts_with("level1.similar1.dist:"));
     }
 
     #[test]

@@ -77,17 +77,20 @@ pub fn save_container(
     detach(py, || container::write(&path, kind, meta, &refs))
 }
 
-/// A container's header: (kind, meta JSON, [(name, dtype, shape, offset)]).
+/// A container's header: (kind, meta JSON, [(name, dtype, shape, offset, finite)]); `finite` is
+/// the writer's flag for float arrays (None for integer arrays and older files).
 #[pyfunction]
 #[allow(clippy::type_complexity)]
-pub fn read_container_header(path: PathBuf) -> PyResult<(String, String, Vec<(String, String, Vec<usize>, u64)>)> {
+pub fn read_container_header(
+    path: PathBuf,
+) -> PyResult<(String, String, Vec<(String, String, Vec<usize>, u64, Option<bool>)>)> {
     let c = container::read_contents(&path).py()?;
     let arrays = c
         .arrays
         .into_iter()
         .map(|a| {
             let dt = serde_json::to_value(a.dtype).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default();
-            (a.name, dt, a.shape, a.offset)
+            (a.name, dt, a.shape, a.offset, a.finite)
         })
         .collect();
     Ok((c.kind, c.meta.to_string(), arrays))

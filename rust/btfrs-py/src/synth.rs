@@ -238,7 +238,8 @@ impl PyAnalysis {
     #[staticmethod]
     fn from_arrays(arrays: &Bound<'_, PyDict>, options: &Bound<'_, PyDict>) -> PyResult<Self> {
         let opt = |k: &str| -> PyResult<u64> {
-            options.get_item(k)?.ok_or_else(|| arg("options", format!("missing {k:?}")))?.extract::<u64>()
+            let v = options.get_item(k)?.ok_or_else(|| arg("options", format!("missing {k:?}")))?;
+            v.extract::<u64>().map_err(|_| arg("options", format!("{k:?} is {v}, not a non-negative integer")))
         };
         let o = AnalysisOptions {
             textons: opt("textons")? as usize,
