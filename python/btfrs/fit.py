@@ -121,7 +121,7 @@ def sh(btf: Btf, *, light_coeffs: int = 25, view_coeffs: int = 25, cls: bool = T
     by bisection), which makes the coefficients robust to the 8-bit quantization that follows
     (``quantize=False`` keeps float32; ``cls=False`` is plain least squares, for comparison).
     Texels are processed ``chunk_texels`` at a time, so a memory-mapped BTF
-    (``btfrs.load(path, mmap=True)``) streams through.
+    (``btfrs.Btf.load(path, mmap=True)``) streams through.
     """
     b = _check_btf(btf)
     # Perfect squares up to 64 are checked in Rust; here the type and the lower bound.
