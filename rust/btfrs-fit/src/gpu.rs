@@ -15,6 +15,7 @@
 //! `wgpu_buffer_types.rs`); the tests in btfrs-render parse every generated struct with naga and
 //! compare its member offsets with the Rust ones.
 
+use crate::model::ReflectanceModel;
 use std::borrow::Cow;
 
 /// Words in every parameter block (one 64-byte uniform buffer).
@@ -194,14 +195,13 @@ pub trait GpuModel: Sync {
     }
 }
 
-/// The typed form a model implements; [`GpuModel`] follows from it.
-pub trait GpuLayout: Sync {
+/// The typed form a model implements; [`GpuModel`] follows from it (its dimensions are the
+/// model's own, [`ReflectanceModel::dims`]).
+pub trait GpuLayout: ReflectanceModel {
     /// The parameter struct its shader reads.
     type Params: GpuParams;
     /// Its shader.
     const SHADER: Shader;
-    /// (height, width) in texels.
-    fn layout_dims(&self) -> (usize, usize);
     /// See [`GpuModel::gpu_parts`].
     fn parts(&self) -> Vec<Cow<'_, [u32]>>;
     /// See [`GpuModel::gpu_dir_sets`].
@@ -219,9 +219,6 @@ pub trait GpuLayout: Sync {
 impl<T: GpuLayout + ?Sized> GpuLayout for &T {
     type Params = T::Params;
     const SHADER: Shader = T::SHADER;
-    fn layout_dims(&self) -> (usize, usize) {
-        (**self).layout_dims()
-    }
     fn parts(&self) -> Vec<Cow<'_, [u32]>> {
         (**self).parts()
     }
@@ -241,7 +238,7 @@ impl<T: GpuLayout> GpuModel for T {
         T::SHADER
     }
     fn gpu_dims(&self) -> (usize, usize) {
-        self.layout_dims()
+        self.dims()
     }
     fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
         self.parts()

@@ -594,10 +594,6 @@ impl GpuLayout for Lafortune {
     const SHADER: Shader =
         Shader::new::<LafortuneParams>("lafortune", include_str!("../../../shaders_wgsl/lafortune.wgsl"));
 
-    fn layout_dims(&self) -> (usize, usize) {
-        (self.height, self.width)
-    }
-
     fn parts(&self) -> Vec<Cow<'_, [u32]>> {
         let mut p = vec![words(&self.params)];
         if let Some(rgb) = &self.rgb {

@@ -843,10 +843,6 @@ impl GpuLayout for Lpca {
     const SHADER: Shader =
         Shader::new::<Lpca9Params>("lpca_9tap", include_str!("../../../shaders_wgsl/lpca_9tap.wgsl"));
 
-    fn layout_dims(&self) -> (usize, usize) {
-        (self.height, self.width)
-    }
-
     fn parts(&self) -> Vec<Cow<'_, [u32]>> {
         vec![Cow::Owned(self.id_words()), words(&self.weights), Cow::Borrowed(bytemuck::cast_slice(&self.basis))]
     }

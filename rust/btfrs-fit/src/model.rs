@@ -326,10 +326,6 @@ impl GpuLayout for RawModel<'_> {
     const SHADER: crate::gpu::Shader =
         crate::gpu::Shader::new::<RawParams>("raw", include_str!("../../../shaders_wgsl/raw.wgsl"));
 
-    fn layout_dims(&self) -> (usize, usize) {
-        (self.btf.height, self.btf.width)
-    }
-
     fn parts(&self) -> Vec<std::borrow::Cow<'_, [u32]>> {
         vec![crate::gpu::words(self.btf.data)]
     }

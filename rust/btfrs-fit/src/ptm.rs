@@ -371,10 +371,6 @@ impl GpuLayout for Ptm {
     type Params = PtmParams;
     const SHADER: Shader = Shader::new::<PtmParams>("ptm", include_str!("../../../shaders_wgsl/ptm.wgsl"));
 
-    fn layout_dims(&self) -> (usize, usize) {
-        (self.height, self.width)
-    }
-
     fn parts(&self) -> Vec<Cow<'_, [u32]>> {
         let mut p = vec![words(&self.coeffs)];
         if let Some(rgb) = &self.rgb {

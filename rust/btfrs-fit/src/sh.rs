@@ -1028,10 +1028,6 @@ impl GpuLayout for Sh {
     type Params = ShParams;
     const SHADER: Shader = Shader::new::<ShParams>("sh", include_str!("../../../shaders_wgsl/sh.wgsl"));
 
-    fn layout_dims(&self) -> (usize, usize) {
-        (self.height, self.width)
-    }
-
     fn parts(&self) -> Vec<Cow<'_, [u32]>> {
         // The shader reads 8-bit coefficients; an unquantized model is quantized for the GPU.
         let (q, scale, bias) = match &self.coeffs {

@@ -458,10 +458,6 @@ impl GpuLayout for Srf {
     type Params = SrfParams;
     const SHADER: Shader = Shader::new::<SrfParams>("srf", include_str!("../../../shaders_wgsl/srf.wgsl"));
 
-    fn layout_dims(&self) -> (usize, usize) {
-        (self.height, self.width)
-    }
-
     fn parts(&self) -> Vec<Cow<'_, [u32]>> {
         let p = &self.phong;
         let material: Vec<u32> = p.kd.iter().chain(&p.ks).chain([&p.n]).map(|&x| (x as f32).to_bits()).collect();

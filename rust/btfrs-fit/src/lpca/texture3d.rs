@@ -214,10 +214,6 @@ impl GpuLayout for Lpca3d<'_> {
     const SHADER: Shader =
         Shader::new::<Lpca3dParams>("lpca_3d", include_str!("../../../../shaders_wgsl/lpca_3d.wgsl"));
 
-    fn layout_dims(&self) -> (usize, usize) {
-        ReflectanceModel::dims(self.lpca)
-    }
-
     fn parts(&self) -> Vec<Cow<'_, [u32]>> {
         vec![Cow::Owned(self.lpca.id_words()), words(&self.lpca.weights)]
     }
