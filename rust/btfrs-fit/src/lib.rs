@@ -11,6 +11,7 @@
 //! * [`model`]: what every model shares: evaluation at any (view, light) and the error against a
 //!   BTF, computed in parallel with f64 accumulation.
 
+mod cls;
 mod dense;
 pub mod kmeans;
 pub mod lafortune;

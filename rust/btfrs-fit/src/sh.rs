@@ -42,16 +42,27 @@
 //!
 //! **Rendering** (002 section 4.2): unquantize, then the double sum at the tangent-frame view and
 //! light ([`ReflectanceModel`] for [`Sh`]; mirrored by the WGSL shader).
+//!
+//! **Where the parts live.** The basis ([`sh_basis`], `sh/basis.rs`), the quadrature weights of
+//! the energy bound ([`solid_angle_weights`], `sh/quadrature.rs`), the constrained least-squares
+//! solver (`cls.rs`, named for paper 002's appendix) and the 8-bit storage ([`quantize`],
+//! `sh/quantize.rs`) are modules of their own; this file holds the model and the fit that ties
+//! them together.
 
+mod basis;
+mod quadrature;
+mod quantize;
+
+use crate::cls::Solver;
 use crate::model::ReflectanceModel;
+use basis::basis_matrix;
 use btfrs_core::{BtfRef, Error, Monitor, Result};
 use nalgebra::{DMatrix, Dyn, MatrixView, MatrixViewMut, SymmetricEigen};
 use rayon::prelude::*;
 
-/// Highest supported SH degree per direction.
-pub const MAX_DEGREE: usize = 7;
-/// Most coefficients per direction, `(MAX_DEGREE + 1)^2`.
-pub const MAX_COEFFS: usize = (MAX_DEGREE + 1) * (MAX_DEGREE + 1);
+pub use basis::{sh_basis, MAX_COEFFS, MAX_DEGREE};
+pub use quadrature::solid_angle_weights;
+pub use quantize::quantize;
 
 /// Fit options.
 #[derive(Debug, Clone, Copy)]
@@ -109,160 +120,6 @@ pub struct Sh {
     /// data under a zero energy bound, which only direction sets with weightless members allow,
     /// counts as constrained but not in the mean.)
     pub mean_lambda: f64,
-}
-
-// ---------------------------------------------------------------------------------------------
-// The basis
-// ---------------------------------------------------------------------------------------------
-
-/// The first `n` real orthonormal spherical harmonics at the unit direction `d`, into `out`.
-///
-/// Index `i = L (L + 1) + M` for degree `L` and order `M` in `[-L, L]`:
-///
-/// ```text
-/// M > 0:  sqrt(2) K_L^M cos(M phi) P_L^M(cos theta)
-/// M < 0:  sqrt(2) K_L^|M| sin(|M| phi) P_L^|M|(cos theta)
-/// M = 0:  K_L^0 P_L(cos theta)
-/// K_L^M = sqrt((2L + 1) / (4 pi) (L - M)! / (L + M)!)
-/// ```
-///
-/// with `P_L^M` the associated Legendre functions *with* the Condon-Shortley phase `(-1)^M`
-/// (so `y_1 = -0.4886 y`, `y_2 = 0.4886 z`, `y_3 = -0.4886 x`). No angles are formed: with
-/// `s = sin(theta)`, both `P_L^M(z) = s^M Q_L^M(z)` and the azimuthal factor `s^M e^{i M phi}`
-/// carry `s^M`, so the product is computed from polynomials in `x`, `y`, `z`:
-///
-/// * `C_M + i S_M = (x + i y)^M = s^M (cos(M phi) + i sin(M phi))`, by
-///   `C_{M+1} = x C_M - y S_M`, `S_{M+1} = x S_M + y C_M`, `C_0 = 1`, `S_0 = 0`;
-/// * `Q_M^M = (-1)^M (2M - 1)!!`, `Q_{M+1}^M = (2M + 1) z Q_M^M`,
-///   `Q_L^M = ((2L - 1) z Q_{L-1}^M - (L + M - 1) Q_{L-2}^M) / (L - M)`: the standard
-///   recurrences of `P_L^M` divided by `s^M`;
-/// * `y = sqrt(2) K_L^M Q_L^M C_M` (M > 0), `sqrt(2) K_L^M Q_L^M S_M` (M < 0), `K_L^0 Q_L^0`.
-///
-/// At most `min(n, 64, out.len())` entries are written (degree <= 7); `n` need not be a perfect
-/// square. Plain loops over fixed arrays: the WGSL shader mirrors this function line by line.
-pub fn sh_basis(n: usize, d: [f64; 3], out: &mut [f64]) {
-    let n = n.min(MAX_COEFFS).min(out.len());
-    if n == 0 {
-        return;
-    }
-    let (x, y, z) = (d[0], d[1], d[2]);
-    // Smallest degree lmax with (lmax + 1)^2 >= n.
-    let mut lmax = 0;
-    while (lmax + 1) * (lmax + 1) < n {
-        lmax += 1;
-    }
-    // Azimuthal parts times sin^m(theta): C_m + i S_m = (x + i y)^m.
-    let mut cm = [0.0f64; MAX_DEGREE + 1];
-    let mut sm = [0.0f64; MAX_DEGREE + 1];
-    cm[0] = 1.0;
-    for m in 1..=lmax {
-        cm[m] = x * cm[m - 1] - y * sm[m - 1];
-        sm[m] = x * sm[m - 1] + y * cm[m - 1];
-    }
-    let mut qmm = 1.0; // Q_m^m = (-1)^m (2m - 1)!!
-    for m in 0..=lmax {
-        if m > 0 {
-            qmm *= -((2 * m - 1) as f64);
-        }
-        let mut q2 = 0.0; // Q_{l-2}^m
-        let mut q1 = 0.0; // Q_{l-1}^m
-        for l in m..=lmax {
-            let q = if l == m {
-                qmm
-            } else if l == m + 1 {
-                (2 * m + 1) as f64 * z * qmm
-            } else {
-                ((2 * l - 1) as f64 * z * q1 - (l + m - 1) as f64 * q2) / (l - m) as f64
-            };
-            q2 = q1;
-            q1 = q;
-            // K_l^m^2 = (2l + 1) / (4 pi) * (l - m)! / (l + m)!.
-            let mut k2 = (2 * l + 1) as f64 / (4.0 * std::f64::consts::PI);
-            for f in (l - m + 1)..=(l + m) {
-                k2 /= f as f64;
-            }
-            let center = l * (l + 1);
-            if m == 0 {
-                if center < n {
-                    out[center] = k2.sqrt() * q;
-                }
-            } else {
-                let kq = std::f64::consts::SQRT_2 * k2.sqrt() * q;
-                if center + m < n {
-                    out[center + m] = kq * cm[m];
-                }
-                if center - m < n {
-                    out[center - m] = kq * sm[m];
-                }
-            }
-        }
-    }
-}
-
-/// The basis of every direction, `[dirs.len(), n]` row-major.
-fn basis_matrix(dirs: &[[f64; 3]], n: usize) -> Vec<f64> {
-    let mut y = vec![0.0f64; dirs.len() * n];
-    for (row, d) in y.chunks_mut(n).zip(dirs) {
-        sh_basis(n, *d, row);
-    }
-    y
-}
-
-/// Grid cells per side of the equal-area hemisphere grid used by [`solid_angle_weights`].
-const WEIGHT_GRID: usize = 256;
-
-/// Solid-angle quadrature weights of a set of hemisphere directions, summing to 2 pi.
-///
-/// A uniform `256 x 256` grid of the unit square is mapped to the hemisphere by the equal-area
-/// elevated concentric map (`btfrs_hemimap::square_to_hemisphere`), so every cell covers
-/// `2 pi / 256^2` sr; each cell goes to its angularly nearest direction (a Voronoi partition of
-/// the hemisphere). Identical directions share their cell's weight equally.
-pub fn solid_angle_weights(dirs: &[[f64; 3]]) -> Vec<f64> {
-    let n = dirs.len();
-    if n == 0 {
-        return Vec::new();
-    }
-    let g = WEIGHT_GRID;
-    let counts = (0..g)
-        .into_par_iter()
-        .fold(
-            || vec![0u64; n],
-            |mut acc, r| {
-                let t = (r as f64 + 0.5) / g as f64;
-                for c in 0..g {
-                    let s = (c as f64 + 0.5) / g as f64;
-                    let p: [f64; 3] = btfrs_hemimap::square_to_hemisphere(s, t);
-                    let (mut best, mut arg) = (f64::NEG_INFINITY, 0);
-                    for (k, d) in dirs.iter().enumerate() {
-                        let dot = p[0] * d[0] + p[1] * d[1] + p[2] * d[2];
-                        if dot > best {
-                            best = dot;
-                            arg = k;
-                        }
-                    }
-                    acc[arg] += 1;
-                }
-                acc
-            },
-        )
-        .reduce(
-            || vec![0u64; n],
-            |mut a, b| {
-                a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
-                a
-            },
-        );
-    let cell = std::f64::consts::TAU / (g * g) as f64;
-    let mut w: Vec<f64> = counts.iter().map(|&k| k as f64 * cell).collect();
-    // Ties go to the first of identical directions; spread each group's weight over its members.
-    for i in 0..n {
-        let same: Vec<usize> = (i..n).filter(|&j| dirs[j] == dirs[i]).collect();
-        if same.len() > 1 && w[i] > 0.0 {
-            let share = same.iter().map(|&j| w[j]).sum::<f64>() / same.len() as f64;
-            same.iter().for_each(|&j| w[j] = share);
-        }
-    }
-    w
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -347,8 +204,6 @@ const LS_RCOND: f64 = 1e-15;
 /// Texels per rayon task inside a chunk: enough rows for the GEMMs to run at full speed while
 /// the block's f64 copy (`16 x 81 x 81 x 3 x 8` bytes = 2.5 MB at UBO 81) stays cache friendly.
 const BLOCK_TEXELS: usize = 16;
-/// Relative width at which the bisection for lambda stops (the brief asks for 1e-6).
-const LAMBDA_RTOL: f64 = 1e-7;
 
 /// How `A` is diagonalised.
 enum Rotation {
@@ -630,115 +485,6 @@ fn general_gram(
     });
     DMatrix::from_vec(n, n, a)
 }
-
-/// Per-(texel, channel) solve in the eigenbasis, with reusable scratch.
-struct Solver {
-    /// Squared rotated right-hand sides and eigenvalues of the nonzero entries.
-    b2: Vec<f64>,
-    d: Vec<f64>,
-}
-
-impl Solver {
-    fn new(n: usize) -> Self {
-        Solver { b2: Vec::with_capacity(n), d: Vec::with_capacity(n) }
-    }
-
-    /// `||c(lambda)||^2 = sum b~_k^2 / (d_k + lambda)^2` over the nonzero `b~_k` (a zero one
-    /// contributes nothing even where `d_k + lambda = 0`). Four independent partial sums, so
-    /// that the divisions run as SIMD lanes instead of one long dependency chain.
-    #[inline]
-    fn norm2(&self, lambda: f64) -> f64 {
-        let mut acc = [0.0f64; 4];
-        let (bb, dd) = (self.b2.chunks_exact(4), self.d.chunks_exact(4));
-        let tail: f64 =
-            bb.remainder().iter().zip(dd.remainder()).map(|(&b2, &d)| b2 / ((d + lambda) * (d + lambda))).sum();
-        for (b, d) in bb.zip(dd) {
-            for k in 0..4 {
-                let den = d[k] + lambda;
-                acc[k] += b[k] / (den * den);
-            }
-        }
-        acc[0] + acc[1] + acc[2] + acc[3] + tail
-    }
-
-    /// Replace `coef` (the rotated `b~`) by `c~ = b~ / (d + lambda)` and return lambda: 0 for
-    /// plain least squares or when the least-squares solution meets `||c||^2 <= energy`,
-    /// otherwise the smallest lambda that meets it (to 1e-6 relative, on the feasible side).
-    fn solve(&mut self, coef: &mut [f64], d: &[f64], energy: f64, cls: bool) -> f64 {
-        self.b2.clear();
-        self.d.clear();
-        for (&b, &dk) in coef.iter().zip(d) {
-            if b != 0.0 {
-                self.b2.push(b * b);
-                self.d.push(dk);
-            }
-        }
-        let lambda = if !cls || self.b2.is_empty() || self.norm2(0.0) <= energy {
-            0.0
-        } else if energy.is_nan() || energy <= 0.0 {
-            // Nonzero data with no quadrature weight (pathological direction sets only): the
-            // only coefficients within a zero energy bound are zeros.
-            coef.iter_mut().for_each(|c| *c = 0.0);
-            return f64::INFINITY;
-        } else {
-            self.bisect(energy)
-        };
-        for (c, &dk) in coef.iter_mut().zip(d) {
-            let den = dk + lambda;
-            *c = if *c == 0.0 || den <= 0.0 { 0.0 } else { *c / den };
-        }
-        lambda
-    }
-
-    /// The smallest lambda > 0 with `norm2(lambda) <= energy`, given `norm2(0) > energy > 0`.
-    ///
-    /// With `B = sum b~^2` and the eigenvalues in `[d_min, d_max]`,
-    /// `B / (d_max + lambda)^2 <= norm2(lambda) <= B / (d_min + lambda)^2`, so the root lies in
-    /// `[sqrt(B / E) - d_max, sqrt(B / E) - d_min]`: that bracket (or, when its lower end is not
-    /// positive, one found by stepping down from its upper end by factors of 1e3) is bisected in
-    /// log space until its ends agree to 1e-7 relative; the feasible end is returned.
-    fn bisect(&self, energy: f64) -> f64 {
-        let (dmin, dmax) = self.d.iter().fold((f64::INFINITY, 0.0f64), |(a, b), &d| (a.min(d), b.max(d)));
-        let root = (self.b2.iter().sum::<f64>() / energy).sqrt();
-        let mut hi = (root - dmin).max(root * 1e-3);
-        for _ in 0..64 {
-            // The bound holds exactly; this only absorbs rounding.
-            if self.norm2(hi) <= energy {
-                break;
-            }
-            hi *= 2.0;
-        }
-        let mut lo = root - dmax;
-        if !(lo > 0.0 && lo < hi && self.norm2(lo) > energy) {
-            let mut found = false;
-            for _ in 0..110 {
-                lo = hi * 1e-3;
-                if self.norm2(lo) > energy {
-                    found = true;
-                    break;
-                }
-                hi = lo;
-            }
-            if !found {
-                // norm2(0) exceeds the bound by a rounding error only: the tiny hi is the answer.
-                return hi;
-            }
-        }
-        for _ in 0..64 {
-            if hi <= lo * (1.0 + LAMBDA_RTOL) {
-                break;
-            }
-            let mid = (lo * hi).sqrt();
-            if self.norm2(mid) > energy {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        hi
-    }
-}
-
 fn check_options(opts: &ShOptions) -> Result<()> {
     check_coeffs("light_coeffs", opts.light_coeffs)?;
     check_coeffs("view_coeffs", opts.view_coeffs)?;
@@ -829,47 +575,6 @@ pub(crate) fn fit_sh_with(
     Ok((sh, detail.then_some(kept)))
 }
 
-/// Uniform 8-bit quantization per colour channel of coefficients in the `[.., 3, kv, kl]`
-/// layout, `per_channel = kv * kl` values per channel block: value `x` becomes
-/// `q = round((x - bias) / scale)` with `bias` the channel's minimum and
-/// `scale = (max - min) / 255`, so `|bias + scale * q - x| <= scale / 2`. A channel whose
-/// values are all equal gets `scale = 0` and `q = 0` (no division). `per_channel = 0` is
-/// treated as 1.
-pub fn quantize(coeffs: &[f32], per_channel: usize) -> (Vec<u8>, [f32; 3], [f32; 3]) {
-    let pc = per_channel.max(1);
-    let chan = |k: usize| (k / pc) % 3;
-    let mut lo = [f32::INFINITY; 3];
-    let mut hi = [f32::NEG_INFINITY; 3];
-    for (k, &x) in coeffs.iter().enumerate() {
-        let c = chan(k);
-        if x.is_finite() {
-            lo[c] = lo[c].min(x);
-            hi[c] = hi[c].max(x);
-        }
-    }
-    let mut scale = [0.0f32; 3];
-    let mut bias = [0.0f32; 3];
-    for c in 0..3 {
-        if lo[c] <= hi[c] {
-            bias[c] = lo[c];
-            scale[c] = ((hi[c] as f64 - lo[c] as f64) / 255.0) as f32;
-        }
-    }
-    let q = coeffs
-        .par_iter()
-        .enumerate()
-        .map(|(k, &x)| {
-            let c = chan(k);
-            if scale[c] > 0.0 && x.is_finite() {
-                ((x as f64 - bias[c] as f64) / scale[c] as f64).round().clamp(0.0, 255.0) as u8
-            } else {
-                0
-            }
-        })
-        .collect();
-    (q, scale, bias)
-}
-
 impl Sh {
     /// Coefficients per colour channel, `kv * kl`.
     fn per_channel(&self) -> usize {
@@ -935,16 +640,7 @@ impl Sh {
     pub fn dequantized(&self) -> Vec<f32> {
         match &self.coeffs {
             ShCoeffs::Float(c) => c.clone(),
-            ShCoeffs::Quantized { q, scale, bias } => {
-                let pc = self.per_channel().max(1);
-                q.iter()
-                    .enumerate()
-                    .map(|(k, &x)| {
-                        let c = (k / pc) % 3;
-                        bias[c] + scale[c] * x as f32
-                    })
-                    .collect()
-            }
+            ShCoeffs::Quantized { q, scale, bias } => quantize::dequantize(q, scale, bias, self.per_channel()),
         }
     }
 }
