@@ -96,6 +96,32 @@ pub(crate) fn gemm(a: &View<'_>, b: &View<'_>) -> DMatrix<f32> {
     out
 }
 
+/// Per-row means of a column-major `rows x n` matrix over the given columns (all when `None`),
+/// accumulated in `f64` in column order (deterministic).
+pub(crate) fn column_mean(data: &[f32], rows: usize, columns: Option<&[u32]>) -> Vec<f32> {
+    let n = columns.map_or(data.len() / rows.max(1), |c| c.len());
+    let mut out = vec![0.0f32; rows];
+    const BAND: usize = 2048;
+    out.par_chunks_mut(BAND).enumerate().for_each(|(b, o)| {
+        let r0 = b * BAND;
+        let mut acc = vec![0.0f64; o.len()];
+        let mut add = |j: usize| {
+            for (a, &x) in acc.iter_mut().zip(&data[j * rows + r0..j * rows + r0 + o.len()]) {
+                *a += x as f64;
+            }
+        };
+        match columns {
+            Some(cs) => cs.iter().for_each(|&j| add(j as usize)),
+            None => (0..n).for_each(&mut add),
+        }
+        let inv = 1.0 / n.max(1) as f64;
+        for (x, a) in o.iter_mut().zip(acc) {
+            *x = (a * inv) as f32;
+        }
+    });
+    out
+}
+
 /// A `rows x cols` matrix of independent standard normal values (Box-Muller on the seeded RNG).
 pub(crate) fn gaussian(rows: usize, cols: usize, seed: u64) -> DMatrix<f32> {
     let mut rng = Rng::new(seed);

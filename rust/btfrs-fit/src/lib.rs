@@ -8,6 +8,8 @@
 //!   (paper 002, section 3.1 and appendix).
 //! * [`lpca`]: local PCA, clustered Eigen-BRDFs quantized to 8 bits (paper 004, sections 3 and 6).
 //! * [`mod@kmeans`]: k-means++ and Lloyd on column-major points (the clustering of [`lpca`]).
+//! * [`rpca`]: randomized PCA (Halko et al.'s range finder), for [`lpca`] and the synthesis'
+//!   texton analysis ([`principal_coordinates`]).
 //! * [`model`]: what every model shares: evaluation at any (view, light) and the error against a
 //!   BTF, computed in parallel with f64 accumulation.
 
@@ -18,13 +20,15 @@ pub mod lafortune;
 pub mod lpca;
 pub mod model;
 pub mod ptm;
+pub mod rpca;
 pub mod sh;
 pub mod srf;
 
 pub use kmeans::{kmeans, KMeans};
 pub use lafortune::{fit_lafortune, FitReport, Lafortune, LafortuneKind, LafortuneOptions};
-pub use lpca::{fit_lpca, principal_coordinates, Lpca, LpcaOptions, LpcaQuery};
+pub use lpca::{fit_lpca, Lpca, LpcaOptions, LpcaQuery};
 pub use model::{evaluate_image, model_error, RawModel, ReflectanceModel};
 pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions};
+pub use rpca::principal_coordinates;
 pub use sh::{fit_sh, quantize, sh_basis, Sh, ShCoeffs, ShOptions};
 pub use srf::{fit_srf, Phong, Srf, SrfReport};
