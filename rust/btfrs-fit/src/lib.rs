@@ -28,7 +28,7 @@ pub use kmeans::{kmeans, KMeans};
 pub use lafortune::{fit_lafortune, FitReport, Lafortune, LafortuneKind, LafortuneOptions};
 pub use lpca::{fit_lpca, Lpca, LpcaOptions, LpcaQuery};
 pub use model::{evaluate_image, model_error, RawModel, ReflectanceModel};
-pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions};
+pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions, PtmSlot};
 pub use rpca::principal_coordinates;
 pub use sh::{fit_sh, quantize, sh_basis, Sh, ShCoeffs, ShOptions};
 pub use srf::{fit_srf, Phong, Srf, SrfReport};

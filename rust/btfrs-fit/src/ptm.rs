@@ -21,10 +21,14 @@
 //! A view slot needs at least 6 lights whose (lu, lv) are not degenerate (e.g. all on one line):
 //! such a slot is an error by default, or clamped to a minimum-norm solution on request.
 
+mod slot;
+
 use crate::model::ReflectanceModel;
 use btfrs_core::{directions, BtfRef, Error, Monitor, Result};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
+
+pub use slot::PtmSlot;
 
 /// Coefficients per polynomial.
 pub const NCOEF: usize = 6;
