@@ -10,7 +10,8 @@
 //! ```text
 //! min |Y c - beta|^2  subject to  c^T c <= E
 //!   =>  c = (A + lambda I)^-1 b,   A = Y^T Y,   b = Y^T beta,
-//!       lambda = 0 if the unconstrained solution meets the bound, else the lambda >= 0 with c^T c = E
+//!       lambda = 0 if the unconstrained solution meets the bound,
+//!       else the lambda > 0 with c^T c = E
 //! ```
 //!
 //! (the Lagrange condition of the constrained problem). With the eigendecomposition

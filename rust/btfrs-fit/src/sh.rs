@@ -30,10 +30,11 @@
 //! O(k). With the complete (view, light) grid `A` is a Kronecker product,
 //! `A = (Yv^T Yv) kron (Yl^T Yl)`, and only the two small factors are decomposed; the texel's
 //! `[V, L]` data matrix `F` is then rotated by `b~ = (Yv Qv)^T F (Yl Ql)`, two matrix products that
-//! are batched over a block of texels into two large GEMMs (`matrixmultiply` through nalgebra's
-//! strided views), with `d_ij = dv_i dl_j`. A mask breaks the Kronecker structure: the general
-//! `(kv kl)^2` matrix `A` over the present pairs is decomposed instead, `b` is computed by the same
-//! separable products on data with the absent pairs zeroed, and rotated by a GEMM per block.
+//! are batched over a block of texels into two large GEMMs (`dense::gemm_into`: `matrixmultiply`
+//! through nalgebra's strided views), with `d_ij = dv_i dl_j`. A mask breaks the Kronecker
+//! structure: the general `(kv kl)^2` matrix `A` over the present pairs is decomposed instead, `b`
+//! is computed by the same separable products on data with the absent pairs zeroed, and rotated by
+//! a GEMM per block.
 //!
 //! **Streaming.** Texels are processed in chunks of [`ShOptions::chunk_texels`], in order, with
 //! rayon inside a chunk (paper 002 section 5.2 processes its BTFs scanline by scanline so they
@@ -54,10 +55,11 @@ mod quadrature;
 mod quantize;
 
 use crate::cls::Solver;
+use crate::dense::{gemm, gemm_into, rows, rows_mut, rows_t, sym_eigen_desc, view, view_t};
 use crate::model::ReflectanceModel;
 use basis::basis_matrix;
 use btfrs_core::{BtfRef, Error, Monitor, Result};
-use nalgebra::{DMatrix, Dyn, MatrixView, MatrixViewMut, SymmetricEigen};
+use nalgebra::DMatrix;
 use rayon::prelude::*;
 
 pub use basis::{sh_basis, MAX_COEFFS, MAX_DEGREE};
@@ -122,75 +124,11 @@ pub struct Sh {
     pub mean_lambda: f64,
 }
 
-// ---------------------------------------------------------------------------------------------
-// Dense helpers
-// ---------------------------------------------------------------------------------------------
-
-/// Products with a dimension this small or smaller are not sent to nalgebra's GEMM.
-const GEMM_SMALL: usize = 5;
-
-/// A strided matrix operand: (data, rows, cols, row stride, column stride).
-type Operand<'a> = (&'a [f64], usize, usize, usize, usize);
-
-/// `c = a * b` for strided f64 matrices; `c` is `(rows of a) x (cols of b)` with strides
-/// (`rsc`, `csc`). Goes to `matrixmultiply::dgemm` through nalgebra's dynamic-stride views.
-fn gemm(a: Operand<'_>, b: Operand<'_>, c: &mut [f64], rsc: usize, csc: usize) {
-    let (m, k, n) = (a.1, a.2, b.2);
-    debug_assert_eq!(k, b.1);
-    if m == 0 || n == 0 {
-        return;
-    }
-    if m <= GEMM_SMALL || k <= GEMM_SMALL || n <= GEMM_SMALL {
-        // nalgebra hands only larger products to matrixmultiply; its own fallback for small
-        // dimensions does not take arbitrary strides, so small products are done here.
-        for r in 0..m {
-            for col in 0..n {
-                let mut s = 0.0;
-                for p in 0..k {
-                    s += a.0[r * a.3 + p * a.4] * b.0[p * b.3 + col * b.4];
-                }
-                c[r * rsc + col * csc] = s;
-            }
-        }
-        return;
-    }
-    let av = MatrixView::<f64, Dyn, Dyn, Dyn, Dyn>::from_slice_with_strides(a.0, m, k, a.3, a.4);
-    let bv = MatrixView::<f64, Dyn, Dyn, Dyn, Dyn>::from_slice_with_strides(b.0, k, n, b.3, b.4);
-    let mut cv = MatrixViewMut::<f64, Dyn, Dyn, Dyn, Dyn>::from_slice_with_strides_mut(c, m, n, rsc, csc);
-    cv.gemm(1.0, &av, &bv, 0.0);
-}
-
-/// Row-major copy of a column-major nalgebra matrix.
-fn row_major(m: &DMatrix<f64>) -> Vec<f64> {
-    let (r, c) = m.shape();
-    let mut out = vec![0.0; r * c];
-    for i in 0..r {
-        for j in 0..c {
-            out[i * c + j] = m[(i, j)];
-        }
-    }
-    out
-}
-
-/// `Y^T Y` of a `[rows, k]` row-major matrix, k x k.
-fn gram(y: &[f64], rows: usize, k: usize) -> DMatrix<f64> {
-    let mut g = DMatrix::<f64>::zeros(k, k);
-    for r in 0..rows {
-        let yr = &y[r * k..(r + 1) * k];
-        for i in 0..k {
-            for j in 0..k {
-                g[(i, j)] += yr[i] * yr[j];
-            }
-        }
-    }
-    g
-}
-
 /// Eigenvalues (clamped at 0: `A` is a Gram matrix, negative values are rounding) and
-/// eigenvectors (row-major, column `k` the k-th eigenvector) of a symmetric matrix.
-fn eigen(a: DMatrix<f64>) -> (Vec<f64>, Vec<f64>) {
-    let e = SymmetricEigen::new(a);
-    (e.eigenvalues.iter().map(|&x| x.max(0.0)).collect(), row_major(&e.eigenvectors))
+/// eigenvectors (the columns, in the same order) of the symmetric matrix `a`.
+fn gram_eigen(a: DMatrix<f64>) -> (Vec<f64>, DMatrix<f64>) {
+    let (vals, vecs) = sym_eigen_desc(a);
+    (vals.into_iter().map(|x| x.max(0.0)).collect(), vecs)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -207,11 +145,11 @@ const BLOCK_TEXELS: usize = 16;
 
 /// How `A` is diagonalised.
 enum Rotation {
-    /// Complete grid: `A = Av kron Al`; `pv = Yv Qv`, `pl = Yl Ql` (row-major V x kv, L x kl);
-    /// `qv`, `ql` row-major eigenvectors.
-    Separable { qv: Vec<f64>, ql: Vec<f64> },
+    /// Complete grid: `A = Av kron Al`; `pv = Yv Qv`, `pl = Yl Ql` (V x kv, L x kl); `qv`, `ql`
+    /// the eigenvectors of `Av`, `Al` (columns).
+    Separable { qv: DMatrix<f64>, ql: DMatrix<f64> },
     /// Masked grid: `pv = Yv`, `pl = Yl` (unrotated), `q` the n x n eigenvectors of `A`.
-    General { q: Vec<f64> },
+    General { q: DMatrix<f64> },
 }
 
 /// Everything shared by all texels.
@@ -227,8 +165,8 @@ struct Plan {
     wv: Vec<f64>,
     wl: Vec<f64>,
     energy_scale: f64,
-    pv: Vec<f64>,
-    pl: Vec<f64>,
+    pv: DMatrix<f64>,
+    pl: DMatrix<f64>,
     rot: Rotation,
     /// Eigenvalues of `A`, in the order of the rotated coefficients (separable: `dv_i dl_j` at
     /// `i * kl + j`).
@@ -296,19 +234,17 @@ impl Plan {
         let energy_scale = knobs.energy_factor * if part > 0.0 { all / part } else { 1.0 };
         let yv = basis_matrix(btf.views, kv);
         let yl = basis_matrix(btf.lights, kl);
+        let (yvm, ylm) = (rows(&yv, nv, kv), rows(&yl, nl, kl));
         let (pv, pl, rot, d) = if mask.is_none() && !knobs.force_general {
-            let (dv, qv) = eigen(gram(&yv, nv, kv));
-            let (dl, ql) = eigen(gram(&yl, nl, kl));
-            let mut pv = vec![0.0; nv * kv];
-            gemm((&yv, nv, kv, kv, 1), (&qv, kv, kv, kv, 1), &mut pv, kv, 1);
-            let mut pl = vec![0.0; nl * kl];
-            gemm((&yl, nl, kl, kl, 1), (&ql, kl, kl, kl, 1), &mut pl, kl, 1);
+            let (dv, qv) = gram_eigen(gemm(&rows_t(&yv, nv, kv), &yvm));
+            let (dl, ql) = gram_eigen(gemm(&rows_t(&yl, nl, kl), &ylm));
+            let (pv, pl) = (gemm(&yvm, &view(&qv)), gemm(&ylm, &view(&ql)));
             let d = dv.iter().flat_map(|&a| dl.iter().map(move |&b| a * b)).collect();
             (pv, pl, Rotation::Separable { qv, ql }, d)
         } else {
             let a = general_gram(&yv, &yl, nv, nl, kv, kl, mask.as_deref());
-            let (d, q) = eigen(a);
-            (yv, yl, Rotation::General { q }, d)
+            let (d, q) = gram_eigen(a);
+            (yvm.into_owned(), ylm.into_owned(), Rotation::General { q }, d)
         };
         if !opts.cls {
             let dmax = d.iter().copied().fold(0.0f64, f64::max);
@@ -361,12 +297,12 @@ impl Plan {
         energy.iter_mut().for_each(|e| *e *= self.energy_scale);
         // 2. g[v][(ch, t)][j] = sum_l x[v][(ch, t)][l] pl[l][j]: one GEMM over all rows.
         let mut g = vec![0.0f64; nv * cols * kl];
-        gemm((&x, nv * cols, nl, nl, 1), (&self.pl, nl, kl, kl, 1), &mut g, kl, 1);
+        gemm_into(&rows(&x, nv * cols, nl), &view(&self.pl), &mut rows_mut(&mut g, nv * cols, kl));
         drop(x);
         // 3. bt[i][(ch, t)][j] = sum_v pv[v][i] g[v][(ch, t)][j]: the second GEMM.
         let w = cols * kl;
         let mut bt = vec![0.0f64; kv * w];
-        gemm((&self.pv, kv, nv, 1, kv), (&g, nv, w, w, 1), &mut bt, w, 1);
+        gemm_into(&view_t(&self.pv), &rows(&g, nv, w), &mut rows_mut(&mut bt, kv, w));
         drop(g);
         // 4. Solve in the eigenbasis, rotate back and scatter into [t][ch][i][j].
         let mut scratch = Solver::new(n);
@@ -385,8 +321,8 @@ impl Plan {
                 }
                 // c = Qv c~ Ql^T, batched: first every (i, ch, t) row times Ql^T, then Qv times all.
                 let mut tmp = vec![0.0f64; kv * w];
-                gemm((&bt, kv * cols, kl, kl, 1), (ql, kl, kl, 1, kl), &mut tmp, kl, 1);
-                gemm((qv, kv, kv, kv, 1), (&tmp, kv, w, w, 1), &mut bt, w, 1);
+                gemm_into(&rows(&bt, kv * cols, kl), &view_t(ql), &mut rows_mut(&mut tmp, kv * cols, kl));
+                gemm_into(&view(qv), &rows(&tmp, kv, w), &mut rows_mut(&mut bt, kv, w));
                 for col in 0..cols {
                     let (t, ch) = (col % nb, col / nb);
                     let dst = &mut out[(t * 3 + ch) * n..(t * 3 + ch + 1) * n];
@@ -409,7 +345,7 @@ impl Plan {
                 }
                 drop(bt);
                 let mut rb = vec![0.0f64; n * cols];
-                gemm((q, n, n, 1, n), (&b, n, cols, cols, 1), &mut rb, cols, 1);
+                gemm_into(&view_t(q), &rows(&b, n, cols), &mut rows_mut(&mut rb, n, cols));
                 for col in 0..cols {
                     for k in 0..n {
                         coef[k] = rb[k * cols + col];
@@ -420,7 +356,7 @@ impl Plan {
                         rb[k * cols + col] = coef[k];
                     }
                 }
-                gemm((q, n, n, n, 1), (&rb, n, cols, cols, 1), &mut b, cols, 1);
+                gemm_into(&view(q), &rows(&rb, n, cols), &mut rows_mut(&mut b, n, cols));
                 for col in 0..cols {
                     let (t, ch) = (col % nb, col / nb);
                     let dst = &mut out[(t * 3 + ch) * n..(t * 3 + ch + 1) * n];
