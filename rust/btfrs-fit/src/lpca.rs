@@ -60,7 +60,7 @@ use crate::dense::{cols, column_mean, gemm, gram_t, sym_eigen_desc, view, view_t
 use crate::kmeans::{kmeans, members_of};
 use crate::model::ReflectanceModel;
 use crate::rpca;
-use btfrs_core::{directions, rng::mix, BtfRef, Error, Monitor, Result};
+use btfrs_core::{directions, ensure_arg, rng::mix, BtfRef, Error, Monitor, Result};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 use std::borrow::Cow;
@@ -150,9 +150,7 @@ pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Resu
     if opts.components > MAX_COMPONENTS {
         return Err(Error::arg("components", format!("expected 0 to {MAX_COMPONENTS}, got {}", opts.components)));
     }
-    if opts.kmeans_iterations == 0 {
-        return Err(Error::arg("kmeans_iterations", "expected at least 1, got 0"));
-    }
+    ensure_arg!(opts.kmeans_iterations > 0, "kmeans_iterations", "expected at least 1, got 0");
     let (nv, nl) = (btf.views.len(), btf.lights.len());
     let pairs: Vec<usize> = (0..nv * nl).filter(|&i| btf.has(i / nl, i % nl)).collect();
     let d = pairs.len() * 3;
@@ -572,9 +570,7 @@ impl Lpca {
         }
         directions::validate("views", &self.views)?;
         directions::validate("lights", &self.lights)?;
-        if self.clusters == 0 {
-            return Err(Error::arg("clusters", "expected at least 1 cluster, got 0"));
-        }
+        ensure_arg!(self.clusters > 0, "clusters", "expected at least 1 cluster, got 0");
         if self.components > MAX_COMPONENTS {
             return Err(Error::arg("components", format!("expected 0 to {MAX_COMPONENTS}, got {}", self.components)));
         }

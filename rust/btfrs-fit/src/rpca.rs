@@ -20,7 +20,7 @@
 //!   of them"), through [`principal_coordinates`].
 
 use crate::dense::{self, cols, cols_t, gaussian, gemm, gram_t, orthonormalize, sym_eigen_desc, view, view_t};
-use btfrs_core::{rng::Rng, Error, Monitor, Result};
+use btfrs_core::{ensure_arg, rng::Rng, Monitor, Result};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 use std::borrow::Cow;
@@ -48,12 +48,8 @@ pub fn principal_coordinates(
     seed: u64,
     monitor: &Monitor,
 ) -> Result<(Vec<f32>, usize)> {
-    if d == 0 || n == 0 || data.len() != d * n {
-        return Err(Error::arg("data", format!("expected {n} x {d} values, got {}", data.len())));
-    }
-    if r == 0 {
-        return Err(Error::arg("dims", "expected at least 1 principal component, got 0"));
-    }
+    ensure_arg!(d > 0 && n > 0 && data.len() == d * n, "data", "expected {n} x {d} values, got {}", data.len());
+    ensure_arg!(r > 0, "dims", "expected at least 1 principal component, got 0");
     coordinates(data, d, n, r, seed, monitor)
 }
 

@@ -58,7 +58,7 @@ use crate::cls::Solver;
 use crate::dense::{gemm, gemm_into, rows, rows_mut, rows_t, sym_eigen_desc, view, view_t};
 use crate::model::ReflectanceModel;
 use basis::basis_matrix;
-use btfrs_core::{BtfRef, Error, Monitor, Result};
+use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, Result};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 
@@ -424,9 +424,7 @@ fn general_gram(
 fn check_options(opts: &ShOptions) -> Result<()> {
     check_coeffs("light_coeffs", opts.light_coeffs)?;
     check_coeffs("view_coeffs", opts.view_coeffs)?;
-    if opts.chunk_texels == 0 {
-        return Err(Error::arg("chunk_texels", "expected at least 1 texel per chunk, got 0"));
-    }
+    ensure_arg!(opts.chunk_texels > 0, "chunk_texels", "expected at least 1 texel per chunk, got 0");
     Ok(())
 }
 

@@ -2,7 +2,7 @@
 //! the CPU rasteriser and the GPU pipeline use, so that both see the same clip-space positions.
 
 use super::check_finite3;
-use btfrs_core::{Error, Result};
+use btfrs_core::{ensure_arg, Error, Result};
 use glam::{Mat4, Vec3};
 
 /// `sin` of the angle under which the view direction and `up` count as parallel; `look_at_rh`
@@ -57,9 +57,7 @@ impl Camera {
         if !dir.is_finite() || dir.length_squared() == 0.0 {
             return Err(Error::arg("target", format!("must differ from eye {:?}, got {:?}", self.eye, self.target)));
         }
-        if Vec3::from(self.up).length_squared() == 0.0 {
-            return Err(Error::arg("up", "must be non-zero"));
-        }
+        ensure_arg!(Vec3::from(self.up).length_squared() > 0.0, "up", "must be non-zero");
         if !(self.fov_y_deg > 0.0 && self.fov_y_deg < 180.0) {
             return Err(Error::arg("fov_y_deg", format!("expected a value in (0, 180), got {}", self.fov_y_deg)));
         }

@@ -3,7 +3,7 @@
 //! for the light direction in the point's tangent frame and scale it by this irradiance.
 
 use super::check_finite3;
-use btfrs_core::{Error, Result};
+use btfrs_core::{ensure_arg, Result};
 use glam::Vec3;
 
 /// A light. Intensities are RGB.
@@ -26,16 +26,12 @@ impl Light {
             }
             Light::Directional { direction, intensity } => {
                 check_finite3("direction", *direction)?;
-                if Vec3::from(*direction).length_squared() == 0.0 {
-                    return Err(Error::arg("direction", "must be non-zero"));
-                }
+                ensure_arg!(Vec3::from(*direction).length_squared() > 0.0, "direction", "must be non-zero");
                 intensity
             }
         };
         check_finite3("intensity", *intensity)?;
-        if intensity.iter().any(|&c| c < 0.0) {
-            return Err(Error::arg("intensity", format!("must be non-negative, got {intensity:?}")));
-        }
+        ensure_arg!(intensity.iter().all(|&c| c >= 0.0), "intensity", "must be non-negative, got {intensity:?}");
         Ok(())
     }
 
