@@ -14,8 +14,8 @@
 //! Used by:
 //!
 //! * the local PCA fit (paper 004, sections 3 and 6.3; [`crate::lpca`]): step 1, the principal
-//!   coordinates the clustering works in ([`coordinates`]), and the final PCA of large clusters
-//!   ([`top_directions`]);
+//!   coordinates the clustering works in (`coordinates`), and the final PCA of large clusters
+//!   (`top_directions`);
 //! * the texture synthesis (paper 000, section 4.1: the textons are compared "by a PCA projection
 //!   of them"), through [`principal_coordinates`].
 
@@ -36,10 +36,10 @@ pub(crate) const PROGRESS_UNITS: u64 = 4;
 
 /// `[n, r']` principal coordinates (`r' <= r`, texel-major) of the `n` points of dimension `d`
 /// stored point-major in `data`, by the randomized PCA of the LPCA fit's first step (a random
-/// range finder with one power iteration, see [`coordinates`]' notes). Distances between the
+/// range finder with one power iteration, see `coordinates`' notes). Distances between the
 /// coordinates approximate the distances between the points, which is what the texton analysis
 /// of the synthesis (paper 000 section 4.1, "a PCA projection of them") needs. `monitor`
-/// advances by [`PROGRESS_UNITS`].
+/// advances by 4 (`PROGRESS_UNITS`).
 pub fn principal_coordinates(
     data: &[f32],
     d: usize,
