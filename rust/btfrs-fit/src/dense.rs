@@ -1,65 +1,148 @@
-//! Small dense linear algebra shared by the clustering fits (k-means, local PCA).
+//! Small dense linear algebra shared by the fits (k-means, local PCA, randomized PCA, double SH).
 //!
-//! Everything here works on **column-major** `f32` matrices whose columns are points (a texel's
-//! ABRDF, or its coordinates in a reduced space), which is exactly the texel-major layout of a
-//! BTF: the `[T, D]` data seen column-major is a `D x T` matrix with one texel per column, so it
-//! is multiplied in place, without a copy. Big products go through nalgebra, whose `f32`/`f64`
-//! products on dynamic matrices call the `matrixmultiply` GEMM (any strides, so a transposed view
-//! costs nothing); `matrixmultiply` is single-threaded here, so [`gemm`] splits the output into
-//! blocks over rayon. Small symmetric eigenproblems are solved in `f64`.
+//! The clustering fits work on **column-major** `f32` matrices whose columns are points (a
+//! texel's ABRDF, or its coordinates in a reduced space), which is exactly the texel-major layout
+//! of a BTF: the `[T, D]` data seen column-major is a `D x T` matrix with one texel per column,
+//! so it is multiplied in place, without a copy. The SH fit works on row-major `f64` blocks
+//! ([`rows`], [`rows_mut`]). Products go through nalgebra, whose `f32`/`f64` products on dynamic
+//! matrices call the `matrixmultiply` GEMM (any strides, so a transposed view costs nothing):
+//! [`gemm_into`] is one such call on the calling thread, for callers that are parallel
+//! themselves; [`gemm`] splits the output into blocks over rayon. Small symmetric eigenproblems
+//! are solved in `f64`.
 
 use btfrs_core::rng::Rng;
-use nalgebra::{DMatrix, Dyn, MatrixView};
+use nalgebra::{DMatrix, Dyn, MatrixView, MatrixViewMut};
 use rayon::prelude::*;
 
-/// A borrowed `f32` matrix with arbitrary strides.
-pub(crate) type View<'a> = MatrixView<'a, f32, Dyn, Dyn, Dyn, Dyn>;
+/// The scalars of the products: `f32` and `f64`, the two types for which nalgebra hands a
+/// dynamic product to `matrixmultiply` (it dispatches on the type at run time).
+pub(crate) trait Real: nalgebra::RealField + Copy {}
+impl Real for f32 {}
+impl Real for f64 {}
+
+/// A borrowed matrix with arbitrary strides.
+pub(crate) type View<'a, T = f32> = MatrixView<'a, T, Dyn, Dyn, Dyn, Dyn>;
+/// A mutably borrowed matrix with arbitrary strides.
+pub(crate) type ViewMut<'a, T = f32> = MatrixViewMut<'a, T, Dyn, Dyn, Dyn, Dyn>;
+
+/// The strides of an `nrows x ncols` view: `strides`, except for an empty view, which reads
+/// nothing but which nalgebra's length check rejects unless the stride along its non-empty
+/// dimension is 0.
+fn empty_strides(nrows: usize, ncols: usize, strides: (usize, usize)) -> (usize, usize) {
+    match (nrows, ncols) {
+        (0, 0) => (1, 1),
+        (0, _) => (1, 0),
+        (_, 0) => (0, 1),
+        _ => strides,
+    }
+}
 
 /// `rows x cols` column-major matrix over `data` (column `j` is `data[j * rows..(j + 1) * rows]`).
-pub(crate) fn cols(data: &[f32], rows: usize, cols: usize) -> View<'_> {
-    View::from_slice_with_strides(data, rows, cols, 1, rows.max(1))
+pub(crate) fn cols<T: Real>(data: &[T], rows: usize, cols: usize) -> View<'_, T> {
+    let (rs, cs) = empty_strides(rows, cols, (1, rows));
+    View::from_slice_with_strides(data, rows, cols, rs, cs)
 }
 
 /// The transpose of the column-major `rows x cols` matrix over `data`, i.e. a `cols x rows` view.
-pub(crate) fn cols_t(data: &[f32], rows: usize, cols: usize) -> View<'_> {
-    View::from_slice_with_strides(data, cols, rows, rows.max(1), 1)
+pub(crate) fn cols_t<T: Real>(data: &[T], rows: usize, cols: usize) -> View<'_, T> {
+    let (rs, cs) = empty_strides(cols, rows, (rows, 1));
+    View::from_slice_with_strides(data, cols, rows, rs, cs)
+}
+
+/// `nrows x ncols` row-major matrix over `data` (row `i` is `data[i * ncols..(i + 1) * ncols]`).
+pub(crate) fn rows<T: Real>(data: &[T], nrows: usize, ncols: usize) -> View<'_, T> {
+    cols_t(data, ncols, nrows)
+}
+
+/// The transpose of the row-major `nrows x ncols` matrix over `data`, i.e. an `ncols x nrows` view.
+pub(crate) fn rows_t<T: Real>(data: &[T], nrows: usize, ncols: usize) -> View<'_, T> {
+    cols(data, ncols, nrows)
+}
+
+/// [`rows`], writable (the output of [`gemm_into`]).
+pub(crate) fn rows_mut<T: Real>(data: &mut [T], nrows: usize, ncols: usize) -> ViewMut<'_, T> {
+    let (rs, cs) = empty_strides(nrows, ncols, (ncols, 1));
+    ViewMut::from_slice_with_strides_mut(data, nrows, ncols, rs, cs)
 }
 
 /// A view of an owned matrix.
-pub(crate) fn view(m: &DMatrix<f32>) -> View<'_> {
+pub(crate) fn view<T: Real>(m: &DMatrix<T>) -> View<'_, T> {
     cols(m.as_slice(), m.nrows(), m.ncols())
 }
 
 /// A transposed view of an owned matrix.
-pub(crate) fn view_t(m: &DMatrix<f32>) -> View<'_> {
+pub(crate) fn view_t<T: Real>(m: &DMatrix<T>) -> View<'_, T> {
     cols_t(m.as_slice(), m.nrows(), m.ncols())
 }
 
 /// Products below this many multiply-adds run on one thread (splitting costs more than it saves).
 const PAR_MIN_WORK: usize = 1 << 20;
+/// nalgebra sends products with a dimension below this to a generic fallback (slow, and unsound
+/// with some strided views) instead of `matrixmultiply`.
+const MIN_GEMM_DIM: usize = 6;
+
+/// `x` copied into the top-left corner of a zero `rows x cols` matrix; `None` when `x` already
+/// has that shape.
+fn padded<T: Real>(x: &View<'_, T>, rows: usize, cols: usize) -> Option<DMatrix<T>> {
+    (x.shape() != (rows, cols)).then(|| {
+        let mut p = DMatrix::<T>::zeros(rows, cols);
+        p.view_mut((0, 0), x.shape()).copy_from(x);
+        p
+    })
+}
+
+/// `c = a * b` on the calling thread (one `matrixmultiply` call), for operands and an output with
+/// any strides.
+///
+/// A dimension below [`MIN_GEMM_DIM`] is zero-padded up to it, which copies only the operands
+/// (and the output) that have the thin dimension: the copies are as small as that dimension.
+///
+/// # Panics
+/// If the shapes do not agree (like nalgebra's products).
+pub(crate) fn gemm_into<T: Real>(a: &View<'_, T>, b: &View<'_, T>, c: &mut ViewMut<'_, T>) {
+    let (m, k) = a.shape();
+    let n = b.ncols();
+    assert!(k == b.nrows() && c.shape() == (m, n), "gemm_into: {m}x{k} times {:?} into {:?}", b.shape(), c.shape());
+    if m == 0 || n == 0 {
+        return;
+    }
+    if k == 0 {
+        c.fill(nalgebra::zero());
+        return;
+    }
+    if m >= MIN_GEMM_DIM && n >= MIN_GEMM_DIM && k >= MIN_GEMM_DIM {
+        c.gemm(nalgebra::one(), a, b, nalgebra::zero());
+        return;
+    }
+    let (mp, kp, np) = (m.max(MIN_GEMM_DIM), k.max(MIN_GEMM_DIM), n.max(MIN_GEMM_DIM));
+    let (ap, bp) = (padded(a, mp, kp), padded(b, kp, np));
+    let (av, bv) = (ap.as_ref().map_or(*a, view), bp.as_ref().map_or(*b, view));
+    if (mp, np) == (m, n) {
+        c.gemm(nalgebra::one(), &av, &bv, nalgebra::zero());
+    } else {
+        let mut t = DMatrix::<T>::zeros(mp, np);
+        t.gemm(nalgebra::one(), &av, &bv, nalgebra::zero());
+        c.copy_from(&t.view((0, 0), (m, n)));
+    }
+}
 
 /// `a * b` with the output split into row or column blocks over rayon.
 ///
 /// Each block is one `matrixmultiply` call whose result does not depend on the number of
-/// threads, so the product is deterministic. nalgebra sends products with a dimension of 5 or
-/// less to a generic fallback (slow, and unsound with some strided views), so such operands are
-/// first copied into zero-padded 6-wide matrices: the copy is as small as the thin dimension.
-pub(crate) fn gemm(a: &View<'_>, b: &View<'_>) -> DMatrix<f32> {
+/// threads, so the product is deterministic. Operands with a dimension below [`MIN_GEMM_DIM`]
+/// are first copied into zero-padded matrices (see [`gemm_into`]).
+pub(crate) fn gemm<T: Real>(a: &View<'_, T>, b: &View<'_, T>) -> DMatrix<T> {
     let (m, k) = a.shape();
     let n = b.ncols();
     assert_eq!(k, b.nrows(), "gemm: inner dimensions differ");
     if m == 0 || n == 0 || k == 0 {
         return DMatrix::zeros(m, n);
     }
-    const MIN: usize = 6;
-    if m < MIN || n < MIN || k < MIN {
-        let (mp, kp, np) = (m.max(MIN), k.max(MIN), n.max(MIN));
-        let mut ap = DMatrix::<f32>::zeros(mp, kp);
-        ap.view_mut((0, 0), (m, k)).copy_from(a);
-        let mut bp = DMatrix::<f32>::zeros(kp, np);
-        bp.view_mut((0, 0), (k, n)).copy_from(b);
-        let c = gemm(&view(&ap), &view(&bp));
-        return c.view((0, 0), (m, n)).into_owned();
+    if m < MIN_GEMM_DIM || n < MIN_GEMM_DIM || k < MIN_GEMM_DIM {
+        let (mp, kp, np) = (m.max(MIN_GEMM_DIM), k.max(MIN_GEMM_DIM), n.max(MIN_GEMM_DIM));
+        let (ap, bp) = (padded(a, mp, kp), padded(b, kp, np));
+        let c = gemm(&ap.as_ref().map_or(*a, view), &bp.as_ref().map_or(*b, view));
+        return if (mp, np) == (m, n) { c } else { c.view((0, 0), (m, n)).into_owned() };
     }
     let threads = rayon::current_num_threads().max(1);
     if m * n * k < PAR_MIN_WORK || threads == 1 {
@@ -70,10 +153,10 @@ pub(crate) fn gemm(a: &View<'_>, b: &View<'_>) -> DMatrix<f32> {
         let nb = (2 * threads).min(len / 32).max(1);
         (0..nb).map(|b| (b * len / nb, (b + 1) * len / nb - b * len / nb)).collect()
     };
-    let mut out = DMatrix::<f32>::zeros(m, n);
+    let mut out = DMatrix::<T>::zeros(m, n);
     if m >= n {
         // Row bands of the output (strided in column-major), assembled afterwards.
-        let parts: Vec<(usize, DMatrix<f32>)> =
+        let parts: Vec<(usize, DMatrix<T>)> =
             split(m).into_par_iter().map(|(i0, len)| (i0, a.rows(i0, len) * b)).collect();
         for (i0, p) in parts {
             out.rows_mut(i0, p.nrows()).copy_from(&p);
@@ -93,6 +176,32 @@ pub(crate) fn gemm(a: &View<'_>, b: &View<'_>) -> DMatrix<f32> {
             chunk.copy_from_slice(p.as_slice());
         });
     }
+    out
+}
+
+/// Per-row means of a column-major `rows x n` matrix over the given columns (all when `None`),
+/// accumulated in `f64` in column order (deterministic).
+pub(crate) fn column_mean(data: &[f32], rows: usize, columns: Option<&[u32]>) -> Vec<f32> {
+    let n = columns.map_or(data.len() / rows.max(1), |c| c.len());
+    let mut out = vec![0.0f32; rows];
+    const BAND: usize = 2048;
+    out.par_chunks_mut(BAND).enumerate().for_each(|(b, o)| {
+        let r0 = b * BAND;
+        let mut acc = vec![0.0f64; o.len()];
+        let mut add = |j: usize| {
+            for (a, &x) in acc.iter_mut().zip(&data[j * rows + r0..j * rows + r0 + o.len()]) {
+                *a += x as f64;
+            }
+        };
+        match columns {
+            Some(cs) => cs.iter().for_each(|&j| add(j as usize)),
+            None => (0..n).for_each(&mut add),
+        }
+        let inv = 1.0 / n.max(1) as f64;
+        for (x, a) in o.iter_mut().zip(acc) {
+            *x = (a * inv) as f32;
+        }
+    });
     out
 }
 
@@ -204,6 +313,35 @@ mod tests {
             let at = a.transpose();
             let c2 = gemm(&view_t(&at), &view(&b));
             assert_eq!(c, c2);
+        }
+    }
+
+    #[test]
+    fn gemm_into_writes_strided_outputs_in_both_precisions() {
+        // Row-major operands and outputs (the SH fit's layout), transposed views and thin
+        // dimensions (padded), in f64 and f32, against an f64 triple loop on the same values.
+        for (m, k, n) in [(40, 30, 20), (1, 9, 7), (9, 1, 7), (9, 7, 4), (5, 5, 5), (64, 81, 25), (3, 0, 2)] {
+            let a32 = gaussian(m, k, 5);
+            let b32 = gaussian(k, n, 6);
+            let want = naive(&a32, &b32);
+            let a: Vec<f64> = (0..m * k).map(|i| a32[(i / k, i % k)] as f64).collect(); // row-major
+            let bt: Vec<f64> = (0..n * k).map(|i| b32[(i % k, i / k)] as f64).collect(); // row-major b^T
+            let mut c = vec![f64::NAN; m * n];
+            gemm_into(&rows(&a, m, k), &rows_t(&bt, n, k), &mut rows_mut(&mut c, m, n));
+            for i in 0..m {
+                for j in 0..n {
+                    assert!((c[i * n + j] - want[(i, j)]).abs() < 1e-12, "{m}x{k}x{n} at ({i}, {j})");
+                }
+            }
+            // f32, column-major output.
+            let mut c32 = DMatrix::<f32>::from_element(m, n, f32::NAN);
+            let (cr, cc) = c32.shape();
+            let mut out = ViewMut::from_slice_with_strides_mut(c32.as_mut_slice(), cr, cc, 1, cr.max(1));
+            gemm_into(&view(&a32), &view(&b32), &mut out);
+            let worst = c32.iter().zip(want.iter()).map(|(x, y)| (*x as f64 - y).abs()).fold(0.0, f64::max);
+            assert!(worst < 1e-4 * (k.max(1) as f64).sqrt(), "{m}x{k}x{n}: {worst}");
+            // The parallel product agrees with the single call.
+            assert_eq!(gemm(&view(&a32), &view(&b32)), c32);
         }
     }
 

@@ -17,7 +17,7 @@
 //!
 //! The model is not linear in its parameters, so each fit is a small non-linear least-squares
 //! problem solved by Levenberg-Marquardt with an analytic Jacobian in f64 (the numerics, and why
-//! the exponent is solved for as `ln n`, are in `lafortune/lm.rs`). The paper reports that this fit is slow and "produces visual artifacts" where the
+//! the exponent is solved for as `ln n`, are in `lafortune/kernels.rs`, the iteration in `lafortune/lm.rs`). The paper reports that this fit is slow and "produces visual artifacts" where the
 //! sampling of the hemisphere is sparse or uneven, and interpolates extra images to cure it
 //! (section 6). Here that is handled in three ways:
 //!
@@ -44,12 +44,15 @@
 //! An all-black texel (or channel) has nothing to fit: its parameters are all zero (exponents 1),
 //! with status "converged". Unused lobes of a fit that fell back to fewer lobes are zero, exponent 1.
 
+mod init;
+mod kernels;
 mod lm;
 
 use crate::gpu::{words, GpuLayout, Shader};
 use crate::model::{Model, ReflectanceModel};
 use btfrs_core::{directions, BtfRef, Error, Monitor, NamedArrays, Result};
-use lm::{Basis, Geometry, Layout, Work, MAXM};
+use init::Basis;
+use kernels::{Geometry, Layout, Work, MAXM};
 use rayon::prelude::*;
 use std::borrow::Cow;
 
@@ -368,7 +371,7 @@ impl Context {
         let scale = (yy / n as f64).sqrt();
         w.y[..n].iter_mut().for_each(|v| *v /= scale);
         let fty = self.basis.fty(&w.y);
-        let guesses = lm::initial_guesses(&self.basis, &fty, lay.diffuse, lay.lobes);
+        let guesses = init::initial_guesses(&self.basis, &fty, lay.diffuse, lay.lobes);
         let mut iters = 0usize;
         let mut attempts: Vec<(Layout, f64)> = vec![(lay, LAMBDA0), (lay, LAMBDA_RESTART)];
         attempts.extend((1..lay.lobes).rev().map(|l| (Layout { lobes: l, ..lay }, LAMBDA0)));
@@ -392,7 +395,7 @@ impl Context {
             let la = Layout { lobes: 1, ..lay };
             let mut th = guesses[0];
             lm::project(la, &mut th);
-            let cost = lm::cost(&self.geo, la, &th, w);
+            let cost = kernels::cost(&self.geo, la, &th, w);
             FitOut::new(la, &th, scale, cost, 2, iters)
         }
     }
@@ -411,7 +414,7 @@ impl FitOut {
     /// All zero (exponents 1).
     fn zero(status: u8) -> Self {
         let mut p = [0.0f64; MAXM];
-        for k in 0..lm::MAX_LOBES {
+        for k in 0..kernels::MAX_LOBES {
             p[4 + 4 * k] = 1.0;
         }
         FitOut { p, status, sse: 0.0, iters: 0 }

@@ -8,11 +8,14 @@
 //!   (paper 002, section 3.1 and appendix).
 //! * [`lpca`]: local PCA, clustered Eigen-BRDFs quantized to 8 bits (paper 004, sections 3 and 6).
 //! * [`mod@kmeans`]: k-means++ and Lloyd on column-major points (the clustering of [`lpca`]).
+//! * [`rpca`]: randomized PCA (Halko et al.'s range finder), for [`lpca`] and the synthesis'
+//!   texton analysis ([`principal_coordinates`]).
 //! * [`model`]: the model contract ([`Model`], [`ReflectanceModel`]): fit, evaluation at any
 //!   (view, light), error against a BTF (parallel, f64 accumulation), named arrays, bytes.
 //! * [`gpu`]: the GPU half of the contract: shader, parameter struct ([`gpu_params!`]), store.
 //! * [`registry`]: the list of models every consumer iterates over.
 
+mod cls;
 mod dense;
 pub mod gpu;
 pub mod kmeans;
@@ -21,14 +24,16 @@ pub mod lpca;
 pub mod model;
 pub mod ptm;
 pub mod registry;
+pub mod rpca;
 pub mod sh;
 pub mod srf;
 
 pub use gpu::{GpuLayout, GpuModel, Renderable};
 pub use kmeans::{kmeans, KMeans};
 pub use lafortune::{fit_lafortune, FitReport, Lafortune, LafortuneKind, LafortuneOptions};
-pub use lpca::{fit_lpca, principal_coordinates, Lpca, Lpca3d, LpcaOptions, LpcaQuery};
+pub use lpca::{fit_lpca, Lpca, Lpca3d, LpcaOptions, LpcaQuery};
 pub use model::{evaluate_image, model_error, DynModel, Model, RawModel, ReflectanceModel, Shade};
-pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions};
+pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions, PtmSlot};
+pub use rpca::principal_coordinates;
 pub use sh::{fit_sh, quantize, sh_basis, Sh, ShCoeffs, ShOptions};
 pub use srf::{fit_srf, Phong, Srf, SrfReport};

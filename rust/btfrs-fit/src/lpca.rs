@@ -30,11 +30,12 @@
 //! distance, and the clusters should minimise what LPCA actually stores, the reconstruction error
 //! in the cluster's subspace, not the distance to a centre. So:
 //!
-//! 1. *Reduce*: a randomized PCA of the centred `texels x D` matrix (Halko, Martinsson and Tropp's
-//!    range finder: Gaussian test matrix from the seed, one power iteration, orthonormalisation,
-//!    small eigenproblem) gives every texel `reduced_dims` principal coordinates. The subspace is
-//!    found on at most 2048 texels drawn with the seed, then all texels are projected on it: about
-//!    two and a half GEMM passes over the data for 64^2 texels, which is read in place.
+//! 1. *Reduce*: a randomized PCA of the centred `texels x D` matrix ([`crate::rpca`]: Halko,
+//!    Martinsson and Tropp's range finder, Gaussian test matrix from the seed, one power iteration,
+//!    orthonormalisation, small eigenproblem) gives every texel `reduced_dims` principal
+//!    coordinates. The subspace is found on at most 2048 texels drawn with the seed, then all
+//!    texels are projected on it: about two and a half GEMM passes over the data for 64^2 texels,
+//!    which is read in place.
 //! 2. *k-means* ([`mod@crate::kmeans`]: k-means++ seeding, Lloyd) on those coordinates.
 //! 3. *Refine* (Kambhatla and Leen's local PCA, the objective of Müller et al.): per cluster PCA
 //!    of `c` components, then every texel moves to the cluster whose affine subspace reconstructs it
@@ -43,7 +44,7 @@
 //!    beats k-means followed by PCA.
 //! 4. *Final PCA* of every cluster in the full space, on its member ABRDFs: exactly (eigenvectors of
 //!    the member Gram matrix) for clusters of at most 512 texels, by randomized subspace iteration
-//!    for larger ones. The `D x D` covariance is never formed.
+//!    ([`crate::rpca`]) for larger ones. The `D x D` covariance is never formed.
 //! 5. *Quantize and re-solve* as above.
 //!
 //! Clusters that end up empty are dropped (`clusters` is the number used, which is also below the
@@ -55,18 +56,18 @@
 //! interpolating its present pairs ([`directions::present_pair_weights`]). That is linear, so it
 //! equals interpolating the data, and the model answers every (view, light) pair.
 
-use crate::dense::{cols, cols_t, gaussian, gemm, gram_t, orthonormalize, sym_eigen_desc, view, view_t};
+use crate::dense::{cols, column_mean, gemm, gram_t, sym_eigen_desc, view, view_t};
 use crate::gpu::{pack_u16, words, GpuLayout, Renderable, Shader};
 use crate::kmeans::{kmeans, members_of};
 use crate::model::{unknown_renderer, Model, ReflectanceModel};
-use btfrs_core::{
-    directions,
-    rng::{mix, Rng},
-    BtfRef, Error, Monitor, NamedArrays, Result,
-};
+use crate::rpca;
+use btfrs_core::{directions, ensure_arg, rng::mix, BtfRef, Error, Monitor, NamedArrays, Result};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 use std::borrow::Cow;
+
+/// Moved to [`crate::rpca`] (the synthesis uses it too); kept here for the old path.
+pub use crate::rpca::principal_coordinates;
 
 /// The most Eigen-BRDFs per cluster (besides the mean) a fit may ask for.
 pub const MAX_COMPONENTS: usize = 16;
@@ -75,14 +76,6 @@ pub const MAX_COMPONENTS: usize = 16;
 /// from a Gram or covariance matrix; an `n x n` symmetric eigenproblem of this size takes about
 /// 0.1 s, and above it the randomized subspace iteration is cheaper.
 const EXACT_MAX: usize = 512;
-/// Extra columns of every randomized range finder.
-const OVERSAMPLE: usize = 10;
-/// Power (subspace) iterations of the randomized PCA of a large cluster.
-const POWER_ITERS: usize = 2;
-/// Texels the reduction's range finder samples (see `reduce`).
-const RANGE_SAMPLE: usize = 2048;
-/// Progress units of the reduction (one per pass over the data).
-const REDUCE_UNITS: u64 = 4;
 
 /// Most clusters: the renderers store cluster ids as 16-bit values.
 pub const MAX_CLUSTERS: usize = 65536;
@@ -162,9 +155,7 @@ pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Resu
     if opts.components > MAX_COMPONENTS {
         return Err(Error::arg("components", format!("expected 0 to {MAX_COMPONENTS}, got {}", opts.components)));
     }
-    if opts.kmeans_iterations == 0 {
-        return Err(Error::arg("kmeans_iterations", "expected at least 1, got 0"));
-    }
+    ensure_arg!(opts.kmeans_iterations > 0, "kmeans_iterations", "expected at least 1, got 0");
     let (nv, nl) = (btf.views.len(), btf.lights.len());
     let pairs: Vec<usize> = (0..nv * nl).filter(|&i| btf.has(i / nl, i % nl)).collect();
     let d = pairs.len() * 3;
@@ -172,13 +163,13 @@ pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Resu
     let data: &[f32] = compact.as_deref().unwrap_or(btf.data);
     check_values(data, d, &pairs, nl)?;
 
-    let reduce_units = if opts.reduced_dims > 0 { REDUCE_UNITS } else { 0 };
+    let reduce_units = if opts.reduced_dims > 0 { rpca::PROGRESS_UNITS } else { 0 };
     let total = reduce_units + (opts.kmeans_iterations + opts.refine_iterations + opts.clusters + 1) as u64;
     monitor.start(total);
 
     // 1. The space the clustering works in: principal coordinates, or the ABRDFs themselves.
     let (space, dim): (Cow<'_, [f32]>, usize) = if opts.reduced_dims > 0 {
-        let (p, r) = reduce(data, d, t, opts.reduced_dims, sub_seed(opts.seed, 1), monitor)?;
+        let (p, r) = rpca::coordinates(data, d, t, opts.reduced_dims, sub_seed(opts.seed, 1), monitor)?;
         (Cow::Owned(p), r)
     } else {
         (Cow::Borrowed(data), d)
@@ -324,138 +315,6 @@ fn check_values(data: &[f32], d: usize, pairs: &[usize], nl: usize) -> Result<()
     Ok(())
 }
 
-/// Per-row means of a column-major `rows x n` matrix over the given columns (all when `None`),
-/// accumulated in `f64` in column order (deterministic).
-fn column_mean(data: &[f32], rows: usize, columns: Option<&[u32]>) -> Vec<f32> {
-    let n = columns.map_or(data.len() / rows.max(1), |c| c.len());
-    let mut out = vec![0.0f32; rows];
-    const BAND: usize = 2048;
-    out.par_chunks_mut(BAND).enumerate().for_each(|(b, o)| {
-        let r0 = b * BAND;
-        let mut acc = vec![0.0f64; o.len()];
-        let mut add = |j: usize| {
-            for (a, &x) in acc.iter_mut().zip(&data[j * rows + r0..j * rows + r0 + o.len()]) {
-                *a += x as f64;
-            }
-        };
-        match columns {
-            Some(cs) => cs.iter().for_each(|&j| add(j as usize)),
-            None => (0..n).for_each(&mut add),
-        }
-        let inv = 1.0 / n.max(1) as f64;
-        for (x, a) in o.iter_mut().zip(acc) {
-            *x = (a * inv) as f32;
-        }
-    });
-    out
-}
-
-/// `m -= u s^T` for a column vector `u` (rows) and the column sums `s` of `x`.
-fn subtract_mean_outer(m: &mut DMatrix<f32>, u: &[f32], x: &DMatrix<f32>) {
-    let s: Vec<f64> = x.column_iter().map(|c| c.iter().map(|&v| v as f64).sum()).collect();
-    m.column_iter_mut().zip(s).for_each(|(mut col, sj)| {
-        for (v, &ui) in col.iter_mut().zip(u) {
-            *v -= (ui as f64 * sj) as f32;
-        }
-    });
-}
-
-/// `A_c^T q` for the centred data `A_c = A - mu 1^T` (`A` is `d x t` over `data`): `t x l`.
-fn centred_t_times(data: &[f32], d: usize, t: usize, mu: &[f32], q: &DMatrix<f32>) -> DMatrix<f32> {
-    let mut z = gemm(&cols_t(data, d, t), &view(q));
-    // Subtract 1 (mu^T q): the same number from every row of a column.
-    for (j, mut col) in z.column_iter_mut().enumerate() {
-        let mq: f64 = q.column(j).iter().zip(mu).map(|(&a, &b)| a as f64 * b as f64).sum();
-        col.iter_mut().for_each(|v| *v -= mq as f32);
-    }
-    z
-}
-
-/// `[n, r']` principal coordinates (`r' <= r`, texel-major) of the `n` points of dimension `d`
-/// stored point-major in `data`, by the randomized PCA of the LPCA fit's first step (a random
-/// range finder with one power iteration, see [`reduce`]'s notes). Distances between the
-/// coordinates approximate the distances between the points, which is what the texton analysis
-/// of the synthesis (paper 000 section 4.1, "a PCA projection of them") needs. `monitor`
-/// advances by 4.
-pub fn principal_coordinates(
-    data: &[f32],
-    d: usize,
-    n: usize,
-    r: usize,
-    seed: u64,
-    monitor: &Monitor,
-) -> Result<(Vec<f32>, usize)> {
-    if d == 0 || n == 0 || data.len() != d * n {
-        return Err(Error::arg("data", format!("expected {n} x {d} values, got {}", data.len())));
-    }
-    if r == 0 {
-        return Err(Error::arg("dims", "expected at least 1 principal component, got 0"));
-    }
-    reduce(data, d, n, r, seed, monitor)
-}
-
-/// Step 1: `[T, r']` principal coordinates (`r' <= r`; 0 when all texels are equal) of the
-/// columns of the `d x t` matrix over `data`, by a randomized PCA with one power iteration.
-///
-/// The subspace is found on a random subset of at most [`RANGE_SAMPLE`] texels (all of them in a
-/// smaller sample), then every texel is projected on it: `3 s / t + 1` passes over the data
-/// instead of 4, and the cost of the reduction stops growing with the sample size beyond one
-/// projection pass. A few thousand ABRDFs pin down the leading principal directions of a
-/// material well; the coordinates only steer the clustering, never the stored basis.
-fn reduce(data: &[f32], d: usize, t: usize, r: usize, seed: u64, monitor: &Monitor) -> Result<(Vec<f32>, usize)> {
-    let mut rng = Rng::new(seed);
-    let s = t.min(RANGE_SAMPLE);
-    let sub: Cow<'_, [f32]> = if s < t {
-        // Partial Fisher-Yates: a uniform subset, kept in texel order.
-        let mut idx: Vec<u32> = (0..t as u32).collect();
-        for i in 0..s {
-            idx.swap(i, i + rng.below(t - i));
-        }
-        let mut pick = idx[..s].to_vec();
-        pick.sort_unstable();
-        let mut g = vec![0.0f32; s * d];
-        g.par_chunks_mut(d).zip(pick.par_iter()).for_each(|(o, &j)| {
-            o.copy_from_slice(&data[j as usize * d..(j as usize + 1) * d]);
-        });
-        Cow::Owned(g)
-    } else {
-        Cow::Borrowed(data)
-    };
-    let l = (r + OVERSAMPLE).min(s).min(d);
-    // Centre on the subset's mean: any fixed centre gives the same clustering, and this one
-    // costs no pass over the whole data.
-    let mu = column_mean(&sub, d, None);
-    let omega = gaussian(s, l, rng.next_u64());
-    let mut y = gemm(&cols(&sub, d, s), &view(&omega));
-    subtract_mean_outer(&mut y, &mu, &omega);
-    let q = orthonormalize(&y);
-    monitor.advance(1);
-    monitor.check()?;
-    // One power iteration sharpens the subspace towards the leading singular vectors.
-    let z = centred_t_times(&sub, d, s, &mu, &q);
-    let z = orthonormalize(&z);
-    monitor.advance(1);
-    monitor.check()?;
-    let mut y = gemm(&cols(&sub, d, s), &view(&z));
-    subtract_mean_outer(&mut y, &mu, &z);
-    let q = orthonormalize(&y);
-    drop(sub);
-    monitor.advance(1);
-    monitor.check()?;
-    let z = centred_t_times(data, d, t, &mu, &q);
-    monitor.advance(1);
-    // Rotate to principal axes within the subspace and keep the r strongest.
-    let (vals, vecs) = sym_eigen_desc(gram_t(&z));
-    let top = vals.first().copied().unwrap_or(0.0);
-    let keep = vals.iter().take(r).take_while(|&&v| top > 0.0 && v > 1e-10 * top).count();
-    if keep == 0 {
-        return Ok((Vec::new(), 0));
-    }
-    let vr = DMatrix::<f32>::from_fn(vecs.nrows(), keep, |i, j| vecs[(i, j)] as f32);
-    let p = gemm(&view_t(&vr), &view_t(&z));
-    Ok((p.as_slice().to_vec(), keep))
-}
-
 /// The mean of the member columns and the centred members as a `dim x n` matrix.
 fn gather_centred(points: &[f32], dim: usize, members: &[u32]) -> (Vec<f32>, DMatrix<f32>) {
     let mean = column_mean(points, dim, Some(members));
@@ -497,22 +356,9 @@ fn top_components(xc: &DMatrix<f32>, c: usize, seed: u64) -> DMatrix<f32> {
         let ek = gemm(&view(xc), &view(&w));
         e.columns_mut(0, keep).copy_from(&ek);
     } else {
-        // Randomized subspace iteration (Halko et al., algorithm 4.4) then Rayleigh-Ritz.
-        let l = (c + OVERSAMPLE).min(n).min(dim);
-        let omega = gaussian(n, l, seed);
-        let mut q = orthonormalize(&gemm(&view(xc), &view(&omega)));
-        for _ in 0..POWER_ITERS {
-            let z = orthonormalize(&gemm(&view_t(xc), &view(&q)));
-            q = orthonormalize(&gemm(&view(xc), &view(&z)));
-        }
-        let b = gemm(&view_t(&q), &view(xc));
-        let s = gemm(&view(&b), &view_t(&b));
-        let s = DMatrix::from_fn(s.nrows(), s.ncols(), |i, j| 0.5 * (s[(i, j)] as f64 + s[(j, i)] as f64));
-        let (vals, vecs) = sym_eigen_desc(s);
-        let keep = (0..c.min(vals.len())).take_while(|&j| vals[0] > 0.0 && vals[j] > CUT * vals[0]).count();
-        let u = DMatrix::<f32>::from_fn(q.ncols(), keep, |i, j| vecs[(i, j)] as f32);
-        let ek = gemm(&view(&q), &view(&u));
-        e.columns_mut(0, keep).copy_from(&ek);
+        // Randomized subspace iteration then Rayleigh-Ritz.
+        let ek = rpca::top_directions(xc, c, seed, CUT);
+        e.columns_mut(0, ek.ncols()).copy_from(&ek);
     }
     e
 }
@@ -720,12 +566,12 @@ impl Lpca {
         }
         directions::validate("views", &self.views)?;
         directions::validate("lights", &self.lights)?;
-        if !(1..=MAX_CLUSTERS).contains(&self.clusters) {
-            return Err(Error::arg(
-                "clusters",
-                format!("expected 1 to {MAX_CLUSTERS} clusters, got {}", self.clusters),
-            ));
-        }
+        ensure_arg!(
+            (1..=MAX_CLUSTERS).contains(&self.clusters),
+            "clusters",
+            "expected 1 to {MAX_CLUSTERS} clusters, got {}",
+            self.clusters
+        );
         if self.components > MAX_COMPONENTS {
             return Err(Error::arg("components", format!("expected 0 to {MAX_COMPONENTS}, got {}", self.components)));
         }

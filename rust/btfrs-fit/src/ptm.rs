@@ -21,6 +21,8 @@
 //! A view slot needs at least 6 lights whose (lu, lv) are not degenerate (e.g. all on one line):
 //! such a slot is an error by default, or clamped to a minimum-norm solution on request.
 
+mod slot;
+
 use crate::gpu::{words, GpuLayout, Shader};
 use crate::model::{Model, ReflectanceModel};
 use btfrs_core::arrays::check_finite;
@@ -28,6 +30,8 @@ use btfrs_core::{directions, BtfRef, Error, Monitor, NamedArrays, Result};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 use std::borrow::Cow;
+
+pub use slot::PtmSlot;
 
 /// Coefficients per polynomial.
 pub const NCOEF: usize = 6;

@@ -30,10 +30,11 @@
 //! O(k). With the complete (view, light) grid `A` is a Kronecker product,
 //! `A = (Yv^T Yv) kron (Yl^T Yl)`, and only the two small factors are decomposed; the texel's
 //! `[V, L]` data matrix `F` is then rotated by `b~ = (Yv Qv)^T F (Yl Ql)`, two matrix products that
-//! are batched over a block of texels into two large GEMMs (`matrixmultiply` through nalgebra's
-//! strided views), with `d_ij = dv_i dl_j`. A mask breaks the Kronecker structure: the general
-//! `(kv kl)^2` matrix `A` over the present pairs is decomposed instead, `b` is computed by the same
-//! separable products on data with the absent pairs zeroed, and rotated by a GEMM per block.
+//! are batched over a block of texels into two large GEMMs (`dense::gemm_into`: `matrixmultiply`
+//! through nalgebra's strided views), with `d_ij = dv_i dl_j`. A mask breaks the Kronecker
+//! structure: the general `(kv kl)^2` matrix `A` over the present pairs is decomposed instead, `b`
+//! is computed by the same separable products on data with the absent pairs zeroed, and rotated by
+//! a GEMM per block.
 //!
 //! **Streaming.** Texels are processed in chunks of [`ShOptions::chunk_texels`], in order, with
 //! rayon inside a chunk (paper 002 section 5.2 processes its BTFs scanline by scanline so they
@@ -42,19 +43,31 @@
 //!
 //! **Rendering** (002 section 4.2): unquantize, then the double sum at the tangent-frame view and
 //! light ([`ReflectanceModel`] for [`Sh`]; mirrored by the WGSL shader).
+//!
+//! **Where the parts live.** The basis ([`sh_basis`], `sh/basis.rs`), the quadrature weights of
+//! the energy bound ([`solid_angle_weights`], `sh/quadrature.rs`), the constrained least-squares
+//! solver (`cls.rs`, named for paper 002's appendix) and the 8-bit storage ([`quantize`],
+//! `sh/quantize.rs`) are modules of their own; this file holds the model and the fit that ties
+//! them together.
 
+mod basis;
+mod quadrature;
+mod quantize;
+
+use crate::cls::Solver;
+use crate::dense::{gemm, gemm_into, rows, rows_mut, rows_t, sym_eigen_desc, view, view_t};
 use crate::gpu::{GpuLayout, Shader};
 use crate::model::{Model, ReflectanceModel};
+use basis::basis_matrix;
 use btfrs_core::arrays::check_finite;
-use btfrs_core::{BtfRef, Error, Monitor, NamedArrays, Result};
-use nalgebra::{DMatrix, Dyn, MatrixView, MatrixViewMut, SymmetricEigen};
+use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
+use nalgebra::DMatrix;
 use rayon::prelude::*;
 use std::borrow::Cow;
 
-/// Highest supported SH degree per direction.
-pub const MAX_DEGREE: usize = 7;
-/// Most coefficients per direction, `(MAX_DEGREE + 1)^2`.
-pub const MAX_COEFFS: usize = (MAX_DEGREE + 1) * (MAX_DEGREE + 1);
+pub use basis::{sh_basis, MAX_COEFFS, MAX_DEGREE};
+pub use quadrature::solid_angle_weights;
+pub use quantize::quantize;
 
 /// Fit options.
 #[derive(Debug, Clone, Copy, serde::Deserialize)]
@@ -115,229 +128,11 @@ pub struct Sh {
     pub mean_lambda: f64,
 }
 
-// ---------------------------------------------------------------------------------------------
-// The basis
-// ---------------------------------------------------------------------------------------------
-
-/// The first `n` real orthonormal spherical harmonics at the unit direction `d`, into `out`.
-///
-/// Index `i = L (L + 1) + M` for degree `L` and order `M` in `[-L, L]`:
-///
-/// ```text
-/// M > 0:  sqrt(2) K_L^M cos(M phi) P_L^M(cos theta)
-/// M < 0:  sqrt(2) K_L^|M| sin(|M| phi) P_L^|M|(cos theta)
-/// M = 0:  K_L^0 P_L(cos theta)
-/// K_L^M = sqrt((2L + 1) / (4 pi) (L - M)! / (L + M)!)
-/// ```
-///
-/// with `P_L^M` the associated Legendre functions *with* the Condon-Shortley phase `(-1)^M`
-/// (so `y_1 = -0.4886 y`, `y_2 = 0.4886 z`, `y_3 = -0.4886 x`). No angles are formed: with
-/// `s = sin(theta)`, both `P_L^M(z) = s^M Q_L^M(z)` and the azimuthal factor `s^M e^{i M phi}`
-/// carry `s^M`, so the product is computed from polynomials in `x`, `y`, `z`:
-///
-/// * `C_M + i S_M = (x + i y)^M = s^M (cos(M phi) + i sin(M phi))`, by
-///   `C_{M+1} = x C_M - y S_M`, `S_{M+1} = x S_M + y C_M`, `C_0 = 1`, `S_0 = 0`;
-/// * `Q_M^M = (-1)^M (2M - 1)!!`, `Q_{M+1}^M = (2M + 1) z Q_M^M`,
-///   `Q_L^M = ((2L - 1) z Q_{L-1}^M - (L + M - 1) Q_{L-2}^M) / (L - M)`: the standard
-///   recurrences of `P_L^M` divided by `s^M`;
-/// * `y = sqrt(2) K_L^M Q_L^M C_M` (M > 0), `sqrt(2) K_L^M Q_L^M S_M` (M < 0), `K_L^0 Q_L^0`.
-///
-/// At most `min(n, 64, out.len())` entries are written (degree <= 7); `n` need not be a perfect
-/// square. Plain loops over fixed arrays: the WGSL shader mirrors this function line by line.
-pub fn sh_basis(n: usize, d: [f64; 3], out: &mut [f64]) {
-    let n = n.min(MAX_COEFFS).min(out.len());
-    if n == 0 {
-        return;
-    }
-    let (x, y, z) = (d[0], d[1], d[2]);
-    // Smallest degree lmax with (lmax + 1)^2 >= n.
-    let mut lmax = 0;
-    while (lmax + 1) * (lmax + 1) < n {
-        lmax += 1;
-    }
-    // Azimuthal parts times sin^m(theta): C_m + i S_m = (x + i y)^m.
-    let mut cm = [0.0f64; MAX_DEGREE + 1];
-    let mut sm = [0.0f64; MAX_DEGREE + 1];
-    cm[0] = 1.0;
-    for m in 1..=lmax {
-        cm[m] = x * cm[m - 1] - y * sm[m - 1];
-        sm[m] = x * sm[m - 1] + y * cm[m - 1];
-    }
-    let mut qmm = 1.0; // Q_m^m = (-1)^m (2m - 1)!!
-    for m in 0..=lmax {
-        if m > 0 {
-            qmm *= -((2 * m - 1) as f64);
-        }
-        let mut q2 = 0.0; // Q_{l-2}^m
-        let mut q1 = 0.0; // Q_{l-1}^m
-        for l in m..=lmax {
-            let q = if l == m {
-                qmm
-            } else if l == m + 1 {
-                (2 * m + 1) as f64 * z * qmm
-            } else {
-                ((2 * l - 1) as f64 * z * q1 - (l + m - 1) as f64 * q2) / (l - m) as f64
-            };
-            q2 = q1;
-            q1 = q;
-            // K_l^m^2 = (2l + 1) / (4 pi) * (l - m)! / (l + m)!.
-            let mut k2 = (2 * l + 1) as f64 / (4.0 * std::f64::consts::PI);
-            for f in (l - m + 1)..=(l + m) {
-                k2 /= f as f64;
-            }
-            let center = l * (l + 1);
-            if m == 0 {
-                if center < n {
-                    out[center] = k2.sqrt() * q;
-                }
-            } else {
-                let kq = std::f64::consts::SQRT_2 * k2.sqrt() * q;
-                if center + m < n {
-                    out[center + m] = kq * cm[m];
-                }
-                if center - m < n {
-                    out[center - m] = kq * sm[m];
-                }
-            }
-        }
-    }
-}
-
-/// The basis of every direction, `[dirs.len(), n]` row-major.
-fn basis_matrix(dirs: &[[f64; 3]], n: usize) -> Vec<f64> {
-    let mut y = vec![0.0f64; dirs.len() * n];
-    for (row, d) in y.chunks_mut(n).zip(dirs) {
-        sh_basis(n, *d, row);
-    }
-    y
-}
-
-/// Grid cells per side of the equal-area hemisphere grid used by [`solid_angle_weights`].
-const WEIGHT_GRID: usize = 256;
-
-/// Solid-angle quadrature weights of a set of hemisphere directions, summing to 2 pi.
-///
-/// A uniform `256 x 256` grid of the unit square is mapped to the hemisphere by the equal-area
-/// elevated concentric map (`btfrs_hemimap::square_to_hemisphere`), so every cell covers
-/// `2 pi / 256^2` sr; each cell goes to its angularly nearest direction (a Voronoi partition of
-/// the hemisphere). Identical directions share their cell's weight equally.
-pub fn solid_angle_weights(dirs: &[[f64; 3]]) -> Vec<f64> {
-    let n = dirs.len();
-    if n == 0 {
-        return Vec::new();
-    }
-    let g = WEIGHT_GRID;
-    let counts = (0..g)
-        .into_par_iter()
-        .fold(
-            || vec![0u64; n],
-            |mut acc, r| {
-                let t = (r as f64 + 0.5) / g as f64;
-                for c in 0..g {
-                    let s = (c as f64 + 0.5) / g as f64;
-                    let p: [f64; 3] = btfrs_hemimap::square_to_hemisphere(s, t);
-                    let (mut best, mut arg) = (f64::NEG_INFINITY, 0);
-                    for (k, d) in dirs.iter().enumerate() {
-                        let dot = p[0] * d[0] + p[1] * d[1] + p[2] * d[2];
-                        if dot > best {
-                            best = dot;
-                            arg = k;
-                        }
-                    }
-                    acc[arg] += 1;
-                }
-                acc
-            },
-        )
-        .reduce(
-            || vec![0u64; n],
-            |mut a, b| {
-                a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
-                a
-            },
-        );
-    let cell = std::f64::consts::TAU / (g * g) as f64;
-    let mut w: Vec<f64> = counts.iter().map(|&k| k as f64 * cell).collect();
-    // Ties go to the first of identical directions; spread each group's weight over its members.
-    for i in 0..n {
-        let same: Vec<usize> = (i..n).filter(|&j| dirs[j] == dirs[i]).collect();
-        if same.len() > 1 && w[i] > 0.0 {
-            let share = same.iter().map(|&j| w[j]).sum::<f64>() / same.len() as f64;
-            same.iter().for_each(|&j| w[j] = share);
-        }
-    }
-    w
-}
-
-// ---------------------------------------------------------------------------------------------
-// Dense helpers
-// ---------------------------------------------------------------------------------------------
-
-/// Products with a dimension this small or smaller are not sent to nalgebra's GEMM.
-const GEMM_SMALL: usize = 5;
-
-/// A strided matrix operand: (data, rows, cols, row stride, column stride).
-type Operand<'a> = (&'a [f64], usize, usize, usize, usize);
-
-/// `c = a * b` for strided f64 matrices; `c` is `(rows of a) x (cols of b)` with strides
-/// (`rsc`, `csc`). Goes to `matrixmultiply::dgemm` through nalgebra's dynamic-stride views.
-fn gemm(a: Operand<'_>, b: Operand<'_>, c: &mut [f64], rsc: usize, csc: usize) {
-    let (m, k, n) = (a.1, a.2, b.2);
-    debug_assert_eq!(k, b.1);
-    if m == 0 || n == 0 {
-        return;
-    }
-    if m <= GEMM_SMALL || k <= GEMM_SMALL || n <= GEMM_SMALL {
-        // nalgebra hands only larger products to matrixmultiply; its own fallback for small
-        // dimensions does not take arbitrary strides, so small products are done here.
-        for r in 0..m {
-            for col in 0..n {
-                let mut s = 0.0;
-                for p in 0..k {
-                    s += a.0[r * a.3 + p * a.4] * b.0[p * b.3 + col * b.4];
-                }
-                c[r * rsc + col * csc] = s;
-            }
-        }
-        return;
-    }
-    let av = MatrixView::<f64, Dyn, Dyn, Dyn, Dyn>::from_slice_with_strides(a.0, m, k, a.3, a.4);
-    let bv = MatrixView::<f64, Dyn, Dyn, Dyn, Dyn>::from_slice_with_strides(b.0, k, n, b.3, b.4);
-    let mut cv = MatrixViewMut::<f64, Dyn, Dyn, Dyn, Dyn>::from_slice_with_strides_mut(c, m, n, rsc, csc);
-    cv.gemm(1.0, &av, &bv, 0.0);
-}
-
-/// Row-major copy of a column-major nalgebra matrix.
-fn row_major(m: &DMatrix<f64>) -> Vec<f64> {
-    let (r, c) = m.shape();
-    let mut out = vec![0.0; r * c];
-    for i in 0..r {
-        for j in 0..c {
-            out[i * c + j] = m[(i, j)];
-        }
-    }
-    out
-}
-
-/// `Y^T Y` of a `[rows, k]` row-major matrix, k x k.
-fn gram(y: &[f64], rows: usize, k: usize) -> DMatrix<f64> {
-    let mut g = DMatrix::<f64>::zeros(k, k);
-    for r in 0..rows {
-        let yr = &y[r * k..(r + 1) * k];
-        for i in 0..k {
-            for j in 0..k {
-                g[(i, j)] += yr[i] * yr[j];
-            }
-        }
-    }
-    g
-}
-
 /// Eigenvalues (clamped at 0: `A` is a Gram matrix, negative values are rounding) and
-/// eigenvectors (row-major, column `k` the k-th eigenvector) of a symmetric matrix.
-fn eigen(a: DMatrix<f64>) -> (Vec<f64>, Vec<f64>) {
-    let e = SymmetricEigen::new(a);
-    (e.eigenvalues.iter().map(|&x| x.max(0.0)).collect(), row_major(&e.eigenvectors))
+/// eigenvectors (the columns, in the same order) of the symmetric matrix `a`.
+fn gram_eigen(a: DMatrix<f64>) -> (Vec<f64>, DMatrix<f64>) {
+    let (vals, vecs) = sym_eigen_desc(a);
+    (vals.into_iter().map(|x| x.max(0.0)).collect(), vecs)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -351,16 +146,14 @@ const LS_RCOND: f64 = 1e-15;
 /// Texels per rayon task inside a chunk: enough rows for the GEMMs to run at full speed while
 /// the block's f64 copy (`16 x 81 x 81 x 3 x 8` bytes = 2.5 MB at UBO 81) stays cache friendly.
 const BLOCK_TEXELS: usize = 16;
-/// Relative width at which the bisection for lambda stops (the brief asks for 1e-6).
-const LAMBDA_RTOL: f64 = 1e-7;
 
 /// How `A` is diagonalised.
 enum Rotation {
-    /// Complete grid: `A = Av kron Al`; `pv = Yv Qv`, `pl = Yl Ql` (row-major V x kv, L x kl);
-    /// `qv`, `ql` row-major eigenvectors.
-    Separable { qv: Vec<f64>, ql: Vec<f64> },
+    /// Complete grid: `A = Av kron Al`; `pv = Yv Qv`, `pl = Yl Ql` (V x kv, L x kl); `qv`, `ql`
+    /// the eigenvectors of `Av`, `Al` (columns).
+    Separable { qv: DMatrix<f64>, ql: DMatrix<f64> },
     /// Masked grid: `pv = Yv`, `pl = Yl` (unrotated), `q` the n x n eigenvectors of `A`.
-    General { q: Vec<f64> },
+    General { q: DMatrix<f64> },
 }
 
 /// Everything shared by all texels.
@@ -376,8 +169,8 @@ struct Plan {
     wv: Vec<f64>,
     wl: Vec<f64>,
     energy_scale: f64,
-    pv: Vec<f64>,
-    pl: Vec<f64>,
+    pv: DMatrix<f64>,
+    pl: DMatrix<f64>,
     rot: Rotation,
     /// Eigenvalues of `A`, in the order of the rotated coefficients (separable: `dv_i dl_j` at
     /// `i * kl + j`).
@@ -445,19 +238,17 @@ impl Plan {
         let energy_scale = knobs.energy_factor * if part > 0.0 { all / part } else { 1.0 };
         let yv = basis_matrix(btf.views, kv);
         let yl = basis_matrix(btf.lights, kl);
+        let (yvm, ylm) = (rows(&yv, nv, kv), rows(&yl, nl, kl));
         let (pv, pl, rot, d) = if mask.is_none() && !knobs.force_general {
-            let (dv, qv) = eigen(gram(&yv, nv, kv));
-            let (dl, ql) = eigen(gram(&yl, nl, kl));
-            let mut pv = vec![0.0; nv * kv];
-            gemm((&yv, nv, kv, kv, 1), (&qv, kv, kv, kv, 1), &mut pv, kv, 1);
-            let mut pl = vec![0.0; nl * kl];
-            gemm((&yl, nl, kl, kl, 1), (&ql, kl, kl, kl, 1), &mut pl, kl, 1);
+            let (dv, qv) = gram_eigen(gemm(&rows_t(&yv, nv, kv), &yvm));
+            let (dl, ql) = gram_eigen(gemm(&rows_t(&yl, nl, kl), &ylm));
+            let (pv, pl) = (gemm(&yvm, &view(&qv)), gemm(&ylm, &view(&ql)));
             let d = dv.iter().flat_map(|&a| dl.iter().map(move |&b| a * b)).collect();
             (pv, pl, Rotation::Separable { qv, ql }, d)
         } else {
             let a = general_gram(&yv, &yl, nv, nl, kv, kl, mask.as_deref());
-            let (d, q) = eigen(a);
-            (yv, yl, Rotation::General { q }, d)
+            let (d, q) = gram_eigen(a);
+            (yvm.into_owned(), ylm.into_owned(), Rotation::General { q }, d)
         };
         if !opts.cls {
             let dmax = d.iter().copied().fold(0.0f64, f64::max);
@@ -510,12 +301,12 @@ impl Plan {
         energy.iter_mut().for_each(|e| *e *= self.energy_scale);
         // 2. g[v][(ch, t)][j] = sum_l x[v][(ch, t)][l] pl[l][j]: one GEMM over all rows.
         let mut g = vec![0.0f64; nv * cols * kl];
-        gemm((&x, nv * cols, nl, nl, 1), (&self.pl, nl, kl, kl, 1), &mut g, kl, 1);
+        gemm_into(&rows(&x, nv * cols, nl), &view(&self.pl), &mut rows_mut(&mut g, nv * cols, kl));
         drop(x);
         // 3. bt[i][(ch, t)][j] = sum_v pv[v][i] g[v][(ch, t)][j]: the second GEMM.
         let w = cols * kl;
         let mut bt = vec![0.0f64; kv * w];
-        gemm((&self.pv, kv, nv, 1, kv), (&g, nv, w, w, 1), &mut bt, w, 1);
+        gemm_into(&view_t(&self.pv), &rows(&g, nv, w), &mut rows_mut(&mut bt, kv, w));
         drop(g);
         // 4. Solve in the eigenbasis, rotate back and scatter into [t][ch][i][j].
         let mut scratch = Solver::new(n);
@@ -534,8 +325,8 @@ impl Plan {
                 }
                 // c = Qv c~ Ql^T, batched: first every (i, ch, t) row times Ql^T, then Qv times all.
                 let mut tmp = vec![0.0f64; kv * w];
-                gemm((&bt, kv * cols, kl, kl, 1), (ql, kl, kl, 1, kl), &mut tmp, kl, 1);
-                gemm((qv, kv, kv, kv, 1), (&tmp, kv, w, w, 1), &mut bt, w, 1);
+                gemm_into(&rows(&bt, kv * cols, kl), &view_t(ql), &mut rows_mut(&mut tmp, kv * cols, kl));
+                gemm_into(&view(qv), &rows(&tmp, kv, w), &mut rows_mut(&mut bt, kv, w));
                 for col in 0..cols {
                     let (t, ch) = (col % nb, col / nb);
                     let dst = &mut out[(t * 3 + ch) * n..(t * 3 + ch + 1) * n];
@@ -558,7 +349,7 @@ impl Plan {
                 }
                 drop(bt);
                 let mut rb = vec![0.0f64; n * cols];
-                gemm((q, n, n, 1, n), (&b, n, cols, cols, 1), &mut rb, cols, 1);
+                gemm_into(&view_t(q), &rows(&b, n, cols), &mut rows_mut(&mut rb, n, cols));
                 for col in 0..cols {
                     for k in 0..n {
                         coef[k] = rb[k * cols + col];
@@ -569,7 +360,7 @@ impl Plan {
                         rb[k * cols + col] = coef[k];
                     }
                 }
-                gemm((q, n, n, n, 1), (&rb, n, cols, cols, 1), &mut b, cols, 1);
+                gemm_into(&view(q), &rows(&rb, n, cols), &mut rows_mut(&mut b, n, cols));
                 for col in 0..cols {
                     let (t, ch) = (col % nb, col / nb);
                     let dst = &mut out[(t * 3 + ch) * n..(t * 3 + ch + 1) * n];
@@ -634,121 +425,10 @@ fn general_gram(
     });
     DMatrix::from_vec(n, n, a)
 }
-
-/// Per-(texel, channel) solve in the eigenbasis, with reusable scratch.
-struct Solver {
-    /// Squared rotated right-hand sides and eigenvalues of the nonzero entries.
-    b2: Vec<f64>,
-    d: Vec<f64>,
-}
-
-impl Solver {
-    fn new(n: usize) -> Self {
-        Solver { b2: Vec::with_capacity(n), d: Vec::with_capacity(n) }
-    }
-
-    /// `||c(lambda)||^2 = sum b~_k^2 / (d_k + lambda)^2` over the nonzero `b~_k` (a zero one
-    /// contributes nothing even where `d_k + lambda = 0`). Four independent partial sums, so
-    /// that the divisions run as SIMD lanes instead of one long dependency chain.
-    #[inline]
-    fn norm2(&self, lambda: f64) -> f64 {
-        let mut acc = [0.0f64; 4];
-        let (bb, dd) = (self.b2.chunks_exact(4), self.d.chunks_exact(4));
-        let tail: f64 =
-            bb.remainder().iter().zip(dd.remainder()).map(|(&b2, &d)| b2 / ((d + lambda) * (d + lambda))).sum();
-        for (b, d) in bb.zip(dd) {
-            for k in 0..4 {
-                let den = d[k] + lambda;
-                acc[k] += b[k] / (den * den);
-            }
-        }
-        acc[0] + acc[1] + acc[2] + acc[3] + tail
-    }
-
-    /// Replace `coef` (the rotated `b~`) by `c~ = b~ / (d + lambda)` and return lambda: 0 for
-    /// plain least squares or when the least-squares solution meets `||c||^2 <= energy`,
-    /// otherwise the smallest lambda that meets it (to 1e-6 relative, on the feasible side).
-    fn solve(&mut self, coef: &mut [f64], d: &[f64], energy: f64, cls: bool) -> f64 {
-        self.b2.clear();
-        self.d.clear();
-        for (&b, &dk) in coef.iter().zip(d) {
-            if b != 0.0 {
-                self.b2.push(b * b);
-                self.d.push(dk);
-            }
-        }
-        let lambda = if !cls || self.b2.is_empty() || self.norm2(0.0) <= energy {
-            0.0
-        } else if energy.is_nan() || energy <= 0.0 {
-            // Nonzero data with no quadrature weight (pathological direction sets only): the
-            // only coefficients within a zero energy bound are zeros.
-            coef.iter_mut().for_each(|c| *c = 0.0);
-            return f64::INFINITY;
-        } else {
-            self.bisect(energy)
-        };
-        for (c, &dk) in coef.iter_mut().zip(d) {
-            let den = dk + lambda;
-            *c = if *c == 0.0 || den <= 0.0 { 0.0 } else { *c / den };
-        }
-        lambda
-    }
-
-    /// The smallest lambda > 0 with `norm2(lambda) <= energy`, given `norm2(0) > energy > 0`.
-    ///
-    /// With `B = sum b~^2` and the eigenvalues in `[d_min, d_max]`,
-    /// `B / (d_max + lambda)^2 <= norm2(lambda) <= B / (d_min + lambda)^2`, so the root lies in
-    /// `[sqrt(B / E) - d_max, sqrt(B / E) - d_min]`: that bracket (or, when its lower end is not
-    /// positive, one found by stepping down from its upper end by factors of 1e3) is bisected in
-    /// log space until its ends agree to 1e-7 relative; the feasible end is returned.
-    fn bisect(&self, energy: f64) -> f64 {
-        let (dmin, dmax) = self.d.iter().fold((f64::INFINITY, 0.0f64), |(a, b), &d| (a.min(d), b.max(d)));
-        let root = (self.b2.iter().sum::<f64>() / energy).sqrt();
-        let mut hi = (root - dmin).max(root * 1e-3);
-        for _ in 0..64 {
-            // The bound holds exactly; this only absorbs rounding.
-            if self.norm2(hi) <= energy {
-                break;
-            }
-            hi *= 2.0;
-        }
-        let mut lo = root - dmax;
-        if !(lo > 0.0 && lo < hi && self.norm2(lo) > energy) {
-            let mut found = false;
-            for _ in 0..110 {
-                lo = hi * 1e-3;
-                if self.norm2(lo) > energy {
-                    found = true;
-                    break;
-                }
-                hi = lo;
-            }
-            if !found {
-                // norm2(0) exceeds the bound by a rounding error only: the tiny hi is the answer.
-                return hi;
-            }
-        }
-        for _ in 0..64 {
-            if hi <= lo * (1.0 + LAMBDA_RTOL) {
-                break;
-            }
-            let mid = (lo * hi).sqrt();
-            if self.norm2(mid) > energy {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        hi
-    }
-}
-
 fn check_options(opts: &ShOptions) -> Result<()> {
     check_coeffs("light_coeffs", opts.light_coeffs)?;
     check_coeffs("view_coeffs", opts.view_coeffs)?;
-    if opts.chunk_texels == 0 {
-        return Err(Error::arg("chunk_texels", "expected at least 1 texel per chunk, got 0"));
-    }
+    ensure_arg!(opts.chunk_texels > 0, "chunk_texels", "expected at least 1 texel per chunk, got 0");
     Ok(())
 }
 
@@ -833,47 +513,6 @@ pub(crate) fn fit_sh_with(
     Ok((sh, detail.then_some(kept)))
 }
 
-/// Uniform 8-bit quantization per colour channel of coefficients in the `[.., 3, kv, kl]`
-/// layout, `per_channel = kv * kl` values per channel block: value `x` becomes
-/// `q = round((x - bias) / scale)` with `bias` the channel's minimum and
-/// `scale = (max - min) / 255`, so `|bias + scale * q - x| <= scale / 2`. A channel whose
-/// values are all equal gets `scale = 0` and `q = 0` (no division). `per_channel = 0` is
-/// treated as 1.
-pub fn quantize(coeffs: &[f32], per_channel: usize) -> (Vec<u8>, [f32; 3], [f32; 3]) {
-    let pc = per_channel.max(1);
-    let chan = |k: usize| (k / pc) % 3;
-    let mut lo = [f32::INFINITY; 3];
-    let mut hi = [f32::NEG_INFINITY; 3];
-    for (k, &x) in coeffs.iter().enumerate() {
-        let c = chan(k);
-        if x.is_finite() {
-            lo[c] = lo[c].min(x);
-            hi[c] = hi[c].max(x);
-        }
-    }
-    let mut scale = [0.0f32; 3];
-    let mut bias = [0.0f32; 3];
-    for c in 0..3 {
-        if lo[c] <= hi[c] {
-            bias[c] = lo[c];
-            scale[c] = ((hi[c] as f64 - lo[c] as f64) / 255.0) as f32;
-        }
-    }
-    let q = coeffs
-        .par_iter()
-        .enumerate()
-        .map(|(k, &x)| {
-            let c = chan(k);
-            if scale[c] > 0.0 && x.is_finite() {
-                ((x as f64 - bias[c] as f64) / scale[c] as f64).round().clamp(0.0, 255.0) as u8
-            } else {
-                0
-            }
-        })
-        .collect();
-    (q, scale, bias)
-}
-
 impl Sh {
     /// Coefficients per colour channel, `kv * kl`.
     fn per_channel(&self) -> usize {
@@ -930,16 +569,7 @@ impl Sh {
     pub fn dequantized(&self) -> Vec<f32> {
         match &self.coeffs {
             ShCoeffs::Float(c) => c.clone(),
-            ShCoeffs::Quantized { q, scale, bias } => {
-                let pc = self.per_channel().max(1);
-                q.iter()
-                    .enumerate()
-                    .map(|(k, &x)| {
-                        let c = (k / pc) % 3;
-                        bias[c] + scale[c] * x as f32
-                    })
-                    .collect()
-            }
+            ShCoeffs::Quantized { q, scale, bias } => quantize::dequantize(q, scale, bias, self.per_channel()),
         }
     }
 }

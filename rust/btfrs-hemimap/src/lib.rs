@@ -26,7 +26,9 @@
 //!
 //! All maps are generic over `f32` and `f64` through the sealed [`Real`] trait, never panic, and
 //! have slice versions (`*_batch`) that run in parallel with rayon for large inputs and report a
-//! length mismatch as a [`LengthMismatch`] error.
+//! length mismatch as a [`LengthMismatch`] error. [`Map`] names each map at run time and applies
+//! it to a flat coordinate array (`[n, 2]` or `[n, 3]` values), rejecting NaN and infinite
+//! coordinates with a [`BatchError`]: the form bindings and file readers need.
 
 #![warn(missing_docs)]
 
@@ -78,6 +80,18 @@ where
     if input.len() != out.len() {
         return Err(LengthMismatch { input: input.len(), output: out.len() });
     }
+    fill(input, out, f);
+    Ok(())
+}
+
+/// [`map_into`] for slices of equal length (the caller checked).
+#[inline]
+fn fill<I, O, F>(input: &[I], out: &mut [O], f: F)
+where
+    I: Sync,
+    O: Send,
+    F: Fn(&I) -> O + Sync,
+{
     if input.len() < PARALLEL_THRESHOLD {
         for (o, i) in out.iter_mut().zip(input) {
             *o = f(i);
@@ -89,7 +103,6 @@ where
             }
         });
     }
-    Ok(())
 }
 
 /// [`square_to_hemisphere`] over a slice: `out[i] = square_to_hemisphere(st[i][0], st[i][1])`.
@@ -128,6 +141,99 @@ pub fn square_to_disk_batch<T: Real + Send + Sync>(st: &[[T; 2]], out: &mut [[T;
 /// [`LengthMismatch`] if `xy.len() != out.len()` (then `out` is not modified).
 pub fn disk_to_square_batch<T: Real + Send + Sync>(xy: &[[T; 2]], out: &mut [[T; 2]]) -> Result<(), LengthMismatch> {
     map_into(xy, out, |&[x, y]| disk_to_square(x, y))
+}
+
+/// One of the maps of this crate, named at run time, for flat coordinate arrays: a `[..., 2]` or
+/// `[..., 3]` array of any batch shape is, row-major, `n` points of [`Map::input_dim`] values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Map {
+    /// [`square_to_disk`]: square `(s, t)` to disk `(x, y)`.
+    SquareToDisk,
+    /// [`disk_to_square`]: disk `(x, y)` to square `(s, t)`.
+    DiskToSquare,
+    /// [`square_to_hemisphere`]: square `(s, t)` to a unit direction `(x, y, z)`.
+    SquareToHemisphere,
+    /// [`hemisphere_to_square`]: a direction `(x, y, z)` to square `(s, t)`.
+    HemisphereToSquare,
+}
+
+/// Why [`Map::apply`] rejected a flat array.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum BatchError {
+    /// The array's length is not a multiple of the map's [`Map::input_dim`].
+    Length {
+        /// Values in the array.
+        len: usize,
+        /// Values per point the map takes.
+        dim: usize,
+    },
+    /// A coordinate is NaN or infinite: the maps would carry it into the output unnoticed.
+    NotFinite {
+        /// Its flat index in the array (the first such one).
+        index: usize,
+    },
+}
+
+impl core::fmt::Display for BatchError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            BatchError::Length { len, dim } => {
+                write!(f, "expected points of {dim} values, got {len} values (not a multiple of {dim})")
+            }
+            BatchError::NotFinite { index } => write!(f, "value at flat index {index} is not finite"),
+        }
+    }
+}
+
+impl std::error::Error for BatchError {}
+
+impl Map {
+    /// Values per input point: 3 for [`Map::HemisphereToSquare`], else 2.
+    pub const fn input_dim(self) -> usize {
+        match self {
+            Map::HemisphereToSquare => 3,
+            _ => 2,
+        }
+    }
+
+    /// Values per output point: 3 for [`Map::SquareToHemisphere`], else 2.
+    pub const fn output_dim(self) -> usize {
+        match self {
+            Map::SquareToHemisphere => 3,
+            _ => 2,
+        }
+    }
+
+    /// The map applied to every point of the flat array `input` (`n * input_dim()` values, point
+    /// after point), giving `n * output_dim()` values in the same order; in parallel above
+    /// [`PARALLEL_THRESHOLD`] points.
+    ///
+    /// # Errors
+    /// [`BatchError::Length`] if `input.len()` is not a multiple of [`Map::input_dim`],
+    /// [`BatchError::NotFinite`] for the first NaN or infinite value.
+    pub fn apply<T: Real>(self, input: &[T]) -> Result<Vec<T>, BatchError> {
+        let dim = self.input_dim();
+        if !input.len().is_multiple_of(dim) {
+            return Err(BatchError::Length { len: input.len(), dim });
+        }
+        if let Some(index) = input.iter().position(|v| !v.is_finite()) {
+            return Err(BatchError::NotFinite { index });
+        }
+        Ok(match self {
+            Map::SquareToDisk => flat(input, |&[s, t]: &[T; 2]| square_to_disk(s, t)),
+            Map::DiskToSquare => flat(input, |&[x, y]: &[T; 2]| disk_to_square(x, y)),
+            Map::SquareToHemisphere => flat(input, |&[s, t]: &[T; 2]| square_to_hemisphere(s, t)),
+            Map::HemisphereToSquare => flat(input, |&d: &[T; 3]| hemisphere_to_square(d)),
+        })
+    }
+}
+
+/// `f` over the `I`-value points of `input` (whose length is a multiple of `I`), flattened.
+fn flat<T: Real, const I: usize, const O: usize>(input: &[T], f: impl Fn(&[T; I]) -> [T; O] + Sync) -> Vec<T> {
+    let (points, _) = input.as_chunks::<I>();
+    let mut out = vec![[T::ZERO; O]; points.len()];
+    fill(points, &mut out, f);
+    out.into_flattened()
 }
 
 #[cfg(test)]

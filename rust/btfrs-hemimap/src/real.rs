@@ -63,6 +63,8 @@ pub trait Real:
     fn atan2(self, x: Self) -> Self;
     /// Clamps into `[lo, hi]`; NaN stays NaN. `lo <= hi` is the caller's (this crate's) duty.
     fn clamp(self, lo: Self, hi: Self) -> Self;
+    /// Neither NaN nor infinite.
+    fn is_finite(self) -> bool;
 }
 
 macro_rules! impl_real {
@@ -102,6 +104,10 @@ macro_rules! impl_real {
             #[inline(always)]
             fn atan2(self, x: Self) -> Self {
                 <$t>::atan2(self, x)
+            }
+            #[inline(always)]
+            fn is_finite(self) -> bool {
+                <$t>::is_finite(self)
             }
             #[inline(always)]
             fn clamp(self, lo: Self, hi: Self) -> Self {

@@ -624,3 +624,59 @@ fn inverse_is_scale_invariant_even_for_extreme_lengths() {
         assert!((st[0] - want[0]).abs() < 1e-12 && (st[1] - want[1]).abs() < 1e-12, "{k}: {st:?}");
     }
 }
+
+#[test]
+fn map_apply_matches_the_scalar_maps_in_both_precisions() {
+    // Flat arrays on both sides of the parallel threshold, each value compared with the scalar map
+    // (bit for bit: the batch must be the same function, only applied many times).
+    fn check<T: Real>(n: usize) {
+        let mut rng = SplitMix(11);
+        let st: Vec<T> = (0..2 * n).map(|_| T::from_f64(rng.next_f64())).collect();
+        let disk = Map::SquareToDisk.apply(&st).unwrap();
+        let dirs = Map::SquareToHemisphere.apply(&st).unwrap();
+        assert_eq!((disk.len(), dirs.len()), (2 * n, 3 * n));
+        for i in 0..n {
+            let (s, t) = (st[2 * i], st[2 * i + 1]);
+            let d = square_to_disk(s, t);
+            assert!(disk[2 * i].to_f64() == d[0].to_f64() && disk[2 * i + 1].to_f64() == d[1].to_f64());
+            let h = square_to_hemisphere(s, t);
+            for k in 0..3 {
+                assert!(dirs[3 * i + k].to_f64() == h[k].to_f64(), "point {i}");
+            }
+        }
+        let back = Map::HemisphereToSquare.apply(&dirs).unwrap();
+        let back_disk = Map::DiskToSquare.apply(&disk).unwrap();
+        for i in 0..n {
+            let want = hemisphere_to_square([dirs[3 * i], dirs[3 * i + 1], dirs[3 * i + 2]]);
+            assert!(back[2 * i].to_f64() == want[0].to_f64() && back[2 * i + 1].to_f64() == want[1].to_f64());
+            let want = disk_to_square(disk[2 * i], disk[2 * i + 1]);
+            assert!(back_disk[2 * i].to_f64() == want[0].to_f64() && back_disk[2 * i + 1].to_f64() == want[1].to_f64());
+        }
+    }
+    for n in [0, 1, 1000, PARALLEL_THRESHOLD + 17] {
+        check::<f32>(n);
+        check::<f64>(n);
+    }
+    // Known values, independent of the code above: the centre is the pole, (1, 0.5) is +x.
+    assert_eq!(Map::SquareToHemisphere.apply(&[0.5f64, 0.5, 1.0, 0.5]).unwrap()[..3], [0.0, 0.0, 1.0]);
+    let px = Map::SquareToHemisphere.apply(&[1.0f64, 0.5]).unwrap();
+    assert!((px[0] - 1.0).abs() < 1e-15 && px[1].abs() < 1e-15 && px[2].abs() < 1e-15, "{px:?}");
+    assert_eq!(Map::HemisphereToSquare.apply(&[0.0f32, 0.0, 1.0]).unwrap(), vec![0.5, 0.5]);
+}
+
+#[test]
+fn map_apply_rejects_ragged_and_non_finite_input() {
+    assert_eq!(Map::SquareToDisk.apply(&[0.5f64; 3]), Err(BatchError::Length { len: 3, dim: 2 }));
+    assert_eq!(Map::HemisphereToSquare.apply(&[0.0f32; 4]), Err(BatchError::Length { len: 4, dim: 3 }));
+    assert_eq!(Map::DiskToSquare.apply(&[0.1f64, 0.2, f64::NAN, 0.0]), Err(BatchError::NotFinite { index: 2 }));
+    assert_eq!(
+        Map::SquareToHemisphere.apply(&[0.5f32, f32::INFINITY, f32::NAN, 0.5]),
+        Err(BatchError::NotFinite { index: 1 })
+    );
+    assert_eq!(Map::SquareToDisk.apply::<f64>(&[]), Ok(Vec::new()));
+    assert_eq!((Map::HemisphereToSquare.input_dim(), Map::HemisphereToSquare.output_dim()), (3, 2));
+    assert_eq!((Map::SquareToHemisphere.input_dim(), Map::SquareToHemisphere.output_dim()), (2, 3));
+    let msg = BatchError::NotFinite { index: 7 }.to_string();
+    assert!(msg.contains("flat index 7"), "{msg}");
+    assert!(BatchError::Length { len: 5, dim: 3 }.to_string().contains("5 values"));
+}

@@ -1,29 +1,24 @@
 //! Bindings of btfrs-hemimap: the (elevated) concentric map over numpy arrays of any batch shape.
 
 use crate::arrays::check_shape;
-use crate::errors::arg;
 use crate::run::detach;
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
-/// Apply `f` (an `IN`-to-`OUT` map) to every row of a `[..., IN]` array, keeping its dtype.
-fn apply<'py, const IN: usize, const OUT: usize>(
-    py: Python<'py>,
-    name: &str,
-    x: &Bound<'py, PyAny>,
-    f32f: fn([f32; IN]) -> [f32; OUT],
-    f64f: fn([f64; IN]) -> [f64; OUT],
-) -> PyResult<Bound<'py, PyAny>> {
+/// Apply `map` to every row of a `[..., IN]` array, keeping its dtype (the batch map and its
+/// checks are `btfrs_hemimap::Map::apply`; this only translates the numpy shapes).
+fn apply<'py>(py: Python<'py>, name: &str, x: &Bound<'py, PyAny>, map: hm::Map) -> PyResult<Bound<'py, PyAny>> {
+    let (inp, outp) = (map.input_dim(), map.output_dim());
     macro_rules! go {
-        ($t:ty, $f:expr) => {{
+        ($t:ty) => {{
             let a: PyReadonlyArrayDyn<'py, $t> = x.cast::<PyArrayDyn<$t>>()?.readonly();
             let shape = a.shape().to_vec();
-            if shape.last() != Some(&IN) {
+            if shape.last() != Some(&inp) {
                 let mut want: Vec<Option<usize>> = shape.iter().map(|_| None).collect();
                 if let Some(w) = want.last_mut() {
-                    *w = Some(IN)
+                    *w = Some(inp)
                 } else {
-                    want.push(Some(IN))
+                    want.push(Some(inp))
                 }
                 check_shape(name, &shape, &want)?;
             }
@@ -35,22 +30,16 @@ fn apply<'py, const IN: usize, const OUT: usize>(
                     &owned
                 }
             };
-            if let Some(i) = s.iter().position(|v| !v.is_finite()) {
-                return Err(arg(name, format!("value at flat index {i} is not finite")));
-            }
-            let out: Vec<$t> = detach(py, || {
-                use rayon::prelude::*;
-                Ok(s.as_chunks::<IN>().0.par_iter().flat_map_iter(|p| $f(*p)).collect())
-            })?;
+            let out: Vec<$t> = detach(py, || map.apply(s).map_err(|e| btfrs_core::Error::arg(name, e)))?;
             let mut oshape = shape.clone();
-            *oshape.last_mut().expect("non-empty shape") = OUT;
+            *oshape.last_mut().expect("non-empty shape") = outp;
             Ok(out.into_pyarray(py).reshape(oshape)?.into_any())
         }};
     }
     if x.cast::<PyArrayDyn<f32>>().is_ok() {
-        go!(f32, f32f)
+        go!(f32)
     } else if x.cast::<PyArrayDyn<f64>>().is_ok() {
-        go!(f64, f64f)
+        go!(f64)
     } else {
         Err(crate::errors::arg_type(name, "expected a float32 or float64 numpy array"))
     }
@@ -61,23 +50,23 @@ use btfrs_hemimap as hm;
 /// Concentric map, square `[..., 2]` in [0, 1]^2 -> unit disk `[..., 2]`.
 #[pyfunction]
 pub fn square_to_disk<'py>(py: Python<'py>, st: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
-    apply::<2, 2>(py, "st", st, |p| hm::square_to_disk(p[0], p[1]), |p| hm::square_to_disk(p[0], p[1]))
+    apply(py, "st", st, hm::Map::SquareToDisk)
 }
 
 /// Inverse concentric map, disk `[..., 2]` -> square `[..., 2]`.
 #[pyfunction]
 pub fn disk_to_square<'py>(py: Python<'py>, xy: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
-    apply::<2, 2>(py, "xy", xy, |p| hm::disk_to_square(p[0], p[1]), |p| hm::disk_to_square(p[0], p[1]))
+    apply(py, "xy", xy, hm::Map::DiskToSquare)
 }
 
 /// Elevated concentric map (paper 004, section 6.1), square `[..., 2]` -> hemisphere `[..., 3]`.
 #[pyfunction]
 pub fn square_to_hemisphere<'py>(py: Python<'py>, st: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
-    apply::<2, 3>(py, "st", st, |p| hm::square_to_hemisphere(p[0], p[1]), |p| hm::square_to_hemisphere(p[0], p[1]))
+    apply(py, "st", st, hm::Map::SquareToHemisphere)
 }
 
 /// Inverse elevated concentric map, directions `[..., 3]` -> square `[..., 2]`.
 #[pyfunction]
 pub fn hemisphere_to_square<'py>(py: Python<'py>, d: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
-    apply::<3, 2>(py, "directions", d, hm::hemisphere_to_square, hm::hemisphere_to_square)
+    apply(py, "directions", d, hm::Map::HemisphereToSquare)
 }

@@ -4,7 +4,7 @@ use crate::arrays::{borrow, check_shape};
 use crate::errors::{arg, IntoPy};
 use crate::models::PyModel;
 use crate::run::detach;
-use btfrs_fit::PtmKind;
+use btfrs_fit::{Ptm, PtmKind, PtmSlot};
 use btfrs_io::container::{self, as_bytes, ArrayRef, Dtype};
 use btfrs_io::ptm_file::{self, PtmFormat, PtmImage};
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
@@ -102,26 +102,14 @@ pub fn write_ptm(py: Python<'_>, path: PathBuf, model: &PyModel, view: usize) ->
     let p = model
         .inner
         .as_any()
-        .downcast_ref::<btfrs_fit::Ptm>()
+        .downcast_ref::<Ptm>()
         .ok_or_else(|| arg("model", format!("expected a PTM, got a {} model", model.inner.kind())))?;
-    let nv = p.views.len();
-    if view >= nv {
-        return Err(arg("view", format!("expected a view slot index in [0, {nv}), got {view}")));
-    }
-    let (h, w) = (p.height, p.width);
-    let (format, coeffs, rgb) = match p.kind {
-        PtmKind::Rgb => {
-            let c: Vec<f32> = (0..h * w).flat_map(|t| p.coeffs[(t * nv + view) * 18..][..18].iter().copied()).collect();
-            (PtmFormat::Rgb, c, None)
-        }
-        PtmKind::Lrgb => {
-            let c: Vec<f32> = (0..h * w).flat_map(|t| p.coeffs[(t * nv + view) * 6..][..6].iter().copied()).collect();
-            let r = p.rgb.as_ref().expect("validated");
-            let b: Vec<f32> = (0..h * w).flat_map(|t| r[(t * nv + view) * 3..][..3].iter().copied()).collect();
-            (PtmFormat::Lrgb, c, Some(b))
-        }
+    let slot = p.slot(view).py()?;
+    let format = match slot.kind {
+        PtmKind::Rgb => PtmFormat::Rgb,
+        PtmKind::Lrgb => PtmFormat::Lrgb,
     };
-    let img = PtmImage { width: w, height: h, format, coeffs, rgb };
+    let img = PtmImage { width: slot.width, height: slot.height, format, coeffs: slot.coeffs, rgb: slot.rgb };
     let q = detach(py, || ptm_file::write_ptm(&path, &img))?;
     Ok((q.scale.to_vec(), q.bias.to_vec()))
 }
@@ -134,16 +122,8 @@ pub fn read_ptm(py: Python<'_>, path: PathBuf) -> PyResult<PyModel> {
         PtmFormat::Rgb => PtmKind::Rgb,
         PtmFormat::Lrgb => PtmKind::Lrgb,
     };
-    let inner = btfrs_fit::Ptm {
-        kind,
-        height: img.height,
-        width: img.width,
-        views: vec![[0.0, 0.0, 1.0]],
-        coeffs: img.coeffs,
-        rgb: img.rgb,
-    };
-    inner.validate().py()?;
-    Ok(PyModel { inner: Box::new(inner) })
+    let slot = PtmSlot { kind, height: img.height, width: img.width, coeffs: img.coeffs, rgb: img.rgb };
+    Ok(PyModel { inner: Box::new(Ptm::from_slot(slot).py()?) })
 }
 
 /// Write a `[H, W, 3]` float32 linear image as an 8-bit sRGB PNG.

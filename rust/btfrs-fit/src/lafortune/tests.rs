@@ -1,5 +1,5 @@
 #![allow(clippy::needless_range_loop)] // index loops mirror the formulas being checked
-use super::lm::{self, Geometry, Layout, Work, CH, MAXM};
+use super::kernels::{self, Geometry, Layout, Work, CH, MAXM};
 use super::*;
 use crate::model::model_error;
 use btfrs_core::directions::ubo81;
@@ -111,15 +111,15 @@ fn fast_math_errors<const F: bool>() -> (f64, f64) {
         // exp over the whole clamped range, with many points near 0.
         let x = if i % 2 == 0 { -700.0 + 1400.0 * rng.next_f64() } else { 4.0 * (rng.next_f64() - 0.5) };
         let want = x.exp();
-        worst_exp = worst_exp.max((lm::exp_fast::<F>(x) - want).abs() / want);
+        worst_exp = worst_exp.max((kernels::exp_fast::<F>(x) - want).abs() / want);
         // ln over 1e-300..1e300, and densely around 1 where the absolute error matters.
         let y = if i % 2 == 0 { 10f64.powf(-300.0 + 600.0 * rng.next_f64()) } else { 0.5 + rng.next_f64() };
         let want = y.ln();
-        worst_ln = worst_ln.max((lm::ln_fast::<F>(y) - want).abs() / want.abs().max(1.0));
+        worst_ln = worst_ln.max((kernels::ln_fast::<F>(y) - want).abs() / want.abs().max(1.0));
     }
-    assert_eq!(lm::ln_fast::<F>(1.0), 0.0);
-    assert_eq!(lm::exp_fast::<F>(0.0), 1.0);
-    assert!(lm::exp_fast::<F>(1e6).is_finite() && lm::exp_fast::<F>(-1e6) >= 0.0);
+    assert_eq!(kernels::ln_fast::<F>(1.0), 0.0);
+    assert_eq!(kernels::exp_fast::<F>(0.0), 1.0);
+    assert!(kernels::exp_fast::<F>(1e6).is_finite() && kernels::exp_fast::<F>(-1e6) >= 0.0);
     (worst_exp, worst_ln)
 }
 
@@ -133,7 +133,7 @@ fn fast_math_errors_fma() -> (f64, f64) {
 fn fast_exp_and_ln_match_the_standard_library() {
     let mut variants = vec![("plain", fast_math_errors::<false>())];
     #[cfg(target_arch = "x86_64")]
-    if lm::have_fma() {
+    if kernels::have_fma() {
         // SAFETY: AVX2 and FMA are available (checked just above).
         variants.push(("fma", unsafe { fast_math_errors_fma() }));
     }
@@ -197,12 +197,12 @@ fn analytic_jacobian_matches_central_differences() {
             w.y[..geo.n].copy_from_slice(&y);
             let (mut jtj, mut jtr) = (vec![0.0; MAXM * MAXM], vec![0.0; MAXM]);
             let c = if portable {
-                let c = lm::cost_impl::<false>(&geo, lay, &th_l, &mut w);
-                lm::normal_equations_impl::<false>(&geo, lay, &th_l, &w, &mut jtj, &mut jtr);
+                let c = kernels::cost_impl::<false>(&geo, lay, &th_l, &mut w);
+                kernels::normal_equations_impl::<false>(&geo, lay, &th_l, &w, &mut jtj, &mut jtr);
                 c
             } else {
-                let c = lm::cost(&geo, lay, &th_l, &mut w);
-                lm::normal_equations(&geo, lay, &th_l, &w, &mut jtj, &mut jtr);
+                let c = kernels::cost(&geo, lay, &th_l, &mut w);
+                kernels::normal_equations(&geo, lay, &th_l, &w, &mut jtj, &mut jtr);
                 c
             };
             let what = format!("diffuse {diffuse}, portable {portable}");

@@ -154,3 +154,91 @@ fn evaluation_is_continuous_between_slots() {
     // continuous blend moves by about (value range) * (step / slot spacing) ~ 1e-2 per step.
     assert!(worst < 0.05, "largest step {worst}");
 }
+
+#[test]
+fn a_view_slot_is_the_single_view_ptm_of_that_view() {
+    // Each slot's polynomials reproduce the BTF at its view (an exact biquadratic here), and the
+    // one-slot model built from it renders that view's images at the normal.
+    let (h, w) = (2, 3);
+    let (d, data, _) = polynomial_btf(h, w, 5);
+    let (nv, nl) = (d.len(), d.len());
+    let btf = BtfRef::new(h, w, &d, &d, &data, None).unwrap();
+    let ptm = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap();
+    for v in [0, 40, nv - 1] {
+        let slot = ptm.slot(v).unwrap();
+        assert_eq!((slot.kind, slot.height, slot.width, slot.coeffs.len()), (PtmKind::Rgb, h, w, h * w * 18));
+        assert!(slot.rgb.is_none());
+        let one = Ptm::from_slot(slot.clone()).unwrap();
+        assert_eq!(one.views, vec![[0.0, 0.0, 1.0]]);
+        for l in [0, 17, nl - 1] {
+            let b = basis(d[l]);
+            let img = evaluate_image(&one, [0.0, 0.0, 1.0], d[l]).unwrap();
+            for t in 0..h * w {
+                for ch in 0..3 {
+                    let want = data[((t * nv + v) * nl + l) * 3 + ch] as f64;
+                    let got: f64 = (0..NCOEF).map(|k| slot.coeffs[(t * 3 + ch) * NCOEF + k] as f64 * b[k]).sum();
+                    assert!((got - want).abs() < 1e-4, "view {v} light {l} texel {t}: {got} vs {want}");
+                    assert!((img[t * 3 + ch] as f64 - want).abs() < 1e-4);
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn an_lrgb_slot_keeps_its_base_colour() {
+    // Texel t's luminance is a_t(l), its colour base_t: the slot must hold exactly those.
+    let d = ubo81();
+    let (h, w) = (1, 2);
+    let a = [[0.1, -0.2, 0.05, 0.3, -0.1, 0.6], [0.0, 0.1, 0.0, -0.2, 0.2, 0.4]];
+    let base = [[1.0, 0.5, 0.25], [0.2, 1.0, 0.6]];
+    let n = d.len();
+    let mut data = vec![0.0f32; h * w * n * n * 3];
+    for t in 0..h * w {
+        for v in 0..n {
+            for (l, ld) in d.iter().enumerate() {
+                let lum: f64 = basis(*ld).iter().zip(&a[t]).map(|(b, a)| b * a).sum();
+                for c in 0..3 {
+                    data[((t * n + v) * n + l) * 3 + c] = (lum * base[t][c]) as f32;
+                }
+            }
+        }
+    }
+    let btf = BtfRef::new(h, w, &d, &d, &data, None).unwrap();
+    let ptm = fit_ptm(&btf, &PtmOptions { kind: PtmKind::Lrgb, ..Default::default() }, &Monitor::new()).unwrap();
+    let slot = ptm.slot(33).unwrap();
+    let rgb = slot.rgb.as_ref().unwrap();
+    assert_eq!((slot.coeffs.len(), rgb.len()), (h * w * NCOEF, h * w * 3));
+    for t in 0..h * w {
+        for k in 0..NCOEF {
+            assert!((slot.coeffs[t * NCOEF + k] as f64 - a[t][k]).abs() < 1e-5);
+        }
+        for c in 0..3 {
+            assert!((rgb[t * 3 + c] as f64 - base[t][c]).abs() < 1e-5);
+        }
+    }
+    let one = Ptm::from_slot(slot).unwrap();
+    assert_eq!(one.kind, PtmKind::Lrgb);
+}
+
+#[test]
+fn slot_errors_name_the_argument() {
+    let arg = |e: Error| match e {
+        Error::InvalidArgument { name, .. } => name,
+        other => panic!("expected InvalidArgument, got {other:?}"),
+    };
+    let (d, data, _) = polynomial_btf(1, 1, 6);
+    let btf = BtfRef::new(1, 1, &d, &d, &data, None).unwrap();
+    let ptm = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap();
+    let e = ptm.slot(81).unwrap_err();
+    assert!(e.to_string().contains("[0, 81)"), "{e}");
+    assert_eq!(arg(e), "view");
+    let mut slot = ptm.slot(0).unwrap();
+    slot.coeffs.pop();
+    assert_eq!(arg(Ptm::from_slot(slot.clone()).unwrap_err()), "coeffs");
+    slot.coeffs.push(0.0);
+    slot.kind = PtmKind::Lrgb;
+    assert!(Ptm::from_slot(slot).is_err());
+    let broken = Ptm { kind: PtmKind::Lrgb, rgb: None, coeffs: vec![0.0; 81 * 6], ..ptm };
+    assert_eq!(arg(broken.slot(0).unwrap_err()), "rgb");
+}

@@ -485,8 +485,8 @@ fn gemm_error(sh: &Sh, btf: &BtfRef<'_>) -> btfrs_core::metrics::ErrorSums {
     for t in 0..btf.texels() {
         for ch in 0..3 {
             let cc: Vec<f64> = c[(t * 3 + ch) * kv * kl..][..kv * kl].iter().map(|&x| x as f64).collect();
-            gemm((&yv, nv, kv, kv, 1), (&cc, kv, kl, kl, 1), &mut g, kl, 1);
-            gemm((&g, nv, kl, kl, 1), (&yl, kl, nl, 1, kl), &mut f, nl, 1);
+            gemm_into(&rows(&yv, nv, kv), &rows(&cc, kv, kl), &mut rows_mut(&mut g, nv, kl));
+            gemm_into(&rows(&g, nv, kl), &rows_t(&yl, nl, kl), &mut rows_mut(&mut f, nv, nl));
             for v in 0..nv {
                 for l in 0..nl {
                     if btf.has(v, l) {

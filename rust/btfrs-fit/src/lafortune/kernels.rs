@@ -1,0 +1,451 @@
+//! The math kernels of the Lafortune fit (paper 000, section 3.2): fast `exp`/`ln`, the lobe
+//! model evaluated over all samples (the cost), its Jacobian accumulated into the normal
+//! equations `J^T J`, `J^T r`, and a small Cholesky solve. The Levenberg-Marquardt loop that
+//! drives them is in `lm.rs`, the linear initialisation in `init.rs`.
+//!
+//! Everything here works on *normalised* data (the driver divides a fit's target values by their
+//! RMS), so the bounds and tolerances do not depend on the units of the BTF.
+//!
+//! Parameter vector `theta` of one fit: `[kd, (Cx, Cy, Cz, ln n) per lobe]` when the diffuse term
+//! is fitted, `[(Cx, Cy, Cz, ln n) per lobe]` when it is not (kd is then fixed at 0). The exponent
+//! is solved for as `ln n`: a lobe's shape changes with the *ratio* of exponents (n = 2 to 4 is as
+//! big a change as 50 to 100), and in `n` itself the Gauss-Newton steps of sharp lobes jump by
+//! tens and overflow `s^n`, which cost most of the iterations of fits with several lobes.
+//!
+//! Samples are stored structure-of-arrays and padded with zeros to a multiple of [`CH`]: a padded
+//! sample has `lz = 0` and `s = 0`, hence model 0, target 0, residual 0 and a zero Jacobian row,
+//! so the chunk loops need no remainder case and LLVM vectorises them over the samples. Each pass
+//! is compiled twice, portable and with AVX2 + FMA, and picks one at run time ([`have_fma`]).
+
+/// Samples per chunk of the inner loops.
+pub(crate) const CH: usize = 64;
+/// The most lobes of one fit (the luminance model's limit).
+pub(crate) const MAX_LOBES: usize = 7;
+/// The most unknowns of one fit: kd and 4 per lobe.
+pub(crate) const MAXM: usize = 1 + 4 * MAX_LOBES;
+/// Below this a lobe's cosine `s` counts as zero: the lobe contributes 0 and a zero derivative
+/// there (it keeps `ln s` away from subnormals; `s^n <= 1e-300` is nothing anyway).
+const S_MIN: f64 = 1e-300;
+
+// ---------------------------------------------------------------------------------------------
+// exp and ln
+// ---------------------------------------------------------------------------------------------
+
+/// ln 2 rounded to 32 significant bits (fdlibm's `ln2_hi`): `k * LN2_HI` is exact for |k| < 2^21.
+const LN2_HI: f64 = f64::from_bits(0x3FE6_2E42_FEE0_0000);
+/// ln 2 - LN2_HI (fdlibm's `ln2_lo`).
+const LN2_LO: f64 = f64::from_bits(0x3DEA_39EF_3579_3C76);
+/// 1.5 * 2^52: adding it rounds a double of magnitude < 2^51 to an integer (round to nearest),
+/// and the integer then sits in the low bits of the sum's representation.
+const MAGIC: f64 = 6_755_399_441_055_744.0;
+
+/// `a * b + c`, as one fused instruction in the kernels compiled for FMA (`F`), plain otherwise
+/// (`mul_add` without hardware FMA would be a slow library call).
+#[inline(always)]
+fn mad<const F: bool>(a: f64, b: f64, c: f64) -> f64 {
+    if F {
+        a.mul_add(b, c)
+    } else {
+        a * b + c
+    }
+}
+
+/// `exp(x)` for `x` clamped to [-700, 700], relative error below 1e-15, branch-free so that the
+/// sample loops vectorise (the libm call is neither inlinable nor vectorisable; the fit evaluates
+/// one exp and one ln per sample, lobe and trial step, which dominates its cost).
+///
+/// Range reduction `x = k ln 2 + r`, `|r| <= ln 2 / 2` (Cody-Waite with a two-part ln 2), then the
+/// Taylor polynomial of degree 12 of `exp(r)` (truncation < 1.7e-16 relative), evaluated by
+/// Estrin's scheme (dependency depth 5 instead of Horner's 12: the loop is latency-bound), and
+/// `2^k` built from its exponent bits.
+#[inline(always)]
+pub(crate) fn exp_fast<const F: bool>(x: f64) -> f64 {
+    let x = x.clamp(-700.0, 700.0);
+    let t = mad::<F>(x, std::f64::consts::LOG2_E, MAGIC);
+    let k = t - MAGIC;
+    let r = mad::<F>(-k, LN2_LO, mad::<F>(-k, LN2_HI, x));
+    let r2 = r * r;
+    let r4 = r2 * r2;
+    let r8 = r4 * r4;
+    let p01 = 1.0 + r;
+    let p23 = mad::<F>(r, 1.0 / 6.0, 0.5);
+    let p45 = mad::<F>(r, 1.0 / 120.0, 1.0 / 24.0);
+    let p67 = mad::<F>(r, 1.0 / 5_040.0, 1.0 / 720.0);
+    let p89 = mad::<F>(r, 1.0 / 362_880.0, 1.0 / 40_320.0);
+    let p1011 = mad::<F>(r, 1.0 / 39_916_800.0, 1.0 / 3_628_800.0);
+    let q0 = mad::<F>(r2, p23, p01);
+    let q1 = mad::<F>(r2, p67, p45);
+    let q2 = mad::<F>(r2, p1011, p89);
+    let s0 = mad::<F>(r4, q1, q0);
+    let s1 = mad::<F>(r4, 1.0 / 479_001_600.0, q2);
+    let p = mad::<F>(r8, s1, s0);
+    // |k| <= 1010, so k + 1023 is a valid biased exponent of a normal double.
+    let ki = (t.to_bits() as i64).wrapping_sub(MAGIC.to_bits() as i64);
+    let scale = f64::from_bits(((ki + 1023) as u64) << 52);
+    p * scale
+}
+
+/// `ln(x)` for positive normal `x`, relative error below 1e-15 (absolute near x = 1), branch-free.
+///
+/// `x = 2^e m` with `m` in [sqrt(1/2), sqrt(2)); `ln m = 2 atanh(z)`, `z = (m - 1) / (m + 1)`,
+/// `|z| <= 0.1716`, summed as `2 z (1 + z^2/3 + ... + z^18/19)` (truncation < 3e-17) by Estrin's
+/// scheme. The exponent is turned into a double with the magic-number trick of [`exp_fast`],
+/// because a packed i64 -> f64 conversion does not exist before AVX-512.
+#[inline(always)]
+pub(crate) fn ln_fast<const F: bool>(x: f64) -> f64 {
+    const ONE_BITS: u64 = 0x3FF0_0000_0000_0000;
+    const FRAC: u64 = 0x000F_FFFF_FFFF_FFFF;
+    let bits = x.to_bits();
+    // 2^52 + biased exponent, exactly, then minus (2^52 + 1023).
+    let ef = f64::from_bits(0x4330_0000_0000_0000 | (bits >> 52)) - (4_503_599_627_370_496.0 + 1023.0);
+    let m = f64::from_bits((bits & FRAC) | ONE_BITS);
+    let big = m > std::f64::consts::SQRT_2;
+    let m = if big { 0.5 * m } else { m };
+    let ef = if big { ef + 1.0 } else { ef };
+    let z = (m - 1.0) / (m + 1.0);
+    let z2 = z * z;
+    let w2 = z2 * z2;
+    let w4 = w2 * w2;
+    let w8 = w4 * w4;
+    let p01 = mad::<F>(z2, 1.0 / 3.0, 1.0);
+    let p23 = mad::<F>(z2, 1.0 / 7.0, 1.0 / 5.0);
+    let p45 = mad::<F>(z2, 1.0 / 11.0, 1.0 / 9.0);
+    let p67 = mad::<F>(z2, 1.0 / 15.0, 1.0 / 13.0);
+    let p89 = mad::<F>(z2, 1.0 / 19.0, 1.0 / 17.0);
+    let q0 = mad::<F>(w2, p23, p01);
+    let q1 = mad::<F>(w2, p67, p45);
+    let p = mad::<F>(w8, p89, mad::<F>(w4, q1, q0));
+    mad::<F>(ef, LN2_HI, mad::<F>(ef, LN2_LO, 2.0 * z * p))
+}
+
+/// Whether this CPU runs the AVX2 + FMA versions of the sample passes (checked once by the
+/// standard library and cached). Other architectures always run the portable versions.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+pub(crate) fn have_fma() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
+// ---------------------------------------------------------------------------------------------
+// Samples and the passes over them
+// ---------------------------------------------------------------------------------------------
+
+/// The per-sample products shared by every texel: `a = lx vx`, `b = ly vy`, `c = lz vz` and the
+/// foreshortening `lz`, padded with zeros to a multiple of [`CH`].
+#[derive(Debug, Clone)]
+pub(crate) struct Geometry {
+    /// Real samples (the rest is padding).
+    pub n: usize,
+    pub a: Vec<f64>,
+    pub b: Vec<f64>,
+    pub c: Vec<f64>,
+    pub lz: Vec<f64>,
+}
+
+impl Geometry {
+    /// From (view, light) pairs; `lz` is clamped at 0 (a light at or below the horizon sends no
+    /// light in, whatever rounding left in its z).
+    pub fn new(pairs: impl Iterator<Item = ([f64; 3], [f64; 3])>) -> Self {
+        let (mut a, mut b, mut c, mut lz) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for (v, l) in pairs {
+            a.push(l[0] * v[0]);
+            b.push(l[1] * v[1]);
+            c.push(l[2] * v[2]);
+            lz.push(l[2].max(0.0));
+        }
+        let n = a.len();
+        let npad = n.div_ceil(CH) * CH;
+        for x in [&mut a, &mut b, &mut c, &mut lz] {
+            x.resize(npad, 0.0);
+        }
+        Geometry { n, a, b, c, lz }
+    }
+
+    /// Padded length.
+    #[inline]
+    pub fn npad(&self) -> usize {
+        self.a.len()
+    }
+}
+
+/// The shape of one fit's parameter vector.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Layout {
+    /// Whether theta starts with kd.
+    pub diffuse: bool,
+    /// Lobes.
+    pub lobes: usize,
+}
+
+impl Layout {
+    /// Offset of the first lobe.
+    #[inline]
+    pub fn off(&self) -> usize {
+        usize::from(self.diffuse)
+    }
+    /// Unknowns.
+    #[inline]
+    pub fn m(&self) -> usize {
+        self.off() + 4 * self.lobes
+    }
+    /// kd of `theta` (0 when not fitted).
+    #[inline]
+    pub fn kd(&self, th: &[f64]) -> f64 {
+        if self.diffuse {
+            th[0]
+        } else {
+            0.0
+        }
+    }
+}
+
+/// would not vectorise: LLVM may not reassociate floating-point additions by itself).
+#[inline(always)]
+fn dot<const F: bool>(x: &[f64; CH], y: &[f64; CH]) -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    if F {
+        // SAFETY: `F` is true only in the kernels compiled with AVX2 and FMA enabled, which run
+        // only after `have_fma()` confirmed the CPU has both.
+        return unsafe { dot_avx2(x, y) };
+    }
+    let mut acc = [0.0f64; 8];
+    for (xs, ys) in x.as_chunks::<8>().0.iter().zip(y.as_chunks::<8>().0) {
+        for k in 0..8 {
+            acc[k] = mad::<F>(xs[k], ys[k], acc[k]);
+        }
+    }
+    ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
+}
+
+/// [`dot`] with AVX2 intrinsics: four 4-lane FMA chains. LLVM's own vectorisation of the
+/// portable version shuffles lanes across the fully unrolled chunk and runs 3x slower; the
+/// `J^T J` accumulation is most of the cost of an accepted LM step.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+fn dot_avx2(x: &[f64; CH], y: &[f64; CH]) -> f64 {
+    use std::arch::x86_64::*;
+    const { assert!(CH.is_multiple_of(16)) };
+    let (px, py) = (x.as_ptr(), y.as_ptr());
+    let mut acc = [_mm256_setzero_pd(); 4];
+    for j in (0..CH).step_by(16) {
+        for (k, a) in acc.iter_mut().enumerate() {
+            // SAFETY: j + 4 k + 3 < CH, so the 4 loaded values lie inside both arrays.
+            let (xv, yv) = unsafe { (_mm256_loadu_pd(px.add(j + 4 * k)), _mm256_loadu_pd(py.add(j + 4 * k))) };
+            *a = _mm256_fmadd_pd(xv, yv, *a);
+        }
+    }
+    let s = _mm256_add_pd(_mm256_add_pd(acc[0], acc[1]), _mm256_add_pd(acc[2], acc[3]));
+    let t = _mm_add_pd(_mm256_castpd256_pd128(s), _mm256_extractf128_pd::<1>(s));
+    _mm_cvtsd_f64(_mm_add_sd(t, _mm_unpackhi_pd(t, t)))
+}
+
+/// Per-fit scratch: the target values and, per sample and lobe, `s^n` and `ln s` of the last
+/// cost pass, which the Jacobian pass reuses (an accepted step then costs no second exp/ln).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Work {
+    /// Targets, padded with zeros.
+    pub y: Vec<f64>,
+    /// `s^n` per (chunk, lobe, sample in chunk).
+    e: Vec<f64>,
+    /// `ln s` likewise (0 where s <= 0).
+    l: Vec<f64>,
+}
+
+impl Work {
+    pub fn new(npad: usize, lobes: usize) -> Self {
+        Work { y: vec![0.0; npad], e: vec![0.0; npad * lobes], l: vec![0.0; npad * lobes] }
+    }
+}
+
+/// Sum of squared residuals at `th`; fills `w.e`, `w.l` for [`normal_equations`]. Non-finite when
+/// `th` makes the model overflow (then the step is rejected).
+pub(crate) fn cost(g: &Geometry, lay: Layout, th: &[f64], w: &mut Work) -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    if have_fma() {
+        // SAFETY: the CPU supports AVX2 and FMA (checked just above), all that `cost_fma` needs.
+        return unsafe { cost_fma(g, lay, th, w) };
+    }
+    cost_impl::<false>(g, lay, th, w)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn cost_fma(g: &Geometry, lay: Layout, th: &[f64], w: &mut Work) -> f64 {
+    cost_impl::<true>(g, lay, th, w)
+}
+
+/// [`cost`] for kernels compiled with (`F`) or without FMA.
+#[inline(always)]
+pub(crate) fn cost_impl<const F: bool>(g: &Geometry, lay: Layout, th: &[f64], w: &mut Work) -> f64 {
+    let kd = lay.kd(th);
+    let nl = lay.lobes;
+    let mut acc = [0.0f64; CH];
+    let mut s = [0.0f64; CH];
+    let (a, b, c) = (g.a.as_chunks::<CH>().0, g.b.as_chunks::<CH>().0, g.c.as_chunks::<CH>().0);
+    let (lz, y) = (g.lz.as_chunks::<CH>().0, w.y.as_chunks::<CH>().0);
+    let mut es = w.e.as_chunks_mut::<CH>().0.iter_mut();
+    let mut ls = w.l.as_chunks_mut::<CH>().0.iter_mut();
+    for ((((aj, bj), cj), lzj), yj) in a.iter().zip(b).zip(c).zip(lz).zip(y) {
+        let mut sum = [kd; CH];
+        for k in 0..nl {
+            let p = &th[lay.off() + 4 * k..lay.off() + 4 * k + 4];
+            let (cx, cy, cz, n) = (p[0], p[1], p[2], p[3].exp());
+            let (Some(e), Some(l)) = (es.next(), ls.next()) else {
+                return f64::NAN; // Work holds npad * lobes entries: unreachable
+            };
+            // Four short loops rather than one long one: each iteration of a fused loop is a
+            // dependency chain of ~100 instructions (ln, then exp), too long for the out-of-order
+            // window to overlap many of them; split, the iterations of each stage are independent
+            // and short (15% faster in a micro-benchmark of this loop).
+            for i in 0..CH {
+                s[i] = mad::<F>(cx, aj[i], mad::<F>(cy, bj[i], cz * cj[i]));
+            }
+            // Branch-free: evaluate at max(s, S_MIN) and mask the result to 0 where s <= S_MIN
+            // (a branch or a select around exp would keep the loops from vectorising).
+            for i in 0..CH {
+                l[i] = ln_fast::<F>(s[i].max(S_MIN));
+            }
+            for i in 0..CH {
+                e[i] = exp_fast::<F>(n * l[i]);
+            }
+            for i in 0..CH {
+                let mask = if s[i] > S_MIN { u64::MAX } else { 0 };
+                e[i] = f64::from_bits(e[i].to_bits() & mask);
+                l[i] = f64::from_bits(l[i].to_bits() & mask);
+                sum[i] += e[i];
+            }
+        }
+        for i in 0..CH {
+            let r = mad::<F>(lzj[i], sum[i], -yj[i]);
+            acc[i] = mad::<F>(r, r, acc[i]);
+        }
+    }
+    acc.iter().sum()
+}
+
+/// `J^T J` (full `m x m`, row-major) and `J^T r` at the `th` of the last [`cost`] call, from the
+/// `s^n` and `ln s` it stored. With `v = lz (kd + sum_k s_k^n_k)` and `r = v - y`:
+///
+/// ```text
+/// dv/dkd = lz
+/// dv/dCx_k = lz n_k s_k^(n_k - 1) lx vx   (likewise Cy with ly vy, Cz with lz vz)
+/// dv/d(ln n_k) = lz n_k s_k^n_k ln s_k
+/// ```
+///
+/// and 0 for a lobe whose `s_k <= 0`. J itself is only ever held one chunk at a time.
+pub(crate) fn normal_equations(g: &Geometry, lay: Layout, th: &[f64], w: &Work, jtj: &mut [f64], jtr: &mut [f64]) {
+    #[cfg(target_arch = "x86_64")]
+    if have_fma() {
+        // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+        return unsafe { normal_equations_fma(g, lay, th, w, jtj, jtr) };
+    }
+    normal_equations_impl::<false>(g, lay, th, w, jtj, jtr)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn normal_equations_fma(g: &Geometry, lay: Layout, th: &[f64], w: &Work, jtj: &mut [f64], jtr: &mut [f64]) {
+    normal_equations_impl::<true>(g, lay, th, w, jtj, jtr)
+}
+
+/// [`normal_equations`] for kernels compiled with (`F`) or without FMA.
+#[inline(always)]
+pub(crate) fn normal_equations_impl<const F: bool>(
+    g: &Geometry,
+    lay: Layout,
+    th: &[f64],
+    w: &Work,
+    jtj: &mut [f64],
+    jtr: &mut [f64],
+) {
+    let m = lay.m();
+    let (off, nl) = (lay.off(), lay.lobes);
+    let kd = lay.kd(th);
+    jtj[..m * m].iter_mut().for_each(|x| *x = 0.0);
+    jtr[..m].iter_mut().for_each(|x| *x = 0.0);
+    let mut rows = [[0.0f64; CH]; MAXM];
+    let mut r = [0.0f64; CH];
+    let (a, b, c) = (g.a.as_chunks::<CH>().0, g.b.as_chunks::<CH>().0, g.c.as_chunks::<CH>().0);
+    let (lz, y) = (g.lz.as_chunks::<CH>().0, w.y.as_chunks::<CH>().0);
+    let mut es = w.e.as_chunks::<CH>().0.iter();
+    let mut ls = w.l.as_chunks::<CH>().0.iter();
+    for ((((aj, bj), cj), lzj), yj) in a.iter().zip(b).zip(c).zip(lz).zip(y) {
+        let mut sum = [kd; CH];
+        for k in 0..nl {
+            let p = &th[off + 4 * k..off + 4 * k + 4];
+            let (cx, cy, cz, n) = (p[0], p[1], p[2], p[3].exp());
+            let (Some(e), Some(l)) = (es.next(), ls.next()) else {
+                return; // Work holds npad * lobes entries: unreachable
+            };
+            let Some([rx, ry, rz, rn]) = rows[off + 4 * k..].first_chunk_mut::<4>() else {
+                return; // m = off + 4 lobes rows exist by construction
+            };
+            for i in 0..CH {
+                let s = mad::<F>(cx, aj[i], mad::<F>(cy, bj[i], cz * cj[i]));
+                // e = 0 wherever s <= S_MIN, so the safe divisor only avoids 0/0 there.
+                let gi = lzj[i] * n * e[i] / s.max(S_MIN);
+                rx[i] = gi * aj[i];
+                ry[i] = gi * bj[i];
+                rz[i] = gi * cj[i];
+                rn[i] = lzj[i] * n * e[i] * l[i];
+                sum[i] += e[i];
+            }
+        }
+        if lay.diffuse {
+            rows[0] = *lzj;
+        }
+        for i in 0..CH {
+            r[i] = mad::<F>(lzj[i], sum[i], -yj[i]);
+        }
+        for q in 0..m {
+            jtr[q] += dot::<F>(&rows[q], &r);
+            for u in q..m {
+                jtj[q * m + u] += dot::<F>(&rows[q], &rows[u]);
+            }
+        }
+    }
+    for q in 0..m {
+        for u in 0..q {
+            jtj[q * m + u] = jtj[u * m + q];
+        }
+    }
+}
+
+/// In-place Cholesky solve of the symmetric positive definite `a` (m x m, row-major, overwritten)
+/// with right-hand side `x` (overwritten by the solution). `false` if `a` is not positive definite.
+pub(crate) fn cholesky_solve(a: &mut [f64], m: usize, x: &mut [f64]) -> bool {
+    for j in 0..m {
+        let mut d = a[j * m + j];
+        for k in 0..j {
+            d -= a[j * m + k] * a[j * m + k];
+        }
+        if !(d > 0.0 && d.is_finite()) {
+            return false;
+        }
+        let d = d.sqrt();
+        a[j * m + j] = d;
+        for i in j + 1..m {
+            let mut s = a[i * m + j];
+            for k in 0..j {
+                s -= a[i * m + k] * a[j * m + k];
+            }
+            a[i * m + j] = s / d;
+        }
+    }
+    for i in 0..m {
+        let mut s = x[i];
+        for k in 0..i {
+            s -= a[i * m + k] * x[k];
+        }
+        x[i] = s / a[i * m + i];
+    }
+    for i in (0..m).rev() {
+        let mut s = x[i];
+        for k in i + 1..m {
+            s -= a[k * m + i] * x[k];
+        }
+        x[i] = s / a[i * m + i];
+    }
+    x[..m].iter().all(|v| v.is_finite())
+}
