@@ -95,7 +95,7 @@ mod tests {
         }
         // A BTF container is not a model.
         let p = dir.path().join("x.btfrs");
-        save_arrays(&p, "btf", serde_json::Value::Null, &NamedArrays::new()).unwrap();
+        save_arrays(&p, "btf", serde_json::json!({}), &NamedArrays::new()).unwrap();
         let e = load_model(&p).unwrap_err().to_string();
         assert!(e.contains("not a fitted model"), "{e}");
     }
