@@ -14,6 +14,7 @@ memory cost of the sample plus the map.
 
 from __future__ import annotations
 
+import os
 import time
 import weakref
 from dataclasses import dataclass
@@ -84,6 +85,10 @@ class RenderResult:
 
 
 _uploads: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+# Uploads live on the device of the process that made them: a forked child opens its own
+# device (see btfrs_core::process) and uploads again.
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_uploads.clear)
 _last: list = []
 
 

@@ -10,6 +10,7 @@
 //! * [`materials`]: procedural BTFs (periodic heightfields with cast shadows and masking) used as
 //!   the built-in material of the demo and the tests.
 //! * [`monitor`]: progress counting and cancellation for long work.
+//! * [`process`]: the thread pool (and other per-process state) made afresh in a forked child.
 //! * [`Error`]: the error enum that the Python layer maps onto exception classes.
 
 pub mod btf;
@@ -18,6 +19,7 @@ mod error;
 pub mod materials;
 pub mod metrics;
 pub mod monitor;
+pub mod process;
 pub mod rng;
 pub mod split;
 

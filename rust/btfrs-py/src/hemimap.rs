@@ -2,7 +2,7 @@
 
 use crate::arrays::check_shape;
 use crate::errors::arg;
-use crate::run::detach;
+use crate::run::{detach, guarded};
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
@@ -61,23 +61,25 @@ use btfrs_hemimap as hm;
 /// Concentric map, square `[..., 2]` in [0, 1]^2 -> unit disk `[..., 2]`.
 #[pyfunction]
 pub fn square_to_disk<'py>(py: Python<'py>, st: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
-    apply::<2, 2>(py, "st", st, |p| hm::square_to_disk(p[0], p[1]), |p| hm::square_to_disk(p[0], p[1]))
+    guarded(|| apply::<2, 2>(py, "st", st, |p| hm::square_to_disk(p[0], p[1]), |p| hm::square_to_disk(p[0], p[1])))
 }
 
 /// Inverse concentric map, disk `[..., 2]` -> square `[..., 2]`.
 #[pyfunction]
 pub fn disk_to_square<'py>(py: Python<'py>, xy: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
-    apply::<2, 2>(py, "xy", xy, |p| hm::disk_to_square(p[0], p[1]), |p| hm::disk_to_square(p[0], p[1]))
+    guarded(|| apply::<2, 2>(py, "xy", xy, |p| hm::disk_to_square(p[0], p[1]), |p| hm::disk_to_square(p[0], p[1])))
 }
 
 /// Elevated concentric map (paper 004, section 6.1), square `[..., 2]` -> hemisphere `[..., 3]`.
 #[pyfunction]
 pub fn square_to_hemisphere<'py>(py: Python<'py>, st: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
-    apply::<2, 3>(py, "st", st, |p| hm::square_to_hemisphere(p[0], p[1]), |p| hm::square_to_hemisphere(p[0], p[1]))
+    guarded(|| {
+        apply::<2, 3>(py, "st", st, |p| hm::square_to_hemisphere(p[0], p[1]), |p| hm::square_to_hemisphere(p[0], p[1]))
+    })
 }
 
 /// Inverse elevated concentric map, directions `[..., 3]` -> square `[..., 2]`.
 #[pyfunction]
 pub fn hemisphere_to_square<'py>(py: Python<'py>, d: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
-    apply::<3, 2>(py, "directions", d, hm::hemisphere_to_square, hm::hemisphere_to_square)
+    guarded(|| apply::<3, 2>(py, "directions", d, hm::hemisphere_to_square, hm::hemisphere_to_square))
 }

@@ -3,7 +3,7 @@
 use crate::arrays::{borrow, check_shape};
 use crate::errors::{arg, IntoPy};
 use crate::fit::PyPtm;
-use crate::run::detach;
+use crate::run::{detach, guarded};
 use btfrs_fit::PtmKind;
 use btfrs_io::container::{self, as_bytes, ArrayRef, Dtype};
 use btfrs_io::ptm_file::{self, PtmFormat, PtmImage};
@@ -20,67 +20,72 @@ pub fn save_container(
     meta_json: &str,
     arrays: Vec<(String, Bound<'_, PyAny>)>,
 ) -> PyResult<()> {
-    let meta: serde_json::Value = serde_json::from_str(meta_json).map_err(|e| arg("meta", e))?;
-    // Borrow every array as bytes (no copy) with its dtype.
-    enum Held<'py> {
-        F32(numpy::PyReadonlyArrayDyn<'py, f32>),
-        F64(numpy::PyReadonlyArrayDyn<'py, f64>),
-        U8(numpy::PyReadonlyArrayDyn<'py, u8>),
-        U16(numpy::PyReadonlyArrayDyn<'py, u16>),
-        I32(numpy::PyReadonlyArrayDyn<'py, i32>),
-        Bool(numpy::PyReadonlyArrayDyn<'py, bool>),
-    }
-    let mut held = Vec::with_capacity(arrays.len());
-    for (name, a) in &arrays {
-        let h = if let Ok(x) = borrow::<f32>(name, a) {
-            Held::F32(x)
-        } else if let Ok(x) = borrow::<f64>(name, a) {
-            Held::F64(x)
-        } else if let Ok(x) = borrow::<u8>(name, a) {
-            Held::U8(x)
-        } else if let Ok(x) = borrow::<u16>(name, a) {
-            Held::U16(x)
-        } else if let Ok(x) = borrow::<i32>(name, a) {
-            Held::I32(x)
-        } else if let Ok(x) = borrow::<bool>(name, a) {
-            Held::Bool(x)
-        } else {
-            return Err(pyo3::exceptions::PyTypeError::new_err(format!(
-                "{name}: expected a C-contiguous numpy array of float32, float64, uint8, uint16, int32 or bool"
-            )));
-        };
-        held.push((name.as_str(), h));
-    }
-    let mut refs = Vec::with_capacity(held.len());
-    for (name, h) in &held {
-        macro_rules! r {
-            ($a:expr, $d:expr) => {{
-                let s = $a.as_slice().map_err(|e| arg(name, e))?;
-                ArrayRef { name, dtype: $d, shape: $a.shape(), bytes: as_bytes(s) }
-            }};
+    guarded(|| {
+        let meta: serde_json::Value = serde_json::from_str(meta_json).map_err(|e| arg("meta", e))?;
+        // Borrow every array as bytes (no copy) with its dtype.
+        enum Held<'py> {
+            F32(numpy::PyReadonlyArrayDyn<'py, f32>),
+            F64(numpy::PyReadonlyArrayDyn<'py, f64>),
+            U8(numpy::PyReadonlyArrayDyn<'py, u8>),
+            U16(numpy::PyReadonlyArrayDyn<'py, u16>),
+            I32(numpy::PyReadonlyArrayDyn<'py, i32>),
+            Bool(numpy::PyReadonlyArrayDyn<'py, bool>),
         }
-        refs.push(match h {
-            Held::F32(a) => r!(a, Dtype::F32),
-            Held::F64(a) => r!(a, Dtype::F64),
-            Held::U8(a) => r!(a, Dtype::U8),
-            Held::U16(a) => r!(a, Dtype::U16),
-            Held::I32(a) => r!(a, Dtype::I32),
-            Held::Bool(a) => {
-                let s = a.as_slice().map_err(|e| arg(name, e))?;
-                // SAFETY: numpy bools are one byte holding 0 or 1.
-                let b = unsafe { std::slice::from_raw_parts(s.as_ptr() as *const u8, s.len()) };
-                ArrayRef { name, dtype: Dtype::Bool, shape: a.shape(), bytes: b }
+        let mut held = Vec::with_capacity(arrays.len());
+        for (name, a) in &arrays {
+            let h = if let Ok(x) = borrow::<f32>(name, a) {
+                Held::F32(x)
+            } else if let Ok(x) = borrow::<f64>(name, a) {
+                Held::F64(x)
+            } else if let Ok(x) = borrow::<u8>(name, a) {
+                Held::U8(x)
+            } else if let Ok(x) = borrow::<u16>(name, a) {
+                Held::U16(x)
+            } else if let Ok(x) = borrow::<i32>(name, a) {
+                Held::I32(x)
+            } else if let Ok(x) = borrow::<bool>(name, a) {
+                Held::Bool(x)
+            } else {
+                return Err(pyo3::exceptions::PyTypeError::new_err(format!(
+                    "{name}: expected a C-contiguous numpy array of float32, float64, uint8, uint16, int32 or bool"
+                )));
+            };
+            held.push((name.as_str(), h));
+        }
+        let mut refs = Vec::with_capacity(held.len());
+        for (name, h) in &held {
+            macro_rules! r {
+                ($a:expr, $d:expr) => {{
+                    let s = $a.as_slice().map_err(|e| arg(name, e))?;
+                    ArrayRef { name, dtype: $d, shape: $a.shape(), bytes: as_bytes(s) }
+                }};
             }
-        });
-    }
-    detach(py, || container::write(&path, kind, meta, &refs))
+            refs.push(match h {
+                Held::F32(a) => r!(a, Dtype::F32),
+                Held::F64(a) => r!(a, Dtype::F64),
+                Held::U8(a) => r!(a, Dtype::U8),
+                Held::U16(a) => r!(a, Dtype::U16),
+                Held::I32(a) => r!(a, Dtype::I32),
+                Held::Bool(a) => {
+                    let s = a.as_slice().map_err(|e| arg(name, e))?;
+                    // SAFETY: numpy bools are one byte holding 0 or 1.
+                    let b = unsafe { std::slice::from_raw_parts(s.as_ptr() as *const u8, s.len()) };
+                    ArrayRef { name, dtype: Dtype::Bool, shape: a.shape(), bytes: b }
+                }
+            });
+        }
+        detach(py, || container::write(&path, kind, meta, &refs))
+    })
 }
 
 /// A container's header: (kind, meta JSON, [(name, dtype, shape, offset)]).
 #[pyfunction]
 #[allow(clippy::type_complexity)]
-pub fn read_container_header(path: PathBuf) -> PyResult<(String, String, Vec<(String, String, Vec<usize>, u64)>)> {
-    let c = container::read_contents(&path).py()?;
+pub fn read_container_header(
+    py: Python<'_>,
+    path: PathBuf,
+) -> PyResult<(String, String, Vec<(String, String, Vec<usize>, u64)>)> {
+    let c = detach(py, || container::read_contents(&path))?;
     let arrays = c
         .arrays
         .into_iter()
@@ -95,27 +100,31 @@ pub fn read_container_header(path: PathBuf) -> PyResult<(String, String, Vec<(St
 /// Write one view slot of a PTM as a `.ptm` file; returns (scale, bias) per coefficient index.
 #[pyfunction]
 pub fn write_ptm(py: Python<'_>, path: PathBuf, model: &PyPtm, view: usize) -> PyResult<(Vec<f32>, Vec<i32>)> {
-    let p = &model.inner;
-    let nv = p.views.len();
-    if view >= nv {
-        return Err(arg("view", format!("expected a view slot index in [0, {nv}), got {view}")));
-    }
-    let (h, w) = (p.height, p.width);
-    let (format, coeffs, rgb) = match p.kind {
-        PtmKind::Rgb => {
-            let c: Vec<f32> = (0..h * w).flat_map(|t| p.coeffs[(t * nv + view) * 18..][..18].iter().copied()).collect();
-            (PtmFormat::Rgb, c, None)
+    guarded(|| {
+        let p = &model.inner;
+        let nv = p.views.len();
+        if view >= nv {
+            return Err(arg("view", format!("expected a view slot index in [0, {nv}), got {view}")));
         }
-        PtmKind::Lrgb => {
-            let c: Vec<f32> = (0..h * w).flat_map(|t| p.coeffs[(t * nv + view) * 6..][..6].iter().copied()).collect();
-            let r = p.rgb.as_ref().expect("validated");
-            let b: Vec<f32> = (0..h * w).flat_map(|t| r[(t * nv + view) * 3..][..3].iter().copied()).collect();
-            (PtmFormat::Lrgb, c, Some(b))
-        }
-    };
-    let img = PtmImage { width: w, height: h, format, coeffs, rgb };
-    let q = detach(py, || ptm_file::write_ptm(&path, &img))?;
-    Ok((q.scale.to_vec(), q.bias.to_vec()))
+        let (h, w) = (p.height, p.width);
+        let (format, coeffs, rgb) = match p.kind {
+            PtmKind::Rgb => {
+                let c: Vec<f32> =
+                    (0..h * w).flat_map(|t| p.coeffs[(t * nv + view) * 18..][..18].iter().copied()).collect();
+                (PtmFormat::Rgb, c, None)
+            }
+            PtmKind::Lrgb => {
+                let c: Vec<f32> =
+                    (0..h * w).flat_map(|t| p.coeffs[(t * nv + view) * 6..][..6].iter().copied()).collect();
+                let r = p.rgb.as_ref().expect("validated");
+                let b: Vec<f32> = (0..h * w).flat_map(|t| r[(t * nv + view) * 3..][..3].iter().copied()).collect();
+                (PtmFormat::Lrgb, c, Some(b))
+            }
+        };
+        let img = PtmImage { width: w, height: h, format, coeffs, rgb };
+        let q = detach(py, || ptm_file::write_ptm(&path, &img))?;
+        Ok((q.scale.to_vec(), q.bias.to_vec()))
+    })
 }
 
 /// Read a `.ptm` file as a one-slot model (view = the normal).

@@ -20,6 +20,7 @@ use pyo3::prelude::*;
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_function(wrap_pyfunction!(run::_panic_for_test, m)?)?;
     m.add_function(wrap_pyfunction!(core::ubo81, m)?)?;
     m.add_function(wrap_pyfunction!(core::validate_btf, m)?)?;
     m.add_function(wrap_pyfunction!(core::split_pairs, m)?)?;

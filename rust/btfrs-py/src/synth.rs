@@ -5,7 +5,7 @@ use crate::arrays::{borrow, check_shape};
 use crate::core::BtfArgs;
 use crate::errors::{arg, IntoPy};
 use crate::models::{get, put};
-use crate::run::{detach, monitored};
+use crate::run::{detach, guarded, monitored};
 use btfrs_kcoherence::{
     jump_map, kcoherence, quality, Analysis, AnalysisOptions, CoordMap, FeatureMode, Features, JumpOptions, Level,
     Neighbours, SynthOptions, Textons,
@@ -106,9 +106,12 @@ impl PyAnalysis {
 
     /// `[T, T]` texton dot products (the paper's matrix M) of a level.
     fn dots<'py>(&self, py: Python<'py>, level: usize) -> PyResult<Bound<'py, numpy::PyArray2<f64>>> {
-        let lv = self.level(level)?;
-        let t = lv.textons.count();
-        lv.textons.dots().into_pyarray(py).reshape([t, t])
+        guarded(|| {
+            let lv = self.level(level)?;
+            let t = lv.textons.count();
+            // Parallel: on this process's pool, with the GIL released.
+            detach(py, || Ok(lv.textons.dots()))?.into_pyarray(py).reshape([t, t])
+        })
     }
 
     /// `[T, T]` texton squared distances of a level.
@@ -139,14 +142,16 @@ impl PyAnalysis {
         levels: usize,
         progress: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<()> {
-        let an = &mut self.inner;
-        an.check_levels(neighbourhood, levels).py()?;
-        if an.neighbour_units(neighbourhood, levels) == 0 {
-            return Ok(());
-        }
-        monitored(py, progress, |mon| {
-            mon.start(an.neighbour_units(neighbourhood, levels));
-            an.ensure_neighbours(neighbourhood, levels, mon)
+        guarded(|| {
+            let an = &mut self.inner;
+            an.check_levels(neighbourhood, levels).py()?;
+            if an.neighbour_units(neighbourhood, levels) == 0 {
+                return Ok(());
+            }
+            monitored(py, progress, |mon| {
+                mon.start(an.neighbour_units(neighbourhood, levels));
+                an.ensure_neighbours(neighbourhood, levels, mon)
+            })
         })
     }
 
@@ -199,22 +204,24 @@ impl PyAnalysis {
         seed: u64,
         progress: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let c = borrow::<u16>("coords", coords)?;
-        check_shape("coords", c.shape(), &[None, None, Some(2)])?;
-        let (h, w) = (c.shape()[0], c.shape()[1]);
-        let (sh, sw) = self.inner.size();
-        let map = CoordMap::from_xy(h, w, c.as_slice().map_err(|e| arg("coords", e))?, sh, sw).py()?;
-        drop(c);
-        let an = &self.inner;
-        let q = monitored(py, progress, |mon| quality(an, &map, neighbourhood, samples, seed, mon))?;
-        let d = PyDict::new(py);
-        d.set_item("nn_distance", q.nn_distance)?;
-        d.set_item("coherence", q.coherence)?;
-        d.set_item("seam", q.seam)?;
-        d.set_item("seam_mean", q.seam_mean)?;
-        d.set_item("repetition", q.repetition)?;
-        d.set_item("samples", q.samples)?;
-        Ok(d)
+        guarded(|| {
+            let c = borrow::<u16>("coords", coords)?;
+            check_shape("coords", c.shape(), &[None, None, Some(2)])?;
+            let (h, w) = (c.shape()[0], c.shape()[1]);
+            let (sh, sw) = self.inner.size();
+            let map = CoordMap::from_xy(h, w, c.as_slice().map_err(|e| arg("coords", e))?, sh, sw).py()?;
+            drop(c);
+            let an = &self.inner;
+            let q = monitored(py, progress, |mon| quality(an, &map, neighbourhood, samples, seed, mon))?;
+            let d = PyDict::new(py);
+            d.set_item("nn_distance", q.nn_distance)?;
+            d.set_item("coherence", q.coherence)?;
+            d.set_item("seam", q.seam)?;
+            d.set_item("seam_mean", q.seam_mean)?;
+            d.set_item("repetition", q.repetition)?;
+            d.set_item("samples", q.samples)?;
+            Ok(d)
+        })
     }
 
     /// Copies of the analysis's arrays, by name (what `Analysis.save` writes).
@@ -235,41 +242,46 @@ impl PyAnalysis {
 
     /// Rebuild from `arrays()` and `options()` (validated).
     #[staticmethod]
-    fn from_arrays(arrays: &Bound<'_, PyDict>, options: &Bound<'_, PyDict>) -> PyResult<Self> {
-        let opt = |k: &str| -> PyResult<u64> {
-            options.get_item(k)?.ok_or_else(|| arg("options", format!("missing {k:?}")))?.extract::<u64>()
-        };
-        let o = AnalysisOptions {
-            textons: opt("textons")? as usize,
-            levels: opt("levels")? as usize,
-            m: opt("m")? as usize,
-            iterations: opt("iterations")? as usize,
-            seed: opt("seed")?,
-        };
-        let mut levels = Vec::new();
-        for l in 0.. {
-            let key = format!("level{l}.centers");
-            if arrays.get_item(&key)?.is_none() {
-                break;
-            }
-            let (centers, cs) = get::<f32>(arrays, &key, &[None, None])?;
-            let (assign, ts) = get::<u16>(arrays, &format!("level{l}.textons"), &[None, None])?;
-            let textons = Textons::from_parts(cs[1], centers, assign).py()?;
-            let mut neighbours = Vec::new();
-            for r in 1..=btfrs_kcoherence::analysis::MAX_RADIUS {
-                let key = format!("level{l}.similar{r}.index");
+    fn from_arrays(py: Python<'_>, arrays: &Bound<'_, PyDict>, options: &Bound<'_, PyDict>) -> PyResult<Self> {
+        guarded(|| {
+            let opt = |k: &str| -> PyResult<u64> {
+                options.get_item(k)?.ok_or_else(|| arg("options", format!("missing {k:?}")))?.extract::<u64>()
+            };
+            let o = AnalysisOptions {
+                textons: opt("textons")? as usize,
+                levels: opt("levels")? as usize,
+                m: opt("m")? as usize,
+                iterations: opt("iterations")? as usize,
+                seed: opt("seed")?,
+            };
+            let mut levels = Vec::new();
+            for l in 0.. {
+                let key = format!("level{l}.centers");
                 if arrays.get_item(&key)?.is_none() {
-                    continue;
+                    break;
                 }
-                let (idx, s) = get::<i32>(arrays, &key, &[Some(ts[0]), Some(ts[1]), Some(o.m)])?;
-                let (dist, _) =
-                    get::<f32>(arrays, &format!("level{l}.similar{r}.dist"), &[Some(s[0]), Some(s[1]), Some(s[2])])?;
-                let index = idx.iter().map(|&i| if i < 0 { u32::MAX } else { i as u32 }).collect();
-                neighbours.push(Neighbours { radius: r, m: o.m, index, dist });
+                let (centers, cs) = get::<f32>(arrays, &key, &[None, None])?;
+                let (assign, ts) = get::<u16>(arrays, &format!("level{l}.textons"), &[None, None])?;
+                let textons = detach(py, || Textons::from_parts(cs[1], centers, assign))?;
+                let mut neighbours = Vec::new();
+                for r in 1..=btfrs_kcoherence::analysis::MAX_RADIUS {
+                    let key = format!("level{l}.similar{r}.index");
+                    if arrays.get_item(&key)?.is_none() {
+                        continue;
+                    }
+                    let (idx, s) = get::<i32>(arrays, &key, &[Some(ts[0]), Some(ts[1]), Some(o.m)])?;
+                    let (dist, _) = get::<f32>(
+                        arrays,
+                        &format!("level{l}.similar{r}.dist"),
+                        &[Some(s[0]), Some(s[1]), Some(s[2])],
+                    )?;
+                    let index = idx.iter().map(|&i| if i < 0 { u32::MAX } else { i as u32 }).collect();
+                    neighbours.push(Neighbours { radius: r, m: o.m, index, dist });
+                }
+                levels.push(Level { height: ts[0], width: ts[1], textons, neighbours });
             }
-            levels.push(Level { height: ts[0], width: ts[1], textons, neighbours });
-        }
-        Ok(Self { inner: Analysis::from_levels(levels, o).py()? })
+            Ok(Self { inner: Analysis::from_levels(levels, o).py()? })
+        })
     }
 }
 
@@ -298,20 +310,22 @@ pub fn analyse_btf_native<'py>(
     seed: u64,
     progress: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<PyAnalysis> {
-    let mode = match features {
-        "pca" => FeatureMode::Pca { dims },
-        "all" => FeatureMode::All,
-        "images" => FeatureMode::Images { count: images },
-        other => return Err(arg("features", format!("expected \"pca\", \"all\" or \"images\", got {other:?}"))),
-    };
-    let args = BtfArgs::new(data, views, lights, mask)?;
-    let b = args.btf()?;
-    let o = opts(textons, levels, m, iterations, seed);
-    let inner = monitored(py, progress, |mon| {
-        btfrs_core::btf::check_finite("data", b.data)?;
-        Analysis::of_btf(&b, mode, o, &neighbourhoods, mon)
-    })?;
-    Ok(PyAnalysis { inner })
+    guarded(|| {
+        let mode = match features {
+            "pca" => FeatureMode::Pca { dims },
+            "all" => FeatureMode::All,
+            "images" => FeatureMode::Images { count: images },
+            other => return Err(arg("features", format!("expected \"pca\", \"all\" or \"images\", got {other:?}"))),
+        };
+        let args = BtfArgs::new(data, views, lights, mask)?;
+        let b = args.btf()?;
+        let o = opts(textons, levels, m, iterations, seed);
+        let inner = monitored(py, progress, |mon| {
+            btfrs_core::btf::check_finite("data", b.data)?;
+            Analysis::of_btf(&b, mode, o, &neighbourhoods, mon)
+        })?;
+        Ok(PyAnalysis { inner })
+    })
 }
 
 /// Analyse a sample given as `[H, W, D]` float32 feature vectors (an RGB texture: D = 3).
@@ -329,15 +343,17 @@ pub fn analyse_features_native<'py>(
     seed: u64,
     progress: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<PyAnalysis> {
-    let a = borrow::<f32>("sample", sample)?;
-    check_shape("sample", a.shape(), &[None, None, None])?;
-    let (h, w, d) = (a.shape()[0], a.shape()[1], a.shape()[2]);
-    let data = a.as_slice().map_err(|e| arg("sample", e))?.to_vec();
-    drop(a);
-    let o = opts(textons, levels, m, iterations, seed);
-    let inner = monitored(py, progress, |mon| {
-        let f = Features::new(h, w, d, data)?;
-        Analysis::of_features(f, o, &neighbourhoods, mon)
-    })?;
-    Ok(PyAnalysis { inner })
+    guarded(|| {
+        let a = borrow::<f32>("sample", sample)?;
+        check_shape("sample", a.shape(), &[None, None, None])?;
+        let (h, w, d) = (a.shape()[0], a.shape()[1], a.shape()[2]);
+        let data = a.as_slice().map_err(|e| arg("sample", e))?.to_vec();
+        drop(a);
+        let o = opts(textons, levels, m, iterations, seed);
+        let inner = monitored(py, progress, |mon| {
+            let f = Features::new(h, w, d, data)?;
+            Analysis::of_features(f, o, &neighbourhoods, mon)
+        })?;
+        Ok(PyAnalysis { inner })
+    })
 }
