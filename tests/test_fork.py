@@ -9,6 +9,7 @@ instead of hanging the suite.
 
 import multiprocessing as mp
 import os
+import sys
 
 import numpy as np
 import pytest
@@ -100,3 +101,45 @@ def test_a_forked_child_that_used_btfrs_can_fork_again():
     for r, t, _ in in_forked_child(child_forks_again):
         close(r, rmse)
         close(t, total)
+
+
+RENDER_IN_A_FRESH_PROCESS = """
+import os, stat, btfrs
+d = os.environ.get("XDG_RUNTIME_DIR")
+btf = btfrs.materials.make("knit", size=8, seed=1)
+cam = btfrs.Camera.look_at(eye=[0, -2, 2], target=[0, 0, 0])
+img = btfrs.render(btfrs.fit.ptm(btf), btfrs.Scene.plane(), cam, btfrs.PointLight(position=[1, -1, 2], intensity=4.0), size=8)
+assert img.sum() > 0
+mode = oct(stat.S_IMODE(os.stat(d).st_mode)) if d and os.path.isdir(d) else "-"
+print(d, mode, btfrs.gpu_info())
+"""
+
+
+@pytest.mark.parametrize("value", [None, "", "/nonexistent/btfrs-test"])
+def test_rendering_without_a_runtime_dir_is_quiet(value):
+    # libwayland, probed by Mesa when a Vulkan device opens, prints "error: XDG_RUNTIME_DIR is
+    # invalid or not set in the environment." when it is unset; btfrs gives the process a
+    # private one (removed at exit) instead of needing scripts to set it.
+    import subprocess
+
+    env = {k: v for k, v in os.environ.items() if k != "XDG_RUNTIME_DIR"}
+    if value is not None:
+        env["XDG_RUNTIME_DIR"] = value
+    r = subprocess.run([sys.executable, "-c", RENDER_IN_A_FRESH_PROCESS], env=env, capture_output=True, text=True,
+                       timeout=TIMEOUT)
+    assert "XDG_RUNTIME_DIR" not in r.stderr, r.stderr
+    assert r.returncode == 0, r.stderr
+    path, mode, _ = r.stdout.split(" ", 2)
+    assert path not in ("None", "", value) and mode == "0o700"
+    assert not os.path.exists(path), "the private runtime directory outlived its process"
+
+
+def test_an_existing_runtime_dir_is_kept(tmp_path):
+    import subprocess
+
+    env = dict(os.environ, XDG_RUNTIME_DIR=str(tmp_path))
+    tmp_path.chmod(0o700)
+    r = subprocess.run([sys.executable, "-c", RENDER_IN_A_FRESH_PROCESS], env=env, capture_output=True, text=True,
+                       timeout=TIMEOUT)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split(" ")[0] == str(tmp_path) and tmp_path.exists()

@@ -202,7 +202,8 @@ mod tests {
     }
 
     /// A real fork, in Rust alone: the parent uses the pool, the child must still finish
-    /// parallel work. Rayon's global pool hangs here (checked with `rayon::spawn`'s pool).
+    /// parallel work. With rayon's global pool in place of `install` the child hangs here (the
+    /// alarm kills it: checked).
     #[cfg(target_os = "linux")]
     #[test]
     fn a_forked_child_gets_its_own_pool() {

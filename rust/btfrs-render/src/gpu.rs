@@ -618,9 +618,10 @@ mod tests {
     use btfrs_core::materials::{generate, MaterialSpec, Preset};
     use btfrs_core::Monitor;
 
-    /// Devices opened and dropped one after the other (a new `Gpu` often lands at the address
-    /// of the one just freed, which the old address-keyed cache mistook for the same device):
-    /// each starts with no pipelines, builds its own and draws the same image.
+    /// Devices opened and dropped one after the other at the same address (which the old
+    /// address-keyed cache mistook for the same device, handing the second one the dropped
+    /// device's pipelines): each starts with no pipelines, builds its own and draws the same
+    /// image.
     #[test]
     fn each_device_has_its_own_pipelines() {
         let mut spec = MaterialSpec::new(Preset::Bumps, 8, 1);
@@ -640,7 +641,8 @@ mod tests {
         };
         let mut images = Vec::new();
         for _ in 0..3 {
-            let gpu = Box::new(Gpu::new(&AdapterChoice::Cpu).expect("lavapipe (apt-get install mesa-vulkan-drivers)"));
+            // By value: each iteration's device sits in the same stack slot, at the same address.
+            let gpu = Gpu::new(&AdapterChoice::Cpu).expect("lavapipe (apt-get install mesa-vulkan-drivers)");
             assert_eq!(cached_pipelines(&gpu), 0, "a new device must not find another device's pipelines");
             let up = upload(&gpu, &ptm).unwrap();
             images.push(render(&gpu, &up, &view).unwrap().0);
