@@ -10,11 +10,11 @@
 //!   released, waking every 100 ms to let Python handle signals (Ctrl-C cancels the work through
 //!   its [`Monitor`]) and to call the optional `progress(done, total)` callback.
 //!
-//! The last two run their closure in [`btfrs_core::process::install`]: rayon calls inside use a
-//! pool made for the calling process, so a child forked after the parent used btfrs (Python's
-//! `multiprocessing`) gets a working pool of its own. Parallel work must not run outside them
-//! (rayon's global pool would hang in such a child). No Python code ever runs on a worker or
-//! rayon thread.
+//! The last two run their closure in [`btfrs_core::process::install`]: rayon calls inside use
+//! rayon's global pool in the process that imported btfrs, and a pool of its own in a child
+//! forked from it (Python's `multiprocessing`), where the global pool's threads do not exist.
+//! Parallel work must not run outside them (it would hang in such a child). No Python code ever
+//! runs on a worker or rayon thread.
 
 use crate::errors::{panic_to_py, to_py};
 use btfrs_core::process::install;
@@ -33,7 +33,8 @@ pub fn guarded<T>(f: impl FnOnce() -> PyResult<T>) -> PyResult<T> {
     catch_unwind(AssertUnwindSafe(f)).unwrap_or_else(|p| Err(panic_to_py(p)))
 }
 
-/// Run short work with the GIL released, on this process's pool; a panic becomes `InternalError`.
+/// Run short work with the GIL released, its rayon calls on a pool this process can use; a
+/// panic becomes `InternalError`.
 pub fn detach<T: Send>(py: Python<'_>, f: impl FnOnce() -> Result<T> + Send) -> PyResult<T> {
     guarded(|| py.detach(|| install(f)).map_err(to_py))
 }
@@ -93,8 +94,9 @@ fn run_monitored<T: Send>(
 }
 
 /// Test hook (not public API): panic where `place` says: "held" (GIL held, in [`guarded`]),
-/// "detached" (in [`detach`]) or "monitored" (in [`monitored`], on a pool thread), so the tests
-/// can check that every path raises `InternalError`. "parallel" panics inside a parallel loop.
+/// "detached" (in [`detach`]), "monitored" (on the worker of [`monitored`]) or "parallel" (on
+/// a rayon thread, inside [`detach`]), so the tests can check that every path raises
+/// `InternalError`.
 #[pyfunction]
 pub fn _panic_for_test(py: Python<'_>, place: &str) -> PyResult<()> {
     let boom = || -> Result<()> { panic!("test panic ({place})") };
