@@ -86,7 +86,8 @@ class RenderResult:
 
 _uploads: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 # Uploads live on the device of the process that made them: a forked child opens its own
-# device (see btfrs_core::process) and uploads again.
+# device (see btfrs_core::process) and uploads again (the parent's uploads, dropped here, are
+# leaked rather than freed: see UploadedModel's Drop).
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_uploads.clear)
 _last: list = []

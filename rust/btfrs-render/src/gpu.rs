@@ -9,9 +9,11 @@
 use crate::device::Gpu;
 use crate::model::{GpuModel, Shader};
 use crate::scene::{Camera, Light, Mesh};
+use btfrs_core::process::ProcessId;
 use btfrs_core::{Error, Result};
 use bytemuck::{Pod, Zeroable};
 use std::collections::HashMap;
+use std::mem::ManuallyDrop;
 use std::sync::{Mutex, MutexGuard};
 use wgpu::util::DeviceExt;
 
@@ -79,9 +81,24 @@ pub struct UploadedModel {
     dims: (usize, usize),
     chunk_len: u32,
     chunks: usize,
-    bind_group: wgpu::BindGroup,
+    /// Holds the model's buffers and texture (wgpu keeps them alive through it).
+    bind_group: ManuallyDrop<wgpu::BindGroup>,
+    /// The process that uploaded the model.
+    owner: ProcessId,
     /// Bytes held on the device.
     pub device_bytes: u64,
+}
+
+impl Drop for UploadedModel {
+    fn drop(&mut self) {
+        // In a forked child the device is the parent's, reached through file descriptors the two
+        // processes share: freeing the model's buffers from here could free the parent's. Leak
+        // them instead (the child's copy of the memory goes when the child exits).
+        if self.owner.is_current() {
+            // SAFETY: dropped once, here, and never used again.
+            unsafe { ManuallyDrop::drop(&mut self.bind_group) }
+        }
+    }
 }
 
 /// The bind group layouts and render pipelines of one device, kept in its [`Gpu`] (so they are
@@ -368,7 +385,8 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
             dims: model.dims(),
             chunk_len: chunk_len as u32,
             chunks: n_chunks,
-            bind_group,
+            bind_group: ManuallyDrop::new(bind_group),
+            owner: ProcessId::current(),
             device_bytes: (total * 4 + volume.as_ref().map_or(0, |v| v.texels.len())) as u64,
         }
     })
@@ -539,7 +557,7 @@ pub fn render(gpu: &Gpu, model: &UploadedModel, view: &View<'_>) -> Result<(Vec<
             });
             pass.set_pipeline(&pipe);
             pass.set_bind_group(0, &globals_bg, &[]);
-            pass.set_bind_group(1, &model.bind_group, &[]);
+            pass.set_bind_group(1, &*model.bind_group, &[]);
             pass.set_vertex_buffer(0, vbuf.slice(..));
             pass.set_index_buffer(ibuf.slice(..), wgpu::IndexFormat::Uint32);
             pass.draw_indexed(0..view.mesh.indices.len() as u32, 0, 0..1);
