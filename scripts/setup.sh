@@ -44,5 +44,20 @@ fi
 
 # --- Build -----------------------------------------------------------------------------------
 log "building the extension (release)"
-VIRTUAL_ENV="$PWD/.venv" .venv/bin/maturin develop --release --quiet 2>&1 | grep -v "^📦\|^✏️\|^🛠\|^🔗\|^🐍" >&2 || true
-.venv/bin/python -c "import btfrs" || { log "error: the build did not produce an importable btfrs"; exit 1; }
+# A failed build must fail this script: an older extension left in place would otherwise pass
+# for the new one and the tests would run a stale binary. maturin's progress lines are dropped
+# (the `|| true` is grep's: it exits 1 when it passes no line through); with pipefail the
+# pipeline's status is then maturin's.
+stamp="$(mktemp)"
+trap 'rm -f "$stamp"' EXIT
+if ! VIRTUAL_ENV="$PWD/.venv" .venv/bin/maturin develop --release --quiet 2>&1 \
+    | { grep -v "^📦\|^✏️\|^🛠\|^🔗\|^🐍" >&2 || true; }; then
+  log "error: building the extension failed (see above)"
+  exit 1
+fi
+# And the btfrs that Python imports must be the extension just installed (maturin rewrites it
+# on every develop), not another copy found first on the path.
+native="$(.venv/bin/python -c "import btfrs._native as n; print(n.__file__)")" \
+  || { log "error: the build did not produce an importable btfrs"; exit 1; }
+[ "$native" -nt "$stamp" ] \
+  || { log "error: python imports $native, which this build did not write (a stale extension)"; exit 1; }

@@ -9,6 +9,9 @@
 
 from __future__ import annotations
 
+import os
+import sys
+
 from . import directions, exceptions, fit, hemimap, io, materials, synth
 from ._native import __version__
 from .btf import Btf, ExpandedBtf
@@ -24,6 +27,37 @@ from .exceptions import (
 )
 from .models import ErrorReport, Lafortune, Lpca, Model, Ptm, Sh, Srf, load, model_kinds
 from .rendering import Camera, DirectionalLight, PointLight, Scene, gpu_info, last_timings, render
+
+
+def _ensure_runtime_dir() -> None:
+    """Give this process a private ``XDG_RUNTIME_DIR`` when it has none.
+
+    Opening a Vulkan device (the GPU renderer, lavapipe included) makes Mesa probe for a Wayland
+    display, and libwayland prints ``error: XDG_RUNTIME_DIR is invalid or not set in the
+    environment.`` to stderr on every probe when the variable is unset or empty: the normal case
+    on headless machines, in containers and in CI. An existing directory is left alone. The
+    directory made here is empty, mode 0700, and removed when this process exits (not when a
+    forked child does: the parent still uses it).
+    """
+    if os.name != "posix" or sys.platform == "darwin":
+        return
+    current = os.environ.get("XDG_RUNTIME_DIR")
+    if current and os.path.isdir(current):
+        return
+    import atexit
+    import shutil
+    import tempfile
+
+    try:
+        path = tempfile.mkdtemp(prefix="btfrs-runtime-")
+    except OSError:
+        return  # only a warning on stderr is at stake
+    owner = os.getpid()
+    os.environ["XDG_RUNTIME_DIR"] = path
+    atexit.register(lambda: os.getpid() == owner and shutil.rmtree(path, ignore_errors=True))
+
+
+_ensure_runtime_dir()
 
 __all__ = [
     "__version__",

@@ -12,9 +12,10 @@ _F32 = npt.NDArray[np.float32]
 _F64 = npt.NDArray[np.float64]
 _Bool = npt.NDArray[np.bool_]
 
-__all__ = ['__version__', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'Model', 'fit_model', 'load_model', 'model_registry', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_png', 'read_png', 'write_exr', 'read_exr', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_raw', 'gpu_render', 'cpu_render_raw', 'gpu_upload_model', 'cpu_render_model', 'Analysis', 'analyse_btf_native', 'analyse_features_native']
+__all__ = ['__version__', '_panic_for_test', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'Model', 'fit_model', 'load_model', 'model_registry', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_png', 'read_png', 'write_exr', 'read_exr', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_raw', 'gpu_render', 'cpu_render_raw', 'gpu_upload_model', 'cpu_render_model', 'Analysis', 'analyse_btf_native', 'analyse_features_native']
 __version__: str
 
+def _panic_for_test(place: str) -> None: ...
 def ubo81() -> _F64: ...
 def validate_btf(
     data: _F32, views: _F64, lights: _F64, mask: Optional[_Bool] = None, scan_values: bool = True

@@ -14,6 +14,7 @@ memory cost of the sample plus the map.
 
 from __future__ import annotations
 
+import os
 import time
 import weakref
 from dataclasses import dataclass
@@ -86,6 +87,11 @@ class RenderResult:
 
 
 _uploads: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+# Uploads live on the device of the process that made them: a forked child opens its own
+# device (see btfrs_core::process) and uploads again (the parent's uploads, dropped here, are
+# leaked rather than freed: see UploadedModel's Drop).
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_uploads.clear)
 _last: list = []
 
 

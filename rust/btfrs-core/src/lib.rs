@@ -11,6 +11,7 @@
 //!   the built-in material of the demo and the tests.
 //! * [`monitor`]: progress counting and cancellation for long work.
 //! * [`arrays`]: named, typed arrays: how models and analyses describe themselves for saving.
+//! * [`process`]: the thread pool (and other per-process state) made afresh in a forked child.
 //! * [`Error`]: the error enum that the Python layer maps onto exception classes.
 
 pub mod arrays;
@@ -20,6 +21,7 @@ mod error;
 pub mod materials;
 pub mod metrics;
 pub mod monitor;
+pub mod process;
 pub mod rng;
 pub mod split;
 

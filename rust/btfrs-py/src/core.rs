@@ -2,7 +2,7 @@
 
 use crate::arrays::{borrow, check_shape, dirs};
 use crate::errors::{arg, IntoPy};
-use crate::run::{detach, monitored};
+use crate::run::{detach, guarded, monitored};
 use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::{btf, directions, split, BtfRef};
 use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods};
@@ -52,8 +52,10 @@ impl<'py> BtfArgs<'py> {
 /// The 81 UBO 2003 directions, `[81, 3]`.
 #[pyfunction]
 pub fn ubo81(py: Python<'_>) -> PyResult<Bound<'_, PyArray2<f64>>> {
-    let d = directions::ubo81();
-    PyArray2::from_vec2(py, &d.iter().map(|x| x.to_vec()).collect::<Vec<_>>()).map_err(|e| arg("ubo81", e))
+    guarded(|| {
+        let d = directions::ubo81();
+        PyArray2::from_vec2(py, &d.iter().map(|x| x.to_vec()).collect::<Vec<_>>()).map_err(|e| arg("ubo81", e))
+    })
 }
 
 /// Validate a BTF's arrays: shapes, unit directions with z >= 0, a non-empty mask and, when
@@ -68,12 +70,14 @@ pub fn validate_btf(
     mask: Option<&Bound<'_, PyAny>>,
     scan_values: bool,
 ) -> PyResult<()> {
-    let args = BtfArgs::new(data, views, lights, mask)?;
-    let b = args.btf()?;
-    if scan_values {
-        detach(py, || btf::check_finite("data", b.data))?;
-    }
-    Ok(())
+    guarded(|| {
+        let args = BtfArgs::new(data, views, lights, mask)?;
+        let b = args.btf()?;
+        if scan_values {
+            detach(py, || btf::check_finite("data", b.data))?;
+        }
+        Ok(())
+    })
 }
 
 type MaskArray<'py> = Bound<'py, PyArrayDyn<bool>>;
@@ -89,16 +93,18 @@ pub fn split_pairs<'py>(
     seed: u64,
     mask: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<(MaskArray<'py>, MaskArray<'py>)> {
-    let m = mask.map(|m| borrow::<bool>("mask", m)).transpose()?;
-    let ms = match &m {
-        Some(m) => Some(m.as_slice().map_err(|e| arg("mask", e))?),
-        None => None,
-    };
-    let (tr, te) = split::split_pairs(n_views, n_lights, ms, holdout, seed).py()?;
-    let shape = [n_views, n_lights];
-    let tr = tr.into_pyarray(py).reshape(shape.to_vec())?;
-    let te = te.into_pyarray(py).reshape(shape.to_vec())?;
-    Ok((tr, te))
+    guarded(|| {
+        let m = mask.map(|m| borrow::<bool>("mask", m)).transpose()?;
+        let ms = match &m {
+            Some(m) => Some(m.as_slice().map_err(|e| arg("mask", e))?),
+            None => None,
+        };
+        let (tr, te) = split::split_pairs(n_views, n_lights, ms, holdout, seed).py()?;
+        let shape = [n_views, n_lights];
+        let tr = tr.into_pyarray(py).reshape(shape.to_vec())?;
+        let te = te.into_pyarray(py).reshape(shape.to_vec())?;
+        Ok((tr, te))
+    })
 }
 
 /// The names of the built-in materials.
@@ -122,19 +128,21 @@ pub fn make_material<'py>(
     subsurface: f64,
     progress: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
-    let preset = Preset::from_name(name).py()?;
-    let v = borrow::<f64>("views", views)?;
-    let l = borrow::<f64>("lights", lights)?;
-    let spec = MaterialSpec {
-        preset,
-        size,
-        views: dirs("views", &v)?.to_vec(),
-        lights: dirs("lights", &l)?.to_vec(),
-        seed,
-        relief,
-        subsurface,
-    };
-    let btf = monitored(py, progress, |m| generate(&spec, m))?;
-    let shape = [btf.height, btf.width, btf.views.len(), btf.lights.len(), 3];
-    btf.data.into_pyarray(py).reshape(shape.to_vec())
+    guarded(|| {
+        let preset = Preset::from_name(name).py()?;
+        let v = borrow::<f64>("views", views)?;
+        let l = borrow::<f64>("lights", lights)?;
+        let spec = MaterialSpec {
+            preset,
+            size,
+            views: dirs("views", &v)?.to_vec(),
+            lights: dirs("lights", &l)?.to_vec(),
+            seed,
+            relief,
+            subsurface,
+        };
+        let btf = monitored(py, progress, |m| generate(&spec, m))?;
+        let shape = [btf.height, btf.width, btf.views.len(), btf.lights.len(), 3];
+        btf.data.into_pyarray(py).reshape(shape.to_vec())
+    })
 }

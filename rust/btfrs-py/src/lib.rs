@@ -18,7 +18,11 @@ use pyo3::prelude::*;
 
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    // Rayon's global pool is this process's; a child forked from it will run its parallel work
+    // on a pool of its own (see btfrs_core::process).
+    btfrs_core::process::claim_global_pool();
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_function(wrap_pyfunction!(run::_panic_for_test, m)?)?;
     m.add_function(wrap_pyfunction!(core::ubo81, m)?)?;
     m.add_function(wrap_pyfunction!(core::validate_btf, m)?)?;
     m.add_function(wrap_pyfunction!(core::split_pairs, m)?)?;

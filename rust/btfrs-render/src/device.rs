@@ -1,13 +1,16 @@
 //! The headless wgpu device: a real GPU when there is one, otherwise Mesa's lavapipe.
 //!
 //! One device is created per process on first use and shared (creating a Vulkan device costs
-//! tens of milliseconds; pipelines are cached on it too). `BTFRS_ADAPTER` forces the choice:
+//! tens of milliseconds; its pipelines are cached on it and go with it). A child forked after
+//! the parent opened its device makes its own: the parent's driver threads and state are not
+//! the child's (see [`btfrs_core::process`]). `BTFRS_ADAPTER` forces the choice:
 //! `gpu` (a hardware adapter or fail), `cpu` (a software adapter such as lavapipe or fail), or any
 //! other text, matched case-insensitively against the adapter names; unset or `auto` prefers
 //! discrete, then integrated, then virtual GPUs, then CPU adapters.
 
+use btfrs_core::process::{PerProcess, ProcessId};
 use btfrs_core::{Error, Result};
-use std::sync::{Arc, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock};
 
 /// What to install when no adapter is found (Debian and Ubuntu package names).
 pub const INSTALL_HINT: &str = "no usable graphics adapter: install a GPU driver with Vulkan support, or Mesa's \
@@ -25,6 +28,10 @@ pub struct Gpu {
     /// The limits the device was created with (the adapter's own, not WebGPU's defaults, so that
     /// large BTFs fit).
     pub limits: wgpu::Limits,
+    /// The process that opened the device.
+    owner: ProcessId,
+    /// Layouts and pipelines made on this device (by `gpu.rs`): they live and die with it.
+    pub(crate) pipelines: OnceLock<Mutex<crate::gpu::Pipelines>>,
 }
 
 /// How to choose the adapter.
@@ -98,15 +105,31 @@ impl Gpu {
             ..Default::default()
         }))
         .map_err(|e| Error::Device(format!("could not open {}: {e}", info.name)))?;
-        Ok(Gpu { device, queue, info, limits })
+        Ok(Gpu { device, queue, info, limits, owner: ProcessId::current(), pipelines: OnceLock::new() })
     }
 
-    /// The process-wide device, created on first use with [`AdapterChoice::from_env`].
+    /// This process's device, created on its first use with [`AdapterChoice::from_env`] (and
+    /// again in a forked child). A failure is remembered too: the adapters do not change.
     pub fn shared() -> Result<Arc<Gpu>> {
-        static GPU: OnceLock<std::result::Result<Arc<Gpu>, String>> = OnceLock::new();
+        static GPU: PerProcess<std::result::Result<Arc<Gpu>, String>> = PerProcess::new();
         GPU.get_or_init(|| Gpu::new(&AdapterChoice::from_env()).map(Arc::new).map_err(|e| e.to_string()))
             .clone()
             .map_err(Error::Device)
+    }
+
+    /// An error unless this device was opened by the calling process: a device (and everything
+    /// made on it) inherited through `fork` belongs to the parent's driver state, and using it
+    /// in the child hangs or corrupts the parent's work.
+    pub fn check_process(&self) -> Result<()> {
+        if self.owner.is_current() {
+            Ok(())
+        } else {
+            Err(Error::Device(format!(
+                "this {} device (or a model uploaded to it) was opened by the parent of this forked process; \
+                 upload the model again in this process",
+                self.info.name
+            )))
+        }
     }
 
     /// "name (backend, type)" for reports.

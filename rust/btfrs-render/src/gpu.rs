@@ -8,11 +8,13 @@
 
 use crate::device::Gpu;
 use crate::scene::{Camera, Light, Mesh};
+use btfrs_core::process::ProcessId;
 use btfrs_core::{Error, Result};
 use btfrs_fit::gpu::{GpuModel, Shader, Volume};
 use bytemuck::{Pod, Zeroable};
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex};
+use std::mem::ManuallyDrop;
+use std::sync::{Mutex, MutexGuard};
 use wgpu::util::DeviceExt;
 
 /// Storage buffers in a model's store (bindings 1..=8 of group 1 in `common.wgsl`).
@@ -79,21 +81,33 @@ pub struct UploadedModel {
     dims: (usize, usize),
     chunk_len: u32,
     chunks: usize,
-    bind_group: wgpu::BindGroup,
+    /// Holds the model's buffers and texture (wgpu keeps them alive through it).
+    bind_group: ManuallyDrop<wgpu::BindGroup>,
+    /// The process that uploaded the model.
+    owner: ProcessId,
     /// Bytes held on the device.
     pub device_bytes: u64,
 }
 
-struct Pipelines {
+impl Drop for UploadedModel {
+    fn drop(&mut self) {
+        // In a forked child the device is the parent's, reached through file descriptors the two
+        // processes share: freeing the model's buffers from here could free the parent's. Leak
+        // them instead (the child's copy of the memory goes when the child exits).
+        if self.owner.is_current() {
+            // SAFETY: dropped once, here, and never used again.
+            unsafe { ManuallyDrop::drop(&mut self.bind_group) }
+        }
+    }
+}
+
+/// The bind group layouts and render pipelines of one device, kept in its [`Gpu`] (so they are
+/// dropped with the device and never found by another one).
+#[derive(Debug)]
+pub(crate) struct Pipelines {
     globals_layout: wgpu::BindGroupLayout,
     model_layout: wgpu::BindGroupLayout,
     by_shader: HashMap<(Shader, bool), wgpu::RenderPipeline>,
-}
-
-fn pipelines(gpu: &Gpu) -> &'static Mutex<HashMap<usize, Arc<Mutex<Pipelines>>>> {
-    let _ = gpu;
-    static P: std::sync::OnceLock<Mutex<HashMap<usize, Arc<Mutex<Pipelines>>>>> = std::sync::OnceLock::new();
-    P.get_or_init(|| Mutex::new(HashMap::new()))
 }
 
 fn storage_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
@@ -123,11 +137,9 @@ fn uniform_entry(binding: u32, vis: wgpu::ShaderStages) -> wgpu::BindGroupLayout
 }
 
 /// The layouts and pipelines of `gpu`, created once per device.
-fn state(gpu: &Gpu) -> Arc<Mutex<Pipelines>> {
-    let key = gpu as *const Gpu as usize;
-    let mut all = pipelines(gpu).lock().unwrap_or_else(|e| e.into_inner());
-    all.entry(key)
-        .or_insert_with(|| {
+fn state(gpu: &Gpu) -> MutexGuard<'_, Pipelines> {
+    gpu.pipelines
+        .get_or_init(|| {
             let d = &gpu.device;
             let globals_layout = d.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                 label: Some("btfrs globals"),
@@ -155,9 +167,15 @@ fn state(gpu: &Gpu) -> Arc<Mutex<Pipelines>> {
                 label: Some("btfrs model"),
                 entries: &entries,
             });
-            Arc::new(Mutex::new(Pipelines { globals_layout, model_layout, by_shader: HashMap::new() }))
+            Mutex::new(Pipelines { globals_layout, model_layout, by_shader: HashMap::new() })
         })
-        .clone()
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+}
+
+/// Render pipelines built so far on `gpu` (one per shader variant drawn).
+pub fn cached_pipelines(gpu: &Gpu) -> usize {
+    gpu.pipelines.get().map_or(0, |p| p.lock().unwrap_or_else(|e| e.into_inner()).by_shader.len())
 }
 
 fn pipeline(gpu: &Gpu, st: &mut Pipelines, shader: Shader, single_chunk: bool) -> Result<wgpu::RenderPipeline> {
@@ -223,6 +241,7 @@ fn pipeline(gpu: &Gpu, st: &mut Pipelines, shader: Shader, single_chunk: bool) -
 
 /// Upload a model's store and parameters.
 pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
+    gpu.check_process()?;
     let parts = model.gpu_parts();
     let mut offsets = Vec::with_capacity(parts.len());
     let mut total = 0usize;
@@ -259,7 +278,6 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
     }
     let d = &gpu.device;
     let st = state(gpu);
-    let st = st.lock().unwrap_or_else(|e| e.into_inner());
     gpu.checked("uploading the model", || {
         let chunks: Vec<wgpu::Buffer> = (0..MAX_CHUNKS)
             .map(|c| {
@@ -367,7 +385,8 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
             dims: model.gpu_dims(),
             chunk_len: chunk_len as u32,
             chunks: n_chunks,
-            bind_group,
+            bind_group: ManuallyDrop::new(bind_group),
+            owner: ProcessId::current(),
             // Measured from what was allocated (the store chunks in use and the 3D texture), not
             // from the model's own count, so `nbytes` can be tested against it.
             device_bytes: chunks[..n_chunks].iter().map(|b| b.size()).sum::<u64>()
@@ -423,10 +442,10 @@ pub fn validate_view(gpu: &Gpu, view: &View<'_>, dims: (usize, usize)) -> Result
 
 /// Render `model` (uploaded with [`upload`]) into a `[height][width][3]` image.
 pub fn render(gpu: &Gpu, model: &UploadedModel, view: &View<'_>) -> Result<(Vec<f32>, FrameTimes)> {
+    gpu.check_process()?;
     validate_view(gpu, view, model.dims)?;
     let d = &gpu.device;
-    let st_arc = state(gpu);
-    let mut st = st_arc.lock().unwrap_or_else(|e| e.into_inner());
+    let mut st = state(gpu);
     let pipe = pipeline(gpu, &mut st, model.shader, model.chunks == 1)?;
     let (w, h) = (view.width as u32, view.height as u32);
     let t0 = std::time::Instant::now();
@@ -546,7 +565,7 @@ pub fn render(gpu: &Gpu, model: &UploadedModel, view: &View<'_>) -> Result<(Vec<
             });
             pass.set_pipeline(&pipe);
             pass.set_bind_group(0, &globals_bg, &[]);
-            pass.set_bind_group(1, &model.bind_group, &[]);
+            pass.set_bind_group(1, &*model.bind_group, &[]);
             pass.set_vertex_buffer(0, vbuf.slice(..));
             pass.set_index_buffer(ibuf.slice(..), wgpu::IndexFormat::Uint32);
             pass.draw_indexed(0..view.mesh.indices.len() as u32, 0, 0..1);
@@ -616,4 +635,48 @@ pub fn read_back_rgba(gpu: &Gpu, tex: &wgpu::Texture, w: u32, h: u32) -> Result<
     drop(data);
     buf.unmap();
     Ok(img)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::device::AdapterChoice;
+    use btfrs_core::materials::{generate, MaterialSpec, Preset};
+    use btfrs_core::Monitor;
+
+    /// Devices opened and dropped one after the other at the same address (which the old
+    /// address-keyed cache mistook for the same device, handing the second one the dropped
+    /// device's pipelines): each starts with no pipelines, builds its own and draws the same
+    /// image.
+    #[test]
+    fn each_device_has_its_own_pipelines() {
+        let mut spec = MaterialSpec::new(Preset::Bumps, 8, 1);
+        spec.views = btfrs_core::directions::ubo81().into_iter().step_by(9).collect();
+        let btf = generate(&spec, &Monitor::new()).unwrap();
+        let ptm = btfrs_fit::fit_ptm(&btf.as_ref(), &Default::default(), &Monitor::new()).unwrap();
+        let (mesh, cam) = (Mesh::plane(2.0), Camera::look_at([0.0, -2.0, 2.0], [0.0; 3], 45.0).unwrap());
+        let lights = [Light::Point { position: [1.0, -1.0, 2.0], intensity: [4.0; 3] }];
+        let view = View {
+            mesh: &mesh,
+            camera: &cam,
+            lights: &lights,
+            width: 16,
+            height: 16,
+            uv_scale: [1.0; 2],
+            coords: None,
+        };
+        let mut images = Vec::new();
+        for _ in 0..3 {
+            // By value: each iteration's device sits in the same stack slot, at the same address.
+            let gpu = Gpu::new(&AdapterChoice::Cpu).expect("lavapipe (apt-get install mesa-vulkan-drivers)");
+            assert_eq!(cached_pipelines(&gpu), 0, "a new device must not find another device's pipelines");
+            let up = upload(&gpu, &ptm).unwrap();
+            images.push(render(&gpu, &up, &view).unwrap().0);
+            assert_eq!(cached_pipelines(&gpu), 1);
+            render(&gpu, &up, &view).unwrap();
+            assert_eq!(cached_pipelines(&gpu), 1, "the second frame reuses the pipeline");
+        }
+        assert!(images[0].iter().any(|&x| x > 0.0), "nothing drawn");
+        assert!(images.iter().all(|im| im == &images[0]));
+    }
 }
