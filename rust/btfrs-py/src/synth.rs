@@ -4,7 +4,7 @@
 use crate::arrays::{borrow, check_shape};
 use crate::core::BtfArgs;
 use crate::errors::{arg, IntoPy};
-use crate::run::monitored;
+use crate::run::{detach, monitored};
 use btfrs_kcoherence::{
     jump_map, kcoherence, quality, Analysis, AnalysisOptions, CoordMap, FeatureMode, Features, JumpOptions, Level,
     Neighbours, SynthOptions, Textons,
@@ -107,7 +107,9 @@ impl PyAnalysis {
     fn dots<'py>(&self, py: Python<'py>, level: usize) -> PyResult<Bound<'py, numpy::PyArray2<f64>>> {
         let lv = self.level(level)?;
         let t = lv.textons.count();
-        lv.textons.dots().into_pyarray(py).reshape([t, t])
+        // Parallel work: inside the per-process pool (a forked child has no global pool threads).
+        let d = detach(py, || Ok(lv.textons.dots()))?;
+        d.into_pyarray(py).reshape([t, t])
     }
 
     /// `[T, T]` texton squared distances of a level.
@@ -236,7 +238,7 @@ impl PyAnalysis {
 
     /// Rebuild from `arrays()` and `options()` (validated).
     #[staticmethod]
-    fn from_arrays(arrays: &Bound<'_, PyDict>, options: &Bound<'_, PyDict>) -> PyResult<Self> {
+    fn from_arrays(py: Python<'_>, arrays: &Bound<'_, PyDict>, options: &Bound<'_, PyDict>) -> PyResult<Self> {
         let opt = |k: &str| -> PyResult<u64> {
             let v = options.get_item(k)?.ok_or_else(|| arg("options", format!("missing {k:?}")))?;
             v.extract::<u64>().map_err(|_| arg("options", format!("{k:?} is {v}, not a non-negative integer")))
@@ -256,7 +258,7 @@ impl PyAnalysis {
             }
             let (centers, cs) = get::<f32>(arrays, &key, &[None, None])?;
             let (assign, ts) = get::<u16>(arrays, &format!("level{l}.textons"), &[None, None])?;
-            let textons = Textons::from_parts(cs[1], centers, assign).py()?;
+            let textons = detach(py, || Textons::from_parts(cs[1], centers, assign))?;
             let mut neighbours = Vec::new();
             for r in 1..=btfrs_kcoherence::analysis::MAX_RADIUS {
                 let key = format!("level{l}.similar{r}.index");
@@ -271,7 +273,7 @@ impl PyAnalysis {
             }
             levels.push(Level { height: ts[0], width: ts[1], textons, neighbours });
         }
-        Ok(Self { inner: Analysis::from_levels(levels, o).py()? })
+        Ok(Self { inner: detach(py, || Analysis::from_levels(levels, o))? })
     }
 }
 
