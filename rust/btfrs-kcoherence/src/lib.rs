@@ -20,6 +20,7 @@
 //!   best match, coherence, seams, repetition).
 
 pub mod analysis;
+mod analysis_arrays;
 pub mod coordmap;
 pub mod jump_map;
 pub mod kcoherence;

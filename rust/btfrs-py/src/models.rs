@@ -40,7 +40,7 @@ fn json_to_py<'py>(py: Python<'py>, v: &serde_json::Value) -> PyResult<Bound<'py
 }
 
 /// A dict of numpy arrays as named arrays (copied: the model owns its data).
-fn named_arrays(d: &Bound<'_, PyDict>) -> PyResult<NamedArrays> {
+pub(crate) fn named_arrays(d: &Bound<'_, PyDict>) -> PyResult<NamedArrays> {
     let mut out = NamedArrays::new();
     for (k, v) in d.iter() {
         let name: String = k.extract().map_err(|_| arg("arrays", "expected string keys"))?;
@@ -69,7 +69,7 @@ fn named_arrays(d: &Bound<'_, PyDict>) -> PyResult<NamedArrays> {
 }
 
 /// Named arrays as a dict of numpy arrays.
-fn arrays_dict<'py>(py: Python<'py>, a: NamedArrays) -> PyResult<Bound<'py, PyDict>> {
+pub(crate) fn arrays_dict<'py>(py: Python<'py>, a: NamedArrays) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     for (name, arr) in a.iter() {
         let shape = arr.shape.clone();

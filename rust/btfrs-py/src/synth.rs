@@ -4,10 +4,11 @@
 use crate::arrays::{borrow, check_shape};
 use crate::core::BtfArgs;
 use crate::errors::{arg, IntoPy};
+use crate::models::{arrays_dict, named_arrays};
 use crate::run::{detach, monitored};
 use btfrs_kcoherence::{
     jump_map, kcoherence, quality, Analysis, AnalysisOptions, CoordMap, FeatureMode, Features, JumpOptions, Level,
-    Neighbours, SynthOptions, Textons,
+    SynthOptions,
 };
 use numpy::{IntoPyArray, PyArray3, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -220,20 +221,10 @@ impl PyAnalysis {
         Ok(d)
     }
 
-    /// Copies of the analysis's arrays, by name (what `Analysis.save` writes).
+    /// Copies of the analysis's arrays, by name (what `Analysis.save` writes; the layout is
+    /// defined in btfrs-kcoherence).
     fn arrays<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let d = PyDict::new(py);
-        for (l, lv) in self.inner.levels.iter().enumerate() {
-            let t = &lv.textons;
-            put(&d, &format!("level{l}.centers"), t.centers.clone(), vec![t.count(), t.dim])?;
-            put(&d, &format!("level{l}.textons"), t.assign.clone(), vec![lv.height, lv.width])?;
-            for n in &lv.neighbours {
-                let idx: Vec<i32> = n.index.iter().map(|&i| if i == u32::MAX { -1 } else { i as i32 }).collect();
-                put(&d, &format!("level{l}.similar{}.index", n.radius), idx, vec![lv.height, lv.width, n.m])?;
-                put(&d, &format!("level{l}.similar{}.dist", n.radius), n.dist.clone(), vec![lv.height, lv.width, n.m])?;
-            }
-        }
-        Ok(d)
+        arrays_dict(py, self.inner.to_arrays())
     }
 
     /// Rebuild from `arrays()` and `options()` (validated).
@@ -250,30 +241,9 @@ impl PyAnalysis {
             iterations: opt("iterations")? as usize,
             seed: opt("seed")?,
         };
-        let mut levels = Vec::new();
-        for l in 0.. {
-            let key = format!("level{l}.centers");
-            if arrays.get_item(&key)?.is_none() {
-                break;
-            }
-            let (centers, cs) = get::<f32>(arrays, &key, &[None, None])?;
-            let (assign, ts) = get::<u16>(arrays, &format!("level{l}.textons"), &[None, None])?;
-            let textons = detach(py, || Textons::from_parts(cs[1], centers, assign))?;
-            let mut neighbours = Vec::new();
-            for r in 1..=btfrs_kcoherence::analysis::MAX_RADIUS {
-                let key = format!("level{l}.similar{r}.index");
-                if arrays.get_item(&key)?.is_none() {
-                    continue;
-                }
-                let (idx, s) = get::<i32>(arrays, &key, &[Some(ts[0]), Some(ts[1]), Some(o.m)])?;
-                let (dist, _) =
-                    get::<f32>(arrays, &format!("level{l}.similar{r}.dist"), &[Some(s[0]), Some(s[1]), Some(s[2])])?;
-                let index = idx.iter().map(|&i| if i < 0 { u32::MAX } else { i as u32 }).collect();
-                neighbours.push(Neighbours { radius: r, m: o.m, index, dist });
-            }
-            levels.push(Level { height: ts[0], width: ts[1], textons, neighbours });
-        }
-        Ok(Self { inner: detach(py, || Analysis::from_levels(levels, o))? })
+        let a = named_arrays(arrays)?;
+        // Parallel validation inside the per-process pool, panics caught.
+        Ok(Self { inner: detach(py, || Analysis::from_arrays(&a, o))? })
     }
 }
 
@@ -344,22 +314,4 @@ pub fn analyse_features_native<'py>(
         Analysis::of_features(f, o, &neighbourhoods, mon)
     })?;
     Ok(PyAnalysis { inner })
-}
-
-type Arrays<'py> = Bound<'py, PyDict>;
-
-fn put<'py, T: numpy::Element>(d: &Arrays<'py>, name: &str, v: Vec<T>, shape: Vec<usize>) -> PyResult<()> {
-    d.set_item(name, numpy::IntoPyArray::into_pyarray(v, d.py()).reshape(shape)?)
-}
-
-/// A named array of `dict`, borrowed, with its shape checked.
-fn get<'py, T: numpy::Element + Copy>(
-    d: &Arrays<'py>,
-    name: &str,
-    shape: &[Option<usize>],
-) -> PyResult<(Vec<T>, Vec<usize>)> {
-    let a = d.get_item(name)?.ok_or_else(|| arg("arrays", format!("missing the array {name:?}")))?;
-    let r = crate::arrays::borrow::<T>(name, &a)?;
-    crate::arrays::check_shape(name, r.shape(), shape)?;
-    Ok((r.as_slice().map_err(|e| arg(name, e))?.to_vec(), r.shape().to_vec()))
 }
