@@ -137,10 +137,7 @@ class Model:
     @classmethod
     def load(cls, path: PathLike) -> "Model":
         """Read a model written by :meth:`save`."""
-        m = load(path)
-        if not isinstance(m, cls):
-            raise FormatError(f"{os.fspath(path)}: holds a {type(m).__name__}, not a {cls.__name__}")
-        return m
+        return load_as(path, cls)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.height} x {self.width} texels, {self.nbytes / 2**20:.2f} MiB)"
@@ -308,6 +305,14 @@ def _all_subclasses(c):
     for s in c.__subclasses__():
         yield s
         yield from _all_subclasses(s)
+
+
+def load_as(path: PathLike, cls):
+    """:func:`load`, checking that the file holds a ``cls`` (else :class:`FormatError`)."""
+    obj = load(path)
+    if not isinstance(obj, cls):
+        raise FormatError(f"{os.fspath(path)}: holds a {type(obj).__name__}, not a {cls.__name__}")
+    return obj
 
 
 def load(path: PathLike):

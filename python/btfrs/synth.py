@@ -130,12 +130,9 @@ class Analysis:
     @classmethod
     def load(cls, path: PathLike) -> "Analysis":
         """Read an analysis written by :meth:`save`."""
-        from .models import load
+        from .models import load_as
 
-        a = load(path)
-        if not isinstance(a, cls):
-            raise FormatError(f"{os.fspath(path)}: holds a {type(a).__name__}, not an Analysis")
-        return a
+        return load_as(path, cls)
 
     @classmethod
     def _from_container(cls, path: PathLike, meta: dict, arrays: dict) -> "Analysis":
