@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 import sys
 
-from . import directions, exceptions, fit, hemimap, io, materials, synth
+from . import directions, evaluation, exceptions, fit, hemimap, io, materials, synth
 from ._native import __version__
 from .btf import Btf, ExpandedBtf
 from .exceptions import (
@@ -26,6 +26,7 @@ from .exceptions import (
     OutOfRangeError,
 )
 from .models import ErrorReport, Lafortune, Lpca, Model, Ptm, Sh, Srf, load, model_kinds
+from .evaluation import EvaluationReport, evaluate
 from .rendering import Camera, DirectionalLight, PointLight, Scene, gpu_info, last_timings, render
 
 
@@ -80,6 +81,9 @@ __all__ = [
     "PointLight",
     "DirectionalLight",
     "directions",
+    "evaluate",
+    "evaluation",
+    "EvaluationReport",
     "exceptions",
     "fit",
     "hemimap",

@@ -12,8 +12,9 @@ import numpy as np
 
 from .btf import Btf
 
-__all__ = ["ptm_rgb_numpy", "nearest_lights_interpolation", "crop", "lafortune_scipy", "real_sh", "sh_numpy_lstsq",
-           "sh_error", "lpca_sklearn"]
+__all__ = ["ptm_rgb_numpy", "ptm_error", "nearest_lights_interpolation", "interp_weights", "present_pair_weights",
+           "raw_interpolation", "crop", "lafortune_scipy", "real_sh", "sh_numpy_lstsq", "sh_error", "lpca_sklearn",
+           "lpca_sklearn_fit"]
 
 
 def _basis(lights: np.ndarray) -> np.ndarray:
@@ -201,6 +202,93 @@ def lpca_sklearn(btf: Btf, clusters: int = 32, components: int = 4, seed: int = 
     ``PCA(components)`` per cluster, float32 throughout. Reconstruction error over all present
     samples (as paper 004 reports it); ``nbytes`` counts float32 Eigen-BRDFs and weights and a
     2-byte cluster id per texel. Returns ``{"seconds", "reconstruction", "nbytes"}``."""
+    r = lpca_sklearn_fit(btf, clusters, components, seed)
+    return {k: r[k] for k in ("seconds", "reconstruction", "nbytes")}
+
+
+def _angles(dirs: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Angles between each of ``dirs`` [n, 3] and ``q`` [3] (atan2 of |cross| and dot: accurate
+    near 0, unlike arccos of the dot)."""
+    d = np.asarray(dirs, dtype=np.float64)
+    return np.arctan2(np.linalg.norm(np.cross(d, q), axis=1), d @ q)
+
+
+def interp_weights(dirs: np.ndarray, query, k: int = 3) -> list:
+    """Interpolation weights over the ``k`` nearest of ``dirs`` as ``[(index, weight)]``, in
+    numpy: inverse angular distance minus that of the (k+1)-th nearest (continuous as the query
+    moves), normalised; a query on a direction gets it alone. The same rule as
+    ``btfrs_core::directions::interp_weights`` (what the PTM's slot blend and the raw renderer
+    use), written independently."""
+    ang = _angles(dirs, np.asarray(query, dtype=np.float64))
+    order = np.argsort(ang, kind="stable")
+    if ang[order[0]] < 1e-9:
+        return [(int(order[0]), 1.0)]
+    k = int(np.clip(k, 1, len(ang)))
+    cut = 1.0 / ang[order[k]] if k < len(ang) else 0.0
+    w = np.maximum(1.0 / ang[order[:k]] - cut, 0.0)
+    w = w / w.sum() if w.sum() > 0 else np.full(k, 1.0 / k)
+    return [(int(i), float(x)) for i, x in zip(order[:k], w) if x > 0]
+
+
+def present_pair_weights(train: Btf, view, light) -> list:
+    """``[(view index, light index, weight)]`` interpolating ``train`` at (view, light) over its
+    *present* pairs: the 3 x 3 product of :func:`interp_weights`, restricted to present pairs and
+    renormalised; where none is present, inverse summed-angle weights over the 4 nearest present
+    pairs at a non-zero distance (so a held-out pair is never read, even at its own directions)."""
+    mask = np.ones((train.n_views, train.n_lights), bool) if train.mask is None else train.mask
+    out = [(v, l, wv * wl) for v, wv in interp_weights(train.views, view) for l, wl in interp_weights(train.lights, light)
+           if mask[v, l] and wv * wl > 0]
+    tot = sum(x[2] for x in out)
+    if tot > 0:
+        return [(v, l, x / tot) for v, l, x in out]
+    d = _angles(train.views, np.asarray(view, float))[:, None] + _angles(train.lights, np.asarray(light, float))[None, :]
+    d = np.where(mask & (d > 1e-9), d, np.inf)
+    near = np.argsort(d, axis=None)[:4]
+    vv, ll = np.unravel_index(near, d.shape)
+    keep = np.isfinite(d[vv, ll])
+    inv = 1.0 / d[vv[keep], ll[keep]]
+    return [(int(v), int(l), float(x)) for v, l, x in zip(vv[keep], ll[keep], inv / inv.sum())]
+
+
+def raw_interpolation(train: Btf, test: Btf) -> float:
+    """Held-out relative error ``||pred - gt|| / ||gt||`` of interpolating the measured values of
+    ``train`` (:func:`present_pair_weights`) at every present pair of ``test`` (whose directions
+    may differ from ``train``'s: the whole-directions protocol). float64 accumulation."""
+    num = den = 0.0
+    tmask = np.ones((test.n_views, test.n_lights), bool) if test.mask is None else test.mask
+    for v, l in zip(*np.nonzero(tmask)):
+        pred = np.zeros(test.data.shape[:2] + (3,))
+        for tv, tl, wgt in present_pair_weights(train, test.views[v], test.lights[l]):
+            pred += wgt * train.data[:, :, tv, tl]
+        gt = test.data[:, :, v, l].astype(np.float64)
+        num += float(np.sum((pred - gt) ** 2))
+        den += float(np.sum(gt * gt))
+    return float(np.sqrt(num / den)) if den > 0 else float("nan")
+
+
+def ptm_error(coeffs: np.ndarray, fitted: Btf, test: Btf) -> float:
+    """Relative error of PTM-RGB coefficients ``[H, W, V, 3, 6]`` (fitted on ``fitted``'s view
+    slots) at the present pairs of ``test``; between slots, the :func:`interp_weights` blend of
+    the 3 nearest slots, as btfrs's PTM does."""
+    tmask = np.ones((test.n_views, test.n_lights), bool) if test.mask is None else test.mask
+    num = den = 0.0
+    for v in range(test.n_views):
+        ls = np.flatnonzero(tmask[v])
+        if len(ls) == 0:
+            continue
+        c = sum(w * coeffs[:, :, s] for s, w in interp_weights(fitted.views, test.views[v]))  # [H, W, 3, 6]
+        pred = np.einsum("hwck,nk->hwnc", c, _basis(test.lights[ls]), optimize=True)
+        gt = test.data[:, :, v][:, :, ls].astype(np.float64)
+        num += float(np.sum((pred - gt) ** 2))
+        den += float(np.sum(gt * gt))
+    return float(np.sqrt(num / den))
+
+
+def lpca_sklearn_fit(btf: Btf, clusters: int = 32, components: int = 4, seed: int = 0) -> dict:
+    """:func:`lpca_sklearn` on the present pairs of ``btf`` (masked or not), also returning the
+    reconstruction as a Btf with ``btf``'s directions and mask (``"reconstructed"``), which
+    :func:`raw_interpolation` fills in at held-out pairs (btfrs's LPCA fills its Eigen-BRDFs'
+    held-out entries by the same interpolation)."""
     from sklearn.cluster import KMeans
     from sklearn.decomposition import PCA
 
@@ -213,13 +301,15 @@ def lpca_sklearn(btf: Btf, clusters: int = 32, components: int = 4, seed: int = 
         idx = np.flatnonzero(km.labels_ == k)
         if len(idx) == 0:
             continue
-        c = min(components, len(idx))
-        if c == 0 or len(idx) < 2:
+        if len(idx) < 2:
             rec[idx] = x[idx].mean(axis=0)
             continue
-        pca = PCA(n_components=min(c, len(idx) - 1) or 1, random_state=seed).fit(x[idx])
+        pca = PCA(n_components=min(components, len(idx) - 1), random_state=seed).fit(x[idx])
         rec[idx] = pca.inverse_transform(pca.transform(x[idx]))
     secs = time.perf_counter() - t0
     err = float(np.linalg.norm((rec - x).astype(np.float64)) / np.linalg.norm(x.astype(np.float64)))
+    data = np.zeros_like(btf.data)
+    data[:, :, vi, li, :] = rec.reshape(btf.height, btf.width, len(vi), 3)
     nbytes = 4 * clusters * (components + 1) * x.shape[1] + btf.height * btf.width * (2 + 4 * components)
-    return {"seconds": secs, "reconstruction": err, "nbytes": nbytes}
+    return {"seconds": secs, "reconstruction": err, "nbytes": nbytes,
+            "reconstructed": Btf(data, btf.views, btf.lights, btf.mask, check=False)}

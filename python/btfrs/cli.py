@@ -43,6 +43,18 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     s.add_argument("--seed", type=int, default=7, help="synthesis seed (default: 7)")
     s.add_argument("--out", default="synth", help="output folder (default: synth)")
     s.add_argument("--quiet", action="store_true", help="no progress bars")
+    e = sub.add_parser("evaluate", help="speed against accuracy of every model on one material: table + charts")
+    _material_args(e, default="weave")
+    e.add_argument("--models", default="all", help="'all' or a comma-separated list of model names (default: all)")
+    e.add_argument("--holdout", choices=["pairs", "directions", "both"], default="both",
+                   help="held-out protocol: random pairs, whole directions, or both (default: both)")
+    e.add_argument("--fraction", type=float, default=0.1, help="share held out (default: 0.1)")
+    e.add_argument("--sweep", choices=["full", "quick"], default="full", help="parameter sweep (default: full)")
+    e.add_argument("--no-baselines", action="store_true", help="leave out the numpy / scipy / scikit-learn rows")
+    e.add_argument("--no-render", action="store_true", help="leave out render ms and scene PSNR")
+    e.add_argument("--eval-seed", type=int, default=0, help="seed of the splits and of seeded fits (default: 0)")
+    e.add_argument("--out", default="evaluate", help="output folder (default: evaluate)")
+    e.add_argument("--quiet", action="store_true", help="no progress bars")
     args = p.parse_args(argv)
 
     from .exceptions import BtfrsError
@@ -54,6 +66,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             demo.run(args.out, material=args.material, size=args.size, seed=args.seed, progress=not args.quiet)
         elif args.command == "synth":
             synth_command(args)
+        elif args.command == "evaluate":
+            evaluate_command(args)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
@@ -61,6 +75,45 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print(f"btfrs: error: {e}", file=sys.stderr)
         return 2
     return 0
+
+
+def _material_args(p: argparse.ArgumentParser, default: str) -> None:
+    """``--material NAME --size N --seed S`` or ``--btf FILE``: the sample a command works on."""
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--material", default=default, help=f"built-in material (default: {default})")
+    src.add_argument("--btf", help="a .btfrs BTF file instead")
+    p.add_argument("--size", type=int, default=32, help="material texels per side (default: 32)")
+    p.add_argument("--seed", type=int, default=1, help="material seed (default: 1)")
+
+
+def _load_sample(args, progress: bool):
+    """The Btf of :func:`_material_args` and its name."""
+    import os
+
+    from . import materials
+    from .btf import Btf
+
+    if args.btf:
+        return Btf.load(args.btf), os.path.basename(args.btf)
+    return materials.make(args.material, size=args.size, seed=args.seed, progress=progress), args.material
+
+
+def evaluate_command(args) -> None:
+    """``btfrs evaluate``: :func:`btfrs.evaluate` on a material, the table on stdout, the report
+    and charts in ``--out``."""
+    from .evaluation import evaluate
+
+    progress = not args.quiet
+    btf, name = _load_sample(args, progress)
+    models = args.models if args.models == "all" else [m.strip() for m in args.models.split(",") if m.strip()]
+    rep = evaluate(btf, models, holdout=args.holdout, fraction=args.fraction, sweep=args.sweep,
+                   baselines=False if args.no_baselines else None, render=not args.no_render, seed=args.eval_seed,
+                   material=name, progress=progress)
+    print(rep.summary())
+    print()
+    print(rep.table())
+    paths = rep.save(args.out)
+    print(f"\nwrote {', '.join(paths)}")
 
 
 def synth_command(args) -> None:
