@@ -1,3 +1,4 @@
+import json
 import re
 import subprocess
 import sys
@@ -25,6 +26,13 @@ def test_demo_writes_images_and_a_summary_with_numbers(tmp_path):
     assert img.shape[0] == 4 * 24 * 3 and img.std() > 0.05  # four materials, not a blank image
     back = btfrs.io.load_ptm(tmp_path / "ptm_rgb_top.ptm")
     assert back.height == 24
+    # The speed-against-accuracy charts and report, with a row per registered model.
+    ev = json.loads((tmp_path / "evaluate" / "report.json").read_text())
+    assert {r["kind"] for r in ev["rows"]} >= set(btfrs.model_kinds())
+    assert all(r.get("heldout_directions") is not None for r in ev["rows"]), "every point has both protocols"
+    assert {p.name for p in (tmp_path / "evaluate").glob("*.png")} == {
+        "heldout_vs_bytes.png", "heldout_vs_render_ms.png", "heldout_vs_fit_s.png"}
+    assert "Speed against accuracy" in summary
 
 
 def test_cli_reports_errors_without_a_traceback(tmp_path):

@@ -205,6 +205,24 @@ def step_synthesis(ctx: Context) -> None:
     ctx.log(f"synthesis: analysis {an.seconds:.2f} s, k-coherence {size}^2 in {t_syn:.3f} s; {q}")
 
 
+def step_evaluate(ctx: Context) -> None:
+    """Speed against accuracy (:func:`btfrs.evaluate`): one or two points per model (the quick
+    sweep) and the numpy / scipy / scikit-learn ways, both held-out protocols, charts in
+    ``evaluate/``. ``btfrs evaluate`` runs the full sweep."""
+    from .evaluation import evaluate
+
+    t0 = time.perf_counter()
+    rep = evaluate(ctx.btf, "all", holdout="both", sweep="quick", baselines=True, baseline_texels=8, seed=0,
+                   material=ctx.material, progress=ctx.progress)
+    paths = rep.save(ctx.out / "evaluate")
+    front = ", ".join(r["label"] + ("" if r["way"] == "btfrs" else f" ({r['way']})") for r in rep.pareto("heldout", "bytes"))
+    ctx.images.append(("evaluate/heldout_vs_bytes.png", "held-out error against bytes, render ms (`heldout_vs_render_ms.png`) "
+                       "and fit seconds (`heldout_vs_fit_s.png`), both held-out protocols, Pareto front dashed"))
+    ctx.notes.append(f"Speed against accuracy (quick sweep, {time.perf_counter() - t0:.0f} s; `evaluate/report.md`): "
+                     f"the held-out-vs-bytes front is {front}.")
+    ctx.log(f"evaluate: {len(rep.rows)} points in {time.perf_counter() - t0:.1f} s; wrote {', '.join(paths)}")
+
+
 def step_summary(ctx: Context) -> None:
     raw = ctx.btf.nbytes
     lines = [
@@ -229,7 +247,7 @@ def step_summary(ctx: Context) -> None:
 
 
 STEPS: list = [step_material, step_baseline, step_models, step_compare_images, step_render, step_synthesis,
-               step_materials_overview, step_summary]
+               step_materials_overview, step_evaluate, step_summary]
 
 
 def run(out, *, material: str = "knit", size: int = 64, seed: int = 1, progress: bool = True,
