@@ -245,9 +245,15 @@ _AXIS = {"bytes": "bytes as stored for rendering", "render_ms": "render ms per 5
 
 
 def chart(report: EvaluationReport, x: str, path: Union[str, os.PathLike]) -> None:
-    """Draw held-out error against ``x`` (log-log), one panel per held-out protocol measured,
-    each model kind in its colour, baselines as squares, every point labelled, the Pareto front
-    as a dashed staircase; written atomically as PNG."""
+    """Draw held-out error against ``x`` (log-log), one panel per held-out protocol measured.
+
+    Each model kind has its colour (baselines: squares with a black edge); every point carries
+    its number, and the key on the right gives the number's model, way and both held-out errors
+    (labels written beside the points would overlap where points crowd). A point far above the
+    others (more than 4x the upper quartile: e.g. plain least squares after quantization) is
+    drawn as a triangle at the top edge and its value given in the key, so that it does not
+    flatten the rest. The Pareto front is the dashed staircase. Written atomically as PNG.
+    """
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -261,39 +267,66 @@ def chart(report: EvaluationReport, x: str, path: Union[str, os.PathLike]) -> No
     kinds = list(dict.fromkeys(r["kind"] for r in report.rows))
     cmap = plt.get_cmap("tab10")
     colour = {k: cmap(i % 10) for i, k in enumerate(kinds)}
-    fig, axes = plt.subplots(1, len(ys), figsize=(7.5 * len(ys), 6.0), squeeze=False)
-    for ax, y in zip(axes[0], ys):
+    number = {id(r): i + 1 for i, r in enumerate(report.rows)}
+    fig = plt.figure(figsize=(6.2 * len(ys) + 4.6, 6.4))
+    grid = fig.add_gridspec(1, len(ys) + 1, width_ratios=[6.2] * len(ys) + [4.6])
+    off_scale: dict = {}
+    for j, y in enumerate(ys):
+        ax = fig.add_subplot(grid[0, j])
         pts = [r for r in report.rows if _num(r.get(x)) is not None and _num(r.get(y)) is not None
                and r[x] > 0 and r[y] > 0]
+        vals = np.array([r[y] for r in pts]) if pts else np.array([1.0])
+        cap = 4.0 * float(np.percentile(vals, 75))
+        top = min(float(vals.max()), cap) * 1.5
         seen = set()
         for r in pts:
             base = r["way"] != "btfrs"
             key = (r["kind"], base)
             name = (f"{r['kind']} ({r['way'].split(' ')[0]})" if base else r["kind"])
-            ax.scatter(r[x], r[y], s=46, marker="s" if base else "o", color=colour[r["kind"]],
+            above = r[y] > cap
+            yy = top / 1.25 if above else r[y]
+            if above:
+                off_scale.setdefault(id(r), []).append(y)
+            ax.scatter(r[x], yy, s=50, marker="^" if above else ("s" if base else "o"), color=colour[r["kind"]],
                        edgecolors="black" if base else "none", linewidths=0.8, zorder=3,
                        label=None if key in seen else name)
             seen.add(key)
-            ax.annotate(r["label"], (r[x], r[y]), xytext=(4, 3), textcoords="offset points", fontsize=7, zorder=4)
+            ax.annotate(str(number[id(r)]), (r[x], yy), xytext=(4, 2), textcoords="offset points", fontsize=7.5,
+                        zorder=4)
         front = pareto_front(pts, y, x)
-        if len(front) >= 1:
+        if front:
             fx, fy = [], []
             for i, r in enumerate(front):
                 if i:
                     fx.append(r[x])
-                    fy.append(front[i - 1][y])
+                    fy.append(min(front[i - 1][y], top / 1.25))
                 fx.append(r[x])
-                fy.append(r[y])
+                fy.append(min(r[y], top / 1.25))
             ax.plot(fx, fy, "--", color="0.35", lw=1.2, zorder=2, label="Pareto front")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        ax.set_ylim(top=top)
         ax.set_xlabel(_AXIS.get(x, x))
         ax.set_ylabel(_AXIS[y])
         ax.grid(True, which="both", alpha=0.25)
         i = report.info
         ax.set_title(f"{i.get('material', 'btf')} {i.get('shape', '')}: {_AXIS[y].split('(')[1][:-1]} held out",
                      fontsize=10)
-        ax.legend(fontsize=7, loc="best", framealpha=0.85)
+        ax.legend(fontsize=7, loc="lower left", framealpha=0.85)
+    key = fig.add_subplot(grid[0, len(ys)])
+    key.axis("off")
+    lines = []
+    for r in report.rows:
+        errs = " / ".join("-" if _num(r.get(y)) is None else f"{100 * r[y]:.3g}%" for y in ys)
+        tag = "" if r["way"] == "btfrs" else f" [{r['way'].split(' (')[0]}]"
+        mark = " (off scale)" if id(r) in off_scale else ""
+        lines.append((f"{number[id(r)]:>2}  {r['label']}{tag}: {errs}{mark}", colour[r["kind"]]))
+    key.text(0.0, 1.0, "held-out error " + " / ".join(_AXIS[y].split("(")[1][:-1] for y in ys),
+             fontsize=8, weight="bold", va="top", family="monospace", transform=key.transAxes)
+    step = min(0.034, 0.95 / max(len(lines), 1))
+    for n, (text, c) in enumerate(lines):
+        key.text(0.0, 0.96 - n * step, text, fontsize=7, va="top", family="monospace", color=c,
+                 transform=key.transAxes)
     fig.tight_layout()
     with io.atomic_write(path, "wb") as f:
         fig.savefig(f, format="png", dpi=110)
