@@ -437,6 +437,8 @@ def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: 
         for k in range(len(uniq)):
             pred = _box(np.asarray(evaluate(sv[k], sl[k]), dtype=np.float64), mip)
             err += sw[k] * float(np.sum((pred - refs[k]) ** 2))
+        if not math.isfinite(err):
+            return math.inf  # NaN would break the comparisons below; inf is "unusable"
         return math.sqrt(err / ref_energy) if ref_energy > 0 else (0.0 if err == 0 else math.inf)
 
     # 3. The subsets, each fitted once.
@@ -544,6 +546,10 @@ def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: 
             over.append(f"over the time budget {bm:g} ms")
         meets = r.pop("meets")
         r["status"] = "; ".join(over) if over else ("meets the tolerance" if meets else "error above tolerance")
+        if not math.isfinite(r["error"]):
+            # Seen with Lafortune lobes queried beyond the measured 75 degrees (a sphere's
+            # grazing views): say so rather than show a bare "inf".
+            r["status"] += "; non-finite values at the scene's directions"
         if "render_note" in r:
             r["status"] += "; " + r.pop("render_note")
     best["status"] += " (chosen)" if met else " (best available: tolerance not met)"
