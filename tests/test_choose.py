@@ -247,3 +247,21 @@ def test_command_line(capsys):
     assert "failed: DegenerateDataError" in out
     rc = main(["choose", "--size", "16", "--kinds", "nope", "--quiet"])
     assert rc == 2 and "--kinds" in capsys.readouterr().err
+
+
+def test_readme_choose_snippet_runs(monkeypatch):
+    # The README's snippet, with the fast candidates and no render timing (the full run is
+    # scripts/choose_examples.py, minutes): the decision and its size are the README's.
+    import functools
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    block = re.search(r"## Model no more than a scene needs: `btfrs.choose`\s+```python\n(.*?)```", text, re.S).group(1)
+    monkeypatch.setattr(btfrs, "choose", functools.partial(btfrs.choose, candidates=FAST, measure_render=False))
+    ns: dict = {}
+    exec(compile(block, "README.md", "exec"), ns)
+    pick = ns["pick"]
+    assert (pick.label, pick.subset, pick.nbytes, len(pick.views_used), len(pick.lights_used)) == \
+        ("LPCA 8x4", "scene", 52384, 7, 23)
+    assert "LPCA 8x4 fitted on those 7 x 23 slots, 52,384 bytes" in text
