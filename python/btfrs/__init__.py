@@ -28,6 +28,9 @@ from .exceptions import (
 from .models import ErrorReport, Lafortune, Lpca, Model, Ptm, Sh, Srf, load, model_kinds
 from .evaluation import EvaluationReport, evaluate
 from .rendering import Camera, DirectionalLight, PointLight, Scene, gpu_info, last_timings, render
+# The module is `choosing`, not `choose`, so that `btfrs.choose` is the function, never shadowed
+# by its submodule (importing a submodule sets the package attribute of its name).
+from .choosing import Choice, SceneUse, choose
 
 
 def _ensure_runtime_dir() -> None:
@@ -80,6 +83,9 @@ __all__ = [
     "Camera",
     "PointLight",
     "DirectionalLight",
+    "choose",
+    "Choice",
+    "SceneUse",
     "directions",
     "evaluate",
     "evaluation",

@@ -12,7 +12,7 @@ _F32 = npt.NDArray[np.float32]
 _F64 = npt.NDArray[np.float64]
 _Bool = npt.NDArray[np.bool_]
 
-__all__ = ['__version__', '_panic_for_test', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'Model', 'fit_model', 'load_model', 'model_registry', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_png', 'read_png', 'write_exr', 'read_exr', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_raw', 'gpu_render', 'cpu_render_raw', 'gpu_upload_model', 'cpu_render_model', 'Analysis', 'analyse_btf_native', 'analyse_features_native']
+__all__ = ['__version__', '_panic_for_test', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'Model', 'fit_model', 'load_model', 'model_registry', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_png', 'read_png', 'write_exr', 'read_exr', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_raw', 'gpu_render', 'cpu_render_raw', 'gpu_upload_model', 'cpu_render_model', 'scene_directions', 'Analysis', 'analyse_btf_native', 'analyse_features_native']
 __version__: str
 
 def _panic_for_test(place: str) -> None: ...
@@ -151,6 +151,15 @@ def cpu_render_model(
     coords: Optional[npt.NDArray[np.uint16]] = None,
     method: str = "default",
 ) -> _F32: ...
+def scene_directions(
+    scene: Scene,
+    camera: Camera,
+    lights: _Lights,
+    width: int,
+    height: int,
+    uv_scale: list[float],
+    dims: tuple[int, int],
+) -> dict[str, npt.NDArray[Any]]: ...
 
 @final
 class Analysis:

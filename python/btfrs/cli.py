@@ -55,6 +55,31 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     e.add_argument("--eval-seed", type=int, default=0, help="seed of the splits and of seeded fits (default: 0)")
     e.add_argument("--out", default="evaluate", help="output folder (default: evaluate)")
     e.add_argument("--quiet", action="store_true", help="no progress bars")
+    c = sub.add_parser("choose", help="the cheapest model that meets a tolerance on a scene's own directions")
+    csrc = c.add_mutually_exclusive_group()
+    csrc.add_argument("--material", default="weave", help="built-in material (default: weave)")
+    csrc.add_argument("--btf", help="a .btfrs BTF file instead")
+    c.add_argument("--size", type=int, default=32, help="material texels per side (default: 32)")
+    c.add_argument("--material-seed", type=int, default=1, help="material seed (default: 1)")
+    c.add_argument("--scene", choices=["plane", "sphere"], default="plane", help="the surface (default: plane)")
+    c.add_argument("--camera", type=float, nargs=3, action="append", metavar=("X", "Y", "Z"),
+                   help="a camera eye looking at the origin; repeat for a camera path (default: 0 0 3)")
+    c.add_argument("--fov", type=float, default=40.0, help="vertical field of view, degrees (default: 40)")
+    c.add_argument("--light", type=float, nargs=3, action="append", metavar=("X", "Y", "Z"),
+                   help="a directional light towards (X, Y, Z); repeat for a light range, one light per "
+                        "frame (default: 0.3 -0.2 1)")
+    c.add_argument("--image-size", type=int, nargs=2, default=[256, 256], metavar=("H", "W"),
+                   help="rendered image height then width (default: 256 256)")
+    c.add_argument("--uv-scale", type=float, default=1.0, help="repetitions of the sample (default: 1)")
+    c.add_argument("--tolerance", type=float, default=0.05, help="largest weighted relative error (default: 0.05)")
+    c.add_argument("--budget-bytes", type=int, help="largest model size in bytes")
+    c.add_argument("--budget-ms", type=float, help="largest render time in ms")
+    c.add_argument("--samples", type=int, default=256, help="(view, light) pairs scored (default: 256)")
+    c.add_argument("--kinds", nargs="+", metavar="KIND",
+                   help="only these candidates: registered model kinds and/or raw (default: all)")
+    c.add_argument("--no-render", action="store_true", help="do not time the renders")
+    c.add_argument("--seed", type=int, default=0, help="sampling seed (default: 0)")
+    c.add_argument("--quiet", action="store_true", help="no progress bars")
     args = p.parse_args(argv)
 
     from .exceptions import BtfrsError
@@ -68,6 +93,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             synth_command(args)
         elif args.command == "evaluate":
             evaluate_command(args)
+        elif args.command == "choose":
+            choose_command(args)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
@@ -164,6 +191,37 @@ def synth_command(args) -> None:
     print(f"{args.method}: {q}")
     print(f"plain tiling: {qt}")
     print(f"wrote {args.out}/coords.npy (uint16 [H, W, 2] (x, y)), synthesized.png, tiled.png")
+
+
+def choose_command(args) -> None:
+    """``btfrs choose``: what a scene needs of a material, and the cheapest model that gives it."""
+    from . import materials
+    from .btf import Btf
+    from .choosing import SceneUse, choose
+    from .exceptions import InvalidArgumentError
+    from .rendering import Camera, DirectionalLight, Scene
+
+    progress = not args.quiet
+    btf = Btf.load(args.btf) if args.btf else materials.make(args.material, size=args.size, seed=args.material_seed,
+                                                              progress=progress)
+    cams = [Camera.look_at(eye, [0.0, 0.0, 0.0], args.fov) for eye in (args.camera or [[0.0, 0.0, 3.0]])]
+    lights = [[DirectionalLight(d, 1.0)] for d in (args.light or [[0.3, -0.2, 1.0]])]
+    surface = Scene.sphere() if args.scene == "sphere" else Scene.plane()
+    use = SceneUse(camera=cams, lights=lights, size=tuple(args.image_size), scene=surface, uv_scale=args.uv_scale)
+    cands = None
+    if args.kinds:
+        from .choosing import default_candidates
+
+        known = default_candidates()
+        cands = [c for c in known if c[0] in args.kinds]
+        unknown = sorted(set(args.kinds) - {c[0] for c in known})
+        if unknown:
+            raise InvalidArgumentError(f"--kinds: unknown {', '.join(unknown)}; expected some of "
+                                       f"{', '.join(sorted({c[0] for c in known}))}")
+    pick = choose(btf, scene=use, tolerance=args.tolerance, budget_bytes=args.budget_bytes, budget_ms=args.budget_ms,
+                  candidates=cands, samples=args.samples, measure_render=not args.no_render, seed=args.seed,
+                  progress=progress)
+    print(pick.explain())
 
 
 if __name__ == "__main__":  # pragma: no cover

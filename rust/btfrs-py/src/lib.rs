@@ -53,6 +53,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render::cpu_render_raw, m)?)?;
     m.add_function(wrap_pyfunction!(render::gpu_upload_model, m)?)?;
     m.add_function(wrap_pyfunction!(render::cpu_render_model, m)?)?;
+    m.add_function(wrap_pyfunction!(render::scene_directions, m)?)?;
     m.add_class::<synth::PyAnalysis>()?;
     m.add_function(wrap_pyfunction!(synth::analyse_btf_native, m)?)?;
     m.add_function(wrap_pyfunction!(synth::analyse_features_native, m)?)?;

@@ -321,3 +321,36 @@ pub fn cpu_render_model<'py>(
     })?;
     image(py, img, width, height)
 }
+
+/// What a scene asks of a sample of `dims` = (height, width) texels, per covered pixel
+/// (btfrs_render::usage::scene_directions): a dict of arrays `pixels [N]` (row-major index),
+/// `views [N, 3]`, `lights [N, L, 3]`, `irradiance [N, L]`, `uv [N, 2]`, `footprint [N]`
+/// (texels per pixel, NaN where unknown).
+#[pyfunction]
+#[pyo3(signature = (scene, camera, lights, width, height, uv_scale, dims))]
+#[allow(clippy::too_many_arguments)]
+pub fn scene_directions<'py>(
+    py: Python<'py>,
+    scene: &PyScene,
+    camera: &PyCamera,
+    lights: Vec<(String, [f32; 3], [f32; 3])>,
+    width: usize,
+    height: usize,
+    uv_scale: [f32; 2],
+    dims: (usize, usize),
+) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+    let args = ViewArgs::new(lights, None)?;
+    let view = args.view(scene, camera, (width, height), uv_scale);
+    check_size(width, height)?;
+    let s = detach(py, || btfrs_render::usage::scene_directions(&view, dims))?;
+    let (n, nl) = (s.pixels.len(), s.n_lights);
+    let flat3 = |v: Vec<[f32; 3]>| v.into_iter().flatten().collect::<Vec<f32>>();
+    let d = pyo3::types::PyDict::new(py);
+    d.set_item("pixels", s.pixels.into_pyarray(py))?;
+    d.set_item("views", flat3(s.views).into_pyarray(py).reshape(vec![n, 3])?)?;
+    d.set_item("lights", flat3(s.lights).into_pyarray(py).reshape(vec![n, nl, 3])?)?;
+    d.set_item("irradiance", s.irradiance.into_pyarray(py).reshape(vec![n, nl])?)?;
+    d.set_item("uv", s.uv.into_iter().flatten().collect::<Vec<f32>>().into_pyarray(py).reshape(vec![n, 2])?)?;
+    d.set_item("footprint", s.footprint.into_pyarray(py))?;
+    Ok(d)
+}

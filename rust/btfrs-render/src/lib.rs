@@ -10,6 +10,8 @@
 //!   renderer never names a model.
 //! * [`raster`] and [`cpu`]: the CPU reference renderer, which shades the same points with the
 //!   same formulas, so every shader is tested against it.
+//! * [`usage`]: what a scene asks of a BTF (per-pixel local view and light directions, texel
+//!   footprint), for `btfrs.choose`.
 //! * Coordinate maps (paper 000, section 5): an optional map of u16 (x, y) texel coordinates
 //!   applied as one extra lookup, for synthesised BTFs of any size.
 
@@ -20,6 +22,7 @@ pub mod model;
 pub mod raster;
 pub mod scene;
 pub mod shaders;
+pub mod usage;
 
 pub use device::{AdapterChoice, Gpu};
 pub use gpu::{render, upload, FrameTimes, UploadedModel, View};
