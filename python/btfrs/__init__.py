@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 import sys
 
-from . import directions, exceptions, fit, hemimap, io, materials, synth
+from . import directions, exceptions, fit, hemimap, io, materials, stability, synth
 from ._native import __version__
 from .btf import Btf, ExpandedBtf
 from .exceptions import (
@@ -85,6 +85,7 @@ __all__ = [
     "hemimap",
     "io",
     "materials",
+    "stability",
     "synth",
     "BtfrsError",
     "DegenerateDataError",

@@ -76,9 +76,11 @@ impl Guard {
                     f += s.powf(q[3]);
                 }
             }
-            // NaN compares false: a NaN lobe sum is treated as infinite (always extrapolating).
-            if !(f <= peak) {
-                peak = if f.is_nan() { f64::INFINITY } else { f };
+            // A NaN lobe sum is treated as infinite (always extrapolating).
+            if f.is_nan() {
+                peak = f64::INFINITY;
+            } else if f > peak {
+                peak = f;
             }
         }
         peak
