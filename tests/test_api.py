@@ -290,7 +290,7 @@ def test_each_converted_error_is_a_btfrs_error(tiny, an):
 def test_fit_errors_stay_distinct_from_argument_errors():
     few = btfrs.materials.make("knit", size=8, seed=1).select(views=[0], lights=[0, 1, 2])
     with pytest.raises(DegenerateDataError):
-        btfrs.fit.ptm(few)
+        btfrs.fit.ptm(few, on_degenerate="raise")
     with pytest.raises(FormatError):
         btfrs.load(ROOT / "README.md")
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 import sys
 
-from . import directions, evaluation, exceptions, fit, hemimap, io, materials, synth
+from . import directions, evaluation, exceptions, fit, hemimap, io, materials, stability, synth
 from ._native import __version__
 from .btf import Btf, ExpandedBtf
 from .exceptions import (
@@ -95,6 +95,7 @@ __all__ = [
     "hemimap",
     "io",
     "materials",
+    "stability",
     "synth",
     "BtfrsError",
     "DegenerateDataError",

@@ -80,6 +80,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     c.add_argument("--no-render", action="store_true", help="do not time the renders")
     c.add_argument("--seed", type=int, default=0, help="sampling seed (default: 0)")
     c.add_argument("--quiet", action="store_true", help="no progress bars")
+    st = sub.add_parser("stability", help="every model in the regimes where methods fail: error curves, flags, charts")
+    st.add_argument("--material", default="grooves", help="built-in material (default: grooves)")
+    st.add_argument("--btf", help="a .btfrs BTF file instead of a built-in material")
+    st.add_argument("--size", type=int, default=16, help="material texels per side (default: 16)")
+    st.add_argument("--material-seed", type=int, default=0, help="material seed (default: 0)")
+    st.add_argument("--seed", type=int, default=0, help="seed of the regimes: splits, noise, texels (default: 0)")
+    st.add_argument("--models", nargs="+", default=None, help="model kinds (default: one cheap setting of each)")
+    st.add_argument("--regimes", nargs="+", default=None, help="regimes (default: all)")
+    st.add_argument("--out", default="stability", help="output folder (default: stability)")
+    st.add_argument("--quiet", action="store_true", help="no progress bars")
     args = p.parse_args(argv)
 
     from .exceptions import BtfrsError
@@ -95,6 +105,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             evaluate_command(args)
         elif args.command == "choose":
             choose_command(args)
+        elif args.command == "stability":
+            stability_command(args)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
@@ -222,6 +234,23 @@ def choose_command(args) -> None:
                   candidates=cands, samples=args.samples, measure_render=not args.no_render, seed=args.seed,
                   progress=progress)
     print(pick.explain())
+def stability_command(args) -> None:
+    """``btfrs stability``: run every model in every regime, write report.json, report.md and
+    one chart per regime, print the table."""
+    from . import materials, stability
+    from .btf import Btf
+
+    progress = not args.quiet
+    if args.btf:
+        btf, name = Btf.load(args.btf), args.btf
+    else:
+        btf = materials.make(args.material, size=args.size, seed=args.material_seed, progress=progress)
+        name = f"{args.material} {args.size}x{args.size}, seed {args.material_seed}"
+    rep = stability.run(btf, models=args.models or "all", regimes=args.regimes or "all", seed=args.seed,
+                        progress=progress, name=name)
+    paths = rep.save(args.out)
+    print(rep.table())
+    print(f"wrote {len(paths)} files to {args.out}/ (report.json, report.md, one chart per regime)")
 
 
 if __name__ == "__main__":  # pragma: no cover

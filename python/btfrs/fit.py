@@ -51,7 +51,7 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'btfrs.fit' has no attribute {name!r}")
 
 
-def ptm(btf: Btf, *, kind: str = "rgb", rcond: float = 1e-6, on_degenerate: str = "raise",
+def ptm(btf: Btf, *, kind: str = "rgb", rcond: float = 1e-6, on_degenerate: str = "reduce",
         progress: Progress = None) -> Ptm:
     """Fit a Polynomial Texture Map per view slot (paper 000, section 3.1).
 
@@ -62,15 +62,19 @@ def ptm(btf: Btf, *, kind: str = "rgb", rcond: float = 1e-6, on_degenerate: str 
     ----------
     kind: ``"rgb"`` (6 coefficients per channel) or ``"lrgb"`` (6 for the luminance + a base colour).
     rcond: singular values below ``rcond * s_max`` count as zero.
-    on_degenerate: a view slot with fewer than 6 lights or degenerate (e.g. collinear) lights
-        raises :class:`~btfrs.exceptions.DegenerateDataError` (``"raise"``) or gets the
-        minimum-norm solution (``"clamp"``).
+    on_degenerate: what a view slot with fewer than 6 lights or degenerate (e.g. collinear)
+        lights gets. ``"reduce"`` (the default): the plane ``a3 lu + a4 lv + a5`` of its own
+        lights, else the biquadratic of its lights pooled with the nearest views' lights; the same
+        for a slot whose biquadratic would extrapolate (a prediction above 4 times its samples'
+        range anywhere on the light directions); ``model.report["degenerate_slots"]`` lists each
+        such slot, why and what was done. ``"raise"``: :class:`~btfrs.exceptions.DegenerateDataError`
+        naming the slot. ``"clamp"``: the minimum-norm solution.
     progress: None, True for a progress bar, or a callable ``(done, total)``.
     """
     b = _check_btf(btf)
     kind = choice("kind", kind, ("rgb", "lrgb"))
     rcond = real("rcond", rcond, min=0.0)
-    on_degenerate = choice("on_degenerate", on_degenerate, ("raise", "clamp"))
+    on_degenerate = choice("on_degenerate", on_degenerate, ("reduce", "raise", "clamp"))
     return _fit("ptm", b, f"PTM-{kind.upper()} fit", progress, dict(kind=kind, rcond=rcond, on_degenerate=on_degenerate))
 
 

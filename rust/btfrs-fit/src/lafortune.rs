@@ -29,6 +29,13 @@
 //!   restarted from the initialisation with strong damping, then with fewer lobes
 //!   (`lobes - 1, ..., 1`), and finally replaced by the closed-form diffuse-only fit. The per-fit
 //!   status (0 converged, 1 fell back, 2 failed) and a [`FitReport`] say how often each happened;
+//! * **extrapolation guard** (`lafortune/guard.rs`): a converged fit is evaluated on the BTF's
+//!   whole direction grid (present and missing pairs); one whose lobes there exceed
+//!   `K_EXTRAP = 3` times the texel's largest measured value (both without the `l_z`
+//!   foreshortening) is rejected as extrapolating, and the fit drops to fewer lobes, then to the
+//!   diffuse closed form ([`FitReport::extrapolated`] counts them). Under sparse sampling (5% of
+//!   the pairs) LM converges on the samples to lobes that explode between them; without the guard
+//!   nothing flagged the held-out error of 10^2 to 10^4 that followed;
 //! * **densification** ([`LafortuneOptions::densify`]): an `n x n` equal-area grid of extra view
 //!   and light directions whose values are interpolated from the present pairs, added to the
 //!   measured samples, which evens out the sampling as the paper suggests.
@@ -44,6 +51,7 @@
 //! An all-black texel (or channel) has nothing to fit: its parameters are all zero (exponents 1),
 //! with status "converged". Unused lobes of a fit that fell back to fewer lobes are zero, exponent 1.
 
+mod guard;
 mod init;
 mod kernels;
 mod lm;
@@ -125,6 +133,10 @@ pub struct FitReport {
     pub fell_back: usize,
     /// Fits replaced by a closed-form fit (see [`Lafortune::status`]).
     pub failed: usize,
+    /// Fits whose converged lobes extrapolated (exceeded `K_EXTRAP` times the texel's largest
+    /// measured value somewhere on the direction grid) and were replaced by fewer lobes or the
+    /// diffuse fit; they are also counted in `fell_back` or `failed`.
+    pub extrapolated: usize,
     /// Mean LM steps (trial steps, accepted or rejected) per fit, all runs of a fit summed.
     pub mean_iterations: f64,
     /// RMS of the final residuals of all fits over all their samples (measured and densified), in
@@ -205,6 +217,7 @@ pub fn fit_lafortune(btf: &BtfRef<'_>, opts: &LafortuneOptions, monitor: &Monito
     let mut status = vec![0u8; nt * nf];
     let mut sse = vec![0.0f64; nt * nf];
     let mut iters = vec![0u32; nt * nf];
+    let mut extrap = vec![false; nt * nf];
     monitor.start(nt as u64);
     params
         .par_chunks_mut(nf * pp)
@@ -212,10 +225,11 @@ pub fn fit_lafortune(btf: &BtfRef<'_>, opts: &LafortuneOptions, monitor: &Monito
         .zip(status.par_chunks_mut(nf))
         .zip(sse.par_chunks_mut(nf))
         .zip(iters.par_chunks_mut(nf))
+        .zip(extrap.par_chunks_mut(nf))
         .enumerate()
         .for_each_init(
             || Work::new(ctx.geo.npad(), opts.lobes),
-            |work, (t, ((((p, rgb), st), e), it))| {
+            |work, (t, (((((p, rgb), st), e), it), ex))| {
                 if monitor.is_cancelled() {
                     return;
                 }
@@ -225,12 +239,14 @@ pub fn fit_lafortune(btf: &BtfRef<'_>, opts: &LafortuneOptions, monitor: &Monito
                         ctx.gather(texel, None, &mut work.y);
                         base_colour(texel, &ctx.meas, rgb);
                         let r = ctx.fit(work);
+                        ex[0] = r.extrapolated;
                         r.write(p, &mut st[0], &mut e[0], &mut it[0]);
                     }
                     LafortuneKind::Rgb => {
                         for c in 0..3 {
                             ctx.gather(texel, Some(c), &mut work.y);
                             let r = ctx.fit(work);
+                            ex[c] = r.extrapolated;
                             r.write(&mut p[c * pp..(c + 1) * pp], &mut st[c], &mut e[c], &mut it[c]);
                         }
                     }
@@ -248,6 +264,7 @@ pub fn fit_lafortune(btf: &BtfRef<'_>, opts: &LafortuneOptions, monitor: &Monito
         converged: count(0),
         fell_back: count(1),
         failed: count(2),
+        extrapolated: extrap.iter().filter(|&&x| x).count(),
         mean_iterations: iters.iter().map(|&x| x as f64).sum::<f64>() / fits as f64,
         rms_residual: (total_sse / (fits * ctx.geo.n) as f64).sqrt(),
     };
@@ -298,6 +315,8 @@ struct Context {
     /// Interpolation of the densified samples, which follow the measured ones.
     extra: Interp,
     geo: Geometry,
+    /// The check pairs of the extrapolation guard.
+    guard: guard::Guard,
     basis: Basis,
     lay: Layout,
     max_iter: usize,
@@ -337,7 +356,8 @@ impl Context {
         }
         let geo = Geometry::new(dirs.into_iter());
         let basis = Basis::new(&geo);
-        Context { meas, extra, geo, basis, lay, max_iter: opts.max_iter }
+        let guard = guard::Guard::new(btf.views, btf.lights);
+        Context { meas, extra, geo, guard, basis, lay, max_iter: opts.max_iter }
     }
 
     /// The fit's targets into `y` (padded with zeros): the luminance (`channel = None`) or one
@@ -372,15 +392,32 @@ impl Context {
         w.y[..n].iter_mut().for_each(|v| *v /= scale);
         let fty = self.basis.fty(&w.y);
         let guesses = init::initial_guesses(&self.basis, &fty, lay.diffuse, lay.lobes);
+        // The guard's reference: the largest measured value without the foreshortening (the
+        // lobe sum is compared with it; samples with the light at the horizon carry no BRDF).
+        let fmax = (0..n).filter(|&i| self.geo.lz[i] > 1e-3).map(|i| w.y[i] / self.geo.lz[i]).fold(0.0f64, f64::max);
         let mut iters = 0usize;
+        let mut extrapolated = false;
         let mut attempts: Vec<(Layout, f64)> = vec![(lay, LAMBDA0), (lay, LAMBDA_RESTART)];
         attempts.extend((1..lay.lobes).rev().map(|l| (Layout { lobes: l, ..lay }, LAMBDA0)));
+        // Once a fit with `l` lobes extrapolated, a restart with as many lobes converges to the
+        // same runaway lobes: only fewer lobes are tried.
+        let mut below = usize::MAX;
         for (a, &(la, lambda0)) in attempts.iter().enumerate() {
+            if la.lobes >= below {
+                continue;
+            }
             let mut th = guesses[la.lobes - 1];
             let run = lm::levenberg_marquardt(&self.geo, la, &mut th, lambda0, self.max_iter, w);
             iters += run.iters;
             if run.converged && run.cost.is_finite() {
-                return FitOut::new(la, &th, scale, run.cost, u8::from(a > 0), iters);
+                if fmax > 0.0 && self.guard.extrapolates(la, &th, fmax) {
+                    extrapolated = true;
+                    below = la.lobes;
+                    continue;
+                }
+                let mut out = FitOut::new(la, &th, scale, run.cost, u8::from(a > 0 || extrapolated), iters);
+                out.extrapolated = extrapolated;
+                return out;
             }
         }
         // Failed: the closed-form fit with kd alone, or without kd the best single candidate lobe.
@@ -390,13 +427,17 @@ impl Context {
             let cost = (n as f64 - 2.0 * kd * fty[0] + kd * kd * g0).max(0.0);
             let mut th = [0.0f64; MAXM];
             th[0] = kd;
-            FitOut::new(Layout { lobes: 0, ..lay }, &th, scale, cost, 2, iters)
+            let mut out = FitOut::new(Layout { lobes: 0, ..lay }, &th, scale, cost, 2, iters);
+            out.extrapolated = extrapolated;
+            out
         } else {
             let la = Layout { lobes: 1, ..lay };
             let mut th = guesses[0];
             lm::project(la, &mut th);
             let cost = kernels::cost(&self.geo, la, &th, w);
-            FitOut::new(la, &th, scale, cost, 2, iters)
+            let mut out = FitOut::new(la, &th, scale, cost, 2, iters);
+            out.extrapolated = extrapolated;
+            out
         }
     }
 }
@@ -408,6 +449,8 @@ struct FitOut {
     status: u8,
     sse: f64,
     iters: usize,
+    /// A fit with more lobes extrapolated and was rejected (see `lafortune/guard.rs`).
+    extrapolated: bool,
 }
 
 impl FitOut {
@@ -417,7 +460,7 @@ impl FitOut {
         for k in 0..kernels::MAX_LOBES {
             p[4 + 4 * k] = 1.0;
         }
-        FitOut { p, status, sse: 0.0, iters: 0 }
+        FitOut { p, status, sse: 0.0, iters: 0, extrapolated: false }
     }
 
     /// From a normalised theta of layout `la` (possibly fewer lobes than the model; exponents as

@@ -53,6 +53,7 @@ impl Ptm {
             views: vec![[0.0, 0.0, 1.0]],
             coeffs: slot.coeffs,
             rgb: slot.rgb,
+            degenerate_slots: Vec::new(),
         };
         p.validate()?;
         Ok(p)

@@ -85,14 +85,18 @@ fn too_few_or_collinear_lights_are_errors() {
     let five: Vec<[f64; 3]> = d[..5].to_vec();
     let data = vec![0.5f32; 81 * 5 * 3];
     let btf = BtfRef::new(1, 1, &d, &five, &data, None).unwrap();
-    let e = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap_err().to_string();
+    let e = fit_ptm(&btf, &PtmOptions { on_degenerate: Degenerate::Raise, ..Default::default() }, &Monitor::new())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("has 5 lights") && e.contains("at least 6"), "{e}");
     // Twelve lights on the arc phi = 0: (lu, lv) all on the line lv = 0.
     let arc: Vec<[f64; 3]> =
         (0..12).map(|i| from_theta_phi(-1.2 + 0.2 * i as f64, 0.0)).map(|x| [x[0], x[1], x[2].abs()]).collect();
     let data = vec![0.5f32; 81 * 12 * 3];
     let btf = BtfRef::new(1, 1, &d, &arc, &data, None).unwrap();
-    let e = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap_err().to_string();
+    let e = fit_ptm(&btf, &PtmOptions { on_degenerate: Degenerate::Raise, ..Default::default() }, &Monitor::new())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("collinear") && e.contains("view slot 0"), "{e}");
     // Clamped, the same data gives the minimum-norm fit, which reproduces the constant.
     let ptm =
@@ -122,7 +126,9 @@ fn a_view_slot_without_lights_is_an_error_or_zero() {
     let mut mask = vec![true; 81 * 81];
     mask[5 * 81..6 * 81].iter_mut().for_each(|m| *m = false);
     let btf = BtfRef::new(1, 1, &d, &d, &data, Some(&mask)).unwrap();
-    let e = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap_err().to_string();
+    let e = fit_ptm(&btf, &PtmOptions { on_degenerate: Degenerate::Raise, ..Default::default() }, &Monitor::new())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("view slot 5") && e.contains("has 0 lights"), "{e}");
     let ptm =
         fit_ptm(&btf, &PtmOptions { on_degenerate: Degenerate::Clamp, ..Default::default() }, &Monitor::new()).unwrap();
@@ -241,4 +247,120 @@ fn slot_errors_name_the_argument() {
     assert!(Ptm::from_slot(slot).is_err());
     let broken = Ptm { kind: PtmKind::Lrgb, rgb: None, coeffs: vec![0.0; 81 * 6], ..ptm };
     assert_eq!(arg(broken.slot(0).unwrap_err()), "rgb");
+}
+
+/// A slot's samples: values `f(l)` of a known function at `lights` for 1 texel, 1 view.
+fn one_slot(lights: &[[f64; 3]], f: impl Fn([f64; 3]) -> [f64; 3]) -> Vec<f32> {
+    lights.iter().flat_map(|&l| f(l).map(|x| x as f32)).collect()
+}
+
+#[test]
+fn reduce_fits_a_plane_exactly_from_four_lights() {
+    // Four lights (fewer than the 6 biquadratic terms) and values on a plane of known form in
+    // (lu, lv): the reduced basis (lu, lv, 1) reproduces it exactly, at the lights and between.
+    let view = [[0.0, 0.0, 1.0]];
+    let lights: Vec<[f64; 3]> =
+        [(0.3, 0.0), (0.5, 1.7), (0.6, 3.5), (0.9, 5.0)].iter().map(|&(t, p)| from_theta_phi(t, p)).collect();
+    let plane = |l: [f64; 3]| [0.4 + 0.3 * l[0] - 0.2 * l[1], 0.1 + 0.5 * l[0], 0.7 - 0.6 * l[1]];
+    // LRGB models a luminance times a colour: its data are one plane times a colour.
+    let grey = |l: [f64; 3]| plane(l)[0];
+    let rgb_data = one_slot(&lights, plane);
+    let lrgb_data = one_slot(&lights, |l| [0.5 * grey(l), grey(l), 0.8 * grey(l)]);
+    for kind in [PtmKind::Rgb, PtmKind::Lrgb] {
+        let data = if kind == PtmKind::Rgb { &rgb_data } else { &lrgb_data };
+        let btf = BtfRef::new(1, 1, &view, &lights, data, None).unwrap();
+        let ptm = fit_ptm(&btf, &PtmOptions { kind, ..Default::default() }, &Monitor::new()).unwrap();
+        let got: Vec<(usize, usize, &str, &str)> =
+            ptm.degenerate_slots.iter().map(|s| (s.slot, s.lights, s.reason, s.action)).collect();
+        assert_eq!(got, vec![(0, 4, "few lights", "linear")], "{kind:?}");
+        if kind == PtmKind::Rgb {
+            // Exact plane coefficients: quadratic terms 0, then (lu, lv, 1).
+            let want =
+                [[0.0, 0.0, 0.0, 0.3, -0.2, 0.4], [0.0, 0.0, 0.0, 0.5, 0.0, 0.1], [0.0, 0.0, 0.0, 0.0, -0.6, 0.7]];
+            for c in 0..3 {
+                for k in 0..NCOEF {
+                    assert!((ptm.coeffs[c * NCOEF + k] as f64 - want[c][k]).abs() < 1e-5, "{c} {k}: {:?}", ptm.coeffs);
+                }
+            }
+            // Between the lights too (the plane is the truth everywhere).
+            let l = from_theta_phi(0.7, 2.4);
+            let img = evaluate_image(&ptm, view[0], l).unwrap();
+            let p = plane(l);
+            for c in 0..3 {
+                assert!((img[c] as f64 - p[c]).abs() < 1e-5);
+            }
+        }
+        assert!(model_error(&ptm, &btf).unwrap().rmse() < 1e-5, "{kind:?}");
+        let r = Model::report(&ptm);
+        assert_eq!(r["degenerate_slots"][0]["action"], "linear");
+    }
+    // The old behaviour stays available.
+    let btf = BtfRef::new(1, 1, &view, &lights, &rgb_data, None).unwrap();
+    let e = fit_ptm(&btf, &PtmOptions { on_degenerate: Degenerate::Raise, ..Default::default() }, &Monitor::new());
+    assert!(e.unwrap_err().to_string().contains("has 4 lights"));
+}
+
+#[test]
+fn reduce_pools_the_lights_of_the_nearest_views() {
+    // Every view with the same exact biquadratic of the light (a view-independent texel); slot 5
+    // keeps only 2 lights, slot 9 none, slot 12 six clustered lights whose biquadratic would
+    // extrapolate: they pool the lights of their nearest views, which reproduces the truth
+    // exactly, and the report says why and from where.
+    let d = ubo81();
+    let truth = [[0.3, -0.2, 0.1, 0.25, -0.15, 0.6], [0.1, 0.2, -0.1, 0.05, 0.3, 0.4], [-0.2, 0.1, 0.0, 0.2, 0.1, 0.5]];
+    let data: Vec<f32> = (0..81 * 81)
+        .flat_map(|i| {
+            let b = basis(d[i % 81]);
+            (0..3).map(move |c| (0..NCOEF).map(|k| truth[c][k] * b[k]).sum::<f64>() as f32)
+        })
+        .collect();
+    let mut mask = vec![true; 81 * 81];
+    mask[5 * 81 + 2..6 * 81].iter_mut().for_each(|m| *m = false);
+    mask[9 * 81..10 * 81].iter_mut().for_each(|m| *m = false);
+    // Slot 12: the normal and 5 lights of the 15-degree ring only.
+    mask[12 * 81 + 6..13 * 81].iter_mut().for_each(|m| *m = false);
+    let btf = BtfRef::new(1, 1, &d, &d, &data, Some(&mask)).unwrap();
+    let ptm = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap();
+    let got: Vec<(usize, usize, &str, &str)> =
+        ptm.degenerate_slots.iter().map(|s| (s.slot, s.lights, s.reason, s.action)).collect();
+    assert_eq!(
+        got,
+        vec![(5, 2, "few lights", "pooled"), (9, 0, "few lights", "pooled"), (12, 6, "extrapolates", "pooled")],
+        "{:?}",
+        ptm.degenerate_slots
+    );
+    for s in &ptm.degenerate_slots {
+        assert!(s.amplification <= K_AMP, "{s:?}");
+        // The nearest view first.
+        let dot = |u: usize| (0..3).map(|k| d[s.slot][k] * d[u][k]).sum::<f64>();
+        let nearest = (0..81).filter(|&u| u != s.slot && u != 9).max_by(|&a, &b| dot(a).total_cmp(&dot(b))).unwrap();
+        assert!((dot(s.from[0]) - dot(nearest)).abs() < 1e-12, "{s:?}");
+    }
+    for v in [5, 9, 12] {
+        for c in 0..3 {
+            for k in 0..NCOEF {
+                let got = ptm.coeffs[(v * 3 + c) * NCOEF + k] as f64;
+                assert!((got - truth[c][k]).abs() < 1e-4, "slot {v} channel {c} term {k}: {got}");
+            }
+        }
+    }
+    // The clamp policy keeps slot 12's own fit (full rank): only reduce checks extrapolation.
+    let raw = fit_ptm(&btf, &PtmOptions { on_degenerate: Degenerate::Clamp, ..Default::default() }, &Monitor::new());
+    let slots: Vec<usize> = raw.unwrap().degenerate_slots.iter().map(|s| s.slot).collect();
+    assert_eq!(slots, vec![5, 9]);
+}
+
+#[test]
+fn reduce_without_neighbours_keeps_the_least_amplifying_fit() {
+    // One view, 12 collinear lights: neither the biquadratic nor the plane is determined and
+    // there is nothing to pool: the minimum-norm fit, reported.
+    let arc: Vec<[f64; 3]> =
+        (0..12).map(|i| from_theta_phi(-1.2 + 0.2 * i as f64, 0.0)).map(|x| [x[0], x[1], x[2].abs()]).collect();
+    let data = vec![0.5f32; 12 * 3];
+    let view = [[0.0, 0.0, 1.0]];
+    let btf = BtfRef::new(1, 1, &view, &arc, &data, None).unwrap();
+    let ptm = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap();
+    let acts: Vec<(&str, &str)> = ptm.degenerate_slots.iter().map(|s| (s.reason, s.action)).collect();
+    assert_eq!(acts, vec![("degenerate lights", "clamped")]);
+    assert!(model_error(&ptm, &btf).unwrap().rmse() < 1e-6);
 }

@@ -1,0 +1,234 @@
+"""btfrs.stability: every model in every failure regime, each regime with a bound that can fail.
+
+One full run (grooves 16^2, seed 0, the default models) is shared by the module; the CLS-vs-LS
+and black-texel checks fit their own models.
+"""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+import btfrs
+import btfrs.stability as S
+from btfrs.exceptions import InvalidArgumentError
+
+
+@pytest.fixture(scope="module")
+def btf():
+    return btfrs.materials.make("grooves", size=16, seed=0)
+
+
+@pytest.fixture(scope="module")
+def report(btf):
+    return S.run(btf, seed=0, name="grooves 16")
+
+
+def rows(report, regime, model=None):
+    return [r for r in report.rows if r["regime"] == regime and (model is None or r["model"] == model)]
+
+
+def models(report):
+    return [m[0] for m in report.models]
+
+
+@pytest.mark.parametrize("regime", S.REGIMES)
+def test_no_fit_raises_and_nothing_is_ever_nan(report, regime):
+    rs = rows(report, regime)
+    assert len(rs) == len(models(report)) * len({r["level_label"] for r in rs}) and rs
+    for r in rs:
+        assert r["error"] is None, r
+        assert r["finite"], r
+        assert math.isfinite(r["held_out"]) and math.isfinite(r["reconstruction"]), r
+        assert r["fit_seconds"] >= 0
+
+
+def test_every_registered_kind_is_run(report):
+    assert {m[1] for m in report.models} == set(btfrs.model_kinds())
+
+
+def test_decimation_degrades_smoothly_and_stays_bounded(report):
+    for m in models(report):
+        curve = [e for _, e in sorted(report.curve(m, "decimation"), reverse=True)]  # 90% ... 5%
+        # Roughly monotone: a level may beat the denser one by at most 10% (sampling noise).
+        for a, b in zip(curve, curve[1:]):
+            assert b >= 0.9 * a, (m, curve)
+        # Bounded: below 1 (the error of predicting 0) at 10% and at 5%, and no jump: 5% within
+        # 2x the 25% case (before the fixes: Lafortune 170 at 5%, PTM raised at 10% and, allowed
+        # to fit, reached 5.9).
+        assert curve[3] < 1.0 and curve[4] < 1.0, (m, curve)
+        assert curve[4] < 2.0 * curve[2], (m, curve)
+
+
+def test_ptm_at_10_percent_does_not_raise_and_reports_its_fallback_slots(report):
+    r = report.row("PTM-RGB", "decimation", 0.10)
+    slots = r["report"]["degenerate_slots"]
+    assert r["error"] is None and slots and r["flagged"]
+    for s in slots:
+        assert s["action"] in ("linear", "pooled") and s["reason"] in ("few lights", "degenerate lights", "extrapolates")
+        assert s["amplification"] <= 4.0 + 1e-9
+        assert 0 <= s["slot"] < 81
+    # With "raise" the same data still fail, naming a slot.
+    train, _ = btfrs.materials.make("grooves", size=16, seed=0).split(holdout=0.9, seed=0)
+    with pytest.raises(btfrs.DegenerateDataError, match="view slot"):
+        btfrs.fit.ptm(train, on_degenerate="raise")
+
+
+def test_lafortune_at_5_percent_is_flagged_and_bounded(report):
+    r5 = report.row("Lafortune-Lum 2", "decimation", 0.05)
+    r25 = report.row("Lafortune-Lum 2", "decimation", 0.25)
+    r90 = report.row("Lafortune-Lum 2", "decimation", 0.9)
+    assert r5["report"]["extrapolated"] > 0 and r5["flagged"]
+    assert r5["held_out"] < 2.0 * r25["held_out"] and r5["held_out"] < 1.0
+    assert r90["report"]["extrapolated"] == 0  # dense sampling never trips the guard
+
+
+def test_uneven_subsets_stay_bounded(report):
+    # Lights in one azimuth half only: the other half is pure extrapolation. PTM is the worst
+    # (every slot falls back to the plane, whose extrapolation is the least: about 1.0, the error
+    # of predicting 0); its full biquadratic would go far beyond. Everything else stays below 0.8.
+    for r in rows(report, "uneven"):
+        assert r["held_out"] < (1.2 if r["kind"] == "ptm" else 0.8), r
+    r = report.row("PTM-RGB", "uneven", 1)
+    assert r["flagged"] and {s["action"] for s in r["report"]["degenerate_slots"]} == {"linear"}
+
+
+def noise_bound(report, regime):
+    for m in models(report):
+        curve = [e for _, e in sorted(report.curve(m, regime))]
+        # Noise only on the training data: least squares averages it; no model may get worse
+        # than predicting 0, and the clean case is the best within 2%.
+        assert max(curve) < 1.0, (m, curve)
+        assert curve[0] <= 1.02 * min(curve), (m, curve)
+
+
+def test_additive_noise_is_averaged_out(report):
+    noise_bound(report, "additive_noise")
+
+
+def test_multiplicative_noise_is_averaged_out(report):
+    noise_bound(report, "multiplicative")
+
+
+def test_sh_cls_beats_plain_least_squares_under_noise_after_quantization(btf):
+    # Paper 002, section 3.1: the constraint keeps the coefficient energy within the function's,
+    # which is what 8-bit quantization needs. Both quantized; noisy training data, clean test.
+    st = S.run(btf, models=[("SH-LS", "sh", dict(light_coeffs=16, view_coeffs=16, cls=False)),
+                            ("SH-CLS", "sh", dict(light_coeffs=16, view_coeffs=16, cls=True))],
+               regimes=["additive_noise"], seed=0)
+    ls = dict(st.curve("SH-LS", "additive_noise"))
+    cls = dict(st.curve("SH-CLS", "additive_noise"))
+    # Measured: plain LS over the hemisphere extrapolates to the held-out pairs (13.7 clean, 15.2
+    # at 100% noise, 16 x 16); CLS stays at 0.41.
+    for level in (0.0, 0.3, 1.0):
+        assert cls[level] < 0.5 < 2.0 < ls[level], (level, cls, ls)
+
+
+def test_hard_shadows_stay_bounded(report):
+    for r in rows(report, "shadows"):
+        assert r["held_out"] < 1.0, r
+
+
+def test_glossy_texels_stay_bounded(report):
+    for m in models(report):
+        curve = [e for _, e in sorted(report.curve(m, "glossy"))]
+        assert max(curve) < 1.0, (m, curve)
+
+
+def test_grazing_only_training_stays_bounded(report):
+    for r in rows(report, "grazing"):
+        assert r["held_out"] < 1.0, r
+    # PTM slots whose views are below 60 degrees have no lights: pooled from the grazing views;
+    # the grazing views' own lights (two rings at 60 and 75 degrees) would make the biquadratic
+    # extrapolate towards the normal: the plane or pooled. Every slot is reported.
+    r = report.row("PTM-RGB", "grazing", 60.0)
+    views = btfrs.directions.ubo81()
+    slots = r["report"]["degenerate_slots"]
+    assert r["flagged"] and len(slots) == 81
+    for s in slots:
+        if views[s["slot"], 2] > np.cos(np.radians(60)) + 1e-9:
+            assert s["action"] == "pooled" and s["lights"] == 0, s
+        else:
+            assert s["action"] in ("linear", "pooled") and s["reason"] == "extrapolates", s
+
+
+def test_black_texels_give_finite_zeros(btf):
+    st = S.run(btf, regimes=["black"], seed=0, keep_models=True)
+    r0 = [r for r in st.rows if r["level"] == 0.25]
+    assert r0
+    for r in r0:
+        m, train = r["model_object"], r["train"]
+        black = S.black_texels(train)
+        assert 0.15 * black.size < black.sum() < 0.35 * black.size
+        for v, l in [(0, 0), (40, 17), (80, 66)]:
+            img = m.evaluate(train.views[v], train.lights[l])
+            assert np.all(np.isfinite(img))
+            if r["kind"] == "srf":
+                # A finding, not fixed here: Phong + SRF has one global Phong lobe and a per-texel
+                # residual s(P) . H that cannot cancel it exactly, so a black texel shows a dim
+                # remainder of the global lobe (0.14 here, the data reach 2.2). Bounded, finite.
+                assert np.abs(img[black]).max() <= 0.25 * float(train.data.max())
+                continue
+            # Zero up to the 8-bit quantization of SH and LPCA (1/255 of the data's scale).
+            tol = 0.0 if r["kind"] in ("ptm", "lafortune") else 2e-2 * float(train.data.max())
+            assert np.abs(img[black]).max() <= tol, (r["model"], np.abs(img[black]).max())
+
+
+def test_saturated_texels_stay_bounded(report):
+    for r in rows(report, "saturated"):
+        assert r["held_out"] < 1.0, r
+
+
+def test_outliers_give_no_nan_and_are_not_amplified(report, btf):
+    # 1000x outliers on the training data: least squares cannot reject them (a finding), but no
+    # model may amplify them: the held-out error stays below the outliers' own relative energy
+    # in the training data, and nothing is NaN.
+    for level, label, train, _ in S.levels(btf, "outliers", seed=0)[1:]:
+        m = train.mask
+        clean = btf.data[:, :, m]
+        energy = float(np.linalg.norm(train.data[:, :, m] - clean) / np.linalg.norm(clean))
+        for r in rows(report, "outliers"):
+            if r["level"] == level:
+                assert r["finite"] and r["held_out"] < energy, (label, r["model"], r["held_out"], energy)
+
+
+def test_report_saves_json_and_one_chart_per_regime(report, tmp_path):
+    paths = report.save(tmp_path / "out")
+    names = sorted(p.split("/")[-1] for p in paths)
+    assert names == sorted(["report.json", "report.md"] + [f"{r}.png" for r in S.REGIMES])
+    d = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert len(d["rows"]) == len(report.rows) and d["material"] == "grooves 16"
+    for r in S.REGIMES:
+        head = (tmp_path / "out" / f"{r}.png").read_bytes()[:8]
+        assert head == b"\x89PNG\r\n\x1a\n"
+    t = report.table()
+    assert t.count("\n") > len(report.rows) // len(report.models) and "PTM-RGB" in t
+
+
+def test_bad_arguments_name_the_argument(btf):
+    with pytest.raises(InvalidArgumentError, match="regimes"):
+        S.run(btf, regimes=["nope"])
+    with pytest.raises(InvalidArgumentError, match="models"):
+        S.run(btf, models=["nope"])
+    with pytest.raises(InvalidArgumentError, match="models"):
+        S.run(btf, models=[("a", "ptm", {}), ("a", "sh", {})], regimes=["black"])
+    with pytest.raises(btfrs.exceptions.ArgumentTypeError, match="btf"):
+        S.run("grooves")
+
+
+def test_the_same_seed_gives_the_same_rows(btf):
+    a = S.run(btf, models=["ptm"], regimes=["decimation", "outliers"], seed=3)
+    b = S.run(btf, models=["ptm"], regimes=["decimation", "outliers"], seed=3)
+    # Equal up to the order of the parallel error sums.
+    assert np.allclose([r["held_out"] for r in a.rows], [r["held_out"] for r in b.rows], rtol=1e-12, atol=0)
+
+
+def test_cli_writes_the_report(tmp_path, capsys):
+    from btfrs.cli import main
+
+    out = tmp_path / "st"
+    assert main(["stability", "--material", "bumps", "--size", "8", "--out", str(out), "--quiet",
+                 "--models", "ptm", "--regimes", "decimation", "black"]) == 0
+    assert (out / "report.json").exists() and (out / "decimation.png").exists()
+    assert "decimation" in capsys.readouterr().out
