@@ -9,8 +9,11 @@
 //! the fitted samples stays 0.6 and the LM reports convergence. Nothing in the LM can see it.
 //!
 //! The guard evaluates a converged fit on a fixed set of (view, light) pairs, the BTF's own
-//! direction grid (every view with every light, present or not: the directions a held-out test or
-//! a renderer asks for, inside the cone the sampling covers), and compares the largest value of
+//! direction grid (every view with every light, present or not: the directions a held-out test
+//! asks for, inside the cone the sampling covers) widened by rings of grazing directions up to
+//! the horizon ([`GRAZING_DEG`]: a renderer asks for those at every silhouette, and a lobe with
+//! `|C| > 1` that stays bounded inside the measured 75 degrees overflows f32 there; measured on
+//! weave 32^2, Lafortune-Lum 3 rendered `inf` on a sphere before the rings were added), and compares the largest value of
 //! the lobe sum `kd + sum max(s, 0)^n` (the BRDF without the `l_z` foreshortening, so a fit to
 //! grazing samples is not flagged for the foreshortening alone) with the largest measured
 //! `value / l_z` of that texel. A fit above [`K_EXTRAP`] times that is *extrapolating*; the driver
@@ -31,6 +34,13 @@ pub const K_EXTRAP: f64 = 3.0;
 /// sampling.
 pub const MAX_CHECK_PAIRS: usize = 8192;
 
+/// Elevations (degrees) of the rings of grazing check directions added to the measured ones,
+/// each with [`GRAZING_AZIMUTHS`] azimuths: beyond the UBO sampling's 75 degrees up to the
+/// horizon.
+pub const GRAZING_DEG: [f64; 3] = [80.0, 85.0, 89.0];
+/// Azimuths per grazing ring (every 30 degrees).
+pub const GRAZING_AZIMUTHS: usize = 12;
+
 /// The check pairs as the products the lobes need: `a = lx vx`, `b = ly vy`, `c = lz vz`.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Guard {
@@ -40,8 +50,20 @@ pub(crate) struct Guard {
 }
 
 impl Guard {
-    /// The check pairs: every view with every light, strided down to at most [`MAX_CHECK_PAIRS`].
+    /// The check pairs: every view with every light, both widened by the grazing rings, strided
+    /// down to at most [`MAX_CHECK_PAIRS`].
     pub fn new(views: &[[f64; 3]], lights: &[[f64; 3]]) -> Self {
+        let rings: Vec<[f64; 3]> = GRAZING_DEG
+            .iter()
+            .flat_map(|&t| {
+                (0..GRAZING_AZIMUTHS).map(move |k| {
+                    let (t, p) = (t.to_radians(), std::f64::consts::TAU * k as f64 / GRAZING_AZIMUTHS as f64);
+                    [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]
+                })
+            })
+            .collect();
+        let views: Vec<[f64; 3]> = views.iter().chain(&rings).copied().collect();
+        let lights: Vec<[f64; 3]> = lights.iter().chain(&rings).copied().collect();
         let total = views.len() * lights.len();
         let stride = total.div_ceil(MAX_CHECK_PAIRS).max(1);
         let mut g = Guard::default();
@@ -173,5 +195,34 @@ mod tests {
         let m = fit_lafortune(&tr, &LafortuneOptions { lobes: 3, ..Default::default() }, &Monitor::new()).unwrap();
         assert_bounded(&tr, &m);
         assert!(m.params.iter().all(|x| x.is_finite()));
+    }
+
+    #[test]
+    fn full_sampling_does_not_overflow_at_grazing_directions() {
+        // Weave with every pair: 3-lobe fits are well posed inside the measured 75 degrees, but
+        // before the grazing rings some grew |C| > 1 lobes that overflowed to inf at
+        // (view 80, light 89 degrees) on a rendered sphere. Checked here on rings *between* the
+        // guard's own (82 and 87 degrees, 7 azimuths), so the bound is not the guard grading itself;
+        // between its rings a lobe may rise a little above K_EXTRAP, hence the slack of 2.
+        let mat = generate(&MaterialSpec::new(Preset::Weave, 12, 2), &Monitor::new()).unwrap();
+        let btf = mat.as_ref();
+        let m = fit_lafortune(&btf, &LafortuneOptions { lobes: 3, ..Default::default() }, &Monitor::new()).unwrap();
+        let ring: Vec<[f64; 3]> = [82.0f64, 87.0]
+            .iter()
+            .flat_map(|&t| {
+                (0..7).map(move |k| {
+                    let (t, p) = (t.to_radians(), 0.4 + std::f64::consts::TAU * k as f64 / 7.0);
+                    [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]
+                })
+            })
+            .collect();
+        let views: Vec<[f64; 3]> = btf.views.iter().chain(&ring).copied().collect();
+        let lights: Vec<[f64; 3]> = btf.lights.iter().chain(&ring).copied().collect();
+        let pp = m.params_per_fit();
+        for t in 0..btf.texels() {
+            let got = peak(&m.params[t * pp..(t + 1) * pp], m.lobes, &views, &lights);
+            let lim = 2.0 * K_EXTRAP * measured_max(&btf, t);
+            assert!(got.is_finite() && got <= lim, "texel {t}: peak {got} > {lim} ({:?})", m.report);
+        }
     }
 }
