@@ -20,9 +20,9 @@ from ._checks import boolean, choice, instance, integer, real
 from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
-from .models import Lafortune, Lpca, Model, Ptm, Sh, Srf, model_kinds, wrap
+from .models import Lafortune, LafortuneView, Lpca, Model, Ptm, Sh, Srf, model_kinds, wrap
 
-__all__ = ["fit", "ptm", "srf", "lafortune", "sh", "lpca"]
+__all__ = ["fit", "ptm", "srf", "lafortune", "lafortune_view", "sh", "lpca"]
 
 
 def _check_btf(btf) -> Btf:
@@ -113,6 +113,32 @@ def lafortune(btf: Btf, *, kind: str = "lum", lobes: int = 2, diffuse: bool = Tr
     densify = integer("densify", densify, min=0)
     return _fit("lafortune", b, f"Lafortune-{kind} fit", progress,
                 dict(kind=kind, lobes=lobes, diffuse=diffuse, max_iter=max_iter, densify=densify))
+
+
+def lafortune_view(btf: Btf, *, kind: str = "lum", lobes: int = 2, diffuse: bool = True, max_iter: int = 60,
+                   progress: Progress = None) -> LafortuneView:
+    """Fit Lafortune lobes per texel and view slot, as paper 000 (section 3.2) does: "like the
+    PTM", one lobe set per measured view, a function of the light, blended between the nearest
+    view slots when rendered.
+
+    The same Levenberg-Marquardt fit as :func:`lafortune` (kernels, initialisation, bounds,
+    fallbacks, ``status`` and ``report`` counts) fed with one slot's samples at a time:
+    ``kind="lum"`` (1 to 7 lobes on the luminance times a base colour per texel and slot) or
+    ``kind="rgb"`` (1 to 3 lobes per channel). About ``V`` times the parameters of the global
+    model (81 for the UBO sampling), and it follows how the reflectance changes with the view
+    (parallax, masking) that one lobe set per texel cannot. A view slot with fewer present
+    lights than a fit's unknowns borrows the lobes of the nearest fitted slot;
+    ``model.report["borrowed_slots"]`` lists them and ``model.arrays["source"]`` maps each slot
+    to the slot it uses.
+    """
+    b = _check_btf(btf)
+    kind = choice("kind", kind, ("lum", "rgb"))
+    # The per-kind lobe limits (7 and 3) are checked in Rust, with the same message style.
+    lobes = integer("lobes", lobes, min=1)
+    diffuse = boolean("diffuse", diffuse)
+    max_iter = integer("max_iter", max_iter, min=1)
+    return _fit("lafortune_view", b, f"per-view Lafortune-{kind} fit", progress,
+                dict(kind=kind, lobes=lobes, diffuse=diffuse, max_iter=max_iter))
 
 
 def sh(btf: Btf, *, light_coeffs: int = 25, view_coeffs: int = 25, cls: bool = True, quantize: bool = True,

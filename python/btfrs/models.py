@@ -22,7 +22,8 @@ from .btf import Btf, read_container
 from ._checks import choice, index, instance
 from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
 
-__all__ = ["ErrorReport", "Model", "Ptm", "Lafortune", "Srf", "Sh", "Lpca", "load", "model_kinds", "wrap"]
+__all__ = ["ErrorReport", "Model", "Ptm", "Lafortune", "LafortuneView", "Srf", "Sh", "Lpca", "load", "model_kinds",
+           "wrap"]
 
 PathLike = Union[str, os.PathLike]
 
@@ -249,6 +250,29 @@ class Lafortune(Model):
     """
 
     _kind = "lafortune"
+
+
+class LafortuneView(Model):
+    """Per-view Lafortune lobes (paper 000, section 3.2, fitted "like the PTM"): one lobe set
+    per texel and measured view slot, a function of the light, blended between the three
+    nearest view slots at render time as the PTM is.
+
+    Within slot ``v``: ``value = l_z * (kd + sum_i max(D_i . l, 0)^n_i)`` with
+    ``D = (Cx vx, Cy vy, Cz vz)``, the Lafortune lobe at the slot's view ``v`` written as an axis
+    in light space (at a fixed view only these products are determined). ``params`` is
+    ``[H, W, V, P]`` (lum, with ``rgb`` ``[H, W, V, 3]`` base colours) or ``[H, W, V, 3, P]``
+    (rgb), ``P = 1 + 4 * lobes`` ordered ``kd, (Dx, Dy, Dz, n) per lobe``; ``views`` are the
+    slots' directions; ``status`` is 0/1/2 per fit as for :class:`Lafortune`; ``source[v]`` is
+    the slot whose lobes slot ``v`` uses: itself, or for a slot with too few present lights the
+    nearest fitted one (``report["borrowed_slots"]`` lists those).
+    """
+
+    _kind = "lafortune_view"
+
+    @property
+    def views(self) -> np.ndarray:
+        """``[V, 3]`` float64: the view direction of each slot."""
+        return self.arrays["views"]
 
 
 class Sh(Model):

@@ -1,5 +1,7 @@
 //! Per-texel Lafortune lobes fitted by Levenberg-Marquardt (paper 000, section 3.2), over all
-//! views at once as in McAllister et al.'s spatial BRDF (SBRDF).
+//! views at once as in McAllister et al.'s spatial BRDF (SBRDF). The per-view form that paper 000
+//! itself fits (one lobe set per view slot, blended like the PTM) is [`per_view`]
+//! (`"lafortune_view"`), on the same kernels.
 //!
 //! Each texel's measured values (which include the cos(theta_l) foreshortening) are modelled as
 //!
@@ -55,6 +57,7 @@ mod guard;
 mod init;
 mod kernels;
 mod lm;
+pub mod per_view;
 
 use crate::gpu::{words, GpuLayout, Shader};
 use crate::model::{Model, ReflectanceModel};

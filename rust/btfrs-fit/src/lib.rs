@@ -3,6 +3,8 @@
 //! * [`ptm`]: Polynomial Texture Maps, RGB and LRGB, one per view slot (paper 000, section 3.1).
 //! * [`lafortune`]: per-texel Lafortune lobes over all views, RGB and luminance, fitted by
 //!   Levenberg-Marquardt (paper 000, section 3.2).
+//! * [`lafortune::per_view`]: per-view Lafortune (`"lafortune_view"`), one lobe set per texel and
+//!   view slot, blended between slots like the PTM (paper 000, section 3.2).
 //! * [`srf`]: Phong + spatially-varying residual function (paper 003, sections 4 and 5).
 //! * [`sh`]: double spherical harmonics fitted by constrained least squares, 8-bit quantized
 //!   (paper 002, section 3.1 and appendix).
@@ -30,6 +32,7 @@ pub mod srf;
 
 pub use gpu::{GpuLayout, GpuModel, Renderable};
 pub use kmeans::{kmeans, KMeans};
+pub use lafortune::per_view::{fit_lafortune_view, LafortuneView, LafortuneViewOptions, LafortuneViewReport};
 pub use lafortune::{fit_lafortune, FitReport, Lafortune, LafortuneKind, LafortuneOptions};
 pub use lpca::{fit_lpca, Lpca, Lpca3d, LpcaOptions, LpcaQuery};
 pub use model::{evaluate_image, model_error, DynModel, Model, RawModel, ReflectanceModel, Shade};

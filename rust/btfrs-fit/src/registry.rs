@@ -57,6 +57,7 @@ pub const fn entry<M: Model + std::fmt::Debug>() -> Entry {
 pub const MODELS: &[Entry] = &[
     entry::<crate::ptm::Ptm>(),
     entry::<crate::lafortune::Lafortune>(),
+    entry::<crate::lafortune::per_view::LafortuneView>(),
     entry::<crate::srf::Srf>(),
     entry::<crate::sh::Sh>(),
     entry::<crate::lpca::Lpca>(),
