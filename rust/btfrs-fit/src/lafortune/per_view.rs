@@ -162,6 +162,10 @@ pub fn fit_lafortune_view(btf: &BtfRef<'_>, opts: &LafortuneViewOptions, monitor
                     extra: Interp::default(),
                     geo: geo.clone(),
                     basis: basis.clone(),
+                    // The global guard's check pairs are not needed: every slot fit goes through
+                    // `fit_plausible`, which probes the whole hemisphere of lights for this
+                    // slot's view (with an empty guard the global driver never rejects).
+                    guard: super::guard::Guard::default(),
                     lay: Layout { lobes, ..lay },
                     max_iter: opts.max_iter,
                 })
@@ -193,6 +197,7 @@ pub fn fit_lafortune_view(btf: &BtfRef<'_>, opts: &LafortuneViewOptions, monitor
     let mut status = vec![0u8; nt * nv * nf];
     let mut sse = vec![0.0f64; nt * nv * nf];
     let mut iters = vec![0u32; nt * nv * nf];
+    let mut extrap = vec![false; nt * nv * nf];
     monitor.start(nt as u64);
     params
         .par_chunks_mut(nv * nf * pp)
@@ -200,10 +205,11 @@ pub fn fit_lafortune_view(btf: &BtfRef<'_>, opts: &LafortuneViewOptions, monitor
         .zip(status.par_chunks_mut(nv * nf))
         .zip(sse.par_chunks_mut(nv * nf))
         .zip(iters.par_chunks_mut(nv * nf))
+        .zip(extrap.par_chunks_mut(nv * nf))
         .enumerate()
         .for_each_init(
             || Work::new(0, opts.lobes),
-            |work, (t, ((((p, rgb), st), e), it))| {
+            |work, (t, (((((p, rgb), st), e), it), ex))| {
                 if monitor.is_cancelled() {
                     return;
                 }
@@ -223,12 +229,14 @@ pub fn fit_lafortune_view(btf: &BtfRef<'_>, opts: &LafortuneViewOptions, monitor
                         LafortuneKind::Lum => {
                             base_colour(texel, &chain[0].meas, &mut rgb[3 * v..3 * v + 3]);
                             let r = fit_plausible(chain, texel, None, work, &probe, btf.views[v]);
+                            ex[sv] = r.extrapolated;
                             r.write(pv, &mut st[sv], &mut e[sv], &mut it[sv]);
                         }
                         LafortuneKind::Rgb => {
                             for c in 0..3 {
                                 let r = fit_plausible(chain, texel, Some(c), work, &probe, btf.views[v]);
                                 let (s, x) = (sv + c, &mut pv[c * pp..(c + 1) * pp]);
+                                ex[s] = r.extrapolated;
                                 r.write(x, &mut st[s], &mut e[s], &mut it[s]);
                             }
                         }
@@ -249,12 +257,14 @@ pub fn fit_lafortune_view(btf: &BtfRef<'_>, opts: &LafortuneViewOptions, monitor
 
     // Counts over the real fits only (a borrowed slot repeats its source's).
     let (mut counts, mut total_iters, mut total_sse, mut fits) = ([0usize; 3], 0u64, 0.0f64, 0usize);
+    let mut extrapolated = 0usize;
     let mut samples = 0usize;
     for t in 0..nt {
         for &v in &fitted {
             for c in 0..nf {
                 let i = (t * nv + v) * nf + c;
                 counts[status[i].min(2) as usize] += 1;
+                extrapolated += usize::from(extrap[i]);
                 total_iters += iters[i] as u64;
                 total_sse += sse[i];
                 fits += 1;
@@ -268,6 +278,7 @@ pub fn fit_lafortune_view(btf: &BtfRef<'_>, opts: &LafortuneViewOptions, monitor
             converged: counts[0],
             fell_back: counts[1],
             failed: counts[2],
+            extrapolated,
             mean_iterations: total_iters as f64 / fits as f64,
             rms_residual: (total_sse / samples.max(1) as f64).sqrt(),
         },
@@ -324,6 +335,8 @@ fn fit_plausible(
 ) -> FitOut {
     let mut iters = 0;
     let ctx0 = &chain[0];
+    // Whether a fit with more lobes was rejected as implausible (counted as "extrapolated").
+    let mut rejected = false;
     for (i, ctx) in chain.iter().enumerate() {
         ctx.gather(texel, channel, &mut work.y);
         let ymax = work.y[..ctx.geo.n].iter().fold(0.0f64, |a, &b| a.max(b));
@@ -334,13 +347,16 @@ fn fit_plausible(
             r.status = r.status.max(1);
         }
         if peak(&r.p, view, probe) <= PLAUSIBLE_PEAK * ymax {
+            r.extrapolated = rejected;
             return r;
         }
+        rejected = true;
     }
     // Closed form: value = kd l_z by least squares over the slot's samples.
     ctx0.gather(texel, channel, &mut work.y);
     let mut r = FitOut::zero(2);
     r.iters = iters;
+    r.extrapolated = rejected;
     let (mut yl, mut ll, mut yy) = (0.0f64, 0.0f64, 0.0f64);
     for i in 0..ctx0.geo.n {
         yl += work.y[i] * ctx0.geo.lz[i];
