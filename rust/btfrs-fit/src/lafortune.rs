@@ -406,14 +406,19 @@ impl Context {
                     *o = w.y[i];
                 }
                 let mut ts = th;
-                let r = lm::levenberg_marquardt_tol(&self.geo_sub, la, &mut ts, lambda0, self.max_iter, ws, SUB_TOL);
+                let r =
+                    lm::levenberg_marquardt_tol(&self.geo_sub, la, &mut ts, lambda0, self.max_iter, ws, SUB_TOL, true);
                 iters += r.iters;
                 if r.converged && r.cost.is_finite() {
                     th = ts;
                     lambda0 = LAMBDA_FINE;
                 }
             }
-            let run = lm::levenberg_marquardt(&self.geo, la, &mut th, lambda0, self.max_iter, w);
+            // The first run takes Newton steps; the restarts are this fit's earlier algorithm
+            // (Gauss-Newton on all samples from the initialisation), so a texel where the faster
+            // path fails still gets every chance the fit ever gave it.
+            let tol = lm::REL_DECREASE;
+            let run = lm::levenberg_marquardt_tol(&self.geo, la, &mut th, lambda0, self.max_iter, w, tol, a == 0);
             iters += run.iters;
             if run.converged && run.cost.is_finite() {
                 return FitOut::new(la, &th, scale, run.cost, u8::from(a > 0), iters);

@@ -80,6 +80,9 @@ pub(crate) struct LmRun {
 /// rejected one was predicted to gain less than that (MINPACK's ftol test), or the step is
 /// negligible, or the cost is 0. Not converged: `max_iter` trial steps, the damping passes
 /// `LAMBDA_MAX` (no descent found), a non-finite start or normal equations.
+// Newton steps at the default tolerance: the entry point for fits built on this loop (the
+// Lafortune driver itself calls `levenberg_marquardt_tol`).
+#[allow(dead_code)]
 pub(crate) fn levenberg_marquardt(
     g: &Geometry,
     lay: Layout,
@@ -88,10 +91,13 @@ pub(crate) fn levenberg_marquardt(
     max_iter: usize,
     w: &mut Work,
 ) -> LmRun {
-    levenberg_marquardt_tol(g, lay, th, lambda0, max_iter, w, REL_DECREASE)
+    levenberg_marquardt_tol(g, lay, th, lambda0, max_iter, w, REL_DECREASE, true)
 }
 
-/// [`levenberg_marquardt`] with the relative-decrease tolerance `tol` in place of [`REL_DECREASE`].
+/// [`levenberg_marquardt`] with the relative-decrease tolerance `tol` in place of [`REL_DECREASE`],
+/// and with Newton steps (`newton`) or Gauss-Newton ones (`J^T J` alone, the more conservative
+/// model of the restarts).
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn levenberg_marquardt_tol(
     g: &Geometry,
     lay: Layout,
@@ -100,6 +106,7 @@ pub(crate) fn levenberg_marquardt_tol(
     max_iter: usize,
     w: &mut Work,
     tol: f64,
+    newton_steps: bool,
 ) -> LmRun {
     let m = lay.m();
     project(lay, th);
@@ -117,6 +124,11 @@ pub(crate) fn levenberg_marquardt_tol(
                   jtr: &mut [f64; MAXM],
                   hes: &mut [f64; MAXM * MAXM]|
      -> bool {
+        if !newton_steps {
+            normal_equations_with(g, lay, th, w, jtj, jtr, None);
+            hes[..m * m].copy_from_slice(&jtj[..m * m]);
+            return false;
+        }
         normal_equations_with(g, lay, th, w, jtj, jtr, Some(&mut hes[..]));
         let ok = hes[..m * m].iter().all(|x| x.is_finite());
         for q in 0..m * m {
