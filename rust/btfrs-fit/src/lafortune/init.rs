@@ -39,13 +39,13 @@ impl Basis {
             let row = &mut f[(k + 1) * np..(k + 2) * np];
             for (i, x) in row[..g.n].iter_mut().enumerate() {
                 let s = cand[0] * g.a[i] + cand[1] * g.b[i] + cand[2] * g.c[i];
-                *x = if s > 0.0 { g.lz[i] * s.powf(cand[3]) } else { 0.0 };
+                *x = if s > 0.0 { g.lz[i] * pow_exact(s, cand[3]) } else { 0.0 };
             }
         }
         let mut gram = [[0.0f64; NB]; NB];
         for p in 0..NB {
             for q in p..NB {
-                let d: f64 = f[p * np..(p + 1) * np].iter().zip(&f[q * np..(q + 1) * np]).map(|(x, y)| x * y).sum();
+                let d = dot8(&f[p * np..(p + 1) * np], &f[q * np..(q + 1) * np]);
                 gram[p][q] = d;
                 gram[q][p] = d;
             }
@@ -58,16 +58,32 @@ impl Basis {
         let np = y.len();
         let mut out = [0.0f64; NB];
         for (p, o) in out.iter_mut().enumerate() {
-            let row = &self.f[p * np..(p + 1) * np];
-            let mut acc = [0.0f64; 8];
-            for (xs, ys) in row.as_chunks::<8>().0.iter().zip(y.as_chunks::<8>().0) {
-                for k in 0..8 {
-                    acc[k] += xs[k] * ys[k];
-                }
-            }
-            *o = acc.iter().sum();
+            *o = dot8(&self.f[p * np..(p + 1) * np], y);
         }
         out
+    }
+}
+
+/// `x . y` over whole chunks of 8 (the padded length is a multiple of it), with 8 partial sums so
+/// that the loop vectorises (one running sum would be a chain of dependent additions).
+fn dot8(x: &[f64], y: &[f64]) -> f64 {
+    let mut acc = [0.0f64; 8];
+    for (xs, ys) in x.as_chunks::<8>().0.iter().zip(y.as_chunks::<8>().0) {
+        for k in 0..8 {
+            acc[k] += xs[k] * ys[k];
+        }
+    }
+    acc.iter().sum()
+}
+
+/// `s^n` for `s > 0`; by repeated squaring (`powi`) when `n` is a small integer, as every
+/// candidate's exponent is: a few multiplications instead of a libm `pow` call per sample and
+/// candidate, which made this setup (once per fit call) cost as much as a third of a texel's fit.
+fn pow_exact(s: f64, n: f64) -> f64 {
+    if n.fract() == 0.0 && (1.0..=1024.0).contains(&n) {
+        s.powi(n as i32)
+    } else {
+        s.powf(n)
     }
 }
 

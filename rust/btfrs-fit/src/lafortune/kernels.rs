@@ -126,6 +126,21 @@ pub(crate) fn have_fma() -> bool {
     std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
 }
 
+/// Whether this CPU runs the AVX-512 versions of the sample passes (twice the vector width of
+/// AVX2); `BTFRS_NO_AVX512` set in the environment turns them off (for comparisons).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+pub(crate) fn have_avx512() -> bool {
+    static OK: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *OK.get_or_init(|| {
+        std::arch::is_x86_feature_detected!("avx512f")
+            && std::arch::is_x86_feature_detected!("avx512dq")
+            && std::arch::is_x86_feature_detected!("avx512vl")
+            && have_fma()
+            && std::env::var_os("BTFRS_NO_AVX512").is_none()
+    })
+}
+
 // ---------------------------------------------------------------------------------------------
 // Samples and the passes over them
 // ---------------------------------------------------------------------------------------------
@@ -201,7 +216,13 @@ impl Layout {
 
 /// would not vectorise: LLVM may not reassociate floating-point additions by itself).
 #[inline(always)]
-fn dot<const F: bool>(x: &[f64; CH], y: &[f64; CH]) -> f64 {
+fn dot<const F: bool, const Z: bool>(x: &[f64; CH], y: &[f64; CH]) -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    if Z {
+        // SAFETY: `Z` is true only in the kernels compiled with AVX-512, which run only after
+        // `have_avx512()` confirmed the CPU has it.
+        return unsafe { dot_avx512(x, y) };
+    }
     #[cfg(target_arch = "x86_64")]
     if F {
         // SAFETY: `F` is true only in the kernels compiled with AVX2 and FMA enabled, which run
@@ -240,12 +261,33 @@ fn dot_avx2(x: &[f64; CH], y: &[f64; CH]) -> f64 {
     _mm_cvtsd_f64(_mm_add_sd(t, _mm_unpackhi_pd(t, t)))
 }
 
+/// [`dot`] with AVX-512 intrinsics: two 8-lane FMA chains.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+fn dot_avx512(x: &[f64; CH], y: &[f64; CH]) -> f64 {
+    use std::arch::x86_64::*;
+    const { assert!(CH.is_multiple_of(16)) };
+    let (px, py) = (x.as_ptr(), y.as_ptr());
+    let mut acc = [_mm512_setzero_pd(); 2];
+    for j in (0..CH).step_by(16) {
+        for (k, a) in acc.iter_mut().enumerate() {
+            // SAFETY: j + 8 k + 7 < CH, so the 8 loaded values lie inside both arrays.
+            let (xv, yv) = unsafe { (_mm512_loadu_pd(px.add(j + 8 * k)), _mm512_loadu_pd(py.add(j + 8 * k))) };
+            *a = _mm512_fmadd_pd(xv, yv, *a);
+        }
+    }
+    _mm512_reduce_add_pd(_mm512_add_pd(acc[0], acc[1]))
+}
+
 /// Per-fit scratch: the target values and, per sample and lobe, `s^n` and `ln s` of the last
 /// cost pass, which the Jacobian pass reuses (an accepted step then costs no second exp/ln).
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Work {
     /// Targets, padded with zeros.
     pub y: Vec<f64>,
+    /// The scratch of the coarse start on a subset of the samples (made on first use).
+    pub sub: Option<Box<Work>>,
     /// `s^n` per (chunk, lobe, sample in chunk).
     e: Vec<f64>,
     /// `ln s` likewise (0 where s <= 0).
@@ -254,7 +296,7 @@ pub(crate) struct Work {
 
 impl Work {
     pub fn new(npad: usize, lobes: usize) -> Self {
-        Work { y: vec![0.0; npad], e: vec![0.0; npad * lobes], l: vec![0.0; npad * lobes] }
+        Work { y: vec![0.0; npad], sub: None, e: vec![0.0; npad * lobes], l: vec![0.0; npad * lobes] }
     }
 }
 
@@ -262,11 +304,22 @@ impl Work {
 /// `th` makes the model overflow (then the step is rejected).
 pub(crate) fn cost(g: &Geometry, lay: Layout, th: &[f64], w: &mut Work) -> f64 {
     #[cfg(target_arch = "x86_64")]
+    if have_avx512() {
+        // SAFETY: the CPU supports AVX-512 F/DQ/VL, AVX2 and FMA (checked just above).
+        return unsafe { cost_avx512(g, lay, th, w) };
+    }
+    #[cfg(target_arch = "x86_64")]
     if have_fma() {
         // SAFETY: the CPU supports AVX2 and FMA (checked just above), all that `cost_fma` needs.
         return unsafe { cost_fma(g, lay, th, w) };
     }
     cost_impl::<false>(g, lay, th, w)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512dq,avx512vl,avx2,fma")]
+fn cost_avx512(g: &Geometry, lay: Layout, th: &[f64], w: &mut Work) -> f64 {
+    cost_impl::<true>(g, lay, th, w)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -334,43 +387,104 @@ pub(crate) fn cost_impl<const F: bool>(g: &Geometry, lay: Layout, th: &[f64], w:
 /// ```
 ///
 /// and 0 for a lobe whose `s_k <= 0`. J itself is only ever held one chunk at a time.
+// The Gauss-Newton part alone: the tests, and fits built on these kernels that do not take
+// Newton steps, call it.
+#[cfg_attr(not(test), allow(dead_code))]
 pub(crate) fn normal_equations(g: &Geometry, lay: Layout, th: &[f64], w: &Work, jtj: &mut [f64], jtr: &mut [f64]) {
-    #[cfg(target_arch = "x86_64")]
-    if have_fma() {
-        // SAFETY: the CPU supports AVX2 and FMA (checked just above).
-        return unsafe { normal_equations_fma(g, lay, th, w, jtj, jtr) };
-    }
-    normal_equations_impl::<false>(g, lay, th, w, jtj, jtr)
+    normal_equations_with(g, lay, th, w, jtj, jtr, None)
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn normal_equations_fma(g: &Geometry, lay: Layout, th: &[f64], w: &Work, jtj: &mut [f64], jtr: &mut [f64]) {
-    normal_equations_impl::<true>(g, lay, th, w, jtj, jtr)
-}
-
-/// [`normal_equations`] for kernels compiled with (`F`) or without FMA.
-#[inline(always)]
-pub(crate) fn normal_equations_impl<const F: bool>(
+/// [`normal_equations`] and, when `second` is given, the second-order part of the Hessian of the
+/// cost, `S = sum_i r_i d^2 v_i / d theta^2` (full `m x m`, row-major; the cost's Hessian is
+/// `2 (J^T J + S)`). Only the 4 x 4 block of each lobe is non-zero (the model is a sum of lobes
+/// and linear in kd): with `g = lz n s^(n-1)` and the sample products `(a, b, c)`,
+///
+/// ```text
+/// d^2 v / dC_p dC_q   = lz n (n - 1) s^(n-2) p q
+/// d^2 v / dC_p d ln n = g p (1 + n ln s)
+/// d^2 v / d(ln n)^2   = lz n s^n ln s (1 + n ln s)
+/// ```
+///
+/// Gauss-Newton drops `S`, which converges only linearly on these fits: their residuals are large
+/// (shadows and masking leave 30-50% of the signal unexplained by any lobe), so `S` is not small.
+pub(crate) fn normal_equations_with(
     g: &Geometry,
     lay: Layout,
     th: &[f64],
     w: &Work,
     jtj: &mut [f64],
     jtr: &mut [f64],
+    second: Option<&mut [f64]>,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if have_avx512() {
+        // SAFETY: the CPU supports AVX-512 F/DQ/VL, AVX2 and FMA (checked just above).
+        return unsafe { normal_equations_avx512(g, lay, th, w, jtj, jtr, second) };
+    }
+    #[cfg(target_arch = "x86_64")]
+    if have_fma() {
+        // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+        return unsafe { normal_equations_fma(g, lay, th, w, jtj, jtr, second) };
+    }
+    normal_equations_impl::<false, false>(g, lay, th, w, jtj, jtr, second)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512dq,avx512vl,avx2,fma")]
+fn normal_equations_avx512(
+    g: &Geometry,
+    lay: Layout,
+    th: &[f64],
+    w: &Work,
+    jtj: &mut [f64],
+    jtr: &mut [f64],
+    second: Option<&mut [f64]>,
+) {
+    normal_equations_impl::<true, true>(g, lay, th, w, jtj, jtr, second)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn normal_equations_fma(
+    g: &Geometry,
+    lay: Layout,
+    th: &[f64],
+    w: &Work,
+    jtj: &mut [f64],
+    jtr: &mut [f64],
+    second: Option<&mut [f64]>,
+) {
+    normal_equations_impl::<true, false>(g, lay, th, w, jtj, jtr, second)
+}
+
+/// [`normal_equations_with`] for kernels compiled with (`F`) or without FMA, and with AVX-512
+/// (`Z`, which implies `F`).
+#[inline(always)]
+pub(crate) fn normal_equations_impl<const F: bool, const Z: bool>(
+    g: &Geometry,
+    lay: Layout,
+    th: &[f64],
+    w: &Work,
+    jtj: &mut [f64],
+    jtr: &mut [f64],
+    mut second: Option<&mut [f64]>,
 ) {
     let m = lay.m();
     let (off, nl) = (lay.off(), lay.lobes);
     let kd = lay.kd(th);
     jtj[..m * m].iter_mut().for_each(|x| *x = 0.0);
     jtr[..m].iter_mut().for_each(|x| *x = 0.0);
+    if let Some(sm) = second.as_deref_mut() {
+        sm[..m * m].iter_mut().for_each(|x| *x = 0.0);
+    }
     let mut rows = [[0.0f64; CH]; MAXM];
     let mut r = [0.0f64; CH];
+    let (mut r1, mut px, mut py, mut pz) = ([0.0f64; CH], [0.0f64; CH], [0.0f64; CH], [0.0f64; CH]);
     let (a, b, c) = (g.a.as_chunks::<CH>().0, g.b.as_chunks::<CH>().0, g.c.as_chunks::<CH>().0);
     let (lz, y) = (g.lz.as_chunks::<CH>().0, w.y.as_chunks::<CH>().0);
     let mut es = w.e.as_chunks::<CH>().0.iter();
     let mut ls = w.l.as_chunks::<CH>().0.iter();
-    for ((((aj, bj), cj), lzj), yj) in a.iter().zip(b).zip(c).zip(lz).zip(y) {
+    for (ci, ((((aj, bj), cj), lzj), yj)) in a.iter().zip(b).zip(c).zip(lz).zip(y).enumerate() {
         let mut sum = [kd; CH];
         for k in 0..nl {
             let p = &th[off + 4 * k..off + 4 * k + 4];
@@ -398,16 +512,60 @@ pub(crate) fn normal_equations_impl<const F: bool>(
         for i in 0..CH {
             r[i] = mad::<F>(lzj[i], sum[i], -yj[i]);
         }
+        if let Some(sm) = second.as_deref_mut() {
+            // The lobes' e and ln s of this chunk again (the iterators above moved past them).
+            for k in 0..nl {
+                let p = &th[off + 4 * k..off + 4 * k + 4];
+                let (cx, cy, cz, n) = (p[0], p[1], p[2], p[3].exp());
+                let base = (ci * nl + k) * CH;
+                let (e, l) = (&w.e[base..base + CH], &w.l[base..base + CH]);
+                let [rx, ry, rz, rn] =
+                    [&rows[off + 4 * k], &rows[off + 4 * k + 1], &rows[off + 4 * k + 2], &rows[off + 4 * k + 3]];
+                for i in 0..CH {
+                    let s = mad::<F>(cx, aj[i], mad::<F>(cy, bj[i], cz * cj[i]));
+                    // rx = lz n s^(n-1) a, so (n - 1) / s * rx * b = lz n (n-1) s^(n-2) a b;
+                    // e = 0 (hence rx = 0) wherever s <= S_MIN.
+                    let q = if e[i] > 0.0 { r[i] * (n - 1.0) / s.max(S_MIN) } else { 0.0 };
+                    px[i] = q * rx[i];
+                    py[i] = q * ry[i];
+                    pz[i] = q * rz[i];
+                    r1[i] = r[i] * mad::<F>(n, l[i], 1.0);
+                }
+                let o = off + 4 * k;
+                let blk = [
+                    (0, 0, dot::<F, Z>(&px, aj)),
+                    (0, 1, dot::<F, Z>(&px, bj)),
+                    (0, 2, dot::<F, Z>(&px, cj)),
+                    (1, 1, dot::<F, Z>(&py, bj)),
+                    (1, 2, dot::<F, Z>(&py, cj)),
+                    (2, 2, dot::<F, Z>(&pz, cj)),
+                    (0, 3, dot::<F, Z>(&r1, rx)),
+                    (1, 3, dot::<F, Z>(&r1, ry)),
+                    (2, 3, dot::<F, Z>(&r1, rz)),
+                    (3, 3, dot::<F, Z>(&r1, rn)),
+                ];
+                for (u, v, x) in blk {
+                    sm[(o + u) * m + o + v] += x;
+                }
+            }
+        }
         for q in 0..m {
-            jtr[q] += dot::<F>(&rows[q], &r);
+            jtr[q] += dot::<F, Z>(&rows[q], &r);
             for u in q..m {
-                jtj[q * m + u] += dot::<F>(&rows[q], &rows[u]);
+                jtj[q * m + u] += dot::<F, Z>(&rows[q], &rows[u]);
             }
         }
     }
     for q in 0..m {
         for u in 0..q {
             jtj[q * m + u] = jtj[u * m + q];
+        }
+    }
+    if let Some(sm) = second {
+        for q in 0..m {
+            for u in 0..q {
+                sm[q * m + u] = sm[u * m + q];
+            }
         }
     }
 }

@@ -5,7 +5,7 @@
 //! the normal equations; the restarts and the fallbacks of a fit are decided by the driver in
 //! `lafortune.rs`.
 
-use super::kernels::{cholesky_solve, cost, normal_equations, Geometry, Layout, Work, MAXM};
+use super::kernels::{cholesky_solve, cost, normal_equations_with, Geometry, Layout, Work, MAXM};
 use super::{C_MAX, N_MAX, N_MIN};
 
 /// Keep `theta` physical: kd >= 0, |C| <= C_MAX, n in [N_MIN, N_MAX] (ln n in [ln N_MIN, ln N_MAX]). NaN never gets here (the
@@ -42,8 +42,8 @@ const SMALL_STEP: f64 = 1e-9;
 /// Give up (not converged) once the damping exceeds this: no descent direction was found.
 const LAMBDA_MAX: f64 = 1e16;
 
-/// The decrease of the cost that the Gauss-Newton model predicts for step `d`:
-/// `-(2 d . J^T r + d . J^T J d)`.
+/// The decrease of the cost that the quadratic model with Hessian `H` (`J^T J`, or `J^T J + S`)
+/// predicts for step `d`: `-(2 d . J^T r + d . H d)`.
 fn predicted_decrease(jtj: &[f64], jtr: &[f64], d: &[f64], m: usize) -> f64 {
     let mut pred = 0.0;
     for q in 0..m {
@@ -68,7 +68,10 @@ pub(crate) struct LmRun {
 }
 
 /// Levenberg-Marquardt from `th` (projected first): Marquardt's diagonal scaling, floored so that
-/// a lobe that has gone dark (all its `s <= 0`, a zero column) stays solvable; Nielsen's damping
+/// a lobe that has gone dark (all its `s <= 0`, a zero column) stays solvable; the step's model
+/// Hessian is the full one, `J^T J + S` (`S` the residual-weighted second derivatives of the
+/// model, [`normal_equations_with`]), falling back to Gauss-Newton's `J^T J` for a step where the
+/// damped full Hessian is not positive definite; Nielsen's damping
 /// update (tenfold more after a wild overshoot); parameters held on a bound they are pushed
 /// against (active set); every trial projected onto the bounds. A trial whose cost is not finite
 /// or not lower is rejected and costs only a [`cost`] pass.
@@ -77,6 +80,9 @@ pub(crate) struct LmRun {
 /// rejected one was predicted to gain less than that (MINPACK's ftol test), or the step is
 /// negligible, or the cost is 0. Not converged: `max_iter` trial steps, the damping passes
 /// `LAMBDA_MAX` (no descent found), a non-finite start or normal equations.
+// Newton steps at the default tolerance: the entry point for fits built on this loop (the
+// Lafortune driver itself calls `levenberg_marquardt_tol`).
+#[allow(dead_code)]
 pub(crate) fn levenberg_marquardt(
     g: &Geometry,
     lay: Layout,
@@ -85,6 +91,23 @@ pub(crate) fn levenberg_marquardt(
     max_iter: usize,
     w: &mut Work,
 ) -> LmRun {
+    levenberg_marquardt_tol(g, lay, th, lambda0, max_iter, w, REL_DECREASE, true)
+}
+
+/// [`levenberg_marquardt`] with the relative-decrease tolerance `tol` in place of [`REL_DECREASE`],
+/// and with Newton steps (`newton`) or Gauss-Newton ones (`J^T J` alone, the more conservative
+/// model of the restarts).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn levenberg_marquardt_tol(
+    g: &Geometry,
+    lay: Layout,
+    th: &mut [f64],
+    lambda0: f64,
+    max_iter: usize,
+    w: &mut Work,
+    tol: f64,
+    newton_steps: bool,
+) -> LmRun {
     let m = lay.m();
     project(lay, th);
     let mut c = cost(g, lay, th, w);
@@ -92,7 +115,28 @@ pub(crate) fn levenberg_marquardt(
         return LmRun { cost: c, iters: 0, converged: false };
     }
     let (mut jtj, mut jtr) = ([0.0f64; MAXM * MAXM], [0.0f64; MAXM]);
-    normal_equations(g, lay, th, w, &mut jtj, &mut jtr);
+    // The Hessian model of the step: J^T J + S (Newton) when S is available and finite.
+    let mut hes = [0.0f64; MAXM * MAXM];
+    // Newton: J^T J + S when S came out finite (`false`: hes is J^T J alone).
+    let newton = |th: &[f64],
+                  w: &mut Work,
+                  jtj: &mut [f64; MAXM * MAXM],
+                  jtr: &mut [f64; MAXM],
+                  hes: &mut [f64; MAXM * MAXM]|
+     -> bool {
+        if !newton_steps {
+            normal_equations_with(g, lay, th, w, jtj, jtr, None);
+            hes[..m * m].copy_from_slice(&jtj[..m * m]);
+            return false;
+        }
+        normal_equations_with(g, lay, th, w, jtj, jtr, Some(&mut hes[..]));
+        let ok = hes[..m * m].iter().all(|x| x.is_finite());
+        for q in 0..m * m {
+            hes[q] = if ok { jtj[q] + hes[q] } else { jtj[q] };
+        }
+        ok
+    };
+    let mut have_s = newton(th, w, &mut jtj, &mut jtr, &mut hes);
     let (mut lambda, mut nu) = (lambda0, 2.0f64);
     let mut a = [0.0f64; MAXM * MAXM];
     let mut delta = [0.0f64; MAXM];
@@ -109,27 +153,41 @@ pub(crate) fn levenberg_marquardt(
             // No parameter moves the model at any sample: nothing left to fit.
             return LmRun { cost: c, iters: it - 1, converged: true };
         }
-        a[..m * m].copy_from_slice(&jtj[..m * m]);
-        for q in 0..m {
-            a[q * m + q] += lambda * jtj[q * m + q].max(1e-12 * dmax);
-            delta[q] = -jtr[q];
-        }
-        // Active set: a parameter on a bound that the descent direction pushes further out is
-        // held fixed for this step. Solving for it and clipping afterwards would leave the other
-        // components computed for a move that does not happen, and LM would crawl along the bound
-        // with most steps rejected.
-        for q in 0..m {
-            let (lo, hi) = bounds(lay, q);
-            if (th[q] <= lo && jtr[q] > 0.0) || (th[q] >= hi && jtr[q] < 0.0) {
-                for u in 0..m {
-                    a[q * m + u] = 0.0;
-                    a[u * m + q] = 0.0;
+        let mut solved = false;
+        let mut used_s = false;
+        for try_s in [true, false] {
+            if try_s && !have_s {
+                continue;
+            }
+            let src = if try_s { &hes } else { &jtj };
+            a[..m * m].copy_from_slice(&src[..m * m]);
+            for q in 0..m {
+                a[q * m + q] += lambda * jtj[q * m + q].max(1e-12 * dmax);
+                delta[q] = -jtr[q];
+            }
+            // Active set: a parameter on a bound that the descent direction pushes further out is
+            // held fixed for this step. Solving for it and clipping afterwards would leave the other
+            // components computed for a move that does not happen, and LM would crawl along the bound
+            // with most steps rejected.
+            for q in 0..m {
+                let (lo, hi) = bounds(lay, q);
+                if (th[q] <= lo && jtr[q] > 0.0) || (th[q] >= hi && jtr[q] < 0.0) {
+                    for u in 0..m {
+                        a[q * m + u] = 0.0;
+                        a[u * m + q] = 0.0;
+                    }
+                    a[q * m + q] = 1.0;
+                    delta[q] = 0.0;
                 }
-                a[q * m + q] = 1.0;
-                delta[q] = 0.0;
+            }
+            if cholesky_solve(&mut a[..m * m], m, &mut delta[..m]) {
+                solved = true;
+                used_s = try_s;
+                break;
             }
         }
-        if !cholesky_solve(&mut a[..m * m], m, &mut delta[..m]) {
+        let model = if used_s { &hes } else { &jtj };
+        if !solved {
             lambda *= nu;
             nu *= 2.0;
             if lambda > LAMBDA_MAX {
@@ -154,27 +212,24 @@ pub(crate) fn levenberg_marquardt(
         }
         let c_new = cost(g, lay, &trial[..m], w);
         if c_new.is_finite() && c_new < c {
-            // Gain ratio: actual over the Gauss-Newton model's predicted decrease.
-            let pred = predicted_decrease(&jtj, &jtr, &delta, m);
+            // Gain ratio: actual over the quadratic model's predicted decrease.
+            let pred = predicted_decrease(model, &jtr, &delta, m);
             let rho = if pred > 0.0 { (c - c_new) / pred } else { 1.0 };
             let rel = (c - c_new) / c;
             th[..m].copy_from_slice(&trial[..m]);
             c = c_new;
-            normal_equations(g, lay, th, w, &mut jtj, &mut jtr);
+            have_s = newton(th, w, &mut jtj, &mut jtr, &mut hes);
             lambda *= (1.0 - (2.0 * rho - 1.0).powi(3)).max(1.0 / 3.0);
             lambda = lambda.max(1e-12);
             nu = 2.0;
-            if rel < REL_DECREASE {
+            if rel < tol {
                 return LmRun { cost: c, iters: it, converged: true };
             }
         } else {
-            // MINPACK's ftol test: when the Gauss-Newton model itself predicts less than the
+            // MINPACK's ftol test: when the quadratic model itself predicts less than the
             // tolerance and the step does not do better, the cost is at its minimum to that
             // precision (near it, rounding makes the tiny predicted gains fail to materialise).
-            if predicted_decrease(&jtj, &jtr, &delta, m) < REL_DECREASE * c
-                && c_new.is_finite()
-                && c_new - c <= REL_DECREASE * c
-            {
+            if predicted_decrease(model, &jtr, &delta, m) < tol * c && c_new.is_finite() && c_new - c <= tol * c {
                 return LmRun { cost: c, iters: it, converged: true };
             }
             // A wild overshoot (overflow, or several times the cost) says the damping is far too

@@ -151,7 +151,12 @@ pub fn fit_lafortune_view(btf: &BtfRef<'_>, opts: &LafortuneViewOptions, monitor
             if ls.len() < lay.m() {
                 return None;
             }
-            let geo = Geometry::new(ls.iter().map(|&l| (btf.views[v], btf.lights[l])));
+            let dirs: Vec<([f64; 3], [f64; 3])> = ls.iter().map(|&l| (btf.views[v], btf.lights[l])).collect();
+            let geo = Geometry::new(dirs.iter().copied());
+            // The global fit's coarse start on every SUB-th sample (it is used only when a slot
+            // has at least SUB_MIN of them).
+            let sub_idx: Vec<usize> = (0..dirs.len()).step_by(super::SUB).collect();
+            let geo_sub = Geometry::new(sub_idx.iter().map(|&i| dirs[i]));
             let basis = super::init::Basis::new(&geo);
             let meas: Vec<usize> = ls.iter().map(|&l| v * nl + l).collect();
             // `lobes`, `lobes - 1`, ..., 1: the fits tried in turn until one is plausible.
@@ -168,6 +173,8 @@ pub fn fit_lafortune_view(btf: &BtfRef<'_>, opts: &LafortuneViewOptions, monitor
                     guard: super::guard::Guard::default(),
                     lay: Layout { lobes, ..lay },
                     max_iter: opts.max_iter,
+                    geo_sub: geo_sub.clone(),
+                    sub_idx: sub_idx.clone(),
                 })
                 .collect();
             Some(chain)

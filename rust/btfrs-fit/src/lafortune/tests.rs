@@ -198,7 +198,7 @@ fn analytic_jacobian_matches_central_differences() {
             let (mut jtj, mut jtr) = (vec![0.0; MAXM * MAXM], vec![0.0; MAXM]);
             let c = if portable {
                 let c = kernels::cost_impl::<false>(&geo, lay, &th_l, &mut w);
-                kernels::normal_equations_impl::<false>(&geo, lay, &th_l, &w, &mut jtj, &mut jtr);
+                kernels::normal_equations_impl::<false, false>(&geo, lay, &th_l, &w, &mut jtj, &mut jtr, None);
                 c
             } else {
                 let c = kernels::cost(&geo, lay, &th_l, &mut w);
@@ -224,6 +224,89 @@ fn analytic_jacobian_matches_central_differences() {
                     );
                 }
             }
+        }
+    }
+}
+
+/// The second-order term `S = sum_i r_i d^2 v_i / d theta^2` of the Newton steps against central
+/// differences of the (separately tested) analytic gradient: `d(J^T r)/d theta = J^T J + S`.
+/// Portable, AVX2 + FMA (where the CPU has them) and the dispatched kernel (AVX-512 here).
+#[test]
+fn second_order_term_matches_differences_of_the_gradient() {
+    let (_, geo, th, y) = jacobian_setup();
+    for diffuse in [true, false] {
+        let lay = Layout { diffuse, lobes: 2 };
+        let m = lay.m();
+        let th_l: Vec<f64> = if diffuse { th.clone() } else { th[1..].to_vec() };
+        let mut w = Work::new(geo.npad(), 2);
+        w.y[..geo.n].copy_from_slice(&y);
+        let grad = |t: &[f64], w: &mut Work| {
+            let (mut jtj, mut jtr) = (vec![0.0; MAXM * MAXM], vec![0.0; MAXM]);
+            kernels::cost_impl::<false>(&geo, lay, t, w);
+            kernels::normal_equations_impl::<false, false>(&geo, lay, t, w, &mut jtj, &mut jtr, None);
+            (jtj, jtr)
+        };
+        let (jtj, _) = grad(&th_l, &mut w);
+        let mut want = vec![0.0; m * m];
+        for u in 0..m {
+            let h = 1e-5 * th_l[u].abs().max(1.0);
+            let (mut tp, mut tm) = (th_l.clone(), th_l.clone());
+            tp[u] += h;
+            tm[u] -= h;
+            let (gp, gm) = (grad(&tp, &mut w).1, grad(&tm, &mut w).1);
+            for q in 0..m {
+                want[q * m + u] = (gp[q] - gm[q]) / (2.0 * h) - jtj[q * m + u];
+            }
+        }
+        let scale = (0..m).map(|q| jtj[q * m + q]).fold(0.0f64, f64::max);
+        let mut kinds = vec!["portable", "dispatched"];
+        #[cfg(target_arch = "x86_64")]
+        if kernels::have_fma() {
+            kinds.push("avx2");
+        }
+        for kind in kinds {
+            let (mut jtj2, mut jtr2, mut sec) = (vec![0.0; MAXM * MAXM], vec![0.0; MAXM], vec![0.0; MAXM * MAXM]);
+            match kind {
+                "portable" => {
+                    kernels::cost_impl::<false>(&geo, lay, &th_l, &mut w);
+                    kernels::normal_equations_impl::<false, false>(
+                        &geo,
+                        lay,
+                        &th_l,
+                        &w,
+                        &mut jtj2,
+                        &mut jtr2,
+                        Some(&mut sec),
+                    );
+                }
+                "avx2" => {
+                    kernels::cost_impl::<true>(&geo, lay, &th_l, &mut w);
+                    kernels::normal_equations_impl::<true, false>(
+                        &geo,
+                        lay,
+                        &th_l,
+                        &w,
+                        &mut jtj2,
+                        &mut jtr2,
+                        Some(&mut sec),
+                    );
+                }
+                _ => {
+                    kernels::cost(&geo, lay, &th_l, &mut w);
+                    kernels::normal_equations_with(&geo, lay, &th_l, &w, &mut jtj2, &mut jtr2, Some(&mut sec));
+                }
+            }
+            for q in 0..m {
+                for u in 0..m {
+                    let (got, want) = (sec[q * m + u], want[q * m + u]);
+                    assert!(
+                        (got - want).abs() <= 1e-5 * (want.abs() + 1e-4 * scale),
+                        "diffuse {diffuse}, {kind}: S [{q}, {u}]: {got} vs {want}"
+                    );
+                }
+                // The blocks between lobes and with kd are exactly zero (the model is a sum).
+            }
+            assert!((0..m).all(|q| (0..m).all(|u| jtj2[q * m + u] == jtj2[u * m + q])), "{kind}: J^T J not symmetric");
         }
     }
 }
@@ -567,4 +650,98 @@ fn beats_the_diffuse_fit_on_knit() {
     );
     assert!(e.relative() < 0.95 * diffuse.relative(), "{} vs diffuse {}", e.relative(), diffuse.relative());
     assert!(m.report.converged > m.report.fits / 2, "{:?}", m.report);
+}
+
+/// Where the time of a Lafortune-Lum 2 fit goes, on the bench's window (knit 64^2, train split,
+/// row 32, the first 64 texels), one thread: the shared setup, per texel the gather, the
+/// initialisation and the LM runs, and one cost and one normal-equations pass on their own.
+/// `cargo test --release -p btfrs-fit lafortune_profile -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn lafortune_profile() {
+    /// This thread's CPU time (the machine is shared: wall time would count the other jobs).
+    #[derive(Clone, Copy)]
+    struct Instant(f64);
+    impl Instant {
+        fn now() -> Self {
+            #[repr(C)]
+            struct Ts {
+                s: i64,
+                ns: i64,
+            }
+            unsafe extern "C" {
+                fn clock_gettime(clk: i32, ts: *mut Ts) -> i32;
+            }
+            let mut t = Ts { s: 0, ns: 0 };
+            // SAFETY: a valid pointer to a timespec; 3 is CLOCK_THREAD_CPUTIME_ID on Linux.
+            unsafe { clock_gettime(3, &mut t) };
+            Instant(t.s as f64 + t.ns as f64 * 1e-9)
+        }
+        fn elapsed(&self) -> std::time::Duration {
+            std::time::Duration::from_secs_f64(Instant::now().0 - self.0)
+        }
+    }
+    let size = 64;
+    let btf = generate(&MaterialSpec::new(Preset::Knit, size, 1), &Monitor::new()).unwrap();
+    let r = btf.as_ref();
+    let (train, _) = btfrs_core::split::split_pairs(81, 81, None, 0.1, 0).unwrap();
+    let per = 81 * 81 * 3;
+    let t0 = 32 * size;
+    let win = 64;
+    let data = &r.data[t0 * per..(t0 + win) * per];
+    let b = BtfRef::new(1, win, r.views, r.lights, data, Some(&train)).unwrap();
+    let opts = LafortuneOptions::default();
+    let lay = Layout { diffuse: true, lobes: 2 };
+    let s = Instant::now();
+    let ctx = Context::new(&b, &opts, lay);
+    let setup = s.elapsed().as_secs_f64();
+    let mut w = Work::new(ctx.geo.npad(), 2);
+    let (mut tg, mut tf, mut it, mut st, mut sse_sum) = (0.0, 0.0, 0usize, [0usize; 3], 0.0f64);
+    for t in 0..win {
+        let s = Instant::now();
+        ctx.gather(b.texel(t), None, &mut w.y);
+        let mut rgb = [0.0f32; 3];
+        base_colour(b.texel(t), &ctx.meas, &mut rgb);
+        tg += s.elapsed().as_secs_f64();
+        let s = Instant::now();
+        let o = ctx.fit(&mut w);
+        tf += s.elapsed().as_secs_f64();
+        sse_sum += o.sse;
+        it += o.iters;
+        st[o.status as usize] += 1;
+    }
+    // One pass of each kernel at a typical theta.
+    let th = init::initial_guesses(&ctx.basis, &ctx.basis.fty(&w.y), true, 2)[1];
+    let reps = 2000;
+    let s = Instant::now();
+    let mut acc = 0.0;
+    for _ in 0..reps {
+        acc += kernels::cost(&ctx.geo, lay, &th, &mut w);
+    }
+    let tc = s.elapsed().as_secs_f64() / reps as f64;
+    let (mut jtj, mut jtr) = ([0.0; MAXM * MAXM], [0.0; MAXM]);
+    let s = Instant::now();
+    for _ in 0..reps {
+        kernels::normal_equations(&ctx.geo, lay, &th, &w, &mut jtj, &mut jtr);
+    }
+    let tn = s.elapsed().as_secs_f64() / reps as f64;
+    let s = Instant::now();
+    for _ in 0..reps {
+        let fty = ctx.basis.fty(&w.y);
+        acc += init::initial_guesses(&ctx.basis, &fty, true, 2)[1][0];
+    }
+    let ti = s.elapsed().as_secs_f64() / reps as f64;
+    println!(
+        "sse {sse_sum:.6e} | samples {} | setup {:.2} ms | per texel: gather {:.1} us, fit {:.1} us, {:.1} LM steps, status {st:?} | \
+         cost pass {:.1} us, normal equations {:.1} us, init {:.1} us ({acc:.1e} {})",
+        ctx.geo.n,
+        setup * 1e3,
+        tg / win as f64 * 1e6,
+        tf / win as f64 * 1e6,
+        it as f64 / win as f64,
+        tc * 1e6,
+        tn * 1e6,
+        ti * 1e6,
+        jtj[0],
+    );
 }
