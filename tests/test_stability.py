@@ -81,7 +81,9 @@ def test_lafortune_at_5_percent_is_flagged_and_bounded(report):
     r90 = report.row("Lafortune-Lum 2", "decimation", 0.9)
     assert r5["report"]["extrapolated"] > 0 and r5["flagged"]
     assert r5["held_out"] < 2.0 * r25["held_out"] and r5["held_out"] < 1.0
-    assert r90["report"]["extrapolated"] == 0  # dense sampling never trips the guard
+    # Dense sampling seldom trips the guard: only a few lobes that would overflow at grazing
+    # directions beyond the measured 75 degrees (the guard's rings up to the horizon).
+    assert r90["report"]["extrapolated"] <= 0.05 * r90["report"]["fits"]
 
 
 def test_uneven_subsets_stay_bounded(report):

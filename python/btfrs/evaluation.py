@@ -369,6 +369,8 @@ def _psnr(img: np.ndarray, ref: np.ndarray) -> float:
     d = (img[cover].astype(np.float64) - ref[cover]) ** 2
     mse = float(d.mean())
     peak = float(ref[cover].max())
+    if not math.isfinite(mse) or peak <= 0:
+        return float("-inf")  # a render with Inf/NaN pixels: flagged in the row's note
     return float("inf") if mse == 0 else 10.0 * math.log10(peak * peak / mse)
 
 
@@ -471,6 +473,9 @@ def evaluate(btf: Btf, models: Union[str, Sequence[Any]] = "all", *, holdout: st
                 ms, img = _timed_render(m, scene, size)
                 row["render_ms"] = ms
                 row["finite_render"] = bool(np.isfinite(img).all())
+                if not row["finite_render"]:
+                    bad = int((~np.isfinite(img)).any(axis=2).sum())
+                    row["note"] = (row["note"] + f"; {bad} non-finite pixels in the scene render").lstrip("; ")
                 if ref_img is not None:
                     row["psnr_scene"] = _psnr(img, ref_img)
         except BtfrsError as e:
