@@ -41,6 +41,19 @@ pub const GRAZING_DEG: [f64; 3] = [80.0, 85.0, 89.0];
 /// Azimuths per grazing ring (every 30 degrees).
 pub const GRAZING_AZIMUTHS: usize = 12;
 
+/// The grazing check directions: [`GRAZING_AZIMUTHS`] azimuths on each ring of [`GRAZING_DEG`].
+pub(crate) fn grazing_rings() -> Vec<[f64; 3]> {
+    GRAZING_DEG
+        .iter()
+        .flat_map(|&t| {
+            (0..GRAZING_AZIMUTHS).map(move |k| {
+                let (t, p) = (t.to_radians(), std::f64::consts::TAU * k as f64 / GRAZING_AZIMUTHS as f64);
+                [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]
+            })
+        })
+        .collect()
+}
+
 /// The check pairs as the products the lobes need: `a = lx vx`, `b = ly vy`, `c = lz vz`.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Guard {
@@ -53,15 +66,7 @@ impl Guard {
     /// The check pairs: every view with every light, both widened by the grazing rings, strided
     /// down to at most [`MAX_CHECK_PAIRS`].
     pub fn new(views: &[[f64; 3]], lights: &[[f64; 3]]) -> Self {
-        let rings: Vec<[f64; 3]> = GRAZING_DEG
-            .iter()
-            .flat_map(|&t| {
-                (0..GRAZING_AZIMUTHS).map(move |k| {
-                    let (t, p) = (t.to_radians(), std::f64::consts::TAU * k as f64 / GRAZING_AZIMUTHS as f64);
-                    [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]
-                })
-            })
-            .collect();
+        let rings = grazing_rings();
         let views: Vec<[f64; 3]> = views.iter().chain(&rings).copied().collect();
         let lights: Vec<[f64; 3]> = lights.iter().chain(&rings).copied().collect();
         let total = views.len() * lights.len();

@@ -314,13 +314,16 @@ const PLAUSIBLE_PEAK: f64 = 2.0;
 const PROBE_GRID: usize = 12;
 
 /// The light directions at which every slot fit is probed: all measured light directions
-/// (present or masked: only their directions are used) and a `PROBE_GRID^2` equal-area grid.
+/// (present or masked: only their directions are used), a `PROBE_GRID^2` equal-area grid, and
+/// the global guard's rings of grazing directions up to the horizon (the grid's outer cells sit
+/// near 85 degrees; measured on weave 64^2 before the rings: 2-lobe slot fits rendered `inf` at a
+/// sphere's silhouette).
 fn probe_lights(lights: &[[f64; 3]]) -> Vec<[f64; 3]> {
     let n = PROBE_GRID;
     let grid = (0..n * n).map(|k| {
         btfrs_hemimap::square_to_hemisphere(((k / n) as f64 + 0.5) / n as f64, ((k % n) as f64 + 0.5) / n as f64)
     });
-    lights.iter().copied().chain(grid).collect()
+    lights.iter().copied().chain(grid).chain(super::guard::grazing_rings()).collect()
 }
 
 /// One slot fit with a plausibility check that the global model does not need. A slot has one
