@@ -312,8 +312,10 @@ def chart(report: EvaluationReport, x: str, path: Union[str, os.PathLike]) -> No
         i = report.info
         ax.set_title(f"{i.get('material', 'btf')} {i.get('shape', '')}: {_AXIS[y].split('(')[1][:-1]} held out",
                      fontsize=10)
-        ax.legend(fontsize=7, loc="lower left", framealpha=0.85)
+        handles, names = ax.get_legend_handles_labels()
     key = fig.add_subplot(grid[0, len(ys)])
+    # The marker legend sits under the key, off the panels, where it can hide no point.
+    key.legend(handles, names, fontsize=7, loc="lower left", ncol=2, framealpha=0.85)
     key.axis("off")
     lines = []
     for r in report.rows:
@@ -323,7 +325,7 @@ def chart(report: EvaluationReport, x: str, path: Union[str, os.PathLike]) -> No
         lines.append((f"{number[id(r)]:>2}  {r['label']}{tag}: {errs}{mark}", colour[r["kind"]]))
     key.text(0.0, 1.0, "held-out error " + " / ".join(_AXIS[y].split("(")[1][:-1] for y in ys),
              fontsize=8, weight="bold", va="top", family="monospace", transform=key.transAxes)
-    step = min(0.034, 0.95 / max(len(lines), 1))
+    step = min(0.034, 0.72 / max(len(lines), 1))
     for n, (text, c) in enumerate(lines):
         key.text(0.0, 0.96 - n * step, text, fontsize=7, va="top", family="monospace", color=c,
                  transform=key.transAxes)
