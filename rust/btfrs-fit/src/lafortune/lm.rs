@@ -76,27 +76,14 @@ pub(crate) struct LmRun {
 /// against (active set); every trial projected onto the bounds. A trial whose cost is not finite
 /// or not lower is rejected and costs only a [`cost`] pass.
 ///
-/// Converged: an accepted step lowers the cost by less than [`REL_DECREASE`] (relative), or a
+/// Converged: an accepted step lowers the cost by less than `tol` (relative), or a
 /// rejected one was predicted to gain less than that (MINPACK's ftol test), or the step is
 /// negligible, or the cost is 0. Not converged: `max_iter` trial steps, the damping passes
 /// `LAMBDA_MAX` (no descent found), a non-finite start or normal equations.
-// Newton steps at the default tolerance: the entry point for fits built on this loop (the
-// Lafortune driver itself calls `levenberg_marquardt_tol`).
-#[allow(dead_code)]
-pub(crate) fn levenberg_marquardt(
-    g: &Geometry,
-    lay: Layout,
-    th: &mut [f64],
-    lambda0: f64,
-    max_iter: usize,
-    w: &mut Work,
-) -> LmRun {
-    levenberg_marquardt_tol(g, lay, th, lambda0, max_iter, w, REL_DECREASE, true)
-}
-
-/// [`levenberg_marquardt`] with the relative-decrease tolerance `tol` in place of [`REL_DECREASE`],
-/// and with Newton steps (`newton`) or Gauss-Newton ones (`J^T J` alone, the more conservative
-/// model of the restarts).
+///
+/// `tol`: the relative-decrease tolerance (the fits use [`REL_DECREASE`] or a looser one).
+/// `newton`: full Newton steps as above, or Gauss-Newton ones (`J^T J` alone, the more
+/// conservative model of the restarts).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn levenberg_marquardt_tol(
     g: &Geometry,

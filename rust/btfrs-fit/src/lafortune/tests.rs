@@ -8,7 +8,7 @@ use btfrs_core::rng::Rng;
 
 /// The model at one sample in plain f64 with the standard library's `powf`: the reference that
 /// the fast passes and the fit are checked against. `p = [kd, (Cx, Cy, Cz, n) x lobes]`.
-fn reference(p: &[f64], lobes: usize, v: [f64; 3], l: [f64; 3]) -> f64 {
+pub(crate) fn reference(p: &[f64], lobes: usize, v: [f64; 3], l: [f64; 3]) -> f64 {
     let mut sum = p[0];
     for k in 0..lobes {
         let q = &p[1 + 4 * k..5 + 4 * k];
@@ -21,7 +21,7 @@ fn reference(p: &[f64], lobes: usize, v: [f64; 3], l: [f64; 3]) -> f64 {
 }
 
 /// Random but well-conditioned lobes: a specular-like lobe and a broader retro or normal lobe.
-fn random_params(rng: &mut Rng, lobes: usize, diffuse: bool) -> Vec<f64> {
+pub(crate) fn random_params(rng: &mut Rng, lobes: usize, diffuse: bool) -> Vec<f64> {
     let mut p = vec![0.0; 1 + 4 * lobes];
     p[0] = if diffuse { 0.2 + 0.5 * rng.next_f64() } else { 0.0 };
     for k in 0..lobes {

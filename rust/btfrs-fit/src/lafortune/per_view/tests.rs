@@ -4,36 +4,9 @@ use crate::model::model_error;
 use btfrs_core::directions::{angle_between, ubo81};
 use btfrs_core::rng::Rng;
 
-/// One slot's Lafortune value in plain f64 with the standard library's `powf`, from the paper's
-/// parameters `p = [kd, (Cx, Cy, Cz, n) x lobes]` and the slot's view `v`: the reference the fit
-/// and the evaluation are checked against.
-fn reference(p: &[f64], lobes: usize, v: [f64; 3], l: [f64; 3]) -> f64 {
-    let mut sum = p[0];
-    for k in 0..lobes {
-        let q = &p[1 + 4 * k..5 + 4 * k];
-        let s = q[0] * l[0] * v[0] + q[1] * l[1] * v[1] + q[2] * l[2] * v[2];
-        if s > 0.0 {
-            sum += s.powf(q[3]);
-        }
-    }
-    l[2].max(0.0) * sum
-}
-
-/// Random well-conditioned lobes: a specular-like first lobe and a broader retro-reflective second.
-fn random_params(rng: &mut Rng, lobes: usize, diffuse: bool) -> Vec<f64> {
-    let mut p = vec![0.0; 1 + 4 * lobes];
-    p[0] = if diffuse { 0.2 + 0.5 * rng.next_f64() } else { 0.0 };
-    for k in 0..lobes {
-        let q = &mut p[1 + 4 * k..5 + 4 * k];
-        let (n, sign) = if k == 0 { (6.0 + 20.0 * rng.next_f64(), -1.0) } else { (2.0 + 3.0 * rng.next_f64(), 1.0) };
-        let amp = (0.5 + 1.5 * rng.next_f64()).powf(1.0 / n);
-        q[0] = sign * amp * (0.8 + 0.3 * rng.next_f64());
-        q[1] = sign * amp * (0.8 + 0.3 * rng.next_f64());
-        q[2] = amp * (0.9 + 0.2 * rng.next_f64());
-        q[3] = n;
-    }
-    p
-}
+// The per-slot model is the Lafortune model of the slot's view: the same f64 reference and the
+// same random lobes as the Lafortune tests.
+use crate::lafortune::tests::{random_params, reference};
 
 /// A BTF generated from the per-view model: each texel *and slot* has its own lobes (Lum: and
 /// base colour). Returns (data, truth per (texel, slot, fit), base colour per (texel, slot)).
