@@ -226,3 +226,47 @@ impl<C: Capacity> GridGraph<C> {
         self.width
     }
 }
+
+/// The grid counterpart of [`crate::min_cut`]: validate and solve in one call.
+/// `right[y * (width - 1) + x]` is (towards (y, x + 1), towards (y, x)),
+/// `down[y * width + x]` is (towards (y + 1, x), towards (y, x)), `terminals[y * width + x]` is
+/// (source, sink). Returns (flow, source side in row-major order).
+pub fn grid_min_cut<C: Capacity>(
+    height: usize,
+    width: usize,
+    right: &[[C; 2]],
+    down: &[[C; 2]],
+    terminals: &[[C; 2]],
+) -> Result<(C, Vec<bool>)> {
+    let n = match height.checked_mul(width) {
+        Some(n) if n <= MAX_NODES / 4 => n,
+        _ => {
+            return Err(Error::arg(
+                "terminal_caps",
+                format!("a {height} x {width} grid has more than the {} nodes supported", MAX_NODES / 4),
+            ))
+        }
+    };
+    let want = |name: &str, len: usize, h: usize, w: usize| {
+        if len == h * w {
+            Ok(())
+        } else {
+            Err(Error::arg(name, format!("expected {h} x {w} = {} capacity pairs, got {len}", h * w)))
+        }
+    };
+    want("terminal_caps", terminals.len(), height, width)?;
+    want("right", right.len(), height, width.saturating_sub(1))?;
+    want("down", down.len(), height.saturating_sub(1), width)?;
+    let mut g = GridGraph::new(height, width);
+    for (k, &[f, b]) in right.iter().enumerate() {
+        g.set_right(k / (width - 1), k % (width - 1), f, b)?;
+    }
+    for (k, &[f, b]) in down.iter().enumerate() {
+        g.set_down(k / width, k % width, f, b)?;
+    }
+    for (k, &[s, t]) in terminals.iter().enumerate() {
+        g.add_terminal(k / width, k % width, s, t)?;
+    }
+    let flow = g.maxflow();
+    Ok((flow, (0..n).map(|i| g.work.is_source(i)).collect()))
+}

@@ -44,7 +44,7 @@ mod graph;
 mod grid;
 
 pub use graph::Graph;
-pub use grid::GridGraph;
+pub use grid::{grid_min_cut, GridGraph};
 
 use btfrs_core::{Error, Result};
 
