@@ -162,3 +162,16 @@ def test_bad_input_errors(call, exc, words):
     with pytest.raises(exc) as info:
         call()
     assert words in str(info.value)
+
+
+def test_bench_maxflow_mode(tmp_path, capsys):
+    import json
+
+    from btfrs import bench
+
+    path = tmp_path / "mf.json"
+    assert bench.main(["--maxflow-only", "--maxflow-size", "24", "--repeat", "1", "--json", str(path)]) == 0
+    assert "scipy / btfrs" in capsys.readouterr().out
+    rows = json.loads(path.read_text())["maxflow"]
+    assert {r["case"] for r in rows} == {"kwatra", "segmentation"}
+    assert all(r["size"] == 24 and r["flow"] > 0 for r in rows)
