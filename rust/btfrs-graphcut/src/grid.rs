@@ -122,7 +122,8 @@ impl<C: Capacity> GridGraph<C> {
     }
 
     fn check_pos(&self, name: &str, y: usize, x: usize, dy: usize, dx: usize) -> Result<usize> {
-        if y + dy >= self.height || x + dx >= self.width {
+        // `y + dy < height` written so that no sum can overflow
+        if self.height <= dy || y >= self.height - dy || self.width <= dx || x >= self.width - dx {
             let (h, w) = (self.height.saturating_sub(dy), self.width.saturating_sub(dx));
             return Err(Error::arg(
                 name,

@@ -22,7 +22,7 @@
 //! source in the residual graph: that is the source side of a minimum cut (free nodes belong to
 //! the sink side).
 //!
-//! The algorithm is written once ([`bk`], generic over the adjacency) and used by two graphs:
+//! The algorithm is written once (`bk.rs`, generic over the adjacency) and used by two graphs:
 //! [`Graph`], a general graph whose adjacency is packed into compressed arrays when
 //! [`Graph::maxflow`] runs, and [`GridGraph`], a 4-connected `H x W` grid whose neighbours are
 //! computed from the node index. [`min_cut`] validates and solves in one call (the Python

@@ -347,6 +347,10 @@ fn bad_input_errors() {
     assert_eq!(arg_error(g.add_terminal(3, 0, 1, 1)).0, "terminal_caps");
     assert_eq!(arg_error(g.add_terminal(0, 0, -1, 1)).0, "terminal_caps");
     assert_eq!(arg_error(g.set_right(0, 0, i64::MAX, 1)).0, "right");
+    assert_eq!(arg_error(g.set_right(usize::MAX, usize::MAX, 1, 1)).0, "right");
+    assert_eq!(arg_error(g.set_down(usize::MAX, 0, 1, 1)).0, "down");
+    assert_eq!(arg_error(g.add_terminal(0, usize::MAX, 1, 1)).0, "terminal_caps");
+    assert!(!g.is_source_side(usize::MAX, usize::MAX));
     let mut f = GridGraph::<f32>::new(2, 2);
     assert_eq!(arg_error(f.set_right(0, 0, f32::NAN, 1.0)).0, "right");
     assert_eq!(arg_error(f.add_terminal(1, 1, 0.0, f32::INFINITY)).0, "terminal_caps");
