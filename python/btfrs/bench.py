@@ -2,8 +2,9 @@
 
 Every btfrs figure is measured in the same run as the plain numpy way of doing the same work,
 so the ratios do not depend on the machine's mood; the table goes to stdout and everything,
-with the machine description, to a JSON file. ``--synth-only`` and ``--accuracy`` run one part
-alone (the synthesis figures; the per-material accuracy table of every model). BENCHMARKS.md
+with the machine description, to a JSON file. ``--synth-only``, ``--maxflow-only`` and
+``--accuracy`` run one part alone (the synthesis figures; btfrs.graphcut against scipy's
+``maximum_flow``; the per-material accuracy table of every model). BENCHMARKS.md
 gives the command of each of its tables.
 """
 
@@ -405,6 +406,85 @@ def synth_table(res: dict) -> str:
     return "\n".join(out)
 
 
+#: Grid sides of the max-flow figures (``--maxflow-size`` replaces them).
+MAXFLOW_SIZES = (256, 512)
+
+
+def maxflow_problems(n: int, seed: int = 1) -> dict:
+    """Integer-capacity ``n x n`` grids as ``(right, down, terminal_caps)``, the same shapes the
+    criterion bench of btfrs-graphcut uses: ``kwatra``, a seam problem (cutting between p and q
+    costs ``|A(p) - B(p)| + |A(q) - B(q)|`` for two noise images, scaled by 1000; the two left
+    columns tied to the source, the two right ones to the sink) and ``segmentation`` (unary
+    terms around a smooth field, a constant smoothness weight 40)."""
+    rng = np.random.default_rng(seed)
+    d = np.abs(rng.random((n, n)) - rng.random((n, n)))
+    r = (1000 * (d[:, :-1] + d[:, 1:])).astype(np.int64)
+    dn = (1000 * (d[:-1] + d[1:])).astype(np.int64)
+    tie = np.zeros((n, n, 2), np.int64)
+    tie[:, :2, 0] = 10**9
+    tie[:, -2:, 1] = 10**9
+    y, x = np.mgrid[0:n, 0:n]
+    field = np.sin(x / 23.0) * np.cos(y / 17.0) + 0.8 * (rng.random((n, n)) - 0.5)
+    unary = np.stack([100 * np.maximum(1 + field, 0), 100 * np.maximum(1 - field, 0)], -1).astype(np.int64)
+    lam = 40
+    return {"kwatra": (np.stack([r, r], -1), np.stack([dn, dn], -1), tie),
+            "segmentation": (np.full((n, n - 1, 2), lam, np.int64), np.full((n - 1, n, 2), lam, np.int64), unary)}
+
+
+def _grid_csr(right, down, term):
+    """The grid with a source node N and a sink node N + 1 as the int32 CSR matrix scipy takes."""
+    import scipy.sparse
+
+    h, w = term.shape[:2]
+    nn = h * w
+    ids = np.arange(nn).reshape(h, w)
+    rows = np.concatenate([ids[:, :-1].ravel(), ids[:, 1:].ravel(), ids[:-1].ravel(), ids[1:].ravel(),
+                           np.full(nn, nn), ids.ravel()])
+    cols = np.concatenate([ids[:, 1:].ravel(), ids[:, :-1].ravel(), ids[1:].ravel(), ids[:-1].ravel(),
+                           ids.ravel(), np.full(nn, nn + 1)])
+    data = np.concatenate([right[..., 0].ravel(), right[..., 1].ravel(), down[..., 0].ravel(), down[..., 1].ravel(),
+                           term[..., 0].ravel(), term[..., 1].ravel()]).astype(np.int32)
+    keep = data > 0
+    m = scipy.sparse.csr_matrix((data[keep], (rows[keep], cols[keep])), shape=(nn + 2, nn + 2))
+    m.sum_duplicates()
+    return m
+
+
+def maxflow_bench(repeat: int, sizes=MAXFLOW_SIZES) -> list:
+    """btfrs.graphcut (grid path and general path, argument conversion included) against
+    scipy.sparse.csgraph.maximum_flow (its default method, on a CSR matrix built beforehand, so
+    the building is not timed for scipy) on the same integer grids, in the same run."""
+    from scipy.sparse.csgraph import maximum_flow
+
+    from . import graphcut
+
+    rows = []
+    for n in sizes:
+        for case, (right, down, term) in maxflow_problems(n).items():
+            t_grid, (flow, side) = best_of(lambda: graphcut.grid_min_cut(right, down, term), repeat)
+            ids = np.arange(n * n).reshape(n, n)
+            edges = np.concatenate([np.stack([ids[:, :-1].ravel(), ids[:, 1:].ravel()], 1),
+                                    np.stack([ids[:-1].ravel(), ids[1:].ravel()], 1)])
+            caps = np.concatenate([right.reshape(-1, 2), down.reshape(-1, 2)])
+            t_gen, (gflow, _) = best_of(lambda: graphcut.min_cut(n * n, edges, caps, term.reshape(-1, 2)), repeat)
+            m = _grid_csr(right, down, term)
+            t_sp, res = best_of(lambda: maximum_flow(m, n * n, n * n + 1), repeat)
+            if not flow == gflow == int(res.flow_value):
+                raise RuntimeError(f"max-flow {case} {n}^2: btfrs grid {flow}, general {gflow}, scipy {res.flow_value}")
+            rows.append(dict(case=case, size=n, flow=flow, btfrs_grid_s=t_grid, btfrs_graph_s=t_gen, scipy_s=t_sp,
+                             ratio_grid=t_sp / t_grid, ratio_graph=t_sp / t_gen, source_side=int(side.sum())))
+    return rows
+
+
+def maxflow_table(rows: list) -> str:
+    out = [f"{'case':<13} {'size':>9} {'flow':>9} {'grid s':>8} {'graph s':>8} {'scipy s':>8} "
+           f"{'scipy/grid':>10} {'scipy/graph':>11}"]
+    for r in rows:
+        out.append(f"{r['case']:<13} {str(r['size']) + '^2':>9} {r['flow']:>9} {r['btfrs_grid_s']:>8.3f} "
+                   f"{r['btfrs_graph_s']:>8.3f} {r['scipy_s']:>8.3f} {r['ratio_grid']:>10.1f} {r['ratio_graph']:>11.1f}")
+    return "\n".join(out)
+
+
 def figure6(out_dir: str, material: str = "bumps", size: int = 64, out: int = 192) -> str:
     """Paper 000 Figure 6 for a built-in material: rows (neighbourhood 1, one level),
     (neighbourhood 2, one level), (neighbourhood 2, three levels); columns k = 1 and k = 5, plus
@@ -437,6 +517,10 @@ def main(argv=None) -> int:
     p.add_argument("--skip-models", action="store_true", help="only the foundation and renderer figures")
     p.add_argument("--sh-big", action="store_true", help="also time double SH 25x25 on a 128^2 x 81 x 81 sample")
     p.add_argument("--synth-only", action="store_true", help="only the synthesis figures (issue 5)")
+    p.add_argument("--maxflow-only", action="store_true",
+                   help="only btfrs.graphcut against scipy's maximum_flow on integer grids")
+    p.add_argument("--maxflow-size", type=int, action="append",
+                   help=f"grid sides of the max-flow figures (default: {' and '.join(map(str, MAXFLOW_SIZES))})")
     p.add_argument("--accuracy", action="store_true",
                    help="only the accuracy of every model on every material (at --size, default 32)")
     p.add_argument("--figures", metavar="DIR", help="also write paper 000 Figure 6 style images into DIR")
@@ -451,6 +535,13 @@ def main(argv=None) -> int:
             print(accuracy_models_table(rows))
             out["accuracy_models"].extend(rows)
         return _finish(a, out)
+    mf_sizes = a.maxflow_size or list(MAXFLOW_SIZES)
+    mf_title = "\nmax-flow / min-cut on integer grids, btfrs.graphcut against scipy maximum_flow (ratio = scipy / btfrs):"
+    if a.maxflow_only:
+        mf = maxflow_bench(max(1, a.repeat), mf_sizes)
+        print(mf_title.lstrip("\n"))
+        print(maxflow_table(mf))
+        return _finish(a, {"machine": machine(), "maxflow": mf})
     sizes = a.size or [32, 64]
     if a.synth_only:
         res = synth_bench(max(1, a.repeat))
@@ -485,6 +576,10 @@ def main(argv=None) -> int:
     print(f"\nsynthesis (paper 000 Table 1 settings, 3 levels) on {res['material']} {res['sample']}^2:")
     print(synth_table(res))
     out["synthesis"] = res
+    mf = maxflow_bench(max(1, a.repeat), mf_sizes)
+    print(mf_title)
+    print(maxflow_table(mf))
+    out["maxflow"] = mf
     if a.sh_big:
         big = materials.make("knit", size=128, seed=1)
         t, _ = best_of(lambda: fit.sh(big, light_coeffs=25, view_coeffs=25), 1)

@@ -7,6 +7,7 @@
 mod arrays;
 mod core;
 mod errors;
+mod graphcut;
 mod hemimap;
 mod io;
 mod models;
@@ -54,6 +55,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render::gpu_upload_model, m)?)?;
     m.add_function(wrap_pyfunction!(render::cpu_render_model, m)?)?;
     m.add_function(wrap_pyfunction!(render::scene_directions, m)?)?;
+    m.add_function(wrap_pyfunction!(graphcut::min_cut_native, m)?)?;
+    m.add_function(wrap_pyfunction!(graphcut::grid_min_cut_native, m)?)?;
     m.add_class::<synth::PyAnalysis>()?;
     m.add_function(wrap_pyfunction!(synth::analyse_btf_native, m)?)?;
     m.add_function(wrap_pyfunction!(synth::analyse_features_native, m)?)?;
