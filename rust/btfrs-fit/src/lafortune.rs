@@ -707,6 +707,7 @@ impl GpuLayout for Lafortune {
 
 impl Model for Lafortune {
     const KIND: &'static str = "lafortune";
+    const TEXEL_ARRAYS: &'static [&'static str] = &["params", "rgb", "status"];
     const DOC: &'static str = "per-texel Lafortune lobes by Levenberg-Marquardt (paper 000, section 3.2)";
     const EXAMPLES: &'static [(&'static str, &'static str)] = &[
         ("Lafortune-Lum 1", r#"{"kind": "lum", "lobes": 1}"#),

@@ -713,6 +713,7 @@ impl GpuLayout for Lpca {
 
 impl Model for Lpca {
     const KIND: &'static str = "lpca";
+    const TEXEL_ARRAYS: &'static [&'static str] = &["ids", "weights"];
     const DOC: &'static str = "local PCA, clustered 8-bit Eigen-BRDFs (paper 004, sections 3 and 6)";
     const RENDERERS: &'static [&'static str] = &["9tap", "3d"];
     const EXAMPLES: &'static [(&'static str, &'static str)] =

@@ -73,6 +73,10 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     const RENDERERS: &'static [&'static str] = &["default"];
     /// Example option sets `(label, JSON)` from small to large: what the demo and the bench fit.
     const EXAMPLES: &'static [(&'static str, &'static str)];
+    /// The arrays of [`Model::to_arrays`] that hold one entry per texel (shape `[H, W, ...]`):
+    /// what [`crate::registry::select_texels`] gathers to make the model of a subset of texels
+    /// (a tile set's BTFel table).
+    const TEXEL_ARRAYS: &'static [&'static str];
     /// Fit options, read from JSON (`{"lobes": 2}`): unknown names and wrong types are errors
     /// naming the option.
     type Options: DeserializeOwned + Default + std::fmt::Debug;

@@ -597,6 +597,7 @@ impl GpuLayout for Ptm {
 
 impl Model for Ptm {
     const KIND: &'static str = "ptm";
+    const TEXEL_ARRAYS: &'static [&'static str] = &["coeffs", "rgb"];
     const DOC: &'static str = "Polynomial Texture Maps per view slot (paper 000, section 3.1)";
     const EXAMPLES: &'static [(&'static str, &'static str)] =
         &[("PTM-LRGB", r#"{"kind": "lrgb"}"#), ("PTM-RGB", r#"{"kind": "rgb"}"#)];

@@ -24,6 +24,8 @@ pub struct Entry {
     pub default_options: fn() -> String,
     /// [`Model::shaders`].
     pub shaders: fn() -> Vec<crate::gpu::Shader>,
+    /// [`Model::TEXEL_ARRAYS`].
+    pub texel_arrays: &'static [&'static str],
 }
 
 fn fit_erased<M: Model + std::fmt::Debug>(btf: &BtfRef<'_>, options: &str, mon: &Monitor) -> Result<Box<dyn DynModel>> {
@@ -50,6 +52,7 @@ pub const fn entry<M: Model + std::fmt::Debug>() -> Entry {
         from_arrays: from_arrays_erased::<M>,
         default_options: default_options::<M>,
         shaders: M::shaders,
+        texel_arrays: M::TEXEL_ARRAYS,
     }
 }
 
@@ -79,6 +82,51 @@ pub fn fit(kind: &str, btf: &BtfRef<'_>, options: &str, monitor: &Monitor) -> Re
 /// Rebuild model `kind` from its arrays.
 pub fn from_arrays(kind: &str, arrays: &NamedArrays) -> Result<Box<dyn DynModel>> {
     (lookup(kind)?.from_arrays)(arrays)
+}
+
+/// The model of a subset of texels: texel `k` of the result is texel `texels[k]` (row-major
+/// index) of `model`, every other parameter shared. The result has dims `(1, texels.len())`.
+/// A tile set stores its BTFel table this way (paper 002, section 5.3).
+pub fn select_texels(model: &dyn DynModel, texels: &[u32]) -> Result<Box<dyn DynModel>> {
+    let entry = lookup(model.kind())?;
+    let (h, w) = model.dims();
+    let n = h * w;
+    if texels.is_empty() {
+        return Err(Error::arg("texels", "expected at least one texel"));
+    }
+    if let Some(&bad) = texels.iter().find(|&&t| t as usize >= n) {
+        return Err(Error::arg("texels", format!("texel {bad} is outside the {h} x {w} model")));
+    }
+    let arrays = model.to_arrays();
+    let mut out = NamedArrays::new();
+    for (name, a) in arrays.iter() {
+        if !entry.texel_arrays.contains(&name) {
+            out.insert(name, a.clone());
+            continue;
+        }
+        if a.shape.len() < 2 || a.shape[0] != h || a.shape[1] != w {
+            return Err(Error::arg(
+                "model",
+                format!("{} array {name} has shape {:?}, not [{h}, {w}, ...]", entry.kind, a.shape),
+            ));
+        }
+        let per: usize = a.shape[2..].iter().product();
+        let mut shape = vec![1, texels.len()];
+        shape.extend_from_slice(&a.shape[2..]);
+        fn gather<T: Copy>(v: &[T], per: usize, texels: &[u32]) -> Vec<T> {
+            texels.iter().flat_map(|&t| v[t as usize * per..(t as usize + 1) * per].iter().copied()).collect()
+        }
+        use btfrs_core::arrays::ArrayData as D;
+        let data = match &a.data {
+            D::U8(v) => D::U8(gather(v, per, texels)),
+            D::U16(v) => D::U16(gather(v, per, texels)),
+            D::I32(v) => D::I32(gather(v, per, texels)),
+            D::F32(v) => D::F32(gather(v, per, texels)),
+            D::F64(v) => D::F64(gather(v, per, texels)),
+        };
+        out.insert_checked(name, shape, data)?;
+    }
+    (entry.from_arrays)(&out)
 }
 
 #[cfg(test)]

@@ -683,6 +683,7 @@ impl GpuLayout for Sh {
 
 impl Model for Sh {
     const KIND: &'static str = "sh";
+    const TEXEL_ARRAYS: &'static [&'static str] = &["q", "coeffs"];
     const DOC: &'static str = "double spherical harmonics by constrained least squares (paper 002, section 3.1)";
     const EXAMPLES: &'static [(&'static str, &'static str)] = &[
         ("SH-CLS 16x16", r#"{"view_coeffs": 16, "light_coeffs": 16}"#),

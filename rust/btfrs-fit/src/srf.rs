@@ -471,6 +471,7 @@ impl GpuLayout for Srf {
 
 impl Model for Srf {
     const KIND: &'static str = "srf";
+    const TEXEL_ARRAYS: &'static [&'static str] = &["s"];
     const DOC: &'static str = "Phong + spatially-varying residual function (paper 003, sections 4 and 5)";
     const EXAMPLES: &'static [(&'static str, &'static str)] = &[("Phong+SRF", "{}")];
     type Options = NoOptions;

@@ -147,6 +147,13 @@ impl PyModel {
         arrays_dict(py, self.inner.to_arrays())
     }
 
+    /// The model of a subset of texels (row-major indices): dims `(1, len(texels))`, texel `k`
+    /// of the result is `texels[k]` of this model (a tile set's BTFel table).
+    fn select_texels(&self, py: Python<'_>, texels: Vec<u32>) -> PyResult<Self> {
+        let inner = detach(py, || registry::select_texels(self.inner.as_ref(), &texels))?;
+        Ok(PyModel { inner })
+    }
+
     /// Rebuild model `kind` from `arrays()` output, validating every array.
     #[staticmethod]
     fn from_arrays(py: Python<'_>, kind: &str, arrays: &Bound<'_, PyDict>) -> PyResult<Self> {

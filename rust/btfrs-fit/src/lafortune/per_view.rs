@@ -614,6 +614,7 @@ impl GpuLayout for LafortuneView {
 
 impl Model for LafortuneView {
     const KIND: &'static str = "lafortune_view";
+    const TEXEL_ARRAYS: &'static [&'static str] = &["params", "rgb", "status"];
     const DOC: &'static str =
         "Lafortune lobes per texel and view slot, blended between slots like the PTM (paper 000, section 3.2)";
     // Cheap ones: they are fitted and rendered in the GPU-vs-CPU tests and the demo.
