@@ -4,7 +4,8 @@
 // follows the UV parameterisation as paper 002, section 4.2 requires; each fragment expresses
 // the view and light directions in that frame and asks the model for the BTF value there. The
 // texel comes from the UV coordinate, optionally through a coordinate map (paper 000, section
-// 5: a synthesised BTF is the sample plus a map of u16 (x, y) texel coordinates).
+// 5: a synthesised BTF is the sample plus a map of u16 (x, y) texel coordinates), or through a
+// Wang tile map (paper 002, section 4: a layout of atlas tiles, two lookups in `coord_map`).
 //
 // A model file provides:
 //   struct ViewQuery { ... }                                  per-fragment view preparation
@@ -21,6 +22,8 @@ struct Globals {
     map_size: vec2<u32>,      // coordinate map (width, height); (0, 0) = no map
     n_lights: u32,
     chunk_len: u32,           // f32 elements per store chunk
+    tiles: vec4<u32>,         // tile map: (tile side, layout columns, layout rows, atlas width); x = 0: none
+    tile_atlas: vec4<u32>,    // tile map: (offset of the atlas in coord_map, unused x 3)
 };
 
 struct Light {
@@ -224,6 +227,21 @@ fn interp3(first: u32, count: u32, table: u32, q: vec3<f32>) -> Weights3 {
 fn texel_index(uv: vec2<f32>) -> u32 {
     let s = uv * g.uv_scale;
     let f = s - floor(s);
+    if (g.tiles.x > 0u) {
+        // Wang tile map (paper 002 section 4; rust/btfrs-render/src/tilemap.rs): the layout
+        // cell, the texel inside it, its atlas tile, the atlas entry.
+        let tile = g.tiles.x;
+        let gx = f.x * f32(g.tiles.y);
+        let gy = (1.0 - f.y) * f32(g.tiles.z);
+        let cx = min(u32(gx), g.tiles.y - 1u);
+        let cy = min(u32(gy), g.tiles.z - 1u);
+        let px = min(u32((gx - f32(cx)) * f32(tile)), tile - 1u);
+        let py = min(u32((gy - f32(cy)) * f32(tile)), tile - 1u);
+        let e = coord_map[cy * g.tiles.y + cx];
+        let ax = (e & 0xffffu) * tile + px;
+        let ay = (e >> 16u) * tile + py;
+        return coord_map[g.tile_atlas.x + ay * g.tiles.w + ax];
+    }
     if (g.map_size.x > 0u) {
         let mc = min(u32(f.x * f32(g.map_size.x)), g.map_size.x - 1u);
         let mr = min(u32((1.0 - f.y) * f32(g.map_size.y)), g.map_size.y - 1u);

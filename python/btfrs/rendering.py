@@ -9,7 +9,9 @@ Surfaces carry tangent frames that follow their UV parameterisation (paper 002, 
 the BTF's x axis runs along +u, its y axis along +v (v up the texture), z along the normal. A
 coordinate map (paper 000, section 5; ``coords``, ``[Mh, Mw, 2]`` uint16 (x, y) texel
 coordinates into the sample) adds one lookup, so a synthesised BTF of any size renders at the
-memory cost of the sample plus the map.
+memory cost of the sample plus the map. A Wang tile map (paper 002, section 4; ``tiles=`` a
+:class:`btfrs.tiles.TileSet` and ``layout=`` its tile ids, or the general :class:`TileMap`) adds
+two: the layout cell's atlas tile, then the atlas entry.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from .btf import Btf
 from .exceptions import ArgumentTypeError, InvalidArgumentError
 from .models import Model
 
-__all__ = ["Scene", "Camera", "PointLight", "DirectionalLight", "render", "RenderResult", "gpu_info"]
+__all__ = ["Scene", "Camera", "PointLight", "DirectionalLight", "render", "RenderResult", "gpu_info", "TileMap"]
 
 Scene = _native.Scene
 Camera = _native.Camera
@@ -134,8 +136,33 @@ def _uv_scale(uv_scale) -> list:
             real("uv_scale[1]", uv_scale[1], min=0.0, min_open=True)]
 
 
+@dataclass(frozen=True)
+class TileMap:
+    """A tile map for :func:`render`: ``atlas`` uint32 ``[AH, AW]`` (AH, AW multiples of
+    ``tile``) holds per atlas texel the model texel (row-major index) to shade, row 0 at the top;
+    ``layout`` ``[R, C, 2]`` holds per cell the (row, column) of its atlas tile. ``uv`` in
+    ``[0, 1]^2`` spans the whole layout (once per ``uv_scale`` repetition); the lookup is
+    ``rust/btfrs-render/src/tilemap.rs``."""
+
+    atlas: np.ndarray
+    tile: int
+    layout: np.ndarray
+
+    def _native(self) -> tuple:
+        a = np.asarray(self.atlas)
+        lay = np.asarray(self.layout)
+        for name, x in (("atlas", a), ("layout", lay)):
+            if not np.issubdtype(x.dtype, np.integer):
+                raise ArgumentTypeError(f"tile_map: expected an integer {name}, got dtype {x.dtype}")
+            if x.size and x.min() < 0:
+                raise InvalidArgumentError(f"tile_map: negative {name} entry {int(x.min())}")
+        t = int(self.tile)
+        return (np.ascontiguousarray(a, dtype=np.uint32), t, np.ascontiguousarray(lay, dtype=np.uint32))
+
+
 def render(model: Union[Model, Btf], scene, camera, lights, *, size=(512, 512), uv_scale=1.0,
            coords: Optional[np.ndarray] = None, backend: str = "gpu", method: Optional[str] = None,
+           tiles=None, layout=None, tile_map: Optional[TileMap] = None,
            progress: Progress = None) -> np.ndarray:
     """Render ``model`` (a fitted model, or a :class:`~btfrs.Btf` for the raw measured data)
     on ``scene`` seen by ``camera`` under ``lights``; returns ``[height, width, 3]`` float32
@@ -148,6 +175,11 @@ def render(model: Union[Model, Btf], scene, camera, lights, *, size=(512, 512), 
     uv_scale: repetitions of the sample over the UV square (a positive number or ``(su, sv)``).
     coords: optional ``[Mh, Mw, 2]`` uint16 coordinate map (x, y into the sample), repeated
         ``uv_scale`` times instead of the sample itself.
+    tiles, layout: a Wang tile set (:func:`btfrs.tiles.wang`) and a ``[rows, cols]`` array of its
+        tile ids (:meth:`~btfrs.tiles.TileSet.tiling`): the layout covers the UV square once per
+        ``uv_scale`` repetition; ``model`` is the set's BTFel model (``tiles.model``) or the
+        model / Btf it was synthesized from.
+    tile_map: the general form (:class:`TileMap`), exclusive with ``tiles`` and ``coords``.
     backend: ``"gpu"`` (wgpu) or ``"cpu"`` (the reference renderer).
     method: the renderer, one of ``model.renderers`` (the first is the default). For
         :class:`~btfrs.Lpca`: ``"9tap"`` (three nearest views x three nearest lights, section 5,
@@ -181,6 +213,21 @@ def render(model: Union[Model, Btf], scene, camera, lights, *, size=(512, 512), 
             raise ArgumentTypeError(f"coords: expected a uint16 array [H, W, 2], got dtype {c.dtype}")
         coords = np.ascontiguousarray(c)
     instance("model", model, (Model, Btf), "a btfrs model or Btf")
+    if tiles is not None or layout is not None:
+        if tiles is None or layout is None:
+            raise InvalidArgumentError("tiles: give both tiles= (a tile set) and layout= (its tile ids)")
+        if tile_map is not None:
+            raise InvalidArgumentError("tile_map: give tiles= and layout=, or tile_map=, not both")
+        from .tiles import TileSet
+
+        instance("tiles", tiles, TileSet, "a btfrs.tiles.TileSet")
+        tile_map = tiles.tile_map(model, layout)
+    tm = None
+    if tile_map is not None:
+        instance("tile_map", tile_map, TileMap, "a btfrs.rendering.TileMap")
+        if coords is not None:
+            raise InvalidArgumentError("tiles: give a coordinate map or a tile map, not both")
+        tm = tile_map._native()
     meth = _method(model, method)
     backend = choice("backend", backend, ("gpu", "cpu"))
     if backend == "gpu":
@@ -190,7 +237,7 @@ def render(model: Union[Model, Btf], scene, camera, lights, *, size=(512, 512), 
         up, up_ms = _upload(model, meth)
         if cb is not None:
             cb(1, 2)
-        img, draw, rb = _native.gpu_render(up, scene, camera, items, w, h, uvs, coords)
+        img, draw, rb = _native.gpu_render(up, scene, camera, items, w, h, uvs, coords, tm)
         _last[:] = [RenderResult(draw, rb, up_ms)]
         if cb is not None:
             cb(2, 2)
@@ -199,9 +246,10 @@ def render(model: Union[Model, Btf], scene, camera, lights, *, size=(512, 512), 
     if cb is not None:
         cb(0, 1)
     if isinstance(model, Model):
-        img = _native.cpu_render_model(model._m, scene, camera, items, w, h, uvs, coords, meth)
+        img = _native.cpu_render_model(model._m, scene, camera, items, w, h, uvs, coords, meth, tm)
     else:
-        img = _native.cpu_render_raw(model.data, model.views, model.lights, scene, camera, items, w, h, uvs, coords)
+        img = _native.cpu_render_raw(model.data, model.views, model.lights, scene, camera, items, w, h, uvs, coords,
+                                     tm)
     if cb is not None:
         cb(1, 1)
     return img

@@ -2,13 +2,13 @@
 
 use crate::arrays::{borrow, check_shape, dirs};
 use crate::core::BtfArgs;
-use crate::errors::{arg, IntoPy};
+use crate::errors::{arg, arg_type, IntoPy};
 use crate::models::PyModel;
 use crate::run::detach;
 use btfrs_fit::{RawModel, Renderable};
 use btfrs_render::cpu::render_cpu;
 use btfrs_render::scene::{Camera, Light, Mesh};
-use btfrs_render::{gpu, Gpu, UploadedModel, View};
+use btfrs_render::{gpu, Gpu, TileMap, UploadedModel, View};
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use std::sync::Arc;
@@ -186,15 +186,62 @@ fn coords_of(coords: Option<&Bound<'_, PyAny>>) -> PyResult<Option<(usize, usize
 
 type Image<'py> = Bound<'py, PyArrayDyn<f32>>;
 
+/// A tile map from Python: `(atlas [AH, AW] uint32, tile, layout [R, C, 2] uint32 of (atlas
+/// tile row, column))`, packed as the renderer's [`TileMap`] parts.
+struct TileArgs {
+    tile: usize,
+    atlas_cols: usize,
+    atlas_rows: usize,
+    atlas: Vec<u32>,
+    layout_cols: usize,
+    layout_rows: usize,
+    layout: Vec<u32>,
+}
+
+fn tiles_of(tile_map: Option<&Bound<'_, PyAny>>) -> PyResult<Option<TileArgs>> {
+    let Some(t) = tile_map else { return Ok(None) };
+    let (atlas, tile, layout): (Bound<'_, PyAny>, usize, Bound<'_, PyAny>) =
+        t.extract().map_err(|_| arg_type("tile_map", "expected (atlas, tile, layout)"))?;
+    let a = borrow::<u32>("tile_map", &atlas)?;
+    check_shape("tile_map", a.shape(), &[None, None])?;
+    let (ah, aw) = (a.shape()[0], a.shape()[1]);
+    if tile == 0 || ah % tile != 0 || aw % tile != 0 {
+        return Err(arg("tile_map", format!("the {ah} x {aw} atlas is not made of {tile}^2 tiles")));
+    }
+    let atlas_v = a.as_slice().map_err(|e| arg("tile_map", e))?.to_vec();
+    let l = borrow::<u32>("tile_map", &layout)?;
+    check_shape("tile_map", l.shape(), &[None, None, Some(2)])?;
+    let (lr, lc) = (l.shape()[0], l.shape()[1]);
+    let ls = l.as_slice().map_err(|e| arg("tile_map", e))?;
+    if let Some(p) = ls.iter().position(|&v| v > 0xffff) {
+        return Err(arg("tile_map", format!("layout entry {} is {}, above 65535", p / 2, ls[p])));
+    }
+    let layout_v = ls.chunks_exact(2).map(|p| p[0] << 16 | p[1]).collect();
+    Ok(Some(TileArgs {
+        tile,
+        atlas_cols: aw / tile,
+        atlas_rows: ah / tile,
+        atlas: atlas_v,
+        layout_cols: lc,
+        layout_rows: lr,
+        layout: layout_v,
+    }))
+}
+
 /// The owned parts of a [`View`] converted from Python arguments.
 struct ViewArgs {
     lights: Vec<Light>,
     coords: Option<(usize, usize, Vec<u32>)>,
+    tiles: Option<TileArgs>,
 }
 
 impl ViewArgs {
-    fn new(lights: Vec<(String, [f32; 3], [f32; 3])>, coords: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
-        Ok(ViewArgs { lights: lights_of(lights)?, coords: coords_of(coords)? })
+    fn new(
+        lights: Vec<(String, [f32; 3], [f32; 3])>,
+        coords: Option<&Bound<'_, PyAny>>,
+        tile_map: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        Ok(ViewArgs { lights: lights_of(lights)?, coords: coords_of(coords)?, tiles: tiles_of(tile_map)? })
     }
 
     fn view<'a>(
@@ -212,6 +259,15 @@ impl ViewArgs {
             height: size.1,
             uv_scale,
             coords: self.coords.as_ref().map(|(w, h, m)| (*w, *h, &m[..])),
+            tiles: self.tiles.as_ref().map(|t| TileMap {
+                tile: t.tile,
+                atlas_cols: t.atlas_cols,
+                atlas_rows: t.atlas_rows,
+                atlas: &t.atlas,
+                layout_cols: t.layout_cols,
+                layout_rows: t.layout_rows,
+                layout: &t.layout,
+            }),
         }
     }
 }
@@ -222,7 +278,7 @@ fn image(py: Python<'_>, v: Vec<f32>, w: usize, h: usize) -> PyResult<Image<'_>>
 
 /// Render an uploaded model on the GPU: (image, draw ms, read-back ms).
 #[pyfunction]
-#[pyo3(signature = (model, scene, camera, lights, width, height, uv_scale, coords=None))]
+#[pyo3(signature = (model, scene, camera, lights, width, height, uv_scale, coords=None, tile_map=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn gpu_render<'py>(
     py: Python<'py>,
@@ -234,8 +290,9 @@ pub fn gpu_render<'py>(
     height: usize,
     uv_scale: [f32; 2],
     coords: Option<&Bound<'py, PyAny>>,
+    tile_map: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<(Image<'py>, f64, f64)> {
-    let args = ViewArgs::new(lights, coords)?;
+    let args = ViewArgs::new(lights, coords, tile_map)?;
     let view = args.view(scene, camera, (width, height), uv_scale);
     let (img, t) = detach(py, || gpu::render(&model.gpu, &model.up, &view))?;
     Ok((image(py, img, width, height)?, t.draw_ms, t.readback_ms))
@@ -243,7 +300,7 @@ pub fn gpu_render<'py>(
 
 /// Render a raw BTF with the CPU reference renderer.
 #[pyfunction]
-#[pyo3(signature = (data, views, btf_lights, scene, camera, lights, width, height, uv_scale, coords=None))]
+#[pyo3(signature = (data, views, btf_lights, scene, camera, lights, width, height, uv_scale, coords=None, tile_map=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn cpu_render_raw<'py>(
     py: Python<'py>,
@@ -257,12 +314,13 @@ pub fn cpu_render_raw<'py>(
     height: usize,
     uv_scale: [f32; 2],
     coords: Option<&Bound<'py, PyAny>>,
+    tile_map: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Image<'py>> {
     let args = BtfArgs::new(data, views, btf_lights, None)?;
     let b = args.btf()?;
     let _ = dirs("views", &args.views)?;
     let raw = RawModel::new(b).py()?;
-    let args = ViewArgs::new(lights, coords)?;
+    let args = ViewArgs::new(lights, coords, tile_map)?;
     let view = args.view(scene, camera, (width, height), uv_scale);
     check_size(width, height)?;
     let img = detach(py, || render_cpu(&raw, &view))?;
@@ -298,7 +356,7 @@ pub fn gpu_upload_model(py: Python<'_>, model: &PyModel, method: &str) -> PyResu
 /// Render any fitted model with the CPU reference renderer (`method` as for the upload): the
 /// same object the GPU draws, evaluated by its own Rust code.
 #[pyfunction]
-#[pyo3(signature = (model, scene, camera, lights, width, height, uv_scale, coords=None, method="default"))]
+#[pyo3(signature = (model, scene, camera, lights, width, height, uv_scale, coords=None, method="default", tile_map=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn cpu_render_model<'py>(
     py: Python<'py>,
@@ -311,8 +369,9 @@ pub fn cpu_render_model<'py>(
     uv_scale: [f32; 2],
     coords: Option<&Bound<'py, PyAny>>,
     method: &str,
+    tile_map: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Image<'py>> {
-    let args = ViewArgs::new(lights, coords)?;
+    let args = ViewArgs::new(lights, coords, tile_map)?;
     let view = args.view(scene, camera, (width, height), uv_scale);
     check_size(width, height)?;
     let img = detach(py, || {
@@ -339,7 +398,7 @@ pub fn scene_directions<'py>(
     uv_scale: [f32; 2],
     dims: (usize, usize),
 ) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
-    let args = ViewArgs::new(lights, None)?;
+    let args = ViewArgs::new(lights, None, None)?;
     let view = args.view(scene, camera, (width, height), uv_scale);
     check_size(width, height)?;
     let s = detach(py, || btfrs_render::usage::scene_directions(&view, dims))?;

@@ -13,7 +13,7 @@ use btfrs_fit::Shade;
 use glam::Vec3;
 use rayon::prelude::*;
 
-/// Checks shared by both renderers: lights, mesh, uv scale, coordinate map.
+/// Checks shared by both renderers: lights, mesh, uv scale, coordinate map, tile map.
 pub fn validate_common(view: &View<'_>, dims: (usize, usize)) -> Result<()> {
     if view.lights.is_empty() {
         return Err(Error::arg("lights", "expected at least one light"));
@@ -24,6 +24,12 @@ pub fn validate_common(view: &View<'_>, dims: (usize, usize)) -> Result<()> {
     view.mesh.validate()?;
     if !view.uv_scale.iter().all(|s| s.is_finite() && *s > 0.0) {
         return Err(Error::arg("uv_scale", format!("expected positive finite repetitions, got {:?}", view.uv_scale)));
+    }
+    if let Some(t) = view.tiles {
+        if view.coords.is_some() {
+            return Err(Error::arg("tiles", "give a coordinate map or a tile map, not both"));
+        }
+        t.validate(dims.0 * dims.1)?;
     }
     if let Some((mw, mh, map)) = view.coords {
         if mw == 0 || mh == 0 || map.len() != mw * mh {
@@ -56,9 +62,13 @@ pub fn texel_index(
     uv_scale: [f32; 2],
     dims: (usize, usize),
     coords: Option<(usize, usize, &[u32])>,
+    tiles: Option<&crate::tilemap::TileMap<'_>>,
 ) -> usize {
     let s = [uv[0] * uv_scale[0], uv[1] * uv_scale[1]];
     let f = [s[0] - s[0].floor(), s[1] - s[1].floor()];
+    if let Some(t) = tiles {
+        return t.texel(f);
+    }
     let (h, w) = (dims.0 as u32, dims.1 as u32);
     // `as u32` saturates like WGSL's f32 -> u32 conversion of values in range; inputs are >= 0.
     if let Some((mw, mh, map)) = coords {
@@ -94,7 +104,7 @@ pub fn render_cpu<M: Shade + ?Sized>(model: &M, view: &View<'_>) -> Result<Vec<f
         if v.z <= 0.0 {
             return;
         }
-        let texel = texel_index(f.uv, view.uv_scale, dims, view.coords);
+        let texel = texel_index(f.uv, view.uv_scale, dims, view.coords, view.tiles.as_ref());
         let vd = v.as_dvec3().to_array();
         let mut sum = Vec3::ZERO;
         for light in view.lights {

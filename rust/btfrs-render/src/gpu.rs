@@ -25,7 +25,7 @@ const VOLUME_BINDING: u32 = 11;
 const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 
-/// `Globals` of common.wgsl (std140-compatible layout, 112 bytes).
+/// `Globals` of common.wgsl (std140-compatible layout, 144 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable, Debug)]
 struct Globals {
@@ -36,7 +36,15 @@ struct Globals {
     map_size: [u32; 2],
     n_lights: u32,
     chunk_len: u32,
+    /// Tile map: (tile side, layout columns, layout rows, atlas width in texels); tile 0 = none.
+    tiles: [u32; 4],
+    /// Tile map: (atlas offset in the map buffer, 0, 0, 0).
+    tile_atlas: [u32; 4],
 }
+
+// The WGSL struct's offsets: vec4 fields after 112 bytes, 16-byte aligned.
+const _: () = assert!(std::mem::size_of::<Globals>() == 144);
+const _: () = assert!(std::mem::offset_of!(Globals, tiles) == 112);
 
 /// `Light` of common.wgsl.
 #[repr(C)]
@@ -414,6 +422,8 @@ pub struct View<'a> {
     pub uv_scale: [f32; 2],
     /// Optional coordinate map: (width, height, entries `x | y << 16`, row 0 at the top).
     pub coords: Option<(usize, usize, &'a [u32])>,
+    /// Optional Wang tile map (exclusive with `coords`).
+    pub tiles: Option<crate::tilemap::TileMap<'a>>,
 }
 
 /// Times of one frame, in milliseconds.
@@ -460,6 +470,10 @@ pub fn render(gpu: &Gpu, model: &UploadedModel, view: &View<'_>) -> Result<(Vec<
             map_size: [mw, mh],
             n_lights: view.lights.len() as u32,
             chunk_len: model.chunk_len,
+            tiles: view.tiles.map_or([0; 4], |t| {
+                [t.tile as u32, t.layout_cols as u32, t.layout_rows as u32, (t.atlas_cols * t.tile) as u32]
+            }),
+            tile_atlas: [view.tiles.map_or(0, |t| t.layout.len() as u32), 0, 0, 0],
         };
         let lights: Vec<GpuLight> = view
             .lights
@@ -476,7 +490,12 @@ pub fn render(gpu: &Gpu, model: &UploadedModel, view: &View<'_>) -> Result<(Vec<
             })
             .collect();
         let empty = [0u32];
-        let map: &[u32] = view.coords.map_or(&empty[..], |(_, _, m)| m);
+        let packed = view.tiles.map(|t| t.packed().0);
+        let map: &[u32] = match (&packed, view.coords) {
+            (Some(p), _) => p,
+            (None, Some((_, _, m))) => m,
+            (None, None) => &empty[..],
+        };
         let gbuf = d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("globals"),
             contents: bytemuck::bytes_of(&globals),
@@ -664,6 +683,7 @@ mod tests {
             height: 16,
             uv_scale: [1.0; 2],
             coords: None,
+            tiles: None,
         };
         let mut images = Vec::new();
         for _ in 0..3 {

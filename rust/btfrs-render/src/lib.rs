@@ -14,6 +14,7 @@
 //!   footprint), for `btfrs.choose`.
 //! * Coordinate maps (paper 000, section 5): an optional map of u16 (x, y) texel coordinates
 //!   applied as one extra lookup, for synthesised BTFs of any size.
+//! * [`tilemap`]: Wang tile maps (paper 002, section 4): a layout of atlas tiles, two lookups.
 
 pub mod cpu;
 pub mod device;
@@ -22,8 +23,10 @@ pub mod model;
 pub mod raster;
 pub mod scene;
 pub mod shaders;
+pub mod tilemap;
 pub mod usage;
 
 pub use device::{AdapterChoice, Gpu};
 pub use gpu::{render, upload, FrameTimes, UploadedModel, View};
 pub use model::{GpuModel, Shader, WithShader};
+pub use tilemap::TileMap;

@@ -137,7 +137,16 @@ mod tests {
     use crate::scene::{Camera, Light, Mesh};
 
     fn view<'a>(mesh: &'a Mesh, cam: &'a Camera, lights: &'a [Light], size: usize, uv_scale: f32) -> View<'a> {
-        View { mesh, camera: cam, lights, width: size, height: size, uv_scale: [uv_scale; 2], coords: None }
+        View {
+            mesh,
+            camera: cam,
+            lights,
+            width: size,
+            height: size,
+            uv_scale: [uv_scale; 2],
+            coords: None,
+            tiles: None,
+        }
     }
 
     #[test]

@@ -1,5 +1,5 @@
-//! Every model shader against the CPU reference renderer, on every kind of scene, with and
-//! without a coordinate map: the images must agree to >= 40 dB PSNR. The models come from the
+//! Every model shader against the CPU reference renderer, on every kind of scene, plain, with a
+//! coordinate map and with a Wang tile map: the images must agree to >= 40 dB PSNR. The models come from the
 //! registry (every example option set of every model, every renderer), so a new model is tested
 //! here without naming it. Runs on whatever adapter the machine has (lavapipe in CI); there is
 //! no skipping: a missing adapter fails the test.
@@ -11,7 +11,7 @@ use btfrs_fit::registry::MODELS;
 use btfrs_fit::{fit_ptm, PtmOptions, RawModel, Renderable};
 use btfrs_render::cpu::render_cpu;
 use btfrs_render::scene::{Camera, Light, Mesh};
-use btfrs_render::{gpu, Gpu, View, WithShader};
+use btfrs_render::{gpu, Gpu, TileMap, View, WithShader};
 
 fn psnr(a: &[f32], b: &[f32]) -> f64 {
     let peak = a.iter().chain(b).fold(0.0f32, |m, &x| m.max(x)) as f64;
@@ -86,14 +86,32 @@ fn coords(h: usize, w: usize) -> (usize, usize, Vec<u32>) {
     (mw, mh, m)
 }
 
+/// A Wang-style tile map: a 3 x 2 atlas of 5^2 tiles with scattered texel ids, a 7 x 4 layout
+/// of random atlas tiles (any map will do: the lookup is what is checked).
+fn tile_map(h: usize, w: usize) -> (Vec<u32>, Vec<u32>) {
+    let atlas = (0..3 * 2 * 25).map(|i: usize| ((i * 37 + 11) % (h * w)) as u32).collect();
+    let layout = (0..7 * 4).map(|i: usize| ((i * 5 + 1) % 3) as u32 | (((i * 3) % 2) as u32) << 16).collect();
+    (atlas, layout)
+}
+
 fn check(gpu: &Gpu, name: &str, model: &dyn Renderable) -> f64 {
     let up = gpu::upload(gpu, model).unwrap();
     let (h, w) = model.shade_dims();
     let (mw, mh, map) = coords(h, w);
+    let (atlas, layout) = tile_map(h, w);
+    let tiles = TileMap {
+        tile: 5,
+        atlas_cols: 3,
+        atlas_rows: 2,
+        atlas: &atlas,
+        layout_cols: 7,
+        layout_rows: 4,
+        layout: &layout,
+    };
     let lights = lights();
     let mut worst = f64::INFINITY;
     for (scene, mesh, cam) in scenes() {
-        for with_map in [false, true] {
+        for with_map in [0, 1, 2] {
             let view = View {
                 mesh: &mesh,
                 camera: &cam,
@@ -101,14 +119,15 @@ fn check(gpu: &Gpu, name: &str, model: &dyn Renderable) -> f64 {
                 width: 96,
                 height: 80,
                 uv_scale: [3.0, 2.0],
-                coords: with_map.then_some((mw, mh, &map[..])),
+                coords: (with_map == 1).then_some((mw, mh, &map[..])),
+                tiles: (with_map == 2).then_some(tiles),
             };
             let (g, _) = gpu::render(gpu, &up, &view).unwrap();
             let c = render_cpu(model, &view).unwrap();
             let p = psnr(&g, &c);
             let lit = c.iter().filter(|&&x| x > 0.0).count();
             assert!(lit > 96 * 80 / 10, "{name} on {scene}: the image is almost empty");
-            assert!(p >= 40.0, "{name} on {scene} (map: {with_map}): GPU vs CPU PSNR {p:.1} dB < 40");
+            assert!(p >= 40.0, "{name} on {scene} (map mode {with_map}): GPU vs CPU PSNR {p:.1} dB < 40");
             worst = worst.min(p);
         }
     }
@@ -151,8 +170,16 @@ fn a_wrong_shader_fails_the_comparison() {
     let up = gpu::upload(&gpu, &bad).unwrap();
     let lights = lights();
     let (_, mesh, cam) = scenes().swap_remove(1);
-    let view =
-        View { mesh: &mesh, camera: &cam, lights: &lights, width: 96, height: 80, uv_scale: [3.0, 2.0], coords: None };
+    let view = View {
+        mesh: &mesh,
+        camera: &cam,
+        lights: &lights,
+        width: 96,
+        height: 80,
+        uv_scale: [3.0, 2.0],
+        coords: None,
+        tiles: None,
+    };
     let (g, _) = gpu::render(&gpu, &up, &view).unwrap();
     let c = render_cpu(&ptm, &view).unwrap();
     let p = psnr(&g, &c);
@@ -167,8 +194,16 @@ fn bad_views_are_errors_not_crashes() {
     let up = gpu::upload(&gpu, &ptm).unwrap();
     let lights = lights();
     let (_, mesh, cam) = scenes().swap_remove(0);
-    let base =
-        View { mesh: &mesh, camera: &cam, lights: &lights, width: 32, height: 32, uv_scale: [1.0, 1.0], coords: None };
+    let base = View {
+        mesh: &mesh,
+        camera: &cam,
+        lights: &lights,
+        width: 32,
+        height: 32,
+        uv_scale: [1.0, 1.0],
+        coords: None,
+        tiles: None,
+    };
     let too_big = gpu.limits.max_texture_dimension_2d as usize + 1;
     for (what, v) in [
         ("size", View { width: 0, ..base }),
@@ -182,4 +217,55 @@ fn bad_views_are_errors_not_crashes() {
     let outside = vec![16u32 | (3 << 16)];
     let e = gpu::render(&gpu, &up, &View { coords: Some((1, 1, &outside)), ..base }).unwrap_err().to_string();
     assert!(e.starts_with("coords:") && e.contains("outside the 16 x 16 sample"), "{e}");
+}
+
+#[test]
+fn tile_maps_reproduce_plain_renders_and_are_validated() {
+    // Independent of the lookup formula: a 1 x 1 layout of one tile holding the identity
+    // arrangement of a sample of that size is the plain render; a 2 x 2 layout of that tile is
+    // the plain render with uv_scale doubled. CPU reference (exact) and GPU (>= 40 dB).
+    let gpu = Gpu::shared().expect("a wgpu adapter");
+    let btf = material();
+    let m = fit_ptm(&btf.as_ref(), &PtmOptions::default(), &Monitor::new()).unwrap();
+    let up = gpu::upload(&gpu, &m).unwrap();
+    let (h, w) = (btf.height, btf.width);
+    assert_eq!(h, w);
+    let ident: Vec<u32> = (0..(h * w) as u32).collect();
+    let lights = lights();
+    let (_, mesh, cam) = scenes().remove(0);
+    let base = View {
+        mesh: &mesh,
+        camera: &cam,
+        lights: &lights,
+        width: 64,
+        height: 64,
+        uv_scale: [1.0, 1.0],
+        coords: None,
+        tiles: None,
+    };
+    let one = [0u32];
+    let four = [0u32; 4];
+    let t1 =
+        TileMap { tile: w, atlas_cols: 1, atlas_rows: 1, atlas: &ident, layout_cols: 1, layout_rows: 1, layout: &one };
+    let t2 = TileMap { layout_cols: 2, layout_rows: 2, layout: &four, ..t1 };
+    let plain = render_cpu(&m, &base).unwrap();
+    assert_eq!(render_cpu(&m, &View { tiles: Some(t1), ..base }).unwrap(), plain);
+    let doubled = render_cpu(&m, &View { uv_scale: [2.0, 2.0], ..base }).unwrap();
+    let tiled = render_cpu(&m, &View { tiles: Some(t2), ..base }).unwrap();
+    let same = doubled.iter().zip(&tiled).filter(|(a, b)| a == b).count();
+    // uv * 2 and (uv mod 1/2) * 2 can round differently at a handful of cell borders.
+    assert!(same as f64 > 0.995 * doubled.len() as f64, "{same} of {}", doubled.len());
+    let (g, _) = gpu::render(&gpu, &up, &View { tiles: Some(t2), ..base }).unwrap();
+    assert!(psnr(&g, &tiled) >= 40.0);
+    // Errors name the tile map.
+    let bad = [5u32];
+    let e = render_cpu(&m, &View { tiles: Some(TileMap { layout: &bad, ..t1 }), ..base }).unwrap_err().to_string();
+    assert!(e.starts_with("tiles:") && e.contains("outside the 1 x 1 atlas"), "{e}");
+    let short = &ident[..10];
+    let e =
+        gpu::render(&gpu, &up, &View { tiles: Some(TileMap { atlas: short, ..t1 }), ..base }).unwrap_err().to_string();
+    assert!(e.starts_with("tiles:") && e.contains("needs"), "{e}");
+    let map = [0u32];
+    let e = render_cpu(&m, &View { tiles: Some(t1), coords: Some((1, 1, &map)), ..base }).unwrap_err().to_string();
+    assert!(e.contains("not both"), "{e}");
 }
