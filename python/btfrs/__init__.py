@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 import sys
 
-from . import directions, evaluation, exceptions, fit, graphcut, hemimap, io, materials, stability, synth
+from . import directions, evaluation, exceptions, fit, graphcut, hemimap, io, materials, stability, synth, tiles
 from ._native import __version__
 from .btf import Btf, ExpandedBtf
 from .exceptions import (
@@ -89,6 +89,7 @@ __all__ = [
     "SceneUse",
     "directions",
     "evaluate",
+    "tiles",
     "evaluation",
     "EvaluationReport",
     "exceptions",

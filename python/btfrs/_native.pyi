@@ -12,7 +12,7 @@ _F32 = npt.NDArray[np.float32]
 _F64 = npt.NDArray[np.float64]
 _Bool = npt.NDArray[np.bool_]
 
-__all__ = ['__version__', '_panic_for_test', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'Model', 'fit_model', 'load_model', 'model_registry', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_png', 'read_png', 'write_exr', 'read_exr', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_raw', 'gpu_render', 'cpu_render_raw', 'gpu_upload_model', 'cpu_render_model', 'scene_directions', 'Analysis', 'analyse_btf_native', 'analyse_features_native', 'min_cut_native', 'grid_min_cut_native']
+__all__ = ['__version__', '_panic_for_test', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'Model', 'fit_model', 'load_model', 'model_registry', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_png', 'read_png', 'write_exr', 'read_exr', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_raw', 'gpu_render', 'cpu_render_raw', 'gpu_upload_model', 'cpu_render_model', 'scene_directions', 'Analysis', 'analyse_btf_native', 'analyse_features_native', 'min_cut_native', 'grid_min_cut_native', 'wang_model_features', 'wang_synthesize', 'wang_tiling', 'wang_check', 'wang_atlas_positions', 'wang_seam_errors', 'wang_random_crops']
 __version__: str
 
 def _panic_for_test(place: str) -> None: ...
@@ -61,6 +61,7 @@ class Model:
     def evaluate(self, view: list[float], light: list[float]) -> _F32: ...
     def error(self, data: _F32, views: _F64, lights: _F64, mask: Optional[_Bool] = None) -> dict[str, float]: ...
     def arrays(self) -> dict[str, npt.NDArray[Any]]: ...
+    def select_texels(self, texels: list[int]) -> Model: ...
     def save(self, path: _Path, meta_json: str) -> None: ...
 
 def fit_model(
@@ -132,6 +133,7 @@ def gpu_render(
     height: int,
     uv_scale: list[float],
     coords: Optional[npt.NDArray[np.uint16]] = None,
+    tile_map: Optional[tuple[npt.NDArray[np.uint32], int, npt.NDArray[np.uint32]]] = None,
 ) -> tuple[_F32, float, float]: ...
 def cpu_render_raw(
     data: _F32,
@@ -144,6 +146,7 @@ def cpu_render_raw(
     height: int,
     uv_scale: list[float],
     coords: Optional[npt.NDArray[np.uint16]] = None,
+    tile_map: Optional[tuple[npt.NDArray[np.uint32], int, npt.NDArray[np.uint32]]] = None,
 ) -> _F32: ...
 def gpu_upload_model(model: Model, method: str = "default") -> GpuModel: ...
 def cpu_render_model(
@@ -156,6 +159,7 @@ def cpu_render_model(
     uv_scale: list[float],
     coords: Optional[npt.NDArray[np.uint16]] = None,
     method: str = "default",
+    tile_map: Optional[tuple[npt.NDArray[np.uint32], int, npt.NDArray[np.uint32]]] = None,
 ) -> _F32: ...
 def scene_directions(
     scene: Scene,
@@ -236,3 +240,20 @@ def analyse_features_native(
     seed: int = 0,
     progress: _Progress = None,
 ) -> Analysis: ...
+
+_U32 = npt.NDArray[np.uint32]
+
+def wang_model_features(model: Model, domain: str) -> tuple[_F32, str]: ...
+def wang_synthesize(
+    sample: _F32, options_json: str, progress: _Progress = None
+) -> tuple[_U32, npt.NDArray[np.uint8], _U32, _U32, _U32, str]: ...
+def wang_tiling(
+    colors: int, rows: int, cols: int, seed: int, wrap_cols: bool = False, wrap_rows: bool = False,
+    allowed: Optional[list[int]] = None,
+) -> _U32: ...
+def wang_check(colors: int, layout: _U32, wrap_cols: bool = False, wrap_rows: bool = False) -> None: ...
+def wang_atlas_positions(colors: int) -> _U32: ...
+def wang_seam_errors(
+    sample: _F32, output: _U32, tile: int, window: int = 5, windows: int = 600, seed: int = 0
+) -> tuple[float, float]: ...
+def wang_random_crops(height: int, width: int, tile: int, rows: int, cols: int, seed: int) -> _U32: ...

@@ -508,6 +508,73 @@ def figure6(out_dir: str, material: str = "bumps", size: int = 64, out: int = 19
     return path
 
 
+#: Paper 002 Table III: (set, tile side, total synthesis minutes, referenced BTFels %, GPU MB).
+TABLE3 = [("FLOORTILE", 128, 33, 37.86, 186.10), ("IMPALLA", 256, 51, 49.92, 61.36), ("WRINKLES", 64, 15, 76.92, 23.64),
+          ("HOLES", 100, 25, 34.86, 10.72), ("REACTDIFFUSE", 64, 16, 55.01, 16.91)]
+#: Target for 16 tiles of 64^2 (issue 12).
+TILES_TARGET_S = 10.0
+
+
+def tiles_bench(repeat: int) -> dict:
+    """Graph-cut Wang tile sets (issue 12): synthesis of 16 tiles of 64^2, 128^2 and 256^2 in the
+    SH 16x16 domain (bumps; 81 x 81 directions at 128^2, 25 x 25 at 256^2 to fit in memory), the
+    tiling of a 1024 x 1024 layout, render ms with a tile map and without."""
+    from . import directions as dirs
+    from . import tiles as wang
+    from .rendering import Camera, PointLight, Scene, render
+
+    rows = []
+    b128 = materials.make("bumps", size=128, seed=3)
+    sh128 = fit.sh(b128, light_coeffs=16, view_coeffs=16)
+    del b128
+    d25 = np.ascontiguousarray(dirs.ubo81()[::3][:25])
+    b256 = materials.make("bumps", size=256, seed=3, views=d25, lights=d25)
+    sh256 = fit.sh(b256, light_coeffs=16, view_coeffs=16)
+    del b256
+    for model, tile, edge, sample in [(sh128, 64, 16, "bumps 128^2 x 81 x 81"), (sh256, 128, 32, "bumps 256^2 x 25 x 25"),
+                                      (sh256, 256, 64, "bumps 256^2 x 25 x 25")]:
+        t, ts = best_of(lambda: wang.wang(model, tile=tile, edge_height=edge, colors=2, seed=5, progress=False),
+                        repeat if tile <= 64 else 1)
+        r = ts.report
+        rows.append(dict(tile=tile, edge_height=edge, sample=sample, domain=r["domain"], seconds=t,
+                         steps={s["step"]: s["seconds"] for s in r.steps}, referenced=r["referenced"],
+                         mb=r["total_bytes"] / 2**20, target_s=TILES_TARGET_S if tile == 64 else None))
+        if tile == 64:
+            ts64 = ts
+    t_tiling, _ = best_of(lambda: ts64.tiling(1024, 1024, seed=1), repeat)
+    lay = ts64.tiling(8, 8, seed=1, wrap=(True, False))
+    cam = Camera.look_at([0.0, -3.2, 1.6], [0.0, 0.0, 0.0], fov_deg=40.0)
+    lights = [PointLight([2.0, -2.5, 3.0], 9.0)]
+    scene = Scene.cylinder(radius=1.0, height=2.0)
+    render_rows = []
+    try:
+        for label, kw in [("without (uv_scale 8)", dict(uv_scale=8.0)), ("tile map 8 x 8", dict(tiles=ts64, layout=lay))]:
+            m = ts64.model if "tiles" in kw else sh128
+            render(m, scene, cam, lights, size=(512, 512), **kw)
+            t, _ = best_of(lambda: render(m, scene, cam, lights, size=(512, 512), **kw), repeat)
+            render_rows.append(dict(case=label, ms=1000 * t))
+    except TypeError as e:  # a renderer without tile maps
+        render_rows.append(dict(case=f"unavailable: {e}", ms=float("nan")))
+    return dict(rows=rows, tiling_1024_s=t_tiling, render=render_rows, table3=TABLE3)
+
+
+def tiles_table(res: dict) -> str:
+    out = [f"{'tile':>5} {'edge':>4} {'sample':<22} {'seconds':>8} {'target':>7} {'corner':>7} {'edges':>6} "
+           f"{'interior':>8} {'referenced':>10} {'MiB':>7}"]
+    for r in res["rows"]:
+        st = r["steps"]
+        tgt = "-" if r["target_s"] is None else f"{r['target_s']:.0f}"
+        out.append(f"{r['tile']:>5} {r['edge_height']:>4} {r['sample']:<22} {r['seconds']:>8.2f} {tgt:>7} "
+                   f"{st['corner sampling']:>7.2f} {st['edge synthesis']:>6.2f} {st['interior synthesis']:>8.2f} "
+                   f"{100 * r['referenced']:>9.2f}% {r['mb']:>7.2f}")
+    out.append("paper 002 Table III (Pentium IV 3.2 GHz, 96 tiles, 25x25 SH): " + "; ".join(
+        f"{n} {t}^2 {m} min, {p:.2f}%, {mb:.2f} MB" for n, t, m, p, mb in res["table3"]))
+    out.append(f"tiling of a 1024 x 1024 layout: {1000 * res['tiling_1024_s']:.1f} ms")
+    for r in res["render"]:
+        out.append(f"render 512^2 cylinder, SH 16x16, {r['case']}: {r['ms']:.1f} ms")
+    return "\n".join(out)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m btfrs.bench", description=__doc__)
     p.add_argument("--size", type=int, action="append", help="material sizes (default: 32 and 64; 32 with --accuracy)")
@@ -521,6 +588,7 @@ def main(argv=None) -> int:
                    help="only btfrs.graphcut against scipy's maximum_flow on integer grids")
     p.add_argument("--maxflow-size", type=int, action="append",
                    help=f"grid sides of the max-flow figures (default: {' and '.join(map(str, MAXFLOW_SIZES))})")
+    p.add_argument("--tiles-only", action="store_true", help="only the Wang tile figures (issue 12)")
     p.add_argument("--accuracy", action="store_true",
                    help="only the accuracy of every model on every material (at --size, default 32)")
     p.add_argument("--figures", metavar="DIR", help="also write paper 000 Figure 6 style images into DIR")
@@ -543,6 +611,11 @@ def main(argv=None) -> int:
         print(maxflow_table(mf))
         return _finish(a, {"machine": machine(), "maxflow": mf})
     sizes = a.size or [32, 64]
+    if a.tiles_only:
+        res = tiles_bench(max(1, a.repeat))
+        print("graph-cut Wang tile sets, 16 tiles, 2 colours per edge direction, SH 16x16 domain:")
+        print(tiles_table(res))
+        return _finish(a, {"machine": machine(), "tiles": res})
     if a.synth_only:
         res = synth_bench(max(1, a.repeat))
         print(f"synthesis (paper 000 Table 1 settings, 3 levels) on {res['material']} {res['sample']}^2:")

@@ -340,7 +340,8 @@ def load_as(path: PathLike, cls):
 
 
 def load(path: PathLike):
-    """Load any ``.btfrs`` file: a :class:`~btfrs.Btf`, a fitted model or a synthesis analysis."""
+    """Load any ``.btfrs`` file: a :class:`~btfrs.Btf`, a fitted model, a synthesis analysis or a
+    Wang tile set (:class:`btfrs.tiles.TileSet`)."""
     p = os.fspath(path)
     kind, _, _ = _native.read_container_header(p)
     if kind in model_kinds():
@@ -354,4 +355,8 @@ def load(path: PathLike):
         from .synth import Analysis
 
         return Analysis._from_container(path, meta, arrays)
+    if kind == "tiles":
+        from .tiles import TileSet
+
+        return TileSet._from_container(path, meta, arrays)
     raise FormatError(f"{p}: unknown content {kind!r}")

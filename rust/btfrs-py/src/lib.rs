@@ -14,6 +14,7 @@ mod models;
 mod render;
 mod run;
 mod synth;
+mod tiles;
 
 use pyo3::prelude::*;
 
@@ -57,6 +58,13 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render::scene_directions, m)?)?;
     m.add_function(wrap_pyfunction!(graphcut::min_cut_native, m)?)?;
     m.add_function(wrap_pyfunction!(graphcut::grid_min_cut_native, m)?)?;
+    m.add_function(wrap_pyfunction!(tiles::wang_model_features, m)?)?;
+    m.add_function(wrap_pyfunction!(tiles::wang_synthesize, m)?)?;
+    m.add_function(wrap_pyfunction!(tiles::wang_tiling, m)?)?;
+    m.add_function(wrap_pyfunction!(tiles::wang_check, m)?)?;
+    m.add_function(wrap_pyfunction!(tiles::wang_atlas_positions, m)?)?;
+    m.add_function(wrap_pyfunction!(tiles::wang_seam_errors, m)?)?;
+    m.add_function(wrap_pyfunction!(tiles::wang_random_crops, m)?)?;
     m.add_class::<synth::PyAnalysis>()?;
     m.add_function(wrap_pyfunction!(synth::analyse_btf_native, m)?)?;
     m.add_function(wrap_pyfunction!(synth::analyse_features_native, m)?)?;

@@ -1,0 +1,350 @@
+//! The synthesis domain: one feature vector per texel, compared by squared Euclidean distance.
+//!
+//! Paper 002 (section 3.2) synthesizes tiles in the compressed domain: the edge cost of its graph
+//! cuts is "a weighted sum of square difference between the SH coefficient vectors". The weights
+//! are what make a coefficient difference stand for a difference of the BTF itself, so each
+//! domain here is built such that the squared distance of two feature vectors *is* (or
+//! approximates) the squared L2 distance of the two texels' reflectance functions:
+//!
+//! * **SH coefficients** (`"coefficients"` for the `sh` model): the dequantized double-SH
+//!   coefficients with weight 1. The real SH basis is orthonormal on the sphere, so by Parseval
+//!   the coefficient distance equals the L2 distance of the reconstructions integrated over all
+//!   (view, light) pairs of the two spheres.
+//! * **PTM coefficients** (`"coefficients"` for RGB PTMs): per view slot and channel the six
+//!   biquadratic coefficients multiplied by `L^T`, where `G = L L^T` is the Gram matrix of the
+//!   basis averaged over the light hemisphere (uniform solid angle): then the distance is the
+//!   L2 distance of the reconstructions averaged over the light hemisphere, summed over slots.
+//! * **Decoded** (`"decoded"`, every model; the default for LPCA, Lafortune, SRF, per-view
+//!   Lafortune and LRGB PTMs, whose parameters are not linear coefficients or, for LPCA, live
+//!   in a different basis per cluster): the model evaluated at [`PROBES`] fixed (view, light)
+//!   pairs over the hemisphere, scaled by `1 / sqrt(pairs)`: the distance is the mean squared
+//!   RGB difference over those pairs.
+//! * **RGB** images: the pixel values.
+//!
+//! Candidate matching uses a PCA reduction of these features ([`Features::reduced`]); the graph
+//! cuts always use the full features.
+
+use btfrs_core::rng::Rng;
+use btfrs_core::{Error, Result};
+use btfrs_fit::model::DynModel;
+use rayon::prelude::*;
+
+/// Per-texel feature vectors of a `height x width` sample, texel-major (`dim` values each).
+#[derive(Debug, Clone)]
+pub struct Features {
+    /// Rows.
+    pub height: usize,
+    /// Columns.
+    pub width: usize,
+    /// Values per texel.
+    pub dim: usize,
+    /// `[height, width, dim]`.
+    pub data: Vec<f32>,
+}
+
+impl Features {
+    /// Wrap `[height, width, dim]` values, checking the size and that every value is finite.
+    pub fn new(height: usize, width: usize, dim: usize, data: Vec<f32>) -> Result<Self> {
+        if height == 0 || width == 0 || dim == 0 {
+            return Err(Error::arg("sample", format!("expected a non-empty sample, got {height} x {width} x {dim}")));
+        }
+        if data.len() != height * width * dim {
+            return Err(Error::arg(
+                "sample",
+                format!("{} values do not make a {height} x {width} x {dim} feature image", data.len()),
+            ));
+        }
+        if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+            let t = i / dim;
+            return Err(Error::arg(
+                "sample",
+                format!("value {} at texel (row {}, column {}) is not finite", data[i], t / width, t % width),
+            ));
+        }
+        Ok(Features { height, width, dim, data })
+    }
+
+    /// The features of texel `t` (row-major index).
+    #[inline]
+    pub fn at(&self, t: usize) -> &[f32] {
+        &self.data[t * self.dim..(t + 1) * self.dim]
+    }
+
+    /// Number of texels.
+    pub fn texels(&self) -> usize {
+        self.height * self.width
+    }
+
+    /// Mean squared distance between random texel pairs (4096 pairs, seeded): the cost of a
+    /// seam between unrelated texels, the unit of the fill thresholds.
+    pub fn pair_scale(&self, seed: u64) -> f64 {
+        let mut rng = Rng::new(seed ^ 0x5ca1e);
+        let n = self.texels();
+        let mut s = 0.0f64;
+        let pairs = 4096;
+        for _ in 0..pairs {
+            let (a, b) = (rng.below(n), rng.below(n));
+            s += dist2(self.at(a), self.at(b));
+        }
+        (s / pairs as f64).max(f64::MIN_POSITIVE)
+    }
+
+    /// The projection onto the `k` leading principal components (centred), with the fraction
+    /// of the variance kept. Distances between projected vectors approximate the full ones.
+    pub fn reduced(&self, k: usize) -> (Features, f64) {
+        let d = self.dim;
+        let n = self.texels();
+        let k = k.clamp(1, d);
+        let mean: Vec<f64> = {
+            let mut m = vec![0.0f64; d];
+            for t in 0..n {
+                for (mi, &v) in m.iter_mut().zip(self.at(t)) {
+                    *mi += v as f64;
+                }
+            }
+            m.iter().map(|x| x / n as f64).collect()
+        };
+        if k == d {
+            let data =
+                self.data.chunks(d).flat_map(|x| x.iter().zip(&mean).map(|(v, m)| (*v as f64 - m) as f32)).collect();
+            return (Features { height: self.height, width: self.width, dim: d, data }, 1.0);
+        }
+        // Covariance in f64 over at most 4096 texels (a regular subsample: the components of a
+        // texture are well estimated from a few thousand texels), summed in parallel chunks.
+        let stride = n.div_ceil(4096).max(1);
+        let sub: Vec<f32> = if stride == 1 {
+            self.data.clone()
+        } else {
+            (0..n).step_by(stride).flat_map(|t| self.at(t).iter().copied()).collect()
+        };
+        let cov = sub
+            .par_chunks(d * 256)
+            .map(|chunk| {
+                let mut c = vec![0.0f64; d * d];
+                let mut x = vec![0.0f64; d];
+                for v in chunk.chunks(d) {
+                    for ((xi, &vi), mi) in x.iter_mut().zip(v).zip(&mean) {
+                        *xi = vi as f64 - mi;
+                    }
+                    for i in 0..d {
+                        let xi = x[i];
+                        for j in i..d {
+                            c[i * d + j] += xi * x[j];
+                        }
+                    }
+                }
+                c
+            })
+            .reduce(
+                || vec![0.0f64; d * d],
+                |mut a, b| {
+                    a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+                    a
+                },
+            );
+        let mut m = nalgebra::DMatrix::<f64>::zeros(d, d);
+        for i in 0..d {
+            for j in i..d {
+                m[(i, j)] = cov[i * d + j];
+                m[(j, i)] = cov[i * d + j];
+            }
+        }
+        let eig = m.symmetric_eigen();
+        let mut order: Vec<usize> = (0..d).collect();
+        order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+        let total: f64 = eig.eigenvalues.iter().map(|v| v.max(0.0)).sum();
+        let kept: f64 = order[..k].iter().map(|&i| eig.eigenvalues[i].max(0.0)).sum();
+        let basis: Vec<Vec<f64>> =
+            order[..k].iter().map(|&i| eig.eigenvectors.column(i).iter().copied().collect()).collect();
+        let data: Vec<f32> = self
+            .data
+            .par_chunks(d)
+            .flat_map_iter(|v| {
+                basis
+                    .iter()
+                    .map(|b| {
+                        b.iter().zip(v).zip(&mean).map(|((bi, &vi), mi)| bi * (vi as f64 - mi)).sum::<f64>() as f32
+                    })
+                    .collect::<Vec<f32>>()
+            })
+            .collect();
+        let frac = if total > 0.0 { kept / total } else { 1.0 };
+        (Features { height: self.height, width: self.width, dim: k, data }, frac)
+    }
+}
+
+/// Squared Euclidean distance, accumulated in f64.
+#[inline]
+pub fn dist2(a: &[f32], b: &[f32]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum()
+}
+
+/// Elevation and azimuth (degrees) of the probe views and lights of the decoded domain: the
+/// zenith, a ring at 35 degrees and one at 65, offset against each other.
+const PROBE_VIEWS: [(f64, f64); 5] = [(0.0, 0.0), (35.0, 0.0), (35.0, 120.0), (35.0, 240.0), (65.0, 60.0)];
+const PROBE_LIGHTS: [(f64, f64); 8] =
+    [(0.0, 0.0), (35.0, 60.0), (35.0, 180.0), (35.0, 300.0), (65.0, 0.0), (65.0, 90.0), (65.0, 180.0), (65.0, 270.0)];
+/// Number of (view, light) probe pairs of the decoded domain.
+pub const PROBES: usize = PROBE_VIEWS.len() * PROBE_LIGHTS.len();
+
+fn dir(theta_deg: f64, phi_deg: f64) -> [f64; 3] {
+    let (t, p) = (theta_deg.to_radians(), phi_deg.to_radians());
+    [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]
+}
+
+/// The domain a model is synthesized in: `"auto"`, `"coefficients"` or `"decoded"`.
+/// Returns the features and the name of the domain used.
+pub fn model_features(model: &dyn DynModel, domain: &str) -> Result<(Features, &'static str)> {
+    let (h, w) = model.dims();
+    let coefficients = match domain {
+        "auto" => model.kind() == "sh" || is_rgb_ptm(model),
+        "coefficients" => {
+            if !(model.kind() == "sh" || is_rgb_ptm(model)) {
+                return Err(Error::arg(
+                    "domain",
+                    format!(
+                        "the {} model has no linear coefficient domain (only sh and RGB ptm do); use \"decoded\"",
+                        model.kind()
+                    ),
+                ));
+            }
+            true
+        }
+        "decoded" => false,
+        other => {
+            return Err(Error::arg(
+                "domain",
+                format!("expected \"auto\", \"coefficients\" or \"decoded\", got {other:?}"),
+            ))
+        }
+    };
+    if coefficients {
+        if let Some(sh) = model.as_any().downcast_ref::<btfrs_fit::sh::Sh>() {
+            let c = sh.dequantized();
+            let dim = c.len() / (h * w);
+            return Ok((Features::new(h, w, dim, c)?, "sh coefficients"));
+        }
+        if let Some(ptm) = model.as_any().downcast_ref::<btfrs_fit::ptm::Ptm>() {
+            return Ok((ptm_whitened(ptm)?, "ptm coefficients (hemisphere Gram-whitened)"));
+        }
+    }
+    let pairs: Vec<([f64; 3], [f64; 3])> = PROBE_VIEWS
+        .iter()
+        .flat_map(|&(tv, pv)| PROBE_LIGHTS.iter().map(move |&(tl, pl)| (dir(tv, pv), dir(tl, pl))))
+        .collect();
+    let images: Vec<Vec<f32>> =
+        pairs.par_iter().map(|&(v, l)| model.evaluate_image(v, l)).collect::<Result<Vec<_>>>()?;
+    let dim = 3 * pairs.len();
+    let s = (1.0 / pairs.len() as f64).sqrt() as f32;
+    let mut data = vec![0.0f32; h * w * dim];
+    data.par_chunks_mut(dim).enumerate().for_each(|(t, out)| {
+        for (p, img) in images.iter().enumerate() {
+            for c in 0..3 {
+                out[p * 3 + c] = img[t * 3 + c] * s;
+            }
+        }
+    });
+    Ok((Features::new(h, w, dim, data)?, "decoded at 40 probe pairs"))
+}
+
+fn is_rgb_ptm(model: &dyn DynModel) -> bool {
+    model.as_any().downcast_ref::<btfrs_fit::ptm::Ptm>().is_some_and(|p| matches!(p.kind, btfrs_fit::ptm::PtmKind::Rgb))
+}
+
+/// The Gram matrix of the PTM basis averaged over the light hemisphere (uniform in solid
+/// angle: the concentric map is area-preserving, so a uniform grid on its square is uniform on
+/// the hemisphere), and its Cholesky factor.
+pub fn ptm_gram_factor() -> [[f64; 6]; 6] {
+    let n = 96;
+    let mut g = nalgebra::DMatrix::<f64>::zeros(6, 6);
+    for i in 0..n {
+        for j in 0..n {
+            let l = btfrs_hemimap::square_to_hemisphere((i as f64 + 0.5) / n as f64, (j as f64 + 0.5) / n as f64);
+            let b = btfrs_fit::ptm::basis(l);
+            for a in 0..6 {
+                for c in 0..6 {
+                    g[(a, c)] += b[a] * b[c];
+                }
+            }
+        }
+    }
+    g /= (n * n) as f64;
+    let l = nalgebra::Cholesky::new(g).expect("the PTM basis is linearly independent on the hemisphere").l();
+    let mut out = [[0.0; 6]; 6];
+    for (a, row) in out.iter_mut().enumerate() {
+        for (c, v) in row.iter_mut().enumerate() {
+            *v = l[(a, c)];
+        }
+    }
+    out
+}
+
+fn ptm_whitened(ptm: &btfrs_fit::ptm::Ptm) -> Result<Features> {
+    let l = ptm_gram_factor();
+    let (h, w) = (ptm.height, ptm.width);
+    let per = ptm.coeffs.len() / (h * w);
+    // f = L^T c, so that |f|^2 = c^T G c = mean over the hemisphere of the squared value.
+    let data: Vec<f32> = ptm
+        .coeffs
+        .par_chunks(6)
+        .flat_map_iter(|c| (0..6).map(move |k| (0..6).map(|a| l[a][k] * c[a] as f64).sum::<f64>() as f32))
+        .collect();
+    Features::new(h, w, per, data)
+}
+
+#[cfg(test)]
+#[allow(clippy::needless_range_loop)] // index loops mirror the set-ups being checked
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ptm_whitening_turns_coefficient_distance_into_hemisphere_l2() {
+        // |L^T c|^2 must equal the mean over the hemisphere of (b(l) . c)^2, computed here by an
+        // independent quadrature (a finer polar grid weighted by sin(theta)).
+        let l = ptm_gram_factor();
+        let c = [0.3, -0.2, 0.5, 0.1, -0.4, 0.7];
+        let f: Vec<f64> = (0..6).map(|k| (0..6).map(|a| l[a][k] * c[a]).sum()).collect();
+        let lhs: f64 = f.iter().map(|x| x * x).sum();
+        let (nt, np) = (400, 400);
+        let (mut num, mut den) = (0.0, 0.0);
+        for i in 0..nt {
+            let t = (i as f64 + 0.5) / nt as f64 * std::f64::consts::FRAC_PI_2;
+            for j in 0..np {
+                let p = (j as f64 + 0.5) / np as f64 * std::f64::consts::TAU;
+                let b = btfrs_fit::ptm::basis([t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]);
+                let v: f64 = b.iter().zip(&c).map(|(x, y)| x * y).sum();
+                num += v * v * t.sin();
+                den += t.sin();
+            }
+        }
+        assert!((lhs - num / den).abs() < 2e-3 * lhs, "{lhs} vs {}", num / den);
+    }
+
+    #[test]
+    fn pca_reduction_keeps_distances_of_low_rank_data() {
+        // Rank-3 data in 12 dimensions: 3 components keep every distance and all the variance.
+        let mut rng = Rng::new(4);
+        let dirs: Vec<Vec<f32>> = (0..3).map(|_| (0..12).map(|_| rng.next_f64() as f32 - 0.5).collect()).collect();
+        let mut data = Vec::new();
+        for _ in 0..(16 * 16) {
+            let a: Vec<f32> = (0..3).map(|_| rng.next_f64() as f32).collect();
+            for k in 0..12 {
+                data.push(1.0 + (0..3).map(|i| a[i] * dirs[i][k]).sum::<f32>());
+            }
+        }
+        let f = Features::new(16, 16, 12, data).unwrap();
+        let (r, kept) = f.reduced(3);
+        assert!(kept > 0.999999, "{kept}");
+        for (a, b) in [(0, 1), (5, 200), (17, 255)] {
+            let (d0, d1) = (dist2(f.at(a), f.at(b)), dist2(r.at(a), r.at(b)));
+            assert!((d0 - d1).abs() < 1e-4 * d0.max(1e-6), "{d0} vs {d1}");
+        }
+    }
+
+    #[test]
+    fn bad_samples_are_named() {
+        assert!(Features::new(2, 2, 1, vec![0.0; 3]).unwrap_err().to_string().contains("sample"));
+        let e = Features::new(1, 2, 1, vec![0.0, f32::NAN]).unwrap_err().to_string();
+        assert!(e.contains("column 1"), "{e}");
+    }
+}
