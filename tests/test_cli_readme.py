@@ -88,3 +88,32 @@ def test_readme_synthesis_snippet_runs(monkeypatch, tmp_path):
     assert cmap.shape == (512, 512, 2) and big.shape[:2] == (512, 512)
     assert img.shape == (384, 384, 3) and (img.sum(-1) > 0).mean() > 0.2
     assert (tmp_path / "knit.analysis.btfrs").exists()
+
+
+def test_readme_tiles_snippet_runs(tmp_path, monkeypatch):
+    # The user code of the tile section, as written (issue 12's "what a user can do").
+    text = (ROOT / "README.md").read_text()
+    block = re.search(r"## Tileable BTFs[^\n]*\s+```python\n(.*?)```", text, re.S).group(1)
+    monkeypatch.chdir(tmp_path)
+    ns: dict = {}
+    exec(compile(block, "README.md", "exec"), ns)
+    img, tiles, layout = ns["img"], ns["tiles"], ns["layout"]
+    assert img.shape == (512, 512, 3) and np.isfinite(img).all() and (img.sum(-1) > 0).mean() > 0.2
+    tiles.check(layout)
+    assert isinstance(btfrs.load(tmp_path / "bumps.tiles"), btfrs.tiles.TileSet)
+    assert ns["tiles_lp"].model.kind == "lpca" and ns["rgb"].model is None
+    assert ns["flow"] == 2 and list(ns["source_side"]) == [True, True, False]
+
+
+def test_tiles_cli_writes_the_set_its_picture_and_a_render(tmp_path):
+    out = tmp_path / "t"
+    assert main(["tiles", "--material", "bumps", "--size", "48", "--model", "ptm", "--tile", "24",
+                 "--edge-height", "6", "--out", str(out), "--quiet"]) == 0
+    names = {p.name for p in out.iterdir()}
+    assert {"tiles.btfrs", "tiles.png", "tiling.png", "render.png", "layout.npy", "report.txt"} <= names
+    ts = btfrs.load(out / "tiles.btfrs")
+    assert ts.model.kind == "ptm" and ts.n_tiles == 16
+    ts.check(np.load(out / "layout.npy"), wrap=(True, False))
+    pic = btfrs.io.load_image(out / "tiles.png")
+    assert pic.std() > 0.05
+    assert "seams" in (out / "report.txt").read_text()

@@ -105,8 +105,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     t.add_argument("--tile", type=int, default=64, help="tile side in texels (default: 64)")
     t.add_argument("--edge-height", type=int, default=16, help="edge height h (default: 16)")
     t.add_argument("--colors", type=int, default=2, help="colours per edge direction (default: 2: 16 tiles)")
-    t.add_argument("--layout", type=int, nargs=2, default=[8, 8], metavar=("ROWS", "COLS"),
-                   help="the tiling rendered (default: 8 8)")
+    t.add_argument("--layout", type=int, nargs=2, default=[3, 10], metavar=("ROWS", "COLS"),
+                   help="the tiling rendered on a cylinder, columns around it (default: 3 10)")
     t.add_argument("--seed", type=int, default=5, help="synthesis and tiling seed (default: 5)")
     t.add_argument("--out", default="tiles", help="output folder (default: tiles)")
     t.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -223,7 +223,7 @@ def step_tiles(ctx: Context) -> None:
     t_syn = time.perf_counter() - t0
     set_a.save(ctx.out / "tiles_a.btfrs")
     set_b.save(ctx.out / "tiles_b.btfrs")
-    layout = set_a.tiling(8, 8, seed=1, wrap=(True, False))
+    layout = set_a.tiling(4, 12, seed=1, wrap=(True, False))  # u runs around: wrap the columns
     np.save(ctx.out / "tiles_layout.npy", layout)
     lights = [rendering.PointLight(position=[2.0, -2.5, 3.0], intensity=9.0)]
     cam = rendering.Camera.look_at([0.0, -3.2, 1.6], [0.0, 0.0, 0.0], 40)
@@ -237,7 +237,7 @@ def step_tiles(ctx: Context) -> None:
     pics = [set_a.picture(), set_b.picture()]
     io.save_image(ctx.out / "tiles.png", _tile(pics, scale=2, gap=8))
     ctx.images.append(("tiles_render.png", f"Wang tiles (paper 002): the {ctx.material} tile set on a sphere and a "
-                       f"cylinder, then the {other} set on the same 8 x 8 layout"))
+                       f"cylinder, then the {other} set on the same 4 x 12 layout"))
     ctx.images.append(("tiles.png", f"the two tile sets ({ctx.material}, {other}) with their edge colours"))
     e = set_a.seam_errors(set_a.tiling(16, 16, seed=2), windows=300)
     ra = set_a.report
