@@ -342,7 +342,8 @@ def quality(an: Analysis, coords, *, neighbourhood: int = 2, samples: int = 4096
     random windows per scale and up to ``windows`` straddling ones, by an exact nearest-window
     search of the sample (every sample pixel whose window fits inside it, at every scale, so a
     coarse window is found at any phase); each output pixel shows its sample pixel's
-    finest-level texton vector. A 384^2 map of a 128^2 sample takes about a second on 2 cores.
+    finest-level texton vector. A synthesized 384^2 map of a 128^2 sample takes 1-3 s on 2 cores
+    (maps with no close matches, such as random placement, longer).
     The older ``nn_distance`` uses windows of radius ``neighbourhood`` over ``samples`` output
     pixels. ``seed`` chooses the windows.
 
