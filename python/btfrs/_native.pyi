@@ -12,7 +12,7 @@ _F32 = npt.NDArray[np.float32]
 _F64 = npt.NDArray[np.float64]
 _Bool = npt.NDArray[np.bool_]
 
-__all__ = ['__version__', '_panic_for_test', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'Model', 'fit_model', 'load_model', 'model_registry', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_png', 'read_png', 'write_exr', 'read_exr', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_raw', 'gpu_render', 'cpu_render_raw', 'gpu_upload_model', 'cpu_render_model', 'scene_directions', 'Analysis', 'analyse_btf_native', 'analyse_features_native', 'min_cut_native', 'grid_min_cut_native', 'wang_model_features', 'wang_synthesize', 'wang_tiling', 'wang_check', 'wang_atlas_positions', 'wang_seam_errors', 'wang_random_crops']
+__all__ = ['__version__', '_panic_for_test', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'Model', 'fit_model', 'load_model', 'model_registry', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_png', 'read_png', 'write_exr', 'read_exr', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_raw', 'gpu_render', 'cpu_render_raw', 'gpu_upload_model', 'cpu_render_model', 'scene_directions', 'Analysis', 'analyse_btf_native', 'analyse_features_native', 'min_cut_native', 'grid_min_cut_native', 'wang_model_features', 'wang_synthesize', 'wang_tiling', 'wang_check', 'wang_atlas_positions', 'wang_seam_errors', 'wang_random_crops', 'texture_names', 'make_texture']
 __version__: str
 
 def _panic_for_test(place: str) -> None: ...
@@ -192,13 +192,16 @@ class Analysis:
     def dots(self, level: int) -> _F64: ...
     def distances(self, level: int) -> _F32: ...
     def similar(self, neighbourhood: int, level: int) -> tuple[npt.NDArray[np.int32], _F32]: ...
-    def ensure_neighbourhood(self, neighbourhood: int, levels: int, progress: _Progress = None) -> None: ...
+    def ensure_neighbourhood(
+        self, neighbourhood: int, levels: int, progress: _Progress = None, first: int = 0
+    ) -> None: ...
     def kcoherence(
         self,
         height: int,
         width: int,
         k: int,
         neighbourhood: int,
+        coarse_neighbourhood: int,
         levels: int,
         toroidal: bool,
         seed: int,
@@ -208,7 +211,15 @@ class Analysis:
         self, height: int, width: int, neighbourhood: int, jump: float, seed: int, progress: _Progress = None
     ) -> npt.NDArray[np.uint16]: ...
     def quality(
-        self, coords: npt.NDArray[np.uint16], neighbourhood: int, samples: int, seed: int, progress: _Progress = None
+        self,
+        coords: npt.NDArray[np.uint16],
+        neighbourhood: int,
+        samples: int,
+        seed: int,
+        window: int = 3,
+        scales: int = 3,
+        windows: int = 1024,
+        progress: _Progress = None,
     ) -> dict[str, Any]: ...
     def arrays(self) -> dict[str, npt.NDArray[Any]]: ...
     @staticmethod
@@ -257,3 +268,7 @@ def wang_seam_errors(
     sample: _F32, output: _U32, tile: int, window: int = 5, windows: int = 600, seed: int = 0
 ) -> tuple[float, float]: ...
 def wang_random_crops(height: int, width: int, tile: int, rows: int, cols: int, seed: int) -> _U32: ...
+def texture_names() -> list[str]: ...
+def make_texture(
+    name: str, height: int, width: int, seed: int, period: tuple[int, int]
+) -> npt.NDArray[np.float32]: ...

@@ -10,6 +10,10 @@ weave      plain weave of blue warp and beige weft going over and under, silky s
 bumps      glossy pebbles on a matte ground, round cast shadows
 grooves    brushed metal grooves along y: anisotropic and shiny
 =========  =================================================================================
+
+:func:`texture` makes photograph-like structured RGB textures (``"bricks"``), seeded and, by
+default, cropped off their period like a photograph: plain tiling shows seams, which is what
+synthesis is for, and what :func:`btfrs.synth.quality` must see.
 """
 
 from __future__ import annotations
@@ -18,14 +22,14 @@ from __future__ import annotations
 import numpy as np
 
 from . import _native
-from ._checks import integer, real
+from ._checks import integer, real, size_hw
 from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
 from .directions import ubo81
 from .exceptions import ArgumentTypeError
 
-__all__ = ["make", "names"]
+__all__ = ["make", "names", "texture", "texture_names"]
 
 
 def names() -> list[str]:
@@ -58,3 +62,31 @@ def make(name: str = "knit", *, size: int = 64, seed: int = 0, views=None, light
     data = _native.make_material(name, size, v, l, seed, relief, subsurface,
                                  callback(progress, f"material {name}"))
     return Btf(data, v, l, check=False)
+
+
+def texture_names() -> list[str]:
+    """The names of the structured RGB textures of :func:`texture`."""
+    return list(_native.texture_names())
+
+
+def texture(name: str = "bricks", *, size=128, seed: int = 0, period=(4, 2)) -> np.ndarray:
+    """A photograph-like structured RGB texture, ``[H, W, 3]`` float32 in [0, 1].
+
+    ``"bricks"``: running-bond brickwork, bricks of 38 x 17 pixels with 3-pixel light mortar
+    joints, a colour per brick, darker top-left brick edges, smooth shading and per-pixel noise.
+
+    ``size`` is ``(height, width)`` or one int. The pattern, colours and noise included, repeats
+    exactly every ``period = (brick rows, bricks per row)`` (rows even), i.e. every
+    ``17 * rows`` rows and ``38 * bricks`` columns (68 x 76 pixels by default); the image is a
+    crop of it at an offset drawn from ``seed``. A size that is not a multiple of the period does
+    not tile (plain tiling breaks the mortar lines at every tile boundary), while the map
+    ``(x mod 76, y mod 68)`` tiles it seamlessly.
+    """
+    if not isinstance(name, str):
+        raise ArgumentTypeError(f"name: expected a texture name (one of {', '.join(texture_names())}), "
+                                f"got {type(name).__name__}")
+    h, w = size_hw("size", size)
+    if isinstance(period, (str, bytes)) or not hasattr(period, "__len__") or len(period) != 2:
+        raise ArgumentTypeError(f"period: expected (brick rows, bricks per row), got {period!r}")
+    period = (integer("period[0]", period[0], min=2), integer("period[1]", period[1], min=1))
+    return _native.make_texture(name, h, w, check_seed(seed), period)

@@ -16,8 +16,10 @@ through :func:`btfrs.render` (``coords=``), and expands lazily with :meth:`btfrs
   :class:`~btfrs.Btf` or on a plain ``[H, W, 3]`` texture (the algorithm is data independent).
 * :func:`kcoherence`: hierarchical k-coherence (section 4.2, Figures 3 and 4).
 * :func:`jump_map`: the jump map (Zelinka and Garland 2002), faster, over the same analysis.
-* :func:`quality`: neighbourhood distance to the best sample match, coherence, seams,
-  repetition; :func:`tiled` and :func:`random_placement` are the baselines.
+* :func:`quality`: multi-scale window distances to the best sample match (``structure``), the
+  same over the windows straddling the map's seams (``seam_error``), and the older
+  neighbourhood distance, coherence, pair seams, repetition; :func:`tiled` and
+  :func:`random_placement` are the baselines.
 """
 
 from __future__ import annotations
@@ -219,25 +221,36 @@ def _analysis(an) -> Analysis:
     return instance("an", an, Analysis, "a btfrs.synth.Analysis (from btfrs.synth.analyse)")
 
 
-def kcoherence(an: Analysis, *, size: SizeLike = (512, 512), k: int = 3, neighbourhood: int = 2, levels: int = 3,
-               toroidal: bool = False, seed: int = 7, progress: Progress = None) -> np.ndarray:
+def kcoherence(an: Analysis, *, size: SizeLike = (512, 512), k: int = 3, neighbourhood: int = 2,
+               coarse_neighbourhood: Optional[int] = None, levels: int = 3, toroidal: bool = False,
+               seed: int = 7, progress: Progress = None) -> np.ndarray:
     """Hierarchical k-coherence synthesis (paper 000, section 4.2) into a coordinate map.
 
     ``size`` is the output ``(height, width)`` (or one int), ``k`` the candidates per known
     neighbour (1 = Ashikhmin's coherent candidates only; at most ``an.m``), ``neighbourhood`` the
-    window radius (the paper's neighbourhood size: 2 means 5 x 5), ``levels`` the pyramid levels
-    used (at most ``an.levels``), ``toroidal`` a tileable output. Returns ``[H, W, 2]`` uint16
-    ``(x, y)`` into the sample.
+    window radius at the finest level (the paper's neighbourhood size: 2 means 5 x 5),
+    ``coarse_neighbourhood`` the window radius at the coarser levels (at least ``neighbourhood``;
+    None: the same): larger windows there keep the structure of regular textures (brick courses,
+    tiles) that a small window cannot see (paper 000, Figure 6); its similar neighbourhoods are
+    computed on the coarse levels only, on first use. ``levels`` the pyramid levels used (at most
+    ``an.levels``), ``toroidal`` a tileable output. Returns ``[H, W, 2]`` uint16 ``(x, y)`` into
+    the sample.
     """
     an = _analysis(an)
     h, w = _size(size)
     k = integer("k", k, min=1)
     neighbourhood = integer("neighbourhood", neighbourhood, min=1)
+    coarse = neighbourhood if coarse_neighbourhood is None else integer(
+        "coarse_neighbourhood", coarse_neighbourhood, min=neighbourhood)
     levels = integer("levels", levels, min=1)
     seed = check_seed(seed)
     toroidal = boolean("toroidal", toroidal)
-    an._a.ensure_neighbourhood(neighbourhood, levels, callback(progress, "neighbourhoods"))
-    return an._a.kcoherence(h, w, k, neighbourhood, levels, toroidal, seed, callback(progress, "k-coherence"))
+    an._a.ensure_neighbourhood(neighbourhood, 1 if coarse != neighbourhood else levels,
+                               callback(progress, "neighbourhoods"))
+    if coarse != neighbourhood and levels > 1:
+        an._a.ensure_neighbourhood(coarse, levels, callback(progress, "neighbourhoods"), first=1)
+    return an._a.kcoherence(h, w, k, neighbourhood, coarse, levels, toroidal, seed,
+                            callback(progress, "k-coherence"))
 
 
 def jump_map(an: Analysis, *, size: SizeLike = (512, 512), neighbourhood: int = 2, jump: float = 0.05,
@@ -257,9 +270,42 @@ def jump_map(an: Analysis, *, size: SizeLike = (512, 512), neighbourhood: int = 
 
 @dataclass(frozen=True)
 class Quality:
-    """Quality measures of a coordinate map (see :func:`quality`). Distances are normalised by
-    the mean distance between two random sample pixels."""
+    """Quality measures of a coordinate map (see :func:`quality`); lower is better except
+    ``coherence``, which is descriptive.
 
+    Headline (what a person sees; scores of output windows against their exact nearest window
+    of the sample at several scales, per pixel, divided by twice the sample's variance at that
+    scale, so 0 is "copied from the sample" and 1 "as different as random pixels"):
+
+    * ``structure``: mean score of random output windows, averaged over the scales with equal
+      weights; ``structure_levels`` the per-scale means, finest first (scale ``l`` is the
+      image blurred ``l`` times with taps ``2**l`` apart: 7 x 7, 13 x 13, 25 x 25 pixel windows
+      for ``window=3``). Broken structure (mortar lines ending in mid-brick) shows at the coarse
+      scales.
+    * ``seam_error``, ``seam_error_p90``: mean and 90th percentile of the scores of the windows
+      that straddle a discontinuity of the map (neighbours whose sample pixels are not
+      neighbours the same way, plain tiling's wrap-around included), averaged over the scales.
+      Windows inside a copied patch score 0, so these see the seams alone.
+    * ``straddling``: fraction of the finest-scale windows straddling a discontinuity.
+
+    Older measures, kept for comparison (blind to broken structure; texton distances divided by
+    the mean distance between two random sample pixels):
+
+    * ``nn_distance``: per-pixel distance from output windows (radius ``neighbourhood``) to their
+      best sample match, over ``samples`` output pixels: dominated by the copied windows;
+    * ``coherence``: fraction of adjacent output pairs adjacent in the sample the same way;
+    * ``seam``: median pair seam cost along the worst straight row or column, ``seam_mean`` over
+      all pairs (plain tiling scores 0 wherever its edge pixels resemble some adjacent pair);
+    * ``repetition``: largest fraction of pixels repeated at one translation (1 - sample/size
+      for plain tiling);
+    * ``samples``: output pixels used for ``nn_distance``.
+    """
+
+    structure: float
+    structure_levels: tuple[float, ...]
+    seam_error: float
+    seam_error_p90: float
+    straddling: float
     nn_distance: float
     coherence: float
     seam: float
@@ -271,8 +317,11 @@ class Quality:
         return asdict(self)
 
     def __str__(self) -> str:
-        return (f"nn_distance {self.nn_distance:.4f}, coherence {self.coherence:.3f}, seam {self.seam:.4f} "
-                f"(mean {self.seam_mean:.4f}), repetition {self.repetition:.3f}")
+        levels = " / ".join(f"{v:.4f}" for v in self.structure_levels)
+        return (f"structure {self.structure:.4f} (per scale {levels}), seam_error {self.seam_error:.4f} "
+                f"(p90 {self.seam_error_p90:.4f}, {self.straddling:.0%} of windows straddle a seam), "
+                f"repetition {self.repetition:.3f}, coherence {self.coherence:.3f}; older: nn_distance "
+                f"{self.nn_distance:.4f}, pair seam {self.seam:.4f} (mean {self.seam_mean:.4f})")
 
 
 def _coords(name: str, coords, an: Optional[Analysis] = None) -> np.ndarray:
@@ -284,22 +333,30 @@ def _coords(name: str, coords, an: Optional[Analysis] = None) -> np.ndarray:
     return np.ascontiguousarray(c)
 
 
-def quality(an: Analysis, coords, *, neighbourhood: int = 2, samples: int = 4096, seed: int = 0,
-            progress: Progress = None) -> Quality:
-    """Measure a coordinate map against the analysed sample (lower is better except coherence).
+def quality(an: Analysis, coords, *, neighbourhood: int = 2, samples: int = 4096, window: int = 3,
+            scales: int = 3, windows: int = 1024, seed: int = 0, progress: Progress = None) -> Quality:
+    """Measure a coordinate map against the analysed sample (see :class:`Quality` for each field).
 
-    * ``nn_distance``: per-pixel distance from output windows (radius ``neighbourhood``) to their
-      best match anywhere in the sample, over ``samples`` output pixels chosen by ``seed``;
-    * ``coherence``: fraction of adjacent output pairs adjacent in the sample the same way;
-    * ``seam``: median seam cost along the worst straight row or column boundary (nonzero only
-      where most of a line is broken: a visible seam line), ``seam_mean`` over all adjacent pairs;
-    * ``repetition``: largest fraction of pixels repeated at one translation (1 - sample/size for
-      plain tiling).
+    The headline measures (``structure``, ``seam_error``) score output windows of radius
+    ``window`` at ``scales`` scales (as many as fit in the sample and the output), ``windows``
+    random windows per scale and up to ``windows`` straddling ones, by an exact nearest-window
+    search of the sample (every sample pixel whose window fits inside it, at every scale, so a
+    coarse window is found at any phase); each output pixel shows its sample pixel's
+    finest-level texton vector. A synthesized 384^2 map of a 128^2 sample takes 1-3 s on 2 cores
+    (maps with no close matches, such as random placement, longer).
+    The older ``nn_distance`` uses windows of radius ``neighbourhood`` over ``samples`` output
+    pixels. ``seed`` chooses the windows.
+
+    Caveat: a window across the wrap-around of a sample that is exactly one period of its
+    texture is not in the sample, so tiling such a sample scores that window's best match; a
+    sample holding a period plus a window scores 0 when tiled at its period.
     """
     an = _analysis(an)
     c = _coords("coords", coords)
     d = an._a.quality(c, integer("neighbourhood", neighbourhood, min=1), integer("samples", samples, min=1),
-                      check_seed(seed), callback(progress, "quality"))
+                      check_seed(seed), integer("window", window, min=1), integer("scales", scales, min=1),
+                      integer("windows", windows, min=1), callback(progress, "quality"))
+    d["structure_levels"] = tuple(d["structure_levels"])
     return Quality(**d)
 
 

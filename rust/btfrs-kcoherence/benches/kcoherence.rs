@@ -20,7 +20,16 @@ fn table1(c: &mut Criterion) {
     for (size, k, r) in
         [(256usize, 1usize, 2usize), (256, 3, 2), (256, 6, 2), (256, 6, 3), (512, 1, 2), (512, 3, 2), (512, 6, 2)]
     {
-        let o = SynthOptions { height: size, width: size, k, radius: r, levels: 3, toroidal: false, seed: 7 };
+        let o = SynthOptions {
+            height: size,
+            width: size,
+            k,
+            radius: r,
+            coarse_radius: r,
+            levels: 3,
+            toroidal: false,
+            seed: 7,
+        };
         g.bench_with_input(BenchmarkId::new(format!("k{k}_n{r}"), size), &o, |b, o| {
             b.iter(|| kcoherence(&an, o, &Monitor::new()).unwrap())
         });
@@ -53,7 +62,16 @@ fn versus_embark(c: &mut Criterion) {
     g.bench_function("btfrs_analysis_and_kcoherence_k3_n2", |b| {
         b.iter(|| {
             let an = common::analyse_rgb(&rgb, 64, 64, &[2]);
-            let o = SynthOptions { height: 256, width: 256, k: 3, radius: 2, levels: 3, toroidal: false, seed: 7 };
+            let o = SynthOptions {
+                height: 256,
+                width: 256,
+                k: 3,
+                radius: 2,
+                coarse_radius: 2,
+                levels: 3,
+                toroidal: false,
+                seed: 7,
+            };
             kcoherence(&an, &o, &Monitor::new()).unwrap()
         })
     });

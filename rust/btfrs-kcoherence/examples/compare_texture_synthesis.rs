@@ -5,7 +5,7 @@
 //!
 //! `cargo run --release -p btfrs-kcoherence --example compare_texture_synthesis`
 use btfrs_core::Monitor;
-use btfrs_kcoherence::{jump_map, kcoherence, quality, CoordMap, JumpOptions, SynthOptions};
+use btfrs_kcoherence::{jump_map, kcoherence, quality, CoordMap, JumpOptions, QualityOptions, SynthOptions};
 use std::time::Instant;
 
 #[path = "../benches/common/mod.rs"]
@@ -28,7 +28,16 @@ fn main() {
     let t = Instant::now();
     let an = common::analyse_rgb(&rgb, h, w, &[2]);
     let t_an = t.elapsed().as_secs_f64();
-    let o = SynthOptions { height: out, width: out, k: 3, radius: 2, levels: 3, toroidal: false, seed: 7 };
+    let o = SynthOptions {
+        height: out,
+        width: out,
+        k: 3,
+        radius: 2,
+        coarse_radius: 2,
+        levels: 3,
+        toroidal: false,
+        seed: 7,
+    };
     let (t_k, m_k) = best_of(&mut || kcoherence(&an, &o, &Monitor::new()).unwrap());
     let jo = JumpOptions { height: out, width: out, radius: 2, jump: 0.05, seed: 7 };
     let (t_j, m_j) = best_of(&mut || jump_map(&an, &jo, &Monitor::new()).unwrap());
@@ -44,7 +53,7 @@ fn main() {
     println!("| method | seconds | nn_distance | coherence | seam | seam_mean | repetition |");
     println!("|---|---|---|---|---|---|---|");
     for (name, secs, map) in rows {
-        let q = quality(&an, &map, 2, 8192, 0, &Monitor::new()).unwrap();
+        let q = quality(&an, &map, &QualityOptions { samples: 8192, ..Default::default() }, &Monitor::new()).unwrap();
         println!(
             "| {name} | {secs:.3} | {:.4} | {:.3} | {:.4} | {:.4} | {:.3} |",
             q.nn_distance, q.coherence, q.seam, q.seam_mean, q.repetition

@@ -248,6 +248,11 @@ impl Analysis {
     /// Check that `levels` levels of the pyramid are big enough for windows of `radius` (each
     /// needs more than `m` interior pixels outside any one window).
     pub fn check_levels(&self, radius: usize, levels: usize) -> Result<()> {
+        self.check_levels_from(radius, 0, levels)
+    }
+
+    /// [`Analysis::check_levels`] for levels `first..levels` only (a coarse-level radius).
+    pub fn check_levels_from(&self, radius: usize, first: usize, levels: usize) -> Result<()> {
         if radius == 0 || radius > MAX_RADIUS {
             return Err(Error::arg(
                 "neighbourhood",
@@ -260,7 +265,7 @@ impl Analysis {
                 format!("expected 1 to {} levels (the levels of the analysis), got {levels}", self.levels.len()),
             ));
         }
-        for (l, lv) in self.levels.iter().take(levels).enumerate() {
+        for (l, lv) in self.levels.iter().enumerate().take(levels).skip(first) {
             let (ih, iw) = (lv.height.saturating_sub(2 * radius), lv.width.saturating_sub(2 * radius));
             let w = (2 * radius + 1).pow(2);
             if ih * iw < w + self.m {
@@ -285,9 +290,21 @@ impl Analysis {
 
     /// Compute (once) the similar neighbourhoods for `radius` on the first `levels` levels.
     pub fn ensure_neighbours(&mut self, radius: usize, levels: usize, monitor: &Monitor) -> Result<()> {
-        self.check_levels(radius, levels)?;
+        self.ensure_neighbours_at(radius, 0, levels, monitor)
+    }
+
+    /// Compute (once) the similar neighbourhoods for `radius` on levels `first..levels` (the
+    /// coarse levels of a synthesis with a larger coarse neighbourhood).
+    pub fn ensure_neighbours_at(
+        &mut self,
+        radius: usize,
+        first: usize,
+        levels: usize,
+        monitor: &Monitor,
+    ) -> Result<()> {
+        self.check_levels_from(radius, first, levels)?;
         let m = self.m;
-        for lv in self.levels.iter_mut().take(levels) {
+        for lv in self.levels.iter_mut().take(levels).skip(first) {
             if lv.neighbours(radius).is_none() {
                 let n = similar_neighbourhoods(lv, radius, m, monitor)?;
                 lv.neighbours.push(n);
@@ -299,9 +316,15 @@ impl Analysis {
 
     /// Work units of [`Analysis::ensure_neighbours`] (for progress reporting).
     pub fn neighbour_units(&self, radius: usize, levels: usize) -> u64 {
+        self.neighbour_units_at(radius, 0, levels)
+    }
+
+    /// Work units of [`Analysis::ensure_neighbours_at`].
+    pub fn neighbour_units_at(&self, radius: usize, first: usize, levels: usize) -> u64 {
         self.levels
             .iter()
             .take(levels)
+            .skip(first)
             .filter(|lv| lv.neighbours(radius).is_none())
             .map(|lv| lv.height.saturating_sub(2 * radius) as u64)
             .sum()
@@ -465,7 +488,16 @@ mod tests {
         // Levels are 17 x 16 and 8 x 8 (the odd row dropped): a faithful copy loads.
         assert_eq!((an.levels[1].height, an.levels[1].width), (8, 8));
         let back = Analysis::from_levels(an.levels.clone(), opts).unwrap();
-        let o = crate::SynthOptions { height: 24, width: 24, k: 2, radius: 1, levels: 2, toroidal: false, seed: 3 };
+        let o = crate::SynthOptions {
+            height: 24,
+            width: 24,
+            k: 2,
+            radius: 1,
+            coarse_radius: 1,
+            levels: 2,
+            toroidal: false,
+            seed: 3,
+        };
         let want = crate::kcoherence(&an, &o, &Monitor::new()).unwrap();
         assert_eq!(crate::kcoherence(&back, &o, &Monitor::new()).unwrap().src, want.src);
         let err = |levels: Vec<Level>, o: AnalysisOptions| Analysis::from_levels(levels, o).unwrap_err().to_string();

@@ -42,8 +42,12 @@ pub struct SynthOptions {
     pub width: usize,
     /// Candidates per known neighbour: its coherent shift plus `k - 1` similar pixels.
     pub k: usize,
-    /// Window radius (the paper's "neighborhood size").
+    /// Window radius (the paper's "neighborhood size") at the finest level.
     pub radius: usize,
+    /// Window radius at the coarser levels (at least `radius`): larger windows there see the
+    /// structure of a regular texture (brick courses) that the finest level's window is too
+    /// small for (paper 000, Figure 6: larger neighbourhoods and more levels help).
+    pub coarse_radius: usize,
     /// Pyramid levels used (at most those of the analysis).
     pub levels: usize,
     /// Wrap windows around the output edges (a tileable result).
@@ -85,9 +89,20 @@ pub(crate) fn check_size(h: usize, w: usize, radius: usize, levels: usize) -> Re
 
 /// The similar neighbourhoods of the first `levels` levels, or an error naming `neighbourhood`.
 pub(crate) fn neighbours_of(an: &Analysis, radius: usize, levels: usize) -> Result<Vec<&Neighbours>> {
+    neighbours_of_from(an, radius, 0, levels)
+}
+
+/// The similar neighbourhoods of levels `first..levels`.
+pub(crate) fn neighbours_of_from(
+    an: &Analysis,
+    radius: usize,
+    first: usize,
+    levels: usize,
+) -> Result<Vec<&Neighbours>> {
     an.levels
         .iter()
         .take(levels)
+        .skip(first)
         .map(|lv| {
             lv.neighbours(radius).ok_or_else(|| {
                 Error::arg(
@@ -108,19 +123,44 @@ pub(crate) fn random_interior(lv: &Level, r: usize, seed: u64, x: usize, y: usiz
     (sy * lv.width + sx) as u32
 }
 
+impl SynthOptions {
+    /// The window radius at level `l`.
+    pub fn radius_at(&self, l: usize) -> usize {
+        if l == 0 {
+            self.radius
+        } else {
+            self.coarse_radius
+        }
+    }
+}
+
 /// Run a hierarchical k-coherence synthesis. The analysis must hold the similar neighbourhoods
-/// of `radius` on the levels used ([`Analysis::ensure_neighbours`]). `monitor` is started with
-/// the number of output rows over all levels and passes.
+/// of `radius` on the finest level and of `coarse_radius` on the coarser levels used
+/// ([`Analysis::ensure_neighbours_at`]). `monitor` is started with the number of output rows
+/// over all levels and passes.
 pub fn kcoherence(an: &Analysis, o: &SynthOptions, monitor: &Monitor) -> Result<CoordMap> {
     an.check_levels(o.radius, o.levels)?;
+    if o.levels > 1 {
+        if o.coarse_radius < o.radius {
+            return Err(Error::arg(
+                "coarse_neighbourhood",
+                format!("expected at least the neighbourhood {}, got {}", o.radius, o.coarse_radius),
+            ));
+        }
+        an.check_levels_from(o.coarse_radius, 1, o.levels)?;
+    }
     if o.k == 0 || o.k > an.m {
         return Err(Error::arg(
             "k",
             format!("expected 1 to {} (the m similar neighbourhoods of the analysis), got {}", an.m, o.k),
         ));
     }
-    check_size(o.height, o.width, o.radius, o.levels)?;
-    let nbs = neighbours_of(an, o.radius, o.levels)?;
+    check_size(o.height, o.width, o.radius_at(o.levels - 1), o.levels)?;
+    let mut nbs = neighbours_of(an, o.radius, 1)?;
+    if o.levels > 1 {
+        let coarse = neighbours_of_from(an, o.coarse_radius, 1, o.levels)?;
+        nbs.extend(coarse);
+    }
     let sizes = level_sizes(o.height, o.width, o.levels);
     monitor.start(sizes.iter().map(|s| 2 * s.0 as u64).sum());
     let mut prev: Option<(Vec<u32>, usize)> = None;
@@ -179,13 +219,14 @@ struct Scratch {
 
 impl<'a> LevelSynth<'a> {
     fn new(lv: &'a Level, nb: &'a Neighbours, o: &SynthOptions, level: usize, oh: usize, ow: usize) -> Self {
-        let ri = o.radius as isize;
+        let r = o.radius_at(level);
+        let ri = r as isize;
         let offsets = (-ri..=ri).flat_map(|dy| (-ri..=ri).map(move |dx| (dx, dy))).filter(|&d| d != (0, 0)).collect();
         Self {
             lv,
             nb,
             k: o.k,
-            r: o.radius,
+            r,
             toroidal: o.toroidal,
             seed: rng::mix(o.seed ^ rng::mix(level as u64 + 1)),
             oh,
@@ -372,7 +413,16 @@ mod tests {
     #[test]
     fn output_is_coherent_interior_and_deterministic() {
         let an = analysis(2);
-        let o = SynthOptions { height: 40, width: 50, k: 3, radius: 2, levels: 2, toroidal: false, seed: 7 };
+        let o = SynthOptions {
+            height: 40,
+            width: 50,
+            k: 3,
+            radius: 2,
+            levels: 2,
+            coarse_radius: 2,
+            toroidal: false,
+            seed: 7,
+        };
         let a = kcoherence(&an, &o, &Monitor::new()).unwrap();
         assert_eq!((a.height, a.width, a.src.len()), (40, 50, 2000));
         // Every output pixel comes from the interior of the sample.
@@ -404,7 +454,16 @@ mod tests {
     fn banded_levels_do_not_depend_on_the_thread_count() {
         let an = analysis(2);
         // 100 rows at the finest level: several bands of BAND rows.
-        let o = SynthOptions { height: 100, width: 70, k: 3, radius: 2, levels: 2, toroidal: false, seed: 11 };
+        let o = SynthOptions {
+            height: 100,
+            width: 70,
+            k: 3,
+            radius: 2,
+            coarse_radius: 2,
+            levels: 2,
+            toroidal: false,
+            seed: 11,
+        };
         let a = kcoherence(&an, &o, &Monitor::new()).unwrap();
         let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
         let one = pool.install(|| kcoherence(&an, &o, &Monitor::new()).unwrap());
@@ -414,19 +473,67 @@ mod tests {
     #[test]
     fn bad_parameters_name_themselves() {
         let an = analysis(2);
-        let o = SynthOptions { height: 40, width: 40, k: 3, radius: 2, levels: 2, toroidal: false, seed: 7 };
+        let o = SynthOptions {
+            height: 40,
+            width: 40,
+            k: 3,
+            radius: 2,
+            levels: 2,
+            coarse_radius: 2,
+            toroidal: false,
+            seed: 7,
+        };
         let err = |o: SynthOptions| kcoherence(&an, &o, &Monitor::new()).unwrap_err().to_string();
         assert!(err(SynthOptions { k: 7, ..o }).starts_with("k:"));
         assert!(err(SynthOptions { k: 0, ..o }).starts_with("k:"));
         assert!(err(SynthOptions { height: 8, ..o }).starts_with("size:"));
         assert!(err(SynthOptions { levels: 3, ..o }).starts_with("levels:"));
         assert!(err(SynthOptions { radius: 1, ..o }).starts_with("neighbourhood:"));
+        assert!(err(SynthOptions { coarse_radius: 1, ..o }).starts_with("coarse_neighbourhood:"));
+        // A coarse radius whose neighbourhoods were not computed.
+        assert!(err(SynthOptions { coarse_radius: 3, ..o }).starts_with("neighbourhood:"));
+    }
+
+    #[test]
+    fn larger_coarse_neighbourhoods_use_their_own_sets() {
+        let mut an = analysis(2);
+        an.ensure_neighbours_at(3, 1, 2, &Monitor::new()).unwrap();
+        // Only the coarse level got radius-3 neighbourhoods.
+        assert!(an.levels[0].neighbours(3).is_none() && an.levels[1].neighbours(3).is_some());
+        let o = SynthOptions {
+            height: 64,
+            width: 64,
+            k: 3,
+            radius: 2,
+            coarse_radius: 3,
+            levels: 2,
+            toroidal: false,
+            seed: 7,
+        };
+        let a = kcoherence(&an, &o, &Monitor::new()).unwrap();
+        assert_eq!(a, kcoherence(&an, &o, &Monitor::new()).unwrap());
+        assert_ne!(a, kcoherence(&an, &SynthOptions { coarse_radius: 2, ..o }, &Monitor::new()).unwrap());
+        for y in 0..64 {
+            for x in 0..64 {
+                let (sx, sy) = a.source(x, y);
+                assert!((2..30).contains(&sx) && (2..30).contains(&sy));
+            }
+        }
     }
 
     #[test]
     fn toroidal_output_wraps_coherently() {
         let an = analysis(1);
-        let o = SynthOptions { height: 24, width: 24, k: 2, radius: 2, levels: 1, toroidal: true, seed: 3 };
+        let o = SynthOptions {
+            height: 24,
+            width: 24,
+            k: 2,
+            radius: 2,
+            coarse_radius: 2,
+            levels: 1,
+            toroidal: true,
+            seed: 3,
+        };
         let a = kcoherence(&an, &o, &Monitor::new()).unwrap();
         // The stripe class along the wrap seam (last column -> first column) agrees as well as
         // inside: the map tiles.

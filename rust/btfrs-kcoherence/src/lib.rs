@@ -16,8 +16,12 @@
 //! * [`jump_map`]: the jump map (Zelinka and Garland 2002, the paper's reference 19) over the same
 //!   analysis: no neighbourhood search at synthesis time.
 //! * [`coordmap`]: the coordinate map and the two baselines (plain tiling, random placement).
-//! * [`quality`]: measures of a coordinate map against its sample (neighbourhood distance to the
-//!   best match, coherence, seams, repetition).
+//! * [`quality`]: measures of a coordinate map against its sample: multi-scale window distances
+//!   to the best sample match (`structure`), the same for the windows straddling the map's
+//!   discontinuities (`seam_error`), and the older texton-window distance, coherence, pair seams,
+//!   repetition.
+//! * [`textures`]: photograph-like structured RGB test textures (bricks), seeded, cropped off
+//!   their period.
 
 pub mod analysis;
 mod analysis_arrays;
@@ -27,11 +31,13 @@ pub mod kcoherence;
 pub mod pyramid;
 pub mod quality;
 pub mod textons;
+pub mod textures;
+mod windows;
 
 pub use analysis::{Analysis, AnalysisOptions, Level, Neighbours};
 pub use coordmap::CoordMap;
 pub use jump_map::{jump_map, JumpOptions};
 pub use kcoherence::{kcoherence, SynthOptions};
 pub use pyramid::Features;
-pub use quality::{quality, Quality};
+pub use quality::{quality, Quality, QualityOptions};
 pub use textons::{btf_features, FeatureMode, Textons};

@@ -1,8 +1,35 @@
 //! Measures of a synthesized coordinate map against its sample, comparable across methods
 //! (k-coherence, the jump map, plain tiling, random placement, other synthesizers' maps).
 //!
-//! All distances are the analysis's texton distances at the finest level, divided by the mean
-//! distance between two random sample pixels, so 1 is "as different as random pixels":
+//! **The headline measures** look at windows of the output image (each output pixel shows its
+//! sample pixel's finest-level texton vector) at several scales ([`crate::windows`]: scale `l`
+//! blurred `l` times, windows of radius `window` with taps `2^l` apart, so 7 x 7, 13 x 13 and
+//! 25 x 25 pixels for `window = 3` over 3 scales), each scored by its exact nearest window of the
+//! sample at the same scale, per pixel, divided by twice the sample's variance at that scale (1
+//! is "as different as random pixels"). A window the output copied from the sample scores 0; a
+//! window that exists nowhere in the sample (a mortar line ending in mid-brick, a brick cut in
+//! two) scores what the closest real one differs from it:
+//!
+//! * `structure` (lower is better): the mean score of `windows` random output windows per scale,
+//!   averaged over the scales with **equal weights** (`structure_levels` holds each scale's
+//!   mean, finest first). Coarse scales see structure broken over tens of pixels.
+//! * `seam_error`, `seam_error_p90` (lower is better): the mean and the 90th percentile of the
+//!   scores of the windows that *straddle a discontinuity* of the coordinate map (adjacent output
+//!   pixels whose sample pixels are not adjacent the same way, wrap-around of plain tiling
+//!   included) within their footprint, up to `windows` of them per scale, each averaged over the
+//!   scales with equal weights (a scale without such windows counts 0). Windows inside a patch
+//!   copy the sample and score 0, so these look at the seams only: plain tiling of a crop that
+//!   does not tile scores badly, tiling a periodic sample at its period (when the sample holds a
+//!   whole period plus a window) scores 0. Caveat: a sample that is exactly one period has no
+//!   window across its own wrap-around, so even a seamless tiling of it scores its best match.
+//! * `straddling`: the fraction of the finest scale's output windows that straddle a
+//!   discontinuity (how much of the output is near a seam).
+//!
+//! **The older pair and window measures**, kept for comparison (they are blind to broken
+//! structure: the pair seam costs of plain tiling are 0 wherever its edge pixels look like some
+//! adjacent pair of the sample, and `nn_distance` is dominated by the copied windows inside the
+//! patches). Their distances are the analysis's texton distances at the finest level, divided by
+//! the mean distance between two random sample pixels:
 //!
 //! * `nn_distance` (lower is better): for a set of output pixels, the distance per pixel from the
 //!   output window (radius `r`) to the best matching window anywhere in the sample. It is what
@@ -24,12 +51,47 @@
 
 use crate::analysis::Analysis;
 use crate::coordmap::CoordMap;
+use crate::windows::{self, Img, Search};
 use btfrs_core::{rng, Error, Monitor, Result};
 use rayon::prelude::*;
 
+/// Parameters of [`quality`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct QualityOptions {
+    /// Window radius of the old `nn_distance` (texton windows).
+    pub radius: usize,
+    /// Output pixels measured by `nn_distance` (all of them when fewer).
+    pub samples: usize,
+    /// Output windows measured per scale, for `structure` and again for `seam_error` (all of
+    /// them when fewer).
+    pub windows: usize,
+    /// Seed of the choice of windows.
+    pub seed: u64,
+    /// Window radius at every scale of `structure` and `seam_error` (3: 7 x 7 taps).
+    pub window: usize,
+    /// Scales of `structure` and `seam_error` (as many as fit in the sample and the output).
+    pub scales: usize,
+}
+
+impl Default for QualityOptions {
+    fn default() -> Self {
+        Self { radius: 2, samples: 4096, windows: 1024, seed: 0, window: 3, scales: 3 }
+    }
+}
+
 /// The quality measures of one coordinate map (see the module doc).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Quality {
+    /// Mean multi-scale window score (normalised), scales weighted equally.
+    pub structure: f64,
+    /// Mean window score per scale, finest first.
+    pub structure_levels: Vec<f64>,
+    /// Mean score of the windows straddling a coordinate-map discontinuity.
+    pub seam_error: f64,
+    /// 90th percentile of the scores of the straddling windows.
+    pub seam_error_p90: f64,
+    /// Fraction of the finest-scale output windows straddling a discontinuity.
+    pub straddling: f64,
     /// Mean per-pixel distance of output windows to their best sample match (normalised).
     pub nn_distance: f64,
     /// Fraction of coherent adjacent pairs.
@@ -44,17 +106,10 @@ pub struct Quality {
     pub samples: usize,
 }
 
-/// Measure `map` against the sample analysed in `an`, with windows of `radius` and
-/// `nn_distance` over `samples` output pixels (all of them when fewer; chosen by `seed`).
-/// `monitor` advances by one per 64 sampled pixels.
-pub fn quality(
-    an: &Analysis,
-    map: &CoordMap,
-    radius: usize,
-    samples: usize,
-    seed: u64,
-    monitor: &Monitor,
-) -> Result<Quality> {
+/// Measure `map` against the sample analysed in `an` (see [`QualityOptions`]). `monitor`
+/// advances by one per 64 measured windows.
+pub fn quality(an: &Analysis, map: &CoordMap, o: &QualityOptions, monitor: &Monitor) -> Result<Quality> {
+    let (radius, samples, seed) = (o.radius, o.samples, o.seed);
     let lv = &an.levels[0];
     if (map.sample_height, map.sample_width) != (lv.height, lv.width) {
         return Err(Error::arg(
@@ -79,7 +134,9 @@ pub fn quality(
     } else {
         (0..samples).map(|i| (rng::hash01(seed, i as i64, 3) * n as f64) as usize).collect()
     };
-    monitor.start(pick.len().div_ceil(64) as u64);
+    let ms = MultiScale::new(an, map, o)?;
+    monitor.start(pick.len().div_ceil(64) as u64 + ms.units());
+    let ms = ms.run(monitor)?;
     let t_out: Vec<u16> = map.src.iter().map(|&s| tex.assign[s as usize]).collect();
     let nn: Vec<f64> = pick
         .par_chunks(64)
@@ -154,6 +211,11 @@ pub fn quality(
     let worst = vert.iter().chain(&horiz).map(|v| v.2).fold(0.0, f64::max);
 
     Ok(Quality {
+        structure: ms.structure,
+        structure_levels: ms.structure_levels,
+        seam_error: ms.seam_error,
+        seam_error_p90: ms.seam_error_p90,
+        straddling: ms.straddling,
         nn_distance,
         coherence: coherent as f64 / pairs,
         seam: worst / norm,
@@ -161,6 +223,151 @@ pub fn quality(
         repetition: repetition(map, 2 * radius + 1),
         samples: pick.len(),
     })
+}
+
+/// The multi-scale window measures, prepared: images per scale and the windows to score.
+struct MultiScale {
+    sample: Vec<Img>,
+    out: Vec<Img>,
+    r: usize,
+    /// The map's sample pixels, output width, sample width.
+    src: Vec<u32>,
+    w: usize,
+    sw: usize,
+    /// Per scale: random centres (structure) and straddling centres (seams).
+    random: Vec<Vec<(usize, usize)>>,
+    straddle: Vec<Vec<(usize, usize)>>,
+    straddling: f64,
+}
+
+struct MultiScaleResult {
+    structure: f64,
+    structure_levels: Vec<f64>,
+    seam_error: f64,
+    seam_error_p90: f64,
+    straddling: f64,
+}
+
+impl MultiScale {
+    fn new(an: &Analysis, map: &CoordMap, o: &QualityOptions) -> Result<Self> {
+        let r = o.window;
+        if r == 0 || r > crate::analysis::MAX_RADIUS {
+            return Err(Error::arg(
+                "window",
+                format!("expected a window radius of 1 to {}, got {r}", crate::analysis::MAX_RADIUS),
+            ));
+        }
+        if o.windows == 0 {
+            return Err(Error::arg("windows", "expected at least 1 output window per scale, got 0"));
+        }
+        if o.scales == 0 || o.scales > 6 {
+            return Err(Error::arg("scales", format!("expected 1 to 6 scales, got {}", o.scales)));
+        }
+        let tex = &an.levels[0].textons;
+        let (sh, sw) = an.size();
+        let d = tex.dim;
+        let vec_of = |s: usize| &tex.centers[tex.assign[s] as usize * d..(tex.assign[s] as usize + 1) * d];
+        let fits = |h: usize, w: usize, l: usize| {
+            let m = windows::margin(r, l);
+            h >= 2 * m + 4 && w >= 2 * m + 4
+        };
+        let (h, w) = (map.height, map.width);
+        let levels = (0..o.scales).take_while(|&l| fits(sh, sw, l) && fits(h, w, l)).count();
+        if levels == 0 {
+            return Err(Error::arg(
+                "window",
+                format!(
+                    "windows of radius {r} need a sample and an output of at least {0} x {0} pixels; the sample is \
+                     {sh} x {sw}, the output {h} x {w}",
+                    2 * r + 5
+                ),
+            ));
+        }
+        let sample = Img { h: sh, w: sw, d, data: (0..sh * sw).flat_map(vec_of).copied().collect() };
+        let out = Img { h, w, d, data: map.src.iter().flat_map(|&s| vec_of(s as usize)).copied().collect() };
+        let (sample, out) = (windows::scales(sample, levels), windows::scales(out, levels));
+        // Discontinuities: horizontal pair (x, y)-(x+1, y) at hd[y][x], vertical (x, y)-(x, y+1)
+        // at vd[y][x]; summed-area tables over them.
+        let src_xy = |p: usize| ((map.src[p] as usize % sw) as isize, (map.src[p] as usize / sw) as isize);
+        let sat = |f: &dyn Fn(usize, usize) -> bool| -> Vec<u32> {
+            let mut t = vec![0u32; (h + 1) * (w + 1)];
+            for y in 0..h {
+                for x in 0..w {
+                    t[(y + 1) * (w + 1) + x + 1] =
+                        f(x, y) as u32 + t[y * (w + 1) + x + 1] + t[(y + 1) * (w + 1) + x] - t[y * (w + 1) + x];
+                }
+            }
+            t
+        };
+        let hd = sat(&|x, y| {
+            x + 1 < w && {
+                let (a, b) = (src_xy(y * w + x), src_xy(y * w + x + 1));
+                b != (a.0 + 1, a.1)
+            }
+        });
+        let vd = sat(&|x, y| {
+            y + 1 < h && {
+                let (a, b) = (src_xy(y * w + x), src_xy((y + 1) * w + x));
+                b != (a.0, a.1 + 1)
+            }
+        });
+        // Sum of a table over x0..x1, y0..y1 (exclusive ends).
+        let area = |t: &[u32], x0: usize, x1: usize, y0: usize, y1: usize| {
+            t[y1 * (w + 1) + x1] + t[y0 * (w + 1) + x0] - t[y0 * (w + 1) + x1] - t[y1 * (w + 1) + x0]
+        };
+        let mut random = Vec::new();
+        let mut straddle = Vec::new();
+        let mut straddling = 0.0;
+        for l in 0..levels {
+            let m = windows::margin(r, l);
+            let all: Vec<(usize, usize)> = (m..h - m).flat_map(|y| (m..w - m).map(move |x| (x, y))).collect();
+            let cut: Vec<(usize, usize)> = all
+                .iter()
+                .copied()
+                .filter(|&(x, y)| {
+                    let (x0, x1, y0, y1) = (x - m, x + m + 1, y - m, y + m + 1);
+                    area(&hd, x0, x1 - 1, y0, y1) + area(&vd, x0, x1, y0, y1 - 1) > 0
+                })
+                .collect();
+            if l == 0 {
+                straddling = cut.len() as f64 / all.len() as f64;
+            }
+            random.push(windows::draw(&all, o.windows, o.seed, 2 * l as i64 + 101));
+            straddle.push(windows::draw(&cut, o.windows, o.seed, 2 * l as i64 + 102));
+        }
+        Ok(Self { sample, out, r, src: map.src.clone(), w, sw, random, straddle, straddling })
+    }
+
+    fn units(&self) -> u64 {
+        self.random.iter().chain(&self.straddle).map(|v| v.len().div_ceil(64) as u64).sum()
+    }
+
+    fn run(self, monitor: &Monitor) -> Result<MultiScaleResult> {
+        let levels = self.sample.len();
+        let (mut structure_levels, mut seam, mut p90) = (Vec::new(), 0.0, 0.0);
+        for l in 0..levels {
+            let search = Search::new(&self.sample[l], self.r, l).expect("the scale fits (checked)");
+            let hint = |x: usize, y: usize| {
+                let s = self.src[y * self.w + x] as usize;
+                (s % self.sw, s / self.sw)
+            };
+            let s = windows::score(&search, &self.out[l], &self.random[l], &hint, monitor)?;
+            structure_levels.push(s.iter().sum::<f64>() / s.len().max(1) as f64);
+            let mut c = windows::score(&search, &self.out[l], &self.straddle[l], &hint, monitor)?;
+            if !c.is_empty() {
+                seam += c.iter().sum::<f64>() / c.len() as f64;
+                c.sort_unstable_by(f64::total_cmp);
+                p90 += c[(0.9 * (c.len() - 1) as f64).round() as usize];
+            }
+        }
+        Ok(MultiScaleResult {
+            structure: structure_levels.iter().sum::<f64>() / levels as f64,
+            structure_levels,
+            seam_error: seam / levels as f64,
+            seam_error_p90: p90 / levels as f64,
+            straddling: self.straddling,
+        })
+    }
 }
 
 /// Per-pixel distance from the output window around `p` (clipped at the output edges) to the
@@ -271,17 +478,24 @@ mod tests {
         Analysis::of_features(f, opts, &[1], &Monitor::new()).unwrap()
     }
 
+    fn opts() -> QualityOptions {
+        QualityOptions { radius: 1, samples: 10_000, ..Default::default() }
+    }
+
     #[test]
     fn closed_form_cases() {
         let an = analysis();
         // The identity map reproduces the sample: every window is in it, every pair coherent.
         let id = CoordMap::tiled(20, 20, 20, 20);
-        let q = quality(&an, &id, 1, 10_000, 0, &Monitor::new()).unwrap();
+        let q = quality(&an, &id, &opts(), &Monitor::new()).unwrap();
         assert_eq!(q.nn_distance, 0.0);
         assert_eq!((q.coherence, q.seam, q.seam_mean, q.repetition), (1.0, 0.0, 0.0, 0.0));
+        // No discontinuity: every window is a sample window, no window straddles a seam.
+        assert_eq!((q.structure, q.seam_error, q.seam_error_p90, q.straddling), (0.0, 0.0, 0.0, 0.0));
+        assert_eq!(q.structure_levels, vec![0.0, 0.0]);
         // Tiling 2 x 1: one seam column, repetition at t = (20, 0) for half the pixels.
         let t = CoordMap::tiled(20, 40, 20, 20);
-        let q = quality(&an, &t, 1, 10_000, 0, &Monitor::new()).unwrap();
+        let q = quality(&an, &t, &opts(), &Monitor::new()).unwrap();
         assert!((q.repetition - 0.5).abs() < 1e-12);
         assert!((q.coherence - (20.0 * 38.0 + 19.0 * 40.0) / (20.0 * 39.0 + 19.0 * 40.0)).abs() < 1e-12);
         // At the seam column both continuations, (20, y) and (-1, y), leave the sample, so a
@@ -310,7 +524,44 @@ mod tests {
         );
         // Random placement is far from the sample.
         let r = CoordMap::random(20, 40, 20, 20, 1);
-        let qr = quality(&an, &r, 1, 10_000, 0, &Monitor::new()).unwrap();
+        let qr = quality(&an, &r, &opts(), &Monitor::new()).unwrap();
         assert!(qr.nn_distance > 0.2 && qr.coherence < 0.05 && qr.seam_mean > 0.5, "{qr:?}");
+    }
+
+    /// The bricks texture as an analysed sample: `size^2`, period (4, 2) bricks = 68 x 76 pixels.
+    fn bricks(size: usize) -> (Analysis, Vec<f32>) {
+        let t = crate::textures::texture("bricks", size, size, 5, (4, 2)).unwrap();
+        let f = Features::new(size, size, 3, t.clone()).unwrap();
+        let opts = AnalysisOptions { textons: 1024, levels: 1, m: 4, iterations: 5, seed: 0 };
+        (Analysis::of_features(f, opts, &[1], &Monitor::new()).unwrap(), t)
+    }
+
+    #[test]
+    fn seams_and_structure_rank_tilings_as_the_eye_does() {
+        let (an, _) = bricks(128);
+        let out = 256;
+        let o = QualityOptions { samples: 1024, ..Default::default() };
+        let q = |m: &CoordMap| quality(&an, m, &o, &Monitor::new()).unwrap();
+        // Tiling at the period: seamless (its jumps from column 75 to 0 continue the pattern).
+        let (ph, pw) = crate::textures::period_pixels((4, 2));
+        let good = CoordMap {
+            width: out,
+            height: out,
+            sample_width: 128,
+            sample_height: 128,
+            src: (0..out * out).map(|p| ((p / out % ph) * 128 + p % out % pw) as u32).collect(),
+        };
+        let qg = q(&good);
+        assert!(qg.straddling > 0.05, "{qg:?}");
+        assert!(qg.seam_error < 1e-6 && qg.structure < 1e-6, "{qg:?}");
+        // Plain tiling of the off-period crop: broken mortar at every tile boundary.
+        let qt = q(&CoordMap::tiled(out, out, 128, 128));
+        assert!(qt.seam_error > 0.05 && qt.seam_error_p90 > qt.seam_error, "{qt:?}");
+        assert!(qt.structure > 0.01, "{qt:?}");
+        // The old pair measure calls it seamless along its worst line: what the user reported.
+        // Random placement is far worse still.
+        let qr = q(&CoordMap::random(out, out, 128, 128, 3));
+        assert!(qr.seam_error > 2.0 * qt.seam_error && qr.structure > 10.0 * qt.structure, "{qr:?} {qt:?}");
+        assert!((qr.straddling - 1.0).abs() < 1e-12);
     }
 }

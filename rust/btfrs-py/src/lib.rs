@@ -68,5 +68,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<synth::PyAnalysis>()?;
     m.add_function(wrap_pyfunction!(synth::analyse_btf_native, m)?)?;
     m.add_function(wrap_pyfunction!(synth::analyse_features_native, m)?)?;
+    m.add_function(wrap_pyfunction!(synth::texture_names, m)?)?;
+    m.add_function(wrap_pyfunction!(synth::make_texture, m)?)?;
     Ok(())
 }

@@ -7,8 +7,8 @@ use crate::errors::{arg, IntoPy};
 use crate::models::{arrays_dict, named_arrays};
 use crate::run::{detach, monitored};
 use btfrs_kcoherence::{
-    jump_map, kcoherence, quality, Analysis, AnalysisOptions, CoordMap, FeatureMode, Features, JumpOptions, Level,
-    SynthOptions,
+    jump_map, kcoherence, quality, textures, Analysis, AnalysisOptions, CoordMap, FeatureMode, Features, JumpOptions,
+    Level, QualityOptions, SynthOptions,
 };
 use numpy::{IntoPyArray, PyArray3, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -132,28 +132,29 @@ impl PyAnalysis {
         Ok((idx.into_pyarray(py).reshape(shape)?, n.dist.clone().into_pyarray(py).reshape(shape)?))
     }
 
-    /// Compute (once) the similar neighbourhoods of `neighbourhood` on the first `levels` levels.
-    #[pyo3(signature = (neighbourhood, levels, progress=None))]
+    /// Compute (once) the similar neighbourhoods of `neighbourhood` on levels `first..levels`.
+    #[pyo3(signature = (neighbourhood, levels, progress=None, first=0))]
     fn ensure_neighbourhood(
         &mut self,
         py: Python<'_>,
         neighbourhood: usize,
         levels: usize,
         progress: Option<&Bound<'_, PyAny>>,
+        first: usize,
     ) -> PyResult<()> {
         let an = &mut self.inner;
-        an.check_levels(neighbourhood, levels).py()?;
-        if an.neighbour_units(neighbourhood, levels) == 0 {
+        an.check_levels_from(neighbourhood, first, levels).py()?;
+        if an.neighbour_units_at(neighbourhood, first, levels) == 0 {
             return Ok(());
         }
         monitored(py, progress, |mon| {
-            mon.start(an.neighbour_units(neighbourhood, levels));
-            an.ensure_neighbours(neighbourhood, levels, mon)
+            mon.start(an.neighbour_units_at(neighbourhood, first, levels));
+            an.ensure_neighbours_at(neighbourhood, first, levels, mon)
         })
     }
 
     /// Hierarchical k-coherence synthesis; `[height, width, 2]` uint16 (x, y).
-    #[pyo3(signature = (height, width, k, neighbourhood, levels, toroidal, seed, progress=None))]
+    #[pyo3(signature = (height, width, k, neighbourhood, coarse_neighbourhood, levels, toroidal, seed, progress=None))]
     #[allow(clippy::too_many_arguments)]
     fn kcoherence<'py>(
         &self,
@@ -162,12 +163,22 @@ impl PyAnalysis {
         width: usize,
         k: usize,
         neighbourhood: usize,
+        coarse_neighbourhood: usize,
         levels: usize,
         toroidal: bool,
         seed: u64,
         progress: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray3<u16>>> {
-        let o = SynthOptions { height, width, k, radius: neighbourhood, levels, toroidal, seed };
+        let o = SynthOptions {
+            height,
+            width,
+            k,
+            radius: neighbourhood,
+            coarse_radius: coarse_neighbourhood,
+            levels,
+            toroidal,
+            seed,
+        };
         let an = &self.inner;
         let m = monitored(py, progress, |mon| kcoherence(an, &o, mon))?;
         map_to_py(py, m)
@@ -193,7 +204,8 @@ impl PyAnalysis {
     }
 
     /// The quality measures of a coordinate map (a dict).
-    #[pyo3(signature = (coords, neighbourhood, samples, seed, progress=None))]
+    #[pyo3(signature = (coords, neighbourhood, samples, seed, window=3, scales=3, windows=1024, progress=None))]
+    #[allow(clippy::too_many_arguments)]
     fn quality<'py>(
         &self,
         py: Python<'py>,
@@ -201,6 +213,9 @@ impl PyAnalysis {
         neighbourhood: usize,
         samples: usize,
         seed: u64,
+        window: usize,
+        scales: usize,
+        windows: usize,
         progress: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let c = borrow::<u16>("coords", coords)?;
@@ -210,8 +225,14 @@ impl PyAnalysis {
         let map = CoordMap::from_xy(h, w, c.as_slice().map_err(|e| arg("coords", e))?, sh, sw).py()?;
         drop(c);
         let an = &self.inner;
-        let q = monitored(py, progress, |mon| quality(an, &map, neighbourhood, samples, seed, mon))?;
+        let o = QualityOptions { radius: neighbourhood, samples, windows, seed, window, scales };
+        let q = monitored(py, progress, |mon| quality(an, &map, &o, mon))?;
         let d = PyDict::new(py);
+        d.set_item("structure", q.structure)?;
+        d.set_item("structure_levels", q.structure_levels)?;
+        d.set_item("seam_error", q.seam_error)?;
+        d.set_item("seam_error_p90", q.seam_error_p90)?;
+        d.set_item("straddling", q.straddling)?;
         d.set_item("nn_distance", q.nn_distance)?;
         d.set_item("coherence", q.coherence)?;
         d.set_item("seam", q.seam)?;
@@ -314,4 +335,25 @@ pub fn analyse_features_native<'py>(
         Analysis::of_features(f, o, &neighbourhoods, mon)
     })?;
     Ok(PyAnalysis { inner })
+}
+
+/// The names of the structured test textures.
+#[pyfunction]
+pub fn texture_names() -> Vec<&'static str> {
+    textures::NAMES.to_vec()
+}
+
+/// A structured test texture, `[height, width, 3]` float32 RGB in [0, 1]; the pattern repeats
+/// every `period = (brick rows, bricks per row)`.
+#[pyfunction]
+pub fn make_texture<'py>(
+    py: Python<'py>,
+    name: &str,
+    height: usize,
+    width: usize,
+    seed: u64,
+    period: (usize, usize),
+) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    let t = textures::texture(name, height, width, seed, period).py()?;
+    t.into_pyarray(py).reshape([height, width, 3])
 }

@@ -32,8 +32,13 @@ pub fn analyse_btf(btf: &Btf, radii: &[usize]) -> Analysis {
 
 /// Our analysis of an RGB texture (values / 255 as features).
 pub fn analyse_rgb(rgb: &[u8], h: usize, w: usize, radii: &[usize]) -> Analysis {
+    analyse_rgb_levels(rgb, h, w, radii, 3)
+}
+
+/// [`analyse_rgb`] with `levels` pyramid levels.
+pub fn analyse_rgb_levels(rgb: &[u8], h: usize, w: usize, radii: &[usize], levels: usize) -> Analysis {
     let f = Features::new(h, w, 3, rgb.iter().map(|&v| v as f32 / 255.0).collect()).unwrap();
-    let opts = AnalysisOptions { textons: 1024.min(h * w), ..Default::default() };
+    let opts = AnalysisOptions { textons: 1024.min(h * w), levels, ..Default::default() };
     Analysis::of_features(f, opts, radii, &Monitor::new()).unwrap()
 }
 
@@ -55,4 +60,31 @@ pub fn embark_map(g: &ts::GeneratedImage, h: usize, w: usize) -> CoordMap {
     let (ow, oh) = (out.width() as usize, out.height() as usize);
     let xy: Vec<u16> = out.pixels().flat_map(|p| [p.0[0] as u16, p.0[1] as u16]).collect();
     CoordMap::from_xy(oh, ow, &xy, h, w).unwrap()
+}
+
+/// Write 8-bit RGB as a PNG.
+pub fn write_png(path: &str, rgb: &[u8], h: usize, w: usize) {
+    let f = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut e = png::Encoder::new(f, w as u32, h as u32);
+    e.set_color(png::ColorType::Rgb);
+    e.set_depth(png::BitDepth::Eight);
+    e.write_header().unwrap().write_image_data(rgb).unwrap();
+}
+
+/// A deliberately scrambled map: `out^2` made of `block^2` blocks of the `n^2` sample, each from
+/// a random place (seeded).
+pub fn scrambled(out: usize, n: usize, block: usize, seed: u64) -> CoordMap {
+    let mut src = vec![0u32; out * out];
+    for by in (0..out).step_by(block) {
+        for bx in (0..out).step_by(block) {
+            let h = |c: i64| btfrs_core::rng::hash01(seed, (by * out + bx) as i64, c);
+            let (sx, sy) = ((h(0) * (n - block) as f64) as usize, (h(1) * (n - block) as f64) as usize);
+            for y in by..(by + block).min(out) {
+                for x in bx..(bx + block).min(out) {
+                    src[y * out + x] = ((sy + y - by) * n + sx + x - bx) as u32;
+                }
+            }
+        }
+    }
+    CoordMap { width: out, height: out, sample_width: n, sample_height: n, src }
 }
