@@ -140,6 +140,67 @@ impl Canvas {
     }
 }
 
+/// The seam cost of every edge of a canvas (to the right and downwards neighbour), kept up to
+/// date patch by patch, so a refinement step reads the per-pixel errors without recomputing
+/// every seam (each costs four feature distances: hundreds of coefficients for an SH model).
+#[derive(Debug, Clone)]
+struct EdgeCosts {
+    right: Vec<f64>,
+    down: Vec<f64>,
+}
+
+impl EdgeCosts {
+    fn new(c: &Canvas, s: &Sample<'_>) -> Self {
+        let mut e = EdgeCosts { right: vec![0.0; c.src.len()], down: vec![0.0; c.src.len()] };
+        e.update(c, s, &Rect { y0: 0, x0: 0, h: c.height, w: c.width });
+        e
+    }
+
+    /// Recompute the edges with an end in `r`.
+    fn update(&mut self, c: &Canvas, s: &Sample<'_>, r: &Rect) {
+        let (y0, x0) = (r.y0.saturating_sub(1), r.x0.saturating_sub(1));
+        for y in y0..(r.y0 + r.h).min(c.height) {
+            for x in x0..(r.x0 + r.w).min(c.width) {
+                let i = y * c.width + x;
+                self.right[i] = c.edge_cost(s, y, x, 0, 1);
+                self.down[i] = c.edge_cost(s, y, x, 1, 0);
+            }
+        }
+    }
+
+    fn pixel_errors(&self, c: &Canvas) -> Vec<f64> {
+        let mut err = vec![0.0f64; c.src.len()];
+        for y in 0..c.height {
+            for x in 0..c.width {
+                let i = y * c.width + x;
+                if c.src[i] == EMPTY {
+                    err[i] = f64::INFINITY;
+                    continue;
+                }
+                let (r, d) = (self.right[i], self.down[i]);
+                if r > 0.0 {
+                    err[i] += 0.5 * r;
+                    err[i + 1] += 0.5 * r;
+                }
+                if d > 0.0 {
+                    err[i] += 0.5 * d;
+                    err[i + c.width] += 0.5 * d;
+                }
+            }
+        }
+        err
+    }
+
+    fn edge(&self, c: &Canvas, (py, px): (usize, usize), (qy, _): (usize, usize)) -> f64 {
+        let i = py * c.width + px;
+        if qy > py {
+            self.down[i]
+        } else {
+            self.right[i]
+        }
+    }
+}
+
 /// How a fill proceeds. Thresholds are in units of the sample's mean squared distance between
 /// random texel pairs ([`Features::pair_scale`]), i.e. 1.0 is the seam cost of unrelated texels.
 #[derive(Debug, Clone)]
@@ -212,14 +273,15 @@ pub fn fill(
         let (y, x) = ((i / canvas.width) as i64, (i % canvas.width) as i64);
         let r = Rect::clipped(y - overlap, x - overlap, p, canvas);
         let offset = choose_offset(canvas, sample, &r, opts, rng, None);
-        place(canvas, sample, &r, offset, true);
+        place(canvas, sample, &r, offset, true, None);
         stats.fill_patches += 1;
     }
     // Refinement: a patch over the worst pixel, kept only if it lowers the seam cost.
     let mut rejects = 0;
+    let mut costs = EdgeCosts::new(canvas, sample);
     for _ in 0..opts.refine {
         monitor.check()?;
-        let err = canvas.pixel_errors(sample);
+        let err = costs.pixel_errors(canvas);
         let (worst, mean) = region_error(&err, &region);
         if worst / scale <= opts.pixel_threshold && mean / scale <= opts.total_threshold {
             break;
@@ -233,7 +295,8 @@ pub fn fill(
         let r = Rect::clipped(y - half, x - half, p, canvas);
         let current = canvas.src[i];
         let offset = choose_offset(canvas, sample, &r, opts, rng, Some((i, current)));
-        if place(canvas, sample, &r, offset, false) {
+        if place(canvas, sample, &r, offset, false, Some(&costs)) {
+            costs.update(canvas, sample, &r);
             stats.refined += 1;
             rejects = 0;
         } else {
@@ -241,9 +304,9 @@ pub fn fill(
             rejects += 1;
         }
     }
-    let err = canvas.pixel_errors(sample);
+    let err = costs.pixel_errors(canvas);
     let (worst, mean) = region_error(&err, &region);
-    stats.seam_total = canvas.seam_total(sample) / scale;
+    stats.seam_total = (costs.right.iter().sum::<f64>() + costs.down.iter().sum::<f64>()) / scale;
     stats.seam_mean = mean / scale;
     stats.seam_max = worst / scale;
     stats.converged = stats.seam_max <= opts.pixel_threshold && stats.seam_mean <= opts.total_threshold;
@@ -386,7 +449,15 @@ enum Role {
 
 /// Place the patch at `off` over `r` with a minimum cut; returns whether it was applied.
 /// `force`: apply even if the seam cost of the region goes up (first pass: empty pixels).
-fn place(c: &mut Canvas, s: &Sample<'_>, r: &Rect, off: (usize, usize), force: bool) -> bool {
+/// `costs`: the canvas's current edge costs (refinement), for the seam cost before the patch.
+fn place(
+    c: &mut Canvas,
+    s: &Sample<'_>,
+    r: &Rect,
+    off: (usize, usize),
+    force: bool,
+    costs: Option<&EdgeCosts>,
+) -> bool {
     let idx = |y: usize, x: usize| y * c.width + x;
     let inside = |y: usize, x: usize| y >= r.y0 && y < r.y0 + r.h && x >= r.x0 && x < r.x0 + r.w;
     let mut node_of = vec![usize::MAX; r.h * r.w];
@@ -457,8 +528,8 @@ fn place(c: &mut Canvas, s: &Sample<'_>, r: &Rect, off: (usize, usize), force: b
             continue;
         }
         let (op, oq) = (c.src[idx(py, px)], c.src[idx(qy, qx)]);
-        if op != EMPTY && oq != EMPTY {
-            old_energy += s.seam(op, oq, dy, dx);
+        if let Some(k) = costs {
+            old_energy += k.edge(c, (py, px), (qy, qx));
         }
         // The patch's texel at a pixel: inside the rectangle always; outside, its extension.
         let np = if inside(py, px) { Some(new_at(py, px)) } else { patch_ext(py, px) };
@@ -510,7 +581,7 @@ fn place(c: &mut Canvas, s: &Sample<'_>, r: &Rect, off: (usize, usize), force: b
         (r.y0..r.y0 + r.h).any(|y| (r.x0..r.x0 + r.w).any(|x| c.src[idx(y, x)] == EMPTY && !c.fixed[idx(y, x)]));
     let flow = if pixels.is_empty() { 0.0 } else { g.maxflow() };
     let new_energy = flow + constant;
-    if !(force || has_empty) && new_energy >= old_energy * (1.0 - 1e-9) {
+    if !(force || has_empty || costs.is_none()) && new_energy >= old_energy * (1.0 - 1e-9) {
         return false;
     }
     // Source side keeps the old texel; sink side and empty pixels take the patch.
