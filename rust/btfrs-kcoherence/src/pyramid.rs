@@ -41,7 +41,13 @@ impl Features {
                 format!("expected {height} x {width} x {dim} = {} values, got {}", height * width * dim, data.len()),
             ));
         }
-        btfrs_core::btf::check_finite("sample", &data)?;
+        if let Some(i) = data.par_iter().position_first(|v| !v.is_finite()) {
+            let t = i / dim;
+            return Err(Error::arg(
+                "sample",
+                format!("value {} at texel (row {}, column {}) is not finite", data[i], t / width, t % width),
+            ));
+        }
         Ok(Self { height, width, dim, data })
     }
 

@@ -29,55 +29,36 @@ use btfrs_core::{Error, Result};
 use btfrs_fit::model::DynModel;
 use rayon::prelude::*;
 
-/// Per-texel feature vectors of a `height x width` sample, texel-major (`dim` values each).
-#[derive(Debug, Clone)]
-pub struct Features {
-    /// Rows.
-    pub height: usize,
-    /// Columns.
-    pub width: usize,
-    /// Values per texel.
-    pub dim: usize,
-    /// `[height, width, dim]`.
-    pub data: Vec<f32>,
-}
+/// Per-texel feature vectors of a `height x width` sample, texel-major: the feature image of
+/// the synthesis crate (`btfrs_kcoherence::Features`), with what tile synthesis adds to it in
+/// [`FeatureOps`].
+pub use btfrs_kcoherence::Features;
 
-impl Features {
-    /// Wrap `[height, width, dim]` values, checking the size and that every value is finite.
-    pub fn new(height: usize, width: usize, dim: usize, data: Vec<f32>) -> Result<Self> {
-        if height == 0 || width == 0 || dim == 0 {
-            return Err(Error::arg("sample", format!("expected a non-empty sample, got {height} x {width} x {dim}")));
-        }
-        if data.len() != height * width * dim {
-            return Err(Error::arg(
-                "sample",
-                format!("{} values do not make a {height} x {width} x {dim} feature image", data.len()),
-            ));
-        }
-        if let Some(i) = data.iter().position(|v| !v.is_finite()) {
-            let t = i / dim;
-            return Err(Error::arg(
-                "sample",
-                format!("value {} at texel (row {}, column {}) is not finite", data[i], t / width, t % width),
-            ));
-        }
-        Ok(Features { height, width, dim, data })
-    }
-
+/// What tile synthesis needs of a feature image beyond storing it.
+pub trait FeatureOps {
     /// The features of texel `t` (row-major index).
-    #[inline]
-    pub fn at(&self, t: usize) -> &[f32] {
-        &self.data[t * self.dim..(t + 1) * self.dim]
-    }
-
+    fn at(&self, t: usize) -> &[f32];
     /// Number of texels.
-    pub fn texels(&self) -> usize {
-        self.height * self.width
-    }
-
+    fn texels(&self) -> usize;
     /// Mean squared distance between random texel pairs (4096 pairs, seeded): the cost of a
     /// seam between unrelated texels, the unit of the fill thresholds.
-    pub fn pair_scale(&self, seed: u64) -> f64 {
+    fn pair_scale(&self, seed: u64) -> f64;
+    /// The projection onto the `k` leading principal components (centred), with the fraction
+    /// of the variance kept. Distances between projected vectors approximate the full ones.
+    fn reduced(&self, k: usize) -> (Features, f64);
+}
+
+impl FeatureOps for Features {
+    #[inline]
+    fn at(&self, t: usize) -> &[f32] {
+        self.pixel(t)
+    }
+
+    fn texels(&self) -> usize {
+        self.pixels()
+    }
+
+    fn pair_scale(&self, seed: u64) -> f64 {
         let mut rng = Rng::new(seed ^ 0x5ca1e);
         let n = self.texels();
         let mut s = 0.0f64;
@@ -89,9 +70,7 @@ impl Features {
         (s / pairs as f64).max(f64::MIN_POSITIVE)
     }
 
-    /// The projection onto the `k` leading principal components (centred), with the fraction
-    /// of the variance kept. Distances between projected vectors approximate the full ones.
-    pub fn reduced(&self, k: usize) -> (Features, f64) {
+    fn reduced(&self, k: usize) -> (Features, f64) {
         let d = self.dim;
         let n = self.texels();
         let k = k.clamp(1, d);

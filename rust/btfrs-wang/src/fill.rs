@@ -26,7 +26,7 @@
 //!   one of the `best_of` cheapest taken at random (seeded), so the fill neither copies the
 //!   sample verbatim nor picks blindly.
 
-use crate::features::{dist2, Features};
+use crate::features::{dist2, FeatureOps, Features};
 use btfrs_core::rng::Rng;
 use btfrs_core::{Monitor, Result};
 use btfrs_graphcut::Graph;

@@ -19,6 +19,6 @@ pub mod table;
 pub mod tiles;
 pub mod tiling;
 
-pub use features::Features;
+pub use features::{FeatureOps, Features};
 pub use table::Table;
 pub use tiles::{synthesize, WangOptions, WangTiles};

@@ -10,7 +10,7 @@
 //! seams has an edge error close to its interior error; plain tiling of random crops of a sample
 //! has interior error 0 and a large edge error.
 
-use crate::features::{dist2, Features};
+use crate::features::{dist2, FeatureOps, Features};
 use btfrs_core::rng::{mix, Rng};
 use btfrs_core::{Error, Result};
 use rayon::prelude::*;

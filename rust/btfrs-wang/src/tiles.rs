@@ -30,7 +30,7 @@
 //! independent given the corner samples, so steps 2 and 4 run in parallel, each with its own
 //! seeded generator (results do not depend on the thread count).
 
-use crate::features::Features;
+use crate::features::{FeatureOps, Features};
 use crate::fill::{fill, Canvas, FillOptions, FillStats, Sample, EMPTY};
 use btfrs_core::rng::{mix, Rng};
 use btfrs_core::{Error, Monitor, Result};
