@@ -447,7 +447,22 @@ pub fn validate_view(gpu: &Gpu, view: &View<'_>, dims: (usize, usize)) -> Result
             ),
         ));
     }
-    crate::cpu::validate_common(view, dims)
+    crate::cpu::validate_common(view, dims)?;
+    // The coordinate map or tile map goes to the GPU as one storage buffer.
+    let words = view.tiles.map_or(0, |t| t.layout.len() + t.atlas.len()) + view.coords.map_or(0, |(_, _, m)| m.len());
+    let limit = gpu.limits.max_storage_buffer_binding_size as usize;
+    if words * 4 > limit {
+        let what = if view.tiles.is_some() { "tiles" } else { "coords" };
+        return Err(Error::arg(
+            what,
+            format!(
+                "the map takes {} bytes; {} binds at most {limit} bytes (render with the CPU backend)",
+                words * 4,
+                gpu.info.name
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// Render `model` (uploaded with [`upload`]) into a `[height][width][3]` image.
