@@ -42,9 +42,23 @@ struct Globals {
     tile_atlas: [u32; 4],
 }
 
-// The WGSL struct's offsets: vec4 fields after 112 bytes, 16-byte aligned.
-const _: () = assert!(std::mem::size_of::<Globals>() == 144);
-const _: () = assert!(std::mem::offset_of!(Globals, tiles) == 112);
+/// Field names and byte offsets of the Rust `Globals`, and its size: the shader validation test
+/// checks them against naga's layout of the WGSL struct (a field added on one side only, or
+/// padding that differs, fails there).
+pub const GLOBALS_LAYOUT: (&[(&str, usize)], usize) = (
+    &[
+        ("view_proj", std::mem::offset_of!(Globals, view_proj)),
+        ("eye", std::mem::offset_of!(Globals, eye)),
+        ("uv_scale", std::mem::offset_of!(Globals, uv_scale)),
+        ("sample_size", std::mem::offset_of!(Globals, sample_size)),
+        ("map_size", std::mem::offset_of!(Globals, map_size)),
+        ("n_lights", std::mem::offset_of!(Globals, n_lights)),
+        ("chunk_len", std::mem::offset_of!(Globals, chunk_len)),
+        ("tiles", std::mem::offset_of!(Globals, tiles)),
+        ("tile_atlas", std::mem::offset_of!(Globals, tile_atlas)),
+    ],
+    std::mem::size_of::<Globals>(),
+);
 
 /// `Light` of common.wgsl.
 #[repr(C)]

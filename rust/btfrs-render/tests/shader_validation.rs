@@ -76,3 +76,17 @@ fn a_broken_shader_is_caught() {
     assert!(parse(&src.replace("load_dir(mp.rgb", "load_dirr(mp.rgb")).is_err());
     assert!(parse(&src.replace("mp.coeffs", "mp.coefs")).is_err());
 }
+
+#[test]
+fn globals_match_their_rust_mirror() {
+    // naga's layout of `struct Globals` (WGSL uniform rules) must be the Rust struct's, field by
+    // field and in size: the tile-map fields grew it, and a mismatch would read garbage.
+    let module = parse(&shader_source(<RawModel<'static> as GpuLayout>::SHADER, true)).unwrap();
+    let (_, ty) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some("Globals")).expect("struct Globals");
+    let naga::TypeInner::Struct { members, span } = &ty.inner else { panic!("Globals is not a struct") };
+    let (fields, size) = btfrs_render::gpu::GLOBALS_LAYOUT;
+    let wgsl: Vec<(&str, usize)> = members.iter().map(|m| (m.name.as_deref().unwrap(), m.offset as usize)).collect();
+    assert_eq!(wgsl, fields.to_vec());
+    assert_eq!(*span as usize, size);
+    assert_eq!(size % 16, 0, "a uniform block's size is a multiple of 16");
+}
