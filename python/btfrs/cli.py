@@ -207,7 +207,7 @@ def tiles_command(args) -> None:
     written.append(pic)
     rows, cols = args.layout
     layout = ts.tiling(rows, cols, seed=args.seed, wrap=(True, False))
-    np.save(os.path.join(args.out, "layout.npy"), layout)
+    io.save_array(os.path.join(args.out, "layout.npy"), layout)
     written.append(os.path.join(args.out, "layout.npy"))
     flat = os.path.join(args.out, "tiling.png")
     img = ts.image(layout)
@@ -228,8 +228,7 @@ def tiles_command(args) -> None:
             f"{e['crops_edge']:.4f}, inside {e['crops_interior']:.4f}")
     print(line)
     rep = os.path.join(args.out, "report.txt")
-    with open(rep, "w") as f:
-        f.write(f"{name}, {args.model if model is not None else 'rgb'}\n{ts.report}\n{line}\n")
+    io.save_text(rep, f"{name}, {args.model if model is not None else 'rgb'}\n{ts.report}\n{line}\n")
     written.append(rep)
     print("wrote " + ", ".join(written))
 

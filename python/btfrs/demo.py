@@ -224,7 +224,7 @@ def step_tiles(ctx: Context) -> None:
     set_a.save(ctx.out / "tiles_a.btfrs")
     set_b.save(ctx.out / "tiles_b.btfrs")
     layout = set_a.tiling(4, 12, seed=1, wrap=(True, False))  # u runs around: wrap the columns
-    np.save(ctx.out / "tiles_layout.npy", layout)
+    io.save_array(ctx.out / "tiles_layout.npy", layout)
     lights = [rendering.PointLight(position=[2.0, -2.5, 3.0], intensity=9.0)]
     cam = rendering.Camera.look_at([0.0, -3.2, 1.6], [0.0, 0.0, 0.0], 40)
     shots = [(set_a, rendering.Scene.sphere()), (set_a, rendering.Scene.cylinder()),
