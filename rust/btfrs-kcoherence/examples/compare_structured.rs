@@ -22,16 +22,7 @@ fn main() {
     let rgb: Vec<u8> =
         textures::texture("bricks", n, n, 5, period).unwrap().iter().map(|&v| (v * 255.0).round() as u8).collect();
     common::write_png(&format!("{dir}/sample.png"), &rgb, n, n);
-    let best_of = |f: &mut dyn FnMut() -> CoordMap| {
-        let mut best = f64::INFINITY;
-        let mut map = None;
-        for _ in 0..3 {
-            let t = Instant::now();
-            map = Some(f());
-            best = best.min(t.elapsed().as_secs_f64());
-        }
-        (best, map.unwrap())
-    };
+    let best_of = common::best_of;
     let t = Instant::now();
     let mut an = common::analyse_rgb_levels(&rgb, n, n, &[2], 4);
     let t_an = t.elapsed().as_secs_f64();

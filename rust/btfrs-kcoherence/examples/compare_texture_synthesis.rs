@@ -15,16 +15,7 @@ fn main() {
     let btf = common::knit(64);
     let rgb = common::rgb_texture(&btf);
     let (h, w, out) = (64usize, 64usize, 256usize);
-    let best_of = |f: &mut dyn FnMut() -> CoordMap| {
-        let mut best = f64::INFINITY;
-        let mut map = None;
-        for _ in 0..3 {
-            let t = Instant::now();
-            map = Some(f());
-            best = best.min(t.elapsed().as_secs_f64());
-        }
-        (best, map.unwrap())
-    };
+    let best_of = common::best_of;
     let t = Instant::now();
     let an = common::analyse_rgb(&rgb, h, w, &[2]);
     let t_an = t.elapsed().as_secs_f64();
