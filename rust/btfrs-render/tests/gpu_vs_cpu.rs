@@ -94,6 +94,17 @@ fn tile_map(h: usize, w: usize) -> (Vec<u32>, Vec<u32>) {
     (atlas, layout)
 }
 
+/// A view without coordinate or tile map.
+fn plain_view<'a>(
+    mesh: &'a Mesh,
+    cam: &'a Camera,
+    lights: &'a [Light],
+    size: (usize, usize),
+    uv_scale: [f32; 2],
+) -> View<'a> {
+    View { mesh, camera: cam, lights, width: size.0, height: size.1, uv_scale, coords: None, tiles: None }
+}
+
 fn check(gpu: &Gpu, name: &str, model: &dyn Renderable) -> f64 {
     let up = gpu::upload(gpu, model).unwrap();
     let (h, w) = model.shade_dims();
@@ -170,16 +181,7 @@ fn a_wrong_shader_fails_the_comparison() {
     let up = gpu::upload(&gpu, &bad).unwrap();
     let lights = lights();
     let (_, mesh, cam) = scenes().swap_remove(1);
-    let view = View {
-        mesh: &mesh,
-        camera: &cam,
-        lights: &lights,
-        width: 96,
-        height: 80,
-        uv_scale: [3.0, 2.0],
-        coords: None,
-        tiles: None,
-    };
+    let view = plain_view(&mesh, &cam, &lights, (96, 80), [3.0, 2.0]);
     let (g, _) = gpu::render(&gpu, &up, &view).unwrap();
     let c = render_cpu(&ptm, &view).unwrap();
     let p = psnr(&g, &c);
@@ -194,16 +196,7 @@ fn bad_views_are_errors_not_crashes() {
     let up = gpu::upload(&gpu, &ptm).unwrap();
     let lights = lights();
     let (_, mesh, cam) = scenes().swap_remove(0);
-    let base = View {
-        mesh: &mesh,
-        camera: &cam,
-        lights: &lights,
-        width: 32,
-        height: 32,
-        uv_scale: [1.0, 1.0],
-        coords: None,
-        tiles: None,
-    };
+    let base = plain_view(&mesh, &cam, &lights, (32, 32), [1.0, 1.0]);
     let too_big = gpu.limits.max_texture_dimension_2d as usize + 1;
     for (what, v) in [
         ("size", View { width: 0, ..base }),
@@ -233,16 +226,7 @@ fn tile_maps_reproduce_plain_renders_and_are_validated() {
     let ident: Vec<u32> = (0..(h * w) as u32).collect();
     let lights = lights();
     let (_, mesh, cam) = scenes().remove(0);
-    let base = View {
-        mesh: &mesh,
-        camera: &cam,
-        lights: &lights,
-        width: 64,
-        height: 64,
-        uv_scale: [1.0, 1.0],
-        coords: None,
-        tiles: None,
-    };
+    let base = plain_view(&mesh, &cam, &lights, (64, 64), [1.0, 1.0]);
     let one = [0u32];
     let four = [0u32; 4];
     let t1 =
