@@ -12,6 +12,7 @@
 //! * [`mod@kmeans`]: k-means++ and Lloyd on column-major points (the clustering of [`lpca`]).
 //! * [`rpca`]: randomized PCA (Halko et al.'s range finder), for [`lpca`] and the synthesis'
 //!   texton analysis ([`principal_coordinates`]).
+//! * [`planes`]: 8-bit coefficient planes with per-plane scale and bias (what RTI viewers hold).
 //! * [`model`]: the model contract ([`Model`], [`ReflectanceModel`]): fit, evaluation at any
 //!   (view, light), error against a BTF (parallel, f64 accumulation), named arrays, bytes.
 //! * [`gpu`]: the GPU half of the contract: shader, parameter struct ([`gpu_params!`]), store.
@@ -24,6 +25,7 @@ pub mod kmeans;
 pub mod lafortune;
 pub mod lpca;
 pub mod model;
+pub mod planes;
 pub mod ptm;
 pub mod registry;
 pub mod rpca;

@@ -4,9 +4,11 @@
 //! * [`model_file`]: any registered model saved to and loaded from a container.
 //! * [`ptm_file`]: `PTM_1.2` files (Malzbender et al. 2001) as RTIViewer and relight read them.
 //! * [`image`]: PNG output of rendered or measured images.
+//! * [`capture`]: what the loaders of measured data share (selection, the capture plan, decoding into a texel-major buffer).
 //! * [`atomic`]: every writer goes through a temporary file and a rename.
 
 pub mod atomic;
+pub mod capture;
 pub mod container;
 pub mod image;
 pub mod model_file;

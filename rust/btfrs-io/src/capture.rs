@@ -1,0 +1,154 @@
+//! Measured captures in: what every loader of real data (UBO2003 / ATRIUM archives, UBO2014
+//! `.btf` files, RTI `.lp` sets, image stacks) shares.
+//!
+//! A loader opens its files and describes what it will produce (a [`Capture`]: texel size,
+//! view and light directions in btfrs's frame, which pairs are present) *before* decoding any
+//! pixel, applying the user's [`Selection`] (crop, view and light subsets) so that only what is
+//! asked for is ever decoded. It then decodes straight into a caller-provided texel-major
+//! `[H, W, V, L, 3]` f32 buffer ([`Source::decode_into`]): a `Vec` ([`load`]) or a
+//! memory-mapped `.btfrs` file ([`load_to_file`]), so the data is never held twice.
+//!
+//! Directions are unit vectors in the tangent frame of the sample (z the normal, x along the
+//! image columns to the right, y up the image, theta from z, phi from x towards y); each loader
+//! documents how its file's angles map to it.
+
+use btfrs_core::{Error, Monitor, Result};
+
+/// A rectangle of texels: `rows x cols` starting at (`row`, `col`), row 0 being the top row of
+/// the images.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Crop {
+    /// First row.
+    pub row: usize,
+    /// First column.
+    pub col: usize,
+    /// Rows kept.
+    pub rows: usize,
+    /// Columns kept.
+    pub cols: usize,
+}
+
+impl Crop {
+    /// Check the crop against a `height x width` image.
+    pub fn check(&self, height: usize, width: usize) -> Result<()> {
+        if self.rows == 0 || self.cols == 0 {
+            return Err(Error::arg(
+                "crop",
+                format!("expected a non-empty rectangle, got {} x {}", self.rows, self.cols),
+            ));
+        }
+        if self.row.checked_add(self.rows).is_none_or(|e| e > height)
+            || self.col.checked_add(self.cols).is_none_or(|e| e > width)
+        {
+            return Err(Error::arg(
+                "crop",
+                format!(
+                    "rows {}..{} x columns {}..{} lie outside the {height} x {width} images",
+                    self.row,
+                    self.row.saturating_add(self.rows),
+                    self.col,
+                    self.col.saturating_add(self.cols)
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// What of a capture to load: a crop and subsets of its views and lights (indices into the
+/// file's own view and light lists, in the order [`Capture`] reports them before selection).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Selection {
+    /// Texel rectangle (`None`: every texel).
+    pub crop: Option<Crop>,
+    /// View indices, kept in the order given (`None`: every view).
+    pub views: Option<Vec<usize>>,
+    /// Light indices, kept in the order given (`None`: every light).
+    pub lights: Option<Vec<usize>>,
+}
+
+impl Selection {
+    /// The kept indices of an axis of `n` entries, checked (in range, no duplicates).
+    pub fn pick(name: &str, sel: &Option<Vec<usize>>, n: usize) -> Result<Vec<usize>> {
+        let Some(s) = sel else { return Ok((0..n).collect()) };
+        if s.is_empty() {
+            return Err(Error::arg(name, "expected at least one index"));
+        }
+        let mut seen = vec![false; n];
+        for &i in s {
+            if i >= n {
+                return Err(Error::arg(name, format!("index {i} is out of range for {n} {name}")));
+            }
+            if std::mem::replace(&mut seen[i], true) {
+                return Err(Error::arg(name, format!("index {i} is given twice")));
+            }
+        }
+        Ok(s.clone())
+    }
+
+    /// The crop as (row, col, rows, cols) of a `height x width` image, checked.
+    pub fn rect(&self, height: usize, width: usize) -> Result<Crop> {
+        match self.crop {
+            Some(c) => {
+                c.check(height, width)?;
+                Ok(c)
+            }
+            None => Ok(Crop { row: 0, col: 0, rows: height, cols: width }),
+        }
+    }
+}
+
+/// What a loader will produce, after selection.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Capture {
+    /// Rows of texels.
+    pub height: usize,
+    /// Columns of texels.
+    pub width: usize,
+    /// View directions (unit, tangent frame).
+    pub views: Vec<[f64; 3]>,
+    /// Light directions (unit, tangent frame).
+    pub lights: Vec<[f64; 3]>,
+    /// `[V * L]` presence of each (view, light) pair (`None`: all present).
+    pub mask: Option<Vec<bool>>,
+    /// What the file says about itself (format, names, units), kept in the container's meta.
+    pub meta: serde_json::Value,
+}
+
+impl Capture {
+    /// Values of the texel-major `[H, W, V, L, 3]` buffer.
+    pub fn len(&self) -> usize {
+        self.height * self.width * self.views.len() * self.lights.len() * 3
+    }
+    /// True when the buffer would be empty.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Values per texel (`V * L * 3`).
+    pub fn abrdf_len(&self) -> usize {
+        self.views.len() * self.lights.len() * 3
+    }
+}
+
+/// A loader, opened and planned: decoding writes the capture into a buffer.
+pub trait Source: Sync {
+    /// What [`Source::decode_into`] produces.
+    fn capture(&self) -> &Capture;
+    /// Decode every selected image into `out` (texel-major `[H, W, V, L, 3]`, `capture().len()`
+    /// values, pre-filled with zeros: absent pairs stay 0). Reports progress in images (or the
+    /// loader's natural unit) on `monitor` and stops with [`Error::Interrupted`] when it is
+    /// cancelled. Every decoded value is finite (a non-finite one is an error naming its file).
+    fn decode_into(&self, out: &mut [f32], monitor: &Monitor) -> Result<()>;
+}
+
+/// Decode a whole source into memory.
+pub fn load(source: &dyn Source, monitor: &Monitor) -> Result<Vec<f32>> {
+    let n = source.capture().len();
+    let mut out = Vec::new();
+    out.try_reserve_exact(n).map_err(|_| {
+        Error::arg("capture", format!("{n} float32 values do not fit in memory; load with mmap_to= a file"))
+    })?;
+    out.resize(n, 0.0);
+    source.decode_into(&mut out, monitor)?;
+    Ok(out)
+}
