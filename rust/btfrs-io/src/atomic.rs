@@ -32,6 +32,25 @@ pub fn write_atomic(path: &Path, fill: impl FnOnce(&mut dyn Write) -> std::io::R
     Ok(())
 }
 
+/// Write `path` atomically through `fill`, which gets the temporary file itself (to size it,
+/// write at offsets or memory-map it). An error from `fill` (its own, typed: a format error of
+/// an input, a cancel) removes the temporary file and is returned unchanged.
+pub fn write_atomic_file(path: &Path, fill: impl FnOnce(&fs::File) -> Result<()>) -> Result<()> {
+    let shown = path.display().to_string();
+    let file_name = path.file_name().ok_or_else(|| Error::arg("path", format!("{shown} does not name a file")))?;
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let (tmp, file) = create_temp(&dir, &file_name.to_string_lossy()).map_err(|e| Error::io(&shown, e))?;
+    let result = fill(&file)
+        .and_then(|()| file.sync_all().and_then(|()| fs::rename(&tmp, path)).map_err(|e| Error::io(&shown, e)));
+    if result.is_err() {
+        let _ = fs::remove_file(&tmp);
+    }
+    result
+}
+
 /// Create a new, uniquely named temporary file next to the target. `create_new` makes sure we
 /// never truncate somebody else's file; a name clash just moves on to the next name.
 fn create_temp(dir: &Path, name: &str) -> std::io::Result<(PathBuf, fs::File)> {

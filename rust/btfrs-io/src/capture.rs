@@ -152,3 +152,28 @@ pub fn load(source: &dyn Source, monitor: &Monitor) -> Result<Vec<f32>> {
     source.decode_into(&mut out, monitor)?;
     Ok(out)
 }
+
+/// Decode a source straight into a new `.btfrs` BTF file at `path` (the values memory-mapped,
+/// never held in memory as a whole), written atomically: on any error or cancel nothing is
+/// left at `path`. The file is what `Btf.save` writes (kind `btf`, arrays `data`, `views`,
+/// `lights` and `mask` when pairs are absent), with the capture's meta under `"source"`.
+pub fn load_to_file(source: &dyn Source, path: &std::path::Path, monitor: &Monitor) -> Result<()> {
+    use crate::container::{as_bytes, ArrayRef, Dtype};
+    let cap = source.capture();
+    let shape = [cap.height, cap.width, cap.views.len(), cap.lights.len(), 3];
+    let views: Vec<f64> = cap.views.iter().flatten().copied().collect();
+    let lights: Vec<f64> = cap.lights.iter().flatten().copied().collect();
+    let vshape = [cap.views.len(), 3];
+    let lshape = [cap.lights.len(), 3];
+    let mshape = [cap.views.len(), cap.lights.len()];
+    let mask: Option<Vec<u8>> = cap.mask.as_ref().map(|m| m.iter().map(|&b| b as u8).collect());
+    let mut arrays = vec![
+        ArrayRef { name: "views", dtype: Dtype::F64, shape: &vshape, bytes: as_bytes(&views) },
+        ArrayRef { name: "lights", dtype: Dtype::F64, shape: &lshape, bytes: as_bytes(&lights) },
+    ];
+    if let Some(m) = &mask {
+        arrays.push(ArrayRef { name: "mask", dtype: Dtype::Bool, shape: &mshape, bytes: m });
+    }
+    let meta = serde_json::json!({"layout": "HWVL3", "source": cap.meta});
+    crate::container::write_streamed(path, "btf", meta, "data", &shape, &arrays, |out| source.decode_into(out, monitor))
+}

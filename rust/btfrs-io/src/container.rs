@@ -23,6 +23,7 @@ use crate::atomic::write_atomic;
 use btfrs_core::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::io::{Read, Seek, SeekFrom};
+use std::os::unix::fs::FileExt;
 use std::path::Path;
 
 /// The first eight bytes of every `.btfrs` file.
@@ -139,55 +140,64 @@ fn all_finite(dtype: Dtype, bytes: &[u8]) -> Option<bool> {
     }
 }
 
-/// Write a container atomically. `meta` must be a JSON object. Float arrays are scanned once
-/// for their `finite` flag before anything is written.
-pub fn write(path: &Path, kind: &str, meta: serde_json::Value, arrays: &[ArrayRef<'_>]) -> Result<()> {
+/// Check each array's byte length against its shape and the names' uniqueness, and lay the
+/// arrays out: `(infos with offsets relative to the data start, header bytes, data start)`.
+fn plan(
+    kind: &str,
+    meta: &serde_json::Value,
+    specs: &[(&str, Dtype, &[usize], usize, Option<bool>)],
+) -> Result<(Vec<ArrayInfo>, Vec<u8>, u64)> {
     if !meta.is_object() {
         return Err(Error::arg("meta", format!("expected a JSON object, got {meta}")));
     }
-    let mut infos = Vec::with_capacity(arrays.len());
+    let mut infos = Vec::with_capacity(specs.len());
     let mut rel = 0u64;
-    for a in arrays {
-        let n = a.shape.iter().try_fold(a.dtype.size(), |acc, &s| acc.checked_mul(s));
-        if n != Some(a.bytes.len()) {
+    for &(name, dtype, shape, nbytes, finite) in specs {
+        let n = shape.iter().try_fold(dtype.size(), |acc, &s| acc.checked_mul(s));
+        if n != Some(nbytes) {
             return Err(Error::arg(
-                a.name,
+                name,
                 format!(
-                    "shape {:?} of {:?} needs {} bytes, got {}",
-                    a.shape,
-                    a.dtype,
+                    "shape {shape:?} of {dtype:?} needs {} bytes, got {nbytes}",
                     n.map_or_else(|| "more than 2^64".into(), |n| n.to_string()),
-                    a.bytes.len()
                 ),
             ));
         }
-        if infos.iter().any(|i: &ArrayInfo| i.name == a.name) {
-            return Err(Error::arg(a.name, "array name used twice"));
+        if infos.iter().any(|i: &ArrayInfo| i.name == name) {
+            return Err(Error::arg(name, "array name used twice"));
         }
         infos.push(ArrayInfo {
-            name: a.name.into(),
-            dtype: a.dtype,
-            shape: a.shape.to_vec(),
+            name: name.into(),
+            dtype,
+            shape: shape.to_vec(),
             offset: rel,
-            nbytes: a.bytes.len() as u64,
-            finite: all_finite(a.dtype, a.bytes),
+            nbytes: nbytes as u64,
+            finite,
         });
-        rel = align(rel + a.bytes.len() as u64);
+        rel = align(rel + nbytes as u64);
     }
     // Offsets are stored absolute; they depend on the header length, which depends on the
     // offsets' digits. Iterate until the data start no longer moves (at most a few rounds).
     let mut data_start = 0u64;
-    let header = loop {
+    loop {
         let abs: Vec<ArrayInfo> =
             infos.iter().map(|i| ArrayInfo { offset: i.offset + data_start, ..i.clone() }).collect();
         let h = Header { kind: kind.into(), meta: meta.clone(), arrays: abs };
         let text = serde_json::to_vec(&h).map_err(|e| Error::arg("meta", e))?;
         let start = align(16 + text.len() as u64);
         if start == data_start {
-            break text;
+            return Ok((infos, text, data_start));
         }
         data_start = start;
-    };
+    }
+}
+
+/// Write a container atomically. `meta` must be a JSON object. Float arrays are scanned once
+/// for their `finite` flag before anything is written.
+pub fn write(path: &Path, kind: &str, meta: serde_json::Value, arrays: &[ArrayRef<'_>]) -> Result<()> {
+    let specs: Vec<_> =
+        arrays.iter().map(|a| (a.name, a.dtype, a.shape, a.bytes.len(), all_finite(a.dtype, a.bytes))).collect();
+    let (infos, header, data_start) = plan(kind, &meta, &specs)?;
     write_atomic(path, |w| {
         w.write_all(MAGIC)?;
         w.write_all(&(header.len() as u64).to_le_bytes())?;
@@ -202,6 +212,65 @@ pub fn write(path: &Path, kind: &str, meta: serde_json::Value, arrays: &[ArrayRe
         }
         Ok(())
     })
+}
+
+/// Write a container whose first array, `name` (float32, `shape`), is too large to hold in
+/// memory twice: the file is created at its final size, the array's region is memory-mapped
+/// and `fill` writes the values in place (zero-initialised), then the small `arrays` follow.
+/// Atomic like [`write`]: on any error from `fill` (or a cancel) the temporary file is removed
+/// and that error returned. `fill` must produce finite values only (the header records the
+/// array as finite without a second pass: the loaders check every value as they decode it).
+pub fn write_streamed(
+    path: &Path,
+    kind: &str,
+    meta: serde_json::Value,
+    name: &str,
+    shape: &[usize],
+    arrays: &[ArrayRef<'_>],
+    fill: impl FnOnce(&mut [f32]) -> Result<()>,
+) -> Result<()> {
+    let count = shape.iter().try_fold(1usize, |a, &s| a.checked_mul(s));
+    let nbytes = count
+        .and_then(|c| c.checked_mul(4))
+        .ok_or_else(|| Error::arg(name, format!("shape {shape:?} is too large")))?;
+    let mut specs = vec![(name, Dtype::F32, shape, nbytes, Some(true))];
+    specs.extend(arrays.iter().map(|a| (a.name, a.dtype, a.shape, a.bytes.len(), all_finite(a.dtype, a.bytes))));
+    let (infos, header, data_start) = plan(kind, &meta, &specs)?;
+    let last = infos.last().expect("at least the streamed array");
+    let total = data_start + last.offset + last.nbytes;
+    crate::atomic::write_atomic_file(path, |file| {
+        let shown = path.display().to_string();
+        let io = |e| Error::io(&shown, e);
+        file.set_len(total).map_err(io)?;
+        let mut head = Vec::with_capacity(data_start as usize);
+        head.extend_from_slice(MAGIC);
+        head.extend_from_slice(&(header.len() as u64).to_le_bytes());
+        head.extend_from_slice(&header);
+        file.write_all_at(&head, 0).map_err(io)?;
+        for (a, info) in arrays.iter().zip(&infos[1..]) {
+            file.write_all_at(a.bytes, data_start + info.offset).map_err(io)?;
+        }
+        if nbytes > 0 {
+            // SAFETY: the file is our own freshly created temporary (create_new, not yet
+            // renamed into place), so no other process maps or truncates it while we write.
+            let mut map =
+                unsafe { memmap2::MmapOptions::new().offset(data_start).len(nbytes).map_mut(file).map_err(io)? };
+            let values: &mut [f32] = bytemuck_f32(&mut map);
+            fill(values)?;
+            map.flush().map_err(io)?;
+        } else {
+            fill(&mut [])?;
+        }
+        Ok(())
+    })
+}
+
+/// The mapped bytes as f32 (the offset is a multiple of 64 and pages are aligned, so the
+/// cast is aligned; checked anyway).
+fn bytemuck_f32(bytes: &mut [u8]) -> &mut [f32] {
+    assert!(bytes.as_ptr().align_offset(4) == 0 && bytes.len() % 4 == 0, "mapped region is f32-aligned");
+    // SAFETY: alignment and length checked above; every bit pattern is a valid f32.
+    unsafe { std::slice::from_raw_parts_mut(bytes.as_mut_ptr().cast::<f32>(), bytes.len() / 4) }
 }
 
 /// Read a container's header (the arrays stay on disk).

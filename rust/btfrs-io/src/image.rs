@@ -143,13 +143,18 @@ pub fn write_exr(path: &Path, rgb: &[f32], width: usize, height: usize) -> Resul
 /// length (see [`EXR_MAX_RATIO`]) before the pixels are decoded; a corrupted file is an
 /// [`Error::Format`].
 pub fn read_exr(path: &Path) -> Result<(Vec<f32>, usize, usize)> {
-    use exr::prelude::{read_first_rgba_layer_from_file, Vec2};
     let shown = &path.display().to_string();
-    let len = std::fs::metadata(path).map_err(|e| Error::io(shown, e))?.len();
-    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| match e {
-        exr::error::Error::Io(e) if e.kind() != std::io::ErrorKind::UnexpectedEof => Error::io(shown, e),
-        e => Error::format(shown, e),
-    })?;
+    let bytes = std::fs::read(path).map_err(|e| Error::io(shown, e))?;
+    read_exr_bytes(&bytes, shown)
+}
+
+/// [`read_exr`] of a file's bytes (an archive member, say); `shown` names it in errors. A file
+/// with only a luminance channel `Y` is read as grey.
+pub fn read_exr_bytes(bytes: &[u8], shown: &str) -> Result<(Vec<f32>, usize, usize)> {
+    use exr::prelude::{read, ReadChannels, ReadLayers};
+    let len = bytes.len() as u64;
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)
+        .map_err(|e| Error::format(shown, e))?;
     let most = len.saturating_mul(EXR_MAX_RATIO);
     for h in &meta.headers {
         let (w, ht) = (h.layer_size.0, h.layer_size.1);
@@ -160,17 +165,78 @@ pub fn read_exr(path: &Path) -> Result<(Vec<f32>, usize, usize)> {
             return Err(too_large(shown, format!("a {w} x {ht} layer"), need, len, EXR_MAX_RATIO));
         }
     }
-    let img = read_first_rgba_layer_from_file(
-        path,
-        |res: Vec2<usize>, _| (vec![0.0f32; res.0 * res.1 * 3], res.0, res.1),
-        |px: &mut (Vec<f32>, usize, usize), Vec2(x, y): Vec2<usize>, (r, g, b, _a): (f32, f32, f32, f32)| {
-            let i = (y * px.1 + x) * 3;
-            px.0[i..i + 3].copy_from_slice(&[r, g, b]);
-        },
-    )
-    .map_err(|e| Error::format(shown, e))?;
-    let (data, w, h) = img.layer_data.channel_data.pixels;
-    Ok((data, w, h))
+    let img = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(std::io::Cursor::new(bytes))
+        .map_err(|e| Error::format(shown, e))?;
+    let layer = img.layer_data;
+    let (w, h) = (layer.size.0, layer.size.1);
+    let find = |n: &str| {
+        layer.channel_data.list.iter().find(|c| {
+            let name = c.name.to_string();
+            name == n || name.ends_with(&format!(".{n}"))
+        })
+    };
+    let chans: Vec<_> = match (find("R"), find("G"), find("B"), find("Y")) {
+        (Some(r), Some(g), Some(b), _) => vec![r, g, b],
+        (_, _, _, Some(y)) => vec![y, y, y],
+        _ => {
+            let names: Vec<String> = layer.channel_data.list.iter().map(|c| c.name.to_string()).collect();
+            return Err(Error::format(shown, format!("expected R, G and B (or Y) channels, found {names:?}")));
+        }
+    };
+    let mut out = vec![0.0f32; w * h * 3];
+    for (c, ch) in chans.iter().enumerate() {
+        for (i, v) in ch.sample_data.values_as_f32().enumerate().take(w * h) {
+            out[i * 3 + c] = v;
+        }
+    }
+    Ok((out, w, h))
+}
+
+/// Write named float channels of one `width x height` layer as an OpenEXR file (32-bit float,
+/// ZIP-compressed): the coefficient maps of a model, `ptm.a0.R` and so on. Channel names must
+/// be unique and non-empty; every channel holds `width * height` finite values (row 0 at the
+/// top). Written atomically.
+pub fn write_exr_channels(path: &Path, width: usize, height: usize, channels: &[(String, Vec<f32>)]) -> Result<()> {
+    use exr::prelude::{
+        AnyChannel, AnyChannels, Encoding, FlatSamples, Image, Layer, LayerAttributes, SmallVec, WritableImage,
+    };
+    if width == 0 || height == 0 {
+        return Err(Error::arg("image", format!("expected a non-empty image, got {height} x {width}")));
+    }
+    if channels.is_empty() {
+        return Err(Error::arg("channels", "expected at least one channel"));
+    }
+    let mut seen = std::collections::HashSet::new();
+    for (name, v) in channels {
+        if name.is_empty() || !seen.insert(name.as_str()) {
+            return Err(Error::arg("channels", format!("channel name {name:?} is empty or used twice")));
+        }
+        if v.len() != width * height {
+            return Err(Error::arg(
+                name,
+                format!("expected {} values ({height} x {width}), got {}", width * height, v.len()),
+            ));
+        }
+        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+            return Err(Error::arg(name, format!("value {i} is not finite")));
+        }
+    }
+    let list: SmallVec<[AnyChannel<FlatSamples>; 4]> =
+        channels.iter().map(|(n, v)| AnyChannel::new(n.as_str(), FlatSamples::F32(v.clone()))).collect();
+    let layer =
+        Layer::new((width, height), LayerAttributes::default(), Encoding::SMALL_LOSSLESS, AnyChannels::sort(list));
+    let mut buf = std::io::Cursor::new(Vec::new());
+    Image::from_layer(layer)
+        .write()
+        .to_buffered(&mut buf)
+        .map_err(|e| Error::arg("channels", format!("could not encode OpenEXR: {e}")))?;
+    write_atomic(path, |w| w.write_all(buf.get_ref()))
 }
 
 #[cfg(test)]

@@ -10,6 +10,10 @@
 pub mod atomic;
 pub mod capture;
 pub mod container;
+pub mod decode;
 pub mod image;
 pub mod model_file;
 pub mod ptm_file;
+pub mod rti;
+pub mod stack;
+pub mod ubo2003;

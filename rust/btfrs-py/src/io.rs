@@ -160,3 +160,87 @@ pub fn read_exr(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyArrayDyn<
     let (v, w, h) = detach(py, || btfrs_io::image::read_exr(&path))?;
     v.into_pyarray(py).reshape(vec![h, w, 3])
 }
+
+/// What a capture loader returns to Python: (data or None when written to a file, views,
+/// lights, mask or None, meta JSON).
+type Loaded<'py> = (
+    Option<Bound<'py, PyArrayDyn<f32>>>,
+    Bound<'py, PyArrayDyn<f64>>,
+    Bound<'py, PyArrayDyn<f64>>,
+    Option<Bound<'py, PyArrayDyn<bool>>>,
+    String,
+);
+
+/// Open a measured capture (`kind`: "ubo2003", "lp", "table", "ubo2014") and decode it into
+/// memory, or into the `.btfrs` file `mmap_to`. `crop` is (row, col, rows, cols).
+#[pyfunction]
+#[pyo3(signature = (kind, path, table=None, crop=None, views=None, lights=None, linear=false, mmap_to=None, progress=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn load_capture<'py>(
+    py: Python<'py>,
+    kind: &str,
+    path: PathBuf,
+    table: Option<PathBuf>,
+    crop: Option<(usize, usize, usize, usize)>,
+    views: Option<Vec<usize>>,
+    lights: Option<Vec<usize>>,
+    linear: bool,
+    mmap_to: Option<PathBuf>,
+    progress: Option<Bound<'py, PyAny>>,
+) -> PyResult<Loaded<'py>> {
+    use btfrs_io::capture::{self, Crop, Selection, Source};
+    use btfrs_io::decode::Transfer;
+    let sel = Selection { crop: crop.map(|(row, col, rows, cols)| Crop { row, col, rows, cols }), views, lights };
+    let transfer = if linear { Transfer::Linear } else { Transfer::Srgb };
+    let kind = kind.to_string();
+    let source: Box<dyn Source + Send> = detach(py, || -> btfrs_core::Result<Box<dyn Source + Send>> {
+        Ok(match kind.as_str() {
+            "ubo2003" => Box::new(btfrs_io::ubo2003::open(&path, &sel, transfer)?),
+            "lp" => Box::new(btfrs_io::rti::open_lp(&path, &sel, transfer)?),
+            "table" => {
+                let t =
+                    table.as_deref().ok_or_else(|| btfrs_core::Error::arg("directions", "expected a table file"))?;
+                let folder = if path.is_dir() { Some(path.as_path()) } else { None };
+                Box::new(btfrs_io::stack::open_table(t, folder, &sel, transfer)?)
+            }
+            other => return Err(btfrs_core::Error::arg("kind", format!("unknown capture kind {other:?}"))),
+        })
+    })?;
+    let cap = source.capture().clone();
+    let data = match &mmap_to {
+        Some(out) => {
+            crate::run::monitored(py, progress.as_ref(), |m| capture::load_to_file(source.as_ref(), out, m))?;
+            None
+        }
+        None => {
+            let v = crate::run::monitored(py, progress.as_ref(), |m| capture::load(source.as_ref(), m))?;
+            let shape = [cap.height, cap.width, cap.views.len(), cap.lights.len(), 3];
+            Some(v.into_pyarray(py).reshape(shape.to_vec())?)
+        }
+    };
+    let d = |x: &[[f64; 3]]| -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        Ok(x.iter().flatten().copied().collect::<Vec<f64>>().into_pyarray(py).reshape(vec![x.len(), 3])?)
+    };
+    let mask = match &cap.mask {
+        Some(m) => Some(m.clone().into_pyarray(py).reshape(vec![cap.views.len(), cap.lights.len()])?),
+        None => None,
+    };
+    Ok((data, d(&cap.views)?, d(&cap.lights)?, mask, cap.meta.to_string()))
+}
+
+/// Write `[C, H, W]` float32 planes as one OpenEXR layer with channel names `names`.
+#[pyfunction]
+pub fn write_exr_channels(
+    py: Python<'_>,
+    path: PathBuf,
+    names: Vec<String>,
+    planes: &Bound<'_, PyAny>,
+) -> PyResult<()> {
+    let a = borrow::<f32>("planes", planes)?;
+    check_shape("planes", a.shape(), &[Some(names.len()), None, None])?;
+    let (h, w) = (a.shape()[1], a.shape()[2]);
+    let s = a.as_slice().map_err(|e| arg("planes", e))?;
+    let chans: Vec<(String, Vec<f32>)> =
+        names.into_iter().enumerate().map(|(i, n)| (n, s[i * h * w..(i + 1) * h * w].to_vec())).collect();
+    detach(py, || btfrs_io::image::write_exr_channels(&path, w, h, &chans))
+}

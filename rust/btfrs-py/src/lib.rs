@@ -46,6 +46,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(io::read_png, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_exr, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_exr, m)?)?;
+    m.add_function(wrap_pyfunction!(io::load_capture, m)?)?;
+    m.add_function(wrap_pyfunction!(io::write_exr_channels, m)?)?;
     m.add_class::<render::PyScene>()?;
     m.add_class::<render::PyCamera>()?;
     m.add_class::<render::PyGpuModel>()?;

@@ -1,0 +1,132 @@
+//! RTI capture sets: photographs of one view under many lights, listed by a `.lp` file.
+//!
+//! An `.lp` file's first line is the number of images; each further line is
+//! `filename lx ly lz`, the light direction of that photograph with x to the right of the image,
+//! y *up* the image and z towards the camera (the RTIBuilder / relight convention). That is
+//! btfrs's tangent frame, so the vectors are used as they are, normalised (a length off by more
+//! than 1e-3 is reported in `meta.warnings`; `btfrs.io.load` shows them as warnings). The view
+//! is the normal. File names may be absolute, relative to the `.lp` file, or (as written on
+//! another machine) a path whose last component is found beside the `.lp` file; names may
+//! contain spaces (the three numbers are read from the end of the line).
+//!
+//! relight's `.dome` files are not read: they hold the light geometry of a dome (positions,
+//! diameter, offsets) but no image names, so they do not describe a capture on their own.
+
+use crate::capture::Selection;
+use crate::decode::Transfer;
+use crate::stack::{ImageStack, Member, Store};
+use btfrs_core::{Error, Result};
+use std::path::{Path, PathBuf};
+
+/// One line of an `.lp` file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LpEntry {
+    /// The file name as written.
+    pub name: String,
+    /// The light vector as written.
+    pub light: [f64; 3],
+}
+
+/// Parse the text of an `.lp` file (`shown` names it in errors).
+pub fn parse_lp(text: &str, shown: &str) -> Result<Vec<LpEntry>> {
+    let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
+    let (_, first) =
+        lines.next().ok_or_else(|| Error::format(shown, "is empty; expected the image count on the first line"))?;
+    let count: usize = first
+        .split_whitespace()
+        .next()
+        .and_then(|t| t.parse().ok())
+        .ok_or_else(|| Error::format(shown, format!("first line {first:?}: expected the number of images")))?;
+    let mut out = Vec::with_capacity(count.min(1 << 16));
+    for (i, line) in lines {
+        let toks: Vec<&str> = line.split_whitespace().collect();
+        let bad = || Error::format(shown, format!("line {}: expected `filename lx ly lz`, got {line:?}", i + 1));
+        if toks.len() < 4 {
+            return Err(bad());
+        }
+        let n = toks.len();
+        let num = |t: &str| t.parse::<f64>().ok().filter(|x| x.is_finite());
+        let (x, y, z) = match (num(toks[n - 3]), num(toks[n - 2]), num(toks[n - 1])) {
+            (Some(x), Some(y), Some(z)) => (x, y, z),
+            _ => return Err(bad()),
+        };
+        // The name is everything before the numbers, spaces kept as written.
+        let name = line.trim_start();
+        let mut rest = name;
+        for t in &toks[n - 3..] {
+            rest = rest.trim_end().strip_suffix(t).unwrap_or(rest);
+        }
+        out.push(LpEntry { name: rest.trim().to_string(), light: [x, y, z] });
+    }
+    if out.len() != count {
+        return Err(Error::format(shown, format!("declares {count} images on its first line but lists {}", out.len())));
+    }
+    Ok(out)
+}
+
+/// Find the file an `.lp` line names (see the module doc).
+fn resolve(dir: &Path, name: &str) -> Option<PathBuf> {
+    let as_written = PathBuf::from(name);
+    if as_written.is_absolute() && as_written.is_file() {
+        return Some(as_written);
+    }
+    let rel = dir.join(name);
+    if rel.is_file() {
+        return Some(rel);
+    }
+    let base = name.rsplit(['/', '\\']).next()?;
+    let beside = dir.join(base);
+    beside.is_file().then_some(beside)
+}
+
+/// Open an RTI capture set from its `.lp` file. The selection's `lights` index the `.lp` lines
+/// in order; there is one view (the normal).
+pub fn open_lp(path: &Path, sel: &Selection, transfer: Transfer) -> Result<ImageStack> {
+    let shown = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(&shown, e))?;
+    let entries = parse_lp(&text, &shown)?;
+    let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let dir = if dir.as_os_str().is_empty() { PathBuf::from(".") } else { dir };
+    let mut warnings = Vec::new();
+    let mut members = Vec::with_capacity(entries.len());
+    for (i, e) in entries.iter().enumerate() {
+        let file = resolve(&dir, &e.name).ok_or_else(|| {
+            Error::format(
+                &shown,
+                format!("line {} names {:?}, which is not found (looked beside the .lp file too)", i + 2, e.name),
+            )
+        })?;
+        let [x, y, z] = e.light;
+        let n = (x * x + y * y + z * z).sqrt();
+        if !(n > 0.0) || z < 0.0 {
+            return Err(Error::format(
+                &shown,
+                format!("line {}: light ({x}, {y}, {z}) is not a direction above the surface", i + 2),
+            ));
+        }
+        if (n - 1.0).abs() > 1e-3 {
+            warnings.push(format!("{shown}: line {}: light vector of length {n:.4} normalised", i + 2));
+        }
+        members.push(Member { name: file.display().to_string(), view: [0.0, 0.0, 1.0], light: [x / n, y / n, z / n] });
+    }
+    let meta = serde_json::json!({"format": "rti-lp", "source": shown, "warnings": warnings});
+    ImageStack::new(Store::Folder(PathBuf::new()), members, sel, transfer, None, meta)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lp_lines_parse_names_with_spaces_and_count_is_checked() {
+        let t = "3\nimg 1.jpg 0.1 0.2 0.97\nC:\\caps\\img2.jpg -0.5 0 0.866\n/abs/p.png 0 0 1\n";
+        let e = parse_lp(t, "a.lp").unwrap();
+        assert_eq!(e[0].name, "img 1.jpg");
+        assert_eq!(e[1].name, "C:\\caps\\img2.jpg");
+        assert_eq!(e[1].light, [-0.5, 0.0, 0.866]);
+        let err = parse_lp("4\na.jpg 0 0 1\n", "a.lp").unwrap_err().to_string();
+        assert!(err.contains("declares 4") && err.contains("lists 1"), "{err}");
+        assert!(parse_lp("2\na.jpg 0 x 1\n", "a.lp").unwrap_err().to_string().contains("line 2"));
+        assert!(parse_lp("", "a.lp").unwrap_err().to_string().contains("empty"));
+    }
+}

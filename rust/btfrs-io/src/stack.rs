@@ -1,0 +1,407 @@
+//! Image stacks: one photograph per (view, light) pair, in a folder or a zip archive, decoded
+//! in parallel straight into the texel-major `[H, W, V, L, 3]` layout.
+//!
+//! This is the engine under the UBO2003 / ATRIUM archives ([`crate::ubo2003`]), RTI capture
+//! sets ([`crate::rti`]) and generic stacks with a direction table (CSV or JSON, here). Each
+//! loader turns its files into a list of [`Member`]s (a file and its view and light direction);
+//! [`ImageStack::new`] groups the directions, applies the [`Selection`] (only selected images
+//! are ever read) and checks the first image's size; [`Source::decode_into`] then decodes
+//! batches of images in parallel and scatters each batch into the buffer in parallel over
+//! texels, so only one batch of images (bounded to about 256 MB) is in memory beside the output.
+
+use crate::capture::{Capture, Crop, Selection, Source};
+use crate::decode::{self, Decoded, Transfer};
+use btfrs_core::{Error, Monitor, Result};
+use rayon::prelude::*;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+/// Where the images are.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Store {
+    /// Files; member names are paths relative to this folder (or absolute).
+    Folder(PathBuf),
+    /// A zip archive; member names are entry names.
+    Zip(PathBuf),
+}
+
+impl Store {
+    /// How a member is named in errors.
+    pub fn shown(&self, name: &str) -> String {
+        match self {
+            Store::Folder(d) => d.join(name).display().to_string(),
+            Store::Zip(z) => format!("{}!{name}", z.display()),
+        }
+    }
+
+    /// The image files of the store (file names relative to it, sorted), skipping anything
+    /// that is not an image by its extension ([`decode::EXTENSIONS`]). Folders are listed
+    /// without recursion; archives by all their entries.
+    pub fn list_images(&self) -> Result<Vec<String>> {
+        let mut names = match self {
+            Store::Folder(d) => {
+                let shown = d.display().to_string();
+                let mut v = Vec::new();
+                for e in std::fs::read_dir(d).map_err(|e| Error::io(&shown, e))? {
+                    let e = e.map_err(|e| Error::io(&shown, e))?;
+                    let name = e.file_name().to_string_lossy().into_owned();
+                    if decode::is_image(&name) && e.path().is_file() {
+                        v.push(name);
+                    }
+                }
+                v
+            }
+            Store::Zip(z) => {
+                let shown = z.display().to_string();
+                let f = std::fs::File::open(z).map_err(|e| Error::io(&shown, e))?;
+                let zip = zip::ZipArchive::new(f)
+                    .map_err(|e| Error::format(&shown, format!("not a readable zip archive: {e}")))?;
+                let mut v = Vec::new();
+                for n in zip.file_names() {
+                    let n = n.map_err(|e| Error::format(&shown, format!("unreadable entry name: {e}")))?;
+                    if !n.ends_with('/') && decode::is_image(&n) {
+                        v.push(n.into_owned());
+                    }
+                }
+                v
+            }
+        };
+        names.sort();
+        Ok(names)
+    }
+}
+
+/// One image of a stack and the (view, light) pair it shows (unit vectors in btfrs's frame).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Member {
+    /// File name in the store.
+    pub name: String,
+    /// View direction.
+    pub view: [f64; 3],
+    /// Light direction.
+    pub light: [f64; 3],
+}
+
+/// Group directions that are equal within `1e-9` (as written by one tool they are equal bit
+/// for bit; the tolerance absorbs a round trip through text), in first-appearance order.
+fn group(dirs: impl Iterator<Item = [f64; 3]>) -> (Vec<[f64; 3]>, Vec<usize>) {
+    let mut unique: Vec<[f64; 3]> = Vec::new();
+    let mut index = Vec::new();
+    for d in dirs {
+        let i = unique.iter().position(|u| (0..3).all(|k| (u[k] - d[k]).abs() < 1e-9)).unwrap_or_else(|| {
+            unique.push(d);
+            unique.len() - 1
+        });
+        index.push(i);
+    }
+    (unique, index)
+}
+
+/// A planned stack: which file goes to which (view, light) slot of the output.
+#[derive(Debug)]
+pub struct ImageStack {
+    store: Store,
+    /// (member name, view slot, light slot) of the selected images.
+    slots: Vec<(String, usize, usize)>,
+    capture: Capture,
+    /// Full image size (height, width) and the crop.
+    full: (usize, usize),
+    crop: Crop,
+    transfer: Transfer,
+}
+
+impl ImageStack {
+    /// Plan a stack. `order` sorts the unique views and lights (UBO archives sort by
+    /// (theta, phi); `None` keeps first appearance, e.g. the order of an `.lp` file). The
+    /// selection's indices refer to the sorted lists. Two images of the same pair are an error
+    /// naming both; so is an empty stack.
+    pub fn new(
+        store: Store,
+        members: Vec<Member>,
+        sel: &Selection,
+        transfer: Transfer,
+        order: Option<fn(&[f64; 3], &[f64; 3]) -> std::cmp::Ordering>,
+        mut meta: serde_json::Value,
+    ) -> Result<ImageStack> {
+        if members.is_empty() {
+            return Err(Error::arg("path", "found no images (expected .jpg, .jpeg, .png, .tif, .tiff or .exr files)"));
+        }
+        let sort = |(mut u, idx): (Vec<[f64; 3]>, Vec<usize>)| -> (Vec<[f64; 3]>, Vec<usize>) {
+            let Some(cmp) = order else { return (u, idx) };
+            let mut perm: Vec<usize> = (0..u.len()).collect();
+            perm.sort_by(|&a, &b| cmp(&u[a], &u[b]));
+            let mut rank = vec![0; u.len()];
+            for (r, &p) in perm.iter().enumerate() {
+                rank[p] = r;
+            }
+            let sorted = perm.iter().map(|&p| u[p]).collect();
+            u = sorted;
+            (u, idx.into_iter().map(|i| rank[i]).collect())
+        };
+        let (views, vi) = sort(group(members.iter().map(|m| m.view)));
+        let (lights, li) = sort(group(members.iter().map(|m| m.light)));
+        btfrs_core::directions::validate("views", &views)?;
+        btfrs_core::directions::validate("lights", &lights)?;
+        let (nv, nl) = (views.len(), lights.len());
+        let mut owner: Vec<Option<usize>> = vec![None; nv * nl];
+        for (k, m) in members.iter().enumerate() {
+            if let Some(o) = owner[vi[k] * nl + li[k]].replace(k) {
+                return Err(Error::arg(
+                    "path",
+                    format!(
+                        "{} and {} show the same (view, light) pair",
+                        store.shown(&members[o].name),
+                        store.shown(&m.name)
+                    ),
+                ));
+            }
+        }
+        let keep_v = Selection::pick("views", &sel.views, nv)?;
+        let keep_l = Selection::pick("lights", &sel.lights, nl)?;
+        let mut vmap = vec![usize::MAX; nv];
+        for (new, &old) in keep_v.iter().enumerate() {
+            vmap[old] = new;
+        }
+        let mut lmap = vec![usize::MAX; nl];
+        for (new, &old) in keep_l.iter().enumerate() {
+            lmap[old] = new;
+        }
+        let (snv, snl) = (keep_v.len(), keep_l.len());
+        let mut mask = vec![false; snv * snl];
+        let mut slots = Vec::new();
+        for (k, m) in members.into_iter().enumerate() {
+            let (v, l) = (vmap[vi[k]], lmap[li[k]]);
+            if v != usize::MAX && l != usize::MAX {
+                mask[v * snl + l] = true;
+                slots.push((m.name, v, l));
+            }
+        }
+        if slots.is_empty() {
+            return Err(Error::arg("views", "the selection keeps no image"));
+        }
+        // The first selected image fixes the size; every other one is checked as it is decoded.
+        let first = read_member(&store, &slots[0].0, transfer)?;
+        let full = (first.height, first.width);
+        let crop = sel.rect(full.0, full.1)?;
+        if let serde_json::Value::Object(o) = &mut meta {
+            o.insert("image_size".into(), serde_json::json!([full.0, full.1]));
+            o.insert("crop".into(), serde_json::json!([crop.row, crop.col, crop.rows, crop.cols]));
+            o.insert("images".into(), serde_json::json!(slots.len()));
+        }
+        let capture = Capture {
+            height: crop.rows,
+            width: crop.cols,
+            views: keep_v.iter().map(|&i| views[i]).collect(),
+            lights: keep_l.iter().map(|&i| lights[i]).collect(),
+            mask: if mask.iter().all(|&m| m) { None } else { Some(mask) },
+            meta,
+        };
+        Ok(ImageStack { store, slots, capture, full, crop, transfer })
+    }
+
+    /// The store the images come from.
+    pub fn store(&self) -> &Store {
+        &self.store
+    }
+}
+
+fn read_member(store: &Store, name: &str, transfer: Transfer) -> Result<Decoded> {
+    match store {
+        Store::Folder(d) => decode::read(&d.join(name), transfer),
+        Store::Zip(_) => {
+            let bytes = ZipReader::open(store)?.read(name)?;
+            decode::decode(&bytes, &store.shown(name), transfer)
+        }
+    }
+}
+
+/// Sequential access to a zip archive's members (the zip crate reads through `&mut`).
+struct ZipReader<'a> {
+    store: &'a Store,
+    zip: zip::ZipArchive<std::fs::File>,
+}
+
+impl<'a> ZipReader<'a> {
+    fn open(store: &'a Store) -> Result<ZipReader<'a>> {
+        let Store::Zip(z) = store else { unreachable!("zip reader of a folder") };
+        let shown = z.display().to_string();
+        let f = std::fs::File::open(z).map_err(|e| Error::io(&shown, e))?;
+        let zip =
+            zip::ZipArchive::new(f).map_err(|e| Error::format(&shown, format!("not a readable zip archive: {e}")))?;
+        Ok(ZipReader { store, zip })
+    }
+
+    fn read(&mut self, name: &str) -> Result<Vec<u8>> {
+        let shown = self.store.shown(name);
+        let mut f = self.zip.by_name(name).map_err(|e| Error::format(&shown, e))?;
+        // Trust the declared size only as far as deflate can expand the compressed bytes.
+        let cap = f.size().min(f.compressed_size().saturating_mul(1032)).min(1 << 32) as usize;
+        let mut out = Vec::with_capacity(cap);
+        f.read_to_end(&mut out).map_err(|e| Error::format(&shown, e))?;
+        Ok(out)
+    }
+}
+
+impl Source for ImageStack {
+    fn capture(&self) -> &Capture {
+        &self.capture
+    }
+
+    fn decode_into(&self, out: &mut [f32], monitor: &Monitor) -> Result<()> {
+        let cap = &self.capture;
+        if out.len() != cap.len() {
+            return Err(Error::arg("out", format!("expected {} values, got {}", cap.len(), out.len())));
+        }
+        let (fh, fw) = self.full;
+        let image_bytes = fh * fw * 12;
+        let threads = rayon::current_num_threads().max(1);
+        let batch = ((256usize << 20) / image_bytes.max(1)).clamp(1, 4 * threads);
+        let mut zip = match &self.store {
+            Store::Zip(_) => Some(ZipReader::open(&self.store)?),
+            Store::Folder(_) => None,
+        };
+        monitor.start(self.slots.len() as u64);
+        let (nl, abrdf) = (cap.lights.len(), cap.abrdf_len());
+        let crop = self.crop;
+        for chunk in self.slots.chunks(batch) {
+            monitor.check()?;
+            // Archive members are read in order (one reader), then decoded in parallel.
+            let bytes: Vec<Option<Vec<u8>>> = match &mut zip {
+                Some(z) => chunk.iter().map(|(n, _, _)| z.read(n).map(Some)).collect::<Result<_>>()?,
+                None => vec![None; chunk.len()],
+            };
+            let images: Vec<Decoded> = chunk
+                .par_iter()
+                .zip(bytes)
+                .map(|((name, _, _), b)| {
+                    let img = match b {
+                        Some(b) => decode::decode(&b, &self.store.shown(name), self.transfer)?,
+                        None => read_member(&self.store, name, self.transfer)?,
+                    };
+                    if (img.height, img.width) != (fh, fw) {
+                        return Err(Error::format(
+                            self.store.shown(name),
+                            format!(
+                                "the image is {} x {} pixels; expected {fh} x {fw} like the first image",
+                                img.height, img.width
+                            ),
+                        ));
+                    }
+                    Ok(img)
+                })
+                .collect::<Result<_>>()?;
+            out.par_chunks_mut(abrdf).enumerate().for_each(|(t, texel)| {
+                let (r, c) = (crop.row + t / crop.cols, crop.col + t % crop.cols);
+                let src = (r * fw + c) * 3;
+                for ((_, v, l), img) in chunk.iter().zip(&images) {
+                    let dst = (v * nl + l) * 3;
+                    texel[dst..dst + 3].copy_from_slice(&img.rgb[src..src + 3]);
+                }
+            });
+            monitor.advance(chunk.len() as u64);
+        }
+        Ok(())
+    }
+}
+
+/// A direction from theta and phi in degrees: `(sin t cos p, sin t sin p, cos t)`.
+pub fn from_angles(theta_deg: f64, phi_deg: f64) -> [f64; 3] {
+    let (t, p) = (theta_deg.to_radians(), phi_deg.to_radians());
+    [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]
+}
+
+/// A generic stack: images listed by a direction table, CSV or JSON, beside them.
+///
+/// * **CSV**: a header row naming the columns; `file` (or `filename`, `image`), then either
+///   `light_theta, light_phi` (degrees) or `lx, ly, lz`, and optionally `view_theta, view_phi`
+///   or `vx, vy, vz` (absent: the view is the normal). Blank lines and lines starting with `#`
+///   are skipped.
+/// * **JSON**: a list of objects with the same keys (or `{"images": [...]}`).
+///
+/// File names are relative to `folder` (default: the table's folder). Vectors are normalised
+/// (a length off by more than 1e-3 is reported in `meta.warnings`).
+pub fn open_table(table: &Path, folder: Option<&Path>, sel: &Selection, transfer: Transfer) -> Result<ImageStack> {
+    let shown = table.display().to_string();
+    let text = std::fs::read_to_string(table).map_err(|e| Error::io(&shown, e))?;
+    let rows: Vec<serde_json::Map<String, serde_json::Value>> = if shown.to_ascii_lowercase().ends_with(".json") {
+        let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| Error::format(&shown, e))?;
+        let list = match v {
+            serde_json::Value::Array(a) => a,
+            serde_json::Value::Object(mut o) => match o.remove("images") {
+                Some(serde_json::Value::Array(a)) => a,
+                _ => return Err(Error::format(&shown, "expected a list of images or {\"images\": [...]}")),
+            },
+            _ => return Err(Error::format(&shown, "expected a list of images or {\"images\": [...]}")),
+        };
+        list.into_iter()
+            .enumerate()
+            .map(|(i, r)| match r {
+                serde_json::Value::Object(o) => Ok(o),
+                _ => Err(Error::format(&shown, format!("entry {i} is not an object"))),
+            })
+            .collect::<Result<_>>()?
+    } else {
+        let mut rdr = csv::ReaderBuilder::new().comment(Some(b'#')).trim(csv::Trim::All).from_reader(text.as_bytes());
+        let headers: Vec<String> =
+            rdr.headers().map_err(|e| Error::format(&shown, e))?.iter().map(|h| h.to_ascii_lowercase()).collect();
+        let mut rows = Vec::new();
+        for rec in rdr.records() {
+            let rec = rec.map_err(|e| Error::format(&shown, e))?;
+            let mut o = serde_json::Map::new();
+            for (h, v) in headers.iter().zip(rec.iter()) {
+                let val = v.parse::<f64>().map(serde_json::Value::from).unwrap_or_else(|_| serde_json::Value::from(v));
+                o.insert(h.clone(), val);
+            }
+            rows.push(o);
+        }
+        rows
+    };
+    let mut warnings = Vec::new();
+    let mut members = Vec::with_capacity(rows.len());
+    for (i, r) in rows.iter().enumerate() {
+        let at = |what: &str| format!("row {} {what}", i + 1);
+        let file = ["file", "filename", "image"]
+            .iter()
+            .find_map(|k| r.get(*k).and_then(|v| v.as_str()))
+            .ok_or_else(|| Error::format(&shown, at("has no file (expected a column file, filename or image)")))?;
+        let num = |k: &str| r.get(k).and_then(|v| v.as_f64());
+        let mut dir = |pre: &str, vec: [&str; 3]| -> Result<Option<[f64; 3]>> {
+            if let (Some(t), Some(p)) = (num(&format!("{pre}_theta")), num(&format!("{pre}_phi"))) {
+                if !(0.0..=90.0).contains(&t) {
+                    return Err(Error::format(&shown, at(&format!("{pre}_theta = {t}: expected 0 to 90 degrees"))));
+                }
+                return Ok(Some(from_angles(t, p)));
+            }
+            match (num(vec[0]), num(vec[1]), num(vec[2])) {
+                (Some(x), Some(y), Some(z)) => {
+                    let n = (x * x + y * y + z * z).sqrt();
+                    if !(n > 0.0 && n.is_finite()) || z < 0.0 {
+                        return Err(Error::format(
+                            &shown,
+                            at(&format!("{pre} ({x}, {y}, {z}) is not a direction above the surface")),
+                        ));
+                    }
+                    if (n - 1.0).abs() > 1e-3 {
+                        warnings.push(format!("{}: {pre} vector of length {n:.4} normalised", at("")));
+                    }
+                    Ok(Some([x / n, y / n, z / n]))
+                }
+                _ => Ok(None),
+            }
+        };
+        let light = dir("light", ["lx", "ly", "lz"])?.ok_or_else(|| {
+            Error::format(&shown, at("has no light direction (light_theta, light_phi or lx, ly, lz)"))
+        })?;
+        let view = dir("view", ["vx", "vy", "vz"])?.unwrap_or([0.0, 0.0, 1.0]);
+        members.push(Member { name: file.to_string(), view, light });
+    }
+    let dir =
+        folder.map(Path::to_path_buf).unwrap_or_else(|| table.parent().map(Path::to_path_buf).unwrap_or_default());
+    for m in &members {
+        if !dir.join(&m.name).is_file() {
+            return Err(Error::format(&shown, format!("names {}, which does not exist", dir.join(&m.name).display())));
+        }
+    }
+    let meta = serde_json::json!({"format": "stack", "source": shown, "warnings": warnings});
+    ImageStack::new(Store::Folder(dir), members, sel, transfer, None, meta)
+}
