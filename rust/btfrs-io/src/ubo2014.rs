@@ -76,7 +76,8 @@
 //!   - 12 log RGB: exp(c) - eps.
 //!
 //!   LAB (2) and the spectral models (5, 6) are refused with an error naming the model, as is
-//!   any other number. No clamping is done, and neither the RGB scale factors nor the cosine
+//!   any other number. Sums are accumulated in f32 (eight lanes), the colour models evaluated in
+//!   f64; double scalars are read as f32. No clamping is done, and neither the RGB scale factors nor the cosine
 //!   flag are applied: both go into [`Capture::meta`] as the file states them.
 //! * **Directions**: the file's angles are radians (`btf.hh` feeds them to `tanf`, `btflib`'s
 //!   `sph2cart2` documents radians), theta from the normal and phi the azimuth, with
@@ -139,6 +140,8 @@ const TEXT_LEN: usize = 80;
 const META_V1_LEN: u64 = 4 + 4 + 3 * TEXT_LEN as u64 + 4 + 12;
 /// The smallest channel header: u8 scalar size and three u32.
 const CHANNEL_HEADER_LEN: u64 = 1 + 12;
+/// Pixels decoded together against each (view, light) pair.
+const PIXEL_BLOCK: usize = 16;
 
 /// How the scalars of a channel are stored.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -892,29 +895,35 @@ impl Source for Ubo2014 {
                     ch.scalar.decode(bytes, &mut sxv[c]);
                 }
                 let ks = self.header.channels.iter().map(|c| c.components as usize).collect::<Vec<_>>();
-                for (px, texel) in chunk.chunks_exact_mut(npairs * 3).enumerate() {
-                    let sv: [&[f32]; 3] = std::array::from_fn(|c| &sxv[c][px * ks[c]..(px + 1) * ks[c]]);
+                // Blocks of pixels, each against every pair: the pixels' S.V stay in L1 while
+                // U streams through once per block (not once per pixel).
+                for (b, block) in chunk.chunks_mut(PIXEL_BLOCK * npairs * 3).enumerate() {
+                    let px0 = b * PIXEL_BLOCK;
                     for (p, row) in self.rows.iter().enumerate() {
                         if row.is_none() {
                             continue;
                         }
-                        let ch: [f32; 3] = std::array::from_fn(|c| dot(&u[c][p * ks[c]..(p + 1) * ks[c]], sv[c]));
-                        let rgb = to_rgb(self.model, ch, &mean, &m);
-                        let v = rgb.map(|x| x as f32);
-                        if !v.iter().all(|x| x.is_finite()) {
-                            return Err(Error::format(
-                                &self.shown,
-                                format!(
-                                    "texel (row {}, column {}), view {}, light {} decodes to the non-finite value {:?}",
-                                    texel_row,
-                                    crop.col + px,
-                                    self.views[p / nl],
-                                    self.lights[p % nl],
-                                    v
-                                ),
-                            ));
+                        let up: [&[f32]; 3] = std::array::from_fn(|c| &u[c][p * ks[c]..(p + 1) * ks[c]]);
+                        for (j, texel) in block.chunks_exact_mut(npairs * 3).enumerate() {
+                            let px = px0 + j;
+                            let ch: [f32; 3] =
+                                std::array::from_fn(|c| dot(up[c], &sxv[c][px * ks[c]..(px + 1) * ks[c]]));
+                            let v = to_rgb(self.model, ch, &mean, &m).map(|x| x as f32);
+                            if !v.iter().all(|x| x.is_finite()) {
+                                return Err(Error::format(
+                                    &self.shown,
+                                    format!(
+                                        "texel (row {}, column {}), view {}, light {} decodes to the non-finite value {:?}",
+                                        texel_row,
+                                        crop.col + px,
+                                        self.views[p / nl],
+                                        self.lights[p % nl],
+                                        v
+                                    ),
+                                ));
+                            }
+                            texel[p * 3..p * 3 + 3].copy_from_slice(&v);
                         }
-                        texel[p * 3..p * 3 + 3].copy_from_slice(&v);
                     }
                 }
                 monitor.advance(1);

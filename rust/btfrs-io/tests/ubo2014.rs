@@ -208,6 +208,9 @@ fn every_value_matches_the_f64_product() {
         let f = sample(seed as u64 + 1, grid_views(3, 4), 5, 4, [3, 1, 9], scalars, 0);
         check_roundtrip(&f, 1e-6, what);
     }
+    // Rows wider than the decoder's pixel blocks (16), with a partial last block.
+    let f = sample(4, grid_views(2, 3), 37, 2, [2, 8, 5], [Scalar::Half; 3], 0);
+    check_roundtrip(&f, 1e-6, "wide rows");
 }
 
 #[test]
