@@ -288,11 +288,11 @@ pub struct Ubo2014Header {
     pub meta_size: u32,
     /// The metadata block's version (1 to 4).
     pub version: u32,
-    /// Measurement setup (the char[80] up to its first NUL, lossy UTF-8).
+    /// Measurement setup (the `char[80]` up to its first NUL, lossy UTF-8).
     pub measurement_setup: String,
-    /// Image sensor (char[80]).
+    /// Image sensor (`char[80]`).
     pub image_sensor: String,
-    /// Light source (char[80]).
+    /// Light source (`char[80]`).
     pub light_source: String,
     /// Pixels per millimetre on the sample.
     pub pixels_per_mm: f32,
@@ -840,18 +840,34 @@ impl Ubo2014 {
     fn selected_u(&self, c: usize) -> Result<Vec<f32>> {
         let ch = &self.header.channels[c];
         let k = ch.components as usize;
-        let ss = ch.scalar.size();
-        let mut file = File::open(&self.path).map_err(|e| Error::io(&self.shown, e))?;
-        let mut bytes = vec![0u8; ch.rows as usize * k * ss];
-        file.seek(SeekFrom::Start(ch.u_offset)).map_err(|e| Error::io(&self.shown, e))?;
-        file.read_exact(&mut bytes).map_err(|e| Error::io(&self.shown, e))?;
+        let row_bytes = k * ch.scalar.size();
+        let io = |e| Error::io(&self.shown, e);
+        let mut file = BufReader::with_capacity(1 << 16, File::open(&self.path).map_err(io)?);
         let mut out = vec![0f32; self.rows.len() * k];
         let mut buf = Vec::with_capacity(k);
-        for (p, row) in self.rows.iter().enumerate() {
-            if let Some(r) = row {
-                let r = *r as usize;
-                ch.scalar.decode(&bytes[r * k * ss..(r + 1) * k * ss], &mut buf);
-                out[p * k..(p + 1) * k].copy_from_slice(&buf);
+        let present = self.rows.iter().filter(|r| r.is_some()).count();
+        if present as u64 * 4 >= ch.rows as u64 {
+            // Most rows are wanted: one read of the whole of U.
+            let mut bytes = vec![0u8; ch.rows as usize * row_bytes];
+            file.seek(SeekFrom::Start(ch.u_offset)).map_err(io)?;
+            file.read_exact(&mut bytes).map_err(io)?;
+            for (p, row) in self.rows.iter().enumerate() {
+                if let Some(r) = *row {
+                    let r = r as usize;
+                    ch.scalar.decode(&bytes[r * row_bytes..(r + 1) * row_bytes], &mut buf);
+                    out[p * k..(p + 1) * k].copy_from_slice(&buf);
+                }
+            }
+        } else {
+            // A small subset: the wanted rows only.
+            let mut bytes = vec![0u8; row_bytes];
+            for (p, row) in self.rows.iter().enumerate() {
+                if let Some(r) = *row {
+                    file.seek(SeekFrom::Start(ch.u_offset + r as u64 * row_bytes as u64)).map_err(io)?;
+                    file.read_exact(&mut bytes).map_err(io)?;
+                    ch.scalar.decode(&bytes, &mut buf);
+                    out[p * k..(p + 1) * k].copy_from_slice(&buf);
+                }
             }
         }
         Ok(out)

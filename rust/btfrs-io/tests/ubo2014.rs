@@ -437,31 +437,35 @@ fn crop_and_subsets_equal_slices_of_the_full_decode() {
     write_dfmf(&path, &f).unwrap();
     let (full_src, full) = decode(&path, &Selection::default());
     let (nv, nl) = (full_src.capture().views.len(), full_src.capture().lights.len());
-    let sel = Selection {
-        crop: Some(Crop { row: 1, col: 2, rows: 4, cols: 3 }),
-        views: Some(vec![3, 0, 2]),
-        lights: Some(vec![4, 1]),
-    };
-    let (src, part) = decode(&path, &sel);
-    let cap = src.capture();
-    assert_eq!((cap.height, cap.width, cap.views.len(), cap.lights.len()), (4, 3, 3, 2));
-    assert_eq!(cap.views[0], full_src.capture().views[3]);
-    assert_eq!(cap.lights[1], full_src.capture().lights[1]);
-    let mut i = 0;
-    for r in 1..5 {
-        for c in 2..5 {
-            for &v in &[3, 0, 2] {
-                for &l in &[4, 1] {
-                    for ch in 0..3 {
-                        let j = ((((r * 7 + c) * nv + v) * nl + l) * 3) + ch;
-                        assert_eq!(part[i], full[j], "texel ({r}, {c}), view {v}, light {l}, channel {ch}");
-                        i += 1;
+    // Most of the pairs (U read whole) and a few of them (U read row by row).
+    let cases: [(Crop, Vec<usize>, Vec<usize>); 2] = [
+        (Crop { row: 1, col: 2, rows: 4, cols: 3 }, vec![3, 0, 2], vec![4, 1, 3]),
+        (Crop { row: 0, col: 6, rows: 6, cols: 1 }, vec![1, 3], vec![2]),
+    ];
+    for (crop, views, lights) in cases {
+        let sel = Selection { crop: Some(crop), views: Some(views.clone()), lights: Some(lights.clone()) };
+        let (src, part) = decode(&path, &sel);
+        let cap = src.capture();
+        assert_eq!((cap.height, cap.width), (crop.rows, crop.cols));
+        assert_eq!((cap.views.len(), cap.lights.len()), (views.len(), lights.len()));
+        assert_eq!(cap.views[0], full_src.capture().views[views[0]]);
+        assert_eq!(cap.lights[0], full_src.capture().lights[lights[0]]);
+        let mut i = 0;
+        for r in crop.row..crop.row + crop.rows {
+            for c in crop.col..crop.col + crop.cols {
+                for &v in &views {
+                    for &l in &lights {
+                        for ch in 0..3 {
+                            let j = ((((r * 7 + c) * nv + v) * nl + l) * 3) + ch;
+                            assert_eq!(part[i], full[j], "texel ({r}, {c}), view {v}, light {l}, channel {ch}");
+                            i += 1;
+                        }
                     }
                 }
             }
         }
+        assert_eq!(i, part.len());
     }
-    assert_eq!(i, part.len());
     // Bad selections are argument errors.
     for bad in [
         Selection { views: Some(vec![4]), ..Default::default() },
