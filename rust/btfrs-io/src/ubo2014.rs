@@ -92,8 +92,11 @@
 //! * **Signatures**: `!DFMF08FCR` and `!DFMF08FC` are read. `!FMF12FCER`, `!FMF06FCR`,
 //!   `!FMF06FC`, `!PVF06FCR`, `!PVF06FC` and `!BDIF06R2!` are recognised and refused with an
 //!   error naming the signature and the format; anything else is "not a UBO2014 `.btf` file".
-//!   (`!DFMF08FC` followed by a metadata size whose low byte is `'R'` would read as
-//!   `!DFMF08FCR`, as in `btf.hh`; no real file has such a size.)
+//!   `!DFMF08FC` followed by a metadata size whose low byte is `'R'` looks like `!DFMF08FCR`
+//!   (`btf.hh` would misread it); the version field tells them apart: read after the `'R'` it
+//!   must be 1 to 4, which it never is when the `'R'` was the size's low byte (the version's
+//!   high bytes are 0 and the next byte is the first of the setup string, so the misread
+//!   version is 0 or at least 2^24).
 //! * Only 3-channel files are decoded (the capture is RGB); [`read_header`] reports any channel
 //!   count. Every channel needs at least one component; channels may differ in scalar size and
 //!   component count (`btflib` allows this, `btf.hh` does not).
@@ -413,10 +416,12 @@ fn shown_bytes(bytes: &[u8]) -> String {
 
 /// Read the signature; `Ok` only for DFMF.
 fn read_signature(r: &mut Reader) -> Result<&'static str> {
-    let n = r.left().min(10);
+    // The signature and the metadata block's size and version (to tell `!DFMF08FC` + a size
+    // whose low byte is 'R' from `!DFMF08FCR`).
+    let n = r.left().min(18);
     let head = r.bytes(n, "the signature")?;
     let expected = || SIGNATURES.iter().map(|s| s.0).collect::<Vec<_>>().join(", ");
-    let Some(&(sig, what)) = SIGNATURES.iter().find(|(s, _)| head.starts_with(s.as_bytes())) else {
+    let Some(&(mut sig, what)) = SIGNATURES.iter().find(|(s, _)| head.starts_with(s.as_bytes())) else {
         if SIGNATURES.iter().any(|(s, _)| !head.is_empty() && s.as_bytes().starts_with(&head)) {
             return Err(Error::format(
                 r.path,
@@ -428,7 +433,7 @@ fn read_signature(r: &mut Reader) -> Result<&'static str> {
             format!(
                 "not a UBO2014 .btf file: expected a signature (one of {}), found \"{}\"",
                 expected(),
-                shown_bytes(&head)
+                shown_bytes(&head[..head.len().min(10)])
             ),
         ));
     };
@@ -439,6 +444,11 @@ fn read_signature(r: &mut Reader) -> Result<&'static str> {
                 "signature {sig}: {what} files are not supported; only DFMF files ({DFMF_SIGNATURE} or {DFMF_SIGNATURE_NO_ROTATIONS}) are read"
             ),
         ));
+    }
+    let version_at = |o: usize| head.get(o..o + 4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
+    let valid = |v: Option<u32>| v.is_some_and(|v| (1..=4).contains(&v));
+    if sig == DFMF_SIGNATURE && !valid(version_at(14)) && valid(version_at(13)) {
+        sig = DFMF_SIGNATURE_NO_ROTATIONS;
     }
     // Step back over what followed the signature.
     let back = head.len() - sig.len();

@@ -765,3 +765,23 @@ fn half_floats_convert_exactly() {
     assert_eq!(half_to_f32(0x3555), 0.333_251_95);
     assert!(half_to_f32(0xfc00).is_infinite() && half_to_f32(0xfc00) < 0.0);
 }
+
+#[test]
+fn no_rotation_signature_with_an_r_shaped_size_byte() {
+    // Without rotations the signature is `!DFMF08FC`; a version-3 metadata block of
+    // 264 + 4 + 4 + 66 = 338 = 0x152 bytes starts with the byte 'R' (0x52).
+    let mut f = sample(18, grid_views(2, 2), 2, 2, [1, 2, 1], [Scalar::Half; 3], 0);
+    f.version = 3;
+    f.rotations = None;
+    f.xml = "x".repeat(66);
+    assert_eq!(f.meta_size(), 0x152);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("r.btf");
+    write_dfmf(&path, &f).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    assert_eq!(&bytes[..10], b"!DFMF08FCR");
+    let hd = read_header(&path).unwrap();
+    assert_eq!((hd.signature.as_str(), hd.meta_size, hd.version), ("!DFMF08FC", 0x152, 3));
+    assert!(hd.rotations.is_empty());
+    check_roundtrip(&f, 1e-6, "R-shaped size byte");
+}
