@@ -4,6 +4,7 @@
 //! * [`model_file`]: any registered model saved to and loaded from a container.
 //! * [`ptm_file`]: `PTM_1.2` files (Malzbender et al. 2001) as RTIViewer and relight read them.
 //! * [`image`]: PNG output of rendered or measured images.
+//! * [`ubo2014`]: UBO2014 `.btf` files (Bonn's DFMF binary) read as a capture, and written.
 //! * [`capture`]: what the loaders of measured data share (selection, the capture plan, decoding into a texel-major buffer).
 //! * [`atomic`]: every writer goes through a temporary file and a rename.
 
@@ -17,3 +18,4 @@ pub mod ptm_file;
 pub mod rti;
 pub mod stack;
 pub mod ubo2003;
+pub mod ubo2014;

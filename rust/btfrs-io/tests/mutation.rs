@@ -13,6 +13,7 @@ use btfrs_core::Error;
 use btfrs_io::container::{self, as_bytes, ArrayRef, Dtype};
 use btfrs_io::image;
 use btfrs_io::ptm_file::{self, PtmFormat, PtmImage};
+use btfrs_io::ubo2014::{self, DfmfChannelData, DfmfFile, DfmfView, Scalar};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -100,6 +101,7 @@ enum Format {
     PtmRgb,
     Png,
     Exr,
+    Dfmf,
 }
 
 impl Format {
@@ -114,6 +116,8 @@ impl Format {
             Format::Png => 4 * 1032,
             // 2048:1 (see image.rs), 12-byte output pixels from 6-byte ones at least.
             Format::Exr => 2 * 2048,
+            // A low-rank file expands: 12 texels x 6 pairs x 3 f32 (864 bytes) from ~830 bytes.
+            Format::Dfmf => 16,
         }
     }
 }
@@ -122,9 +126,51 @@ impl Format {
 /// read chunks, the PNG decoder's minimum limit).
 const SLACK: u64 = 1 << 20;
 
+/// A small DFMF file: 2 views x 3 lights, 4 x 3 texels, half and float channels.
+fn dfmf_file() -> DfmfFile {
+    let lights: Vec<[f32; 2]> = (0..3).map(|l| [0.2 + 0.3 * l as f32, 0.9 * l as f32]).collect();
+    let views = (0..2).map(|v| DfmfView { theta: 0.4 * v as f32, phi: v as f32, lights: lights.clone() }).collect();
+    let scalars = [Scalar::Half, Scalar::F32, Scalar::Half];
+    let channels = (0..3)
+        .map(|c| {
+            let k = c + 1;
+            let val = |i: usize| scalars[c].quantize(((i * 37 + c * 11) % 23) as f64 / 23.0 - 0.4);
+            DfmfChannelData {
+                scalar: scalars[c],
+                s: (0..k).map(val).collect(),
+                u: (0..6 * k).map(val).collect(),
+                sxv: (0..12 * k).map(|i| val(i + 5)).collect(),
+            }
+        })
+        .collect();
+    DfmfFile {
+        version: 4,
+        measurement_setup: "setup".into(),
+        image_sensor: "sensor".into(),
+        light_source: "light".into(),
+        pixels_per_mm: 10.0,
+        rgb_scale: [1.0; 3],
+        cosine_flag: 0,
+        xml: "<m/>".into(),
+        channel_names: vec!["Y".into(), "U".into(), "V".into()],
+        views,
+        width: 4,
+        height: 3,
+        rotations: Some(vec![[0.0; 9]]),
+        color_model: 11,
+        color_mean: [0.0; 3],
+        color_transform: [0.0; 9],
+        channels,
+    }
+}
+
 fn valid_file(format: Format, dir: &Path) -> Vec<u8> {
     let p = dir.join("valid");
     match format {
+        Format::Dfmf => {
+            ubo2014::write_dfmf(&p, &dfmf_file()).unwrap();
+            std::fs::read(&p).unwrap()
+        }
         Format::Container => {
             let a: Vec<f32> = (0..2 * 3 * 4).map(|i| i as f32 * 0.25 - 1.0).collect();
             let b: Vec<u16> = (0..10).map(|i| i * 1000).collect();
@@ -204,6 +250,32 @@ fn numbers(text: &[u8]) -> Vec<(usize, usize)> {
 /// Inflate one header field of `valid` (format-aware); returns the file and what was done.
 fn inflate(format: Format, valid: &[u8], rng: &mut Rng) -> (Vec<u8>, String) {
     match format {
+        Format::Dfmf => {
+            // The u32 size and count fields, at the offsets the layout gives.
+            let f = dfmf_file();
+            let xml_len = 10 + 264 + 4;
+            let names = xml_len + 4 + f.xml.len();
+            let views = names + 4 + 3 * 5;
+            let light_counts: Vec<usize> = (0..2).map(|v| views + 4 + v * (12 + 3 * 8) + 8).collect();
+            let size = views + 4 + 2 * (12 + 3 * 8);
+            let rot = size + 8;
+            let dfmf = rot + 4 + 36;
+            let mut fields = vec![("meta size", 10), ("version", 14), ("XML length", xml_len)];
+            fields.extend([("channel count", names), ("view count", views), ("width", size), ("height", size + 4)]);
+            fields.extend([("rotation count", rot), ("components", dfmf), ("colour model", dfmf + 4)]);
+            fields.extend(light_counts.iter().map(|&a| ("light count", a)));
+            let mut ch = dfmf + 4 + 4 + 12 + 36;
+            for c in &f.channels {
+                fields.extend([("channel components", ch + 1), ("channel rows", ch + 5), ("channel columns", ch + 9)]);
+                ch += 13 + (c.s.len() + c.u.len() + c.sxv.len()) * c.scalar.size();
+            }
+            assert_eq!(ch, valid.len());
+            let (name, at) = *rng.pick(&fields);
+            let v = *rng.pick(HUGE_U32);
+            let mut b = valid.to_vec();
+            b[at..at + 4].copy_from_slice(&v.to_le_bytes());
+            (b, format!("{name} at {at} := {v}"))
+        }
         Format::Container => {
             let hlen = u64::from_le_bytes(valid[8..16].try_into().unwrap()) as usize;
             // The writer starts the data at the first 64-byte boundary after the header.
@@ -391,6 +463,14 @@ fn read(format: Format, path: &Path) -> btfrs_core::Result<()> {
         }),
         Format::Png => image::read_png(path).map(|(v, w, h)| assert_eq!(v.len(), w * h * 3)),
         Format::Exr => image::read_exr(path).map(|(v, w, h)| assert_eq!(v.len(), w * h * 3)),
+        Format::Dfmf => {
+            use btfrs_io::capture::Source;
+            let src = ubo2014::Ubo2014::open(path, &Default::default())?;
+            let v = btfrs_io::capture::load(&src, &btfrs_core::Monitor::new())?;
+            assert_eq!(v.len(), src.capture().len());
+            assert!(v.iter().all(|x| x.is_finite()));
+            Ok(())
+        }
     }
 }
 
@@ -435,7 +515,7 @@ fn run(format: Format) -> (usize, usize) {
 #[test]
 fn every_reader_survives_corrupted_files() {
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    for format in [Format::Container, Format::PtmLrgb, Format::PtmRgb, Format::Png, Format::Exr] {
+    for format in [Format::Container, Format::PtmLrgb, Format::PtmRgb, Format::Png, Format::Exr, Format::Dfmf] {
         let t0 = Instant::now();
         let (clean, errors) = run(format);
         println!("{format:?}: {CASES} mutated files, {clean} clean reads, {errors} format errors, {:?}", t0.elapsed());
