@@ -110,6 +110,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     t.add_argument("--seed", type=int, default=5, help="synthesis and tiling seed (default: 5)")
     t.add_argument("--out", default="tiles", help="output folder (default: tiles)")
     t.add_argument("--quiet", action="store_true", help="no progress bars")
+    _data_commands(sub)
     args = p.parse_args(argv)
 
     from .exceptions import BtfrsError
@@ -129,6 +130,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             stability_command(args)
         elif args.command == "tiles":
             tiles_command(args)
+        elif args.command == "info":
+            info_command(args)
+        elif args.command == "fit":
+            fit_command(args)
+        elif args.command == "export":
+            export_command(args)
+        elif args.command == "render":
+            render_command(args)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
@@ -351,3 +360,231 @@ def stability_command(args) -> None:
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
+
+
+# --- a user's own data: info, fit, export, render -------------------------------------------------
+
+def _source_args(p: argparse.ArgumentParser) -> None:
+    """The arguments of :func:`btfrs.io.load`."""
+    p.add_argument("path", help="a capture (UBO .zip/folder, UBO2014 .btf, RTI .lp or folder, image folder "
+                                "with --directions) or a btfrs file (.btfrs, .ptm, .rti)")
+    p.add_argument("--directions", help="direction table (.csv or .json) of an image folder")
+    p.add_argument("--crop", type=int, nargs=4, metavar=("ROW", "COL", "ROWS", "COLS"),
+                   help="keep a rectangle of texels (row 0 at the top)")
+    p.add_argument("--views", help="comma-separated view indices to keep")
+    p.add_argument("--lights", help="comma-separated light indices to keep")
+    p.add_argument("--linear", action="store_true", help="8/16-bit images are linear, not sRGB")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def _indices(name: str, text: Optional[str]):
+    if text is None:
+        return None
+    from .exceptions import InvalidArgumentError
+
+    try:
+        return [int(t) for t in text.split(",") if t.strip()]
+    except ValueError:
+        raise InvalidArgumentError(f"--{name}: expected comma-separated integers, got {text!r}") from None
+
+
+def _open(args):
+    from . import io
+
+    return io.load(args.path, directions=args.directions, crop=args.crop, views=_indices("views", args.views),
+                   lights=_indices("lights", args.lights), linear=args.linear, progress=not args.quiet)
+
+
+def _data_commands(sub) -> None:
+    i = sub.add_parser("info", help="what a capture or btfrs file holds: sizes, directions, values, what fits")
+    _source_args(i)
+    f = sub.add_parser("fit", help="fit any model to a capture or BTF file and save it")
+    _source_args(f)
+    f.add_argument("--model", required=True, help="registered model kind (ptm, hsh, rbf, lpca, ...)")
+    f.add_argument("--options", default="{}", help='fit options as JSON, e.g. \'{"order": 3}\'')
+    f.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="one fit option (VALUE read as JSON, else as text); repeatable")
+    f.add_argument("--holdout", type=float, default=0.0,
+                   help="share of (view, light) pairs held out to report the prediction error (default: 0)")
+    f.add_argument("--seed", type=int, default=0, help="seed of the held-out split (default: 0)")
+    f.add_argument("-o", "--out", required=True, help="the model file (.btfrs)")
+    x = sub.add_parser("export", help="write a model or BTF for other tools: .ptm, .rti, EXR maps, image stack")
+    x.add_argument("path", help="a .btfrs model or BTF (or anything btfrs.io.load opens)")
+    x.add_argument("--ptm", help="write a PTM_1.2 file (PTM models)")
+    x.add_argument("--rti", help="write an HSH .rti file (HSH models)")
+    x.add_argument("--exr", help="write the per-texel coefficient maps as one multi-channel EXR (models)")
+    x.add_argument("--stack", help="write a BTF as an image stack + directions.csv into this folder")
+    x.add_argument("--format", choices=["exr", "png"], default="exr", help="image format of --stack (default: exr)")
+    x.add_argument("--view", type=int, default=0, help="view slot written to .ptm / .rti (default: 0)")
+    r = sub.add_parser("render", help="render a model, BTF or capture on a plane, sphere or cylinder")
+    r.add_argument("path", help="a .btfrs model or BTF, .ptm, .rti, or a capture")
+    r.add_argument("--directions", help="direction table of an image folder")
+    r.add_argument("--scene", choices=["plane", "sphere", "cylinder"], default="plane")
+    r.add_argument("--light", type=float, nargs=3, action="append", metavar=("X", "Y", "Z"),
+                   help="a directional light towards (X, Y, Z) in the scene; repeatable (default: 0.3 0.2 0.93)")
+    r.add_argument("--camera", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="camera position looking at the origin (default: straight above a plane, oblique otherwise)")
+    r.add_argument("--fov", type=float, default=40.0, help="vertical field of view, degrees (default: 40)")
+    r.add_argument("--size", type=int, nargs=2, default=[512, 512], metavar=("H", "W"), help="image size (default: 512 512)")
+    r.add_argument("--uv-scale", type=float, default=1.0, help="repetitions of the sample (default: 1)")
+    r.add_argument("--exposure", type=float, default=1.0, help="PNG exposure (default: 1)")
+    r.add_argument("--backend", choices=["gpu", "cpu"], default="gpu", help="wgpu or the CPU reference (default: gpu)")
+    r.add_argument("--method", help="the model's renderer (default: its first)")
+    r.add_argument("-o", "--out", required=True, help="the image (.png or .exr)")
+
+
+def _coverage(dirs) -> str:
+    """Theta range and the largest angular gap: the biggest angle from any direction of the
+    hemisphere to its nearest sample (a fine Fibonacci set of 4000 directions)."""
+    import numpy as np
+
+    d = np.asarray(dirs, dtype=np.float64)
+    theta = np.degrees(np.arccos(np.clip(d[:, 2], -1, 1)))
+    n = 4000
+    k = np.arange(n) + 0.5
+    z = 1 - k / n
+    phi = k * np.pi * (3 - np.sqrt(5))
+    r = np.sqrt(1 - z * z)
+    probe = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+    gap = np.degrees(np.arccos(np.clip((probe @ d.T).max(axis=1), -1, 1))).max()
+    return f"{len(d)}, theta {theta.min():.1f} to {theta.max():.1f} deg, largest gap {gap:.1f} deg"
+
+
+def info_command(args) -> None:
+    """``btfrs info``: print what the file holds and which models its sampling supports."""
+    import numpy as np
+
+    from .btf import Btf
+    from .models import Model, model_kinds
+
+    obj = _open(args)
+    print(f"{args.path}")
+    if isinstance(obj, Model):
+        print(f"  model {obj.kind}: {obj.height} x {obj.width} texels, {obj.nbytes / 1024:.1f} KiB as stored")
+        for name, a in obj.arrays.items():
+            print(f"    {name}: {a.dtype} {list(a.shape)}")
+        return
+    if not isinstance(obj, Btf):
+        print(f"  {type(obj).__name__}")
+        return
+    b = obj
+    per_view = [int(b.mask[v].sum()) if b.mask is not None else b.n_lights for v in range(b.n_views)]
+    print(f"  {b.height} x {b.width} texels, {b.n_views} views x {b.n_lights} lights, {b.pairs} pairs present, "
+          f"{b.nbytes / 2**20:.1f} MiB as float32")
+    print(f"  views: {_coverage(b.views)}")
+    print(f"  lights: {_coverage(b.lights)}; per view {min(per_view)} to {max(per_view)}")
+    data = np.asarray(b.data)
+    print(f"  values: min {float(data.min()):.4g}, max {float(data.max()):.4g}, mean {float(data.mean()):.4g} "
+          f"(linear RGB)")
+    fewest = min(per_view)
+    needs = {"ptm": 6, "hsh": 9, "rbf": 3, "bilinear": 4, "lafortune_view": 4}
+    print("  what fits:")
+    for kind in model_kinds():
+        if kind in needs:
+            ok = fewest >= needs[kind]
+            note = f"per view slot, needs >= {needs[kind]} lights per view" + ("" if ok else f" (only {fewest})")
+        elif b.n_views == 1:
+            ok, note = False, "models views too: a single-view capture gives it nothing to fit across views"
+        else:
+            ok, note = True, "over all pairs"
+        print(f"    {'yes' if ok else 'no ':3s} {kind:15s} {note}")
+
+
+def _fit_options(args) -> dict:
+    import json
+
+    from .exceptions import InvalidArgumentError
+
+    try:
+        opts = json.loads(args.options)
+    except json.JSONDecodeError as e:
+        raise InvalidArgumentError(f"--options: not valid JSON ({e})") from None
+    if not isinstance(opts, dict):
+        raise InvalidArgumentError("--options: expected a JSON object")
+    for item in args.set:
+        if "=" not in item:
+            raise InvalidArgumentError(f"--set: expected NAME=VALUE, got {item!r}")
+        k, v = item.split("=", 1)
+        try:
+            opts[k.strip()] = json.loads(v)
+        except json.JSONDecodeError:
+            opts[k.strip()] = v
+    return opts
+
+
+def fit_command(args) -> None:
+    """``btfrs fit``: load, fit, save; print time, size and errors."""
+    import time
+
+    from . import fit as fit_mod
+    from .btf import Btf
+    from .exceptions import InvalidArgumentError
+
+    btf = _open(args)
+    if not isinstance(btf, Btf):
+        raise InvalidArgumentError(f"path: {args.path} holds a {type(btf).__name__}, not measured data to fit")
+    opts = _fit_options(args)
+    train, test = (btf, None) if args.holdout <= 0 else btf.split(holdout=args.holdout, seed=args.seed)
+    t0 = time.perf_counter()
+    model = fit_mod.fit(args.model, train, progress=not args.quiet, **opts)
+    secs = time.perf_counter() - t0
+    model.save(args.out)
+    rec = model.error(train)
+    print(f"{args.model} fitted to {btf} in {secs:.2f} s: {model.nbytes / 1024:.1f} KiB as stored "
+          f"(1:{btf.nbytes / max(model.nbytes, 1):.0f}), reconstruction error {rec.relative:.2%}"
+          + ("" if test is None else f", held-out error {model.error(test).relative:.2%}") + f" -> {args.out}")
+
+
+def export_command(args) -> None:
+    """``btfrs export``: the formats other tools read."""
+    from . import io
+    from .btf import Btf
+    from .exceptions import InvalidArgumentError
+    from .models import Model
+
+    if not any([args.ptm, args.rti, args.exr, args.stack]):
+        raise InvalidArgumentError("export: give at least one of --ptm, --rti, --exr, --stack")
+    obj = io.load(args.path)
+    if args.stack:
+        if not isinstance(obj, Btf):
+            raise InvalidArgumentError(f"--stack: {args.path} holds a {type(obj).__name__}, not a BTF")
+        print(f"wrote {io.save_stack(obj, args.stack, format=args.format)}")
+    if args.ptm or args.rti or args.exr:
+        if not isinstance(obj, Model):
+            raise InvalidArgumentError(f"--ptm/--rti/--exr: {args.path} holds a {type(obj).__name__}, not a model")
+    if args.ptm:
+        if not hasattr(obj, "save_ptm"):
+            raise InvalidArgumentError(f"--ptm: a {obj.kind} model cannot be written as .ptm (fit --model ptm)")
+        obj.save_ptm(args.ptm, view=args.view)
+        print(f"wrote {args.ptm}")
+    if args.rti:
+        if not hasattr(obj, "save_rti"):
+            raise InvalidArgumentError(f"--rti: a {obj.kind} model cannot be written as .rti (fit --model hsh)")
+        obj.save_rti(args.rti, view=args.view)
+        print(f"wrote {args.rti}")
+    if args.exr:
+        names = io.save_coefficients(obj, args.exr)
+        print(f"wrote {args.exr}: {len(names)} channels ({names[0]} ... {names[-1]})")
+
+
+def render_command(args) -> None:
+    """``btfrs render``: one image of a model, BTF or capture."""
+    import numpy as np
+
+    from . import io, rendering
+    from .btf import Btf
+    from .exceptions import InvalidArgumentError
+    from .models import Model
+
+    obj = io.load(args.path, directions=args.directions)
+    if not isinstance(obj, (Model, Btf)):
+        raise InvalidArgumentError(f"path: {args.path} holds a {type(obj).__name__}, not a model or BTF")
+    scene = {"plane": lambda: rendering.Scene.plane(2.0), "sphere": rendering.Scene.sphere,
+             "cylinder": rendering.Scene.cylinder}[args.scene]()
+    eye = args.camera or ([0.0, -0.01, 3.2] if args.scene == "plane" else [0.0, -3.0, 2.0])
+    cam = rendering.Camera.look_at(eye, [0, 0, 0], args.fov)
+    lights = [rendering.DirectionalLight(l) for l in (args.light or [[0.3, 0.2, 0.93]])]
+    img = rendering.render(obj, scene, cam, lights, size=tuple(args.size), uv_scale=args.uv_scale,
+                           backend=args.backend, method=args.method)
+    io.save_image(args.out, img, exposure=args.exposure)
+    print(f"wrote {args.out} ({args.size[0]} x {args.size[1]}, mean {float(np.mean(img)):.4f})")

@@ -1,4 +1,9 @@
-"""Files: PTM files for RTIViewer/relight, images, the ``.btfrs`` container, and atomic writes.
+"""Files: measured data in (UBO2003 / ATRIUM archives, UBO2014 ``.btf``, RTI ``.lp`` capture sets,
+image stacks with a direction table), PTM files for RTIViewer/relight, images, EXR coefficient
+maps, the ``.btfrs`` container, and atomic writes.
+
+:func:`load` opens any of them by its file type (see its docstring and the README's table of
+formats and frame conventions).
 
 Every file btfrs writes is written atomically: to a uniquely named temporary file in the target's
 directory, synced, then renamed over the target, so an error or a Ctrl-C midway leaves the old
@@ -11,17 +16,23 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import json
 import os
-from typing import IO, Iterator, Union
+import warnings
+from typing import IO, Iterator, Optional, Sequence, Union
 
 import numpy as np
 
 from . import _native
 from ._checks import real
-from .exceptions import InvalidArgumentError
-from .models import Ptm, load
+from ._progress import Progress, callback
+from .btf import Btf
+from .exceptions import FormatError, InvalidArgumentError
+from .models import Model, Ptm
+from .models import load as load_btfrs
 
-__all__ = ["load_ptm", "save_image", "load_image", "load", "atomic_write", "save_array", "save_text"]
+__all__ = ["load", "load_btfrs", "load_ptm", "save_image", "load_image", "save_stack", "save_coefficients",
+           "capture_kind", "atomic_write", "save_array", "save_text"]
 
 PathLike = Union[str, os.PathLike]
 
@@ -108,3 +119,206 @@ def load_image(path: PathLike) -> np.ndarray:
     if os.path.splitext(p)[1].lower() == ".exr":
         return _native.read_exr(p)
     return _native.read_png(p)
+
+
+# --- measured data in ---------------------------------------------------------------------------
+
+_IMAGE_EXT = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".exr")
+
+
+def capture_kind(path: PathLike, directions: Optional[PathLike] = None) -> str:
+    """What :func:`load` takes ``path`` for: ``"btfrs"``, ``"ptm"``, ``"rti"``, ``"ubo2014"``,
+    ``"lp"`` (an RTI ``.lp`` file, or a folder holding exactly one), ``"table"`` (a folder with
+    a ``directions=`` table), ``"ubo2003"`` (a zip archive or a folder of images whose names carry
+    the angles). Raises :class:`~btfrs.exceptions.FormatError` when it is none of these."""
+    p = os.fspath(path)
+    ext = os.path.splitext(p)[1].lower()
+    if directions is not None:
+        return "table"
+    if os.path.isdir(p):
+        names = sorted(os.listdir(p))
+        lps = [n for n in names if n.lower().endswith(".lp")]
+        if len(lps) == 1:
+            return "lp"
+        if len(lps) > 1:
+            raise FormatError(f"{p}: holds several .lp files ({', '.join(lps)}); pass the one to load")
+        if not any(n.lower().endswith(_IMAGE_EXT) for n in names):
+            raise FormatError(f"{p}: the folder holds no images and no .lp file; expected an RTI capture "
+                              f"(.lp + photos), a UBO-style image folder, or images with directions=")
+        return "ubo2003"
+    if not os.path.exists(p):
+        raise FileNotFoundError(f"{p}: no such file or folder")
+    table = {".btfrs": "btfrs", ".ptm": "ptm", ".rti": "rti", ".btf": "ubo2014", ".lp": "lp", ".zip": "ubo2003"}
+    if ext in table:
+        return table[ext]
+    with open(p, "rb") as f:
+        head = f.read(16)
+    if head.startswith(b"BTFRS01"):
+        return "btfrs"
+    if head.startswith(b"!"):
+        return "ubo2014"
+    raise FormatError(f"{p}: unknown file type {ext or '(no extension)'!r}; expected .btfrs, .btf (UBO2014), "
+                      f".zip or a folder (UBO2003 / ATRIUM), .lp (RTI), .ptm, .rti, or a folder with directions=")
+
+
+def _index_list(name: str, sel) -> Optional[list]:
+    if sel is None:
+        return None
+    if isinstance(sel, slice):
+        raise InvalidArgumentError(f"{name}: expected a sequence of indices, got a slice (use list(range(...)))")
+    try:
+        out = [int(i) for i in np.asarray(sel).reshape(-1)]
+    except (TypeError, ValueError):
+        raise InvalidArgumentError(f"{name}: expected a sequence of non-negative integers, got {sel!r}") from None
+    if any(i < 0 for i in out):
+        raise InvalidArgumentError(f"{name}: expected non-negative indices, got {out}")
+    return out
+
+
+def _crop(crop) -> Optional[tuple]:
+    if crop is None:
+        return None
+    try:
+        c = tuple(int(x) for x in crop)
+    except (TypeError, ValueError):
+        raise InvalidArgumentError(f"crop: expected (row, col, rows, cols), got {crop!r}") from None
+    if len(c) != 4 or any(x < 0 for x in c):
+        raise InvalidArgumentError(f"crop: expected four non-negative integers (row, col, rows, cols), got {crop!r}")
+    return c
+
+
+def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optional[Sequence[int]] = None,
+         views: Optional[Sequence[int]] = None, lights: Optional[Sequence[int]] = None,
+         mmap_to: Optional[PathLike] = None, linear: bool = False, progress: Progress = None):
+    """Open a measured sample (or any btfrs file), chosen by its file type (:func:`capture_kind`).
+
+    * ``WoolPKNT256.zip`` or a folder of images named ``..._tl015_pl000_tv015_pv120.jpg``
+      (Bonn UBO2003 / ATRIUM; JPEG/PNG are sRGB-decoded, EXR kept linear);
+    * ``carpet01_...L151xV151.btf`` (Bonn UBO2014, DFMF: decoded from its low-rank factors);
+    * ``capture/dirs.lp`` or a folder holding one ``.lp`` (RTI: one view, the lights of the file);
+    * a folder of images with ``directions="table.csv"`` (or ``.json``): columns ``file`` and
+      ``light_theta, light_phi`` (degrees) or ``lx, ly, lz``, optionally ``view_theta, view_phi``
+      or ``vx, vy, vz``;
+    * ``.btfrs`` (any btfrs file, as :func:`btfrs.load`), ``.ptm`` (:func:`load_ptm`), ``.rti``
+      (HSH, as ``load_rti``).
+
+    Captures come back as a :class:`~btfrs.Btf` in btfrs's frame (z the normal, x along the image
+    columns, y up the image). ``crop=(row, col, rows, cols)`` keeps a rectangle (row 0 is the top
+    of the images); ``views`` and ``lights`` keep subsets, as indices into the file's views and
+    lights (UBO archives: sorted by theta, then phi; ``.lp``: the file's order); only what is kept
+    is ever decoded. ``mmap_to="big.btfrs"`` decodes straight into that file (memory-mapped,
+    written atomically) and returns it opened with ``mmap=True``, so a capture larger than memory
+    loads. ``linear=True`` reads 8/16-bit images as linear (e.g. TIFFs converted from RAW) instead
+    of sRGB. ``progress`` shows or reports decoding progress; Ctrl-C stops it and writes nothing.
+    Light vectors of an ``.lp`` file or a table that are not unit length are normalised with a
+    :class:`UserWarning`.
+    """
+    p = os.fspath(path)
+    kind = capture_kind(p, directions)
+    given = {k: v for k, v in dict(crop=crop, views=views, lights=lights, mmap_to=mmap_to).items() if v is not None}
+    if kind in ("btfrs", "ptm", "rti"):
+        if kind == "ptm":
+            obj = load_ptm(p)
+        elif kind == "rti":
+            if not hasattr(_native, "read_rti"):
+                raise FormatError(f"{p}: .rti files are not supported by this build")
+            from .models import wrap
+
+            obj = wrap(_native.read_rti(p))
+        else:
+            obj = load_btfrs(p)
+        if given:
+            if not isinstance(obj, Btf) or "mmap_to" in given:
+                raise InvalidArgumentError(f"{', '.join(given)}: only apply to measured captures and BTFs"
+                                           f" (this file holds a {type(obj).__name__})")
+            obj = obj.select(views=views, lights=lights)
+            if crop is not None:
+                r, c, nr, nc = _crop(crop)
+                if r + nr > obj.height or c + nc > obj.width or nr == 0 or nc == 0:
+                    raise InvalidArgumentError(f"crop: {crop!r} lies outside the {obj.height} x {obj.width} BTF")
+                obj = Btf(np.ascontiguousarray(obj.data[r:r + nr, c:c + nc]), obj.views, obj.lights, obj.mask,
+                          check=False)
+        return obj
+    if kind == "lp" and os.path.isdir(p):
+        p = os.path.join(p, next(n for n in sorted(os.listdir(p)) if n.lower().endswith(".lp")))
+    out = None if mmap_to is None else os.fspath(mmap_to)
+    if out is not None and os.path.abspath(out) == os.path.abspath(p):
+        raise InvalidArgumentError("mmap_to: must not be the file being loaded")
+    data, vdirs, ldirs, mask, meta = _native.load_capture(
+        kind, p, None if directions is None else os.fspath(directions), _crop(crop),
+        _index_list("views", views), _index_list("lights", lights), bool(linear), out,
+        callback(progress, f"loading {os.path.basename(p.rstrip(os.sep)) or p}"))
+    for w in json.loads(meta).get("warnings", []):
+        warnings.warn(w, UserWarning, stacklevel=2)
+    if out is not None:
+        return Btf.load(out, mmap=True)
+    # The loaders check every value as they decode it, and the directions are unit by
+    # construction: no second scan.
+    return Btf(data, vdirs, ldirs, mask, check=False)
+
+
+# --- data out -----------------------------------------------------------------------------------
+
+def save_stack(btf: Btf, folder: PathLike, *, format: str = "exr", exposure: float = 1.0) -> str:
+    """Write a BTF as an image stack other tools read: one image per present (view, light) pair
+    (``format="exr"``: 32-bit float, exact; ``"png"``: 8-bit sRGB times ``exposure``) named
+    ``v{view:03d}_l{light:04d}.{format}``, and ``directions.csv`` beside them (columns ``file,
+    vx, vy, vz, lx, ly, lz``), which :func:`load` reads back with ``directions=``. Every file is
+    written atomically and the table last, so an interrupted export has no table. Returns the
+    table's path."""
+    if not isinstance(btf, Btf):
+        raise InvalidArgumentError(f"btf: expected a btfrs.Btf, got {type(btf).__name__}")
+    if format not in ("exr", "png"):
+        raise InvalidArgumentError(f"format: expected \"exr\" or \"png\", got {format!r}")
+    d = os.fspath(folder)
+    os.makedirs(d, exist_ok=True)
+    rows = ["file,vx,vy,vz,lx,ly,lz"]
+    for v in range(btf.n_views):
+        for l in range(btf.n_lights):
+            if btf.mask is not None and not btf.mask[v, l]:
+                continue
+            name = f"v{v:03d}_l{l:04d}.{format}"
+            save_image(os.path.join(d, name), btf.image(v, l), exposure=exposure)
+            vv, ll = btf.views[v], btf.lights[l]
+            rows.append(",".join([name] + [repr(float(x)) for x in (*vv, *ll)]))
+    table = os.path.join(d, "directions.csv")
+    save_text(table, "\n".join(rows) + "\n")
+    return table
+
+
+def coefficient_planes(model: Model) -> tuple[list[str], np.ndarray]:
+    """Every per-texel array of ``model`` as named float32 planes ``[C, H, W]``: channel names
+    ``{kind}.{array}.{index}`` with the trailing axes' indices joined by ``.``, and a last axis
+    of 3 named ``R``, ``G``, ``B`` (e.g. ``ptm.q.0.5.R``). 8-bit arrays keep their byte values
+    (their scale and bias are in the model's other arrays)."""
+    if not isinstance(model, Model):
+        raise InvalidArgumentError(f"model: expected a fitted btfrs model, got {type(model).__name__}")
+    h, w = model.height, model.width
+    names, planes = [], []
+    for name in _native.texel_arrays(model.kind):
+        a = model.arrays.get(name)
+        if a is None or a.ndim < 2 or a.shape[:2] != (h, w):
+            continue
+        rest = a.shape[2:]
+        flat = np.asarray(a, dtype=np.float32).reshape(h, w, -1)
+        for k, idx in enumerate(np.ndindex(*rest) if rest else [()]):
+            parts = [str(i) for i in idx]
+            if rest and rest[-1] == 3:
+                parts[-1] = "RGB"[idx[-1]]
+            names.append(".".join([model.kind, name] + parts))
+            planes.append(flat[:, :, k])
+    if not planes:
+        raise InvalidArgumentError(f"model: the {model.kind} model has no per-texel arrays to export")
+    return names, np.ascontiguousarray(np.stack(planes))
+
+
+def save_coefficients(model: Model, path: PathLike) -> list[str]:
+    """Write every per-texel array of ``model`` as one multi-channel OpenEXR file (32-bit float,
+    lossless; channel names from :func:`coefficient_planes`, row 0 at the top), so other tools
+    can use the coefficient maps. Returns the channel names. Written atomically."""
+    names, planes = coefficient_planes(model)
+    p = os.fspath(path)
+    if not p.lower().endswith(".exr"):
+        raise InvalidArgumentError(f"path: expected a .exr file name, got {p!r}")
+    _native.write_exr_channels(p, names, planes)
+    return names

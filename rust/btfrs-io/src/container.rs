@@ -142,11 +142,10 @@ fn all_finite(dtype: Dtype, bytes: &[u8]) -> Option<bool> {
 
 /// Check each array's byte length against its shape and the names' uniqueness, and lay the
 /// arrays out: `(infos with offsets relative to the data start, header bytes, data start)`.
-fn plan(
-    kind: &str,
-    meta: &serde_json::Value,
-    specs: &[(&str, Dtype, &[usize], usize, Option<bool>)],
-) -> Result<(Vec<ArrayInfo>, Vec<u8>, u64)> {
+/// (name, dtype, shape, bytes, finite flag) of an array to lay out.
+type Spec<'a> = (&'a str, Dtype, &'a [usize], usize, Option<bool>);
+
+fn plan(kind: &str, meta: &serde_json::Value, specs: &[Spec<'_>]) -> Result<(Vec<ArrayInfo>, Vec<u8>, u64)> {
     if !meta.is_object() {
         return Err(Error::arg("meta", format!("expected a JSON object, got {meta}")));
     }
@@ -268,7 +267,7 @@ pub fn write_streamed(
 /// The mapped bytes as f32 (the offset is a multiple of 64 and pages are aligned, so the
 /// cast is aligned; checked anyway).
 fn bytemuck_f32(bytes: &mut [u8]) -> &mut [f32] {
-    assert!(bytes.as_ptr().align_offset(4) == 0 && bytes.len() % 4 == 0, "mapped region is f32-aligned");
+    assert!(bytes.as_ptr().align_offset(4) == 0 && bytes.len().is_multiple_of(4), "mapped region is f32-aligned");
     // SAFETY: alignment and length checked above; every bit pattern is a valid f32.
     unsafe { std::slice::from_raw_parts_mut(bytes.as_mut_ptr().cast::<f32>(), bytes.len() / 4) }
 }

@@ -194,16 +194,19 @@ mod tests {
     fn garbage_and_non_finite_exr_are_named_errors() {
         let e = decode(b"hello, not an image at all", "x.png", Transfer::Srgb).unwrap_err().to_string();
         assert!(e.starts_with("x.png:"), "{e}");
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("a.exr");
-        crate::image::write_exr(&p, &[0.5; 12], 2, 2).unwrap();
-        let mut bytes = std::fs::read(&p).unwrap();
-        assert_eq!(decode(&bytes, "a.exr", Transfer::Srgb).unwrap().rgb, vec![0.5; 12]);
-        // a NaN written into the pixel data (uncompressed: find the 0.5 pattern)
-        let half = 0.5f32.to_le_bytes();
-        let at = bytes.windows(4).rposition(|w| w == half).unwrap();
-        bytes[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
-        let e = decode(&bytes, "a.exr", Transfer::Srgb).unwrap_err().to_string();
-        assert!(e.contains("a.exr") && e.contains("finite"), "{e}");
+        use exr::prelude::{Encoding, Image, Layer, LayerAttributes, SpecificChannels, Vec2, WritableImage};
+        let enc = |bad: bool| {
+            let px = SpecificChannels::rgb(move |Vec2(x, y): Vec2<usize>| {
+                let g = if bad && (x, y) == (1, 0) { f32::NAN } else { 0.5 };
+                (0.5f32, g, 0.5f32)
+            });
+            let layer = Layer::new((2, 2), LayerAttributes::default(), Encoding::UNCOMPRESSED, px);
+            let mut c = Cursor::new(Vec::new());
+            Image::from_layer(layer).write().to_buffered(&mut c).unwrap();
+            c.into_inner()
+        };
+        assert_eq!(decode(&enc(false), "a.exr", Transfer::Srgb).unwrap().rgb, vec![0.5; 12]);
+        let e = decode(&enc(true), "a.exr", Transfer::Srgb).unwrap_err().to_string();
+        assert!(e.contains("a.exr") && e.contains("row 0, column 1") && e.contains("finite"), "{e}");
     }
 }

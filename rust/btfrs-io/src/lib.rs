@@ -3,7 +3,11 @@
 //! * [`container`]: the `.btfrs` file for BTFs and fitted models (JSON header + aligned raw arrays).
 //! * [`model_file`]: any registered model saved to and loaded from a container.
 //! * [`ptm_file`]: `PTM_1.2` files (Malzbender et al. 2001) as RTIViewer and relight read them.
-//! * [`image`]: PNG output of rendered or measured images.
+//! * [`image`]: PNG and OpenEXR images (rendered or measured), multi-channel EXR coefficient maps.
+//! * [`decode`]: photographs (JPEG, PNG, TIFF; 8 or 16 bit) and EXR decoded to linear RGB.
+//! * [`stack`]: image stacks (folder or zip) decoded in parallel into the texel-major layout; CSV/JSON direction tables.
+//! * [`ubo2003`]: Bonn UBO2003 / ATRIUM archives (angles in the file names).
+//! * [`rti`]: RTI capture sets (`.lp` light files).
 //! * [`ubo2014`]: UBO2014 `.btf` files (Bonn's DFMF binary) read as a capture, and written.
 //! * [`capture`]: what the loaders of measured data share (selection, the capture plan, decoding into a texel-major buffer).
 //! * [`atomic`]: every writer goes through a temporary file and a rename.

@@ -53,7 +53,7 @@ pub fn parse_lp(text: &str, shown: &str) -> Result<Vec<LpEntry>> {
         // The name is everything before the numbers, spaces kept as written.
         let name = line.trim_start();
         let mut rest = name;
-        for t in &toks[n - 3..] {
+        for t in toks[n - 3..].iter().rev() {
             rest = rest.trim_end().strip_suffix(t).unwrap_or(rest);
         }
         out.push(LpEntry { name: rest.trim().to_string(), light: [x, y, z] });
@@ -98,7 +98,7 @@ pub fn open_lp(path: &Path, sel: &Selection, transfer: Transfer) -> Result<Image
         })?;
         let [x, y, z] = e.light;
         let n = (x * x + y * y + z * z).sqrt();
-        if !(n > 0.0) || z < 0.0 {
+        if n.is_nan() || n <= 0.0 || z < 0.0 {
             return Err(Error::format(
                 &shown,
                 format!("line {}: light ({x}, {y}, {z}) is not a direction above the surface", i + 2),

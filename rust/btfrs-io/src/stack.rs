@@ -405,3 +405,69 @@ pub fn open_table(table: &Path, folder: Option<&Path>, sel: &Selection, transfer
     let meta = serde_json::json!({"format": "stack", "source": shown, "warnings": warnings});
     ImageStack::new(Store::Folder(dir), members, sel, transfer, None, meta)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::capture;
+
+    fn stack(dir: &Path) -> ImageStack {
+        let mut members = Vec::new();
+        for (i, l) in [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, -0.6, 0.8]].into_iter().enumerate() {
+            let img =
+                image::RgbImage::from_fn(4, 3, |x, y| image::Rgb([(x * 60) as u8, (y * 100) as u8, (i * 100) as u8]));
+            let name = format!("i{i}.png");
+            img.save(dir.join(&name)).unwrap();
+            members.push(Member { name, view: [0.0, 0.0, 1.0], light: l });
+        }
+        ImageStack::new(
+            Store::Folder(dir.to_path_buf()),
+            members,
+            &Selection::default(),
+            Transfer::Linear,
+            None,
+            serde_json::json!({}),
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn streamed_file_equals_the_in_memory_load() {
+        let dir = tempfile::tempdir().unwrap();
+        let s = stack(dir.path());
+        let mem = capture::load(&s, &Monitor::new()).unwrap();
+        // texel (row 2, col 3) of light 2: (3*60, 2*100, 200) / 255
+        let t = (2 * 4 + 3) * 9 + 2 * 3;
+        assert_eq!(&mem[t..t + 3], &[180.0 / 255.0, 200.0 / 255.0, 200.0 / 255.0]);
+        let out = dir.path().join("c.btfrs");
+        capture::load_to_file(&s, &out, &Monitor::new()).unwrap();
+        let c = crate::container::read_contents(&out).unwrap();
+        assert_eq!(c.kind, "btf");
+        let info = c.array(&out, "data").unwrap();
+        assert_eq!(info.shape, vec![3, 4, 1, 3, 3]);
+        assert_eq!(info.finite, Some(true));
+        let bytes = crate::container::read_array(&out, info).unwrap();
+        assert_eq!(crate::container::from_bytes::<f32>(&bytes).unwrap(), mem);
+    }
+
+    #[test]
+    fn cancelled_stream_leaves_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let s = stack(dir.path());
+        let m = Monitor::new();
+        m.cancel();
+        let out = dir.path().join("c.btfrs");
+        assert!(matches!(capture::load_to_file(&s, &out, &m), Err(Error::Interrupted)));
+        let mut left: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        assert_eq!(left, ["i0.png", "i1.png", "i2.png"]);
+        // a file of another size in the stack is an error naming it, and nothing is written
+        image::RgbImage::new(5, 3).save(dir.path().join("i2.png")).unwrap();
+        let e = capture::load_to_file(&s, &out, &Monitor::new()).unwrap_err().to_string();
+        assert!(e.contains("i2.png") && e.contains("3 x 5") && e.contains("expected 3 x 4"), "{e}");
+        assert!(!out.exists());
+    }
+}

@@ -197,6 +197,7 @@ pub fn load_capture<'py>(
         Ok(match kind.as_str() {
             "ubo2003" => Box::new(btfrs_io::ubo2003::open(&path, &sel, transfer)?),
             "lp" => Box::new(btfrs_io::rti::open_lp(&path, &sel, transfer)?),
+            "ubo2014" => Box::new(btfrs_io::ubo2014::Ubo2014::open(&path, &sel)?),
             "table" => {
                 let t =
                     table.as_deref().ok_or_else(|| btfrs_core::Error::arg("directions", "expected a table file"))?;

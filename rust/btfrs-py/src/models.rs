@@ -184,6 +184,12 @@ pub fn model_registry() -> Vec<(&'static str, &'static str, Vec<&'static str>, V
     registry::MODELS.iter().map(|e| (e.kind, e.doc, e.renderers.to_vec(), e.examples.to_vec())).collect()
 }
 
+/// The arrays of model `kind` that hold one entry per texel (shape `[H, W, ...]`).
+#[pyfunction]
+pub fn texel_arrays(kind: &str) -> PyResult<Vec<&'static str>> {
+    Ok(registry::lookup(kind).py()?.texel_arrays.to_vec())
+}
+
 /// Fit model `kind` to a BTF's present pairs with options given as a JSON object; the GIL is
 /// released, progress reported, Ctrl-C honoured.
 #[pyfunction]
