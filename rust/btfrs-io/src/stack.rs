@@ -97,6 +97,9 @@ fn group(dirs: impl Iterator<Item = [f64; 3]>) -> (Vec<[f64; 3]>, Vec<usize>) {
     (unique, index)
 }
 
+/// An order of directions (UBO archives sort by theta, then phi).
+pub type DirOrder = fn(&[f64; 3], &[f64; 3]) -> std::cmp::Ordering;
+
 /// A planned stack: which file goes to which (view, light) slot of the output.
 #[derive(Debug)]
 pub struct ImageStack {
@@ -120,7 +123,7 @@ impl ImageStack {
         members: Vec<Member>,
         sel: &Selection,
         transfer: Transfer,
-        order: Option<fn(&[f64; 3], &[f64; 3]) -> std::cmp::Ordering>,
+        order: Option<DirOrder>,
         mut meta: serde_json::Value,
     ) -> Result<ImageStack> {
         if members.is_empty() {
