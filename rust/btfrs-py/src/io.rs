@@ -220,7 +220,7 @@ pub fn load_capture<'py>(
         }
     };
     let d = |x: &[[f64; 3]]| -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        Ok(x.iter().flatten().copied().collect::<Vec<f64>>().into_pyarray(py).reshape(vec![x.len(), 3])?)
+        x.iter().flatten().copied().collect::<Vec<f64>>().into_pyarray(py).reshape(vec![x.len(), 3])
     };
     let mask = match &cap.mask {
         Some(m) => Some(m.clone().into_pyarray(py).reshape(vec![cap.views.len(), cap.lights.len()])?),
