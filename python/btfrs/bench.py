@@ -575,6 +575,102 @@ def tiles_table(res: dict) -> str:
     return "\n".join(out)
 
 
+def _relief_images(size: int, lights: np.ndarray, seed: int = 1) -> np.ndarray:
+    """8-bit sRGB photographs [L, size, size, 3] of a random Lambertian relief under ``lights``:
+    the content of an RTI capture (smooth shading, texture), for timing decoders."""
+    rng = np.random.default_rng(seed)
+    f = np.fft.rfft2(rng.normal(size=(size, size)))
+    ky, kx = np.meshgrid(np.fft.fftfreq(size), np.fft.rfftfreq(size), indexing="ij")
+    hgt = np.fft.irfft2(f / (1e-3 + (kx ** 2 + ky ** 2)), s=(size, size))
+    hgt *= 4.0 / (np.abs(hgt).max() + 1e-12)
+    n = np.stack([-np.gradient(hgt, axis=1), np.gradient(hgt, axis=0), np.ones_like(hgt)], axis=-1)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    alb = 0.4 + 0.5 * rng.random((size, size, 3)) ** 4
+    out = np.empty((len(lights), size, size, 3), np.uint8)
+    for k, l in enumerate(lights):
+        lin = np.clip(alb * np.clip(n @ l, 0, None)[..., None], 0, 1)
+        out[k] = np.round(255 * np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055))
+    return out
+
+
+def load_bench(repeat: int) -> list:
+    """Load throughput of the real-data readers: MB/s of decoded float32 data (and of files read)
+    for a UBO2003-style archive (6561 JPEG / PNG images, folder and zip), an RTI capture (.lp +
+    200 JPEG photographs of 512^2) and the same into a memory-mapped file (``mmap_to``)."""
+    import shutil
+    import zipfile
+
+    from PIL import Image
+
+    from . import directions as dirs_mod
+    from . import io as bio
+
+    rows = []
+    tmp = tempfile.mkdtemp(prefix="btfrs-load-")
+    try:
+        ubo = dirs_mod.ubo81()
+        ang = [(round(float(np.degrees(np.arccos(d[2])))), round(float(np.degrees(np.arctan2(d[1], d[0]))) % 360))
+               for d in ubo]
+        btf = materials.make("bumps", size=64, seed=1)
+        for ext in ("jpg", "png"):
+            folder = os.path.join(tmp, f"ubo_{ext}")
+            os.makedirs(folder)
+            i = 0
+            for v, (tv, pv) in enumerate(ang):
+                for l, (tl, pl) in enumerate(ang):
+                    i += 1
+                    lin = np.clip(btf.data[:, :, v, l], 0, 1)
+                    img = np.round(255 * np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055))
+                    Image.fromarray(img.astype(np.uint8)).save(
+                        os.path.join(folder, f"Bumps64_{i:05d}_tl{tl:03d}_pl{pl:03d}_tv{tv:03d}_pv{pv:03d}.{ext}"),
+                        **({"quality": 95} if ext == "jpg" else {}))
+            zpath = folder + ".zip"
+            with zipfile.ZipFile(zpath, "w", compression=zipfile.ZIP_STORED if ext == "jpg" else zipfile.ZIP_DEFLATED) as z:
+                for n in sorted(os.listdir(folder)):
+                    z.write(os.path.join(folder, n), arcname=n)
+            for label, src in ((f"UBO2003 folder, 6561 {ext.upper()} 64^2", folder),
+                               (f"UBO2003 zip, 6561 {ext.upper()} 64^2", zpath)):
+                files = (sum(os.path.getsize(os.path.join(folder, n)) for n in os.listdir(folder)))
+                t, b = best_of(lambda: bio.load(src), repeat)
+                rows.append({"task": label, "seconds": t, "decoded_MB": b.nbytes / 1e6, "file_MB": files / 1e6,
+                             "MB_per_s": b.nbytes / 1e6 / t, "file_MB_per_s": files / 1e6 / t})
+        # RTI: 200 lights on a spiral over the hemisphere (theta 5 to 75 degrees), 512^2 JPEGs
+        k = np.arange(200) + 0.5
+        theta = np.radians(5 + 70 * k / 200)
+        phi = k * np.pi * (3 - np.sqrt(5))
+        L = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=1)
+        cap = os.path.join(tmp, "rti")
+        os.makedirs(cap)
+        imgs = _relief_images(512, L)
+        lines = [str(len(L))]
+        for i, (img, l) in enumerate(zip(imgs, L)):
+            Image.fromarray(img).save(os.path.join(cap, f"img_{i:03d}.jpg"), quality=95)
+            lines.append(f"img_{i:03d}.jpg {l[0]:.6f} {l[1]:.6f} {l[2]:.6f}")
+        with open(os.path.join(cap, "capture.lp"), "w") as f:
+            f.write("\n".join(lines) + "\n")
+        files = sum(os.path.getsize(os.path.join(cap, n)) for n in os.listdir(cap))
+        lp = os.path.join(cap, "capture.lp")
+        t, b = best_of(lambda: bio.load(lp), repeat)
+        rows.append({"task": "RTI .lp, 200 JPEG 512^2", "seconds": t, "decoded_MB": b.nbytes / 1e6,
+                     "file_MB": files / 1e6, "MB_per_s": b.nbytes / 1e6 / t, "file_MB_per_s": files / 1e6 / t})
+        out = os.path.join(tmp, "rti.btfrs")
+        t, b = best_of(lambda: bio.load(lp, mmap_to=out), repeat)
+        rows.append({"task": "RTI .lp, 200 JPEG 512^2, mmap_to a .btfrs", "seconds": t,
+                     "decoded_MB": b.nbytes / 1e6, "file_MB": files / 1e6, "MB_per_s": b.nbytes / 1e6 / t,
+                     "file_MB_per_s": files / 1e6 / t})
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return rows
+
+
+def load_table(rows: list) -> str:
+    lines = ["| capture | seconds | decoded MB | MB/s decoded | file MB/s |", "|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['task']} | {r['seconds']:.3f} | {r['decoded_MB']:.0f} | {r['MB_per_s']:.0f} | "
+                     f"{r['file_MB_per_s']:.1f} |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m btfrs.bench", description=__doc__)
     p.add_argument("--size", type=int, action="append", help="material sizes (default: 32 and 64; 32 with --accuracy)")
@@ -589,6 +685,8 @@ def main(argv=None) -> int:
     p.add_argument("--maxflow-size", type=int, action="append",
                    help=f"grid sides of the max-flow figures (default: {' and '.join(map(str, MAXFLOW_SIZES))})")
     p.add_argument("--tiles-only", action="store_true", help="only the Wang tile figures (issue 12)")
+    p.add_argument("--load-only", action="store_true",
+                   help="only the load throughput of the real-data readers (UBO archives, RTI .lp sets)")
     p.add_argument("--accuracy", action="store_true",
                    help="only the accuracy of every model on every material (at --size, default 32)")
     p.add_argument("--figures", metavar="DIR", help="also write paper 000 Figure 6 style images into DIR")
@@ -611,6 +709,11 @@ def main(argv=None) -> int:
         print(maxflow_table(mf))
         return _finish(a, {"machine": machine(), "maxflow": mf})
     sizes = a.size or [32, 64]
+    if a.load_only:
+        ld = load_bench(max(1, a.repeat))
+        print("loading measured data into a Btf (best of --repeat; decoded = float32 bytes of the Btf):")
+        print(load_table(ld))
+        return _finish(a, {"machine": machine(), "load": ld})
     if a.tiles_only:
         res = tiles_bench(max(1, a.repeat))
         print("graph-cut Wang tile sets, 16 tiles, 2 colours per edge direction, SH 16x16 domain:")

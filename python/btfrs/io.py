@@ -288,8 +288,9 @@ def save_stack(btf: Btf, folder: PathLike, *, format: str = "exr", exposure: flo
 
 def coefficient_planes(model: Model) -> tuple[list[str], np.ndarray]:
     """Every per-texel array of ``model`` as named float32 planes ``[C, H, W]``: channel names
-    ``{kind}.{array}.{index}`` with the trailing axes' indices joined by ``.``, and a last axis
-    of 3 named ``R``, ``G``, ``B`` (e.g. ``ptm.q.0.5.R``). 8-bit arrays keep their byte values
+    ``{kind}.{array}.{index}`` with the trailing axes' indices joined by ``.``, the last axis of
+    extent 3 taken for colour and named ``R``, ``G``, ``B`` (e.g. ``ptm.coeffs.0.R.5``: view
+    slot 0, red, coefficient a5). 8-bit arrays keep their byte values
     (their scale and bias are in the model's other arrays)."""
     if not isinstance(model, Model):
         raise InvalidArgumentError(f"model: expected a fitted btfrs model, got {type(model).__name__}")
@@ -301,10 +302,11 @@ def coefficient_planes(model: Model) -> tuple[list[str], np.ndarray]:
             continue
         rest = a.shape[2:]
         flat = np.asarray(a, dtype=np.float32).reshape(h, w, -1)
+        colour = max((i for i, n in enumerate(rest) if n == 3), default=None)
         for k, idx in enumerate(np.ndindex(*rest) if rest else [()]):
             parts = [str(i) for i in idx]
-            if rest and rest[-1] == 3:
-                parts[-1] = "RGB"[idx[-1]]
+            if colour is not None:
+                parts[colour] = "RGB"[idx[colour]]
             names.append(".".join([model.kind, name] + parts))
             planes.append(flat[:, :, k])
     if not planes:

@@ -280,4 +280,38 @@ mod exr_tests {
         std::fs::write(&p, b"not an exr").unwrap();
         assert!(matches!(read_exr(&p), Err(Error::Format { .. })));
     }
+
+    #[test]
+    fn named_channels_round_trip_through_the_exr_crate() {
+        use exr::prelude::{read, ReadChannels, ReadLayers};
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("maps.exr");
+        let (w, h) = (5, 3);
+        let chans: Vec<(String, Vec<f32>)> = ["ptm.coeffs.0.R.0", "ptm.coeffs.0.G.0", "lpca.cluster"]
+            .iter()
+            .enumerate()
+            .map(|(k, n)| (n.to_string(), (0..w * h).map(|i| (i * 10 + k) as f32 * 0.25 - 3.0).collect()))
+            .collect();
+        write_exr_channels(&p, w, h, &chans).unwrap();
+        let img = read()
+            .no_deep_data()
+            .largest_resolution_level()
+            .all_channels()
+            .first_valid_layer()
+            .all_attributes()
+            .from_file(&p)
+            .unwrap();
+        assert_eq!((img.layer_data.size.0, img.layer_data.size.1), (w, h));
+        for (name, vals) in &chans {
+            let c =
+                img.layer_data.channel_data.list.iter().find(|c| c.name.to_string() == *name).expect("channel present");
+            let got: Vec<f32> = c.sample_data.values_as_f32().collect();
+            assert_eq!(&got, vals, "{name}");
+        }
+        assert!(write_exr_channels(&p, w, h, &[("a".into(), vec![0.0; 3])]).unwrap_err().to_string().starts_with("a:"));
+        let dup = vec![("a".to_string(), vec![0.0; 15]), ("a".to_string(), vec![0.0; 15])];
+        assert!(write_exr_channels(&p, w, h, &dup).unwrap_err().to_string().contains("used twice"));
+        let nan = vec![("a".to_string(), vec![f32::NAN; 15])];
+        assert!(write_exr_channels(&p, w, h, &nan).unwrap_err().to_string().contains("not finite"));
+    }
 }
