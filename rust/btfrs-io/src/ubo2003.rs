@@ -90,7 +90,8 @@ pub fn open(path: &Path, sel: &Selection, transfer: Transfer) -> Result<ImageSta
         let [tl, pl, tv, pv] = parse_name(&n).ok_or_else(|| {
             Error::format(
                 store.shown(&n),
-                "the name lacks light and view angles; expected tl<theta>_pl<phi>_tv<theta>_pv<phi> in degrees, e.g. _tl015_pl000_tv015_pv120",
+                "the name lacks light and view angles; expected tl<theta>_pl<phi>_tv<theta>_pv<phi> in degrees, e.g. \
+                 _tl015_pl000_tv015_pv120 (a plain image stack needs a direction table: directions=)",
             )
         })?;
         for (what, t) in [("tl", tl), ("tv", tv)] {
