@@ -54,6 +54,7 @@ impl Ptm {
             coeffs: slot.coeffs,
             rgb: slot.rgb,
             degenerate_slots: Vec::new(),
+            quantized: None,
         };
         p.validate()?;
         Ok(p)
