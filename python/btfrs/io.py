@@ -1,4 +1,4 @@
-"""Files: PTM files for RTIViewer/relight, images, the ``.btfrs`` container, and atomic writes.
+"""Files: PTM and HSH ``.rti`` files for RTIViewer/relight, images, the ``.btfrs`` container, and atomic writes.
 
 Every file btfrs writes is written atomically: to a uniquely named temporary file in the target's
 directory, synced, then renamed over the target, so an error or a Ctrl-C midway leaves the old
@@ -19,9 +19,9 @@ import numpy as np
 from . import _native
 from ._checks import real
 from .exceptions import InvalidArgumentError
-from .models import Ptm, load
+from .models import Hsh, Ptm, load
 
-__all__ = ["load_ptm", "save_image", "load_image", "load", "atomic_write", "save_array", "save_text"]
+__all__ = ["load_ptm", "load_rti", "save_image", "load_image", "load", "atomic_write", "save_array", "save_text"]
 
 PathLike = Union[str, os.PathLike]
 
@@ -84,6 +84,15 @@ def load_ptm(path: PathLike) -> Ptm:
     white (byte 255) is 1.0. Compressed (JPEG) and LUM variants raise
     :class:`~btfrs.exceptions.FormatError`."""
     return Ptm(_native.read_ptm(os.fspath(path)))
+
+
+def load_rti(path: PathLike) -> Hsh:
+    """Read a ``.rti`` hemispherical-harmonics file (``#HSH1.2``, RTI type 3, 8-bit data, orders 1
+    to 4) as a one-slot :class:`~btfrs.Hsh` (view = the normal), its 8-bit planes the file's
+    bytes. The two float arrays are read as relight reads them (byte ``c`` of term ``j`` is
+    ``bias[j] + scale[j] * c / 255``). Other RTI types raise :class:`~btfrs.exceptions.FormatError`
+    naming the type."""
+    return Hsh(_native.read_rti(os.fspath(path)))
 
 
 def save_image(path: PathLike, image, *, exposure: float = 1.0) -> None:

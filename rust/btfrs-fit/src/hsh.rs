@@ -252,7 +252,7 @@ pub fn quantize_shared(values: &[f32], k: usize, n2: usize) -> Result<Planes> {
 }
 
 /// The smallest f32 with at most 16 significant bits that is `>= x` (x >= 0, finite).
-fn round_up_16_bits(x: f64) -> f32 {
+pub(crate) fn round_up_16_bits(x: f64) -> f32 {
     if x <= 0.0 {
         return 0.0;
     }

@@ -236,6 +236,43 @@ fn fit_lrgb(slot: &Slot, abrdf: &[f32], lights: &[[f64; 3]], out: &mut [f32], ba
     }
 }
 
+/// The largest `|bias|` of a `.ptm` file's header that [`file_scale_bias`] produces.
+pub const PTM_BIAS_LIMIT: f64 = 32767.0;
+
+/// Scale (in byte units, as written in the header) and bias for a coefficient whose values (in
+/// byte units) lie in `[lo, hi]`, as a `.ptm` file stores them (`btfrs-io`'s `ptm_file`, "Choosing
+/// scale and bias": decoding is `(c - bias) * scale`, the step never below `max |value| / 32767` so
+/// that `|bias| <= 32767`, an all-zero coefficient gets scale 1, bias 0). `None` if the scale does
+/// not fit in an f32.
+pub fn file_scale_bias(lo: f64, hi: f64) -> Option<(f32, i32)> {
+    let max_abs = lo.abs().max(hi.abs());
+    if max_abs == 0.0 {
+        // All zero: any scale decodes byte `bias` to exactly 0.
+        return Some((1.0, 0));
+    }
+    // 256 codes, 255 steps across the range; but never so fine a step that |bias| would exceed
+    // PTM_BIAS_LIMIT (this is also what handles hi == lo without dividing by zero).
+    let s = ((hi - lo) / 255.0).max(max_abs / PTM_BIAS_LIMIT);
+    let mut s32 = s as f32;
+    if !s32.is_finite() {
+        return None;
+    }
+    if f64::from(s32) < s {
+        // Round the f32 up rather than down, so the range still fits in 0..=255.
+        s32 = f32::from_bits(s32.to_bits() + 1);
+        if !s32.is_finite() {
+            return None;
+        }
+    }
+    if s32 == 0.0 {
+        s32 = f32::MIN_POSITIVE;
+    }
+    // Decoding is (c - bias) * s, so the code of lo is lo / s + bias: put it within half a step
+    // of code 0. Then hi lands within half a step of code 255 (hi - lo <= 255 s).
+    let b = (-lo / f64::from(s32)).round();
+    Some((s32, b.clamp(-PTM_BIAS_LIMIT, PTM_BIAS_LIMIT) as i32))
+}
+
 /// A prepared PTM query: view-slot weights and the light's basis.
 #[derive(Debug, Clone)]
 pub struct PtmQuery {
@@ -252,16 +289,63 @@ impl Ptm {
         }
     }
 
-    /// Quantize the coefficients (and the LRGB base colours) to 8-bit planes, one per slot,
-    /// channel and coefficient; `coeffs` and `rgb` become their decoded values. The error of each
-    /// value is at most half its plane's step ([`Planes`]).
+    /// Quantize the coefficients (and the LRGB base colours) to 8-bit planes as a `.ptm` file
+    /// stores them, so that a slot is written byte for byte: per slot and coefficient index one
+    /// scale and one integer bias ([`file_scale_bias`]) shared by the three channels (RGB), and
+    /// the base colours as `round(255 rgb)`. One plane per slot, channel and coefficient, its
+    /// scale `S / 255` and bias `-B S / 255` for the file's `S` and `B`; `coeffs` and `rgb` become
+    /// the decoded values. The error of each value is at most half its plane's step.
     pub fn quantize(&mut self) -> Result<()> {
         let nv = self.views.len();
-        let c = Planes::quantize(&self.coeffs, nv * self.per_coef())?;
-        let r = match &self.rgb {
-            Some(r) => Some(Planes::quantize(r, nv * 3)?),
-            None => None,
-        };
+        let pc = self.per_coef();
+        let k = nv * pc;
+        // group of plane p: (slot, coefficient index)
+        let group = |p: usize| (p / pc) * NCOEF + p % NCOEF;
+        let mut lo = vec![f64::INFINITY; nv * NCOEF];
+        let mut hi = vec![f64::NEG_INFINITY; nv * NCOEF];
+        for t in self.coeffs.chunks_exact(k) {
+            for (p, &x) in t.iter().enumerate() {
+                let g = group(p);
+                lo[g] = lo[g].min(255.0 * x as f64);
+                hi[g] = hi[g].max(255.0 * x as f64);
+            }
+        }
+        let mut gs = vec![(1.0f32, 0i32); nv * NCOEF];
+        for g in 0..nv * NCOEF {
+            if lo[g] <= hi[g] {
+                let (s, _) = file_scale_bias(lo[g], hi[g]).ok_or_else(|| {
+                    Error::arg(
+                        "coeffs",
+                        format!("coefficient {} of slot {} is too wide to store", g % NCOEF, g / NCOEF),
+                    )
+                })?;
+                // The plane's step s / 255 rounded up to 16 significant bits, so that the header's
+                // scale 255 * step is an exact f32 and a file read back gives the same planes.
+                let s = (255.0 * crate::hsh::round_up_16_bits(s as f64 / 255.0) as f64) as f32;
+                let b = (-lo[g] / s as f64).round().clamp(-PTM_BIAS_LIMIT, PTM_BIAS_LIMIT) as i32;
+                gs[g] = (s, b);
+            }
+        }
+        let scale: Vec<f32> = (0..k).map(|p| (gs[group(p)].0 as f64 / 255.0) as f32).collect();
+        let bias: Vec<f32> =
+            (0..k).map(|p| (-(gs[group(p)].1 as f64) * gs[group(p)].0 as f64 / 255.0) as f32).collect();
+        let q: Vec<u8> = self
+            .coeffs
+            .par_iter()
+            .enumerate()
+            .map(|(i, &a)| {
+                let (s, b) = gs[group(i % k)];
+                (a as f64 * 255.0 / s as f64 + b as f64).round().clamp(0.0, 255.0) as u8
+            })
+            .collect();
+        let c = Planes { texels: self.height * self.width, k, q, scale, bias };
+        let r = self.rgb.as_ref().map(|r| Planes {
+            texels: self.height * self.width,
+            k: nv * 3,
+            q: r.iter().map(|&x| (x as f64 * 255.0).round().clamp(0.0, 255.0) as u8).collect(),
+            scale: vec![(1.0f64 / 255.0) as f32; nv * 3],
+            bias: vec![0.0; nv * 3],
+        });
         self.coeffs = c.dequantize();
         if let Some(p) = &r {
             self.rgb = Some(p.dequantize());

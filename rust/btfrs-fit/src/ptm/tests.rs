@@ -55,6 +55,7 @@ fn held_out_pairs_do_not_influence_the_fit() {
 }
 
 #[test]
+// The exactness tests fit floats (bits 32); the 8-bit planes are tested on their own below.
 fn lrgb_recovers_a_modulated_luminance() {
     // rgb(l) = L(l) * base with base's largest channel 1: LRGB must find both.
     let d = ubo81();
@@ -70,7 +71,8 @@ fn lrgb_recovers_a_modulated_luminance() {
         }
     }
     let btf = BtfRef::new(1, 1, &d, &d, &data, None).unwrap();
-    let ptm = fit_ptm(&btf, &PtmOptions { kind: PtmKind::Lrgb, ..Default::default() }, &Monitor::new()).unwrap();
+    let ptm =
+        fit_ptm(&btf, &PtmOptions { kind: PtmKind::Lrgb, bits: 32, ..Default::default() }, &Monitor::new()).unwrap();
     for v in 0..d.len() {
         for k in 0..NCOEF {
             assert!((ptm.coeffs[v * NCOEF + k] as f64 - a[k]).abs() < 1e-5);
@@ -213,7 +215,8 @@ fn an_lrgb_slot_keeps_its_base_colour() {
         }
     }
     let btf = BtfRef::new(h, w, &d, &d, &data, None).unwrap();
-    let ptm = fit_ptm(&btf, &PtmOptions { kind: PtmKind::Lrgb, ..Default::default() }, &Monitor::new()).unwrap();
+    let ptm =
+        fit_ptm(&btf, &PtmOptions { kind: PtmKind::Lrgb, bits: 32, ..Default::default() }, &Monitor::new()).unwrap();
     let slot = ptm.slot(33).unwrap();
     let rgb = slot.rgb.as_ref().unwrap();
     assert_eq!((slot.coeffs.len(), rgb.len()), (h * w * NCOEF, h * w * 3));
@@ -271,7 +274,7 @@ fn reduce_fits_a_plane_exactly_from_four_lights() {
     for kind in [PtmKind::Rgb, PtmKind::Lrgb] {
         let data = if kind == PtmKind::Rgb { &rgb_data } else { &lrgb_data };
         let btf = BtfRef::new(1, 1, &view, &lights, data, None).unwrap();
-        let ptm = fit_ptm(&btf, &PtmOptions { kind, ..Default::default() }, &Monitor::new()).unwrap();
+        let ptm = fit_ptm(&btf, &PtmOptions { kind, bits: 32, ..Default::default() }, &Monitor::new()).unwrap();
         let got: Vec<(usize, usize, &str, &str)> =
             ptm.degenerate_slots.iter().map(|s| (s.slot, s.lights, s.reason, s.action)).collect();
         assert_eq!(got, vec![(0, 4, "few lights", "linear")], "{kind:?}");
@@ -322,7 +325,7 @@ fn reduce_pools_the_lights_of_the_nearest_views() {
     // Slot 12: the normal and 5 lights of the 15-degree ring only.
     mask[12 * 81 + 6..13 * 81].iter_mut().for_each(|m| *m = false);
     let btf = BtfRef::new(1, 1, &d, &d, &data, Some(&mask)).unwrap();
-    let ptm = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap();
+    let ptm = fit_ptm(&btf, &PtmOptions { bits: 32, ..Default::default() }, &Monitor::new()).unwrap();
     let got: Vec<(usize, usize, &str, &str)> =
         ptm.degenerate_slots.iter().map(|s| (s.slot, s.lights, s.reason, s.action)).collect();
     assert_eq!(
