@@ -136,7 +136,8 @@ def test_black_texels_give_zero_coefficients_not_nan():
         # 8-bit planes decode a zero as bias + scale * q: zero up to float rounding
         assert np.all(np.abs(m.coeffs[0, 0]) < 1e-6)
         assert np.all(btfrs.fit.ptm(b, kind=kind, bits=32).coeffs[0, 0] == 0)
-        np.testing.assert_allclose(m.evaluate(D[1], D[30])[1, 2], 0.25, rtol=1e-5)
+        # the lit texel within half an 8-bit step (its a5 plane spans [0, 0.25])
+        np.testing.assert_allclose(m.evaluate(D[1], D[30])[1, 2], 0.25, atol=0.25 / 510)
         if kind == "lrgb":
             np.testing.assert_array_equal(m.rgb[0, 0], 0)
             np.testing.assert_allclose(m.rgb[1, 2], 1.0, rtol=1e-6)
