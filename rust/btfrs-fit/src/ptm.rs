@@ -542,16 +542,22 @@ impl Model for Ptm {
         let views = a.directions("views", None)?;
         let nv = Some(views.len());
         let cname = if a.contains("coeffs_q") { "coeffs_q" } else { "coeffs" };
-        let (coeffs, sh) = match Coeffs::from_arrays(a, "coeffs", &[None, None, nv, Some(3), Some(NCOEF)], 2) {
-            Ok(c) => c,
-            Err(_) => Coeffs::from_arrays(a, "coeffs", &[None, None, nv, Some(NCOEF)], 2).map_err(|e| match e {
-                Error::Format { .. } => e,
-                _ => Error::arg(
-                    cname,
-                    format!("expected shape [H, W, {}, 3, 6] (RGB) or [H, W, {}, 6] (LRGB)", views.len(), views.len()),
-                ),
-            })?,
+        let ndim = a.array(cname).map(|x| x.shape.len());
+        let pattern: &[Option<usize>] = match ndim {
+            Some(5) => &[None, None, nv, Some(3), Some(NCOEF)],
+            Some(4) => &[None, None, nv, Some(NCOEF)],
+            _ => &[],
         };
+        if pattern.is_empty()
+            || a.array(cname)
+                .is_some_and(|x| x.shape[2..] != pattern[2..].iter().map(|d| d.unwrap()).collect::<Vec<_>>())
+        {
+            return Err(Error::arg(
+                cname,
+                format!("expected shape [H, W, {}, 3, 6] (RGB) or [H, W, {}, 6] (LRGB)", views.len(), views.len()),
+            ));
+        }
+        let (coeffs, sh) = Coeffs::from_arrays(a, "coeffs", pattern, 2)?;
         let kind = if sh.len() == 5 { PtmKind::Rgb } else { PtmKind::Lrgb };
         let rgb = match kind {
             PtmKind::Rgb => None,
