@@ -3,7 +3,9 @@
 // Parameters: `mp`, the `PtmParams` struct of rust/btfrs-fit/src/ptm.rs (its fields and their meaning are
 // written there once; the WGSL `struct Params` is generated from it).
 // Between view slots the three nearest are blended (interp3); the light enters through the
-// biquadratic basis (lu^2, lv^2, lu lv, lu, lv, 1) of its tangent-frame x and y.
+// biquadratic basis (lu^2, lv^2, lu lv, lu, lv, 1) of its tangent-frame x and y. The coefficients
+// are f32 words (`mp.bits` 32) or 8-bit planes (`mp.bits` 8: bytes four to a word, value
+// `bias[p] + scale[p] * q` of plane `p` = flat index mod `mp.k`; see rust/btfrs-fit/src/planes.rs).
 
 struct ViewQuery {
     w: Weights3,
@@ -11,6 +13,34 @@ struct ViewQuery {
 
 fn view_query(v: vec3<f32>) -> ViewQuery {
     return ViewQuery(interp3(0u, mp.n_views, mp.view_table, v));
+}
+
+fn byte_at(base: u32, i: u32) -> f32 {
+    return f32((load_u32(base + i / 4u) >> (8u * (i % 4u))) & 255u);
+}
+
+// Value `i` (flat, texel-major) of the coefficients.
+fn coef(i: u32) -> f32 {
+    if (mp.bits == 32u) {
+        return load(mp.coeffs + i);
+    }
+    let p = i % mp.k;
+    return load(mp.scale + mp.k + p) + load(mp.scale + p) * byte_at(mp.coeffs, i);
+}
+
+// Base colour of flat slot index `slot` (LRGB).
+fn base_rgb(slot: u32) -> vec3<f32> {
+    if (mp.bits == 32u) {
+        return load_dir(mp.rgb + slot * 3u);
+    }
+    let k = 3u * mp.n_views;
+    var out = vec3<f32>(0.0);
+    for (var c = 0u; c < 3u; c++) {
+        let i = slot * 3u + c;
+        let p = i % k;
+        out[c] = load(mp.rgb_scale + k + p) + load(mp.rgb_scale + p) * byte_at(mp.rgb, i);
+    }
+    return out;
 }
 
 fn ptm_slot(slot: u32, l: vec3<f32>) -> vec3<f32> {
@@ -22,14 +52,14 @@ fn ptm_slot(slot: u32, l: vec3<f32>) -> vec3<f32> {
         var out = vec3<f32>(0.0);
         for (var ch = 0u; ch < 3u; ch++) {
             let a = c + ch * 6u;
-            out[ch] = load(a) * b0 + load(a + 1u) * b1 + load(a + 2u) * b2 + load(a + 3u) * l.x + load(a + 4u) * l.y
-                + load(a + 5u);
+            out[ch] = coef(a) * b0 + coef(a + 1u) * b1 + coef(a + 2u) * b2 + coef(a + 3u) * l.x + coef(a + 4u) * l.y
+                + coef(a + 5u);
         }
         return out;
     }
     let a = mp.coeffs + slot * 6u;
-    let lum = load(a) * b0 + load(a + 1u) * b1 + load(a + 2u) * b2 + load(a + 3u) * l.x + load(a + 4u) * l.y + load(a + 5u);
-    return lum * load_dir(mp.rgb + slot * 3u);
+    let lum = coef(a) * b0 + coef(a + 1u) * b1 + coef(a + 2u) * b2 + coef(a + 3u) * l.x + coef(a + 4u) * l.y + coef(a + 5u);
+    return lum * base_rgb(slot);
 }
 
 fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {

@@ -46,12 +46,14 @@ def test_accuracy_mode_writes_every_model_on_every_material(tmp_path, capsys):
         btf = materials.make(name, size=8, seed=1)
         train, test = btf.split(holdout=0.1, seed=0)
         rec, held = _ptm_numpy_relative(train, test)
-        assert mine["PTM-RGB"]["reconstruction"] == pytest.approx(rec, rel=1e-4)
-        assert mine["PTM-RGB"]["held_out"] == pytest.approx(held, rel=1e-4)
+        # btfrs's PTM is stored as 8-bit planes (bits=8, what a viewer holds), numpy's is float64:
+        # the same fit up to the quantization, well under 1% of the error here.
+        assert mine["PTM-RGB"]["reconstruction"] == pytest.approx(rec, rel=5e-3)
+        assert mine["PTM-RGB"]["held_out"] == pytest.approx(held, rel=5e-3)
         raw = mine["raw, 3 nearest lights"]
         assert raw["reconstruction"] is None and raw["ratio"] == 1.0 and raw["nbytes"] == btf.nbytes
-        # PTM-RGB stores 18 float32 per texel and view slot.
-        assert mine["PTM-RGB"]["ratio"] == pytest.approx(btf.nbytes / (8 * 8 * btf.n_views * 18 * 4))
+        # PTM-RGB stores 18 bytes per texel and view slot and a float scale and bias per plane.
+        assert mine["PTM-RGB"]["ratio"] == pytest.approx(btf.nbytes / (8 * 8 * btf.n_views * 18 + 8 * btf.n_views * 18))
         srf = mine["Phong+SRF"]["report"]
         assert 0 < srf["srf_relative"] < srf["phong_relative"]
         laf = mine["Lafortune-Lum 2"]["report"]

@@ -59,7 +59,7 @@ def test_numpy_interp_weights_match_the_ptm_slot_blend(weave):
     # btfrs's PTM blends its view slots with the Rust interp_weights; the numpy baseline with its
     # own implementation: the same fit evaluated at held-out views must agree.
     tr, te = split_directions(weave, 0.15, seed=5)
-    ptm = btfrs.fit.ptm(tr, kind="rgb")
+    ptm = btfrs.fit.ptm(tr, kind="rgb", bits=32)  # floats: the blend, not the 8-bit planes, is tested
     coeffs = baselines.ptm_rgb_numpy(tr)
     assert baselines.ptm_error(coeffs, tr, te) == pytest.approx(ptm.error(te).relative, rel=1e-4)
     assert baselines.ptm_error(coeffs, tr, tr) == pytest.approx(ptm.error(tr).relative, rel=1e-4)
@@ -109,10 +109,11 @@ def test_evaluate_rows_match_independent_recomputation(report, weave):
     assert ptm["bytes"] == m.nbytes
     dtr, dte = split_directions(weave, 0.1, seed=0)
     assert ptm["heldout_directions"] == pytest.approx(btfrs.fit.ptm(dtr).error(dte).relative, rel=1e-6)
-    # The numpy pinv PTM is the same method: the same held-out errors, to float32 rounding.
+    # The numpy pinv PTM is the same method: the same held-out errors, up to btfrs's 8-bit planes
+    # (bits=8, the default; well under 1% of the error).
     np_ptm = rows[("PTM-RGB", "numpy pinv")]
     for k in ("heldout_pairs", "heldout_directions", "reconstruction"):
-        assert np_ptm[k] == pytest.approx(ptm[k], rel=1e-4), k
+        assert np_ptm[k] == pytest.approx(ptm[k], rel=5e-3), k
     for r in report.rows:
         assert np.isfinite(r["heldout_pairs"]) and np.isfinite(r["heldout_directions"]), r["label"]
     raw = rows[("raw interpolation", "raw")]

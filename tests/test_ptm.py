@@ -22,22 +22,27 @@ def numpy_ptm_rgb(btf):
 
 
 def test_recovers_a_biquadratic_exactly():
+    # Floats (bits=32): the fit itself is exact; the default 8-bit planes within half a step.
     data, coef = biquadratic_data(4, 5, D, D, seed=1)
-    ptm = btfrs.fit.ptm(btfrs.Btf(data, D, D))
+    ptm = btfrs.fit.ptm(btfrs.Btf(data, D, D), bits=32)
     np.testing.assert_allclose(ptm.coeffs, coef, atol=3e-5)
     assert ptm.error(btfrs.Btf(data, D, D)).relative < 1e-5
+    q = btfrs.fit.ptm(btfrs.Btf(data, D, D))
+    step = q.arrays["coeffs_scale"].reshape(q.arrays["coeffs_q"].shape[2:])
+    assert np.all(np.abs(q.coeffs - coef) <= step / 2 + 3e-5)
+    assert q.error(btfrs.Btf(data, D, D)).relative < 0.01
 
 
 def test_agrees_with_float64_numpy_on_a_material(knit):
     train, test = knit.split(holdout=0.1, seed=0)
-    ours = btfrs.fit.ptm(train).coeffs.astype(np.float64)
+    ours = btfrs.fit.ptm(train, bits=32).coeffs.astype(np.float64)
     ref = numpy_ptm_rgb(train)
     assert np.max(np.abs(ours - ref)) / np.max(np.abs(ref)) < 1e-5
 
 
 def test_lrgb_matches_its_definition(knit):
     sub = knit.select(views=[0, 40])
-    ptm = btfrs.fit.ptm(sub, kind="lrgb")
+    ptm = btfrs.fit.ptm(sub, kind="lrgb", bits=32)
     c, rgb = ptm.coeffs.astype(np.float64), ptm.rgb.astype(np.float64)
     assert c.shape == (32, 32, 2, 6) and rgb.shape == (32, 32, 2, 3)
     lx, ly = D[:, 0], D[:, 1]
@@ -100,7 +105,7 @@ def test_too_few_or_collinear_lights():
     b = btfrs.Btf(data, D[:1], arc)
     with pytest.raises(DegenerateDataError, match="collinear"):
         btfrs.fit.ptm(b, on_degenerate="raise")
-    clamped = btfrs.fit.ptm(b, on_degenerate="clamp")
+    clamped = btfrs.fit.ptm(b, on_degenerate="clamp", bits=32)
     assert clamped.error(b).rmse < 1e-6 and np.all(np.isfinite(clamped.coeffs))
     with pytest.raises(InvalidArgumentError, match="on_degenerate"):
         btfrs.fit.ptm(b, on_degenerate="ignore")
@@ -111,7 +116,9 @@ def test_too_few_or_collinear_lights():
 def test_save_load_and_nbytes(tmp_path, knit):
     for kind, per in (("rgb", 18), ("lrgb", 9)):
         ptm = btfrs.fit.ptm(knit.select(views=[0, 1, 2]), kind=kind)
-        assert ptm.nbytes == 32 * 32 * 3 * per * 4
+        # 8-bit planes: one byte per value and a scale and a bias per plane (3 views x per)
+        assert ptm.nbytes == 32 * 32 * 3 * per + 8 * 3 * per
+        assert btfrs.fit.ptm(knit.select(views=[0, 1, 2]), kind=kind, bits=32).nbytes == 32 * 32 * 3 * per * 4
         ptm.save(tmp_path / f"{kind}.btfrs")
         back = btfrs.load(tmp_path / f"{kind}.btfrs")
         assert isinstance(back, btfrs.Ptm) and back.variant == kind
@@ -126,8 +133,11 @@ def test_black_texels_give_zero_coefficients_not_nan():
     for kind in ("rgb", "lrgb"):
         m = btfrs.fit.ptm(b, kind=kind)
         assert np.all(np.isfinite(m.coeffs))
-        assert np.all(m.coeffs[0, 0] == 0)
-        np.testing.assert_allclose(m.evaluate(D[1], D[30])[1, 2], 0.25, rtol=1e-5)
+        # 8-bit planes decode a zero as bias + scale * q: zero up to float rounding
+        assert np.all(np.abs(m.coeffs[0, 0]) < 1e-6)
+        assert np.all(btfrs.fit.ptm(b, kind=kind, bits=32).coeffs[0, 0] == 0)
+        # the lit texel within half an 8-bit step (its a5 plane spans [0, 0.25])
+        np.testing.assert_allclose(m.evaluate(D[1], D[30])[1, 2], 0.25, atol=0.25 / 510)
         if kind == "lrgb":
             np.testing.assert_array_equal(m.rgb[0, 0], 0)
             np.testing.assert_allclose(m.rgb[1, 2], 1.0, rtol=1e-6)

@@ -89,9 +89,11 @@ def test_lafortune_at_5_percent_is_flagged_and_bounded(report):
 def test_uneven_subsets_stay_bounded(report):
     # Lights in one azimuth half only: the other half is pure extrapolation. PTM is the worst
     # (every slot falls back to the plane, whose extrapolation is the least: about 1.0, the error
-    # of predicting 0); its full biquadratic would go far beyond. Everything else stays below 0.8.
+    # of predicting 0); its full biquadratic would go far beyond. HSH, the other light basis fitted
+    # per slot, extrapolates likewise (HSH-2 0.85 with lights up to theta 45 only). Everything else
+    # stays below 0.8.
     for r in rows(report, "uneven"):
-        assert r["held_out"] < (1.2 if r["kind"] == "ptm" else 0.8), r
+        assert r["held_out"] < (1.2 if r["kind"] in ("ptm", "hsh") else 0.8), r
     r = report.row("PTM-RGB", "uneven", 1)
     assert r["flagged"] and {s["action"] for s in r["report"]["degenerate_slots"]} == {"linear"}
 
@@ -172,8 +174,9 @@ def test_black_texels_give_finite_zeros(btf):
                 # remainder of the global lobe (0.14 here, the data reach 2.2). Bounded, finite.
                 assert np.abs(img[black]).max() <= 0.25 * float(train.data.max())
                 continue
-            # Zero up to the 8-bit quantization of SH and LPCA (1/255 of the data's scale).
-            tol = 0.0 if r["kind"] in ("ptm", "lafortune") else 2e-2 * float(train.data.max())
+            # Zero up to the 8-bit quantization of SH and LPCA (1/255 of the data's scale); the
+            # PTM's 8-bit planes decode a zero coefficient as bias + scale * q, zero up to rounding.
+            tol = {"lafortune": 0.0, "ptm": 1e-5 * float(train.data.max())}.get(r["kind"], 2e-2 * float(train.data.max()))
             assert np.abs(img[black]).max() <= tol, (r["model"], np.abs(img[black]).max())
 
 

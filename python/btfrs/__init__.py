@@ -25,7 +25,7 @@ from .exceptions import (
     InvalidArgumentError,
     OutOfRangeError,
 )
-from .models import ErrorReport, Lafortune, LafortuneView, Lpca, Model, Ptm, Sh, Srf, load, model_kinds
+from .models import ErrorReport, Hsh, Lafortune, LafortuneView, Lpca, Model, Ptm, Sh, Srf, load, model_kinds
 from .evaluation import EvaluationReport, evaluate
 from .rendering import Camera, DirectionalLight, PointLight, Scene, gpu_info, last_timings, render
 # The module is `choosing`, not `choose`, so that `btfrs.choose` is the function, never shadowed
@@ -70,6 +70,7 @@ __all__ = [
     "Model",
     "model_kinds",
     "Ptm",
+    "Hsh",
     "Lafortune",
     "LafortuneView",
     "Srf",

@@ -20,9 +20,17 @@ from ._checks import boolean, choice, instance, integer, real
 from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
-from .models import Lafortune, LafortuneView, Lpca, Model, Ptm, Sh, Srf, model_kinds, wrap
+from .exceptions import InvalidArgumentError
+from .models import Hsh, Lafortune, LafortuneView, Lpca, Model, Ptm, Sh, Srf, model_kinds, wrap
 
-__all__ = ["fit", "ptm", "srf", "lafortune", "lafortune_view", "sh", "lpca"]
+__all__ = ["fit", "ptm", "hsh", "srf", "lafortune", "lafortune_view", "sh", "lpca"]
+
+
+def _bits(bits) -> int:
+    bits = integer("bits", bits)
+    if bits not in (8, 32):
+        raise InvalidArgumentError(f"bits: expected 8 (8-bit planes) or 32 (floats), got {bits}")
+    return bits
 
 
 def _check_btf(btf) -> Btf:
@@ -51,7 +59,7 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'btfrs.fit' has no attribute {name!r}")
 
 
-def ptm(btf: Btf, *, kind: str = "rgb", rcond: float = 1e-6, on_degenerate: str = "reduce",
+def ptm(btf: Btf, *, kind: str = "rgb", rcond: float = 1e-6, on_degenerate: str = "reduce", bits: int = 8,
         progress: Progress = None) -> Ptm:
     """Fit a Polynomial Texture Map per view slot (paper 000, section 3.1).
 
@@ -69,13 +77,55 @@ def ptm(btf: Btf, *, kind: str = "rgb", rcond: float = 1e-6, on_degenerate: str 
         range anywhere on the light directions); ``model.report["degenerate_slots"]`` lists each
         such slot, why and what was done. ``"raise"``: :class:`~btfrs.exceptions.DegenerateDataError`
         naming the slot. ``"clamp"``: the minimum-norm solution.
+    bits: 8 (the default) stores the coefficients as 8-bit planes as a ``.ptm`` file does (per
+        slot and coefficient index a scale and an integer bias shared by the channels; colours
+        ``c / 255``), so ``nbytes`` is what a viewer holds and ``save_ptm`` writes these bytes;
+        32 keeps the float32 coefficients.
     progress: None, True for a progress bar, or a callable ``(done, total)``.
     """
     b = _check_btf(btf)
     kind = choice("kind", kind, ("rgb", "lrgb"))
     rcond = real("rcond", rcond, min=0.0)
     on_degenerate = choice("on_degenerate", on_degenerate, ("reduce", "raise", "clamp"))
-    return _fit("ptm", b, f"PTM-{kind.upper()} fit", progress, dict(kind=kind, rcond=rcond, on_degenerate=on_degenerate))
+    bits = _bits(bits)
+    return _fit("ptm", b, f"PTM-{kind.upper()} fit", progress,
+                dict(kind=kind, rcond=rcond, on_degenerate=on_degenerate, bits=bits))
+
+
+def hsh(btf: Btf, *, order: int = 3, lambda_: float = 1e-6, rcond: float = 1e-6, on_degenerate: str = "reduce",
+        bits: int = 8, progress: Progress = None) -> Hsh:
+    """Fit hemispherical harmonics per view slot (Gautron et al. 2004), the basis of ``.rti`` HSH
+    files that RTIViewer and relight open, fitted like the PTM (paper 000, section 3.1): one
+    regularised pseudo-inverse of the ``order**2``-column light design matrix per view slot,
+    applied to every texel.
+
+    The basis (term ``j = l (l + 1) + m``, ``x = cos(theta) = l_z``, ``s = sqrt(x - x^2)``,
+    ``phi = atan2(l_y, l_x)``): ``1/sqrt(2 pi)``; ``sqrt(6/pi) s cos(phi)``,
+    ``sqrt(3/(2 pi)) (2x - 1)``, ``sqrt(6/pi) s sin(phi)``; ``sqrt(30/pi) (x^2 - x) cos(2 phi)``, ... up to
+    order 4, orthonormal on the hemisphere, with the RTI viewers' signs (full list in
+    ``rust/btfrs-fit/src/hsh.rs``).
+
+    Parameters
+    ----------
+    order: 1 to 4 (1, 4, 9 or 16 coefficients per channel).
+    lambda_: ridge weight relative to the largest squared singular value of a slot's design
+        matrix (0 = plain least squares).
+    rcond: singular values below ``rcond * s_max`` count as zero.
+    on_degenerate: as for :func:`ptm`; ``"reduce"`` fits a slot with too few or degenerate lights
+        by a lower order of its own lights, else pools the nearest views' lights, and lists the
+        slot in ``model.report["degenerate_slots"]``.
+    bits: 8 (the default): 8-bit planes, the three channels of a slot and term sharing scale and
+        bias (as a ``.rti`` file); 32 keeps float32.
+    progress: None, True for a progress bar, or a callable ``(done, total)``.
+    """
+    b = _check_btf(btf)
+    order = integer("order", order, min=1, max=4)
+    lambda_ = real("lambda_", lambda_, min=0.0)
+    rcond = real("rcond", rcond, min=0.0)
+    on_degenerate = choice("on_degenerate", on_degenerate, ("reduce", "raise", "clamp"))
+    bits = _bits(bits)
+    return _fit("hsh", b, f"HSH-{order} fit", progress,
+                dict(order=order, **{"lambda": lambda_}, rcond=rcond, on_degenerate=on_degenerate, bits=bits))
 
 
 def srf(btf: Btf, *, progress: Progress = None) -> Srf:

@@ -1,5 +1,5 @@
 """Files: measured data in (UBO2003 / ATRIUM archives, UBO2014 ``.btf``, RTI ``.lp`` capture sets,
-image stacks with a direction table), PTM files for RTIViewer/relight, images, EXR coefficient
+image stacks with a direction table), PTM and HSH ``.rti`` files for RTIViewer/relight, images, EXR coefficient
 maps, the ``.btfrs`` container, and atomic writes.
 
 :func:`load` opens any of them by its file type (see its docstring and the README's table of
@@ -28,10 +28,10 @@ from ._checks import real
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import FormatError, InvalidArgumentError
-from .models import Model, Ptm
+from .models import Hsh, Model, Ptm
 from .models import load as load_btfrs
 
-__all__ = ["load", "load_btfrs", "load_ptm", "save_image", "load_image", "save_stack", "save_coefficients",
+__all__ = ["load", "load_btfrs", "load_ptm", "load_rti", "save_image", "load_image", "save_stack", "save_coefficients",
            "capture_kind", "atomic_write", "save_array", "save_text"]
 
 PathLike = Union[str, os.PathLike]
@@ -95,6 +95,15 @@ def load_ptm(path: PathLike) -> Ptm:
     white (byte 255) is 1.0. Compressed (JPEG) and LUM variants raise
     :class:`~btfrs.exceptions.FormatError`."""
     return Ptm(_native.read_ptm(os.fspath(path)))
+
+
+def load_rti(path: PathLike) -> Hsh:
+    """Read a ``.rti`` hemispherical-harmonics file (``#HSH1.2``, RTI type 3, 8-bit data, orders 1
+    to 4) as a one-slot :class:`~btfrs.Hsh` (view = the normal), its 8-bit planes the file's
+    bytes. The two float arrays are read as relight reads them (byte ``c`` of term ``j`` is
+    ``bias[j] + scale[j] * c / 255``). Other RTI types raise :class:`~btfrs.exceptions.FormatError`
+    naming the type."""
+    return Hsh(_native.read_rti(os.fspath(path)))
 
 
 def save_image(path: PathLike, image, *, exposure: float = 1.0) -> None:
@@ -200,7 +209,7 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
       ``light_theta, light_phi`` (degrees) or ``lx, ly, lz``, optionally ``view_theta, view_phi``
       or ``vx, vy, vz``;
     * ``.btfrs`` (any btfrs file, as :func:`btfrs.load`), ``.ptm`` (:func:`load_ptm`), ``.rti``
-      (HSH, as ``load_rti``).
+      (HSH, :func:`load_rti`).
 
     Captures come back as a :class:`~btfrs.Btf` in btfrs's frame (z the normal, x along the image
     columns, y up the image). ``crop=(row, col, rows, cols)`` keeps a rectangle (row 0 is the top
@@ -220,11 +229,7 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
         if kind == "ptm":
             obj = load_ptm(p)
         elif kind == "rti":
-            if not hasattr(_native, "read_rti"):
-                raise FormatError(f"{p}: .rti files are not supported by this build")
-            from .models import wrap
-
-            obj = wrap(_native.read_rti(p))
+            obj = load_rti(p)
         else:
             obj = load_btfrs(p)
         if given:

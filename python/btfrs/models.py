@@ -22,7 +22,7 @@ from .btf import Btf, read_container
 from ._checks import choice, index, instance
 from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
 
-__all__ = ["ErrorReport", "Model", "Ptm", "Lafortune", "LafortuneView", "Srf", "Sh", "Lpca", "load", "model_kinds",
+__all__ = ["ErrorReport", "Model", "Ptm", "Hsh", "Lafortune", "LafortuneView", "Srf", "Sh", "Lpca", "load", "model_kinds",
            "wrap"]
 
 PathLike = Union[str, os.PathLike]
@@ -144,6 +144,35 @@ class Model:
         return f"{type(self).__name__}({self.height} x {self.width} texels, {self.nbytes / 2**20:.2f} MiB)"
 
 
+def _slot_index(model: "Model", view) -> int:
+    views = model.arrays["views"]
+    n = len(views)
+    if isinstance(view, bool):
+        raise ArgumentTypeError("view: expected a slot index or a direction, got a bool")
+    if isinstance(view, (int, np.integer)):
+        return index("view", view, n)
+    d = np.asarray(_as_dir("view", view))
+    ang = np.degrees(np.arccos(np.clip(views @ d / np.linalg.norm(d), -1, 1)))
+    i = int(np.argmin(ang))
+    if ang[i] > 0.5:
+        raise InvalidArgumentError(f"view: {list(d)} is {ang[i]:.1f} degrees from the nearest view slot; pass a slot index")
+    return i
+
+
+def _decoded(arrays: dict, name: str) -> Optional[np.ndarray]:
+    """Array ``name``: the floats, or the decoded 8-bit planes ``{name}_q`` with their per-plane
+    ``{name}_scale`` and ``{name}_bias`` (``bias + scale * q``, float32 as the model computes)."""
+    if name in arrays:
+        return arrays[name]
+    q = arrays.get(f"{name}_q")
+    if q is None:
+        return None
+    tail = q.shape[2:]
+    scale = arrays[f"{name}_scale"].reshape(tail)
+    bias = arrays[f"{name}_bias"].reshape(tail)
+    return bias + scale * q.astype(np.float32)
+
+
 class Ptm(Model):
     """A Polynomial Texture Map per view slot (paper 000, section 3.1).
 
@@ -151,6 +180,11 @@ class Ptm(Model):
     ``kind="lrgb"``: ``coeffs[H, W, V, 6]`` luminance polynomial times ``rgb[H, W, V, 3]``.
     Between view slots, :meth:`evaluate` blends the three nearest slots (inverse angular
     distance); at a slot's own direction it is exactly that slot's fit.
+
+    Fitted with ``bits=8`` (the default) the coefficients are stored as 8-bit planes as a ``.ptm``
+    file stores them (per slot and coefficient index one scale and one integer bias shared by the
+    channels, colours ``c / 255``): :attr:`nbytes` is what a viewer holds, :meth:`save_ptm`
+    writes the model's own bytes, and :attr:`coeffs` / :attr:`rgb` are the decoded values.
     """
 
     _kind = "ptm"
@@ -162,13 +196,20 @@ class Ptm(Model):
 
     @property
     def coeffs(self) -> np.ndarray:
-        """A copy of the coefficients."""
-        return self.arrays["coeffs"]
+        """A copy of the coefficients (decoded when 8-bit)."""
+        c = _decoded(self.arrays, "coeffs")
+        assert c is not None
+        return c
 
     @property
     def rgb(self) -> Optional[np.ndarray]:
-        """A copy of the LRGB base colours (largest channel 1), or None for RGB."""
-        return self.arrays.get("rgb")
+        """A copy of the LRGB base colours (largest channel 1; decoded when 8-bit), or None for RGB."""
+        return _decoded(self.arrays, "rgb")
+
+    @property
+    def bits(self) -> int:
+        """8 (8-bit planes) or 32 (floats)."""
+        return 8 if "coeffs_q" in self.arrays else 32
 
     @property
     def views(self) -> np.ndarray:
@@ -178,28 +219,72 @@ class Ptm(Model):
     def slot(self, view) -> int:
         """The index of the view slot for ``view``: an int index, or a direction within 0.5
         degrees of a slot's."""
-        views = self.views
-        n = len(views)
-        if isinstance(view, bool):
-            raise ArgumentTypeError("view: expected a slot index or a direction, got a bool")
-        if isinstance(view, (int, np.integer)):
-            return index("view", view, n)
-        d = np.asarray(_as_dir("view", view))
-        ang = np.degrees(np.arccos(np.clip(views @ d / np.linalg.norm(d), -1, 1)))
-        i = int(np.argmin(ang))
-        if ang[i] > 0.5:
-            raise InvalidArgumentError(f"view: {list(d)} is {ang[i]:.1f} degrees from the nearest view slot; pass a slot index")
-        return i
+        return _slot_index(self, view)
 
     def save_ptm(self, path: PathLike, *, view=0) -> tuple[list, list]:
         """Write one view slot as an uncompressed ``PTM_1.2`` file (``PTM_FORMAT_RGB`` or
         ``PTM_FORMAT_LRGB``) that RTIViewer and relight open; returns the per-coefficient
         ``(scale, bias)`` of the 8-bit quantisation. Our value 1.0 is the viewer's white (255);
-        multiply the data beforehand to choose another exposure."""
-        return _native.write_ptm(os.fspath(path), self._m, self.slot(view))
+        multiply the data beforehand to choose another exposure. An 8-bit model (``bits=8``, the
+        default of :func:`btfrs.fit.ptm`) is written byte for byte from its planes; a float model
+        is quantized for the file."""
+        return _native.write_ptm(os.fspath(path), self._m, _slot_index(self, view))
 
     def __repr__(self) -> str:
         return (f"Ptm({self.variant}, {self.height} x {self.width} texels, {len(self.views)} view slots, "
+                f"{self.nbytes / 2**20:.2f} MiB)")
+
+
+class Hsh(Model):
+    """Hemispherical harmonics per view slot (Gautron et al. 2004): the light basis of ``.rti``
+    HSH files (RTIViewer, relight), of order 1 to 4 (``order**2`` coefficients per channel).
+
+    ``coeffs[H, W, V, 3, order**2]`` (decoded when 8-bit); the basis, with the viewers' signs and
+    ``phi = atan2(l_y, l_x)``, is written out in ``rust/btfrs-fit/src/hsh.rs`` and
+    :func:`btfrs.fit.hsh`. Between view slots, :meth:`evaluate` blends the three nearest slots.
+    With ``bits=8`` (the default) the coefficients are 8-bit planes whose three channels share
+    one scale and bias per slot and term, as a ``.rti`` file stores them; :meth:`save_rti`
+    writes one slot byte for byte.
+    """
+
+    _kind = "hsh"
+
+    @property
+    def order(self) -> int:
+        """The order n (``n**2`` terms per channel)."""
+        return int(round(np.sqrt(self.coeffs.shape[-1])))
+
+    @property
+    def coeffs(self) -> np.ndarray:
+        """A copy of the coefficients ``[H, W, V, 3, order**2]`` (decoded when 8-bit)."""
+        c = _decoded(self.arrays, "coeffs")
+        assert c is not None
+        return c
+
+    @property
+    def bits(self) -> int:
+        """8 (8-bit planes) or 32 (floats)."""
+        return 8 if "coeffs_q" in self.arrays else 32
+
+    @property
+    def views(self) -> np.ndarray:
+        """``[V, 3]`` directions of the view slots."""
+        return self.arrays["views"]
+
+    def slot(self, view) -> int:
+        """The index of the view slot for ``view``: an int index, or a direction within 0.5
+        degrees of a slot's."""
+        return _slot_index(self, view)
+
+    def save_rti(self, path: PathLike, *, view=0) -> tuple[list, list]:
+        """Write one view slot as a ``.rti`` HSH file (``#HSH1.2``, type 3) and return the file's
+        two float arrays ``(scale, bias)``: byte ``c`` of term ``j`` decodes to
+        ``bias[j] + scale[j] * c / 255`` (relight's reading; RTIViewer's ``.rti`` loader reads the
+        two arrays as a minimum and a maximum instead). Our value 1.0 is the viewer's white."""
+        return _native.write_rti(os.fspath(path), self._m, _slot_index(self, view))
+
+    def __repr__(self) -> str:
+        return (f"Hsh(order {self.order}, {self.height} x {self.width} texels, {len(self.views)} view slots, "
                 f"{self.nbytes / 2**20:.2f} MiB)")
 
 

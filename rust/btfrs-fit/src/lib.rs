@@ -1,6 +1,9 @@
 //! btfrs-fit: compact per-texel reflectance models fitted to a BTF.
 //!
 //! * [`ptm`]: Polynomial Texture Maps, RGB and LRGB, one per view slot (paper 000, section 3.1).
+//! * [`hsh`]: hemispherical harmonics (Gautron et al. 2004) of order 1 to 4 per view slot, the
+//!   basis of RTIViewer's and relight's `.rti` HSH files, stored as 8-bit planes.
+//! * [`lightfit`]: what PTM and HSH share: the per-slot light fit, its fallbacks, the storage.
 //! * [`lafortune`]: per-texel Lafortune lobes over all views, RGB and luminance, fitted by
 //!   Levenberg-Marquardt (paper 000, section 3.2).
 //! * [`lafortune::per_view`]: per-view Lafortune (`"lafortune_view"`), one lobe set per texel and
@@ -21,8 +24,10 @@
 mod cls;
 mod dense;
 pub mod gpu;
+pub mod hsh;
 pub mod kmeans;
 pub mod lafortune;
+pub mod lightfit;
 pub mod lpca;
 pub mod model;
 pub mod planes;
@@ -33,12 +38,13 @@ pub mod sh;
 pub mod srf;
 
 pub use gpu::{GpuLayout, GpuModel, Renderable};
+pub use hsh::{fit_hsh, hsh_basis, Hsh, HshOptions, HshSlot};
 pub use kmeans::{kmeans, KMeans};
 pub use lafortune::per_view::{fit_lafortune_view, LafortuneView, LafortuneViewOptions, LafortuneViewReport};
 pub use lafortune::{fit_lafortune, FitReport, Lafortune, LafortuneKind, LafortuneOptions};
 pub use lpca::{fit_lpca, Lpca, Lpca3d, LpcaOptions, LpcaQuery};
 pub use model::{evaluate_image, model_error, DynModel, Model, RawModel, ReflectanceModel, Shade};
-pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions, PtmSlot};
+pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions, PtmPlanes, PtmSlot};
 pub use rpca::principal_coordinates;
 pub use sh::{fit_sh, quantize, sh_basis, Sh, ShCoeffs, ShOptions};
 pub use srf::{fit_srf, Phong, Srf, SrfReport};

@@ -41,10 +41,10 @@
 mod slot;
 
 use crate::gpu::{words, GpuLayout, Shader};
+use crate::lightfit::{check_bits, fit_slots, Coeffs, LightBasis, Slot, SlotOptions};
 use crate::model::{Model, ReflectanceModel};
-use btfrs_core::arrays::check_finite;
+use crate::planes::Planes;
 use btfrs_core::{directions, BtfRef, Error, Monitor, NamedArrays, Result};
-use nalgebra::DMatrix;
 use rayon::prelude::*;
 use std::borrow::Cow;
 
@@ -63,51 +63,7 @@ pub enum PtmKind {
     Lrgb,
 }
 
-/// What to do with a view slot whose lights do not determine the 6 coefficients.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Degenerate {
-    /// Fail with [`Error::Degenerate`] naming the slot.
-    Raise,
-    /// Zero the small singular values: the minimum-norm least-squares solution.
-    Clamp,
-    /// Fewer terms, else the lights of the nearest view slots; also for slots whose fit would
-    /// extrapolate (amplification above [`K_AMP`]). Each such slot is listed in
-    /// [`Ptm::degenerate_slots`].
-    Reduce,
-}
-
-/// Under [`Degenerate::Reduce`], a slot's fit is accepted only when no prediction at any light
-/// direction of the BTF exceeds `K_AMP` times the largest |sample| of the slot: the fit's
-/// *amplification*, `max_l sum_i |w_i(l)|` where `w(l) = P^T b(l)` are the weights the fit gives
-/// each sample in the prediction at light `l`. It depends on the light directions only (one
-/// number per slot, no data). A complete UBO slot has 2.2 (biquadratic) and 1.7 (the plane); 6
-/// to 10 random lights give 7 to 30 (median), and a random 10% of the pairs made the PTM's
-/// held-out relative error 5.9 on the built-in grooves (16^2) from such slots alone. 4 is met by
-/// every slot of a complete or half sampling and rejects the runaway ones.
-pub const K_AMP: f64 = 4.0;
-
-/// A view slot that did not get the plain biquadratic fit of its own lights, and what was done.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct DegenerateSlot {
-    /// The view slot index.
-    pub slot: usize,
-    /// Its present lights.
-    pub lights: usize,
-    /// Why: `"few lights"` (< 6), `"degenerate lights"` (rank-deficient, e.g. collinear) or
-    /// `"extrapolates"` (amplification above [`K_AMP`]).
-    pub reason: &'static str,
-    /// `"linear"` (the plane `a3 lu + a4 lv + a5` of its own lights), `"pooled"` (the
-    /// biquadratic of its lights and those of the slots `from`, the nearest views first),
-    /// `"kept"` (its own biquadratic: no alternative extrapolated less), `"clamped"` (the
-    /// minimum-norm fit) or `"zero"` (no light at all).
-    pub action: &'static str,
-    /// The slots whose lights were pooled in.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub from: Vec<usize>,
-    /// The amplification of the fit used (see [`K_AMP`]).
-    pub amplification: f64,
-}
+pub use crate::lightfit::{Degenerate, DegenerateSlot, K_AMP};
 
 /// Fit options.
 #[derive(Debug, Clone, Copy, serde::Deserialize)]
@@ -119,12 +75,27 @@ pub struct PtmOptions {
     pub rcond: f64,
     /// Policy for rank-deficient view slots.
     pub on_degenerate: Degenerate,
+    /// Storage of the fitted coefficients: 8 (the default) quantizes them to 8-bit planes with a
+    /// scale and a bias per plane, as `.ptm` files and RTI viewers hold them, so that `nbytes` is
+    /// what a viewer holds; 32 keeps the floats.
+    pub bits: u32,
 }
 
 impl Default for PtmOptions {
     fn default() -> Self {
-        PtmOptions { kind: PtmKind::Rgb, rcond: 1e-6, on_degenerate: Degenerate::Reduce }
+        PtmOptions { kind: PtmKind::Rgb, rcond: 1e-6, on_degenerate: Degenerate::Reduce, bits: 8 }
     }
+}
+
+/// The 8-bit planes of a quantized PTM: `coeffs` over the `[H, W, V, 3, 6]` (RGB) or
+/// `[H, W, V, 6]` (LRGB) coefficients, one plane per slot, channel and coefficient (`k` =
+/// `V * 18` or `V * 6`), and for LRGB `rgb` over the `[H, W, V, 3]` base colours.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PtmPlanes {
+    /// The polynomial coefficients.
+    pub coeffs: Planes,
+    /// LRGB only: the base colours.
+    pub rgb: Option<Planes>,
 }
 
 /// A fitted PTM: one polynomial set per texel and view slot.
@@ -144,6 +115,9 @@ pub struct Ptm {
     pub rgb: Option<Vec<f32>>,
     /// The slots fitted by a fallback (empty for a loaded model: files do not record it).
     pub degenerate_slots: Vec<DegenerateSlot>,
+    /// The 8-bit planes when quantized (`bits` 8): then `coeffs` and `rgb` are their decoded
+    /// values, and the planes are what the renderer uploads and `nbytes` counts.
+    pub quantized: Option<PtmPlanes>,
 }
 
 /// The six basis functions at light direction `l`.
@@ -153,217 +127,23 @@ pub fn basis(l: [f64; 3]) -> [f64; NCOEF] {
     [u * u, v * v, u * v, u, v, 1.0]
 }
 
-/// The pseudo-inverse `[k, n]` (row-major) of the design matrix of `lights` over the basis
-/// columns `cols` (indices into [`basis`]), with singular values below `rcond * s_max` zeroed;
-/// its rank and smallest/largest singular value ratio. `None` when the SVD fails.
-fn pinv_cols(lights: &[[f64; 3]], cols: &[usize], rcond: f64) -> Option<(Vec<f64>, usize, f64)> {
-    let (n, k) = (lights.len(), cols.len());
-    if n == 0 {
-        return Some((Vec::new(), 0, 0.0));
-    }
-    let a = DMatrix::from_fn(n, k, |i, j| basis(lights[i])[cols[j]]);
-    let svd = a.svd(true, true);
-    let (u, vt) = (svd.u?, svd.v_t?);
-    let s = &svd.singular_values;
-    let smax = s.iter().copied().fold(0.0f64, f64::max);
-    let cut = rcond * smax;
-    let rank = s.iter().filter(|&&x| x > cut).count();
-    let smin = if s.len() < k { 0.0 } else { s.iter().copied().fold(f64::INFINITY, f64::min) };
-    // pinv = V diag(1/s) U^T with the clamped singular values' reciprocals set to zero.
-    let mut p = vec![0.0f64; k * n];
-    for (j, &sj) in s.iter().enumerate() {
-        if sj <= cut {
-            continue;
-        }
-        for c in 0..k {
-            let vk = vt[(j, c)] / sj;
-            for i in 0..n {
-                p[c * n + i] += vk * u[(i, j)];
-            }
-        }
-    }
-    Some((p, rank, smin / smax.max(f64::MIN_POSITIVE)))
-}
-
-/// A slot's fit: the samples it reads (flat `v * L + l` pair indices and their lights) and its
-/// pseudo-inverse in the full basis, stored transposed (`[n][6]`, unused terms 0) so that the
-/// per-texel loop walks the samples and the matrix in the same order.
-struct Slot {
-    pairs: Vec<usize>,
-    lights: Vec<usize>,
-    pt: Vec<[f64; NCOEF]>,
-}
-
-impl Slot {
-    /// From a `[k, n]` pseudo-inverse over basis columns `cols`.
-    fn new(pairs: Vec<usize>, lights: Vec<usize>, p: &[f64], cols: &[usize]) -> Slot {
-        let n = pairs.len();
-        let pt = (0..n)
-            .map(|i| {
-                let mut row = [0.0f64; NCOEF];
-                for (j, &c) in cols.iter().enumerate() {
-                    row[c] = p[j * n + i];
-                }
-                row
-            })
-            .collect();
-        Slot { pairs, lights, pt }
-    }
-
-    /// `max_l sum_i |w_i(l)|` over the light directions `all` (see [`K_AMP`]).
-    fn amplification(&self, all: &[[f64; 3]]) -> f64 {
-        all.iter()
-            .map(|&l| {
-                let b = basis(l);
-                self.pt.iter().map(|r| (0..NCOEF).map(|k| r[k] * b[k]).sum::<f64>().abs()).sum::<f64>()
-            })
-            .fold(0.0, f64::max)
-    }
-}
-
-const FULL: [usize; NCOEF] = [0, 1, 2, 3, 4, 5];
-const PLANE: [usize; 3] = [3, 4, 5];
-
-/// The fit of view slot `v` under `opts`, and its entry in the report when it is not the plain
-/// biquadratic of its own lights.
-fn slot_fit(btf: &BtfRef<'_>, v: usize, opts: &PtmOptions) -> Result<(Slot, Option<DegenerateSlot>)> {
-    let nl = btf.lights.len();
-    let own = btf.lights_of_view(v);
-    let n = own.len();
-    let dirs = |ls: &[usize]| -> Vec<[f64; 3]> { ls.iter().map(|&l| btf.lights[l]).collect() };
-    let name = || {
-        let (theta, phi) = directions::to_theta_phi(btf.views[v]);
-        format!("view slot {v} (theta {:.1}, phi {:.1} deg)", theta.to_degrees(), phi.to_degrees())
-    };
-    let fit = |ls: &[usize], pairs: Vec<usize>, cols: &[usize]| -> Result<(Slot, usize, f64)> {
-        let (p, rank, ratio) = pinv_cols(&dirs(ls), cols, opts.rcond)
-            .ok_or_else(|| Error::Degenerate(format!("{}: the SVD of the light design matrix failed", name())))?;
-        Ok((Slot::new(pairs, ls.to_vec(), &p, cols), rank, ratio))
-    };
-    let own_pairs: Vec<usize> = own.iter().map(|&l| v * nl + l).collect();
-    let (full, rank, ratio) = fit(&own, own_pairs.clone(), &FULL)?;
-    let reason = if n < NCOEF {
-        "few lights"
-    } else if rank < NCOEF {
-        "degenerate lights"
-    } else {
-        "extrapolates"
-    };
-    let entry = |action: &'static str, from: Vec<usize>, slot: &Slot| DegenerateSlot {
-        slot: v,
-        lights: n,
-        reason,
-        action,
-        from,
-        amplification: slot.amplification(btf.lights),
-    };
-    match opts.on_degenerate {
-        Degenerate::Raise | Degenerate::Clamp => {
-            if n < NCOEF && opts.on_degenerate == Degenerate::Raise {
-                return Err(Error::Degenerate(format!(
-                    "{} has {n} lights; a biquadratic PTM needs at least {NCOEF} (on_degenerate=\"reduce\" fits such \
-                     a slot from fewer terms or its neighbours' lights, \"clamp\" gives the minimum-norm fit)",
-                    name()
-                )));
-            }
-            if rank == NCOEF {
-                return Ok((full, None));
-            }
-            if opts.on_degenerate == Degenerate::Raise {
-                return Err(Error::Degenerate(format!(
-                    "{}: its {n} lights determine only {rank} of the {NCOEF} PTM coefficients (smallest/largest \
-                     singular value {ratio:.2e} < rcond {:.0e}); the lights' (x, y) are degenerate, e.g. collinear \
-                     (on_degenerate=\"reduce\" fits such a slot from fewer terms or its neighbours' lights)",
-                    name(),
-                    opts.rcond
-                )));
-            }
-            let e = entry(if n == 0 { "zero" } else { "clamped" }, Vec::new(), &full);
-            Ok((full, Some(e)))
-        }
-        Degenerate::Reduce => {
-            // Candidates in order of preference; the first within K_AMP is taken, else the one
-            // with the least amplification.
-            if rank == NCOEF && full.amplification(btf.lights) <= K_AMP {
-                return Ok((full, None));
-            }
-            // A full-rank but extrapolating fit of its own lights is kept only if nothing else does better.
-            let mut best: Option<(f64, Slot, &'static str, Vec<usize>)> = None;
-            if rank == NCOEF {
-                best = Some((full.amplification(btf.lights), full, "kept", Vec::new()));
-            }
-            if n >= 3 {
-                let (plane, r3, _) = fit(&own, own_pairs.clone(), &PLANE)?;
-                if r3 == 3 {
-                    let a = plane.amplification(btf.lights);
-                    if a <= K_AMP {
-                        let e = entry("linear", Vec::new(), &plane);
-                        return Ok((plane, Some(e)));
-                    }
-                    if best.as_ref().is_none_or(|b| a < b.0) {
-                        best = Some((a, plane, "linear", Vec::new()));
-                    }
-                }
-            }
-            // Pool the lights of the nearest views (by angle): a neighbouring view sees nearly the
-            // same reflectance field, and the union of their lights covers the light hemisphere.
-            let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-            let mut order: Vec<usize> = (0..btf.views.len()).filter(|&u| u != v).collect();
-            order.sort_by(|&a, &b| dot(btf.views[v], btf.views[b]).total_cmp(&dot(btf.views[v], btf.views[a])));
-            let (mut ls, mut pairs, mut from) = (own.clone(), own_pairs.clone(), Vec::new());
-            for u in order {
-                let more = btf.lights_of_view(u);
-                if more.is_empty() {
-                    continue;
-                }
-                from.push(u);
-                pairs.extend(more.iter().map(|&l| u * nl + l));
-                ls.extend(more);
-                if ls.len() < NCOEF {
-                    continue;
-                }
-                let (pooled, r, _) = fit(&ls, pairs.clone(), &FULL)?;
-                if r < NCOEF {
-                    continue;
-                }
-                let a = pooled.amplification(btf.lights);
-                if a <= K_AMP {
-                    let e = entry("pooled", from, &pooled);
-                    return Ok((pooled, Some(e)));
-                }
-                if best.as_ref().is_none_or(|b| a < b.0) {
-                    best = Some((a, pooled, "pooled", from.clone()));
-                }
-            }
-            match best {
-                Some((_, s, action, from)) => {
-                    let e = entry(action, from, &s);
-                    Ok((s, Some(e)))
-                }
-                // Nothing determines even a plane: the minimum-norm fit of its own lights.
-                None => {
-                    let (s, _, _) = fit(&own, own_pairs, &FULL)?;
-                    let e = entry(if n == 0 { "zero" } else { "clamped" }, Vec::new(), &s);
-                    Ok((s, Some(e)))
-                }
-            }
-        }
+/// The basis as the per-slot fit sees it: the plane `a3 lu + a4 lv + a5` is the reduced basis.
+fn light_basis() -> LightBasis<'static> {
+    LightBasis {
+        k: NCOEF,
+        eval: &|l, out| out.copy_from_slice(&basis(l)),
+        what: "a biquadratic PTM",
+        coefficients: "PTM coefficients",
+        reduced: vec![("linear", vec![3, 4, 5])],
     }
 }
 
 /// Fit a PTM to the present (view, light) pairs of `btf`; `monitor` counts texel rows.
 pub fn fit_ptm(btf: &BtfRef<'_>, opts: &PtmOptions, monitor: &Monitor) -> Result<Ptm> {
-    if !(opts.rcond.is_finite() && opts.rcond > 0.0 && opts.rcond < 1.0) {
-        return Err(Error::arg("rcond", format!("expected a value in (0, 1), got {}", opts.rcond)));
-    }
+    check_bits(opts.bits)?;
     let nv = btf.views.len();
-    let fitted: Vec<(Slot, Option<DegenerateSlot>)> = (0..nv).map(|v| slot_fit(btf, v, opts)).collect::<Result<_>>()?;
-    let mut slots = Vec::with_capacity(nv);
-    let mut degenerate_slots = Vec::new();
-    for (s, e) in fitted {
-        slots.push(s);
-        degenerate_slots.extend(e);
-    }
+    let so = SlotOptions { rcond: opts.rcond, lambda: 0.0, on_degenerate: opts.on_degenerate };
+    let (slots, degenerate_slots) = fit_slots(btf, &light_basis(), &so)?;
 
     let (h, w) = (btf.height, btf.width);
     let per_coef = match opts.kind {
@@ -389,7 +169,7 @@ pub fn fit_ptm(btf: &BtfRef<'_>, opts: &PtmOptions, monitor: &Monitor) -> Result
             for (v, slot) in slots.iter().enumerate() {
                 let out = &mut crow[(col * nv + v) * per_coef..(col * nv + v + 1) * per_coef];
                 match opts.kind {
-                    PtmKind::Rgb => fit_rgb(slot, abrdf, out),
+                    PtmKind::Rgb => slot.fit_rgb(abrdf, out),
                     PtmKind::Lrgb => {
                         let base = &mut rrow[(col * nv + v) * 3..(col * nv + v + 1) * 3];
                         fit_lrgb(slot, abrdf, btf.lights, out, base)
@@ -400,7 +180,7 @@ pub fn fit_ptm(btf: &BtfRef<'_>, opts: &PtmOptions, monitor: &Monitor) -> Result
         monitor.advance(1);
     });
     monitor.check()?;
-    Ok(Ptm {
+    let mut ptm = Ptm {
         kind: opts.kind,
         height: h,
         width: w,
@@ -408,34 +188,19 @@ pub fn fit_ptm(btf: &BtfRef<'_>, opts: &PtmOptions, monitor: &Monitor) -> Result
         coeffs,
         rgb: (opts.kind == PtmKind::Lrgb).then_some(rgb),
         degenerate_slots,
-    })
-}
-
-/// 18 coefficients `[3][6]` of one texel and slot from the texel's ABRDF; f64 accumulation.
-#[inline]
-fn fit_rgb(slot: &Slot, abrdf: &[f32], out: &mut [f32]) {
-    let mut acc = [[0.0f64; NCOEF]; 3];
-    for (&i, p) in slot.pairs.iter().zip(&slot.pt) {
-        let x = &abrdf[i * 3..i * 3 + 3];
-        for c in 0..3 {
-            let xc = x[c] as f64;
-            for k in 0..NCOEF {
-                acc[c][k] += p[k] * xc;
-            }
-        }
+        quantized: None,
+    };
+    if opts.bits == 8 {
+        ptm.quantize()?;
     }
-    for c in 0..3 {
-        for k in 0..NCOEF {
-            out[c * NCOEF + k] = acc[c][k] as f32;
-        }
-    }
+    Ok(ptm)
 }
 
 /// Luminance coefficients and base colour of one texel and slot.
 #[inline]
 fn fit_lrgb(slot: &Slot, abrdf: &[f32], lights: &[[f64; 3]], out: &mut [f32], base: &mut [f32]) {
     let mut a = [0.0f64; NCOEF];
-    for (&i, p) in slot.pairs.iter().zip(&slot.pt) {
+    for (&i, p) in slot.pairs.iter().zip(slot.pt.chunks_exact(NCOEF)) {
         let x = &abrdf[i * 3..i * 3 + 3];
         let lum = (x[0] as f64 + x[1] as f64 + x[2] as f64) / 3.0;
         for k in 0..NCOEF {
@@ -471,6 +236,43 @@ fn fit_lrgb(slot: &Slot, abrdf: &[f32], lights: &[[f64; 3]], out: &mut [f32], ba
     }
 }
 
+/// The largest `|bias|` of a `.ptm` file's header that [`file_scale_bias`] produces.
+pub const PTM_BIAS_LIMIT: f64 = 32767.0;
+
+/// Scale (in byte units, as written in the header) and bias for a coefficient whose values (in
+/// byte units) lie in `[lo, hi]`, as a `.ptm` file stores them (`btfrs-io`'s `ptm_file`, "Choosing
+/// scale and bias": decoding is `(c - bias) * scale`, the step never below `max |value| / 32767` so
+/// that `|bias| <= 32767`, an all-zero coefficient gets scale 1, bias 0). `None` if the scale does
+/// not fit in an f32.
+pub fn file_scale_bias(lo: f64, hi: f64) -> Option<(f32, i32)> {
+    let max_abs = lo.abs().max(hi.abs());
+    if max_abs == 0.0 {
+        // All zero: any scale decodes byte `bias` to exactly 0.
+        return Some((1.0, 0));
+    }
+    // 256 codes, 255 steps across the range; but never so fine a step that |bias| would exceed
+    // PTM_BIAS_LIMIT (this is also what handles hi == lo without dividing by zero).
+    let s = ((hi - lo) / 255.0).max(max_abs / PTM_BIAS_LIMIT);
+    let mut s32 = s as f32;
+    if !s32.is_finite() {
+        return None;
+    }
+    if f64::from(s32) < s {
+        // Round the f32 up rather than down, so the range still fits in 0..=255.
+        s32 = f32::from_bits(s32.to_bits() + 1);
+        if !s32.is_finite() {
+            return None;
+        }
+    }
+    if s32 == 0.0 {
+        s32 = f32::MIN_POSITIVE;
+    }
+    // Decoding is (c - bias) * s, so the code of lo is lo / s + bias: put it within half a step
+    // of code 0. Then hi lands within half a step of code 255 (hi - lo <= 255 s).
+    let b = (-lo / f64::from(s32)).round();
+    Some((s32, b.clamp(-PTM_BIAS_LIMIT, PTM_BIAS_LIMIT) as i32))
+}
+
 /// A prepared PTM query: view-slot weights and the light's basis.
 #[derive(Debug, Clone)]
 pub struct PtmQuery {
@@ -485,6 +287,71 @@ impl Ptm {
             PtmKind::Rgb => 3 * NCOEF,
             PtmKind::Lrgb => NCOEF,
         }
+    }
+
+    /// Quantize the coefficients (and the LRGB base colours) to 8-bit planes as a `.ptm` file
+    /// stores them, so that a slot is written byte for byte: per slot and coefficient index one
+    /// scale and one integer bias ([`file_scale_bias`]) shared by the three channels (RGB), and
+    /// the base colours as `round(255 rgb)`. One plane per slot, channel and coefficient, its
+    /// scale `S / 255` and bias `-B S / 255` for the file's `S` and `B`; `coeffs` and `rgb` become
+    /// the decoded values. The error of each value is at most half its plane's step.
+    pub fn quantize(&mut self) -> Result<()> {
+        let nv = self.views.len();
+        let pc = self.per_coef();
+        let k = nv * pc;
+        // group of plane p: (slot, coefficient index)
+        let group = |p: usize| (p / pc) * NCOEF + p % NCOEF;
+        let mut lo = vec![f64::INFINITY; nv * NCOEF];
+        let mut hi = vec![f64::NEG_INFINITY; nv * NCOEF];
+        for t in self.coeffs.chunks_exact(k) {
+            for (p, &x) in t.iter().enumerate() {
+                let g = group(p);
+                lo[g] = lo[g].min(255.0 * x as f64);
+                hi[g] = hi[g].max(255.0 * x as f64);
+            }
+        }
+        let mut gs = vec![(1.0f32, 0i32); nv * NCOEF];
+        for g in 0..nv * NCOEF {
+            if lo[g] <= hi[g] {
+                let (s, _) = file_scale_bias(lo[g], hi[g]).ok_or_else(|| {
+                    Error::arg(
+                        "coeffs",
+                        format!("coefficient {} of slot {} is too wide to store", g % NCOEF, g / NCOEF),
+                    )
+                })?;
+                // The plane's step s / 255 rounded up to 16 significant bits, so that the header's
+                // scale 255 * step is an exact f32 and a file read back gives the same planes.
+                let s = (255.0 * crate::hsh::round_up_16_bits(s as f64 / 255.0) as f64) as f32;
+                let b = (-lo[g] / s as f64).round().clamp(-PTM_BIAS_LIMIT, PTM_BIAS_LIMIT) as i32;
+                gs[g] = (s, b);
+            }
+        }
+        let scale: Vec<f32> = (0..k).map(|p| (gs[group(p)].0 as f64 / 255.0) as f32).collect();
+        let bias: Vec<f32> =
+            (0..k).map(|p| (-(gs[group(p)].1 as f64) * gs[group(p)].0 as f64 / 255.0) as f32).collect();
+        let q: Vec<u8> = self
+            .coeffs
+            .par_iter()
+            .enumerate()
+            .map(|(i, &a)| {
+                let (s, b) = gs[group(i % k)];
+                (a as f64 * 255.0 / s as f64 + b as f64).round().clamp(0.0, 255.0) as u8
+            })
+            .collect();
+        let c = Planes { texels: self.height * self.width, k, q, scale, bias };
+        let r = self.rgb.as_ref().map(|r| Planes {
+            texels: self.height * self.width,
+            k: nv * 3,
+            q: r.iter().map(|&x| (x as f64 * 255.0).round().clamp(0.0, 255.0) as u8).collect(),
+            scale: vec![(1.0f64 / 255.0) as f32; nv * 3],
+            bias: vec![0.0; nv * 3],
+        });
+        self.coeffs = c.dequantize();
+        if let Some(p) = &r {
+            self.rgb = Some(p.dequantize());
+        }
+        self.quantized = Some(PtmPlanes { coeffs: c, rgb: r });
+        Ok(())
     }
 
     /// Check that the arrays agree with the dimensions (for models built from loaded files).
@@ -504,6 +371,18 @@ impl Ptm {
             (Some(r), PtmKind::Lrgb) if r.len() == t * 3 => {}
             (None, PtmKind::Rgb) => {}
             _ => return Err(Error::arg("rgb", "expected a [H, W, V, 3] base colour for LRGB and none for RGB")),
+        }
+        if let Some(q) = &self.quantized {
+            let texels = self.height * self.width;
+            let nv = self.views.len();
+            if q.coeffs.texels != texels || q.coeffs.k != nv * self.per_coef() || q.coeffs.dequantize() != self.coeffs {
+                return Err(Error::arg("coeffs", "the 8-bit planes do not match the coefficients"));
+            }
+            match (&q.rgb, &self.rgb) {
+                (None, None) => {}
+                (Some(p), Some(r)) if p.texels == texels && p.k == nv * 3 && &p.dequantize() == r => {}
+                _ => return Err(Error::arg("rgb", "the 8-bit planes do not match the base colours")),
+            }
         }
         Ok(())
     }
@@ -558,10 +437,19 @@ crate::gpu_params! {
         pub n_views: u32,
         /// Offset of the slots' candidate table in `tables`.
         pub view_table: u32,
-        /// Store offset of the coefficients: RGB `[texel][V][3][6]`, LRGB `[texel][V][6]` f32.
+        /// Store offset of the coefficients: RGB `[texel][V][3][6]`, LRGB `[texel][V][6]`, f32
+        /// (`bits` 32) or bytes packed four to a word (`bits` 8, see `planes.rs`).
         pub coeffs: u32,
-        /// Store offset of the LRGB base colours `[texel][V][3]` f32.
+        /// Store offset of the LRGB base colours `[texel][V][3]`, like `coeffs`.
         pub rgb: u32,
+        /// 32 (floats) or 8 (planes).
+        pub bits: u32,
+        /// Planes per texel of `coeffs` (`V * 18` or `V * 6`).
+        pub k: u32,
+        /// `bits` 8: store offset of the `k` scales then `k` biases of `coeffs`.
+        pub scale: u32,
+        /// `bits` 8, LRGB: store offset of the `3 V` scales then `3 V` biases of `rgb`.
+        pub rgb_scale: u32,
     }
 }
 
@@ -570,6 +458,14 @@ impl GpuLayout for Ptm {
     const SHADER: Shader = Shader::new::<PtmParams>("ptm", include_str!("../../../shaders_wgsl/ptm.wgsl"));
 
     fn parts(&self) -> Vec<Cow<'_, [u32]>> {
+        if let Some(q) = &self.quantized {
+            let mut p = vec![Cow::Owned(q.coeffs.words()), Cow::Owned(q.coeffs.scale_bias_words())];
+            if let Some(r) = &q.rgb {
+                p.push(Cow::Owned(r.words()));
+                p.push(Cow::Owned(r.scale_bias_words()));
+            }
+            return p;
+        }
         let mut p = vec![words(&self.coeffs)];
         if let Some(rgb) = &self.rgb {
             p.push(words(rgb));
@@ -582,6 +478,7 @@ impl GpuLayout for Ptm {
     }
 
     fn params(&self, offsets: &[u32], tables: &[u32]) -> PtmParams {
+        let q = self.quantized.is_some();
         PtmParams {
             kind: match self.kind {
                 PtmKind::Rgb => 0,
@@ -590,14 +487,18 @@ impl GpuLayout for Ptm {
             n_views: self.views.len() as u32,
             view_table: tables[0],
             coeffs: offsets[0],
-            rgb: offsets.get(1).copied().unwrap_or(0),
+            rgb: offsets.get(if q { 2 } else { 1 }).copied().unwrap_or(0),
+            bits: if q { 8 } else { 32 },
+            k: (self.views.len() * self.per_coef()) as u32,
+            scale: if q { offsets[1] } else { 0 },
+            rgb_scale: if q { offsets.get(3).copied().unwrap_or(0) } else { 0 },
         }
     }
 }
 
 impl Model for Ptm {
     const KIND: &'static str = "ptm";
-    const TEXEL_ARRAYS: &'static [&'static str] = &["coeffs", "rgb"];
+    const TEXEL_ARRAYS: &'static [&'static str] = &["coeffs", "rgb", "coeffs_q", "rgb_q"];
     const DOC: &'static str = "Polynomial Texture Maps per view slot (paper 000, section 3.1)";
     const EXAMPLES: &'static [(&'static str, &'static str)] =
         &[("PTM-LRGB", r#"{"kind": "lrgb"}"#), ("PTM-RGB", r#"{"kind": "rgb"}"#)];
@@ -608,17 +509,25 @@ impl Model for Ptm {
     }
 
     /// `coeffs` (RGB `[H, W, V, 3, 6]`, LRGB `[H, W, V, 6]`), `views` `[V, 3]` and, for LRGB,
-    /// `rgb` `[H, W, V, 3]`. The kind follows from the shape of `coeffs`.
+    /// `rgb` `[H, W, V, 3]`. The kind follows from the shape of `coeffs`. A quantized model stores
+    /// the planes instead: `coeffs_q` (uint8, the same shape) with `coeffs_scale` and
+    /// `coeffs_bias` (`[k]`), and `rgb_q`, `rgb_scale`, `rgb_bias` for LRGB.
     fn to_arrays(&self) -> NamedArrays {
         let mut a = NamedArrays::new();
         let (h, w, nv) = (self.height, self.width, self.views.len());
-        match self.kind {
-            PtmKind::Rgb => a.put("coeffs", &[h, w, nv, 3, NCOEF], self.coeffs.clone()),
-            PtmKind::Lrgb => a.put("coeffs", &[h, w, nv, NCOEF], self.coeffs.clone()),
+        let cshape: Vec<usize> = match self.kind {
+            PtmKind::Rgb => vec![h, w, nv, 3, NCOEF],
+            PtmKind::Lrgb => vec![h, w, nv, NCOEF],
+        };
+        match &self.quantized {
+            Some(q) => q.coeffs.insert_into(&mut a, "coeffs_", cshape),
+            None => a.put("coeffs", &cshape, self.coeffs.clone()),
         }
         a.put_directions("views", &self.views);
-        if let Some(rgb) = &self.rgb {
-            a.put("rgb", &[h, w, nv, 3], rgb.clone());
+        match (&self.quantized, &self.rgb) {
+            (Some(PtmPlanes { rgb: Some(r), .. }), _) => r.insert_into(&mut a, "rgb_", vec![h, w, nv, 3]),
+            (_, Some(rgb)) => a.put("rgb", &[h, w, nv, 3], rgb.clone()),
+            _ => {}
         }
         a
     }
@@ -632,23 +541,37 @@ impl Model for Ptm {
     fn from_arrays(a: &NamedArrays) -> Result<Self> {
         let views = a.directions("views", None)?;
         let nv = Some(views.len());
-        let (coeffs, sh) = match a.get::<f32>("coeffs", &[None, None, nv, Some(3), Some(NCOEF)]) {
-            Ok(c) => c,
-            Err(_) => a.get::<f32>("coeffs", &[None, None, nv, Some(NCOEF)]).map_err(|_| {
-                Error::arg(
-                    "coeffs",
-                    format!("expected shape [H, W, {}, 3, 6] (RGB) or [H, W, {}, 6] (LRGB)", views.len(), views.len()),
-                )
-            })?,
+        let cname = if a.contains("coeffs_q") { "coeffs_q" } else { "coeffs" };
+        let ndim = a.array(cname).map(|x| x.shape.len());
+        let pattern: &[Option<usize>] = match ndim {
+            Some(5) => &[None, None, nv, Some(3), Some(NCOEF)],
+            Some(4) => &[None, None, nv, Some(NCOEF)],
+            _ => &[],
         };
-        check_finite("coeffs", coeffs)?;
+        if pattern.is_empty()
+            || a.array(cname)
+                .is_some_and(|x| x.shape[2..] != pattern[2..].iter().map(|d| d.unwrap()).collect::<Vec<_>>())
+        {
+            return Err(Error::arg(
+                cname,
+                format!("expected shape [H, W, {}, 3, 6] (RGB) or [H, W, {}, 6] (LRGB)", views.len(), views.len()),
+            ));
+        }
+        let (coeffs, sh) = Coeffs::from_arrays(a, "coeffs", pattern, 2)?;
         let kind = if sh.len() == 5 { PtmKind::Rgb } else { PtmKind::Lrgb };
         let rgb = match kind {
             PtmKind::Rgb => None,
-            PtmKind::Lrgb => {
-                let (r, _) = a.get::<f32>("rgb", &[Some(sh[0]), Some(sh[1]), nv, Some(3)])?;
-                check_finite("rgb", r)?;
-                Some(r.to_vec())
+            PtmKind::Lrgb => Some(Coeffs::from_arrays(a, "rgb", &[Some(sh[0]), Some(sh[1]), nv, Some(3)], 2)?.0),
+        };
+        let quantized = match (&coeffs.planes, rgb.as_ref().map(|r| &r.planes)) {
+            (Some(c), None) => Some(PtmPlanes { coeffs: c.clone(), rgb: None }),
+            (Some(c), Some(Some(r))) => Some(PtmPlanes { coeffs: c.clone(), rgb: Some(r.clone()) }),
+            (None, None | Some(None)) => None,
+            _ => {
+                return Err(Error::arg(
+                    "rgb",
+                    "expected the coefficients and the base colours both as 8-bit planes or both as floats",
+                ))
             }
         };
         let m = Ptm {
@@ -656,9 +579,10 @@ impl Model for Ptm {
             height: sh[0],
             width: sh[1],
             views,
-            coeffs: coeffs.to_vec(),
-            rgb,
+            coeffs: coeffs.values,
+            rgb: rgb.map(|r| r.values),
             degenerate_slots: Vec::new(),
+            quantized,
         };
         m.validate()?;
         Ok(m)

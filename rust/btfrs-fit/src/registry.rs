@@ -59,6 +59,7 @@ pub const fn entry<M: Model + std::fmt::Debug>() -> Entry {
 /// Every model, in the order the demo and the bench show them.
 pub const MODELS: &[Entry] = &[
     entry::<crate::ptm::Ptm>(),
+    entry::<crate::hsh::Hsh>(),
     entry::<crate::lafortune::Lafortune>(),
     entry::<crate::lafortune::per_view::LafortuneView>(),
     entry::<crate::srf::Srf>(),

@@ -125,12 +125,11 @@ use std::fs;
 use std::path::Path;
 
 use btfrs_core::{Error, Result};
+use btfrs_fit::planes::Planes;
+use btfrs_fit::{PtmKind, PtmPlanes, PtmSlot};
 
 /// Coefficients per polynomial.
 const NCOEF: usize = 6;
-
-/// The largest `|bias|` the writer produces (see the module doc, "Choosing scale and bias").
-const BIAS_LIMIT: f64 = 32767.0;
 
 /// Header tokens longer than this are not PTM header fields (probably binary data).
 const MAX_TOKEN: usize = 64;
@@ -217,6 +216,214 @@ pub struct PtmQuantization {
     pub scale: [f32; 6],
     /// Bias per coefficient index, as written in the header.
     pub bias: [i32; 6],
+}
+
+/// A PTM image as the file stores it: the header's scale (byte units) and bias per coefficient
+/// index and the bytes, rows top to bottom (the reader and writer flip them). A PTM model
+/// quantized by the fit ([`btfrs_fit::Ptm::quantize`]) is written this way byte for byte.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PtmBytes {
+    /// Texels per row.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Which variant.
+    pub format: PtmFormat,
+    /// The header's scale per coefficient index (byte units).
+    pub scale: [f32; 6],
+    /// The header's bias per coefficient index (an integer as written; any finite number read).
+    pub bias: [f64; 6],
+    /// Rgb: `[height][width][3][6]`; Lrgb: `[height][width][6]` bytes.
+    pub coeffs: Vec<u8>,
+    /// Lrgb only: `[height][width][3]` colour bytes.
+    pub rgb: Option<Vec<u8>>,
+}
+
+impl PtmBytes {
+    /// The decoded image: coefficient `(c - bias_k) * scale_k / 255`, colour `c / 255`.
+    pub fn decode(&self, path_for_errors: &str) -> Result<PtmImage> {
+        // Byte -> coefficient in our units, per coefficient index: (c - bias) * scale is in byte
+        // units, / 255 makes 255 = 1.0.
+        let lut: Vec<[f32; 256]> = (0..NCOEF)
+            .map(|k| std::array::from_fn(|c| ((c as f64 - self.bias[k]) * f64::from(self.scale[k]) / 255.0) as f32))
+            .collect();
+        // A finite scale and bias can still decode beyond the f32 range (e.g. bias 1e300): that is
+        // no PTM a writer produced, and the coefficients must not silently become infinite.
+        if let Some(k) = lut.iter().position(|t| !(t[0].is_finite() && t[255].is_finite())) {
+            return Err(Error::format(
+                path_for_errors,
+                format!(
+                    "scale value {} ({}) and bias value {} ({}) decode to coefficients beyond the float range",
+                    k + 1,
+                    self.scale[k],
+                    k + 1,
+                    self.bias[k]
+                ),
+            ));
+        }
+        let coeffs = self.coeffs.iter().enumerate().map(|(i, &c)| lut[i % NCOEF][usize::from(c)]).collect();
+        let rgb = self.rgb.as_ref().map(|r| r.iter().map(|&c| f32::from(c) / 255.0).collect());
+        Ok(PtmImage { width: self.width, height: self.height, format: self.format, coeffs, rgb })
+    }
+}
+
+impl PtmBytes {
+    /// The file of a quantized single-view PTM ([`btfrs_fit::Ptm::slot`] of a model fitted with
+    /// `bits` 8), byte for byte: `None` when the slot is not quantized or its planes are not of
+    /// the file's form (channels sharing scale and an integer bias per coefficient, colours
+    /// `c / 255`), e.g. planes made by another tool.
+    pub fn from_slot(slot: &PtmSlot) -> Option<PtmBytes> {
+        let p = slot.planes.as_ref()?;
+        let format = match slot.kind {
+            PtmKind::Rgb => PtmFormat::Rgb,
+            PtmKind::Lrgb => PtmFormat::Lrgb,
+        };
+        let pc = format.coeffs_per_texel();
+        if p.coeffs.k != pc || p.coeffs.texels != slot.width * slot.height {
+            return None;
+        }
+        let mut scale = [0f32; NCOEF];
+        let mut bias = [0f64; NCOEF];
+        for k in 0..NCOEF {
+            let (s, b) = (p.coeffs.scale[k], p.coeffs.bias[k]);
+            if s <= 0.0
+                || !s.is_finite()
+                || (k..pc).step_by(NCOEF).any(|i| p.coeffs.scale[i] != s || p.coeffs.bias[i] != b)
+            {
+                return None;
+            }
+            scale[k] = (f64::from(s) * 255.0) as f32;
+            let bb = -f64::from(b) / f64::from(s);
+            if (bb - bb.round()).abs() > 1e-3 || bb.abs() > i32::MAX as f64 {
+                return None;
+            }
+            bias[k] = bb.round();
+        }
+        let rgb = match (&p.rgb, format) {
+            (None, PtmFormat::Rgb) => None,
+            (Some(r), PtmFormat::Lrgb) => {
+                let unit = (1.0f64 / 255.0) as f32;
+                if r.k != 3 || r.scale.iter().any(|&s| s != unit) || r.bias.iter().any(|&b| b != 0.0) {
+                    return None;
+                }
+                Some(r.q.clone())
+            }
+            _ => return None,
+        };
+        Some(PtmBytes { width: slot.width, height: slot.height, format, scale, bias, coeffs: p.coeffs.q.clone(), rgb })
+    }
+
+    /// The single-view PTM of this file as 8-bit planes: plane scale `scale_k / 255`, bias
+    /// `-bias_k scale_k / 255`, colours `c / 255` ([`btfrs_fit::Ptm::from_slot`] makes it a model).
+    pub fn to_slot(&self) -> PtmSlot {
+        let texels = self.width * self.height;
+        let pc = self.format.coeffs_per_texel();
+        let coeffs = Planes {
+            texels,
+            k: pc,
+            q: self.coeffs.clone(),
+            scale: (0..pc).map(|p| (f64::from(self.scale[p % NCOEF]) / 255.0) as f32).collect(),
+            bias: (0..pc).map(|p| (-self.bias[p % NCOEF] * f64::from(self.scale[p % NCOEF]) / 255.0) as f32).collect(),
+        };
+        let rgb = self.rgb.as_ref().map(|r| Planes {
+            texels,
+            k: 3,
+            q: r.clone(),
+            scale: vec![(1.0f64 / 255.0) as f32; 3],
+            bias: vec![0.0; 3],
+        });
+        let kind = match self.format {
+            PtmFormat::Rgb => PtmKind::Rgb,
+            PtmFormat::Lrgb => PtmKind::Lrgb,
+        };
+        PtmSlot {
+            kind,
+            height: self.height,
+            width: self.width,
+            coeffs: coeffs.dequantize(),
+            rgb: rgb.as_ref().map(|r| r.dequantize()),
+            planes: Some(PtmPlanes { coeffs, rgb }),
+        }
+    }
+}
+
+/// Encode already quantized bytes as an uncompressed `PTM_1.2` file (the bias must be integers).
+pub fn encode_ptm_bytes(b: &PtmBytes) -> Result<Vec<u8>> {
+    if b.width == 0 || b.height == 0 {
+        return Err(Error::arg("width", format!("the image is {} x {} texels", b.width, b.height)));
+    }
+    let texels = b.width.checked_mul(b.height).ok_or_else(|| Error::arg("width", "too many texels"))?;
+    if b.coeffs.len() != texels * b.format.coeffs_per_texel() {
+        return Err(Error::arg(
+            "coeffs",
+            format!("expected {} bytes, got {}", texels * b.format.coeffs_per_texel(), b.coeffs.len()),
+        ));
+    }
+    match (b.format, &b.rgb) {
+        (PtmFormat::Rgb, None) => {}
+        (PtmFormat::Lrgb, Some(r)) if r.len() == texels * 3 => {}
+        _ => return Err(Error::arg("rgb", "expected 3 colour bytes per texel for LRGB and none for RGB")),
+    }
+    if let Some(k) = (0..NCOEF).find(|&k| !(b.scale[k].is_finite() && b.scale[k] > 0.0)) {
+        return Err(Error::arg("scale", format!("value {k} is {}, not a positive finite number", b.scale[k])));
+    }
+    if let Some(k) = (0..NCOEF).find(|&k| b.bias[k].fract() != 0.0 || b.bias[k].abs() > i32::MAX as f64) {
+        return Err(Error::arg("bias", format!("value {k} is {}, not an integer", b.bias[k])));
+    }
+    let (w, h) = (b.width, b.height);
+    let mut header = String::new();
+    header.push_str("PTM_1.2\n");
+    header.push_str(b.format.header_name());
+    header.push('\n');
+    header.push_str(&format!("{w}\n{h}\n"));
+    let scales: Vec<String> = b.scale.iter().map(|&s| format_scale(s)).collect();
+    header.push_str(&scales.join(" "));
+    header.push('\n');
+    let biases: Vec<String> = b.bias.iter().map(|&x| (x as i64).to_string()).collect();
+    header.push_str(&biases.join(" "));
+    header.push('\n');
+    let data_len = texels * if b.format == PtmFormat::Rgb { 3 * NCOEF } else { NCOEF + 3 };
+    let mut out = Vec::with_capacity(header.len() + data_len);
+    out.extend_from_slice(header.as_bytes());
+    match b.format {
+        PtmFormat::Rgb => {
+            for ch in 0..3 {
+                for file_row in 0..h {
+                    let y = h - 1 - file_row; // the file starts with the bottom row
+                    for x in 0..w {
+                        let base = ((y * w + x) * 3 + ch) * NCOEF;
+                        out.extend_from_slice(&b.coeffs[base..base + NCOEF]);
+                    }
+                }
+            }
+        }
+        PtmFormat::Lrgb => {
+            let rgb = b.rgb.as_ref().expect("checked");
+            for file_row in 0..h {
+                let y = h - 1 - file_row;
+                out.extend_from_slice(&b.coeffs[y * w * NCOEF..(y + 1) * w * NCOEF]);
+            }
+            for file_row in 0..h {
+                let y = h - 1 - file_row;
+                out.extend_from_slice(&rgb[y * w * 3..(y + 1) * w * 3]);
+            }
+        }
+    }
+    debug_assert_eq!(out.len(), header.len() + data_len);
+    Ok(out)
+}
+
+/// Write already quantized bytes to `path` as a `PTM_1.2` file, atomically.
+pub fn write_ptm_bytes(path: &Path, b: &PtmBytes) -> Result<()> {
+    let bytes = encode_ptm_bytes(b)?;
+    crate::atomic::write_atomic(path, |w| w.write_all(&bytes))
+}
+
+/// Read a `.ptm` file as the file stores it (see [`read_ptm`] for what is accepted).
+pub fn read_ptm_bytes(path: &Path) -> Result<PtmBytes> {
+    let shown = path.display().to_string();
+    let bytes = fs::read(path).map_err(|e| Error::io(&shown, e))?;
+    decode_ptm_bytes(&bytes, &shown)
 }
 
 /// Write `img` to `path` as an uncompressed `PTM_1.2` file.
@@ -391,34 +598,10 @@ fn validate(img: &PtmImage) -> Result<usize> {
 }
 
 /// Scale (in byte units, as written in the header) and bias for a coefficient whose values (in
-/// byte units) lie in `[lo, hi]`. `None` if the scale does not fit in an f32.
+/// byte units) lie in `[lo, hi]`: [`btfrs_fit::ptm::file_scale_bias`], shared with the PTM's own
+/// 8-bit planes so that a fitted model is written byte for byte.
 fn choose_scale_bias(lo: f64, hi: f64) -> Option<(f32, i32)> {
-    let max_abs = lo.abs().max(hi.abs());
-    if max_abs == 0.0 {
-        // All zero: any scale decodes byte `bias` to exactly 0.
-        return Some((1.0, 0));
-    }
-    // 256 codes, 255 steps across the range; but never so fine a step that |bias| would exceed
-    // BIAS_LIMIT (this is also what handles hi == lo without dividing by zero).
-    let s = ((hi - lo) / 255.0).max(max_abs / BIAS_LIMIT);
-    let mut s32 = s as f32;
-    if !s32.is_finite() {
-        return None;
-    }
-    if f64::from(s32) < s {
-        // Round the f32 up rather than down, so the range still fits in 0..=255.
-        s32 = f32::from_bits(s32.to_bits() + 1);
-        if !s32.is_finite() {
-            return None;
-        }
-    }
-    if s32 == 0.0 {
-        s32 = f32::MIN_POSITIVE;
-    }
-    // Decoding is (c - bias) * s, so the code of lo is lo / s + bias: put it within half a step
-    // of code 0. Then hi lands within half a step of code 255 (hi - lo <= 255 s).
-    let b = (-lo / f64::from(s32)).round();
-    Some((s32, b.clamp(-BIAS_LIMIT, BIAS_LIMIT) as i32))
+    btfrs_fit::ptm::file_scale_bias(lo, hi)
 }
 
 /// The shortest decimal that reads back as exactly `s` (Rust's `Display` for f32, never an
@@ -436,6 +619,11 @@ fn format_scale(s: f32) -> String {
 
 /// Decode the bytes of a `.ptm` file. `path_for_errors` names the file in [`Error::Format`].
 pub fn decode_ptm(bytes: &[u8], path_for_errors: &str) -> Result<PtmImage> {
+    decode_ptm_bytes(bytes, path_for_errors)?.decode(path_for_errors)
+}
+
+/// Decode the header and the bytes of a `.ptm` file without dequantizing.
+pub fn decode_ptm_bytes(bytes: &[u8], path_for_errors: &str) -> Result<PtmBytes> {
     let mut hdr = Header { bytes, pos: 0, path: path_for_errors };
 
     let version = hdr.token("version string")?;
@@ -508,25 +696,12 @@ pub fn decode_ptm(bytes: &[u8], path_for_errors: &str) -> Result<PtmImage> {
         )));
     }
 
-    // Byte -> coefficient in our units, per coefficient index: (c - bias) * scale is in byte
-    // units, / 255 makes 255 = 1.0.
-    let lut: Vec<[f32; 256]> = (0..NCOEF)
-        .map(|k| std::array::from_fn(|c| ((c as f64 - bias[k]) * f64::from(scale[k]) / 255.0) as f32))
-        .collect();
-    // A finite scale and bias can still decode beyond the f32 range (e.g. bias 1e300): that is
-    // no PTM a writer produced, and the coefficients must not silently become infinite.
-    if let Some(k) = lut.iter().position(|t| !(t[0].is_finite() && t[255].is_finite())) {
-        return Err(hdr.err(format!(
-            "scale value {} ({}) and bias value {} ({}) decode to coefficients beyond the float range",
-            k + 1,
-            scale[k],
-            k + 1,
-            bias[k]
-        )));
-    }
+    // Fail early on a scale and bias that decode beyond the f32 range.
+    let probe = PtmBytes { width: 1, height: 1, format: PtmFormat::Rgb, scale, bias, coeffs: vec![0; 18], rgb: None };
+    probe.decode(path_for_errors)?;
 
     let (w, h) = (width, height);
-    let mut coeffs = vec![0f32; texels * format.coeffs_per_texel()];
+    let mut coeffs = vec![0u8; texels * format.coeffs_per_texel()];
     let rgb = match format {
         PtmFormat::Rgb => {
             let block_len = texels * NCOEF;
@@ -537,16 +712,14 @@ pub fn decode_ptm(bytes: &[u8], path_for_errors: &str) -> Result<PtmImage> {
                     for x in 0..w {
                         let src = (file_row * w + x) * NCOEF;
                         let dst = ((y * w + x) * 3 + ch) * NCOEF;
-                        for k in 0..NCOEF {
-                            coeffs[dst + k] = lut[k][usize::from(block[src + k])];
-                        }
+                        coeffs[dst..dst + NCOEF].copy_from_slice(&block[src..src + NCOEF]);
                     }
                 }
             }
             None
         }
         PtmFormat::Lrgb => {
-            let mut rgb = vec![0f32; texels * 3];
+            let mut rgb = vec![0u8; texels * 3];
             // PTM_1.2: coefficient block then colour block; PTM_1.1: 9 bytes per texel.
             for file_row in 0..h {
                 let y = h - 1 - file_row;
@@ -558,19 +731,15 @@ pub fn decode_ptm(bytes: &[u8], path_for_errors: &str) -> Result<PtmImage> {
                         (t * NCOEF, texels * NCOEF + t * 3)
                     };
                     let dst = (y * w + x) * NCOEF;
-                    for k in 0..NCOEF {
-                        coeffs[dst + k] = lut[k][usize::from(data[src + k])];
-                    }
+                    coeffs[dst..dst + NCOEF].copy_from_slice(&data[src..src + NCOEF]);
                     let c_dst = (y * w + x) * 3;
-                    for c in 0..3 {
-                        rgb[c_dst + c] = f32::from(data[c_src + c]) / 255.0;
-                    }
+                    rgb[c_dst..c_dst + 3].copy_from_slice(&data[c_src..c_src + 3]);
                 }
             }
             Some(rgb)
         }
     };
-    Ok(PtmImage { width, height, format, coeffs, rgb })
+    Ok(PtmBytes { width, height, format, scale, bias, coeffs, rgb })
 }
 
 /// A cursor over the text header.
@@ -1091,5 +1260,36 @@ mod tests {
         let bad = PtmImage { width: 0, ..img };
         assert!(matches!(write_ptm(&dir.path().join("x.ptm"), &bad), Err(Error::InvalidArgument { .. })));
         assert_eq!(dir_entries(dir.path()), ["taken.ptm"]);
+    }
+
+    #[test]
+    fn a_fitted_8_bit_slot_is_written_byte_for_byte() {
+        use btfrs_core::{directions::ubo81, BtfRef, Monitor};
+        use btfrs_fit::{fit_ptm, Ptm, PtmOptions};
+        let d = ubo81();
+        let (h, w) = (3, 2);
+        let data: Vec<f32> = (0..h * w * d.len() * d.len() * 3).map(|i| ((i * 7919) % 1000) as f32 / 900.0).collect();
+        let btf = BtfRef::new(h, w, &d, &d, &data, None).unwrap();
+        for kind in [PtmKind::Rgb, PtmKind::Lrgb] {
+            let m = fit_ptm(&btf, &PtmOptions { kind, ..Default::default() }, &Monitor::new()).unwrap();
+            let slot = m.slot(5).unwrap();
+            let b = PtmBytes::from_slot(&slot).expect("a fitted 8-bit slot has the file's form");
+            assert_eq!(b.coeffs, slot.planes.as_ref().unwrap().coeffs.q, "the model's own bytes");
+            let file = encode_ptm_bytes(&b).unwrap();
+            let back = decode_ptm_bytes(&file, "s.ptm").unwrap();
+            assert_eq!(back, b);
+            // the reader's decoding equals the model's values up to float rounding
+            let img = back.decode("s.ptm").unwrap();
+            for (x, y) in img.coeffs.iter().zip(&slot.coeffs) {
+                assert!((x - y).abs() <= 2e-6 * (1.0 + y.abs()), "{kind:?}: {x} vs {y}");
+            }
+            // and the one-slot model read back holds the same bytes
+            let one = Ptm::from_slot(back.to_slot()).unwrap();
+            assert_eq!(one.quantized.as_ref().unwrap().coeffs.q, b.coeffs);
+            assert_eq!(PtmBytes::from_slot(&one.slot(0).unwrap()).unwrap(), b);
+            // a float model has no file bytes of its own
+            let f = fit_ptm(&btf, &PtmOptions { kind, bits: 32, ..Default::default() }, &Monitor::new()).unwrap();
+            assert!(PtmBytes::from_slot(&f.slot(0).unwrap()).is_none());
+        }
     }
 }

@@ -4,9 +4,10 @@ use crate::arrays::{borrow, check_shape};
 use crate::errors::{arg, IntoPy};
 use crate::models::PyModel;
 use crate::run::detach;
-use btfrs_fit::{Ptm, PtmKind, PtmSlot};
+use btfrs_fit::{Hsh, Ptm, PtmKind};
 use btfrs_io::container::{self, as_bytes, ArrayRef, Dtype};
-use btfrs_io::ptm_file::{self, PtmFormat, PtmImage};
+use btfrs_io::ptm_file::{self, PtmBytes, PtmFormat, PtmImage};
+use btfrs_io::rti_file::{self, RtiHsh};
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use std::path::PathBuf;
@@ -96,7 +97,9 @@ pub fn read_container_header(
     Ok((c.kind, c.meta.to_string(), arrays))
 }
 
-/// Write one view slot of a PTM as a `.ptm` file; returns (scale, bias) per coefficient index.
+/// Write one view slot of a PTM as a `.ptm` file; returns (scale, bias) per coefficient index
+/// (scale in our units, the quantization step). A model quantized by the fit (`bits` 8) is
+/// written byte for byte from its planes; a float model is quantized for the file.
 #[pyfunction]
 pub fn write_ptm(py: Python<'_>, path: PathBuf, model: &PyModel, view: usize) -> PyResult<(Vec<f32>, Vec<i32>)> {
     let p = model
@@ -105,6 +108,11 @@ pub fn write_ptm(py: Python<'_>, path: PathBuf, model: &PyModel, view: usize) ->
         .downcast_ref::<Ptm>()
         .ok_or_else(|| arg("model", format!("expected a PTM, got a {} model", model.inner.kind())))?;
     let slot = p.slot(view).py()?;
+    if let Some(b) = PtmBytes::from_slot(&slot) {
+        detach(py, || ptm_file::write_ptm_bytes(&path, &b))?;
+        let scale = b.scale.iter().map(|&s| (f64::from(s) / 255.0) as f32).collect();
+        return Ok((scale, b.bias.iter().map(|&x| x as i32).collect()));
+    }
     let format = match slot.kind {
         PtmKind::Rgb => PtmFormat::Rgb,
         PtmKind::Lrgb => PtmFormat::Lrgb,
@@ -114,16 +122,33 @@ pub fn write_ptm(py: Python<'_>, path: PathBuf, model: &PyModel, view: usize) ->
     Ok((q.scale.to_vec(), q.bias.to_vec()))
 }
 
-/// Read a `.ptm` file as a one-slot model (view = the normal).
+/// Read a `.ptm` file as a one-slot model (view = the normal), its 8-bit planes the file's bytes.
 #[pyfunction]
 pub fn read_ptm(py: Python<'_>, path: PathBuf) -> PyResult<PyModel> {
-    let img = detach(py, || ptm_file::read_ptm(&path))?;
-    let kind = match img.format {
-        PtmFormat::Rgb => PtmKind::Rgb,
-        PtmFormat::Lrgb => PtmKind::Lrgb,
-    };
-    let slot = PtmSlot { kind, height: img.height, width: img.width, coeffs: img.coeffs, rgb: img.rgb };
-    Ok(PyModel { inner: Box::new(Ptm::from_slot(slot).py()?) })
+    let b = detach(py, || ptm_file::read_ptm_bytes(&path))?;
+    Ok(PyModel { inner: Box::new(Ptm::from_slot(b.to_slot()).py()?) })
+}
+
+/// Write one view slot of an HSH model as a `.rti` HSH file (relight's scale/bias reading);
+/// returns the file's (scale, bias) arrays.
+#[pyfunction]
+pub fn write_rti(py: Python<'_>, path: PathBuf, model: &PyModel, view: usize) -> PyResult<(Vec<f32>, Vec<f32>)> {
+    let h = model
+        .inner
+        .as_any()
+        .downcast_ref::<Hsh>()
+        .ok_or_else(|| arg("model", format!("expected an HSH model, got a {} model", model.inner.kind())))?;
+    let slot = h.slot(view).py()?;
+    let img = RtiHsh::from_slot(&slot).py()?;
+    detach(py, || rti_file::write_rti(&path, &img))?;
+    Ok((img.scale, img.bias))
+}
+
+/// Read a `.rti` HSH file as a one-slot HSH model (view = the normal).
+#[pyfunction]
+pub fn read_rti(py: Python<'_>, path: PathBuf) -> PyResult<PyModel> {
+    let img = detach(py, || rti_file::read_rti(&path))?;
+    Ok(PyModel { inner: Box::new(Hsh::from_slot(img.to_slot().py()?).py()?) })
 }
 
 /// Write a `[H, W, 3]` float32 linear image as an 8-bit sRGB PNG.

@@ -43,6 +43,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(io::read_container_header, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_ptm, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_ptm, m)?)?;
+    m.add_function(wrap_pyfunction!(io::write_rti, m)?)?;
+    m.add_function(wrap_pyfunction!(io::read_rti, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_png, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_png, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_exr, m)?)?;

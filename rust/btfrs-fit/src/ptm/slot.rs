@@ -3,7 +3,8 @@
 //! section 3.1 fits one such map per view slot). `btfrs-io` reads and writes the files; the
 //! layout of the slots inside [`Ptm`] is known only here.
 
-use super::{Ptm, PtmKind};
+use super::{Ptm, PtmKind, PtmPlanes};
+use crate::planes::Planes;
 use btfrs_core::{ensure_arg, Error, Result};
 
 /// A single-view PTM: the coefficients of one view slot.
@@ -19,6 +20,9 @@ pub struct PtmSlot {
     pub coeffs: Vec<f32>,
     /// Lrgb only: `[H, W, 3]` base colour.
     pub rgb: Option<Vec<f32>>,
+    /// The slot's 8-bit planes (`k` = 18 or 6, and 3 for the colours) when quantized; `coeffs`
+    /// and `rgb` are then their decoded values.
+    pub planes: Option<PtmPlanes>,
 }
 
 impl Ptm {
@@ -40,7 +44,28 @@ impl Ptm {
             (PtmKind::Rgb, _) => None,
             (PtmKind::Lrgb, None) => return Err(Error::arg("rgb", "an LRGB PTM needs its base colours")),
         };
-        Ok(PtmSlot { kind: self.kind, height: self.height, width: self.width, coeffs: pick(&self.coeffs, pc), rgb })
+        let sub = |p: &Planes, n: usize| -> Planes {
+            let r = view * n..(view + 1) * n;
+            Planes {
+                texels,
+                k: n,
+                q: (0..texels).flat_map(|t| p.q[t * p.k + r.start..t * p.k + r.end].iter().copied()).collect(),
+                scale: p.scale[r.clone()].to_vec(),
+                bias: p.bias[r].to_vec(),
+            }
+        };
+        let planes = self
+            .quantized
+            .as_ref()
+            .map(|q| PtmPlanes { coeffs: sub(&q.coeffs, pc), rgb: q.rgb.as_ref().map(|r| sub(r, 3)) });
+        Ok(PtmSlot {
+            kind: self.kind,
+            height: self.height,
+            width: self.width,
+            coeffs: pick(&self.coeffs, pc),
+            rgb,
+            planes,
+        })
     }
 
     /// A one-slot model from a single-view PTM (e.g. one read from a `.ptm` file), its view
@@ -54,6 +79,7 @@ impl Ptm {
             coeffs: slot.coeffs,
             rgb: slot.rgb,
             degenerate_slots: Vec::new(),
+            quantized: slot.planes,
         };
         p.validate()?;
         Ok(p)

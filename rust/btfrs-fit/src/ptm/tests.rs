@@ -27,9 +27,11 @@ fn polynomial_btf(h: usize, w: usize, seed: u64) -> (Vec<[f64; 3]>, Vec<f32>, Ve
 
 #[test]
 fn recovers_a_biquadratic_exactly() {
+    // Floats (bits 32): the least-squares fit itself is exact.
     let (d, data, truth) = polynomial_btf(3, 4, 1);
     let btf = BtfRef::new(3, 4, &d, &d, &data, None).unwrap();
-    let ptm = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap();
+    let ptm = fit_ptm(&btf, &PtmOptions { bits: 32, ..Default::default() }, &Monitor::new()).unwrap();
+    assert!(ptm.quantized.is_none());
     let worst = ptm.coeffs.iter().zip(&truth).map(|(a, b)| (*a as f64 - b).abs()).fold(0.0, f64::max);
     assert!(worst < 2e-5, "largest coefficient error {worst}");
     let e = model_error(&ptm, &btf).unwrap();
@@ -53,6 +55,7 @@ fn held_out_pairs_do_not_influence_the_fit() {
 }
 
 #[test]
+// The exactness tests fit floats (bits 32); the 8-bit planes are tested on their own below.
 fn lrgb_recovers_a_modulated_luminance() {
     // rgb(l) = L(l) * base with base's largest channel 1: LRGB must find both.
     let d = ubo81();
@@ -68,7 +71,8 @@ fn lrgb_recovers_a_modulated_luminance() {
         }
     }
     let btf = BtfRef::new(1, 1, &d, &d, &data, None).unwrap();
-    let ptm = fit_ptm(&btf, &PtmOptions { kind: PtmKind::Lrgb, ..Default::default() }, &Monitor::new()).unwrap();
+    let ptm =
+        fit_ptm(&btf, &PtmOptions { kind: PtmKind::Lrgb, bits: 32, ..Default::default() }, &Monitor::new()).unwrap();
     for v in 0..d.len() {
         for k in 0..NCOEF {
             assert!((ptm.coeffs[v * NCOEF + k] as f64 - a[k]).abs() < 1e-5);
@@ -169,7 +173,7 @@ fn a_view_slot_is_the_single_view_ptm_of_that_view() {
     let (d, data, _) = polynomial_btf(h, w, 5);
     let (nv, nl) = (d.len(), d.len());
     let btf = BtfRef::new(h, w, &d, &d, &data, None).unwrap();
-    let ptm = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap();
+    let ptm = fit_ptm(&btf, &PtmOptions { bits: 32, ..Default::default() }, &Monitor::new()).unwrap();
     for v in [0, 40, nv - 1] {
         let slot = ptm.slot(v).unwrap();
         assert_eq!((slot.kind, slot.height, slot.width, slot.coeffs.len()), (PtmKind::Rgb, h, w, h * w * 18));
@@ -211,7 +215,8 @@ fn an_lrgb_slot_keeps_its_base_colour() {
         }
     }
     let btf = BtfRef::new(h, w, &d, &d, &data, None).unwrap();
-    let ptm = fit_ptm(&btf, &PtmOptions { kind: PtmKind::Lrgb, ..Default::default() }, &Monitor::new()).unwrap();
+    let ptm =
+        fit_ptm(&btf, &PtmOptions { kind: PtmKind::Lrgb, bits: 32, ..Default::default() }, &Monitor::new()).unwrap();
     let slot = ptm.slot(33).unwrap();
     let rgb = slot.rgb.as_ref().unwrap();
     assert_eq!((slot.coeffs.len(), rgb.len()), (h * w * NCOEF, h * w * 3));
@@ -269,7 +274,7 @@ fn reduce_fits_a_plane_exactly_from_four_lights() {
     for kind in [PtmKind::Rgb, PtmKind::Lrgb] {
         let data = if kind == PtmKind::Rgb { &rgb_data } else { &lrgb_data };
         let btf = BtfRef::new(1, 1, &view, &lights, data, None).unwrap();
-        let ptm = fit_ptm(&btf, &PtmOptions { kind, ..Default::default() }, &Monitor::new()).unwrap();
+        let ptm = fit_ptm(&btf, &PtmOptions { kind, bits: 32, ..Default::default() }, &Monitor::new()).unwrap();
         let got: Vec<(usize, usize, &str, &str)> =
             ptm.degenerate_slots.iter().map(|s| (s.slot, s.lights, s.reason, s.action)).collect();
         assert_eq!(got, vec![(0, 4, "few lights", "linear")], "{kind:?}");
@@ -320,7 +325,7 @@ fn reduce_pools_the_lights_of_the_nearest_views() {
     // Slot 12: the normal and 5 lights of the 15-degree ring only.
     mask[12 * 81 + 6..13 * 81].iter_mut().for_each(|m| *m = false);
     let btf = BtfRef::new(1, 1, &d, &d, &data, Some(&mask)).unwrap();
-    let ptm = fit_ptm(&btf, &PtmOptions::default(), &Monitor::new()).unwrap();
+    let ptm = fit_ptm(&btf, &PtmOptions { bits: 32, ..Default::default() }, &Monitor::new()).unwrap();
     let got: Vec<(usize, usize, &str, &str)> =
         ptm.degenerate_slots.iter().map(|s| (s.slot, s.lights, s.reason, s.action)).collect();
     assert_eq!(
@@ -363,4 +368,47 @@ fn reduce_without_neighbours_keeps_the_least_amplifying_fit() {
     let acts: Vec<(&str, &str)> = ptm.degenerate_slots.iter().map(|s| (s.reason, s.action)).collect();
     assert_eq!(acts, vec![("degenerate lights", "clamped")]);
     assert!(model_error(&ptm, &btf).unwrap().rmse() < 1e-6);
+}
+
+#[test]
+fn eight_bit_planes_are_within_half_a_step_and_are_what_is_stored() {
+    // The default (bits 8) quantizes the exact float fit: every coefficient within half its
+    // plane's step, the GPU store is the planes (1 byte per coefficient + 8 bytes per plane),
+    // and the arrays round-trip through the planes.
+    let (h, w) = (3, 4);
+    let (d, data, truth) = polynomial_btf(h, w, 1);
+    let btf = BtfRef::new(h, w, &d, &d, &data, None).unwrap();
+    for kind in [PtmKind::Rgb, PtmKind::Lrgb] {
+        let exact = fit_ptm(&btf, &PtmOptions { kind, bits: 32, ..Default::default() }, &Monitor::new()).unwrap();
+        let q = fit_ptm(&btf, &PtmOptions { kind, ..Default::default() }, &Monitor::new()).unwrap();
+        let planes = q.quantized.as_ref().expect("bits 8 quantizes");
+        let k = d.len() * if kind == PtmKind::Rgb { 18 } else { 6 };
+        assert_eq!((planes.coeffs.texels, planes.coeffs.k), (h * w, k));
+        for (i, (a, b)) in exact.coeffs.iter().zip(&q.coeffs).enumerate() {
+            assert!((a - b).abs() <= planes.coeffs.scale[i % k] * 0.5 + 1e-6, "{kind:?} {i}: {a} vs {b}");
+        }
+        let mut want = h * w * k + 8 * k;
+        if let Some(r) = &planes.rgb {
+            want += h * w * d.len() * 3 + 8 * d.len() * 3;
+            for (a, b) in exact.rgb.as_ref().unwrap().iter().zip(q.rgb.as_ref().unwrap()) {
+                assert!((a - b).abs() <= r.scale.iter().cloned().fold(0.0, f32::max) * 0.5 + 1e-6);
+            }
+        }
+        // words round up to 4 bytes per array
+        assert!(q.nbytes() >= want && q.nbytes() < want + 16, "{kind:?}: nbytes {} vs {want}", q.nbytes());
+        // 4 bytes per value as floats against 1 + 8 / texels (12 texels here)
+        assert!(exact.nbytes() > 2 * q.nbytes());
+        let a = q.to_arrays();
+        assert!(a.contains("coeffs_q") && !a.contains("coeffs"));
+        let back = Ptm::from_arrays(&a).unwrap();
+        assert_eq!(back.coeffs, q.coeffs);
+        assert_eq!(back.quantized, q.quantized);
+        // RGB fits this data exactly, LRGB does not: the quantization adds at most 2% either way.
+        let e = model_error(&q, &btf).unwrap().relative();
+        let e0 = model_error(&exact, &btf).unwrap().relative();
+        assert!((e - e0).abs() < 0.02 && e != e0, "{kind:?}: 8-bit relative error {e} against {e0}");
+    }
+    let _ = truth;
+    let e = fit_ptm(&btf, &PtmOptions { bits: 16, ..Default::default() }, &Monitor::new()).unwrap_err().to_string();
+    assert!(e.contains("bits") && e.contains("got 16"), "{e}");
 }

@@ -1,0 +1,460 @@
+//! What the light-basis models fitted per view slot share (PTM, HSH): a linear basis in the light
+//! direction, one least-squares fit per view slot whose (pseudo-)inverse is computed once and
+//! applied to every texel, the policy for view slots whose lights do not determine the basis
+//! ([`Degenerate`], explained in [`crate::ptm`]), and the storage of the fitted coefficients as
+//! floats or as 8-bit planes ([`Coeffs`]).
+
+use crate::gpu::words;
+use crate::planes::Planes;
+use btfrs_core::arrays::check_finite;
+use btfrs_core::{directions, BtfRef, Error, NamedArrays, Result};
+use nalgebra::DMatrix;
+use std::borrow::Cow;
+
+/// What to do with a view slot whose lights do not determine the basis coefficients.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Degenerate {
+    /// Fail with [`Error::Degenerate`] naming the slot.
+    Raise,
+    /// Zero the small singular values: the minimum-norm least-squares solution.
+    Clamp,
+    /// Fewer terms, else the lights of the nearest view slots; also for slots whose fit would
+    /// extrapolate (amplification above [`K_AMP`]). Each such slot is listed in the model's
+    /// `degenerate_slots`.
+    Reduce,
+}
+
+/// Under [`Degenerate::Reduce`], a slot's fit is accepted only when no prediction at any light
+/// direction of the BTF exceeds `K_AMP` times the largest |sample| of the slot: the fit's
+/// *amplification*, `max_l sum_i |w_i(l)|` where `w(l) = P^T b(l)` are the weights the fit gives
+/// each sample in the prediction at light `l`. It depends on the light directions only (one
+/// number per slot, no data). A complete UBO slot has 2.2 (PTM biquadratic) and 1.7 (the plane); 6
+/// to 10 random lights give 7 to 30 (median), and a random 10% of the pairs made the PTM's
+/// held-out relative error 5.9 on the built-in grooves (16^2) from such slots alone. 4 is met by
+/// every slot of a complete or half sampling and rejects the runaway ones.
+pub const K_AMP: f64 = 4.0;
+
+/// A view slot that did not get the plain fit of its own lights, and what was done.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct DegenerateSlot {
+    /// The view slot index.
+    pub slot: usize,
+    /// Its present lights.
+    pub lights: usize,
+    /// Why: `"few lights"` (fewer than the basis has terms), `"degenerate lights"`
+    /// (rank-deficient, e.g. collinear) or `"extrapolates"` (amplification above [`K_AMP`]).
+    pub reason: &'static str,
+    /// `"pooled"` (the full basis fitted to its lights and those of the slots `from`, the
+    /// nearest views first), `"kept"` (its own full fit: no alternative extrapolated less),
+    /// `"clamped"` (the minimum-norm fit), `"zero"` (no light at all), or the name of a reduced
+    /// basis of its own lights (PTM: `"linear"`, the plane `a3 lu + a4 lv + a5`; HSH: `"order 2"`,
+    /// ...: the lower orders).
+    pub action: &'static str,
+    /// The slots whose lights were pooled in.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub from: Vec<usize>,
+    /// The amplification of the fit used (see [`K_AMP`]).
+    pub amplification: f64,
+}
+
+/// A linear basis in the light direction, as the per-slot fit sees it.
+pub struct LightBasis<'a> {
+    /// Terms.
+    pub k: usize,
+    /// Write the `k` basis values at a unit light direction.
+    pub eval: &'a (dyn Fn([f64; 3], &mut [f64]) + Sync),
+    /// The model in messages, e.g. `"a biquadratic PTM"`.
+    pub what: &'a str,
+    /// Its coefficients in messages, e.g. `"PTM coefficients"`.
+    pub coefficients: &'a str,
+    /// Reduced bases (action name, basis columns) in order of preference, for
+    /// [`Degenerate::Reduce`].
+    pub reduced: Vec<(&'static str, Vec<usize>)>,
+}
+
+impl std::fmt::Debug for LightBasis<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LightBasis")
+            .field("k", &self.k)
+            .field("what", &self.what)
+            .field("reduced", &self.reduced)
+            .finish()
+    }
+}
+
+impl LightBasis<'_> {
+    fn values(&self, l: [f64; 3]) -> Vec<f64> {
+        let mut b = vec![0.0; self.k];
+        (self.eval)(l, &mut b);
+        b
+    }
+}
+
+/// The options of the per-slot fit.
+#[derive(Debug, Clone, Copy)]
+pub struct SlotOptions {
+    /// Singular values below `rcond * s_max` count as zero.
+    pub rcond: f64,
+    /// Ridge (Tikhonov) weight relative to the largest squared singular value: the fit minimises
+    /// `|A c - y|^2 + lambda s_max^2 |c|^2`; 0 is plain least squares.
+    pub lambda: f64,
+    /// The policy for slots whose lights do not determine the basis.
+    pub on_degenerate: Degenerate,
+}
+
+/// The (regularised) pseudo-inverse `[kc, n]` (row-major) of the design matrix of `lights` over
+/// the basis columns `cols`, with singular values below `rcond * s_max` zeroed; its rank and
+/// smallest/largest singular value ratio. `None` when the SVD fails.
+fn pinv_cols(
+    basis: &LightBasis<'_>,
+    lights: &[[f64; 3]],
+    cols: &[usize],
+    rcond: f64,
+    lambda: f64,
+) -> Option<(Vec<f64>, usize, f64)> {
+    let (n, k) = (lights.len(), cols.len());
+    if n == 0 {
+        return Some((Vec::new(), 0, 0.0));
+    }
+    let rows: Vec<Vec<f64>> = lights.iter().map(|&l| basis.values(l)).collect();
+    let a = DMatrix::from_fn(n, k, |i, j| rows[i][cols[j]]);
+    let svd = a.svd(true, true);
+    let (u, vt) = (svd.u?, svd.v_t?);
+    let s = &svd.singular_values;
+    let smax = s.iter().copied().fold(0.0f64, f64::max);
+    let cut = rcond * smax;
+    let rank = s.iter().filter(|&&x| x > cut).count();
+    let smin = if s.len() < k { 0.0 } else { s.iter().copied().fold(f64::INFINITY, f64::min) };
+    let ridge = lambda * smax * smax;
+    // pinv = V diag(s / (s^2 + ridge)) U^T with the clamped singular values' factors set to zero.
+    let mut p = vec![0.0f64; k * n];
+    for (j, &sj) in s.iter().enumerate() {
+        if sj <= cut {
+            continue;
+        }
+        let f = sj / (sj * sj + ridge);
+        for c in 0..k {
+            let vk = vt[(j, c)] * f;
+            for i in 0..n {
+                p[c * n + i] += vk * u[(i, j)];
+            }
+        }
+    }
+    Some((p, rank, smin / smax.max(f64::MIN_POSITIVE)))
+}
+
+/// A slot's fit: the samples it reads (flat `v * L + l` pair indices and their lights) and its
+/// pseudo-inverse in the full basis, stored transposed (`[n][k]`, unused terms 0) so that the
+/// per-texel loop walks the samples and the matrix in the same order.
+#[derive(Debug, Clone)]
+pub struct Slot {
+    /// Flat pair indices `v * L + l` of the samples.
+    pub pairs: Vec<usize>,
+    /// The light index of each sample.
+    pub lights: Vec<usize>,
+    /// `[n][k]` weights: coefficient `c` is `sum_i pt[i * k + c] * sample_i`.
+    pub pt: Vec<f64>,
+    /// Terms of the full basis.
+    pub k: usize,
+}
+
+impl Slot {
+    /// From a `[kc, n]` pseudo-inverse over basis columns `cols`.
+    fn new(pairs: Vec<usize>, lights: Vec<usize>, p: &[f64], cols: &[usize], k: usize) -> Slot {
+        let n = pairs.len();
+        let mut pt = vec![0.0f64; n * k];
+        for i in 0..n {
+            for (j, &c) in cols.iter().enumerate() {
+                pt[i * k + c] = p[j * n + i];
+            }
+        }
+        Slot { pairs, lights, pt, k }
+    }
+
+    /// `max_l sum_i |w_i(l)|` over the light directions `all` (see [`K_AMP`]).
+    fn amplification(&self, basis: &LightBasis<'_>, all: &[[f64; 3]]) -> f64 {
+        all.iter()
+            .map(|&l| {
+                let b = basis.values(l);
+                self.pt
+                    .chunks_exact(self.k)
+                    .map(|r| r.iter().zip(&b).map(|(x, y)| x * y).sum::<f64>().abs())
+                    .sum::<f64>()
+            })
+            .fold(0.0, f64::max)
+    }
+
+    /// The `3 k` coefficients `[channel][term]` of one texel from its ABRDF (RGB interleaved
+    /// pairs); f64 accumulation.
+    #[inline]
+    pub fn fit_rgb(&self, abrdf: &[f32], out: &mut [f32]) {
+        let k = self.k;
+        let mut acc = vec![0.0f64; 3 * k];
+        for (&i, p) in self.pairs.iter().zip(self.pt.chunks_exact(k)) {
+            let x = &abrdf[i * 3..i * 3 + 3];
+            for c in 0..3 {
+                let xc = x[c] as f64;
+                for (a, &w) in acc[c * k..(c + 1) * k].iter_mut().zip(p) {
+                    *a += w * xc;
+                }
+            }
+        }
+        for (o, a) in out.iter_mut().zip(&acc) {
+            *o = *a as f32;
+        }
+    }
+}
+
+/// The fit of view slot `v`, and its entry in the report when it is not the plain fit of the
+/// full basis to its own lights.
+pub fn slot_fit(
+    btf: &BtfRef<'_>,
+    v: usize,
+    basis: &LightBasis<'_>,
+    opts: &SlotOptions,
+) -> Result<(Slot, Option<DegenerateSlot>)> {
+    let k = basis.k;
+    let full: Vec<usize> = (0..k).collect();
+    let nl = btf.lights.len();
+    let own = btf.lights_of_view(v);
+    let n = own.len();
+    let dirs = |ls: &[usize]| -> Vec<[f64; 3]> { ls.iter().map(|&l| btf.lights[l]).collect() };
+    let name = || {
+        let (theta, phi) = directions::to_theta_phi(btf.views[v]);
+        format!("view slot {v} (theta {:.1}, phi {:.1} deg)", theta.to_degrees(), phi.to_degrees())
+    };
+    let fit = |ls: &[usize], pairs: Vec<usize>, cols: &[usize]| -> Result<(Slot, usize, f64)> {
+        let (p, rank, ratio) = pinv_cols(basis, &dirs(ls), cols, opts.rcond, opts.lambda)
+            .ok_or_else(|| Error::Degenerate(format!("{}: the SVD of the light design matrix failed", name())))?;
+        Ok((Slot::new(pairs, ls.to_vec(), &p, cols, k), rank, ratio))
+    };
+    let amp = |s: &Slot| s.amplification(basis, btf.lights);
+    let own_pairs: Vec<usize> = own.iter().map(|&l| v * nl + l).collect();
+    let (own_fit, rank, ratio) = fit(&own, own_pairs.clone(), &full)?;
+    let reason = if n < k {
+        "few lights"
+    } else if rank < k {
+        "degenerate lights"
+    } else {
+        "extrapolates"
+    };
+    let entry = |action: &'static str, from: Vec<usize>, slot: &Slot| DegenerateSlot {
+        slot: v,
+        lights: n,
+        reason,
+        action,
+        from,
+        amplification: amp(slot),
+    };
+    match opts.on_degenerate {
+        Degenerate::Raise | Degenerate::Clamp => {
+            if n < k && opts.on_degenerate == Degenerate::Raise {
+                return Err(Error::Degenerate(format!(
+                    "{} has {n} lights; {} needs at least {k} (on_degenerate=\"reduce\" fits such a slot from fewer \
+                     terms or its neighbours' lights, \"clamp\" gives the minimum-norm fit)",
+                    name(),
+                    basis.what
+                )));
+            }
+            if rank == k {
+                return Ok((own_fit, None));
+            }
+            if opts.on_degenerate == Degenerate::Raise {
+                return Err(Error::Degenerate(format!(
+                    "{}: its {n} lights determine only {rank} of the {k} {} (smallest/largest singular value \
+                     {ratio:.2e} < rcond {:.0e}); the lights are degenerate, e.g. collinear in (x, y) \
+                     (on_degenerate=\"reduce\" fits such a slot from fewer terms or its neighbours' lights)",
+                    name(),
+                    basis.coefficients,
+                    opts.rcond
+                )));
+            }
+            let e = entry(if n == 0 { "zero" } else { "clamped" }, Vec::new(), &own_fit);
+            Ok((own_fit, Some(e)))
+        }
+        Degenerate::Reduce => {
+            // Candidates in order of preference; the first within K_AMP is taken, else the one
+            // with the least amplification.
+            if rank == k && amp(&own_fit) <= K_AMP {
+                return Ok((own_fit, None));
+            }
+            // A full-rank but extrapolating fit of its own lights is kept only if nothing else does better.
+            let mut best: Option<(f64, Slot, &'static str, Vec<usize>)> = None;
+            if rank == k {
+                best = Some((amp(&own_fit), own_fit, "kept", Vec::new()));
+            }
+            for (action, cols) in &basis.reduced {
+                if n < cols.len() {
+                    continue;
+                }
+                let (reduced, r, _) = fit(&own, own_pairs.clone(), cols)?;
+                if r < cols.len() {
+                    continue;
+                }
+                let a = amp(&reduced);
+                if a <= K_AMP {
+                    let e = entry(action, Vec::new(), &reduced);
+                    return Ok((reduced, Some(e)));
+                }
+                if best.as_ref().is_none_or(|b| a < b.0) {
+                    best = Some((a, reduced, action, Vec::new()));
+                }
+            }
+            // Pool the lights of the nearest views (by angle): a neighbouring view sees nearly the
+            // same reflectance field, and the union of their lights covers the light hemisphere.
+            let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+            let mut order: Vec<usize> = (0..btf.views.len()).filter(|&u| u != v).collect();
+            order.sort_by(|&a, &b| dot(btf.views[v], btf.views[b]).total_cmp(&dot(btf.views[v], btf.views[a])));
+            let (mut ls, mut pairs, mut from) = (own.clone(), own_pairs.clone(), Vec::new());
+            for u in order {
+                let more = btf.lights_of_view(u);
+                if more.is_empty() {
+                    continue;
+                }
+                from.push(u);
+                pairs.extend(more.iter().map(|&l| u * nl + l));
+                ls.extend(more);
+                if ls.len() < k {
+                    continue;
+                }
+                let (pooled, r, _) = fit(&ls, pairs.clone(), &full)?;
+                if r < k {
+                    continue;
+                }
+                let a = amp(&pooled);
+                if a <= K_AMP {
+                    let e = entry("pooled", from, &pooled);
+                    return Ok((pooled, Some(e)));
+                }
+                if best.as_ref().is_none_or(|b| a < b.0) {
+                    best = Some((a, pooled, "pooled", from.clone()));
+                }
+            }
+            match best {
+                Some((_, s, action, from)) => {
+                    let e = entry(action, from, &s);
+                    Ok((s, Some(e)))
+                }
+                // Nothing determines even a reduced basis: the minimum-norm fit of its own lights.
+                None => {
+                    let (s, _, _) = fit(&own, own_pairs, &full)?;
+                    let e = entry(if n == 0 { "zero" } else { "clamped" }, Vec::new(), &s);
+                    Ok((s, Some(e)))
+                }
+            }
+        }
+    }
+}
+
+/// Fit every view slot of `btf`: the slots and the report entries of those that needed a fallback.
+pub fn fit_slots(
+    btf: &BtfRef<'_>,
+    basis: &LightBasis<'_>,
+    opts: &SlotOptions,
+) -> Result<(Vec<Slot>, Vec<DegenerateSlot>)> {
+    if !(opts.rcond.is_finite() && opts.rcond > 0.0 && opts.rcond < 1.0) {
+        return Err(Error::arg("rcond", format!("expected a value in (0, 1), got {}", opts.rcond)));
+    }
+    if !(opts.lambda.is_finite() && opts.lambda >= 0.0) {
+        return Err(Error::arg("lambda", format!("expected a finite value >= 0, got {}", opts.lambda)));
+    }
+    let mut slots = Vec::with_capacity(btf.views.len());
+    let mut degenerate = Vec::new();
+    for v in 0..btf.views.len() {
+        let (s, e) = slot_fit(btf, v, basis, opts)?;
+        slots.push(s);
+        degenerate.extend(e);
+    }
+    Ok((slots, degenerate))
+}
+
+/// Fitted coefficients as the renderer holds them: 32-bit floats, or 8-bit planes with a scale
+/// and a bias per plane ([`Planes`]; `k` planes = the values per texel). `values` are always the
+/// decoded floats (what [`crate::ReflectanceModel::eval`] reads), so the CPU reference computes
+/// exactly what the shader decodes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Coeffs {
+    /// Decoded values, texel-major (`texels * k`).
+    pub values: Vec<f32>,
+    /// The 8-bit planes, or None for floats.
+    pub planes: Option<Planes>,
+}
+
+/// Check a `bits` option: 8 (planes) or 32 (floats).
+pub fn check_bits(bits: u32) -> Result<()> {
+    if bits == 8 || bits == 32 {
+        Ok(())
+    } else {
+        Err(Error::arg(
+            "bits",
+            format!("expected 8 (8-bit planes with per-plane scale and bias) or 32 (floats), got {bits}"),
+        ))
+    }
+}
+
+impl Coeffs {
+    /// Floats kept as they are (`bits` 32) or quantized to planes of `k` values per texel (8).
+    pub fn new(values: Vec<f32>, k: usize, bits: u32) -> Result<Coeffs> {
+        check_bits(bits)?;
+        if bits == 32 {
+            return Ok(Coeffs { values, planes: None });
+        }
+        let planes = Planes::quantize(&values, k)?;
+        Ok(Coeffs::from_planes(planes))
+    }
+
+    /// From planes (decoded once).
+    pub fn from_planes(planes: Planes) -> Coeffs {
+        Coeffs { values: planes.dequantize(), planes: Some(planes) }
+    }
+
+    /// 8 or 32.
+    pub fn bits(&self) -> u32 {
+        if self.planes.is_some() {
+            8
+        } else {
+            32
+        }
+    }
+
+    /// The store parts: floats (one part), or the packed bytes then scale and bias (two parts).
+    pub fn parts(&self) -> Vec<Cow<'_, [u32]>> {
+        match &self.planes {
+            None => vec![words(&self.values)],
+            Some(p) => vec![Cow::Owned(p.words()), Cow::Owned(p.scale_bias_words())],
+        }
+    }
+
+    /// Store as `name` (f32, `shape`) or, quantized, as `{name}_q`, `{name}_scale`, `{name}_bias`
+    /// (see [`Planes::insert_into`]).
+    pub fn insert_into(&self, a: &mut NamedArrays, name: &str, shape: &[usize]) {
+        match &self.planes {
+            None => a.put(name, shape, self.values.clone()),
+            Some(p) => p.insert_into(a, &format!("{name}_"), shape.to_vec()),
+        }
+    }
+
+    /// Read back what [`Coeffs::insert_into`] stored: `{name}_q` (with scale and bias) when
+    /// present, else the floats `name`, of shape `shape` (`None` = any; its product over the
+    /// leading `lead` axes is the texel count, the rest the planes).
+    pub fn from_arrays(
+        a: &NamedArrays,
+        name: &str,
+        shape: &[Option<usize>],
+        lead: usize,
+    ) -> Result<(Coeffs, Vec<usize>)> {
+        let qn = format!("{name}_q");
+        if let Some(arr) = a.array(&qn) {
+            let sh = arr.shape.clone();
+            btfrs_core::arrays::check_shape(&qn, &sh, shape)?;
+            let texels: usize = sh[..lead].iter().product();
+            let k: usize = sh[lead..].iter().product();
+            let p = Planes::from_arrays(a, &format!("{name}_"), texels, k)?;
+            return Ok((Coeffs::from_planes(p), sh));
+        }
+        let (v, sh) = a.get::<f32>(name, shape)?;
+        check_finite(name, v)?;
+        Ok((Coeffs { values: v.to_vec(), planes: None }, sh.to_vec()))
+    }
+}
