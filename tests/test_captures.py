@@ -387,6 +387,15 @@ def test_load_dispatches_on_the_file_type(tmp_path):
     assert isinstance(io.load(tmp_path / "m.btfrs"), btfrs.Ptm)
     with pytest.raises(InvalidArgumentError, match="only apply"):
         io.load(tmp_path / "m.btfrs", crop=(0, 0, 2, 2))
+    one = io.load(write_lp(tmp_path / "cap"))
+    h = btfrs.fit.hsh(one, order=2)
+    h.save_rti(tmp_path / "h.rti")
+    back = io.load(tmp_path / "h.rti")
+    assert isinstance(back, btfrs.Hsh) and io.capture_kind(tmp_path / "h.rti") == "rti"
+    np.testing.assert_allclose(back.evaluate([0, 0, 1], RTI_LIGHTS[3]), h.evaluate([0, 0, 1], RTI_LIGHTS[3]), atol=1e-5)
+    p = btfrs.fit.ptm(one)
+    p.save_ptm(tmp_path / "p.ptm")
+    assert isinstance(io.load(tmp_path / "p.ptm"), btfrs.Ptm)
     (tmp_path / "x.foo").write_text("hello")
     with pytest.raises(FormatError, match="unknown file type"):
         io.load(tmp_path / "x.foo")
