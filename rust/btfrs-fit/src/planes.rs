@@ -34,7 +34,7 @@ pub struct Planes {
 impl Planes {
     /// Quantize `values` (`texels * k`, texel-major, finite) plane by plane.
     pub fn quantize(values: &[f32], k: usize) -> Result<Planes> {
-        if k == 0 || values.len() % k != 0 {
+        if k == 0 || !values.len().is_multiple_of(k) {
             return Err(Error::arg(
                 "planes",
                 format!("{} values are not a whole number of {k}-plane texels", values.len()),
