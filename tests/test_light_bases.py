@@ -201,3 +201,24 @@ def test_degenerate_inputs():
 def test_bad_options_name_the_argument(capture, call, name):
     with pytest.raises(InvalidArgumentError, match=f"^{name}"):
         call(capture)
+
+
+def test_rti_bench_section(tmp_path):
+    from btfrs import bench
+    from btfrs.models import model_kinds
+
+    lights = bench.rti_lights(150, 0)
+    assert lights.shape == (150, 3)
+    np.testing.assert_allclose(np.linalg.norm(lights, axis=1), 1.0, atol=1e-12)
+    assert lights[:, 2].min() >= np.cos(np.radians(80)) - 1e-12
+    # Spread: no two lights closer than a third of the even spacing.
+    d = np.linalg.norm(lights[:, None] - lights[None], axis=-1) + 10 * np.eye(150)
+    assert d.min() > np.sqrt(2 * np.pi * (1 - np.cos(np.radians(80))) / 150) / 3
+    kinds = {k for _, k, _ in bench.rti_settings()}
+    assert kinds == set(model_kinds()) - {"lafortune", "srf"}
+    res = bench.rti_bench(captures=(("bumps", 100),), size=8, chart_dir=str(tmp_path))
+    assert (tmp_path / "rti_bumps.png").stat().st_size > 10_000
+    rows = res[0]["rows"]
+    assert all(r["heldout_pairs"] is not None for r in rows), [r for r in rows if r.get("error")]
+    s = bench.rti_summary(res)
+    assert "best < 100 KB" in s and "relight RBF, 18 planes 24.6% in 85 KB" in s
