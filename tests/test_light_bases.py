@@ -180,13 +180,15 @@ def test_degenerate_inputs():
     lights = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
     with pytest.raises(DegenerateDataError, match="positive regularization"):
         btfrs.fit.rbf(one_texel(lights, 4), regularization=0.0)
-    # A view slot without lights.
+    # A view slot without lights borrows the nearest view's lights, and the report says so.
     kn = btfrs.materials.make("knit", size=8, seed=1, views=np.array([[0, 0, 1.0], [0.6, 0, 0.8]]),
                               lights=rti_lights(20, 1))
     mask = np.ones((2, 20), bool)
     mask[1] = False
-    with pytest.raises(DegenerateDataError, match="view slot 1"):
-        btfrs.fit.bilinear(btfrs.Btf(kn.data, kn.views, kn.lights, mask))
+    m = btfrs.fit.bilinear(btfrs.Btf(kn.data, kn.views, kn.lights, mask))
+    assert m.report["pooled_slots"] == [{"slot": 1, "lights": 0, "from": [0]}]
+    np.testing.assert_allclose(m.evaluate([0.6, 0, 0.8], [0.3, 0.2, np.sqrt(0.87)]),
+                               m.evaluate([0, 0, 1.0], [0.3, 0.2, np.sqrt(0.87)]), atol=1e-6)
 
 
 @pytest.mark.parametrize("call,name", [

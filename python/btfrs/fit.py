@@ -225,8 +225,9 @@ def rbf(btf: Btf, *, components: int = 18, colour: str = "rgb", chroma_component
         raises :class:`~btfrs.exceptions.DegenerateDataError`).
     seed: seed of the randomized PCA (vectors longer than 768 values only).
 
-    A slot with one light gets the constant; a slot without lights raises
-    :class:`~btfrs.exceptions.DegenerateDataError` naming it.
+    A slot with one light gets the constant; a view slot of a multi-view BTF with fewer than 6
+    present lights (none included) borrows the lights of the nearest views, and
+    ``model.report["pooled_slots"]`` lists each such slot and where its lights came from.
     """
     b = _check_btf(btf)
     o = _light_pca_options(components, colour, chroma_components, resolution, seed)
@@ -236,7 +237,7 @@ def rbf(btf: Btf, *, components: int = 18, colour: str = "rgb", chroma_component
 
 
 def bilinear(btf: Btf, *, components: int = 18, colour: str = "rgb", chroma_components=None, resolution: int = 8,
-             regularization: float = 0.1, seed: int = 0, progress: Progress = None) -> Bilinear:
+             regularization: float = 0.3, seed: int = 0, progress: Progress = None) -> Bilinear:
     """Fit relight's bilinear light basis per view slot.
 
     Per view slot and texel, values on a ``resolution x resolution`` grid of the concentric
@@ -244,7 +245,11 @@ def bilinear(btf: Btf, *, components: int = 18, colour: str = "rgb", chroma_comp
     light's square point matches its sample (``min |B g - y|^2 + lambda |D g|^2``, ``D`` the
     second differences of the grid, which vanish on ``a + b s + c t + d s t``;
     ``lambda = regularization * tr(B^T B) / tr(D^T D)``; a tiny ridge towards the samples' mean
-    decides nodes nothing else does, so one light gives the constant). The grid functions are
+    decides nodes nothing else does, so one light gives the constant). A slot whose fit would
+    amplify its samples more than 6 times at some light direction (lights on one side, a
+    decimated sampling) is fitted with first differences instead (bounded by its samples), and
+    ``model.report["fallback_slots"]`` lists it; a slot of a multi-view BTF with fewer than 6
+    lights borrows the nearest views' (``report["pooled_slots"]``, as for :func:`rbf`). The grid functions are
     then compressed by PCA into 8-bit planes exactly as for :func:`rbf` (same ``components``,
     ``colour``, ``chroma_components``, ``resolution`` and ``seed``).
     """

@@ -52,6 +52,8 @@ use std::borrow::Cow;
 pub const MAX_RESOLUTION: usize = 32;
 /// Largest number of planes per slot (luminance/RGB plus chroma).
 pub const MAX_COMPONENTS: usize = 64;
+/// A view slot with fewer present lights borrows those of the nearest views (see [`PooledSlot`]).
+pub const MIN_LIGHTS: usize = 6;
 /// Vectors of at most this many values get the exact PCA; longer ones the randomized one.
 pub const EXACT_PCA_DIM: usize = 768;
 
@@ -140,6 +142,21 @@ pub fn grid_weights(n: usize, l: [f64; 3]) -> [(usize, f64); 4] {
     ]
 }
 
+/// A view slot fitted from its lights pooled with those of the nearest views: a slot with fewer
+/// than [`MIN_LIGHTS`] present lights (sparse or decimated sampling of a multi-view BTF) borrows
+/// the samples of the nearest views (by angle), which see nearly the same reflectance field,
+/// until it has that many. A single-view capture keeps its own lights however few (one light
+/// gives the constant).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct PooledSlot {
+    /// The view slot index.
+    pub slot: usize,
+    /// Its own present lights.
+    pub lights: usize,
+    /// The slots whose lights were pooled in, nearest first.
+    pub from: Vec<usize>,
+}
+
 /// A fitted light basis: the model behind [`crate::rbf::Rbf`] and [`crate::bilinear::Bilinear`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct LightPca {
@@ -161,6 +178,10 @@ pub struct LightPca {
     pub planes: Planes,
     /// `[slot][node][R]` f32 (see the module doc).
     pub table: Vec<f32>,
+    /// The slots fitted from pooled lights (empty for a loaded model: files do not record it).
+    pub pooled: Vec<PooledSlot>,
+    /// The slots whose resampling fell back to a more stable operator (empty when loaded).
+    pub fallback_slots: Vec<FallbackSlot>,
 }
 
 /// A prepared query: per blended slot, its weight and the table row interpolated at the light.
@@ -359,6 +380,8 @@ impl LightPca {
             k_chroma,
             planes,
             table: table.to_vec(),
+            pooled: Vec::new(),
+            fallback_slots: Vec::new(),
         };
         m.validate()?;
         ensure_arg!(tsh[3] == m.stride(), "table", "expected rows of {} values, got {}", m.stride(), tsh[3]);
@@ -403,9 +426,20 @@ pub const fn shader(name: &'static str) -> Shader {
 }
 
 /// The resampling operator of one slot: given the slot's light directions (`m`, at least one)
-/// and the grid directions (`G`), the `G x m` matrix that maps the samples of one channel to its
-/// values at the nodes.
-pub type Operator<'a> = dyn Fn(&[[f64; 3]], usize) -> Result<DMatrix<f64>> + Sync + 'a;
+/// and the grid resolution `n`, the `n^2 x m` matrix that maps the samples of one channel to its
+/// values at the nodes, and `Some(amplification)` when the model's own fit extrapolated and a
+/// fallback was used (listed in [`LightPca::fallback_slots`]).
+pub type Operator<'a> = dyn Fn(&[[f64; 3]], usize) -> Result<(DMatrix<f64>, Option<f64>)> + Sync + 'a;
+
+/// A view slot whose resampling operator fell back to a more stable one (the bilinear grid's
+/// membrane smoothing, see [`crate::bilinear`]).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct FallbackSlot {
+    /// The view slot index.
+    pub slot: usize,
+    /// The amplification of the fit it replaced.
+    pub amplification: f64,
+}
 
 /// Fit: resample every slot with `op`, then PCA and quantize (see the module doc). `what`
 /// names the model in errors; `monitor` counts slots.
@@ -420,28 +454,36 @@ pub fn fit(btf: &BtfRef<'_>, opts: &PcaOptions, op: &Operator<'_>, what: &str, m
     let stride = 3 + lw * km + 2 * kc;
     let mut coeffs = vec![0.0f32; t * nv * k];
     let mut table = vec![0.0f32; nv * g * stride];
+    let mut pooled = Vec::new();
+    let mut fallback_slots = Vec::new();
     monitor.start(nv as u64);
     for v in 0..nv {
-        let own = btf.lights_of_view(v);
-        if own.is_empty() {
+        let (pairs, from) = slot_pairs(btf, v);
+        if pairs.is_empty() {
             let (theta, phi) = directions::to_theta_phi(btf.views[v]);
             return Err(Error::Degenerate(format!(
-                "{what}: view slot {v} (theta {:.1}, phi {:.1} deg) has no lights; every slot needs at least one",
+                "{what}: view slot {v} (theta {:.1}, phi {:.1} deg) has no lights, and no other view has any",
                 theta.to_degrees(),
                 phi.to_degrees()
             )));
         }
-        let dirs: Vec<[f64; 3]> = own.iter().map(|&l| btf.lights[l]).collect();
-        let w = op(&dirs, n)?;
-        let w32 = DMatrix::<f32>::from_fn(g, own.len(), |i, j| w[(i, j)] as f32);
+        if !from.is_empty() {
+            pooled.push(PooledSlot { slot: v, lights: btf.lights_of_view(v).len(), from });
+        }
+        let dirs: Vec<[f64; 3]> = pairs.iter().map(|&(_, l)| btf.lights[l]).collect();
+        let (w, fell_back) = op(&dirs, n)?;
+        if let Some(amplification) = fell_back {
+            fallback_slots.push(FallbackSlot { slot: v, amplification });
+        }
+        let m = pairs.len();
+        let w32 = DMatrix::<f32>::from_fn(g, m, |i, j| w[(i, j)] as f32);
         // Samples: column 3 t + c is texel t's channel c over the slot's lights.
-        let m = own.len();
         let mut s = vec![0.0f32; m * 3 * t];
         s.par_chunks_mut(3 * m).enumerate().for_each(|(tx, out)| {
             let a = btf.texel(tx);
-            for (j, &l) in own.iter().enumerate() {
+            for (j, &(u, l)) in pairs.iter().enumerate() {
                 for c in 0..3 {
-                    out[c * m + j] = a[(v * nl + l) * 3 + c];
+                    out[c * m + j] = a[(u * nl + l) * 3 + c];
                 }
             }
         });
@@ -512,9 +554,37 @@ pub fn fit(btf: &BtfRef<'_>, opts: &PcaOptions, op: &Operator<'_>, what: &str, m
         k_chroma: kc,
         planes,
         table,
+        pooled,
+        fallback_slots,
     };
     m.validate()?;
     Ok(m)
+}
+
+/// The (view, light) pairs slot `v` is fitted from, and the other slots it borrowed from: its
+/// own present lights when it has at least [`MIN_LIGHTS`] (or when no other view has lights);
+/// else its lights pooled with those of the nearest views (by angle) until it has that many.
+fn slot_pairs(btf: &BtfRef<'_>, v: usize) -> (Vec<(usize, usize)>, Vec<usize>) {
+    let mut pairs: Vec<(usize, usize)> = btf.lights_of_view(v).into_iter().map(|l| (v, l)).collect();
+    let mut from = Vec::new();
+    if pairs.len() >= MIN_LIGHTS {
+        return (pairs, from);
+    }
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let mut order: Vec<usize> = (0..btf.views.len()).filter(|&u| u != v).collect();
+    order.sort_by(|&a, &b| dot(btf.views[v], btf.views[b]).total_cmp(&dot(btf.views[v], btf.views[a])));
+    for u in order {
+        let more = btf.lights_of_view(u);
+        if more.is_empty() {
+            continue;
+        }
+        from.push(u);
+        pairs.extend(more.into_iter().map(|l| (u, l)));
+        if pairs.len() >= MIN_LIGHTS {
+            break;
+        }
+    }
+    (pairs, from)
 }
 
 /// Write the `kk x T` coefficients `c` of slot `v` at plane offset `off`.

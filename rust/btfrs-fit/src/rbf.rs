@@ -14,9 +14,11 @@
 //! texels gives `components` 8-bit coefficient planes and a float table of principal functions.
 //! The operator `y -> f(grid)` depends on the lights only, so it is computed once per slot.
 //!
-//! Degenerate slots: one light (or all lights at one direction) gives the constant `mu`; a slot
-//! without lights is an error naming it; `regularization = 0` with duplicate lights (a singular
-//! kernel matrix) is an error asking for a positive one.
+//! Degenerate slots: a view slot of a multi-view BTF with fewer than
+//! [`crate::light_pca::MIN_LIGHTS`] present lights borrows the lights of the nearest views
+//! (`report["pooled_slots"]`, [`crate::light_pca::PooledSlot`]); one light (or all lights at
+//! one direction) gives the constant `mu`; a BTF without any light is an error; `regularization = 0`
+//! with duplicate lights (a singular kernel matrix) is an error asking for a positive one.
 
 use crate::light_pca::{self, Colour, LightPca, PcaOptions};
 use crate::model::Model;
@@ -140,7 +142,7 @@ pub fn fit_rbf(btf: &BtfRef<'_>, o: &RbfOptions, monitor: &Monitor) -> Result<Rb
     };
     pca.check()?;
     let grid = light_pca::grid_directions(o.resolution);
-    let op = |lights: &[[f64; 3]], _n: usize| rbf_operator(lights, &grid, o.width, o.regularization);
+    let op = |lights: &[[f64; 3]], _n: usize| Ok((rbf_operator(lights, &grid, o.width, o.regularization)?, None));
     Ok(Rbf(light_pca::fit(btf, &pca, &op, "rbf", monitor)?))
 }
 
@@ -168,7 +170,7 @@ impl Model for Rbf {
         Ok(Rbf(LightPca::from_arrays(a)?))
     }
 
-    /// `{"planes", "table_bytes", "resolution", "colour"}`.
+    /// `{"planes", "chroma_planes", "table_bytes", "resolution", "colour", "pooled_slots"}`.
     fn report(&self) -> serde_json::Value {
         report(&self.0)
     }
@@ -182,6 +184,8 @@ pub(crate) fn report(m: &LightPca) -> serde_json::Value {
         "table_bytes": m.table_bytes(),
         "resolution": m.resolution,
         "colour": if m.colour == Colour::Rgb { "rgb" } else { "ycc" },
+        "pooled_slots": m.pooled,
+        "fallback_slots": m.fallback_slots,
     })
 }
 

@@ -30,7 +30,7 @@ fn a_bilinear_function_of_the_square_is_recovered_at_any_regularization() {
         })
         .collect();
     for reg in [1e-3, 0.1, 10.0] {
-        let w = bilinear_operator(&lights, n, reg).unwrap();
+        let w = bilinear_operator(&lights, n, reg, Penalty::Thin).unwrap();
         for node in 0..n * n {
             let (s, t) = ((node % n) as f64 / 5.0, (node / n) as f64 / 5.0);
             let g: f64 = (0..50).map(|j| w[(node, j)] * y[j]).sum();
@@ -49,7 +49,7 @@ fn any_grid_function_is_recovered_from_dense_samples_without_regularization() {
     let (lights, _) = square_lights(2000, 2);
     let y: Vec<f64> =
         lights.iter().map(|&l| light_pca::grid_weights(n, l).iter().map(|&(k, w)| w * g[k]).sum()).collect();
-    let w = bilinear_operator(&lights, n, 1e-10).unwrap();
+    let w = bilinear_operator(&lights, n, 1e-10, Penalty::Thin).unwrap();
     for node in 0..n * n {
         let x: f64 = (0..lights.len()).map(|j| w[(node, j)] * y[j]).sum();
         assert!((x - g[node]).abs() < 1e-4, "node {node}: {x} vs {}", g[node]);
@@ -101,7 +101,7 @@ fn held_out_lights_on_a_smooth_capture() {
             .unwrap();
     let held = BtfRef::new(5, 5, &view, &lights, &data, Some(&test)).unwrap();
     let e = model_error(&m, &held).unwrap().relative();
-    assert!(e < 0.05, "held-out relative error {e}");
+    assert!(e < 0.05, "held-out relative error {e} (fallbacks {:?})", m.0.fallback_slots);
 }
 
 #[test]
@@ -123,4 +123,34 @@ fn few_lights_fall_back_to_the_mean_and_bad_options_are_named() {
         .unwrap_err()
         .to_string();
     assert!(e.starts_with("chroma_components:"), "{e}");
+}
+
+#[test]
+fn one_sided_lights_fall_back_to_the_bounded_membrane() {
+    // Lights on one azimuth half: the thin-plate grid extrapolates into the other half; the slot
+    // falls back to the membrane, whose predictions are convex-like combinations (bounded).
+    let all = btfrs_core::directions::ubo81();
+    let half: Vec<[f64; 3]> = all.iter().copied().filter(|l| l[1] >= 0.0).collect();
+    let (w, fell) = slot_operator(&half, 8, 0.1, &all).unwrap();
+    let a = fell.expect("the one-sided slot falls back");
+    assert!(a > K_AMP, "{a}");
+    assert!(amplification(&w, 8, &all) < 3.0);
+    // A membrane fit of a constant is the constant, and its weights sum to 1 at every query.
+    let b = bilinear_operator(&half, 8, 1.0, Penalty::Membrane).unwrap();
+    for l in &all {
+        let s: f64 = (0..half.len())
+            .map(|j| light_pca::grid_weights(8, *l).iter().map(|&(k, x)| x * b[(k, j)]).sum::<f64>())
+            .sum();
+        assert!((s - 1.0).abs() < 1e-6, "{s}");
+    }
+    // The full UBO sampling keeps the second differences.
+    assert!(slot_operator(&all, 8, 0.1, &all).unwrap().1.is_none());
+    // Through the model: the report lists the slot.
+    let view = [[0.0, 0.0, 1.0]];
+    let data = vec![0.5f32; 81 * 3];
+    let mask: Vec<bool> = all.iter().map(|l| l[1] >= 0.0).collect();
+    let btf = BtfRef::new(1, 1, &view, &all, &data, Some(&mask)).unwrap();
+    let m = fit_bilinear(&btf, &BilinearOptions { components: 1, ..Default::default() }, &Monitor::new()).unwrap();
+    assert_eq!(m.0.fallback_slots.len(), 1);
+    assert_eq!(crate::model::Model::report(&m)["fallback_slots"][0]["slot"], 0);
 }

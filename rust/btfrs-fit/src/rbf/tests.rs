@@ -137,15 +137,24 @@ fn degenerate_inputs_are_documented_fallbacks_or_named_errors() {
     for c in 0..3 {
         assert!((v[c] - data[c]).abs() < 1e-5, "{v:?}");
     }
-    // A slot without lights names the slot.
+    // A slot without lights borrows the nearest view's lights, and says so; so does a slot with
+    // fewer than MIN_LIGHTS.
     let lights = scattered_lights(10, 1);
-    let views = [[0.0, 0.0, 1.0], [0.5, 0.0, (0.75f64).sqrt()]];
-    let data = vec![0.5f32; 2 * 10 * 3];
-    let mut mask = vec![true; 20];
-    mask[10..].iter_mut().for_each(|x| *x = false);
+    let views = [[0.0, 0.0, 1.0], [0.5, 0.0, (0.75f64).sqrt()], [-0.6, 0.0, 0.8]];
+    let data: Vec<f32> = (0..3 * 10 * 3).map(|i| 0.1 + (i / 30) as f32).collect();
+    let mut mask = vec![true; 30];
+    mask[10..20].iter_mut().for_each(|x| *x = false);
+    mask[20..27].iter_mut().for_each(|x| *x = false);
     let btf = BtfRef::new(1, 1, &views, &lights, &data, Some(&mask)).unwrap();
-    let e = fit_rbf(&btf, &RbfOptions::default(), &Monitor::new()).unwrap_err().to_string();
-    assert!(e.contains("view slot 1") && e.contains("no lights"), "{e}");
+    let m = fit_rbf(&btf, &RbfOptions { components: 1, ..Default::default() }, &Monitor::new()).unwrap();
+    let slots: Vec<(usize, usize, Vec<usize>)> =
+        m.0.pooled.iter().map(|p| (p.slot, p.lights, p.from.clone())).collect();
+    assert_eq!(slots, vec![(1, 0, vec![0]), (2, 3, vec![0])]);
+    // Slot 1 is the view 0 field (0.1 everywhere); slot 0 keeps its own.
+    let q = m.query([0.5, 0.0, (0.75f64).sqrt()], [0.0, 0.0, 1.0]);
+    assert!((m.eval(0, &q)[0] - 0.1).abs() < 1e-4);
+    assert_eq!(crate::model::Model::report(&m)["pooled_slots"][0]["from"], serde_json::json!([0]));
+    // (A BTF without any present pair is rejected by BtfRef::new already.)
     // Duplicate lights without a ridge: a singular kernel, named.
     let dup = [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.6, 0.0, 0.8]];
     let e = rbf_operator(&dup, &dup, 1.0, 0.0).unwrap_err().to_string();
