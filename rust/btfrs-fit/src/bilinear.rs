@@ -46,7 +46,8 @@ pub struct BilinearOptions {
     pub resolution: usize,
     /// Weight of the second-difference smoothness (>= 0, relative; see the module doc). The
     /// default 0.3 keeps 1000x outliers on 0.01% of the samples from being amplified (the
-    /// stability suite); 0.1 is about 0.5 points better on clean single-view captures.
+    /// stability suite); 0.1 was 2.3 points better on the grooves single-view capture and equal
+    /// on bumps and knit (BENCHMARKS.md).
     pub regularization: f64,
     /// Seed of the randomized PCA (used for long vectors only).
     pub seed: u64,
