@@ -3,8 +3,9 @@
 Every btfrs figure is measured in the same run as the plain numpy way of doing the same work,
 so the ratios do not depend on the machine's mood; the table goes to stdout and everything,
 with the machine description, to a JSON file. ``--synth-only``, ``--maxflow-only`` and
-``--accuracy`` run one part alone (the synthesis figures; btfrs.graphcut against scipy's
-``maximum_flow``; the per-material accuracy table of every model). BENCHMARKS.md
+``--accuracy``, ``--rti-only`` run one part alone (the synthesis figures; btfrs.graphcut against scipy's
+``maximum_flow``; the per-material accuracy table of every model; every light basis on
+single-view RTI captures against bytes). BENCHMARKS.md
 gives the command of each of its tables.
 """
 
@@ -344,6 +345,121 @@ def accuracy_models_table(rows: list) -> str:
         out.append(f"{name}: held-out below raw interpolation ({100 * raw:.2f}%) at >= 1:10: "
                    f"{', '.join(below) or 'none'}; Phong+SRF below Phong alone: {srf_ok}")
     return "\n".join(out)
+
+
+# --- single-view RTI captures (relight's bases) ----------------------------------------------
+
+#: The captures of ``--rti-only``: (material, lights), one view at the normal, ``RTI_SIZE``^2.
+RTI_CAPTURES = (("bumps", 160), ("knit", 220), ("grooves", 120))
+RTI_SIZE = 64
+#: The share of the lights held out.
+RTI_HOLDOUT = 0.15
+#: relight's figures on a real 240-light capture (the issue): (basis, held-out relative error, bytes).
+RELIGHT_TARGETS = (("relight RBF, 18 planes", 0.246, 85_000), ("relight bilinear", 0.253, 50_000),
+                   ("relight PTM", 0.349, 26_000), ("btfrs LPCA 8x4 (before)", 0.258, None))
+
+
+def rti_lights(n: int, seed: int = 0, max_theta_deg: float = 80.0) -> np.ndarray:
+    """``n`` light directions spread evenly over the hemisphere up to ``max_theta_deg`` (a
+    Fibonacci spiral, equal-area in ``z``, with a little seeded jitter, as a dome's lights are
+    spread), ``[n, 3]``."""
+    rng = np.random.default_rng(seed)
+    i = np.arange(n) + 0.5
+    zmin = np.cos(np.radians(max_theta_deg))
+    z = 1.0 - (1.0 - zmin) * i / n
+    phi = i * np.pi * (3.0 - np.sqrt(5.0)) + rng.uniform(-0.15, 0.15, n)
+    z = np.clip(z + rng.uniform(-0.3, 0.3, n) * (1.0 - zmin) / n, zmin, 1.0)
+    r = np.sqrt(1.0 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def rti_settings() -> list:
+    """``(label, kind, options)`` for the single-view comparison, iterating over the registry:
+    the light bases (PTM, RBF, bilinear, HSH when registered) at several sizes, LPCA and
+    single-view SH at a few, every other model at its examples."""
+    from .models import model_kinds
+
+    out = []
+    for kind, info in model_kinds().items():
+        if kind == "ptm":
+            out += [("PTM-RGB", kind, {"kind": "rgb"}), ("PTM-LRGB", kind, {"kind": "lrgb"})]
+        elif kind in ("rbf", "bilinear"):
+            name = "RBF" if kind == "rbf" else "Bilinear"
+            out += [(f"{name}-{k}", kind, {"components": k}) for k in (3, 6, 9, 12, 18, 27)]
+            # The other table resolution (RBF's default is 12 nodes per side, bilinear's 8).
+            r = 8 if kind == "rbf" else 12
+            out += [(f"{name}-{k} r{r}", kind, {"components": k, "resolution": r}) for k in (3, 9, 18)]
+            out += [(f"{name}-YCC {k}+{c}", kind, {"components": k, "colour": "ycc", "chroma_components": c})
+                    for k, c in ((9, 3), (12, 3), (18, 4))]
+        elif kind == "lpca":
+            out += [(f"LPCA {k}x{c}", kind, {"clusters": k, "components": c, "seed": 0}) for k, c in
+                    ((4, 4), (8, 4), (8, 8), (16, 4))]
+        elif kind == "sh":
+            out += [(f"SH-CLS 1x{n}", kind, {"light_coeffs": n, "view_coeffs": 1}) for n in (9, 16, 25)]
+        elif kind in ("lafortune", "srf"):
+            continue  # view-dependent models: on one view they are lafortune_view and a Phong fit
+        else:
+            out += [(label, kind, opts) for label, opts in info["examples"]]
+    return out
+
+
+def rti_bench(captures=RTI_CAPTURES, size: int = RTI_SIZE, chart_dir: str = "docs/rti") -> list:
+    """Every setting of :func:`rti_settings` on each single-view capture: held-out relative
+    error (``RTI_HOLDOUT`` of the lights, seed 0) against bytes, via
+    :func:`btfrs.evaluation.evaluate`; one chart per capture in ``chart_dir``."""
+    from . import evaluation
+
+    out = []
+    settings = rti_settings()
+    for name, nl in captures:
+        btf = materials.make(name, size=size, seed=1, views=np.array([[0.0, 0.0, 1.0]]), lights=rti_lights(nl, 1))
+        label = f"{name} 1 view x {nl} lights"
+        rep = evaluation.evaluate(btf, settings, holdout="pairs", fraction=RTI_HOLDOUT, baselines=False,
+                                  render=False, material=label)
+        path = os.path.join(chart_dir, f"rti_{name}.png")
+        os.makedirs(chart_dir, exist_ok=True)
+        rep.chart("bytes", path)
+        out.append(dict(capture=label, material=name, lights=nl, size=size, chart=path,
+                        rows=[{k: r.get(k) for k in ("label", "kind", "options", "bytes", "fit_s", "reconstruction",
+                                                      "heldout_pairs", "error", "note")} for r in rep.rows],
+                        table=rep.table()))
+    return out
+
+
+def _best(rows, pred):
+    ok = [r for r in rows if r.get("heldout_pairs") is not None and r.get("bytes") and pred(r)]
+    return min(ok, key=lambda r: r["heldout_pairs"]) if ok else None
+
+
+def rti_summary(res: list) -> str:
+    """Per capture: the best model within relight's byte budgets (26, 50, 85 KB) and under
+    100 KB (all models; the RTI bases alone; the others alone), PTM-RGB, RBF-18, Bilinear-18 and
+    LPCA 8x4, each with its ratio to PTM-RGB's held-out error (relight's figures give RBF 0.70 and
+    bilinear 0.72 of its PTM). KB = 1000 bytes, as relight's figures."""
+    lines = [f"{'capture':<28} {'model':<44} {'KB':>7} {'held-out':>9} {'/ PTM':>6}"]
+    for c in res:
+        rows = c["rows"]
+        ptm = _best(rows, lambda r: r["label"] == "PTM-RGB")
+        picks = [(f"best <= {b // 1000} KB", _best(rows, lambda r, b=b: r["bytes"] <= b))
+                 for b in (26_000, 50_000, 85_000)]
+        picks += [("best < 100 KB", _best(rows, lambda r: r["bytes"] < 100_000)),
+                 ("best RTI basis < 100 KB", _best(rows, lambda r: r["bytes"] < 100_000
+                                                   and r["kind"] in ("ptm", "rbf", "bilinear", "hsh"))),
+                 ("best non-RTI < 100 KB", _best(rows, lambda r: r["bytes"] < 100_000
+                                                 and r["kind"] not in ("ptm", "rbf", "bilinear", "hsh"))),
+                 ("", ptm), ("", _best(rows, lambda r: r["label"] == "RBF-18")),
+                 ("", _best(rows, lambda r: r["label"] == "Bilinear-18")),
+                 ("", _best(rows, lambda r: r["label"] == "LPCA 8x4"))]
+        for what, r in picks:
+            if r is None:
+                continue
+            rel = "" if ptm is None else f"{r['heldout_pairs'] / ptm['heldout_pairs']:.2f}"
+            name = f"{r['label']}" + (f" ({what})" if what else "")
+            lines.append(f"{c['capture']:<28} {name:<44} {r['bytes'] / 1000:>7.1f} "
+                         f"{100 * r['heldout_pairs']:>8.2f}% {rel:>6}")
+    lines.append("relight on its real 240-light capture (the targets): " + "; ".join(
+        f"{n} {100 * e:.1f}%" + (f" in {b / 1000:.0f} KB" if b else "") for n, e, b in RELIGHT_TARGETS))
+    return "\n".join(lines)
 
 
 def table(rows: list) -> str:
@@ -702,10 +818,21 @@ def main(argv=None) -> int:
                    help="only the load throughput of the real-data readers (UBO archives, RTI .lp sets)")
     p.add_argument("--accuracy", action="store_true",
                    help="only the accuracy of every model on every material (at --size, default 32)")
+    p.add_argument("--rti-only", action="store_true",
+                   help="only the single-view RTI captures: every light basis against bytes (charts in docs/rti)")
     p.add_argument("--figures", metavar="DIR", help="also write paper 000 Figure 6 style images into DIR")
     a = p.parse_args(argv)
     if a.json is None:
         a.json = os.path.join(a.figures or "bench-results", "accuracy.json" if a.accuracy else "bench.json")
+    if a.rti_only:
+        res = rti_bench(size=(a.size or [RTI_SIZE])[0])
+        for c in res:
+            print(f"\n{c['capture']} ({c['size']}^2, {100 * RTI_HOLDOUT:.0f}% of the lights held out, seed 0):")
+            print(c["table"])
+            print(f"chart: {c['chart']}")
+        print()
+        print(rti_summary(res))
+        return _finish(a, {"machine": machine(), "rti": res})
     if a.accuracy:
         out = {"machine": machine(), "accuracy_models": []}
         for size in a.size or [32]:

@@ -21,9 +21,9 @@ from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import InvalidArgumentError
-from .models import Hsh, Lafortune, LafortuneView, Lpca, Model, Ptm, Sh, Srf, model_kinds, wrap
+from .models import Bilinear, Hsh, Lafortune, LafortuneView, Lpca, Model, Ptm, Rbf, Sh, Srf, model_kinds, wrap
 
-__all__ = ["fit", "ptm", "hsh", "srf", "lafortune", "lafortune_view", "sh", "lpca"]
+__all__ = ["fit", "ptm", "hsh", "srf", "lafortune", "lafortune_view", "sh", "lpca", "rbf", "bilinear"]
 
 
 def _bits(bits) -> int:
@@ -236,3 +236,74 @@ def lpca(btf: Btf, *, clusters: int = 32, components: int = 4, seed: int = 0, km
                                                       kmeans_iterations=kmeans_iterations,
                                                       refine_iterations=refine_iterations,
                                                       reduced_dims=reduced_dims, seed=seed))
+
+
+def _light_pca_options(components, colour, chroma_components, resolution, seed) -> dict:
+    components = integer("components", components, min=1, max=64)
+    colour = choice("colour", colour, ("rgb", "ycc"))
+    if chroma_components is not None:
+        chroma_components = integer("chroma_components", chroma_components, min=0, max=64)
+    resolution = integer("resolution", resolution, min=2, max=32)
+    return dict(components=components, colour=colour, chroma_components=chroma_components,
+                resolution=resolution, seed=check_seed(seed))
+
+
+def rbf(btf: Btf, *, components: int = 18, colour: str = "rgb", chroma_components=None, resolution: int = 12,
+        width: float = 2.5, regularization: float = 0.1, seed: int = 0, progress: Progress = None) -> Rbf:
+    """Fit relight's RBF light basis per view slot (the RTI default of relight).
+
+    Per view slot and texel, the values under the slot's lights are interpolated by Gaussian
+    radial basis functions (``f(l) = mu + sum_j a_j exp(-|l - l_j|^2 / 2 sigma^2)`` with
+    ``(K + regularization I) a = y - mu``, ``mu`` the samples' mean), ``sigma = width`` times the
+    light spacing (``sqrt(cap solid angle / lights)``). The interpolant is resampled on a
+    ``resolution x resolution`` grid of the concentric square (btfrs-hemimap) and the grid
+    functions of all texels are compressed by PCA into ``components`` planes, stored 8-bit
+    with a scale and bias per plane, next to a float32 table of the principal functions on the
+    grid (counted in :attr:`~btfrs.models.Model.nbytes`). A light is evaluated by bilinear
+    lookup of the table and one dot product per channel. Between view slots the three nearest are
+    blended, as for the PTM.
+
+    Parameters
+    ----------
+    components: planes per slot (``colour="rgb"``), or luminance planes (``"ycc"``), 1 to 64.
+    colour: ``"rgb"`` (one PCA of the three channels) or ``"ycc"`` (luminance ``Y = mean(rgb)``
+        and chroma ``(b - Y, r - Y)`` compressed apart).
+    chroma_components: chroma planes for ``"ycc"`` (default ``max(1, components // 4)``).
+    resolution: light grid nodes per side (2 to 32).
+    width: kernel width in units of the light spacing (> 0).
+    regularization: ridge on the kernel matrix's unit diagonal (>= 0; 0 with duplicate lights
+        raises :class:`~btfrs.exceptions.DegenerateDataError`).
+    seed: seed of the randomized PCA (vectors longer than 768 values only).
+
+    A slot with one light gets the constant; a view slot of a multi-view BTF with fewer than 6
+    present lights (none included) borrows the lights of the nearest views, and
+    ``model.report["pooled_slots"]`` lists each such slot and where its lights came from.
+    """
+    b = _check_btf(btf)
+    o = _light_pca_options(components, colour, chroma_components, resolution, seed)
+    o["width"] = real("width", width, min=0.0, min_open=True)
+    o["regularization"] = real("regularization", regularization, min=0.0)
+    return _fit("rbf", b, f"RBF-{o['components']} fit", progress, o)
+
+
+def bilinear(btf: Btf, *, components: int = 18, colour: str = "rgb", chroma_components=None, resolution: int = 8,
+             regularization: float = 0.3, seed: int = 0, progress: Progress = None) -> Bilinear:
+    """Fit relight's bilinear light basis per view slot.
+
+    Per view slot and texel, values on a ``resolution x resolution`` grid of the concentric
+    square are fitted by regularised least squares so that their bilinear interpolation at each
+    light's square point matches its sample (``min |B g - y|^2 + lambda |D g|^2``, ``D`` the
+    second differences of the grid, which vanish on ``a + b s + c t + d s t``;
+    ``lambda = regularization * tr(B^T B) / tr(D^T D)``; a tiny ridge towards the samples' mean
+    decides nodes nothing else does, so one light gives the constant). A slot whose fit would
+    amplify its samples more than 6 times at some light direction (lights on one side, a
+    decimated sampling) is fitted with first differences instead (bounded by its samples), and
+    ``model.report["fallback_slots"]`` lists it; a slot of a multi-view BTF with fewer than 6
+    lights borrows the nearest views' (``report["pooled_slots"]``, as for :func:`rbf`). The grid functions are
+    then compressed by PCA into 8-bit planes exactly as for :func:`rbf` (same ``components``,
+    ``colour``, ``chroma_components``, ``resolution`` and ``seed``).
+    """
+    b = _check_btf(btf)
+    o = _light_pca_options(components, colour, chroma_components, resolution, seed)
+    o["regularization"] = real("regularization", regularization, min=0.0)
+    return _fit("bilinear", b, f"Bilinear-{o['components']} fit", progress, o)

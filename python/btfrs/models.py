@@ -22,7 +22,8 @@ from .btf import Btf, read_container
 from ._checks import choice, index, instance
 from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
 
-__all__ = ["ErrorReport", "Model", "Ptm", "Hsh", "Lafortune", "LafortuneView", "Srf", "Sh", "Lpca", "load", "model_kinds",
+__all__ = ["ErrorReport", "Model", "Ptm", "Hsh", "Lafortune", "LafortuneView", "Srf", "Sh", "Lpca", "Rbf", "Bilinear", "load",
+           "model_kinds",
            "wrap"]
 
 PathLike = Union[str, os.PathLike]
@@ -388,6 +389,59 @@ class Lpca(Model):
         a = self.arrays
         k, c1, v, l, _ = a["basis"].shape
         return self.height * self.width * v * l * 3 / self.nbytes
+
+
+class _LightPca(Model):
+    """What the RBF and bilinear light bases share (rust/btfrs-fit/src/light_pca.rs): per view
+    slot a float32 ``table`` ``[V, n, n, R]`` of principal light functions on an ``n x n`` grid
+    of the concentric square (row: 3 mean values, then each component's values), and per texel
+    8-bit coefficients ``coeffs_q`` ``[H, W, V, K]`` decoded as ``coeffs_bias + coeffs_scale * q``
+    (one scale and bias per slot and plane)."""
+
+    _kind = ""
+
+    @property
+    def views(self) -> np.ndarray:
+        """``[V, 3]`` float64: the view direction of each slot."""
+        return self.arrays["views"]
+
+    @property
+    def planes(self) -> int:
+        """Coefficient planes per view slot (luminance and chroma together for ``"ycc"``)."""
+        return int(self.arrays["coeffs_q"].shape[3])
+
+    @property
+    def resolution(self) -> int:
+        """Light grid nodes per side."""
+        return int(self.arrays["table"].shape[1])
+
+    @property
+    def colour(self) -> str:
+        """``"rgb"`` or ``"ycc"``."""
+        return "rgb" if int(self.arrays["layout"][0]) == 0 else "ycc"
+
+    @property
+    def coeffs(self) -> np.ndarray:
+        """``[H, W, V, K]`` float32: the decoded coefficients."""
+        a = self.arrays
+        v, k = a["coeffs_q"].shape[2:]
+        return (a["coeffs_bias"].reshape(v, k) + a["coeffs_scale"].reshape(v, k) * a["coeffs_q"]).astype(np.float32)
+
+
+class Rbf(_LightPca):
+    """relight's RBF light basis per view slot: Gaussian RBF interpolation of each texel's light
+    samples, resampled on a light grid and compressed by PCA into 8-bit planes (see
+    :func:`btfrs.fit.rbf`)."""
+
+    _kind = "rbf"
+
+
+class Bilinear(_LightPca):
+    """relight's bilinear light basis per view slot: a light grid fitted by regularised least
+    squares with bilinear weights, compressed by PCA into 8-bit planes (see
+    :func:`btfrs.fit.bilinear`)."""
+
+    _kind = "bilinear"
 
 
 def model_kinds() -> dict:

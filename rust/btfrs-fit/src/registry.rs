@@ -65,6 +65,8 @@ pub const MODELS: &[Entry] = &[
     entry::<crate::srf::Srf>(),
     entry::<crate::sh::Sh>(),
     entry::<crate::lpca::Lpca>(),
+    entry::<crate::rbf::Rbf>(),
+    entry::<crate::bilinear::Bilinear>(),
 ];
 
 /// The entry of `kind`, or an error listing the registered models.

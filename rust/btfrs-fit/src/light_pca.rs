@@ -1,0 +1,762 @@
+//! What the RBF ([`crate::rbf`]) and bilinear ([`crate::bilinear`]) light bases share: per view
+//! slot, each texel's values under the slot's measured lights are *resampled* onto a regular grid
+//! of light directions by a linear operator (the one thing the two models differ in), the
+//! resampled functions of all texels are compressed by PCA into a few coefficient planes, and
+//! the planes are stored 8-bit with a scale and a bias per plane ([`crate::planes`]) next to a
+//! float table of the principal functions on the grid. This is how relight (the RTI fitter of
+//! Ponchio et al.) stores its RBF and bilinear bases, so `nbytes` is what a viewer holds.
+//!
+//! **The grid.** `resolution` `n`: `n x n` nodes on the concentric square of
+//! [`btfrs_hemimap`] (node `(i, j)` at square point `(i / (n - 1), j / (n - 1))`, direction
+//! `square_to_hemisphere` of it; index `j n + i`). A light is looked up by bilinear
+//! interpolation between the four nodes around its square point (`hemisphere_to_square`, which
+//! the shaders have in `common.wgsl`). The map is equal-area, so the nodes are spread evenly over
+//! the hemisphere; the square's boundary is the horizon.
+//!
+//! **The PCA.** Per slot the resampled functions are grouped by [`Colour`]:
+//!
+//! * `rgb` (*joint RGB*): one vector of `3 G` values per texel (`G = n^2`, channel-major),
+//!   `components` principal directions; each component is an RGB function on the grid;
+//! * `ycc` (*luminance/chroma split*, as relight's YCC): `Y = (r + g + b) / 3`, `Cb = b - Y`,
+//!   `Cr = r - Y`; the `G` luminance values get `components` principal directions, the `2 G`
+//!   chroma values (Cb, Cr jointly) `chroma_components`. Back to RGB: `r = Y + Cr`,
+//!   `g = Y - Cb - Cr`, `b = Y + Cb`.
+//!
+//! The PCA is centred (the mean function is a row of the table). It is exact (the `f64`
+//! eigenvectors of the covariance) when the vectors have at most [`EXACT_PCA_DIM`] values, the
+//! randomized subspace iteration of [`crate::rpca`] above. When the data have fewer directions
+//! than asked for (fewer texels than components, or a constant slot), the missing components
+//! are zero functions with zero coefficients: every slot has the same number of planes.
+//!
+//! **Storage.** Coefficients `[texel][slot][K]` (`K = components + chroma_components`) as one
+//! [`Planes`] (`coeffs_q`, `coeffs_scale`, `coeffs_bias`: a scale and bias per slot and
+//! component); the table `[slot][node][R]` f32, row `R = 3 + w components (+ 2 chroma)` with `w`
+//! 3 (rgb) or 1 (ycc): the three mean values (r, g, b or Y, Cb, Cr), then each component's
+//! values at the node. The table is counted in `nbytes` (it is what the shader reads).
+//!
+//! **Evaluation** at (view, light): the three nearest view slots are blended as the PTM does;
+//! per slot, the table rows of the light's four grid nodes are interpolated bilinearly
+//! (per query, not per texel), then each channel is the interpolated mean plus one dot product of
+//! the texel's decoded coefficients with the interpolated component values.
+
+use crate::dense::{gemm, sym_eigen_desc, view, view_t};
+use crate::gpu::{words, Shader};
+use crate::planes::Planes;
+use btfrs_core::arrays::{check_finite, ArrayData};
+use btfrs_core::{directions, ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
+use nalgebra::DMatrix;
+use rayon::prelude::*;
+use std::borrow::Cow;
+
+/// Largest grid resolution (nodes per side).
+pub const MAX_RESOLUTION: usize = 32;
+/// Largest number of planes per slot (luminance/RGB plus chroma).
+pub const MAX_COMPONENTS: usize = 64;
+/// A view slot with fewer present lights borrows those of the nearest views (see [`PooledSlot`]).
+pub const MIN_LIGHTS: usize = 6;
+/// Vectors of at most this many values get the exact PCA; longer ones the randomized one.
+pub const EXACT_PCA_DIM: usize = 768;
+
+/// How the colour channels are compressed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Colour {
+    /// One PCA of the three channels together.
+    Rgb,
+    /// A PCA of the luminance and one of the two chroma differences.
+    Ycc,
+}
+
+/// The options both models share (checked by [`PcaOptions::check`]).
+#[derive(Debug, Clone, Copy)]
+pub struct PcaOptions {
+    /// Grid nodes per side.
+    pub resolution: usize,
+    /// Principal components (rgb) or luminance components (ycc).
+    pub components: usize,
+    /// Chroma components (ycc only; `None`: `max(1, components / 4)`).
+    pub chroma_components: Option<usize>,
+    /// The colour grouping.
+    pub colour: Colour,
+    /// Seed of the randomized PCA (long vectors only).
+    pub seed: u64,
+}
+
+impl PcaOptions {
+    /// Check the options; the number of chroma components in use.
+    pub fn check(&self) -> Result<usize> {
+        ensure_arg!(
+            (2..=MAX_RESOLUTION).contains(&self.resolution),
+            "resolution",
+            "expected 2 to {MAX_RESOLUTION} grid nodes per side, got {}",
+            self.resolution
+        );
+        ensure_arg!(
+            (1..=MAX_COMPONENTS).contains(&self.components),
+            "components",
+            "expected 1 to {MAX_COMPONENTS} components, got {}",
+            self.components
+        );
+        let kc = match (self.colour, self.chroma_components) {
+            (Colour::Rgb, None | Some(0)) => 0,
+            (Colour::Rgb, Some(k)) => {
+                return Err(Error::arg(
+                    "chroma_components",
+                    format!("only colour=\"ycc\" has chroma components (got {k} with colour=\"rgb\")"),
+                ))
+            }
+            (Colour::Ycc, None) => (self.components / 4).max(1),
+            (Colour::Ycc, Some(k)) => k,
+        };
+        ensure_arg!(
+            self.components + kc <= MAX_COMPONENTS,
+            "chroma_components",
+            "expected at most {MAX_COMPONENTS} planes in all, got {} + {kc}",
+            self.components
+        );
+        Ok(kc)
+    }
+}
+
+/// The grid's node directions (`n^2`, index `j n + i`).
+pub fn grid_directions(n: usize) -> Vec<[f64; 3]> {
+    let d = (n - 1) as f64;
+    (0..n * n).map(|k| btfrs_hemimap::square_to_hemisphere((k % n) as f64 / d, (k / n) as f64 / d)).collect()
+}
+
+/// The four grid nodes around light `l` and their bilinear weights (summing to 1).
+pub fn grid_weights(n: usize, l: [f64; 3]) -> [(usize, f64); 4] {
+    let [s, t] = btfrs_hemimap::hemisphere_to_square(l);
+    let d = (n - 1) as f64;
+    let cell = |x: f64| {
+        let x = (x * d).clamp(0.0, d);
+        let i = (x.floor() as usize).min(n - 2);
+        (i, x - i as f64)
+    };
+    let ((i, fx), (j, fy)) = (cell(s), cell(t));
+    [
+        (j * n + i, (1.0 - fx) * (1.0 - fy)),
+        (j * n + i + 1, fx * (1.0 - fy)),
+        ((j + 1) * n + i, (1.0 - fx) * fy),
+        ((j + 1) * n + i + 1, fx * fy),
+    ]
+}
+
+/// A view slot fitted from its lights pooled with those of the nearest views: a slot with fewer
+/// than [`MIN_LIGHTS`] present lights (sparse or decimated sampling of a multi-view BTF) borrows
+/// the samples of the nearest views (by angle), which see nearly the same reflectance field,
+/// until it has that many. A single-view capture keeps its own lights however few (one light
+/// gives the constant).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct PooledSlot {
+    /// The view slot index.
+    pub slot: usize,
+    /// Its own present lights.
+    pub lights: usize,
+    /// The slots whose lights were pooled in, nearest first.
+    pub from: Vec<usize>,
+}
+
+/// A fitted light basis: the model behind [`crate::rbf::Rbf`] and [`crate::bilinear::Bilinear`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct LightPca {
+    /// Rows.
+    pub height: usize,
+    /// Columns.
+    pub width: usize,
+    /// The view direction of each slot.
+    pub views: Vec<[f64; 3]>,
+    /// Grid nodes per side.
+    pub resolution: usize,
+    /// The colour grouping.
+    pub colour: Colour,
+    /// RGB or luminance components per slot.
+    pub k_main: usize,
+    /// Chroma components per slot (0 for rgb).
+    pub k_chroma: usize,
+    /// `[texel][slot][K]` coefficients, 8-bit with per-plane scale and bias.
+    pub planes: Planes,
+    /// `[slot][node][R]` f32 (see the module doc).
+    pub table: Vec<f32>,
+    /// The slots fitted from pooled lights (empty for a loaded model: files do not record it).
+    pub pooled: Vec<PooledSlot>,
+    /// The slots whose resampling fell back to a more stable operator (empty when loaded).
+    pub fallback_slots: Vec<FallbackSlot>,
+}
+
+/// A prepared query: per blended slot, its weight and the table row interpolated at the light.
+#[derive(Debug, Clone)]
+pub struct LightPcaQuery {
+    slots: Vec<(usize, f32, Vec<f32>)>,
+}
+
+impl LightPca {
+    /// Planes per slot.
+    pub fn k(&self) -> usize {
+        self.k_main + self.k_chroma
+    }
+
+    /// Values per table row.
+    pub fn stride(&self) -> usize {
+        3 + self.k_main * if self.colour == Colour::Rgb { 3 } else { 1 } + 2 * self.k_chroma
+    }
+
+    /// Check that the parts agree (for models built from loaded files).
+    pub fn validate(&self) -> Result<()> {
+        let (t, nv, g) = (self.height * self.width, self.views.len(), self.resolution * self.resolution);
+        ensure_arg!(t > 0, "coeffs_q", "the model has no texels");
+        directions::validate("views", &self.views)?;
+        ensure_arg!(
+            (2..=MAX_RESOLUTION).contains(&self.resolution),
+            "table",
+            "expected 2 to {MAX_RESOLUTION} grid nodes per side, got {}",
+            self.resolution
+        );
+        ensure_arg!(
+            self.k_main >= 1 && self.k() <= MAX_COMPONENTS && (self.colour == Colour::Ycc || self.k_chroma == 0),
+            "layout",
+            "expected 1 to {MAX_COMPONENTS} planes per slot (chroma only for ycc), got {} + {}",
+            self.k_main,
+            self.k_chroma
+        );
+        ensure_arg!(
+            self.planes.texels == t && self.planes.k == nv * self.k() && self.planes.q.len() == t * nv * self.k(),
+            "coeffs_q",
+            "expected {t} texels x {} planes",
+            nv * self.k()
+        );
+        ensure_arg!(
+            self.table.len() == nv * g * self.stride(),
+            "table",
+            "expected {nv} x {g} x {} values, got {}",
+            self.stride(),
+            self.table.len()
+        );
+        check_finite("table", &self.table)?;
+        Ok(())
+    }
+
+    /// The table row of slot `v` interpolated at light `l`.
+    pub fn row_at(&self, v: usize, l: [f64; 3]) -> Vec<f32> {
+        let (g, r) = (self.resolution * self.resolution, self.stride());
+        let mut row = vec![0.0f32; r];
+        for (node, w) in grid_weights(self.resolution, l) {
+            let src = &self.table[(v * g + node) * r..(v * g + node + 1) * r];
+            for (o, &x) in row.iter_mut().zip(src) {
+                *o += w as f32 * x;
+            }
+        }
+        row
+    }
+
+    /// The model's value at texel `t` and slot `v` given the slot's interpolated table row.
+    #[inline]
+    pub fn eval_slot(&self, t: usize, v: usize, row: &[f32]) -> [f32; 3] {
+        let k = self.k();
+        let base = v * k;
+        let mut acc = [row[0], row[1], row[2]];
+        match self.colour {
+            Colour::Rgb => {
+                for p in 0..k {
+                    let c = self.planes.get(t, base + p);
+                    for ch in 0..3 {
+                        acc[ch] += c * row[3 + 3 * p + ch];
+                    }
+                }
+                acc
+            }
+            Colour::Ycc => {
+                let km = self.k_main;
+                for p in 0..km {
+                    acc[0] += self.planes.get(t, base + p) * row[3 + p];
+                }
+                for p in 0..self.k_chroma {
+                    let c = self.planes.get(t, base + km + p);
+                    acc[1] += c * row[3 + km + 2 * p];
+                    acc[2] += c * row[3 + km + 2 * p + 1];
+                }
+                let [y, cb, cr] = acc;
+                [y + cr, y - cb - cr, y + cb]
+            }
+        }
+    }
+
+    /// Prepare a query (see the module doc).
+    pub fn query(&self, view: [f64; 3], light: [f64; 3]) -> LightPcaQuery {
+        let slots = directions::interp_weights(&self.views, view, 3)
+            .into_iter()
+            .map(|(v, w)| (v, w as f32, self.row_at(v, light)))
+            .collect();
+        LightPcaQuery { slots }
+    }
+
+    /// Evaluate a prepared query at texel `t`.
+    #[inline]
+    pub fn eval(&self, t: usize, q: &LightPcaQuery) -> [f32; 3] {
+        let mut out = [0.0f32; 3];
+        for (v, w, row) in &q.slots {
+            let x = self.eval_slot(t, *v, row);
+            for c in 0..3 {
+                out[c] += w * x[c];
+            }
+        }
+        out
+    }
+
+    /// The GPU store: the coefficient bytes, scale then bias, the table.
+    pub fn parts(&self) -> Vec<Cow<'_, [u32]>> {
+        vec![Cow::Owned(self.planes.words()), Cow::Owned(self.planes.scale_bias_words()), words(&self.table)]
+    }
+
+    /// The shader's parameters.
+    pub fn params(&self, offsets: &[u32], tables: &[u32]) -> LightPcaParams {
+        LightPcaParams {
+            n_views: self.views.len() as u32,
+            view_table: tables[0],
+            resolution: self.resolution as u32,
+            colour: match self.colour {
+                Colour::Rgb => 0,
+                Colour::Ycc => 1,
+            },
+            k_main: self.k_main as u32,
+            k_chroma: self.k_chroma as u32,
+            stride: self.stride() as u32,
+            q: offsets[0],
+            scale: offsets[1],
+            table: offsets[2],
+        }
+    }
+
+    /// `coeffs_q` (u8 `[H, W, V, K]`), `coeffs_scale`, `coeffs_bias` (f32 `[V K]`), `table`
+    /// (f32 `[V, n, n, R]`), `views` `[V, 3]` and `layout` (i32 `[3]`: colour 0 = rgb, 1 = ycc;
+    /// main components; chroma components).
+    pub fn to_arrays(&self) -> NamedArrays {
+        let mut a = NamedArrays::new();
+        let (h, w, nv, n) = (self.height, self.width, self.views.len(), self.resolution);
+        self.planes.insert_into(&mut a, "coeffs_", vec![h, w, nv, self.k()]);
+        a.put("table", &[nv, n, n, self.stride()], self.table.clone());
+        a.put_directions("views", &self.views);
+        let colour = match self.colour {
+            Colour::Rgb => 0,
+            Colour::Ycc => 1,
+        };
+        a.put("layout", &[3], vec![colour, self.k_main as i32, self.k_chroma as i32]);
+        a
+    }
+
+    /// Rebuild from [`LightPca::to_arrays`], validating every array.
+    pub fn from_arrays(a: &NamedArrays) -> Result<LightPca> {
+        let views = a.directions("views", None)?;
+        let nv = views.len();
+        let (layout, _) = a.get::<i32>("layout", &[Some(3)])?;
+        let colour = match layout[0] {
+            0 => Colour::Rgb,
+            1 => Colour::Ycc,
+            c => return Err(Error::format("layout", format!("colour {c} is neither 0 (rgb) nor 1 (ycc)"))),
+        };
+        let ok = |x: i32| usize::try_from(x).ok().filter(|&k| k <= MAX_COMPONENTS);
+        let (Some(k_main), Some(k_chroma)) = (ok(layout[1]), ok(layout[2])) else {
+            return Err(Error::format("layout", format!("components {:?} out of range", &layout[1..])));
+        };
+        let q = a.array("coeffs_q").ok_or_else(|| Error::arg("coeffs_q", "missing array"))?;
+        let k = k_main + k_chroma;
+        if q.shape.len() != 4 || q.shape[2] != nv || q.shape[3] != k || !matches!(q.data, ArrayData::U8(_)) {
+            return Err(Error::format(
+                "coeffs_q",
+                format!("expected uint8 [H, W, {nv}, {k}], got {} {:?}", q.data.dtype(), q.shape),
+            ));
+        }
+        let (h, w) = (q.shape[0], q.shape[1]);
+        let (table, tsh) = a.get::<f32>("table", &[Some(nv), None, None, None])?;
+        ensure_arg!(tsh[1] == tsh[2], "table", "expected a square grid, got {:?}", tsh);
+        let planes = Planes::from_arrays(a, "coeffs_", h * w, nv * k)?;
+        let m = LightPca {
+            height: h,
+            width: w,
+            views,
+            resolution: tsh[1],
+            colour,
+            k_main,
+            k_chroma,
+            planes,
+            table: table.to_vec(),
+            pooled: Vec::new(),
+            fallback_slots: Vec::new(),
+        };
+        m.validate()?;
+        ensure_arg!(tsh[3] == m.stride(), "table", "expected rows of {} values, got {}", m.stride(), tsh[3]);
+        Ok(m)
+    }
+
+    /// Bytes of the table alone (part of `nbytes`).
+    pub fn table_bytes(&self) -> usize {
+        4 * self.table.len()
+    }
+}
+
+crate::gpu_params! {
+    /// Parameters of `light_pca.wgsl` (the RBF and bilinear models).
+    pub struct LightPcaParams {
+        /// Number of view slots V (directions `mdirs[0 .. V]`).
+        pub n_views: u32,
+        /// Offset of the slots' candidate table in `tables`.
+        pub view_table: u32,
+        /// Grid nodes per side n.
+        pub resolution: u32,
+        /// 0 = joint RGB, 1 = luminance / chroma.
+        pub colour: u32,
+        /// RGB or luminance components per slot.
+        pub k_main: u32,
+        /// Chroma components per slot.
+        pub k_chroma: u32,
+        /// f32 values per table row R.
+        pub stride: u32,
+        /// Store offset of the coefficient bytes `[texel][V][K]`, four per word.
+        pub q: u32,
+        /// Store offset of the per-plane scales (V K f32), followed by the biases (V K f32).
+        pub scale: u32,
+        /// Store offset of the table `[V][n * n][R]` f32.
+        pub table: u32,
+    }
+}
+
+/// The shared shader of both models (WGSL has no includes: one file, two pipeline names).
+pub const fn shader(name: &'static str) -> Shader {
+    Shader::new::<LightPcaParams>(name, include_str!("../../../shaders_wgsl/light_pca.wgsl"))
+}
+
+/// The resampling operator of one slot: given the slot's light directions (`m`, at least one)
+/// and the grid resolution `n`, the `n^2 x m` matrix that maps the samples of one channel to its
+/// values at the nodes, and `Some(amplification)` when the model's own fit extrapolated and a
+/// fallback was used (listed in [`LightPca::fallback_slots`]).
+pub type Operator<'a> = dyn Fn(&[[f64; 3]], usize) -> Result<(DMatrix<f64>, Option<f64>)> + Sync + 'a;
+
+/// A view slot whose resampling operator fell back to a more stable one (the bilinear grid's
+/// membrane smoothing, see [`crate::bilinear`]).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct FallbackSlot {
+    /// The view slot index.
+    pub slot: usize,
+    /// The amplification of the fit it replaced.
+    pub amplification: f64,
+}
+
+/// Fit: resample every slot with `op`, then PCA and quantize (see the module doc). `what`
+/// names the model in errors; `monitor` counts slots.
+pub fn fit(btf: &BtfRef<'_>, opts: &PcaOptions, op: &Operator<'_>, what: &str, monitor: &Monitor) -> Result<LightPca> {
+    let kc = opts.check()?;
+    let (nv, nl, t) = (btf.views.len(), btf.lights.len(), btf.texels());
+    let n = opts.resolution;
+    let g = n * n;
+    let km = opts.components;
+    let k = km + kc;
+    let lw = if opts.colour == Colour::Rgb { 3 } else { 1 };
+    let stride = 3 + lw * km + 2 * kc;
+    let mut coeffs = vec![0.0f32; t * nv * k];
+    let mut table = vec![0.0f32; nv * g * stride];
+    let mut pooled = Vec::new();
+    let mut fallback_slots = Vec::new();
+    monitor.start(nv as u64);
+    for v in 0..nv {
+        let (pairs, from) = slot_pairs(btf, v);
+        if pairs.is_empty() {
+            let (theta, phi) = directions::to_theta_phi(btf.views[v]);
+            return Err(Error::Degenerate(format!(
+                "{what}: view slot {v} (theta {:.1}, phi {:.1} deg) has no lights, and no other view has any",
+                theta.to_degrees(),
+                phi.to_degrees()
+            )));
+        }
+        if !from.is_empty() {
+            pooled.push(PooledSlot { slot: v, lights: btf.lights_of_view(v).len(), from });
+        }
+        let dirs: Vec<[f64; 3]> = pairs.iter().map(|&(_, l)| btf.lights[l]).collect();
+        let (w, fell_back) = op(&dirs, n)?;
+        if let Some(amplification) = fell_back {
+            fallback_slots.push(FallbackSlot { slot: v, amplification });
+        }
+        let m = pairs.len();
+        let w32 = DMatrix::<f32>::from_fn(g, m, |i, j| w[(i, j)] as f32);
+        // Samples: column 3 t + c is texel t's channel c over the slot's lights.
+        let mut s = vec![0.0f32; m * 3 * t];
+        s.par_chunks_mut(3 * m).enumerate().for_each(|(tx, out)| {
+            let a = btf.texel(tx);
+            for (j, &(u, l)) in pairs.iter().enumerate() {
+                for c in 0..3 {
+                    out[c * m + j] = a[(u * nl + l) * 3 + c];
+                }
+            }
+        });
+        // Resampled: column 3 t + c is texel t's channel c on the grid, so the `3 G x T` matrix
+        // over the same storage is the joint RGB data (channel-major per texel).
+        let r = gemm(&view(&w32), &crate::dense::cols(&s, m, 3 * t));
+        drop(s);
+        monitor.check()?;
+        let r = r.as_slice();
+        let slot_table = &mut table[v * g * stride..(v + 1) * g * stride];
+        let seed = opts.seed.wrapping_add(v as u64);
+        match opts.colour {
+            Colour::Rgb => {
+                let (mean, basis, c) = pca(r, 3 * g, t, km, seed)?;
+                for node in 0..g {
+                    let row = &mut slot_table[node * stride..(node + 1) * stride];
+                    for ch in 0..3 {
+                        row[ch] = mean[ch * g + node];
+                        for p in 0..km {
+                            row[3 + 3 * p + ch] = basis[(ch * g + node, p)];
+                        }
+                    }
+                }
+                put_coeffs(&mut coeffs, &c, v, nv, k, 0);
+            }
+            Colour::Ycc => {
+                let mut y = vec![0.0f32; g * t];
+                let mut ch = vec![0.0f32; 2 * g * t];
+                y.par_chunks_mut(g).zip(ch.par_chunks_mut(2 * g)).enumerate().for_each(|(tx, (yo, co))| {
+                    let x = &r[tx * 3 * g..(tx + 1) * 3 * g];
+                    for node in 0..g {
+                        let (rr, gg, bb) = (x[node], x[g + node], x[2 * g + node]);
+                        let lum = (rr + gg + bb) / 3.0;
+                        yo[node] = lum;
+                        co[node] = bb - lum;
+                        co[g + node] = rr - lum;
+                    }
+                });
+                let (ym, yb, yc) = pca(&y, g, t, km, seed)?;
+                let (cm, cbas, cc) = pca(&ch, 2 * g, t, kc, seed ^ 0x9e37)?;
+                for node in 0..g {
+                    let row = &mut slot_table[node * stride..(node + 1) * stride];
+                    row[0] = ym[node];
+                    row[1] = cm[node];
+                    row[2] = cm[g + node];
+                    for p in 0..km {
+                        row[3 + p] = yb[(node, p)];
+                    }
+                    for p in 0..kc {
+                        row[3 + km + 2 * p] = cbas[(node, p)];
+                        row[3 + km + 2 * p + 1] = cbas[(g + node, p)];
+                    }
+                }
+                put_coeffs(&mut coeffs, &yc, v, nv, k, 0);
+                put_coeffs(&mut coeffs, &cc, v, nv, k, km);
+            }
+        }
+        monitor.advance(1);
+    }
+    let planes = Planes::quantize(&coeffs, nv * k)?;
+    let m = LightPca {
+        height: btf.height,
+        width: btf.width,
+        views: btf.views.to_vec(),
+        resolution: n,
+        colour: opts.colour,
+        k_main: km,
+        k_chroma: kc,
+        planes,
+        table,
+        pooled,
+        fallback_slots,
+    };
+    m.validate()?;
+    Ok(m)
+}
+
+/// The (view, light) pairs slot `v` is fitted from, and the other slots it borrowed from: its
+/// own present lights when it has at least [`MIN_LIGHTS`] (or when no other view has lights);
+/// else its lights pooled with those of the nearest views (by angle) until it has that many.
+fn slot_pairs(btf: &BtfRef<'_>, v: usize) -> (Vec<(usize, usize)>, Vec<usize>) {
+    let mut pairs: Vec<(usize, usize)> = btf.lights_of_view(v).into_iter().map(|l| (v, l)).collect();
+    let mut from = Vec::new();
+    if pairs.len() >= MIN_LIGHTS {
+        return (pairs, from);
+    }
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let mut order: Vec<usize> = (0..btf.views.len()).filter(|&u| u != v).collect();
+    order.sort_by(|&a, &b| dot(btf.views[v], btf.views[b]).total_cmp(&dot(btf.views[v], btf.views[a])));
+    for u in order {
+        let more = btf.lights_of_view(u);
+        if more.is_empty() {
+            continue;
+        }
+        from.push(u);
+        pairs.extend(more.into_iter().map(|l| (u, l)));
+        if pairs.len() >= MIN_LIGHTS {
+            break;
+        }
+    }
+    (pairs, from)
+}
+
+/// Write the `kk x T` coefficients `c` of slot `v` at plane offset `off`.
+fn put_coeffs(out: &mut [f32], c: &DMatrix<f32>, v: usize, nv: usize, k: usize, off: usize) {
+    let kk = c.nrows();
+    out.par_chunks_mut(nv * k).enumerate().for_each(|(t, o)| {
+        for p in 0..kk {
+            o[v * k + off + p] = c[(p, t)];
+        }
+    });
+}
+
+/// Centred PCA of the `t` columns (each `d` values) of the column-major `data`: the mean (`d`),
+/// `k` orthonormal principal directions (`d x k`, zero columns where the data have fewer) and
+/// the coefficients (`k x t`). Exact (`f64` eigenvectors of the covariance) for
+/// `d <= EXACT_PCA_DIM`, randomized subspace iteration ([`crate::rpca`]) above.
+pub(crate) fn pca(
+    data: &[f32],
+    d: usize,
+    t: usize,
+    k: usize,
+    seed: u64,
+) -> Result<(Vec<f32>, DMatrix<f32>, DMatrix<f32>)> {
+    let mut basis = DMatrix::<f32>::zeros(d, k);
+    if k == 0 {
+        return Ok((crate::dense::column_mean(data, d, None), basis, DMatrix::zeros(0, t)));
+    }
+    let mean = crate::dense::column_mean(data, d, None);
+    let mut xc = DMatrix::<f32>::from_column_slice(d, t, data);
+    xc.column_iter_mut().for_each(|mut c| c.iter_mut().zip(&mean).for_each(|(x, m)| *x -= m));
+    let dirs: DMatrix<f32> = if d <= EXACT_PCA_DIM {
+        let c32 = gemm(&view(&xc), &view_t(&xc));
+        let c = DMatrix::<f64>::from_fn(d, d, |i, j| 0.5 * (c32[(i, j)] as f64 + c32[(j, i)] as f64));
+        let (vals, vecs) = sym_eigen_desc(c);
+        let top = vals.first().copied().unwrap_or(0.0);
+        let keep = (0..k.min(d)).take_while(|&j| top > 0.0 && vals[j] > 1e-12 * top).count();
+        DMatrix::from_fn(d, keep, |i, j| vecs[(i, j)] as f32)
+    } else {
+        crate::rpca::top_directions(&xc, k, seed, 1e-12)
+    };
+    let keep = dirs.ncols().min(k);
+    basis.columns_mut(0, keep).copy_from(&dirs.columns(0, keep));
+    let coeffs = gemm(&view_t(&basis), &view(&xc));
+    if coeffs.iter().any(|x| !x.is_finite()) {
+        return Err(Error::Degenerate("the PCA of the resampled light functions is not finite".into()));
+    }
+    Ok((mean, basis, coeffs))
+}
+
+/// Implement the model contract for a newtype `$ty(pub LightPca)` whose fit is `$fit`.
+macro_rules! light_pca_model {
+    ($ty:ident) => {
+        impl $crate::model::ReflectanceModel for $ty {
+            type Query = $crate::light_pca::LightPcaQuery;
+            fn dims(&self) -> (usize, usize) {
+                (self.0.height, self.0.width)
+            }
+            fn query(&self, view: [f64; 3], light: [f64; 3]) -> Self::Query {
+                self.0.query(view, light)
+            }
+            #[inline]
+            fn eval(&self, t: usize, q: &Self::Query) -> [f32; 3] {
+                self.0.eval(t, q)
+            }
+        }
+
+        impl $crate::gpu::GpuLayout for $ty {
+            type Params = $crate::light_pca::LightPcaParams;
+            const SHADER: $crate::gpu::Shader = $crate::light_pca::shader(<$ty as $crate::model::Model>::KIND);
+            fn parts(&self) -> Vec<std::borrow::Cow<'_, [u32]>> {
+                self.0.parts()
+            }
+            fn dir_sets(&self) -> Vec<&[[f64; 3]]> {
+                vec![&self.0.views]
+            }
+            fn params(&self, offsets: &[u32], tables: &[u32]) -> Self::Params {
+                self.0.params(offsets, tables)
+            }
+        }
+    };
+}
+pub(crate) use light_pca_model;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grid_weights_interpolate_node_positions() {
+        // At a node the weight is all on it; in between, the weights reproduce the square point.
+        let n = 5;
+        for (k, d) in grid_directions(n).iter().enumerate() {
+            if d[2] < 1e-9 {
+                continue; // on the horizon the square point of a direction is not unique at corners
+            }
+            let w = grid_weights(n, *d);
+            let top = w.iter().copied().fold((0, 0.0), |a, b| if b.1 > a.1 { b } else { a });
+            assert_eq!(top.0, k);
+            assert!((top.1 - 1.0).abs() < 1e-9, "{k}: {w:?}");
+        }
+        let l = btfrs_hemimap::square_to_hemisphere(0.3f64, 0.62);
+        let w = grid_weights(n, l);
+        let (mut s, mut t) = (0.0, 0.0);
+        for (node, x) in w {
+            s += x * (node % n) as f64 / 4.0;
+            t += x * (node / n) as f64 / 4.0;
+        }
+        assert!((s - 0.3).abs() < 1e-9 && (t - 0.62).abs() < 1e-9, "{s} {t}");
+        assert!((w.iter().map(|x| x.1).sum::<f64>() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn pca_matches_a_float64_svd_reference() {
+        // Data of rank 3 plus small noise; the exact path against nalgebra's f64 SVD of the centred
+        // data: the same subspace (principal angles ~ 0) and the same reconstruction.
+        let (d, t, k) = (40, 300, 3);
+        let mut rng = btfrs_core::rng::Rng::new(5);
+        let f = DMatrix::<f64>::from_fn(d, k, |_, _| rng.next_f64() - 0.5);
+        let a = DMatrix::<f64>::from_fn(k, t, |i, _| (rng.next_f64() - 0.5) * (3.0 - i as f64));
+        let x = &f * &a + DMatrix::<f64>::from_fn(d, t, |_, _| 1e-3 * (rng.next_f64() - 0.5));
+        let data: Vec<f32> = x.iter().map(|&v| v as f32).collect();
+        let (mean, basis, coeffs) = pca(&data, d, t, k, 0).unwrap();
+        let mu = x.column_mean();
+        let xc = DMatrix::from_fn(d, t, |i, j| x[(i, j)] - mu[i]);
+        let svd = xc.clone().svd(true, false);
+        let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
+        order.sort_by(|&i, &j| svd.singular_values[j].total_cmp(&svd.singular_values[i]));
+        let u = svd.u.unwrap();
+        let uk = DMatrix::from_fn(d, k, |i, j| u[(i, order[j])]);
+        let b64 = DMatrix::from_fn(d, k, |i, j| basis[(i, j)] as f64);
+        // |U_k^T B| has singular values cos(principal angles): all ~ 1.
+        let cos = (uk.transpose() * &b64).svd(false, false).singular_values;
+        assert!(cos.iter().all(|&c| c > 1.0 - 1e-6), "{cos}");
+        for i in 0..d {
+            assert!((mean[i] as f64 - mu[i]).abs() < 1e-5);
+        }
+        let rec = &b64 * DMatrix::from_fn(k, t, |i, j| coeffs[(i, j)] as f64);
+        let ref_rec = &uk * (uk.transpose() * &xc);
+        assert!((rec - ref_rec).abs().max() < 1e-4);
+        // The randomized path (long vectors) agrees on data above the exact limit.
+        let d2 = EXACT_PCA_DIM + 40;
+        let f2 = DMatrix::<f64>::from_fn(d2, k, |_, _| rng.next_f64() - 0.5);
+        let x2 = &f2 * &a;
+        let data2: Vec<f32> = x2.iter().map(|&v| v as f32).collect();
+        let (_, b2, c2) = pca(&data2, d2, t, k, 0).unwrap();
+        let mu2 = x2.column_mean();
+        let rec2 = DMatrix::from_fn(d2, k, |i, j| b2[(i, j)] as f64) * DMatrix::from_fn(k, t, |i, j| c2[(i, j)] as f64);
+        let err =
+            (0..d2).flat_map(|i| (0..t).map(move |j| (i, j))).map(|(i, j)| (rec2[(i, j)] + mu2[i] - x2[(i, j)]).abs());
+        assert!(err.fold(0.0, f64::max) < 1e-3);
+    }
+
+    #[test]
+    fn pca_pads_missing_directions_with_zeros() {
+        // Two texels: at most one direction; the rest are zero columns with zero coefficients.
+        let data = vec![1.0f32, 2.0, 3.0, 5.0, 2.0, 1.0];
+        let (_, b, c) = pca(&data, 3, 2, 4, 0).unwrap();
+        assert_eq!(b.ncols(), 4);
+        assert!(b.columns(1, 3).iter().all(|&x| x == 0.0) && c.rows(1, 3).iter().all(|&x| x == 0.0));
+        assert!((b.column(0).norm() - 1.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn options_are_checked() {
+        let o = PcaOptions { resolution: 8, components: 4, chroma_components: None, colour: Colour::Rgb, seed: 0 };
+        assert_eq!(o.check().unwrap(), 0);
+        assert_eq!(PcaOptions { colour: Colour::Ycc, ..o }.check().unwrap(), 1);
+        let e = |o: PcaOptions| o.check().unwrap_err().to_string();
+        assert!(e(PcaOptions { resolution: 1, ..o }).starts_with("resolution: expected 2 to 32"));
+        assert!(e(PcaOptions { components: 0, ..o }).starts_with("components: expected 1 to 64"));
+        assert!(e(PcaOptions { chroma_components: Some(2), ..o }).starts_with("chroma_components: only"));
+        assert!(e(PcaOptions { colour: Colour::Ycc, components: 60, chroma_components: Some(10), ..o })
+            .starts_with("chroma_components: expected at most 64"));
+    }
+}

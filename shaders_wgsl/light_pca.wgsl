@@ -1,0 +1,86 @@
+// light_pca.wgsl: the RBF and bilinear light bases (rust/btfrs-fit/src/rbf.rs, bilinear.rs), both
+// stored by rust/btfrs-fit/src/light_pca.rs: per view slot a table of principal light functions
+// on an n x n grid of the concentric square, and per texel 8-bit coefficients with a scale and a
+// bias per plane. WGSL has no includes, so the two models share this one file (two pipelines).
+//
+// Parameters: `mp`, the `LightPcaParams` struct of light_pca.rs (the WGSL `struct Params` is
+// generated from it). The three nearest view slots are blended (interp3); per slot the table
+// rows of the light's four grid nodes are interpolated bilinearly and each channel is the mean
+// plus one dot product with the texel's decoded coefficients.
+
+struct ViewQuery {
+    w: Weights3,
+};
+
+fn view_query(v: vec3<f32>) -> ViewQuery {
+    return ViewQuery(interp3(0u, mp.n_views, mp.view_table, v));
+}
+
+// Plane `p` (of all V K) of texel `texel`, decoded.
+fn lp_coeff(texel: u32, p: u32) -> f32 {
+    let kt = mp.n_views * (mp.k_main + mp.k_chroma);
+    let i = texel * kt + p;
+    let q = (load_u32(mp.q + i / 4u) >> ((i & 3u) * 8u)) & 0xffu;
+    return load(mp.scale + kt + p) + load(mp.scale + p) * f32(q);
+}
+
+// The value of slot `v` at texel `texel` for the light at square point `st`.
+fn lp_slot(texel: u32, v: u32, st: vec2<f32>) -> vec3<f32> {
+    let n = mp.resolution;
+    let d = f32(n - 1u);
+    let x = clamp(st * d, vec2<f32>(0.0), vec2<f32>(d));
+    let i = min(vec2<u32>(floor(x)), vec2<u32>(n - 2u));
+    let f = x - vec2<f32>(i);
+    let r = mp.stride;
+    let row0 = mp.table + (v * n * n + i.y * n + i.x) * r;
+    let row1 = row0 + n * r;
+    let w00 = (1.0 - f.x) * (1.0 - f.y);
+    let w10 = f.x * (1.0 - f.y);
+    let w01 = (1.0 - f.x) * f.y;
+    let w11 = f.x * f.y;
+    var acc = vec3<f32>(0.0);
+    for (var c = 0u; c < 3u; c++) {
+        acc[c] = w00 * load(row0 + c) + w10 * load(row0 + r + c) + w01 * load(row1 + c) + w11 * load(row1 + r + c);
+    }
+    let k = mp.k_main + mp.k_chroma;
+    let p0 = v * k;
+    if (mp.colour == 0u) {
+        for (var p = 0u; p < k; p++) {
+            let c = lp_coeff(texel, p0 + p);
+            let o = 3u + 3u * p;
+            for (var ch = 0u; ch < 3u; ch++) {
+                let b = w00 * load(row0 + o + ch) + w10 * load(row0 + r + o + ch) + w01 * load(row1 + o + ch)
+                    + w11 * load(row1 + r + o + ch);
+                acc[ch] += c * b;
+            }
+        }
+        return acc;
+    }
+    for (var p = 0u; p < mp.k_main; p++) {
+        let c = lp_coeff(texel, p0 + p);
+        let o = 3u + p;
+        acc.x += c * (w00 * load(row0 + o) + w10 * load(row0 + r + o) + w01 * load(row1 + o) + w11 * load(row1 + r + o));
+    }
+    for (var p = 0u; p < mp.k_chroma; p++) {
+        let c = lp_coeff(texel, p0 + mp.k_main + p);
+        let o = 3u + mp.k_main + 2u * p;
+        for (var ch = 0u; ch < 2u; ch++) {
+            let b = w00 * load(row0 + o + ch) + w10 * load(row0 + r + o + ch) + w01 * load(row1 + o + ch)
+                + w11 * load(row1 + r + o + ch);
+            acc[1u + ch] += c * b;
+        }
+    }
+    return vec3<f32>(acc.x + acc.z, acc.x - acc.y - acc.z, acc.x + acc.y);
+}
+
+fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
+    let st = hemisphere_to_square(l);
+    var out = vq.w.w0 * lp_slot(texel, vq.w.i0, st);
+    if (vq.w.w1 > 0.0) {
+        out += vq.w.w1 * lp_slot(texel, vq.w.i1, st);
+    }
+    if (vq.w.w2 > 0.0) {
+        out += vq.w.w2 * lp_slot(texel, vq.w.i2, st);
+    }
+    return out;
+}
