@@ -358,9 +358,6 @@ def stability_command(args) -> None:
     print(f"wrote {len(paths)} files to {args.out}/ (report.json, report.md, one chart per regime)")
 
 
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
-
 
 # --- a user's own data: info, fit, export, render -------------------------------------------------
 
@@ -588,3 +585,7 @@ def render_command(args) -> None:
                            backend=args.backend, method=args.method)
     io.save_image(args.out, img, exposure=args.exposure)
     print(f"wrote {args.out} ({args.size[0]} x {args.size[1]}, mean {float(np.mean(img)):.4f})")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
