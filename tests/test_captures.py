@@ -272,6 +272,8 @@ def test_stack_with_csv_and_json_tables_and_exr_round_trip(tmp_path):
     table = io.save_stack(ref, tmp_path / "stack")
     back = io.load(tmp_path / "stack", directions=table)
     np.testing.assert_array_equal(back.data, ref.data)  # float EXR: exact
+    assert io.capture_kind(tmp_path / "stack") == "table"  # the folder's own directions.csv
+    np.testing.assert_array_equal(io.load(tmp_path / "stack").data, ref.data)
     np.testing.assert_allclose(back.views, ref.views, atol=1e-12)
     np.testing.assert_allclose(back.lights, ref.lights, atol=1e-12)
     # the same stack described by angles in a JSON table

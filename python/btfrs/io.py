@@ -138,7 +138,7 @@ _IMAGE_EXT = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".exr")
 def capture_kind(path: PathLike, directions: Optional[PathLike] = None) -> str:
     """What :func:`load` takes ``path`` for: ``"btfrs"``, ``"ptm"``, ``"rti"``, ``"ubo2014"``,
     ``"lp"`` (an RTI ``.lp`` file, or a folder holding exactly one), ``"table"`` (a folder with
-    a ``directions=`` table), ``"ubo2003"`` (a zip archive or a folder of images whose names carry
+    a ``directions=`` table, or holding ``directions.csv`` / ``.json``), ``"ubo2003"`` (a zip archive or a folder of images whose names carry
     the angles). Raises :class:`~btfrs.exceptions.FormatError` when it is none of these."""
     p = os.fspath(path)
     ext = os.path.splitext(p)[1].lower()
@@ -151,6 +151,8 @@ def capture_kind(path: PathLike, directions: Optional[PathLike] = None) -> str:
             return "lp"
         if len(lps) > 1:
             raise FormatError(f"{p}: holds several .lp files ({', '.join(lps)}); pass the one to load")
+        if _default_table(p) is not None:
+            return "table"
         if not any(n.lower().endswith(_IMAGE_EXT) for n in names):
             raise FormatError(f"{p}: the folder holds no images and no .lp file; expected an RTI capture "
                               f"(.lp + photos), a UBO-style image folder, or images with directions=")
@@ -168,6 +170,14 @@ def capture_kind(path: PathLike, directions: Optional[PathLike] = None) -> str:
         return "ubo2014"
     raise FormatError(f"{p}: unknown file type {ext or '(no extension)'!r}; expected .btfrs, .btf (UBO2014), "
                       f".zip or a folder (UBO2003 / ATRIUM), .lp (RTI), .ptm, .rti, or a folder with directions=")
+
+
+def _default_table(folder: str) -> Optional[str]:
+    """The direction table :func:`save_stack` writes, if ``folder`` has one."""
+    for n in ("directions.csv", "directions.json"):
+        if os.path.isfile(os.path.join(folder, n)):
+            return os.path.join(folder, n)
+    return None
 
 
 def _index_list(name: str, sel) -> Optional[list]:
@@ -205,7 +215,8 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
       (Bonn UBO2003 / ATRIUM; JPEG/PNG are sRGB-decoded, EXR kept linear);
     * ``carpet01_...L151xV151.btf`` (Bonn UBO2014, DFMF: decoded from its low-rank factors);
     * ``capture/dirs.lp`` or a folder holding one ``.lp`` (RTI: one view, the lights of the file);
-    * a folder of images with ``directions="table.csv"`` (or ``.json``): columns ``file`` and
+    * a folder of images with ``directions="table.csv"`` (or ``.json``; a ``directions.csv`` or
+      ``directions.json`` inside the folder is found without it): columns ``file`` and
       ``light_theta, light_phi`` (degrees) or ``lx, ly, lz``, optionally ``view_theta, view_phi``
       or ``vx, vy, vz``;
     * ``.btfrs`` (any btfrs file, as :func:`btfrs.load`), ``.ptm`` (:func:`load_ptm`), ``.rti``
@@ -244,6 +255,8 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
                 obj = Btf(np.ascontiguousarray(obj.data[r:r + nr, c:c + nc]), obj.views, obj.lights, obj.mask,
                           check=False)
         return obj
+    if kind == "table" and directions is None:
+        directions = _default_table(p)
     if kind == "lp" and os.path.isdir(p):
         p = os.path.join(p, next(n for n in sorted(os.listdir(p)) if n.lower().endswith(".lp")))
     out = None if mmap_to is None else os.fspath(mmap_to)
