@@ -16,8 +16,8 @@ def test_rti_folder_info_fit_export_render(tmp_path, capsys):
     write_lp(tmp_path / "cap")
     assert main(["info", str(tmp_path / "cap"), "--quiet"]) == 0
     out = capsys.readouterr().out
-    assert f"{H} x {W} texels, 1 views x 10 lights" in out
-    assert "yes ptm" in out and "theta 10.0 to 70.0 deg" in out
+    assert f"{H} x {W} texels, 1 view x 10 lights" in out
+    assert "yes ptm" in out and "yes hsh" in out and "yes lpca" in out and "theta 10.0 to 70.0 deg" in out
     model = tmp_path / "lion_ptm.btfrs"
     assert main(["fit", str(tmp_path / "cap" / "dirs.lp"), "--model", "ptm", "-o", str(tmp_path / "h.btfrs"),
                  "--quiet", "--holdout", "0.2"]) == 0
@@ -44,7 +44,8 @@ def test_rti_folder_info_fit_export_render(tmp_path, capsys):
 def test_ubo_archive_fit_and_render_gpu_matches_cpu(tmp_path, capsys):
     write_ubo(tmp_path / "imgs", zip_path=tmp_path / "cloth.zip")
     assert main(["info", str(tmp_path / "cloth.zip"), "--quiet"]) == 0
-    assert "3 views x 6 lights" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "3 views x 6 lights" in out and "no  hsh" in out and "only 6" in out
     model = tmp_path / "cloth_lpca.btfrs"
     assert main(["fit", str(tmp_path / "cloth.zip"), "--model", "lpca", "--set", "clusters=4", "--set",
                  "components=3", "-o", str(model), "--quiet"]) == 0

@@ -466,7 +466,11 @@ def info_command(args) -> None:
         return
     b = obj
     per_view = [int(b.mask[v].sum()) if b.mask is not None else b.n_lights for v in range(b.n_views)]
-    print(f"  {b.height} x {b.width} texels, {b.n_views} views x {b.n_lights} lights, {b.pairs} pairs present, "
+    def plural(n: int, word: str) -> str:
+        return f"{n} {word}" + ("" if n == 1 else "s")
+
+    print(f"  {b.height} x {b.width} texels, {plural(b.n_views, 'view')} x {plural(b.n_lights, 'light')}, "
+          f"{b.pairs} pairs present, "
           f"{b.nbytes / 2**20:.1f} MiB as float32")
     print(f"  views: {_coverage(b.views)}")
     print(f"  lights: {_coverage(b.lights)}; per view {min(per_view)} to {max(per_view)}")
@@ -474,16 +478,23 @@ def info_command(args) -> None:
     print(f"  values: min {float(data.min()):.4g}, max {float(data.max()):.4g}, mean {float(data.mean()):.4g} "
           f"(linear RGB)")
     fewest = min(per_view)
-    needs = {"ptm": 6, "hsh": 9, "rbf": 3, "bilinear": 4, "lafortune_view": 4}
-    print("  what fits:")
+    # Per view slot models need enough lights in every slot for their unknowns (the default
+    # options'); the others fit any sampling, with what a single view cannot tell them noted.
+    needs = {"ptm": (6, "biquadratic"), "hsh": (9, "order 3; order 2 needs 4"), "rbf": (3, "18 planes"),
+             "bilinear": (4, "8 x 8 grid"), "lafortune_view": (4, "1 lobe")}
+    one = b.n_views == 1
+    notes = {"lpca": "any sampling (per-texel ABRDFs, clustered)",
+             "sh": "view_coeffs=1 for a single view" if one else "over all pairs",
+             "lafortune": "one view: the lobes see no view dependence" if one else "over all pairs",
+             "srf": "one view: the lobes see no view dependence" if one else "over all pairs"}
+    print("  what fits (default options):")
     for kind in model_kinds():
         if kind in needs:
-            ok = fewest >= needs[kind]
-            note = f"per view slot, needs >= {needs[kind]} lights per view" + ("" if ok else f" (only {fewest})")
-        elif b.n_views == 1:
-            ok, note = False, "models views too: a single-view capture gives it nothing to fit across views"
+            n, what = needs[kind]
+            ok = fewest >= n
+            note = f"per view slot, needs >= {n} lights per view ({what})" + ("" if ok else f": only {fewest}")
         else:
-            ok, note = True, "over all pairs"
+            ok, note = True, notes.get(kind, "over all pairs")
         print(f"    {'yes' if ok else 'no ':3s} {kind:15s} {note}")
 
 
