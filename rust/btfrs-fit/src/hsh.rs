@@ -198,57 +198,8 @@ pub fn quantize_shared(values: &[f32], k: usize, n2: usize) -> Result<Planes> {
     if let Some(i) = values.iter().position(|x| !x.is_finite()) {
         return Err(Error::arg("coeffs", format!("coefficient at flat index {i} is not finite")));
     }
-    let texels = values.len() / k;
     let groups = k / (3 * n2);
-    let shared = groups * n2;
-    let idx = |p: usize| (p / (3 * n2)) * n2 + p % n2;
-    let (lo, hi) = values
-        .par_chunks(k)
-        .fold(
-            || (vec![f32::INFINITY; shared], vec![f32::NEG_INFINITY; shared]),
-            |(mut lo, mut hi), t| {
-                for (p, &x) in t.iter().enumerate() {
-                    let g = idx(p);
-                    lo[g] = lo[g].min(x);
-                    hi[g] = hi[g].max(x);
-                }
-                (lo, hi)
-            },
-        )
-        .reduce(
-            || (vec![f32::INFINITY; shared], vec![f32::NEG_INFINITY; shared]),
-            |(mut a, mut b), (c, d)| {
-                for g in 0..shared {
-                    a[g] = a[g].min(c[g]);
-                    b[g] = b[g].max(d[g]);
-                }
-                (a, b)
-            },
-        );
-    let mut gscale = vec![0.0f32; shared];
-    let mut gbias = vec![0.0f32; shared];
-    for g in 0..shared {
-        if lo[g] <= hi[g] {
-            gbias[g] = lo[g];
-            let step = (hi[g] as f64 - lo[g] as f64) / 255.0;
-            gscale[g] = round_up_16_bits(step);
-        }
-    }
-    let scale: Vec<f32> = (0..k).map(|p| gscale[idx(p)]).collect();
-    let bias: Vec<f32> = (0..k).map(|p| gbias[idx(p)]).collect();
-    let q = values
-        .par_iter()
-        .enumerate()
-        .map(|(i, &x)| {
-            let p = i % k;
-            if scale[p] > 0.0 {
-                ((x as f64 - bias[p] as f64) / scale[p] as f64).round().clamp(0.0, 255.0) as u8
-            } else {
-                0
-            }
-        })
-        .collect();
-    Ok(Planes { texels, k, q, scale, bias })
+    Planes::quantize_grouped(values, k, groups * n2, |p| (p / (3 * n2)) * n2 + p % n2, round_up_16_bits)
 }
 
 /// The smallest f32 with at most 16 significant bits that is `>= x` (x >= 0, finite).

@@ -34,6 +34,19 @@ pub struct Planes {
 impl Planes {
     /// Quantize `values` (`texels * k`, texel-major, finite) plane by plane.
     pub fn quantize(values: &[f32], k: usize) -> Result<Planes> {
+        Planes::quantize_grouped(values, k, k, |p| p, |step| step as f32)
+    }
+
+    /// [`Planes::quantize`] with planes sharing a scale and bias: plane `p` belongs to group
+    /// `group_of(p)` (`< groups`), each group spans the range of all its planes, and its scale is
+    /// `step((max - min) / 255)` (a format may need the scale rounded, e.g. `.rti`'s).
+    pub fn quantize_grouped(
+        values: &[f32],
+        k: usize,
+        groups: usize,
+        group_of: impl Fn(usize) -> usize + Sync,
+        step: impl Fn(f64) -> f32,
+    ) -> Result<Planes> {
         if k == 0 || !values.len().is_multiple_of(k) {
             return Err(Error::arg(
                 "planes",
@@ -44,36 +57,34 @@ impl Planes {
             return Err(Error::arg("planes", format!("coefficient at flat index {i} is not finite")));
         }
         let texels = values.len() / k;
+        let empty = || (vec![f32::INFINITY; groups], vec![f32::NEG_INFINITY; groups]);
         let (lo, hi) = values
             .par_chunks(k)
-            .fold(
-                || (vec![f32::INFINITY; k], vec![f32::NEG_INFINITY; k]),
-                |(mut lo, mut hi), t| {
-                    for p in 0..k {
-                        lo[p] = lo[p].min(t[p]);
-                        hi[p] = hi[p].max(t[p]);
-                    }
-                    (lo, hi)
-                },
-            )
-            .reduce(
-                || (vec![f32::INFINITY; k], vec![f32::NEG_INFINITY; k]),
-                |(mut a, mut b), (c, d)| {
-                    for p in 0..k {
-                        a[p] = a[p].min(c[p]);
-                        b[p] = b[p].max(d[p]);
-                    }
-                    (a, b)
-                },
-            );
-        let mut scale = vec![0.0f32; k];
-        let mut bias = vec![0.0f32; k];
-        for p in 0..k {
-            if lo[p] <= hi[p] {
-                bias[p] = lo[p];
-                scale[p] = ((hi[p] as f64 - lo[p] as f64) / 255.0) as f32;
+            .fold(empty, |(mut lo, mut hi), t| {
+                for (p, &x) in t.iter().enumerate() {
+                    let g = group_of(p);
+                    lo[g] = lo[g].min(x);
+                    hi[g] = hi[g].max(x);
+                }
+                (lo, hi)
+            })
+            .reduce(empty, |(mut a, mut b), (c, d)| {
+                for g in 0..groups {
+                    a[g] = a[g].min(c[g]);
+                    b[g] = b[g].max(d[g]);
+                }
+                (a, b)
+            });
+        let mut gscale = vec![0.0f32; groups];
+        let mut gbias = vec![0.0f32; groups];
+        for g in 0..groups {
+            if lo[g] <= hi[g] {
+                gbias[g] = lo[g];
+                gscale[g] = step((hi[g] as f64 - lo[g] as f64) / 255.0);
             }
         }
+        let scale: Vec<f32> = (0..k).map(|p| gscale[group_of(p)]).collect();
+        let bias: Vec<f32> = (0..k).map(|p| gbias[group_of(p)]).collect();
         let q = values
             .par_iter()
             .enumerate()
