@@ -124,6 +124,13 @@ impl Capture {
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
+    /// That `out` is the buffer [`Source::decode_into`] fills: `len()` values.
+    pub fn check_buffer(&self, out: &[f32]) -> Result<()> {
+        if out.len() != self.len() {
+            return Err(Error::arg("out", format!("expected {} values, got {}", self.len(), out.len())));
+        }
+        Ok(())
+    }
     /// Values per texel (`V * L * 3`).
     pub fn abrdf_len(&self) -> usize {
         self.views.len() * self.lights.len() * 3

@@ -252,9 +252,7 @@ impl Source for ImageStack {
 
     fn decode_into(&self, out: &mut [f32], monitor: &Monitor) -> Result<()> {
         let cap = &self.capture;
-        if out.len() != cap.len() {
-            return Err(Error::arg("out", format!("expected {} values, got {}", cap.len(), out.len())));
-        }
+        cap.check_buffer(out)?;
         let (fh, fw) = self.full;
         let image_bytes = fh * fw * 12;
         let threads = rayon::current_num_threads().max(1);

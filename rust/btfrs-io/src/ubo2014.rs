@@ -891,9 +891,7 @@ impl Source for Ubo2014 {
 
     fn decode_into(&self, out: &mut [f32], monitor: &Monitor) -> Result<()> {
         let cap = &self.capture;
-        if out.len() != cap.len() {
-            return Err(Error::arg("out", format!("expected {} values, got {}", cap.len(), out.len())));
-        }
+        cap.check_buffer(out)?;
         let u: Vec<Vec<f32>> = (0..3).map(|c| self.selected_u(c)).collect::<Result<_>>()?;
         let mean = self.header.color_mean.map(f64::from);
         let m = self.header.color_transform.map(f64::from);
