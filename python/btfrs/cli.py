@@ -120,24 +120,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             from . import demo
 
             demo.run(args.out, material=args.material, size=args.size, seed=args.seed, progress=not args.quiet)
-        elif args.command == "synth":
-            synth_command(args)
-        elif args.command == "evaluate":
-            evaluate_command(args)
-        elif args.command == "choose":
-            choose_command(args)
-        elif args.command == "stability":
-            stability_command(args)
-        elif args.command == "tiles":
-            tiles_command(args)
-        elif args.command == "info":
-            info_command(args)
-        elif args.command == "fit":
-            fit_command(args)
-        elif args.command == "export":
-            export_command(args)
-        elif args.command == "render":
-            render_command(args)
+        else:
+            commands = {"synth": synth_command, "evaluate": evaluate_command, "choose": choose_command,
+                        "stability": stability_command, "tiles": tiles_command, "info": info_command,
+                        "fit": fit_command, "export": export_command, "render": render_command}
+            commands[args.command](args)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
