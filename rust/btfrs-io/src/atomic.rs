@@ -12,13 +12,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Write `path` through `fill`, atomically (temporary file + rename).
 pub fn write_atomic(path: &Path, fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>) -> Result<()> {
-    let shown = path.display().to_string();
-    let file_name = path.file_name().ok_or_else(|| Error::arg("path", format!("{shown} does not name a file")))?;
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let (tmp, file) = create_temp(&dir, &file_name.to_string_lossy()).map_err(|e| Error::io(&shown, e))?;
+    let (shown, tmp, file) = temp_beside(path)?;
     let mut w = BufWriter::with_capacity(1 << 20, file);
     let result = fill(&mut w)
         .and_then(|()| w.into_inner().map_err(|e| e.into_error()))
@@ -36,6 +30,17 @@ pub fn write_atomic(path: &Path, fill: impl FnOnce(&mut dyn Write) -> std::io::R
 /// write at offsets or memory-map it). An error from `fill` (its own, typed: a format error of
 /// an input, a cancel) removes the temporary file and is returned unchanged.
 pub fn write_atomic_file(path: &Path, fill: impl FnOnce(&fs::File) -> Result<()>) -> Result<()> {
+    let (shown, tmp, file) = temp_beside(path)?;
+    let result = fill(&file)
+        .and_then(|()| file.sync_all().and_then(|()| fs::rename(&tmp, path)).map_err(|e| Error::io(&shown, e)));
+    if result.is_err() {
+        let _ = fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// The target as shown in errors, and a new temporary file in its directory.
+fn temp_beside(path: &Path) -> Result<(String, PathBuf, fs::File)> {
     let shown = path.display().to_string();
     let file_name = path.file_name().ok_or_else(|| Error::arg("path", format!("{shown} does not name a file")))?;
     let dir = match path.parent() {
@@ -43,12 +48,7 @@ pub fn write_atomic_file(path: &Path, fill: impl FnOnce(&fs::File) -> Result<()>
         _ => PathBuf::from("."),
     };
     let (tmp, file) = create_temp(&dir, &file_name.to_string_lossy()).map_err(|e| Error::io(&shown, e))?;
-    let result = fill(&file)
-        .and_then(|()| file.sync_all().and_then(|()| fs::rename(&tmp, path)).map_err(|e| Error::io(&shown, e)));
-    if result.is_err() {
-        let _ = fs::remove_file(&tmp);
-    }
-    result
+    Ok((shown, tmp, file))
 }
 
 /// Create a new, uniquely named temporary file next to the target. `create_new` makes sure we
