@@ -34,6 +34,9 @@ struct Light {
 @group(0) @binding(0) var<uniform> g: Globals;
 @group(0) @binding(1) var<storage, read> lights: array<Light>;
 @group(0) @binding(2) var<storage, read> coord_map: array<u32>;
+// Per-frame data of a lighting method other than the light list (the SH environment method of
+// sh.wgsl, `fs_env`); one placeholder vector otherwise.
+@group(0) @binding(3) var<storage, read> env: array<vec4<f32>>;
 
 // The model's parameters `mp` (group 1, binding 0) are a `struct Params` of 16 words generated
 // from the model's Rust parameter struct (btfrs_fit::gpu_params!) and placed after this file, so

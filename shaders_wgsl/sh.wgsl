@@ -103,3 +103,85 @@ fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
     }
     return out;
 }
+
+// --- Environment light in the SH domain (paper 002, section 4; rust/btfrs-render/src/sh_env.rs) ---
+//
+// `env` holds [d_k] x kl, the environment's coefficients [e_j] x kl, then G = A blockdiag(M_l^-T)
+// by rows of ceil(kl / 4) vec4. Per pixel: f_k = E_band(k)(R^T d_k) (the environment rotated
+// into the tangent frame, sampled per band), h = G f (rotation finished and the hemispherical
+// autocorrelation applied), out_c = sum_i y_i(v) sum_j C_cij h_cj.
+@fragment
+fn fs_env(f: VsOut) -> @location(0) vec4<f32> {
+    let n = normalize(f.nrm);
+    let t = normalize(f.tan);
+    let b = normalize(f.bit);
+    let v = to_local(normalize(g.eye.xyz - f.pos), t, b, n);
+    if (v.z <= 0.0) {
+        return vec4<f32>(0.0, 0.0, 0.0, 1.0);
+    }
+    let texel = texel_index(f.uv);
+    let kv = mp.kv;
+    let kl = mp.kl;
+    let rw = (kl + 3u) / 4u;
+    var fk: array<vec3<f32>, 64>;
+    var deg = 0u;
+    for (var k = 0u; k < kl; k++) {
+        if (k >= (deg + 1u) * (deg + 1u)) {
+            deg += 1u;
+        }
+        let d = env[k].xyz;
+        let w = normalize(d.x * t + d.y * b + d.z * n);
+        let y = sh_basis((deg + 1u) * (deg + 1u), w);
+        var s = vec3<f32>(0.0);
+        for (var j = deg * deg; j < (deg + 1u) * (deg + 1u); j++) {
+            s += env[kl + j].xyz * y[j];
+        }
+        fk[k] = s;
+    }
+    // h = G f, grouped by four coefficients per channel to match the padded coefficient rows.
+    var h4: array<mat3x4<f32>, 16>;
+    var hsum = vec3<f32>(0.0);
+    for (var w = 0u; w < rw; w++) {
+        var m = mat3x4<f32>(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
+        for (var s = 0u; s < 4u; s++) {
+            let i = 4u * w + s;
+            if (i < kl) {
+                var acc = vec3<f32>(0.0);
+                for (var q = 0u; q < rw; q++) {
+                    let row = env[2u * kl + i * rw + q];
+                    for (var c = 0u; c < 4u; c++) {
+                        let k = 4u * q + c;
+                        if (k < kl) {
+                            acc += row[c] * fk[k];
+                        }
+                    }
+                }
+                m[0][s] = acc.x;
+                m[1][s] = acc.y;
+                m[2][s] = acc.z;
+                hsum += acc;
+            }
+        }
+        h4[w] = m;
+    }
+    let yv = sh_basis(kv, v);
+    var ysum = 0.0;
+    for (var i = 0u; i < kv; i++) {
+        ysum += yv[i];
+    }
+    let sb = mp.scale_bias;
+    var out = vec3<f32>(0.0);
+    for (var ch = 0u; ch < 3u; ch++) {
+        let base = mp.coeffs + (texel * 3u + ch) * kv * rw;
+        var acc = 0.0;
+        for (var i = 0u; i < kv; i++) {
+            var r = 0.0;
+            for (var w = 0u; w < rw; w++) {
+                r += dot(unpack4x8unorm(load_u32(base + i * rw + w)), h4[w][ch]);
+            }
+            acc += yv[i] * r;
+        }
+        out[ch] = load(sb + 3u + ch) * ysum * hsum[ch] + 255.0 * load(sb + ch) * acc;
+    }
+    return vec4<f32>(out, 1.0);
+}

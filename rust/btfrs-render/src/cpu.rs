@@ -119,3 +119,49 @@ pub fn render_cpu<M: Shade + ?Sized>(model: &M, view: &View<'_>) -> Result<Vec<f
     });
     Ok(img)
 }
+
+/// Render a double-SH model under an environment by the SH method on the CPU: the reference of
+/// `fs_env` in sh.wgsl (same frame arithmetic, same steps; the model's coefficients
+/// dequantized, the sums in f64). `view.lights` is not used.
+pub fn render_cpu_env_sh(model: &btfrs_fit::Sh, view: &View<'_>, env: &crate::sh_env::ShEnvironment) -> Result<Vec<f32>> {
+    let dims = (model.height, model.width);
+    if env.n != model.light_coeffs {
+        return Err(Error::arg(
+            "environment",
+            format!("prepared for {} light coefficients, the model has {}", env.n, model.light_coeffs),
+        ));
+    }
+    let placeholder = [crate::scene::Light::Directional { direction: [0.0, 0.0, 1.0], intensity: [0.0; 3] }];
+    validate_common(&View { lights: &placeholder, ..*view }, dims)?;
+    let gb = raster::rasterize(view.mesh, view.camera, view.width, view.height)?;
+    let eye = Vec3::from(view.camera.eye);
+    let coeffs = model.dequantized();
+    let (kv, kl) = (model.view_coeffs, model.light_coeffs);
+    let mut img = vec![0.0f32; view.width * view.height * 3];
+    img.par_chunks_mut(3).zip(gb.pixels.par_iter()).for_each(|(px, frag)| {
+        let Some(f) = frag else { return };
+        let n = Vec3::from(f.normal).normalize();
+        let t = Vec3::from(f.tangent).normalize();
+        let b = Vec3::from(f.bitangent).normalize();
+        let p = Vec3::from(f.position);
+        let v = to_local((eye - p).normalize(), t, b, n);
+        if v.z <= 0.0 {
+            return;
+        }
+        let texel = texel_index(f.uv, view.uv_scale, dims, view.coords, view.tiles.as_ref());
+        let d = |x: Vec3| x.as_dvec3().to_array();
+        let h = env.converted(&env.band_values(d(t), d(b), d(n)));
+        let mut yv = vec![0.0f64; kv];
+        btfrs_fit::sh_basis(kv, d(v), &mut yv);
+        for (ch, o) in px.iter_mut().enumerate() {
+            let base = (texel * 3 + ch) * kv * kl;
+            let mut acc = 0.0f64;
+            for (i, yi) in yv.iter().enumerate() {
+                let row = &coeffs[base + i * kl..base + (i + 1) * kl];
+                acc += yi * row.iter().zip(&h).map(|(&c, hj)| c as f64 * hj[ch]).sum::<f64>();
+            }
+            *o = acc as f32;
+        }
+    });
+    Ok(img)
+}

@@ -129,7 +129,7 @@ impl Drop for UploadedModel {
 pub(crate) struct Pipelines {
     globals_layout: wgpu::BindGroupLayout,
     model_layout: wgpu::BindGroupLayout,
-    by_shader: HashMap<(Shader, bool), wgpu::RenderPipeline>,
+    by_shader: HashMap<(Shader, bool, &'static str), wgpu::RenderPipeline>,
 }
 
 fn storage_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
@@ -165,7 +165,12 @@ fn state(gpu: &Gpu) -> MutexGuard<'_, Pipelines> {
             let d = &gpu.device;
             let globals_layout = d.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                 label: Some("btfrs globals"),
-                entries: &[uniform_entry(0, wgpu::ShaderStages::VERTEX_FRAGMENT), storage_entry(1), storage_entry(2)],
+                entries: &[
+                    uniform_entry(0, wgpu::ShaderStages::VERTEX_FRAGMENT),
+                    storage_entry(1),
+                    storage_entry(2),
+                    storage_entry(3),
+                ],
             });
             let mut entries = vec![uniform_entry(0, wgpu::ShaderStages::FRAGMENT)];
             entries.extend((1..=MAX_CHUNKS as u32 + 2).map(storage_entry));
@@ -200,8 +205,14 @@ pub fn cached_pipelines(gpu: &Gpu) -> usize {
     gpu.pipelines.get().map_or(0, |p| p.lock().unwrap_or_else(|e| e.into_inner()).by_shader.len())
 }
 
-fn pipeline(gpu: &Gpu, st: &mut Pipelines, shader: Shader, single_chunk: bool) -> Result<wgpu::RenderPipeline> {
-    if let Some(p) = st.by_shader.get(&(shader, single_chunk)) {
+fn pipeline(
+    gpu: &Gpu,
+    st: &mut Pipelines,
+    shader: Shader,
+    single_chunk: bool,
+    entry: &'static str,
+) -> Result<wgpu::RenderPipeline> {
+    if let Some(p) = st.by_shader.get(&(shader, single_chunk, entry)) {
         return Ok(p.clone());
     }
     let d = &gpu.device;
@@ -245,7 +256,7 @@ fn pipeline(gpu: &Gpu, st: &mut Pipelines, shader: Shader, single_chunk: bool) -
             multisample: Default::default(),
             fragment: Some(wgpu::FragmentState {
                 module: &module,
-                entry_point: Some("fs_main"),
+                entry_point: Some(entry),
                 compilation_options: Default::default(),
                 targets: &[Some(wgpu::ColorTargetState {
                     format: COLOR_FORMAT,
@@ -257,7 +268,7 @@ fn pipeline(gpu: &Gpu, st: &mut Pipelines, shader: Shader, single_chunk: bool) -
             cache: None,
         })
     })?;
-    st.by_shader.insert((shader, single_chunk), p.clone());
+    st.by_shader.insert((shader, single_chunk, entry), p.clone());
     Ok(p)
 }
 
@@ -481,11 +492,41 @@ pub fn validate_view(gpu: &Gpu, view: &View<'_>, dims: (usize, usize)) -> Result
 
 /// Render `model` (uploaded with [`upload`]) into a `[height][width][3]` image.
 pub fn render(gpu: &Gpu, model: &UploadedModel, view: &View<'_>) -> Result<(Vec<f32>, FrameTimes)> {
-    gpu.check_process()?;
     validate_view(gpu, view, model.dims)?;
+    draw(gpu, model, view, &[[0.0; 4]], "fs_main")
+}
+
+/// Render a double-SH model (uploaded with [`upload`]) under the environment `env` by the SH
+/// method ([`crate::sh_env`]; `fs_env` of sh.wgsl). `view.lights` is not used (it may be empty).
+pub fn render_env_sh(
+    gpu: &Gpu,
+    model: &UploadedModel,
+    view: &View<'_>,
+    env: &crate::sh_env::ShEnvironment,
+) -> Result<(Vec<f32>, FrameTimes)> {
+    if model.shader.name != "sh" {
+        return Err(Error::arg(
+            "method",
+            format!("the SH environment method needs a double-SH model, not {} (use method=\"sampled\")", model.shader.name),
+        ));
+    }
+    let placeholder = [crate::scene::Light::Directional { direction: [0.0, 0.0, 1.0], intensity: [0.0; 3] }];
+    let v = View { lights: &placeholder, ..*view };
+    validate_view(gpu, &v, model.dims)?;
+    draw(gpu, model, &View { lights: &[], ..*view }, &env.gpu_words(), "fs_env")
+}
+
+fn draw(
+    gpu: &Gpu,
+    model: &UploadedModel,
+    view: &View<'_>,
+    env_words: &[[f32; 4]],
+    entry: &'static str,
+) -> Result<(Vec<f32>, FrameTimes)> {
+    gpu.check_process()?;
     let d = &gpu.device;
     let mut st = state(gpu);
-    let pipe = pipeline(gpu, &mut st, model.shader, model.chunks == 1)?;
+    let pipe = pipeline(gpu, &mut st, model.shader, model.chunks == 1, entry)?;
     let (w, h) = (view.width as u32, view.height as u32);
     let t0 = std::time::Instant::now();
     let out = gpu.checked("rendering", || {
@@ -504,7 +545,7 @@ pub fn render(gpu: &Gpu, model: &UploadedModel, view: &View<'_>) -> Result<(Vec<
             }),
             tile_atlas: [view.tiles.map_or(0, |t| t.layout.len() as u32), 0, 0, 0],
         };
-        let lights: Vec<GpuLight> = view
+        let mut lights: Vec<GpuLight> = view
             .lights
             .iter()
             .map(|l| match *l {
@@ -518,6 +559,9 @@ pub fn render(gpu: &Gpu, model: &UploadedModel, view: &View<'_>) -> Result<(Vec<
                 }
             })
             .collect();
+        if lights.is_empty() {
+            lights.push(GpuLight::zeroed()); // a storage binding cannot be empty
+        }
         let empty = [0u32];
         let packed = view.tiles.map(|t| t.packed().0);
         let map: &[u32] = match (&packed, view.coords) {
@@ -540,6 +584,11 @@ pub fn render(gpu: &Gpu, model: &UploadedModel, view: &View<'_>) -> Result<(Vec<
             contents: bytemuck::cast_slice(map),
             usage: wgpu::BufferUsages::STORAGE,
         });
+        let ebuf = d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("environment"),
+            contents: bytemuck::cast_slice(env_words),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
         let globals_bg = d.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("globals"),
             layout: &st.globals_layout,
@@ -547,6 +596,7 @@ pub fn render(gpu: &Gpu, model: &UploadedModel, view: &View<'_>) -> Result<(Vec<
                 wgpu::BindGroupEntry { binding: 0, resource: gbuf.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 1, resource: lbuf.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 2, resource: mbuf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: ebuf.as_entire_binding() },
             ],
         });
         let verts: Vec<Vertex> = (0..view.mesh.positions.len())

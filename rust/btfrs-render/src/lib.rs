@@ -14,14 +14,19 @@
 //!   footprint), for `btfrs.choose`.
 //! * Coordinate maps (paper 000, section 5): an optional map of u16 (x, y) texel coordinates
 //!   applied as one extra lookup, for synthesised BTFs of any size.
+//! * [`environment`] and [`sh_env`]: distant environment light (paper 002, section 4), as
+//!   importance-sampled directional lights for every model and in the SH domain for double-SH
+//!   models.
 //! * [`tilemap`]: Wang tile maps (paper 002, section 4): a layout of atlas tiles, two lookups.
 
 pub mod cpu;
 pub mod device;
+pub mod environment;
 pub mod gpu;
 pub mod model;
 pub mod raster;
 pub mod scene;
+pub mod sh_env;
 pub mod shaders;
 pub mod tilemap;
 pub mod usage;
