@@ -24,6 +24,7 @@ struct Globals {
     chunk_len: u32,           // f32 elements per store chunk
     tiles: vec4<u32>,         // tile map: (tile side, layout columns, layout rows, atlas width); x = 0: none
     tile_atlas: vec4<u32>,    // tile map: (offset of the atlas in coord_map, unused x 3)
+    lookup: vec4<u32>,        // filtered lookups: (mode 0 nearest / 1 bilinear / 2 trilinear, mip levels, mip table offset in coord_map, unused)
 };
 
 struct Light {
@@ -224,6 +225,18 @@ fn interp3(first: u32, count: u32, table: u32, q: vec3<f32>) -> Weights3 {
     return out;
 }
 
+// Light weights with the measured cosine divided out and the query's multiplied in (mirrors
+// btfrs_core::directions::cos_corrected: blending values that include cos(theta_l) would darken
+// every light between measured directions, cos being concave).
+fn cos_correct(w: Weights3, first: u32, l: vec3<f32>) -> Weights3 {
+    var o = w;
+    let q = max(l.z, 0.0);
+    o.w0 *= q / max(mdirs[first + w.i0].z, 0.02);
+    o.w1 *= q / max(mdirs[first + w.i1].z, 0.02);
+    o.w2 *= q / max(mdirs[first + w.i2].z, 0.02);
+    return o;
+}
+
 // --- Texel addressing ------------------------------------------------------------------------
 
 // The model texel for a surface UV: repeat `uv_scale` times, v up the texture (row 0 = top).
@@ -254,6 +267,86 @@ fn texel_index(uv: vec2<f32>) -> u32 {
     let c = min(u32(f.x * f32(g.sample_size.x)), g.sample_size.x - 1u);
     let r = min(u32((1.0 - f.y) * f32(g.sample_size.y)), g.sample_size.y - 1u);
     return r * g.sample_size.x + c;
+}
+
+// --- Filtered lookups (rust/btfrs-render/src/filter.rs, which this mirrors) -------------------
+//
+// In the virtual texture the surface shows (the sample, the coordinate map, the tile layout),
+// each tap resolved through the map on its own (no seams at map discontinuities); mip levels
+// hold appearance medoids. The level table at g.lookup.z: per level (width, height, offset of
+// its ids in coord_map, row stride).
+
+struct Taps {
+    t: array<u32, 8>,
+    w: array<f32, 8>,
+    n: u32,
+};
+
+fn mip_texel(level: u32, x: u32, y: u32) -> u32 {
+    let lt = g.lookup.z + level * 4u;
+    let off = coord_map[lt + 2u];
+    let stride = coord_map[lt + 3u];
+    if (g.tiles.x > 0u) {
+        let tl = g.tiles.x >> level;
+        let e = coord_map[(y / tl) * g.tiles.y + x / tl];
+        let ax = (e & 0xffffu) * tl + x % tl;
+        let ay = (e >> 16u) * tl + y % tl;
+        return coord_map[off + ay * stride + ax];
+    }
+    return coord_map[off + y * stride + x];
+}
+
+fn wrap_index(v: i32, n: u32) -> u32 {
+    let m = i32(n);
+    return u32(((v % m) + m) % m);
+}
+
+fn bilinear_taps(level: u32, f: vec2<f32>, scale: f32, taps: ptr<function, Taps>) {
+    let lt = g.lookup.z + level * 4u;
+    let w = coord_map[lt];
+    let h = coord_map[lt + 1u];
+    let px = f.x * f32(w) - 0.5;
+    let py = (1.0 - f.y) * f32(h) - 0.5;
+    let x0f = floor(px);
+    let y0f = floor(py);
+    let fx = px - x0f;
+    let fy = py - y0f;
+    let x0 = wrap_index(i32(x0f), w);
+    let y0 = wrap_index(i32(y0f), h);
+    let x1 = (x0 + 1u) % w;
+    let y1 = (y0 + 1u) % h;
+    let n = (*taps).n;
+    (*taps).t[n] = mip_texel(level, x0, y0);
+    (*taps).w[n] = (1.0 - fx) * (1.0 - fy) * scale;
+    (*taps).t[n + 1u] = mip_texel(level, x1, y0);
+    (*taps).w[n + 1u] = fx * (1.0 - fy) * scale;
+    (*taps).t[n + 2u] = mip_texel(level, x0, y1);
+    (*taps).w[n + 2u] = (1.0 - fx) * fy * scale;
+    (*taps).t[n + 3u] = mip_texel(level, x1, y1);
+    (*taps).w[n + 3u] = fx * fy * scale;
+    (*taps).n = n + 4u;
+}
+
+fn texel_taps(uv: vec2<f32>, duv_dx: vec2<f32>, duv_dy: vec2<f32>) -> Taps {
+    let s = uv * g.uv_scale;
+    let f = s - floor(s);
+    var taps: Taps;
+    taps.n = 0u;
+    if (g.lookup.x == 1u) {
+        bilinear_taps(0u, f, 1.0, &taps);
+        return taps;
+    }
+    let sz = g.uv_scale * vec2<f32>(f32(coord_map[g.lookup.z]), f32(coord_map[g.lookup.z + 1u]));
+    let lx = sqrt((duv_dx.x * sz.x) * (duv_dx.x * sz.x) + (duv_dx.y * sz.y) * (duv_dx.y * sz.y));
+    let ly = sqrt((duv_dy.x * sz.x) * (duv_dy.x * sz.x) + (duv_dy.y * sz.y) * (duv_dy.y * sz.y));
+    let lambda = clamp(log2(max(max(lx, ly), 1e-30)), 0.0, f32(g.lookup.y - 1u));
+    let l0 = floor(lambda);
+    let fr = lambda - l0;
+    bilinear_taps(u32(l0), f, 1.0 - fr, &taps);
+    if (fr > 0.0) {
+        bilinear_taps(u32(l0) + 1u, f, fr, &taps);
+    }
+    return taps;
 }
 
 // --- Vertex and fragment stages --------------------------------------------------------------
@@ -291,25 +384,15 @@ fn to_local(w: vec3<f32>, t: vec3<f32>, b: vec3<f32>, n: vec3<f32>) -> vec3<f32>
     return normalize(vec3<f32>(dot(w, t), dot(w, b), dot(w, n)));
 }
 
-@fragment
-fn fs_main(f: VsOut) -> @location(0) vec4<f32> {
-    let n = normalize(f.nrm);
-    let t = normalize(f.tan);
-    let b = normalize(f.bit);
-    let v = to_local(normalize(g.eye.xyz - f.pos), t, b, n);
-    if (v.z <= 0.0) {
-        // The back of the surface: a BTF is defined over the upper hemisphere only.
-        return vec4<f32>(0.0, 0.0, 0.0, 1.0);
-    }
-    let texel = texel_index(f.uv);
-    let vq = view_query(v);
+// The lights at one texel.
+fn shade_lights(texel: u32, vq: ViewQuery, pos: vec3<f32>, t: vec3<f32>, b: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
     var sum = vec3<f32>(0.0);
     for (var i = 0u; i < g.n_lights; i++) {
         let light = lights[i];
         var lw = light.pos.xyz;
         var irr = light.intensity.xyz;
         if (light.pos.w > 0.5) {
-            let d = light.pos.xyz - f.pos;
+            let d = light.pos.xyz - pos;
             let d2 = dot(d, d);
             lw = d / sqrt(d2);
             irr = light.intensity.xyz / d2;
@@ -319,6 +402,31 @@ fn fs_main(f: VsOut) -> @location(0) vec4<f32> {
             continue;
         }
         sum += eval_model(texel, vq, l) * irr;
+    }
+    return sum;
+}
+
+@fragment
+fn fs_main(f: VsOut) -> @location(0) vec4<f32> {
+    // Derivatives first, in uniform control flow (every invocation of the quad reaches them).
+    let duv_dx = dpdxFine(f.uv);
+    let duv_dy = dpdyFine(f.uv);
+    let n = normalize(f.nrm);
+    let t = normalize(f.tan);
+    let b = normalize(f.bit);
+    let v = to_local(normalize(g.eye.xyz - f.pos), t, b, n);
+    if (v.z <= 0.0) {
+        // The back of the surface: a BTF is defined over the upper hemisphere only.
+        return vec4<f32>(0.0, 0.0, 0.0, 1.0);
+    }
+    let vq = view_query(v);
+    if (g.lookup.x == 0u) {
+        return vec4<f32>(shade_lights(texel_index(f.uv), vq, f.pos, t, b, n), 1.0);
+    }
+    let taps = texel_taps(f.uv, duv_dx, duv_dy);
+    var sum = vec3<f32>(0.0);
+    for (var k = 0u; k < taps.n; k++) {
+        sum += taps.w[k] * shade_lights(taps.t[k], vq, f.pos, t, b, n);
     }
     return vec4<f32>(sum, 1.0);
 }

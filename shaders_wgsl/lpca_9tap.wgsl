@@ -32,11 +32,12 @@ fn eigen_view(e: u32, view: u32, lw: Weights3) -> vec3<f32> {
 }
 
 fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
-    let lw = interp3(mp.n_views, mp.n_lights, mp.light_table, l);
+    let lw = cos_correct(interp3(mp.n_views, mp.n_lights, mp.light_table, l), mp.n_views, l);
     let c = mp.components;
     let k = load_u16(mp.ids, texel);
     let wt = mp.weights + texel * (c + 2u);
-    var out = vec3<f32>(load(wt));
+    // The constant term blends with the (cos-corrected, no longer unit-sum) light weights too.
+    var out = vec3<f32>(load(wt) * (lw.w0 + lw.w1 + lw.w2));
     for (var j = 0u; j <= c; j++) {
         let e = k * (c + 1u) + j;
         var s = vq.w.w0 * eigen_view(e, vq.w.i0, lw);

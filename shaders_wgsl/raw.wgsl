@@ -27,7 +27,7 @@ fn raw_view(texel: u32, view: u32, lw: Weights3) -> vec3<f32> {
 }
 
 fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
-    let lw = interp3(mp.n_views, mp.n_lights, mp.light_table, l);
+    let lw = cos_correct(interp3(mp.n_views, mp.n_lights, mp.light_table, l), mp.n_views, l);
     var out = vq.w.w0 * raw_view(texel, vq.w.i0, lw);
     if (vq.w.w1 > 0.0) {
         out += vq.w.w1 * raw_view(texel, vq.w.i1, lw);

@@ -112,6 +112,8 @@ fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
 // autocorrelation applied), out_c = sum_i y_i(v) sum_j C_cij h_cj.
 @fragment
 fn fs_env(f: VsOut) -> @location(0) vec4<f32> {
+    let duv_dx = dpdxFine(f.uv);
+    let duv_dy = dpdyFine(f.uv);
     let n = normalize(f.nrm);
     let t = normalize(f.tan);
     let b = normalize(f.bit);
@@ -119,7 +121,14 @@ fn fs_env(f: VsOut) -> @location(0) vec4<f32> {
     if (v.z <= 0.0) {
         return vec4<f32>(0.0, 0.0, 0.0, 1.0);
     }
-    let texel = texel_index(f.uv);
+    var taps: Taps;
+    if (g.lookup.x == 0u) {
+        taps.n = 1u;
+        taps.t[0] = texel_index(f.uv);
+        taps.w[0] = 1.0;
+    } else {
+        taps = texel_taps(f.uv, duv_dx, duv_dy);
+    }
     let kv = mp.kv;
     let kl = mp.kl;
     let rw = (kl + 3u) / 4u;
@@ -171,17 +180,20 @@ fn fs_env(f: VsOut) -> @location(0) vec4<f32> {
     }
     let sb = mp.scale_bias;
     var out = vec3<f32>(0.0);
-    for (var ch = 0u; ch < 3u; ch++) {
-        let base = mp.coeffs + (texel * 3u + ch) * kv * rw;
-        var acc = 0.0;
-        for (var i = 0u; i < kv; i++) {
-            var r = 0.0;
-            for (var w = 0u; w < rw; w++) {
-                r += dot(unpack4x8unorm(load_u32(base + i * rw + w)), h4[w][ch]);
+    for (var tap = 0u; tap < taps.n; tap++) {
+        let texel = taps.t[tap];
+        for (var ch = 0u; ch < 3u; ch++) {
+            let base = mp.coeffs + (texel * 3u + ch) * kv * rw;
+            var acc = 0.0;
+            for (var i = 0u; i < kv; i++) {
+                var r = 0.0;
+                for (var w = 0u; w < rw; w++) {
+                    r += dot(unpack4x8unorm(load_u32(base + i * rw + w)), h4[w][ch]);
+                }
+                acc += yv[i] * r;
             }
-            acc += yv[i] * r;
+            out[ch] += taps.w[tap] * (load(sb + 3u + ch) * ysum * hsum[ch] + 255.0 * load(sb + ch) * acc);
         }
-        out[ch] = load(sb + 3u + ch) * ysum * hsum[ch] + 255.0 * load(sb + ch) * acc;
     }
     return vec4<f32>(out, 1.0);
 }

@@ -27,6 +27,7 @@ from .exceptions import (
 )
 from .models import ErrorReport, Hsh, Lafortune, LafortuneView, Lpca, Model, Ptm, Sh, Srf, load, model_kinds
 from .evaluation import EvaluationReport, evaluate
+from .environment import Environment
 from .rendering import Camera, DirectionalLight, PointLight, Scene, gpu_info, last_timings, render
 # The module is `choosing`, not `choose`, so that `btfrs.choose` is the function, never shadowed
 # by its submodule (importing a submodule sets the package attribute of its name).
@@ -64,6 +65,7 @@ def _ensure_runtime_dir() -> None:
 _ensure_runtime_dir()
 
 __all__ = [
+    "Environment",
     "__version__",
     "Btf",
     "ExpandedBtf",

@@ -12,7 +12,7 @@ _F32 = npt.NDArray[np.float32]
 _F64 = npt.NDArray[np.float64]
 _Bool = npt.NDArray[np.bool_]
 
-__all__ = ['__version__', '_panic_for_test', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'Model', 'fit_model', 'load_model', 'model_registry', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_rti', 'read_rti', 'write_png', 'read_png', 'write_exr', 'read_exr', 'write_exr_channels', 'load_capture', 'texel_arrays', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_raw', 'gpu_render', 'cpu_render_raw', 'gpu_upload_model', 'cpu_render_model', 'scene_directions', 'Analysis', 'analyse_btf_native', 'analyse_features_native', 'min_cut_native', 'grid_min_cut_native', 'wang_model_features', 'wang_synthesize', 'wang_tiling', 'wang_check', 'wang_atlas_positions', 'wang_seam_errors', 'wang_random_crops', 'texture_names', 'make_texture']
+__all__ = ['__version__', '_panic_for_test', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'Model', 'fit_model', 'load_model', 'model_registry', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_rti', 'read_rti', 'write_png', 'read_png', 'write_exr', 'read_exr', 'write_exr_channels', 'load_capture', 'texel_arrays', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_raw', 'gpu_render', 'cpu_render_raw', 'gpu_upload_model', 'cpu_render_model', 'env_check', 'env_sky', 'env_sample', 'env_quadrature', 'env_sh', 'render_env_sh', 'scene_directions', 'Analysis', 'analyse_btf_native', 'analyse_features_native', 'min_cut_native', 'grid_min_cut_native', 'wang_model_features', 'wang_synthesize', 'wang_tiling', 'wang_check', 'wang_atlas_positions', 'wang_seam_errors', 'wang_random_crops', 'texture_names', 'make_texture']
 __version__: str
 
 def _panic_for_test(place: str) -> None: ...
@@ -122,7 +122,9 @@ class Scene:
 @final
 class Camera:
     @staticmethod
-    def look_at(eye: Any, target: Any, fov_deg: float = 40.0) -> Camera: ...
+    def look_at(eye: Any, target: Any, fov_deg: float = 40.0, up: Optional[Any] = None) -> Camera: ...
+    @property
+    def up(self) -> list[float]: ...
     @property
     def eye(self) -> list[float]: ...
     @property
@@ -176,6 +178,23 @@ def cpu_render_model(
     method: str = "default",
     tile_map: Optional[tuple[npt.NDArray[np.uint32], int, npt.NDArray[np.uint32]]] = None,
 ) -> _F32: ...
+def env_check(rgb: _F32) -> None: ...
+def env_sky(sun: list[float], turbidity: float, height: int, ground: float) -> _F32: ...
+def env_sample(rgb: _F32, samples: int, seed: int) -> tuple[_F32, _F32]: ...
+def env_quadrature(rgb: _F32) -> tuple[_F32, _F32]: ...
+def env_sh(rgb: _F32, n: int) -> npt.NDArray[np.float64]: ...
+def render_env_sh(
+    model: Model,
+    uploaded: Optional[GpuModel],
+    scene: Scene,
+    camera: Camera,
+    environment: _F32,
+    width: int,
+    height: int,
+    uv_scale: list[float],
+    coords: Optional[npt.NDArray[np.uint16]] = None,
+    tile_map: Optional[tuple[npt.NDArray[np.uint32], int, npt.NDArray[np.uint32]]] = None,
+) -> tuple[_F32, float, float]: ...
 def scene_directions(
     scene: Scene,
     camera: Camera,

@@ -25,7 +25,7 @@ from typing import Optional, Sequence, Union
 import numpy as np
 
 from . import _native
-from ._checks import choice, instance, real, size_hw
+from ._checks import choice, instance, integer, real, size_hw
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import ArgumentTypeError, InvalidArgumentError
@@ -160,13 +160,20 @@ class TileMap:
         return (np.ascontiguousarray(a, dtype=np.uint32), t, np.ascontiguousarray(lay, dtype=np.uint32))
 
 
-def render(model: Union[Model, Btf], scene, camera, lights, *, size=(512, 512), uv_scale=1.0,
+def render(model: Union[Model, Btf], scene, camera, lights=None, *, size=(512, 512), uv_scale=1.0,
            coords: Optional[np.ndarray] = None, backend: str = "gpu", method: Optional[str] = None,
            tiles=None, layout=None, tile_map: Optional[TileMap] = None,
+           environment=None, samples: int = 64, seed: int = 0, renderer: Optional[str] = None,
            progress: Progress = None) -> np.ndarray:
     """Render ``model`` (a fitted model, or a :class:`~btfrs.Btf` for the raw measured data)
-    on ``scene`` seen by ``camera`` under ``lights``; returns ``[height, width, 3]`` float32
-    linear radiance (0 where no surface is seen).
+    on ``scene`` seen by ``camera`` under ``lights`` and/or an ``environment``; returns
+    ``[height, width, 3]`` float32, 0 where no surface is seen.
+
+    **Unit**: ``pi x radiance``. BTF values are measured as reflected radiance over the
+    irradiance of a light at normal incidence, times pi (a white Lambertian sample reads
+    ``cos(theta_l)``, not ``cos(theta_l) / pi``), and the renderer multiplies them by each light's
+    irradiance: a white Lambertian plane under a light of intensity 1 straight above reads 1,
+    under a constant environment of radiance 1 it reads pi. Divide by pi for radiance.
 
     Parameters
     ----------
@@ -185,12 +192,43 @@ def render(model: Union[Model, Btf], scene, camera, lights, *, size=(512, 512), 
         :class:`~btfrs.Lpca`: ``"9tap"`` (three nearest views x three nearest lights, section 5,
         the default) or ``"3d"`` (Eigen-BRDFs resampled on the elevated concentric map in one 3D
         texture: two trilinear fetches and a lerp, paper 004 section 6).
+    environment: a :class:`btfrs.Environment` (distant light, paper 002 section 4); ``method``
+        then names the lighting method: ``"sampled"`` (the default, every model: ``samples``
+        importance-sampled directional lights, ``seed``, rendered in one pass; ``lights`` are
+        added to them) or ``"sh"`` (double-SH models: the SH-domain method, no ``lights``), and
+        ``renderer`` the model's renderer (what ``method`` names without an environment).
     progress: None, True or a callable ``(done, total)`` counting the phases: for the GPU the
         upload (immediate when the model is already on the device) and the draw with its
         read-back; for the CPU the frame.
     """
     instance("scene", scene, Scene, "a btfrs.Scene")
     instance("camera", camera, Camera, "a btfrs.Camera")
+    env_method = None
+    if environment is not None:
+        from .environment import Environment
+
+        instance("environment", environment, Environment, "a btfrs.Environment")
+        env_method = choice("method", "sampled" if method is None else method, ("sampled", "sh"))
+        method = renderer
+        if env_method == "sh":
+            if lights is not None and (not hasattr(lights, "__len__") or len(lights)):
+                raise InvalidArgumentError("lights: method=\"sh\" lights by the environment alone; use "
+                                           "method=\"sampled\" to add lights")
+            if not isinstance(model, Model) or model.kind != "sh":
+                what = "the raw BTF" if isinstance(model, Btf) else f"a {getattr(model, 'kind', type(model).__name__)} model"
+                raise InvalidArgumentError(f"method: \"sh\" needs a double-SH model (btfrs.fit.sh), not {what}; "
+                                           f"use method=\"sampled\", which renders every model")
+            lights = []
+        else:
+            n = integer("samples", samples, min=1, max=65536)
+            extra = [] if lights is None else ([lights] if isinstance(lights, (PointLight, DirectionalLight)) else lights)
+            if isinstance(extra, (str, bytes)) or not hasattr(extra, "__iter__"):
+                raise ArgumentTypeError(f"lights: expected a light or a list of PointLight/DirectionalLight, got {lights!r}")
+            lights = environment.lights(n, seed=integer("seed", seed, min=0)) + list(extra)
+    elif renderer is not None:
+        raise InvalidArgumentError("renderer: only with environment= (otherwise method= names the renderer)")
+    if lights is None:
+        raise InvalidArgumentError("lights: expected a light, a list of lights or environment=")
     if isinstance(lights, (PointLight, DirectionalLight)):
         lights = [lights]
     if isinstance(lights, (str, bytes)) or not hasattr(lights, "__iter__"):
@@ -230,6 +268,17 @@ def render(model: Union[Model, Btf], scene, camera, lights, *, size=(512, 512), 
         tm = tile_map._native()
     meth = _method(model, method)
     backend = choice("backend", backend, ("gpu", "cpu"))
+    if env_method == "sh":
+        cb = callback(progress, f"render {h}x{w} (SH environment, {backend})")
+        if cb is not None:
+            cb(0, 1)
+        up, up_ms = _upload(model, meth) if backend == "gpu" else (None, 0.0)
+        img, draw, rb = _native.render_env_sh(model._m, up, scene, camera, environment.data, w, h, uvs, coords, tm)
+        if backend == "gpu":
+            _last[:] = [RenderResult(draw, rb, up_ms)]
+        if cb is not None:
+            cb(1, 1)
+        return img
     if backend == "gpu":
         cb = callback(progress, f"render {h}x{w} (upload, draw + read-back)")
         if cb is not None:

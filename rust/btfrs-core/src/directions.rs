@@ -86,6 +86,23 @@ pub fn angle_between(a: [f64; 3], b: [f64; 3]) -> f64 {
     s.atan2(d)
 }
 
+/// Smallest measured light cosine [`cos_corrected`] divides by (a light 88.9 degrees off the
+/// normal): below it the measured value is ~0 anyway and the ratio would only amplify noise.
+pub const COS_FLOOR: f64 = 0.02;
+
+/// Light interpolation weights with the cosine divided out (issue: blending values that include
+/// `cos(theta_l)` underestimates every light between measured ones, since cos is concave: x0.957
+/// at 40 degrees, x0.934 at 70 on the UBO rings). Each measured value is divided by its own
+/// cosine and the blend multiplied by the query's: `w_k <- w_k cos(q) / max(cos(d_k), COS_FLOOR)`,
+/// so a Lambertian sample (value `rho cos(theta_l)`) is reproduced exactly at every light
+/// direction. The weights then no longer sum to 1.
+pub fn cos_corrected(weights: &mut [(usize, f64)], dirs: &[[f64; 3]], query: [f64; 3]) {
+    let q = query[2].max(0.0);
+    for (i, w) in weights.iter_mut() {
+        *w *= q / dirs[*i][2].max(COS_FLOOR);
+    }
+}
+
 /// Interpolation weights of `query` over the `k` angularly nearest of `dirs`.
 ///
 /// The weight of the i-th nearest is `1/d_i - 1/d_(k+1)` (normalised to sum 1), where `d_(k+1)`

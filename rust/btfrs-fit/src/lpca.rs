@@ -623,7 +623,8 @@ impl ReflectanceModel for Lpca {
 
     fn query(&self, view: [f64; 3], light: [f64; 3]) -> LpcaQuery {
         let nl = self.lights.len();
-        let lw = directions::interp_weights(&self.lights, light, 3);
+        let mut lw = directions::interp_weights(&self.lights, light, 3);
+        directions::cos_corrected(&mut lw, &self.lights, light);
         let taps = directions::interp_weights(&self.views, view, 3)
             .into_iter()
             .flat_map(|(v, wv)| lw.iter().map(move |&(l, wl)| (v * nl + l, (wv * wl) as f32)))

@@ -286,10 +286,12 @@ impl ReflectanceModel for RawModel<'_> {
     }
 
     fn query(&self, view: [f64; 3], light: [f64; 3]) -> RawQuery {
-        let w = |d: &[[f64; 3]], q| {
-            btfrs_core::directions::interp_weights(d, q, 3).into_iter().map(|(i, w)| (i, w as f32)).collect()
-        };
-        RawQuery { views: w(self.btf.views, view), lights: w(self.btf.lights, light) }
+        use btfrs_core::directions::{cos_corrected, interp_weights};
+        let f32s = |w: Vec<(usize, f64)>| w.into_iter().map(|(i, w)| (i, w as f32)).collect();
+        // Lights blend with the measured cosine divided out (see cos_corrected).
+        let mut lw = interp_weights(self.btf.lights, light, 3);
+        cos_corrected(&mut lw, self.btf.lights, light);
+        RawQuery { views: f32s(interp_weights(self.btf.views, view, 3)), lights: f32s(lw) }
     }
 
     #[inline]

@@ -60,6 +60,12 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render::cpu_render_raw, m)?)?;
     m.add_function(wrap_pyfunction!(render::gpu_upload_model, m)?)?;
     m.add_function(wrap_pyfunction!(render::cpu_render_model, m)?)?;
+    m.add_function(wrap_pyfunction!(render::env_check, m)?)?;
+    m.add_function(wrap_pyfunction!(render::env_sky, m)?)?;
+    m.add_function(wrap_pyfunction!(render::env_sample, m)?)?;
+    m.add_function(wrap_pyfunction!(render::env_quadrature, m)?)?;
+    m.add_function(wrap_pyfunction!(render::env_sh, m)?)?;
+    m.add_function(wrap_pyfunction!(render::render_env_sh, m)?)?;
     m.add_function(wrap_pyfunction!(render::scene_directions, m)?)?;
     m.add_function(wrap_pyfunction!(graphcut::min_cut_native, m)?)?;
     m.add_function(wrap_pyfunction!(graphcut::grid_min_cut_native, m)?)?;

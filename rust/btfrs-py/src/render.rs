@@ -6,7 +6,9 @@ use crate::errors::{arg, arg_type, IntoPy};
 use crate::models::PyModel;
 use crate::run::detach;
 use btfrs_fit::{RawModel, Renderable};
-use btfrs_render::cpu::render_cpu;
+use btfrs_render::cpu::{render_cpu, render_cpu_env_sh};
+use btfrs_render::environment::Environment;
+use btfrs_render::sh_env::ShEnvironment;
 use btfrs_render::scene::{Camera, Light, Mesh};
 use btfrs_render::{gpu, Gpu, TileMap, UploadedModel, View};
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
@@ -97,11 +99,22 @@ pub struct PyCamera {
 
 #[pymethods]
 impl PyCamera {
-    /// Look from `eye` at `target` with a vertical field of view of `fov_deg` degrees (z up).
+    /// Look from `eye` at `target` with a vertical field of view of `fov_deg` degrees. `up`
+    /// defaults to +z; looking straight up or down it then falls back to +y (the image's up
+    /// is world +y). Given, it must not be parallel to the view direction.
     #[staticmethod]
-    #[pyo3(signature = (eye, target, fov_deg=40.0))]
-    fn look_at(eye: [f32; 3], target: [f32; 3], fov_deg: f32) -> PyResult<Self> {
-        Ok(PyCamera { cam: Camera::look_at(eye, target, fov_deg).py()? })
+    #[pyo3(signature = (eye, target, fov_deg=40.0, up=None))]
+    fn look_at(eye: [f32; 3], target: [f32; 3], fov_deg: f32, up: Option<[f32; 3]>) -> PyResult<Self> {
+        let cam = match up {
+            Some(u) => Camera::look_at_up(eye, target, fov_deg, u),
+            None => Camera::look_at(eye, target, fov_deg),
+        };
+        Ok(PyCamera { cam: cam.py()? })
+    }
+
+    #[getter]
+    fn up(&self) -> [f32; 3] {
+        self.cam.up
     }
 
     #[getter]
@@ -268,6 +281,7 @@ impl ViewArgs {
                 layout_rows: t.layout_rows,
                 layout: &t.layout,
             }),
+            filter: None,
         }
     }
 }
@@ -412,4 +426,111 @@ pub fn scene_directions<'py>(
     d.set_item("uv", s.uv.into_iter().flatten().collect::<Vec<f32>>().into_pyarray(py).reshape(vec![n, 2])?)?;
     d.set_item("footprint", s.footprint.into_pyarray(py))?;
     Ok(d)
+}
+
+/// A lat-long environment from a `[H, 2H, 3]` float32 array, validated by the renderer.
+fn environment_of(rgb: &Bound<'_, PyAny>) -> PyResult<Environment> {
+    let a = borrow::<f32>("environment", rgb)?;
+    check_shape("environment", a.shape(), &[None, None, Some(3)])?;
+    let (h, w) = (a.shape()[0], a.shape()[1]);
+    let s = a.as_slice().map_err(|e| arg("environment", e))?;
+    Environment::new(w, h, s.to_vec()).py()
+}
+
+type Lights<'py> = (Bound<'py, PyArrayDyn<f32>>, Bound<'py, PyArrayDyn<f32>>);
+
+fn light_arrays(py: Python<'_>, lights: Vec<Light>) -> PyResult<Lights<'_>> {
+    let n = lights.len();
+    let (mut d, mut i) = (Vec::with_capacity(3 * n), Vec::with_capacity(3 * n));
+    for l in lights {
+        if let Light::Directional { direction, intensity } = l {
+            d.extend(direction);
+            i.extend(intensity);
+        }
+    }
+    Ok((d.into_pyarray(py).reshape(vec![n, 3])?, i.into_pyarray(py).reshape(vec![n, 3])?))
+}
+
+/// Check a lat-long environment (finite, non-negative, 2:1, not black).
+#[pyfunction]
+pub fn env_check(rgb: &Bound<'_, PyAny>) -> PyResult<()> {
+    environment_of(rgb).map(|_| ())
+}
+
+/// Preetham's analytic sky as a `[height, 2 height, 3]` lat-long array (zenith luminance 1).
+#[pyfunction]
+#[pyo3(signature = (sun, turbidity, height, ground))]
+pub fn env_sky<'py>(py: Python<'py>, sun: [f64; 3], turbidity: f64, height: usize, ground: f64) -> PyResult<Image<'py>> {
+    let e = detach(py, || Environment::sky(sun, turbidity, height, ground))?;
+    e.rgb.into_pyarray(py).reshape(vec![e.height, e.width, 3])
+}
+
+/// `samples` importance-sampled directional lights: (directions [N, 3], intensities [N, 3]).
+#[pyfunction]
+pub fn env_sample<'py>(py: Python<'py>, rgb: &Bound<'py, PyAny>, samples: usize, seed: u64) -> PyResult<Lights<'py>> {
+    let e = environment_of(rgb)?;
+    let l = detach(py, || e.sample_lights(samples, seed))?;
+    light_arrays(py, l)
+}
+
+/// Every lit pixel as a light (the brute-force quadrature): (directions, intensities).
+#[pyfunction]
+pub fn env_quadrature<'py>(py: Python<'py>, rgb: &Bound<'py, PyAny>) -> PyResult<Lights<'py>> {
+    let e = environment_of(rgb)?;
+    light_arrays(py, e.quadrature_lights())
+}
+
+/// The environment's projection on the first `n` real SH: `[n, 3]` float64.
+#[pyfunction]
+pub fn env_sh<'py>(py: Python<'py>, rgb: &Bound<'py, PyAny>, n: usize) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    let e = environment_of(rgb)?;
+    let c = detach(py, || Ok(e.sh_project(n)))?;
+    let k = c.len();
+    c.into_iter().flatten().collect::<Vec<f64>>().into_pyarray(py).reshape(vec![k, 3])
+}
+
+/// The double-SH model inside a Python model object, or an error naming the method to use.
+fn sh_of(model: &PyModel) -> PyResult<&btfrs_fit::Sh> {
+    model.inner.as_any().downcast_ref::<btfrs_fit::Sh>().ok_or_else(|| {
+        arg(
+            "method",
+            format!(
+                "method=\"sh\" needs a double-SH model (btfrs.fit.sh), not {}; use method=\"sampled\"",
+                model.inner.kind()
+            ),
+        )
+    })
+}
+
+/// Render a double-SH model under an environment by the SH method, on the GPU (`gpu` given:
+/// the uploaded model) or the CPU: (image, draw ms, read-back ms; 0 on the CPU).
+#[pyfunction]
+#[pyo3(signature = (model, uploaded, scene, camera, environment, width, height, uv_scale, coords=None, tile_map=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn render_env_sh<'py>(
+    py: Python<'py>,
+    model: &PyModel,
+    uploaded: Option<&PyGpuModel>,
+    scene: &PyScene,
+    camera: &PyCamera,
+    environment: &Bound<'py, PyAny>,
+    width: usize,
+    height: usize,
+    uv_scale: [f32; 2],
+    coords: Option<&Bound<'py, PyAny>>,
+    tile_map: Option<&Bound<'py, PyAny>>,
+) -> PyResult<(Image<'py>, f64, f64)> {
+    let sh = sh_of(model)?;
+    let env = environment_of(environment)?;
+    let args = ViewArgs::new(Vec::new(), coords, tile_map)?;
+    let view = args.view(scene, camera, (width, height), uv_scale);
+    check_size(width, height)?;
+    let (img, t) = detach(py, || {
+        let she = ShEnvironment::new(&env, sh.light_coeffs)?;
+        match uploaded {
+            Some(u) => gpu::render_env_sh(&u.gpu, &u.up, &view, &she),
+            None => Ok((render_cpu_env_sh(sh, &view, &she)?, Default::default())),
+        }
+    })?;
+    Ok((image(py, img, width, height)?, t.draw_ms, t.readback_ms))
 }

@@ -6,6 +6,7 @@
 //! in f32, and the model is evaluated by its own Rust code ([`Shade`]), which is the
 //! independent implementation each WGSL model file is tested against.
 
+use crate::filter::{Filter, Taps};
 use crate::gpu::View;
 use crate::raster;
 use btfrs_core::{Error, Result};
@@ -30,6 +31,20 @@ pub fn validate_common(view: &View<'_>, dims: (usize, usize)) -> Result<()> {
             return Err(Error::arg("tiles", "give a coordinate map or a tile map, not both"));
         }
         t.validate(dims.0 * dims.1)?;
+    }
+    if let Some((_, chain)) = view.filter {
+        let want = match (view.tiles, view.coords) {
+            (Some(t), _) => ((t.layout_cols * t.tile) as u32, (t.layout_rows * t.tile) as u32, t.tile as u32),
+            (None, Some((mw, mh, _))) => (mw as u32, mh as u32, 0),
+            (None, None) => (dims.1 as u32, dims.0 as u32, 0),
+        };
+        let got = chain.levels.first().map(|l| (l.width, l.height, chain.tile));
+        if got != Some(want) || chain.ids.iter().any(|&i| i as usize >= dims.0 * dims.1) {
+            return Err(Error::arg(
+                "filter",
+                format!("the mip chain was built for another texture ({got:?}, expected {want:?} = width, height, tile)"),
+            ));
+        }
     }
     if let Some((mw, mh, map)) = view.coords {
         if mw == 0 || mh == 0 || map.len() != mw * mh {
@@ -83,6 +98,22 @@ pub fn texel_index(
     (r * w + c) as usize
 }
 
+/// The texels (and weights) a fragment shades: one by [`texel_index`] unfiltered, else the taps
+/// of [`crate::filter::taps`] (`fs_main` of common.wgsl makes the same choice).
+pub fn fragment_taps(view: &View<'_>, f: &raster::Fragment, dims: (usize, usize)) -> Taps {
+    match view.filter {
+        Some((flt, chain)) if flt != Filter::Nearest => {
+            crate::filter::taps(chain, flt, f.uv, f.duv_dx, f.duv_dy, view.uv_scale)
+        }
+        _ => {
+            let mut t = Taps { n: 1, ..Default::default() };
+            t.texel[0] = texel_index(f.uv, view.uv_scale, dims, view.coords, view.tiles.as_ref()) as u32;
+            t.weight[0] = 1.0;
+            t
+        }
+    }
+}
+
 fn to_local(w: Vec3, t: Vec3, b: Vec3, n: Vec3) -> Vec3 {
     Vec3::new(w.dot(t), w.dot(b), w.dot(n)).normalize()
 }
@@ -104,18 +135,23 @@ pub fn render_cpu<M: Shade + ?Sized>(model: &M, view: &View<'_>) -> Result<Vec<f
         if v.z <= 0.0 {
             return;
         }
-        let texel = texel_index(f.uv, view.uv_scale, dims, view.coords, view.tiles.as_ref());
+        let taps = fragment_taps(view, f, dims);
         let vd = v.as_dvec3().to_array();
-        let mut sum = Vec3::ZERO;
-        for light in view.lights {
-            let (lw, irr) = light.at(p);
-            let l = to_local(lw, t, b, n);
-            if l.z <= 0.0 {
-                continue;
+        let mut total = Vec3::ZERO;
+        for k in 0..taps.n {
+            let texel = taps.texel[k] as usize;
+            let mut sum = Vec3::ZERO;
+            for light in view.lights {
+                let (lw, irr) = light.at(p);
+                let l = to_local(lw, t, b, n);
+                if l.z <= 0.0 {
+                    continue;
+                }
+                sum += Vec3::from(model.shade(texel, vd, l.as_dvec3().to_array())) * irr;
             }
-            sum += Vec3::from(model.shade(texel, vd, l.as_dvec3().to_array())) * irr;
+            total += taps.weight[k] * sum;
         }
-        px.copy_from_slice(&sum.to_array());
+        px.copy_from_slice(&total.to_array());
     });
     Ok(img)
 }
@@ -148,19 +184,23 @@ pub fn render_cpu_env_sh(model: &btfrs_fit::Sh, view: &View<'_>, env: &crate::sh
         if v.z <= 0.0 {
             return;
         }
-        let texel = texel_index(f.uv, view.uv_scale, dims, view.coords, view.tiles.as_ref());
+        let taps = fragment_taps(view, f, dims);
         let d = |x: Vec3| x.as_dvec3().to_array();
         let h = env.converted(&env.band_values(d(t), d(b), d(n)));
         let mut yv = vec![0.0f64; kv];
         btfrs_fit::sh_basis(kv, d(v), &mut yv);
         for (ch, o) in px.iter_mut().enumerate() {
-            let base = (texel * 3 + ch) * kv * kl;
-            let mut acc = 0.0f64;
-            for (i, yi) in yv.iter().enumerate() {
-                let row = &coeffs[base + i * kl..base + (i + 1) * kl];
-                acc += yi * row.iter().zip(&h).map(|(&c, hj)| c as f64 * hj[ch]).sum::<f64>();
+            let mut total = 0.0f64;
+            for k in 0..taps.n {
+                let base = (taps.texel[k] as usize * 3 + ch) * kv * kl;
+                let mut acc = 0.0f64;
+                for (i, yi) in yv.iter().enumerate() {
+                    let row = &coeffs[base + i * kl..base + (i + 1) * kl];
+                    acc += yi * row.iter().zip(&h).map(|(&c, hj)| c as f64 * hj[ch]).sum::<f64>();
+                }
+                total += taps.weight[k] as f64 * acc;
             }
-            *o = acc as f32;
+            *o = total as f32;
         }
     });
     Ok(img)

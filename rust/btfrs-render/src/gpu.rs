@@ -40,6 +40,8 @@ struct Globals {
     tiles: [u32; 4],
     /// Tile map: (atlas offset in the map buffer, 0, 0, 0).
     tile_atlas: [u32; 4],
+    /// Filtered lookups: (mode, mip levels, mip table offset in the map buffer, 0).
+    lookup: [u32; 4],
 }
 
 /// Field names and byte offsets of the Rust `Globals`, and its size: the shader validation test
@@ -56,6 +58,7 @@ pub const GLOBALS_LAYOUT: (&[(&str, usize)], usize) = (
         ("chunk_len", std::mem::offset_of!(Globals, chunk_len)),
         ("tiles", std::mem::offset_of!(Globals, tiles)),
         ("tile_atlas", std::mem::offset_of!(Globals, tile_atlas)),
+        ("lookup", std::mem::offset_of!(Globals, lookup)),
     ],
     std::mem::size_of::<Globals>(),
 );
@@ -449,6 +452,9 @@ pub struct View<'a> {
     pub coords: Option<(usize, usize, &'a [u32])>,
     /// Optional Wang tile map (exclusive with `coords`).
     pub tiles: Option<crate::tilemap::TileMap<'a>>,
+    /// Optional filtered lookups with the mip chain of this view's virtual texture (built by
+    /// [`crate::filter::MipChain::build`] for the same sample, map or tiles); None = nearest.
+    pub filter: Option<(crate::filter::Filter, &'a crate::filter::MipChain)>,
 }
 
 /// Times of one frame, in milliseconds.
@@ -474,7 +480,9 @@ pub fn validate_view(gpu: &Gpu, view: &View<'_>, dims: (usize, usize)) -> Result
     }
     crate::cpu::validate_common(view, dims)?;
     // The coordinate map or tile map goes to the GPU as one storage buffer.
-    let words = view.tiles.map_or(0, |t| t.layout.len() + t.atlas.len()) + view.coords.map_or(0, |(_, _, m)| m.len());
+    let words = view.tiles.map_or(0, |t| t.layout.len() + t.atlas.len())
+        + view.coords.map_or(0, |(_, _, m)| m.len())
+        + view.filter.map_or(0, |(_, c)| c.ids.len() + 4 * c.levels.len());
     let limit = gpu.limits.max_storage_buffer_binding_size as usize;
     if words * 4 > limit {
         let what = if view.tiles.is_some() { "tiles" } else { "coords" };
@@ -529,6 +537,10 @@ fn draw(
     let pipe = pipeline(gpu, &mut st, model.shader, model.chunks == 1, entry)?;
     let (w, h) = (view.width as u32, view.height as u32);
     let t0 = std::time::Instant::now();
+    let filter = view.filter.filter(|(f, _)| *f != crate::filter::Filter::Nearest);
+    let base_map_len = view.tiles.map_or(0, |t| (t.layout.len() + t.atlas.len()) as u32)
+        + view.coords.map_or(0, |(_, _, m)| m.len() as u32)
+        + (view.tiles.is_none() && view.coords.is_none()) as u32;
     let out = gpu.checked("rendering", || {
         let vp = view.camera.view_proj(view.width as f32 / view.height as f32);
         let (mw, mh) = view.coords.map_or((0, 0), |(mw, mh, _)| (mw as u32, mh as u32));
@@ -544,6 +556,7 @@ fn draw(
                 [t.tile as u32, t.layout_cols as u32, t.layout_rows as u32, (t.atlas_cols * t.tile) as u32]
             }),
             tile_atlas: [view.tiles.map_or(0, |t| t.layout.len() as u32), 0, 0, 0],
+            lookup: filter.map_or([0; 4], |(f, c)| [f.mode(), c.levels.len() as u32, base_map_len, 0]),
         };
         let mut lights: Vec<GpuLight> = view
             .lights
@@ -564,10 +577,19 @@ fn draw(
         }
         let empty = [0u32];
         let packed = view.tiles.map(|t| t.packed().0);
-        let map: &[u32] = match (&packed, view.coords) {
+        let base_map: &[u32] = match (&packed, view.coords) {
             (Some(p), _) => p,
             (None, Some((_, _, m))) => m,
             (None, None) => &empty[..],
+        };
+        // The mip chain of a filtered view follows the map in the same buffer.
+        let with_mips: Vec<u32>;
+        let map: &[u32] = match filter {
+            Some((_, chain)) => {
+                with_mips = [base_map, &chain.gpu_words(base_map.len() as u32)].concat();
+                &with_mips
+            }
+            None => base_map,
         };
         let gbuf = d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("globals"),
@@ -763,6 +785,7 @@ mod tests {
             uv_scale: [1.0; 2],
             coords: None,
             tiles: None,
+            filter: None,
         };
         let mut images = Vec::new();
         for _ in 0..3 {

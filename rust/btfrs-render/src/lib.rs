@@ -17,11 +17,14 @@
 //! * [`environment`] and [`sh_env`]: distant environment light (paper 002, section 4), as
 //!   importance-sampled directional lights for every model and in the SH domain for double-SH
 //!   models.
+//! * [`filter`]: bilinear and trilinear lookups through the sample, coordinate maps and tile
+//!   maps (appearance-medoid mip levels), the same on both renderers.
 //! * [`tilemap`]: Wang tile maps (paper 002, section 4): a layout of atlas tiles, two lookups.
 
 pub mod cpu;
 pub mod device;
 pub mod environment;
+pub mod filter;
 pub mod gpu;
 pub mod model;
 pub mod raster;

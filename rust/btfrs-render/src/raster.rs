@@ -92,6 +92,13 @@ pub struct Fragment {
     pub uv: [f32; 2],
     /// Window depth in [0, 1] (0 at the near plane).
     pub depth: f32,
+    /// Fine screen-space derivatives of `uv`, as `dpdxFine` / `dpdyFine` give them in a 2 x 2
+    /// pixel quad: the difference of the same triangle's interpolated uv at the odd and the even
+    /// column (row) of the quad, at this pixel's row (column); the partner pixel's value is
+    /// extrapolated from the triangle when it is not covered, like a GPU helper invocation.
+    pub duv_dx: [f32; 2],
+    /// See `duv_dx`: rows (y down).
+    pub duv_dy: [f32; 2],
 }
 
 /// A G-buffer: `width * height` entries, row 0 at the top; None where no triangle covers the pixel
@@ -432,6 +439,28 @@ fn raster_band(tris: &[TriSetup], bin: &[usize], row0: usize, width: usize, out:
     }
 }
 
+/// Perspective-correct barycentric weights (normalised) at the centre of pixel (px, py).
+fn weights_at(t: &TriSetup, px: usize, py: usize) -> [f64; 3] {
+    let dx = px as f64 + 0.5 - t.ox;
+    let dy = py as f64 + 0.5 - t.oy;
+    let l1 = (dx * t.k[0] - dy * t.k[1]) * t.inv_den;
+    let l2 = (dy * t.k[2] - dx * t.k[3]) * t.inv_den;
+    let l0 = 1.0 - l1 - l2;
+    let mut b = [l0 * t.oow[0], l1 * t.oow[1], l2 * t.oow[2]];
+    let mut s = b[0] + b[1] + b[2];
+    if !(s > 0.0 && s.is_finite()) {
+        b = [l0, l1, l2].map(|l| l.max(0.0));
+        s = (b[0] + b[1] + b[2]).max(f64::MIN_POSITIVE);
+    }
+    b.map(|x| x / s)
+}
+
+/// The interpolated uv at pixel (px, py) of the triangle (extrapolated outside it).
+fn uv_at(t: &TriSetup, px: usize, py: usize) -> [f32; 2] {
+    let b = weights_at(t, px, py);
+    [12, 13].map(|k| (b[0] * t.attr[0][k] as f64 + b[1] * t.attr[1][k] as f64 + b[2] * t.attr[2][k] as f64) as f32)
+}
+
 /// Depth test and attribute interpolation at the centre of a covered pixel.
 fn shade(t: &TriSetup, px: usize, py: usize, depth: &mut f32, out: &mut Option<Fragment>) {
     let dx = px as f64 + 0.5 - t.ox;
@@ -464,6 +493,14 @@ fn shade(t: &TriSetup, px: usize, py: usize, depth: &mut f32, out: &mut Option<F
         bitangent: [a[9], a[10], a[11]],
         uv: [a[12], a[13]],
         depth: z,
+        duv_dx: {
+            let (e, o) = (uv_at(t, px & !1, py), uv_at(t, px | 1, py));
+            [o[0] - e[0], o[1] - e[1]]
+        },
+        duv_dy: {
+            let (e, o) = (uv_at(t, px, py & !1), uv_at(t, px, py | 1));
+            [o[0] - e[0], o[1] - e[1]]
+        },
     });
 }
 

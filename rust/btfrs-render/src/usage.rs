@@ -146,6 +146,7 @@ mod tests {
             uv_scale: [uv_scale; 2],
             coords: None,
             tiles: None,
+            filter: None,
         }
     }
 

@@ -102,7 +102,7 @@ fn plain_view<'a>(
     size: (usize, usize),
     uv_scale: [f32; 2],
 ) -> View<'a> {
-    View { mesh, camera: cam, lights, width: size.0, height: size.1, uv_scale, coords: None, tiles: None }
+    View { mesh, camera: cam, lights, width: size.0, height: size.1, uv_scale, coords: None, tiles: None, filter: None }
 }
 
 fn check(gpu: &Gpu, name: &str, model: &dyn Renderable) -> f64 {
@@ -132,6 +132,7 @@ fn check(gpu: &Gpu, name: &str, model: &dyn Renderable) -> f64 {
                 uv_scale: [3.0, 2.0],
                 coords: (with_map == 1).then_some((mw, mh, &map[..])),
                 tiles: (with_map == 2).then_some(tiles),
+                filter: None,
             };
             let (g, _) = gpu::render(gpu, &up, &view).unwrap();
             let c = render_cpu(model, &view).unwrap();

@@ -47,6 +47,20 @@ impl Camera {
         Ok(camera)
     }
 
+    /// A camera at `eye` looking at `target` with the given `up` (any vector not parallel to the
+    /// view direction; it need not be orthogonal to it), near 0.01, far 100. Errors: as
+    /// [`Camera::look_at`], and an `up` that is zero or parallel to the view direction ("up").
+    pub fn look_at_up(eye: [f32; 3], target: [f32; 3], fov_y_deg: f32, up: [f32; 3]) -> Result<Camera> {
+        let mut camera = Camera::look_at(eye, target, fov_y_deg)?;
+        check_finite3("up", up)?;
+        let dir = Vec3::from(target) - Vec3::from(eye);
+        if Vec3::from(up).length_squared() == 0.0 || is_parallel(dir, Vec3::from(up)) {
+            return Err(Error::arg("up", format!("must not be zero nor parallel to the view direction {dir:?}, got {up:?}")));
+        }
+        camera.up = up;
+        Ok(camera)
+    }
+
     /// Checks the fields: finite, eye != target, `up` non-zero, fov in (0, 180), 0 < near < far.
     /// An `up` parallel to the view direction is not an error (see [`Camera::view_proj`]).
     pub fn validate(&self) -> Result<()> {
