@@ -87,6 +87,81 @@ pub fn from_arrays(kind: &str, arrays: &NamedArrays) -> Result<Box<dyn DynModel>
     (lookup(kind)?.from_arrays)(arrays)
 }
 
+/// Models whose value is linear in their per-texel arrays, so that averaging the arrays of a
+/// block of texels averages their appearance exactly: what [`mip_texels`] accepts. (PTM's LRGB
+/// variant multiplies two texel arrays; its average is exact for the RGB variant only.)
+pub const AVERAGEABLE: &[&str] = &["ptm", "hsh", "sh", "rbf", "bilinear"];
+
+/// The model extended by averaged texels (the coarse levels of a box-filtered mip pyramid):
+/// texel `n + g` (n = the model's texel count) is `sum w x texel t` over `groups[g]`, which
+/// may name earlier new texels. The result keeps the model's width and gains
+/// `ceil(groups / width)` rows (the last padded with copies of texel 0), so every original texel
+/// keeps its index. Errors: a model not linear in its texel arrays ([`AVERAGEABLE`]), a group
+/// naming a texel not yet defined ("groups").
+pub fn mip_texels(model: &dyn DynModel, groups: &[Vec<(u32, f32)>]) -> Result<Box<dyn DynModel>> {
+    let entry = lookup(model.kind())?;
+    if !AVERAGEABLE.contains(&entry.kind) {
+        return Err(Error::arg(
+            "filter",
+            format!("the {} model's parameters cannot be averaged (use medoid levels)", entry.kind),
+        ));
+    }
+    let (h, w) = model.dims();
+    let n = h * w;
+    for (g, grp) in groups.iter().enumerate() {
+        if let Some(&(bad, _)) = grp.iter().find(|(t, _)| *t as usize >= n + g) {
+            return Err(Error::arg("groups", format!("group {g} names texel {bad}, not defined before it")));
+        }
+    }
+    let rows = h + groups.len().div_ceil(w.max(1));
+    let arrays = model.to_arrays();
+    let mut out = NamedArrays::new();
+    use btfrs_core::arrays::ArrayData as D;
+    for (name, a) in arrays.iter() {
+        if !entry.texel_arrays.contains(&name) {
+            out.insert(name, a.clone());
+            continue;
+        }
+        if a.shape.len() < 2 || a.shape[0] != h || a.shape[1] != w {
+            return Err(Error::arg("model", format!("{} array {name} has shape {:?}, not [{h}, {w}, ...]", entry.kind, a.shape)));
+        }
+        let per: usize = a.shape[2..].iter().product();
+        let mut shape = vec![rows, w];
+        shape.extend_from_slice(&a.shape[2..]);
+        // Averages in f64 over f64 copies, then back to the array's type (integers rounded).
+        let mut v: Vec<f64> = match &a.data {
+            D::U8(x) => x.iter().map(|&y| y as f64).collect(),
+            D::U16(x) => x.iter().map(|&y| y as f64).collect(),
+            D::I32(x) => x.iter().map(|&y| y as f64).collect(),
+            D::F32(x) => x.iter().map(|&y| y as f64).collect(),
+            D::F64(x) => x.clone(),
+        };
+        v.reserve((rows * w - n) * per);
+        for grp in groups {
+            let mut acc = vec![0.0f64; per];
+            for &(t, wt) in grp {
+                for (o, x) in acc.iter_mut().zip(&v[t as usize * per..(t as usize + 1) * per]) {
+                    *o += wt as f64 * x;
+                }
+            }
+            v.extend(acc);
+        }
+        let pad: Vec<f64> = v[..per].to_vec();
+        while v.len() < rows * w * per {
+            v.extend_from_slice(&pad);
+        }
+        let data = match &a.data {
+            D::U8(_) => D::U8(v.iter().map(|x| x.round().clamp(0.0, 255.0) as u8).collect()),
+            D::U16(_) => D::U16(v.iter().map(|x| x.round().clamp(0.0, 65535.0) as u16).collect()),
+            D::I32(_) => D::I32(v.iter().map(|x| x.round() as i32).collect()),
+            D::F32(_) => D::F32(v.iter().map(|&x| x as f32).collect()),
+            D::F64(_) => D::F64(v),
+        };
+        out.insert_checked(name, shape, data)?;
+    }
+    (entry.from_arrays)(&out)
+}
+
 /// The model of a subset of texels: texel `k` of the result is texel `texels[k]` (row-major
 /// index) of `model`, every other parameter shared. The result has dims `(1, texels.len())`.
 /// A tile set stores its BTFel table this way (paper 002, section 5.3).

@@ -59,6 +59,39 @@ impl Filter {
     }
 }
 
+/// The (view, light) pairs of the appearance signature: the view at the normal and at 45 and
+/// 60 degrees, lights around and opposite (specular-like), so that both diffuse colour and the
+/// shape of the reflectance count. (theta_v, phi_v, theta_l, phi_l) in degrees.
+pub const SIGNATURE_PAIRS: [[f64; 4]; 6] = [
+    [0.0, 0.0, 30.0, 0.0],
+    [0.0, 0.0, 30.0, 120.0],
+    [0.0, 0.0, 30.0, 240.0],
+    [45.0, 0.0, 45.0, 180.0],
+    [45.0, 90.0, 60.0, 270.0],
+    [60.0, 200.0, 20.0, 20.0],
+];
+
+/// Floats per texel of [`signatures`].
+pub const SIGNATURE_LEN: usize = 3 * SIGNATURE_PAIRS.len();
+
+/// Every texel's appearance signature: the model's RGB at [`SIGNATURE_PAIRS`], texel-major.
+pub fn signatures<M: btfrs_fit::Shade + ?Sized>(model: &M) -> Vec<f32> {
+    use rayon::prelude::*;
+    let (h, w) = model.shade_dims();
+    let dir = |t: f64, p: f64| {
+        let (t, p) = (t.to_radians(), p.to_radians());
+        [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]
+    };
+    let pairs: Vec<([f64; 3], [f64; 3])> = SIGNATURE_PAIRS.iter().map(|q| (dir(q[0], q[1]), dir(q[2], q[3]))).collect();
+    let mut out = vec![0.0f32; h * w * SIGNATURE_LEN];
+    out.par_chunks_mut(SIGNATURE_LEN).enumerate().for_each(|(t, o)| {
+        for (k, (v, l)) in pairs.iter().enumerate() {
+            o[3 * k..3 * k + 3].copy_from_slice(&model.shade(t, *v, *l));
+        }
+    });
+    out
+}
+
 /// One level of a [`MipChain`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Level {
@@ -198,6 +231,52 @@ impl MipChain {
             (w, h, ids, mean, count) = (nw, nh, nids, nmean, ncount);
         }
         Ok(chain)
+    }
+
+    /// The chain of `source` over a model of `texels` texels whose coarse levels are *averages*:
+    /// every level-L virtual texel gets a new texel id `texels + g`, and `groups[g]` lists the
+    /// (texel, weight) pairs it averages (its children one level finer, which may be averages
+    /// themselves, weighted by how many level-0 texels they stand for). The caller makes the
+    /// model holding them (`btfrs_fit::registry::mip_texels` for models linear in their texel
+    /// arrays, a row-extended BTF for the raw data): the exact box-filtered pyramid.
+    pub fn build_average(source: Source<'_>, texels: usize) -> Result<(MipChain, Vec<Vec<(u32, f32)>>)> {
+        // The medoid build with a constant signature gives the level structure; the ids of the
+        // coarse levels are then replaced by new texels averaging their children.
+        let flat = vec![0.0f32; texels];
+        let mut chain = MipChain::build(source, &flat, 1, texels)?;
+        let mut groups: Vec<Vec<(u32, f32)>> = Vec::new();
+        // Rows of level l's id grid (its ids run to the next level's offset).
+        let rows = |c: &MipChain, l: usize| -> usize {
+            let end = c.levels.get(l + 1).map_or(c.ids.len() as u32, |n| n.offset);
+            (end - c.levels[l].offset) as usize / c.levels[l].stride as usize
+        };
+        let mut counts: Vec<u32> = vec![1; chain.levels[0].stride as usize * rows(&chain, 0)];
+        for l in 1..chain.levels.len() {
+            let (prev, cur) = (chain.levels[l - 1], chain.levels[l]);
+            let (pw, ph) = (prev.stride as usize, rows(&chain, l - 1));
+            let (cw, ch) = (cur.stride as usize, rows(&chain, l));
+            let mut next_counts = vec![0u32; cw * ch];
+            for y in 0..ch {
+                for x in 0..cw {
+                    let kids: Vec<usize> = [(0, 0), (1, 0), (0, 1), (1, 1)]
+                        .iter()
+                        .map(|(dx, dy)| (2 * x + dx, 2 * y + dy))
+                        .filter(|&(cx, cy)| cx < pw && cy < ph)
+                        .map(|(cx, cy)| cy * pw + cx)
+                        .collect();
+                    let total: u32 = kids.iter().map(|&k| counts[k]).sum();
+                    let group = kids
+                        .iter()
+                        .map(|&k| (chain.ids[prev.offset as usize + k], counts[k] as f32 / total as f32))
+                        .collect();
+                    chain.ids[cur.offset as usize + y * cw + x] = (texels + groups.len()) as u32;
+                    groups.push(group);
+                    next_counts[y * cw + x] = total;
+                }
+            }
+            counts = next_counts;
+        }
+        Ok((chain, groups))
     }
 
     /// The model texel of virtual texel (x, y) of `level` (in range).

@@ -10,6 +10,7 @@ use btfrs_fit::gpu::GpuLayout;
 use btfrs_fit::registry::MODELS;
 use btfrs_fit::{fit_ptm, PtmOptions, RawModel, Renderable};
 use btfrs_render::cpu::render_cpu;
+use btfrs_render::filter::{Filter, MipChain, Source};
 use btfrs_render::scene::{Camera, Light, Mesh};
 use btfrs_render::{gpu, Gpu, TileMap, View, WithShader};
 
@@ -141,6 +142,25 @@ fn check(gpu: &Gpu, name: &str, model: &dyn Renderable) -> f64 {
             assert!(lit > 96 * 80 / 10, "{name} on {scene}: the image is almost empty");
             assert!(p >= 40.0, "{name} on {scene} (map mode {with_map}): GPU vs CPU PSNR {p:.1} dB < 40");
             worst = worst.min(p);
+            // Filtered lookups (medoid levels, which every model supports) on the plane: the
+            // CPU reference implements the same filter.
+            if scene == "plane" {
+                let sig = btfrs_render::filter::signatures(model);
+                let source = match (with_map, &tiles) {
+                    (1, _) => Source::Coords(mw, mh, &map, w),
+                    (2, t) => Source::Tiles(t),
+                    _ => Source::Sample(h, w),
+                };
+                let chain = MipChain::build(source, &sig, btfrs_render::filter::SIGNATURE_LEN, h * w).unwrap();
+                for f in [Filter::Bilinear, Filter::Trilinear] {
+                    let v = View { filter: Some((f, &chain)), ..view };
+                    let (g, _) = gpu::render(gpu, &up, &v).unwrap();
+                    let c = render_cpu(model, &v).unwrap();
+                    let p = psnr(&g, &c);
+                    assert!(p >= 40.0, "{name} on {scene} (map mode {with_map}, {f:?}): GPU vs CPU PSNR {p:.1} dB < 40");
+                    worst = worst.min(p);
+                }
+            }
         }
     }
     worst
