@@ -14,11 +14,12 @@ fn view_query(v: vec3<f32>) -> ViewQuery {
     return ViewQuery(interp3(0u, mp.n_views, mp.view_table, v));
 }
 
-fn coef(i: u32) -> f32 {
+// Value `i` (flat) of plane `p` (= i mod mp.k, passed in: the caller knows it per slot, and an
+// integer modulo per coefficient is scalarised on SIMD rasterisers such as lavapipe).
+fn coef(i: u32, p: u32) -> f32 {
     if (mp.bits == 32u) {
         return load(mp.coeffs + i);
     }
-    let p = i % mp.k;
     let q = f32((load_u32(mp.coeffs + i / 4u) >> (8u * (i % 4u))) & 255u);
     return load(mp.scale + mp.k + p) + load(mp.scale + p) * q;
 }
@@ -61,14 +62,17 @@ fn hsh_basis(l: vec3<f32>) -> array<f32, 16> {
     return b;
 }
 
-fn hsh_slot(slot: u32, b: array<f32, 16>) -> vec3<f32> {
+fn hsh_slot(texel: u32, view: u32, b: array<f32, 16>) -> vec3<f32> {
     let n2 = mp.order * mp.order;
+    let slot = texel * mp.n_views + view;
     let base = slot * 3u * n2;
+    // Planes are per (view, channel, coefficient): flat index mod k = view * 3 n^2 + ...
+    let pb = view * 3u * n2;
     var out = vec3<f32>(0.0);
     for (var ch = 0u; ch < 3u; ch++) {
         var acc = 0.0;
         for (var j = 0u; j < n2; j++) {
-            acc += coef(base + ch * n2 + j) * b[j];
+            acc += coef(base + ch * n2 + j, pb + ch * n2 + j) * b[j];
         }
         out[ch] = acc;
     }
@@ -77,13 +81,12 @@ fn hsh_slot(slot: u32, b: array<f32, 16>) -> vec3<f32> {
 
 fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
     let b = hsh_basis(l);
-    let base = texel * mp.n_views;
-    var out = vq.w.w0 * hsh_slot(base + vq.w.i0, b);
+    var out = vq.w.w0 * hsh_slot(texel, vq.w.i0, b);
     if (vq.w.w1 > 0.0) {
-        out += vq.w.w1 * hsh_slot(base + vq.w.i1, b);
+        out += vq.w.w1 * hsh_slot(texel, vq.w.i1, b);
     }
     if (vq.w.w2 > 0.0) {
-        out += vq.w.w2 * hsh_slot(base + vq.w.i2, b);
+        out += vq.w.w2 * hsh_slot(texel, vq.w.i2, b);
     }
     return out;
 }

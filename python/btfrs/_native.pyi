@@ -12,7 +12,7 @@ _F32 = npt.NDArray[np.float32]
 _F64 = npt.NDArray[np.float64]
 _Bool = npt.NDArray[np.bool_]
 
-__all__ = ['__version__', '_panic_for_test', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'Model', 'fit_model', 'load_model', 'model_registry', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_rti', 'read_rti', 'write_png', 'read_png', 'write_exr', 'read_exr', 'write_exr_channels', 'load_capture', 'texel_arrays', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_raw', 'gpu_render', 'cpu_render_raw', 'gpu_upload_model', 'cpu_render_model', 'env_check', 'env_sky', 'env_sample', 'env_quadrature', 'env_sh', 'render_env_sh', 'scene_directions', 'Analysis', 'analyse_btf_native', 'analyse_features_native', 'min_cut_native', 'grid_min_cut_native', 'wang_model_features', 'wang_synthesize', 'wang_tiling', 'wang_check', 'wang_atlas_positions', 'wang_seam_errors', 'wang_random_crops', 'texture_names', 'make_texture']
+__all__ = ['__version__', '_panic_for_test', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'Model', 'fit_model', 'load_model', 'model_registry', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_rti', 'read_rti', 'write_png', 'read_png', 'write_exr', 'read_exr', 'write_exr_channels', 'load_capture', 'texel_arrays', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_raw', 'gpu_render', 'cpu_render_raw', 'gpu_upload_model', 'cpu_render_model', 'env_check', 'env_sky', 'env_sample', 'env_quadrature', 'env_sh', 'render_env_sh', 'MipChain', 'filter_signature', 'filter_build', 'mip_model', 'scene_directions', 'Analysis', 'analyse_btf_native', 'analyse_features_native', 'min_cut_native', 'grid_min_cut_native', 'wang_model_features', 'wang_synthesize', 'wang_tiling', 'wang_check', 'wang_atlas_positions', 'wang_seam_errors', 'wang_random_crops', 'texture_names', 'make_texture']
 __version__: str
 
 def _panic_for_test(place: str) -> None: ...
@@ -151,6 +151,7 @@ def gpu_render(
     uv_scale: list[float],
     coords: Optional[npt.NDArray[np.uint16]] = None,
     tile_map: Optional[tuple[npt.NDArray[np.uint32], int, npt.NDArray[np.uint32]]] = None,
+    filter: _Filter = None,
 ) -> tuple[_F32, float, float]: ...
 def cpu_render_raw(
     data: _F32,
@@ -164,6 +165,7 @@ def cpu_render_raw(
     uv_scale: list[float],
     coords: Optional[npt.NDArray[np.uint16]] = None,
     tile_map: Optional[tuple[npt.NDArray[np.uint32], int, npt.NDArray[np.uint32]]] = None,
+    filter: _Filter = None,
 ) -> _F32: ...
 def gpu_upload_model(model: Model, method: str = "default") -> GpuModel: ...
 def cpu_render_model(
@@ -177,6 +179,7 @@ def cpu_render_model(
     coords: Optional[npt.NDArray[np.uint16]] = None,
     method: str = "default",
     tile_map: Optional[tuple[npt.NDArray[np.uint32], int, npt.NDArray[np.uint32]]] = None,
+    filter: _Filter = None,
 ) -> _F32: ...
 def env_check(rgb: _F32) -> None: ...
 def env_sky(sun: list[float], turbidity: float, height: int, ground: float) -> _F32: ...
@@ -194,7 +197,24 @@ def render_env_sh(
     uv_scale: list[float],
     coords: Optional[npt.NDArray[np.uint16]] = None,
     tile_map: Optional[tuple[npt.NDArray[np.uint32], int, npt.NDArray[np.uint32]]] = None,
+    filter: _Filter = None,
 ) -> tuple[_F32, float, float]: ...
+@final
+class MipChain:
+    @property
+    def levels(self) -> int: ...
+
+_Filter = Optional[tuple[str, MipChain]]
+
+def filter_signature(model: Model) -> _F32: ...
+def filter_build(
+    kind: str,
+    dims: tuple[int, int],
+    coords: Optional[npt.NDArray[np.uint16]] = None,
+    tile_map: Optional[tuple[npt.NDArray[np.uint32], int, npt.NDArray[np.uint32]]] = None,
+    signature: Optional[_F32] = None,
+) -> tuple[MipChain, npt.NDArray[np.int64], _F32]: ...
+def mip_model(model: Model, idx: npt.NDArray[np.int64], weights: _F32) -> Model: ...
 def scene_directions(
     scene: Scene,
     camera: Camera,

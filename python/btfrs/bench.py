@@ -146,6 +146,64 @@ def _render_ms(model, method=None, size=512, repeat=2) -> float:
     return best, img
 
 
+def rendering_info() -> str:
+    from . import rendering
+
+    return rendering.gpu_info()
+
+
+def env_bench(size: int = 64, repeat: int = 2) -> list:
+    """Frame times (ms) on this machine's adapter, one model per registered kind (its first
+    example option set) on the knit at ``size``^2: a 512^2 sphere with one point light (nearest),
+    the same with trilinear lookups, and a 640 x 480 sphere under the built-in sky with 64
+    importance-sampled lights; double-SH models also by the SH method (paper 002, section 4:
+    3.2 to 4.5 minutes per 640 x 480 frame). Best of ``repeat`` after a warm-up frame."""
+    from . import rendering
+    from .environment import Environment
+    from .models import model_kinds
+
+    btf = materials.make("knit", size=size, seed=1)
+    env = Environment.sky(sun=[0.3, 0.2, 0.9], turbidity=3)
+    scene = rendering.Scene.sphere()
+    cam = rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
+    light = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
+
+    def best(**kw) -> float:
+        rendering.render(**kw)
+        t = float("inf")
+        for _ in range(repeat):
+            rendering.render(**kw)
+            t = min(t, rendering.last_timings().draw_ms)
+        return t
+
+    models = [("raw BTF", btf)]
+    for kind, info in model_kinds().items():
+        label, opts = info["examples"][-1] if kind == "sh" else info["examples"][0]
+        models.append((label, fit.fit(kind, btf, **opts)))
+    rows = []
+    for label, m in models:
+        base = dict(model=m, scene=scene, camera=cam, uv_scale=4)
+        r = dict(model=label, point_ms=best(lights=light, size=512, **base),
+                 trilinear_ms=best(lights=light, size=512, filter="trilinear", **base),
+                 env64_ms=best(environment=env, samples=64, size=(480, 640), **base))
+        if getattr(m, "kind", "") == "sh":
+            r["env_sh_ms"] = best(environment=env, method="sh", size=(480, 640), **base)
+        rows.append(r)
+    ptm = next(r["point_ms"] for r in rows if r["model"].startswith("PTM-RGB"))
+    for r in rows:
+        r["vs_ptm"] = r["point_ms"] / ptm
+    return rows
+
+
+def env_table(rows: list) -> str:
+    out = [f"{'model':<22} {'512^2 point':>12} {'x PTM':>6} {'trilinear':>10} {'640x480 env 64':>15} {'SH method':>10}"]
+    for r in rows:
+        sh = f"{r['env_sh_ms'] / 1e3:>9.2f}s" if "env_sh_ms" in r else f"{'':>10}"
+        out.append(f"{r['model']:<22} {r['point_ms']:>10.0f}ms {r['vs_ptm']:>6.1f} {r['trilinear_ms']:>8.0f}ms "
+                   f"{r['env64_ms'] / 1e3:>14.2f}s {sh}")
+    return "\n".join(out)
+
+
 # The models of the table: every example option set of every registered model (the registry
 # names them; nothing here does), then further points of the parameter sweep as data.
 EXTRA_SETTINGS = [
@@ -820,10 +878,17 @@ def main(argv=None) -> int:
                    help="only the accuracy of every model on every material (at --size, default 32)")
     p.add_argument("--rti-only", action="store_true",
                    help="only the single-view RTI captures: every light basis against bytes (charts in docs/rti)")
+    p.add_argument("--env-only", action="store_true",
+                   help="only the per-model frame times: point light, trilinear, environment (issue 14)")
     p.add_argument("--figures", metavar="DIR", help="also write paper 000 Figure 6 style images into DIR")
     a = p.parse_args(argv)
     if a.json is None:
         a.json = os.path.join(a.figures or "bench-results", "accuracy.json" if a.accuracy else "bench.json")
+    if a.env_only:
+        res = env_bench(size=(a.size or [64])[0], repeat=max(1, a.repeat))
+        print(f"frame times on {rendering_info()} (knit {(a.size or [64])[0]}^2, uv_scale 4, best of {max(1, a.repeat)}):")
+        print(env_table(res))
+        return _finish(a, {"machine": machine(), "env": res})
     if a.rti_only:
         res = rti_bench(size=(a.size or [RTI_SIZE])[0])
         for c in res:

@@ -149,6 +149,43 @@ def step_render(ctx: Context) -> None:
     ctx.log(f"rendered {len(shots) * len(names)} frames on {rendering.gpu_info()}")
 
 
+def step_environment(ctx: Context) -> None:
+    """Environment light (paper 002, section 4): the material on a sphere under the built-in
+    sky, by the sampled method (64 importance-sampled lights, PTM-RGB) and by the SH method
+    (the double-SH model); then a slanted plane with nearest and trilinear lookups."""
+    from . import rendering
+    from .environment import Environment
+    from .models import Sh
+
+    env = Environment.sky(sun=[0.3, 0.2, 0.9], turbidity=3)
+    sphere, cam = rendering.Scene.sphere(), rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
+    ptm = next(m for n, m in ctx.models.items() if m.kind == "ptm" and getattr(m, "variant", "") == "rgb")
+    sh = next((m for m in ctx.models.values() if isinstance(m, Sh)), None)
+    shots, times = [], []
+    img = rendering.render(ptm, sphere, cam, environment=env, samples=64, seed=ctx.seed, size=(320, 320), uv_scale=4)
+    shots.append(img)
+    times.append(f"sampled (64 lights, PTM-RGB) {rendering.last_timings().draw_ms:.0f} ms")
+    if sh is not None:
+        img = rendering.render(sh, sphere, cam, environment=env, method="sh", size=(320, 320), uv_scale=4)
+        shots.append(img)
+        times.append(f"SH method (double SH) {rendering.last_timings().draw_ms:.0f} ms")
+    exposure = 0.9 / max(float(np.percentile(shots[0][shots[0].sum(-1) > 0], 99)), 1e-6)
+    io.save_image(ctx.out / "environment.png", _tile(shots, scale=1, gap=6), exposure=exposure)
+    ctx.images.append(("environment.png", "the material on a sphere under the built-in Preetham sky (sun at "
+                       "[0.3, 0.2, 0.9], turbidity 3): sampled method (PTM-RGB) | SH method (double SH)"))
+    ctx.notes.append("Environment frames (320^2): " + ", ".join(times) + ".")
+    plane = rendering.Scene.plane(8.0)
+    pcam = rendering.Camera.look_at([0, -3, 3], [0, 0.5, 0], 50)
+    light = [rendering.DirectionalLight([0.4, -0.3, 0.8], 1.0)]
+    row = [rendering.render(ptm, plane, pcam, light, size=(240, 320), uv_scale=24, filter=f)
+           for f in ("nearest", "trilinear")]
+    exposure = 0.9 / max(float(np.percentile(row[0][row[0].sum(-1) > 0], 99)), 1e-6)
+    io.save_image(ctx.out / "filtering.png", _tile(row, scale=1, gap=6), exposure=exposure)
+    ctx.images.append(("filtering.png", "a plane seen at 45 degrees, the texture repeated 24 times: nearest "
+                       "lookups (moire) | trilinear lookups over the box-filtered mip pyramid"))
+    ctx.log("rendered the environment and filtering frames")
+
+
 def step_materials_overview(ctx: Context) -> None:
     """Every built-in material under three lights (view from above), to see what they are."""
     from .directions import from_theta_phi
@@ -289,7 +326,8 @@ def step_summary(ctx: Context) -> None:
     ctx.log(f"wrote {ctx.out / 'summary.md'}")
 
 
-STEPS: list = [step_material, step_baseline, step_models, step_compare_images, step_render, step_synthesis,
+STEPS: list = [step_material, step_baseline, step_models, step_compare_images, step_render, step_environment,
+               step_synthesis,
                step_tiles, step_materials_overview, step_evaluate, step_summary]
 
 

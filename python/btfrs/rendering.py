@@ -116,6 +116,73 @@ def _upload(model, method: str):
     return up, (time.perf_counter() - t0) * 1e3
 
 
+# Models whose value is linear in their per-texel arrays: their trilinear mip levels are exact
+# averages (btfrs_fit::registry::AVERAGEABLE); the others get appearance-medoid levels.
+_AVERAGEABLE = ("ptm", "hsh", "sh", "rbf", "bilinear")
+_filters: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_filters.clear)
+
+
+def _map_key(coords, tm) -> tuple:
+    """A key for the texture a render shows (the map's bytes, hashed)."""
+    if tm is not None:
+        return ("tiles", hash(tm[0].tobytes()), tm[1], hash(tm[2].tobytes()))
+    if coords is not None:
+        return ("coords", coords.shape, hash(coords.tobytes()))
+    return ("sample",)
+
+
+def _filtered(model, filt: str, coords, tm):
+    """What a filtered render draws and with which mip chain: ``(drawn, chain, how)``, ``how``
+    being ``"average"`` (a box-filtered pyramid: the model extended by averaged texels, for
+    models linear in their texel arrays and the raw BTF) or ``"medoid"`` (levels of existing
+    texels chosen by appearance, for the others; see rust/btfrs-render/src/filter.rs). Cached
+    per model, filter and map."""
+    is_raw = isinstance(model, Btf)
+    dims = (model.height, model.width) if is_raw else tuple(model.shape)
+    avg = filt == "trilinear" and (is_raw or (model.kind in _AVERAGEABLE and getattr(model, "variant", "rgb") != "lrgb"))
+    key = (filt, avg, _map_key(coords, tm))
+    per_model = _filters.setdefault(model, {})
+    hit = per_model.get(key)
+    if hit is not None:
+        return hit
+    if avg:
+        chain, idx, wts = _native.filter_build("average", dims, coords, tm)
+        if is_raw:
+            flat = model.data.reshape((dims[0] * dims[1],) + model.data.shape[2:])
+            levels = np.empty((idx.shape[0],) + flat.shape[1:], dtype=np.float32)
+            everything = np.concatenate([flat, levels])
+            for g in range(idx.shape[0]):
+                sel = idx[g] >= 0
+                everything[flat.shape[0] + g] = np.tensordot(wts[g][sel], everything[idx[g][sel]], axes=1)
+            extra = -(-idx.shape[0] // dims[1]) * dims[1] - idx.shape[0]
+            rows = [everything, np.repeat(flat[:1], extra, axis=0)]
+            data = np.concatenate(rows).reshape((-1, dims[1]) + flat.shape[1:])
+            drawn = Btf(data, model.views, model.lights, check=False)
+        else:
+            from .models import wrap
+
+            drawn = wrap(_native.mip_model(model._m, idx, wts))
+        hit = (drawn, chain, "average")
+    else:
+        sig = None
+        if filt == "trilinear":
+            sig = _native.filter_signature(model._m) if not is_raw else _raw_signature(model)
+        chain, _, _ = _native.filter_build("medoid", dims, coords, tm, sig)
+        hit = (model, chain, "medoid")
+    per_model[key] = hit
+    return hit
+
+
+def _raw_signature(btf: Btf) -> np.ndarray:
+    """Per texel, the measured values at a few (view, light) pairs spread over the set."""
+    v, l = btf.data.shape[2], btf.data.shape[3]
+    pairs = [(0, 0), (v // 2, l // 3), (v - 1, (2 * l) // 3), (v // 3, l - 1), ((2 * v) // 3, l // 2), (v // 4, l // 5)]
+    sig = np.stack([btf.data[:, :, a, b, :] for a, b in pairs], axis=2)
+    return np.ascontiguousarray(sig.reshape(btf.data.shape[0] * btf.data.shape[1], -1), dtype=np.float32)
+
+
 def _method(model, method: Optional[str]) -> str:
     """The renderer for ``model``: its first (``model.renderers[0]``) unless named. LPCA has two
     (paper 004): ``"9tap"`` (the original, the default) and ``"3d"`` (the 3D-texture method);
@@ -164,7 +231,7 @@ def render(model: Union[Model, Btf], scene, camera, lights=None, *, size=(512, 5
            coords: Optional[np.ndarray] = None, backend: str = "gpu", method: Optional[str] = None,
            tiles=None, layout=None, tile_map: Optional[TileMap] = None,
            environment=None, samples: int = 64, seed: int = 0, renderer: Optional[str] = None,
-           progress: Progress = None) -> np.ndarray:
+           filter: str = "nearest", progress: Progress = None) -> np.ndarray:
     """Render ``model`` (a fitted model, or a :class:`~btfrs.Btf` for the raw measured data)
     on ``scene`` seen by ``camera`` under ``lights`` and/or an ``environment``; returns
     ``[height, width, 3]`` float32, 0 where no surface is seen.
@@ -197,6 +264,14 @@ def render(model: Union[Model, Btf], scene, camera, lights=None, *, size=(512, 5
         importance-sampled directional lights, ``seed``, rendered in one pass; ``lights`` are
         added to them) or ``"sh"`` (double-SH models: the SH-domain method, no ``lights``), and
         ``renderer`` the model's renderer (what ``method`` names without an environment).
+    filter: ``"nearest"`` (one texel, the default), ``"bilinear"`` (four) or ``"trilinear"``
+        (mip-mapped, eight) lookups, in the texture the surface shows: through a coordinate map
+        or a tile map each tap is resolved on its own, so filtering has no seams at the map's
+        discontinuities. Trilinear levels are exact box-filtered averages for models linear in
+        their texel arrays (PTM-RGB, HSH, SH, RBF, bilinear, the raw BTF) and appearance
+        medoids (the texel of each block nearest its mean appearance) for the others
+        (Lafortune, per-view Lafortune, SRF, LPCA, PTM-LRGB), whose parameters cannot be
+        averaged. Built once per model and map and cached.
     progress: None, True or a callable ``(done, total)`` counting the phases: for the GPU the
         upload (immediate when the model is already on the device) and the draw with its
         read-back; for the CPU the frame.
@@ -268,12 +343,19 @@ def render(model: Union[Model, Btf], scene, camera, lights=None, *, size=(512, 5
         tm = tile_map._native()
     meth = _method(model, method)
     backend = choice("backend", backend, ("gpu", "cpu"))
+    filt = choice("filter", filter, ("nearest", "bilinear", "trilinear"))
+    fa = None
+    if filt != "nearest":
+        if isinstance(model, Model) and meth != model.renderers[0]:
+            raise InvalidArgumentError(f"filter: filtered lookups use the default renderer; got method={meth!r}")
+        model, chain, _ = _filtered(model, filt, coords, tm)
+        fa = (filt, chain)
     if env_method == "sh":
         cb = callback(progress, f"render {h}x{w} (SH environment, {backend})")
         if cb is not None:
             cb(0, 1)
         up, up_ms = _upload(model, meth) if backend == "gpu" else (None, 0.0)
-        img, draw, rb = _native.render_env_sh(model._m, up, scene, camera, environment.data, w, h, uvs, coords, tm)
+        img, draw, rb = _native.render_env_sh(model._m, up, scene, camera, environment.data, w, h, uvs, coords, tm, fa)
         if backend == "gpu":
             _last[:] = [RenderResult(draw, rb, up_ms)]
         if cb is not None:
@@ -286,7 +368,7 @@ def render(model: Union[Model, Btf], scene, camera, lights=None, *, size=(512, 5
         up, up_ms = _upload(model, meth)
         if cb is not None:
             cb(1, 2)
-        img, draw, rb = _native.gpu_render(up, scene, camera, items, w, h, uvs, coords, tm)
+        img, draw, rb = _native.gpu_render(up, scene, camera, items, w, h, uvs, coords, tm, fa)
         _last[:] = [RenderResult(draw, rb, up_ms)]
         if cb is not None:
             cb(2, 2)
@@ -295,10 +377,10 @@ def render(model: Union[Model, Btf], scene, camera, lights=None, *, size=(512, 5
     if cb is not None:
         cb(0, 1)
     if isinstance(model, Model):
-        img = _native.cpu_render_model(model._m, scene, camera, items, w, h, uvs, coords, meth, tm)
+        img = _native.cpu_render_model(model._m, scene, camera, items, w, h, uvs, coords, meth, tm, fa)
     else:
         img = _native.cpu_render_raw(model.data, model.views, model.lights, scene, camera, items, w, h, uvs, coords,
-                                     tm)
+                                     tm, fa)
     if cb is not None:
         cb(1, 1)
     return img

@@ -66,6 +66,10 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render::env_quadrature, m)?)?;
     m.add_function(wrap_pyfunction!(render::env_sh, m)?)?;
     m.add_function(wrap_pyfunction!(render::render_env_sh, m)?)?;
+    m.add_class::<render::PyMipChain>()?;
+    m.add_function(wrap_pyfunction!(render::filter_signature, m)?)?;
+    m.add_function(wrap_pyfunction!(render::filter_build, m)?)?;
+    m.add_function(wrap_pyfunction!(render::mip_model, m)?)?;
     m.add_function(wrap_pyfunction!(render::scene_directions, m)?)?;
     m.add_function(wrap_pyfunction!(graphcut::min_cut_native, m)?)?;
     m.add_function(wrap_pyfunction!(graphcut::grid_min_cut_native, m)?)?;

@@ -8,6 +8,7 @@ use crate::run::detach;
 use btfrs_fit::{RawModel, Renderable};
 use btfrs_render::cpu::{render_cpu, render_cpu_env_sh};
 use btfrs_render::environment::Environment;
+use btfrs_render::filter::{signatures, Filter, MipChain, Source, SIGNATURE_LEN};
 use btfrs_render::sh_env::ShEnvironment;
 use btfrs_render::scene::{Camera, Light, Mesh};
 use btfrs_render::{gpu, Gpu, TileMap, UploadedModel, View};
@@ -292,7 +293,7 @@ fn image(py: Python<'_>, v: Vec<f32>, w: usize, h: usize) -> PyResult<Image<'_>>
 
 /// Render an uploaded model on the GPU: (image, draw ms, read-back ms).
 #[pyfunction]
-#[pyo3(signature = (model, scene, camera, lights, width, height, uv_scale, coords=None, tile_map=None))]
+#[pyo3(signature = (model, scene, camera, lights, width, height, uv_scale, coords=None, tile_map=None, filter=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn gpu_render<'py>(
     py: Python<'py>,
@@ -305,16 +306,18 @@ pub fn gpu_render<'py>(
     uv_scale: [f32; 2],
     coords: Option<&Bound<'py, PyAny>>,
     tile_map: Option<&Bound<'py, PyAny>>,
+    filter: Option<(String, PyRef<'py, PyMipChain>)>,
 ) -> PyResult<(Image<'py>, f64, f64)> {
     let args = ViewArgs::new(lights, coords, tile_map)?;
-    let view = args.view(scene, camera, (width, height), uv_scale);
+    let f = filter_of(filter)?;
+    let view = View { filter: f.as_ref().map(|(m, c)| (*m, &c.chain)), ..args.view(scene, camera, (width, height), uv_scale) };
     let (img, t) = detach(py, || gpu::render(&model.gpu, &model.up, &view))?;
     Ok((image(py, img, width, height)?, t.draw_ms, t.readback_ms))
 }
 
 /// Render a raw BTF with the CPU reference renderer.
 #[pyfunction]
-#[pyo3(signature = (data, views, btf_lights, scene, camera, lights, width, height, uv_scale, coords=None, tile_map=None))]
+#[pyo3(signature = (data, views, btf_lights, scene, camera, lights, width, height, uv_scale, coords=None, tile_map=None, filter=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn cpu_render_raw<'py>(
     py: Python<'py>,
@@ -329,13 +332,15 @@ pub fn cpu_render_raw<'py>(
     uv_scale: [f32; 2],
     coords: Option<&Bound<'py, PyAny>>,
     tile_map: Option<&Bound<'py, PyAny>>,
+    filter: Option<(String, PyRef<'py, PyMipChain>)>,
 ) -> PyResult<Image<'py>> {
     let args = BtfArgs::new(data, views, btf_lights, None)?;
     let b = args.btf()?;
     let _ = dirs("views", &args.views)?;
     let raw = RawModel::new(b).py()?;
     let args = ViewArgs::new(lights, coords, tile_map)?;
-    let view = args.view(scene, camera, (width, height), uv_scale);
+    let f = filter_of(filter)?;
+    let view = View { filter: f.as_ref().map(|(m, c)| (*m, &c.chain)), ..args.view(scene, camera, (width, height), uv_scale) };
     check_size(width, height)?;
     let img = detach(py, || render_cpu(&raw, &view))?;
     image(py, img, width, height)
@@ -370,7 +375,7 @@ pub fn gpu_upload_model(py: Python<'_>, model: &PyModel, method: &str) -> PyResu
 /// Render any fitted model with the CPU reference renderer (`method` as for the upload): the
 /// same object the GPU draws, evaluated by its own Rust code.
 #[pyfunction]
-#[pyo3(signature = (model, scene, camera, lights, width, height, uv_scale, coords=None, method="default", tile_map=None))]
+#[pyo3(signature = (model, scene, camera, lights, width, height, uv_scale, coords=None, method="default", tile_map=None, filter=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn cpu_render_model<'py>(
     py: Python<'py>,
@@ -384,9 +389,11 @@ pub fn cpu_render_model<'py>(
     coords: Option<&Bound<'py, PyAny>>,
     method: &str,
     tile_map: Option<&Bound<'py, PyAny>>,
+    filter: Option<(String, PyRef<'py, PyMipChain>)>,
 ) -> PyResult<Image<'py>> {
     let args = ViewArgs::new(lights, coords, tile_map)?;
-    let view = args.view(scene, camera, (width, height), uv_scale);
+    let f = filter_of(filter)?;
+    let view = View { filter: f.as_ref().map(|(m, c)| (*m, &c.chain)), ..args.view(scene, camera, (width, height), uv_scale) };
     check_size(width, height)?;
     let img = detach(py, || {
         let r: Box<dyn Renderable + '_> = model.inner.renderer(method, max_3d())?;
@@ -505,7 +512,7 @@ fn sh_of(model: &PyModel) -> PyResult<&btfrs_fit::Sh> {
 /// Render a double-SH model under an environment by the SH method, on the GPU (`gpu` given:
 /// the uploaded model) or the CPU: (image, draw ms, read-back ms; 0 on the CPU).
 #[pyfunction]
-#[pyo3(signature = (model, uploaded, scene, camera, environment, width, height, uv_scale, coords=None, tile_map=None))]
+#[pyo3(signature = (model, uploaded, scene, camera, environment, width, height, uv_scale, coords=None, tile_map=None, filter=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn render_env_sh<'py>(
     py: Python<'py>,
@@ -519,11 +526,13 @@ pub fn render_env_sh<'py>(
     uv_scale: [f32; 2],
     coords: Option<&Bound<'py, PyAny>>,
     tile_map: Option<&Bound<'py, PyAny>>,
+    filter: Option<(String, PyRef<'py, PyMipChain>)>,
 ) -> PyResult<(Image<'py>, f64, f64)> {
     let sh = sh_of(model)?;
     let env = environment_of(environment)?;
     let args = ViewArgs::new(Vec::new(), coords, tile_map)?;
-    let view = args.view(scene, camera, (width, height), uv_scale);
+    let f = filter_of(filter)?;
+    let view = View { filter: f.as_ref().map(|(m, c)| (*m, &c.chain)), ..args.view(scene, camera, (width, height), uv_scale) };
     check_size(width, height)?;
     let (img, t) = detach(py, || {
         let she = ShEnvironment::new(&env, sh.light_coeffs)?;
@@ -533,4 +542,114 @@ pub fn render_env_sh<'py>(
         }
     })?;
     Ok((image(py, img, width, height)?, t.draw_ms, t.readback_ms))
+}
+
+/// A mip chain for filtered lookups (btfrs_render::filter), built once per model and map.
+#[derive(Debug)]
+#[pyclass(name = "MipChain", module = "btfrs._native", frozen)]
+pub struct PyMipChain {
+    chain: MipChain,
+}
+
+#[pymethods]
+impl PyMipChain {
+    /// Number of levels.
+    #[getter]
+    fn levels(&self) -> usize {
+        self.chain.levels.len()
+    }
+}
+
+/// The view's filter from Python: (mode, chain) or None.
+fn filter_of(filter: Option<(String, PyRef<'_, PyMipChain>)>) -> PyResult<Option<(Filter, PyRef<'_, PyMipChain>)>> {
+    filter.map(|(f, c)| Ok((Filter::parse(&f).py()?, c))).transpose()
+}
+
+/// Appearance signatures of a model's texels, `[texels, 18]` (btfrs_render::filter::signatures).
+#[pyfunction]
+pub fn filter_signature<'py>(py: Python<'py>, model: &PyModel) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+    let (h, w) = model.inner.dims();
+    let sig = detach(py, || Ok(signatures(model.inner.as_ref())))?;
+    sig.into_pyarray(py).reshape(vec![h * w, SIGNATURE_LEN])
+}
+
+/// Build the mip chain of the texture a render shows: `kind` "average" (coarse levels are new
+/// texels: returns also the groups, `[G, 4]` texel indices (-1 unused) and weights) or
+/// "medoid" (levels of existing texels chosen by `signature` `[texels, K]`; zeros when None).
+#[pyfunction]
+#[pyo3(signature = (kind, dims, coords=None, tile_map=None, signature=None))]
+#[allow(clippy::type_complexity)]
+pub fn filter_build<'py>(
+    py: Python<'py>,
+    kind: &str,
+    dims: (usize, usize),
+    coords: Option<&Bound<'py, PyAny>>,
+    tile_map: Option<&Bound<'py, PyAny>>,
+    signature: Option<&Bound<'py, PyAny>>,
+) -> PyResult<(PyMipChain, Bound<'py, PyArrayDyn<i64>>, Bound<'py, PyArrayDyn<f32>>)> {
+    let args = ViewArgs::new(Vec::new(), coords, tile_map)?;
+    let (h, w) = dims;
+    let texels = h * w;
+    let tm = args.tiles.as_ref().map(|t| TileMap {
+        tile: t.tile,
+        atlas_cols: t.atlas_cols,
+        atlas_rows: t.atlas_rows,
+        atlas: &t.atlas,
+        layout_cols: t.layout_cols,
+        layout_rows: t.layout_rows,
+        layout: &t.layout,
+    });
+    if let Some(t) = &tm {
+        t.validate(texels).py()?;
+    }
+    let source = || match (&tm, &args.coords) {
+        (Some(t), _) => Source::Tiles(t),
+        (None, Some((mw, mh, m))) => Source::Coords(*mw, *mh, m, w),
+        (None, None) => Source::Sample(h, w),
+    };
+    let (chain, groups) = match kind {
+        "average" => MipChain::build_average(source(), texels).py()?,
+        "medoid" => {
+            let (sig, k) = match signature {
+                Some(s) => {
+                    let a = borrow::<f32>("signature", s)?;
+                    check_shape("signature", a.shape(), &[Some(texels), None])?;
+                    let k = a.shape()[1];
+                    (a.as_slice().map_err(|e| arg("signature", e))?.to_vec(), k)
+                }
+                None => (vec![0.0f32; texels], 1),
+            };
+            (MipChain::build(source(), &sig, k, texels).py()?, Vec::new())
+        }
+        o => return Err(arg("kind", format!("expected \"average\" or \"medoid\", got {o:?}"))),
+    };
+    let g = groups.len();
+    let mut idx = vec![-1i64; g * 4];
+    let mut wts = vec![0.0f32; g * 4];
+    for (i, grp) in groups.iter().enumerate() {
+        for (j, &(t, wt)) in grp.iter().enumerate() {
+            idx[i * 4 + j] = t as i64;
+            wts[i * 4 + j] = wt;
+        }
+    }
+    Ok((PyMipChain { chain }, idx.into_pyarray(py).reshape(vec![g, 4])?, wts.into_pyarray(py).reshape(vec![g, 4])?))
+}
+
+/// The model extended by averaged texels (btfrs_fit::registry::mip_texels): groups as returned
+/// by `filter_build("average", ...)`.
+#[pyfunction]
+pub fn mip_model(py: Python<'_>, model: &PyModel, idx: &Bound<'_, PyAny>, weights: &Bound<'_, PyAny>) -> PyResult<PyModel> {
+    let i = borrow::<i64>("idx", idx)?;
+    let w = borrow::<f32>("weights", weights)?;
+    let (i, w) = (i.as_slice().map_err(|e| arg("idx", e))?, w.as_slice().map_err(|e| arg("weights", e))?);
+    if i.len() != w.len() || i.len() % 4 != 0 {
+        return Err(arg("weights", "expected [G, 4] indices and weights of the same shape"));
+    }
+    let groups: Vec<Vec<(u32, f32)>> = i
+        .chunks(4)
+        .zip(w.chunks(4))
+        .map(|(a, b)| a.iter().zip(b).filter(|(t, _)| **t >= 0).map(|(&t, &x)| (t as u32, x)).collect())
+        .collect();
+    let inner = detach(py, || btfrs_fit::registry::mip_texels(model.inner.as_ref(), &groups))?;
+    Ok(PyModel { inner })
 }

@@ -501,7 +501,8 @@ pub fn validate_view(gpu: &Gpu, view: &View<'_>, dims: (usize, usize)) -> Result
 /// Render `model` (uploaded with [`upload`]) into a `[height][width][3]` image.
 pub fn render(gpu: &Gpu, model: &UploadedModel, view: &View<'_>) -> Result<(Vec<f32>, FrameTimes)> {
     validate_view(gpu, view, model.dims)?;
-    draw(gpu, model, view, &[[0.0; 4]], "fs_main")
+    let filtered = view.filter.is_some_and(|(f, _)| f != crate::filter::Filter::Nearest);
+    draw(gpu, model, view, &[[0.0; 4]], if filtered { "fs_filtered" } else { "fs_main" })
 }
 
 /// Render a double-SH model (uploaded with [`upload`]) under the environment `env` by the SH
