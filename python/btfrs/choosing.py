@@ -240,6 +240,8 @@ def _raw_image(btf: Btf, view: np.ndarray, light: np.ndarray) -> np.ndarray:
     """The raw measured data interpolated at one (view, light), as the raw renderer does."""
     vi, vw = interp_weights(btf.views, view[None])
     li, lw = interp_weights(btf.lights, light[None])
+    # The light blend divides the measured cosine out (btfrs_core::directions::cos_corrected).
+    lw = lw * max(float(light[2]), 0.0) / np.maximum(btf.lights[li, 2], 0.02)
     out = np.zeros(btf.data.shape[:2] + (3,))
     for v, a in zip(vi[0], vw[0]):
         for l, b in zip(li[0], lw[0]):

@@ -140,7 +140,7 @@ def _filtered(model, filt: str, coords, tm):
     texels chosen by appearance, for the others; see rust/btfrs-render/src/filter.rs). Cached
     per model, filter and map."""
     is_raw = isinstance(model, Btf)
-    dims = (model.height, model.width) if is_raw else tuple(model.shape)
+    dims = (model.height, model.width)
     avg = filt == "trilinear" and (is_raw or (model.kind in _AVERAGEABLE and getattr(model, "variant", "rgb") != "lrgb"))
     key = (filt, avg, _map_key(coords, tm))
     per_model = _filters.setdefault(model, {})

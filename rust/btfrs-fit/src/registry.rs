@@ -123,7 +123,10 @@ pub fn mip_texels(model: &dyn DynModel, groups: &[Vec<(u32, f32)>]) -> Result<Bo
             continue;
         }
         if a.shape.len() < 2 || a.shape[0] != h || a.shape[1] != w {
-            return Err(Error::arg("model", format!("{} array {name} has shape {:?}, not [{h}, {w}, ...]", entry.kind, a.shape)));
+            return Err(Error::arg(
+                "model",
+                format!("{} array {name} has shape {:?}, not [{h}, {w}, ...]", entry.kind, a.shape),
+            ));
         }
         let per: usize = a.shape[2..].iter().product();
         let mut shape = vec![rows, w];

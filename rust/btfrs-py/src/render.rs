@@ -9,8 +9,8 @@ use btfrs_fit::{RawModel, Renderable};
 use btfrs_render::cpu::{render_cpu, render_cpu_env_sh};
 use btfrs_render::environment::Environment;
 use btfrs_render::filter::{signatures, Filter, MipChain, Source, SIGNATURE_LEN};
-use btfrs_render::sh_env::ShEnvironment;
 use btfrs_render::scene::{Camera, Light, Mesh};
+use btfrs_render::sh_env::ShEnvironment;
 use btfrs_render::{gpu, Gpu, TileMap, UploadedModel, View};
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -310,7 +310,8 @@ pub fn gpu_render<'py>(
 ) -> PyResult<(Image<'py>, f64, f64)> {
     let args = ViewArgs::new(lights, coords, tile_map)?;
     let f = filter_of(filter)?;
-    let view = View { filter: f.as_ref().map(|(m, c)| (*m, &c.chain)), ..args.view(scene, camera, (width, height), uv_scale) };
+    let view =
+        View { filter: f.as_ref().map(|(m, c)| (*m, &c.chain)), ..args.view(scene, camera, (width, height), uv_scale) };
     let (img, t) = detach(py, || gpu::render(&model.gpu, &model.up, &view))?;
     Ok((image(py, img, width, height)?, t.draw_ms, t.readback_ms))
 }
@@ -340,7 +341,8 @@ pub fn cpu_render_raw<'py>(
     let raw = RawModel::new(b).py()?;
     let args = ViewArgs::new(lights, coords, tile_map)?;
     let f = filter_of(filter)?;
-    let view = View { filter: f.as_ref().map(|(m, c)| (*m, &c.chain)), ..args.view(scene, camera, (width, height), uv_scale) };
+    let view =
+        View { filter: f.as_ref().map(|(m, c)| (*m, &c.chain)), ..args.view(scene, camera, (width, height), uv_scale) };
     check_size(width, height)?;
     let img = detach(py, || render_cpu(&raw, &view))?;
     image(py, img, width, height)
@@ -393,7 +395,8 @@ pub fn cpu_render_model<'py>(
 ) -> PyResult<Image<'py>> {
     let args = ViewArgs::new(lights, coords, tile_map)?;
     let f = filter_of(filter)?;
-    let view = View { filter: f.as_ref().map(|(m, c)| (*m, &c.chain)), ..args.view(scene, camera, (width, height), uv_scale) };
+    let view =
+        View { filter: f.as_ref().map(|(m, c)| (*m, &c.chain)), ..args.view(scene, camera, (width, height), uv_scale) };
     check_size(width, height)?;
     let img = detach(py, || {
         let r: Box<dyn Renderable + '_> = model.inner.renderer(method, max_3d())?;
@@ -467,7 +470,13 @@ pub fn env_check(rgb: &Bound<'_, PyAny>) -> PyResult<()> {
 /// Preetham's analytic sky as a `[height, 2 height, 3]` lat-long array (zenith luminance 1).
 #[pyfunction]
 #[pyo3(signature = (sun, turbidity, height, ground))]
-pub fn env_sky<'py>(py: Python<'py>, sun: [f64; 3], turbidity: f64, height: usize, ground: f64) -> PyResult<Image<'py>> {
+pub fn env_sky<'py>(
+    py: Python<'py>,
+    sun: [f64; 3],
+    turbidity: f64,
+    height: usize,
+    ground: f64,
+) -> PyResult<Image<'py>> {
     let e = detach(py, || Environment::sky(sun, turbidity, height, ground))?;
     e.rgb.into_pyarray(py).reshape(vec![e.height, e.width, 3])
 }
@@ -532,7 +541,8 @@ pub fn render_env_sh<'py>(
     let env = environment_of(environment)?;
     let args = ViewArgs::new(Vec::new(), coords, tile_map)?;
     let f = filter_of(filter)?;
-    let view = View { filter: f.as_ref().map(|(m, c)| (*m, &c.chain)), ..args.view(scene, camera, (width, height), uv_scale) };
+    let view =
+        View { filter: f.as_ref().map(|(m, c)| (*m, &c.chain)), ..args.view(scene, camera, (width, height), uv_scale) };
     check_size(width, height)?;
     let (img, t) = detach(py, || {
         let she = ShEnvironment::new(&env, sh.light_coeffs)?;
@@ -638,7 +648,12 @@ pub fn filter_build<'py>(
 /// The model extended by averaged texels (btfrs_fit::registry::mip_texels): groups as returned
 /// by `filter_build("average", ...)`.
 #[pyfunction]
-pub fn mip_model(py: Python<'_>, model: &PyModel, idx: &Bound<'_, PyAny>, weights: &Bound<'_, PyAny>) -> PyResult<PyModel> {
+pub fn mip_model(
+    py: Python<'_>,
+    model: &PyModel,
+    idx: &Bound<'_, PyAny>,
+    weights: &Bound<'_, PyAny>,
+) -> PyResult<PyModel> {
     let i = borrow::<i64>("idx", idx)?;
     let w = borrow::<f32>("weights", weights)?;
     let (i, w) = (i.as_slice().map_err(|e| arg("idx", e))?, w.as_slice().map_err(|e| arg("weights", e))?);

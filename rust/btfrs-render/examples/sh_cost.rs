@@ -26,7 +26,17 @@ fn main() {
     let mesh = Mesh::sphere(1.0, 64, 32).unwrap();
     let cam = Camera::look_at([0.0, -3.0, 2.0], [0.0, 0.0, 0.0], 40.0).unwrap();
     let lights = [Light::Point { position: [2.0, -2.0, 3.0], intensity: [8.0; 3] }];
-    let view = View { mesh: &mesh, camera: &cam, lights: &lights, width: 512, height: 512, uv_scale: [4.0, 4.0], coords: None, tiles: None, filter: None };
+    let view = View {
+        mesh: &mesh,
+        camera: &cam,
+        lights: &lights,
+        width: 512,
+        height: 512,
+        uv_scale: [4.0, 4.0],
+        coords: None,
+        tiles: None,
+        filter: None,
+    };
     println!("ptm {:8.1} ms", best(&gpu, &ptm, &view));
     println!("sh  {:8.1} ms", best(&gpu, &sh, &view));
     let src = <btfrs_fit::Sh as btfrs_fit::GpuLayout>::SHADER.source;

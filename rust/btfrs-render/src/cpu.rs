@@ -47,7 +47,9 @@ pub fn validate_common(view: &View<'_>, dims: (usize, usize)) -> Result<()> {
         if !fits || chain.ids.iter().any(|&i| i as usize >= dims.0 * dims.1) {
             return Err(Error::arg(
                 "filter",
-                format!("the mip chain was built for another texture ({got:?}, expected {want:?} = width, height, tile)"),
+                format!(
+                    "the mip chain was built for another texture ({got:?}, expected {want:?} = width, height, tile)"
+                ),
             ));
         }
     }
@@ -164,7 +166,11 @@ pub fn render_cpu<M: Shade + ?Sized>(model: &M, view: &View<'_>) -> Result<Vec<f
 /// Render a double-SH model under an environment by the SH method on the CPU: the reference of
 /// `fs_env` in sh.wgsl (same frame arithmetic, same steps; the model's coefficients
 /// dequantized, the sums in f64). `view.lights` is not used.
-pub fn render_cpu_env_sh(model: &btfrs_fit::Sh, view: &View<'_>, env: &crate::sh_env::ShEnvironment) -> Result<Vec<f32>> {
+pub fn render_cpu_env_sh(
+    model: &btfrs_fit::Sh,
+    view: &View<'_>,
+    env: &crate::sh_env::ShEnvironment,
+) -> Result<Vec<f32>> {
     let dims = (model.height, model.width);
     if env.n != model.light_coeffs {
         return Err(Error::arg(

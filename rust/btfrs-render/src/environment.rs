@@ -126,10 +126,7 @@ impl Environment {
                     continue;
                 }
                 let d = self.direction(r, c, 0.5, 0.5);
-                out.push(Light::Directional {
-                    direction: d.map(|x| x as f32),
-                    intensity: p.map(|v| v * omega),
-                });
+                out.push(Light::Directional { direction: d.map(|x| x as f32), intensity: p.map(|v| v * omega) });
             }
         }
         out
@@ -220,7 +217,10 @@ impl Environment {
     pub fn sky(sun: [f64; 3], turbidity: f64, height: usize, ground: f64) -> Result<Environment> {
         let len = (sun[0] * sun[0] + sun[1] * sun[1] + sun[2] * sun[2]).sqrt();
         if !sun.iter().all(|v| v.is_finite()) || len == 0.0 || sun[2] / len <= 0.0 {
-            return Err(Error::arg("sun", format!("expected a finite direction above the horizon (z > 0), got {sun:?}")));
+            return Err(Error::arg(
+                "sun",
+                format!("expected a finite direction above the horizon (z > 0), got {sun:?}"),
+            ));
         }
         if !(1.7..=10.0).contains(&turbidity) {
             return Err(Error::arg("turbidity", format!("expected 1.7 to 10 (the model's range), got {turbidity}")));
@@ -235,11 +235,30 @@ impl Environment {
         let t = turbidity;
         let theta_s = s[2].acos();
         // Perez coefficients (A..E) for Y, x, y (Preetham 1999, appendix A.2).
-        let perez_y = [0.1787 * t - 1.4630, -0.3554 * t + 0.4275, -0.0227 * t + 5.3251, 0.1206 * t - 2.5771, -0.0670 * t + 0.3703];
-        let perez_x = [-0.0193 * t - 0.2592, -0.0665 * t + 0.0008, -0.0004 * t + 0.2125, -0.0641 * t - 0.8989, -0.0033 * t + 0.0452];
-        let perez_yc = [-0.0167 * t - 0.2608, -0.0950 * t + 0.0092, -0.0079 * t + 0.2102, -0.0441 * t - 1.6537, -0.0109 * t + 0.0529];
+        let perez_y = [
+            0.1787 * t - 1.4630,
+            -0.3554 * t + 0.4275,
+            -0.0227 * t + 5.3251,
+            0.1206 * t - 2.5771,
+            -0.0670 * t + 0.3703,
+        ];
+        let perez_x = [
+            -0.0193 * t - 0.2592,
+            -0.0665 * t + 0.0008,
+            -0.0004 * t + 0.2125,
+            -0.0641 * t - 0.8989,
+            -0.0033 * t + 0.0452,
+        ];
+        let perez_yc = [
+            -0.0167 * t - 0.2608,
+            -0.0950 * t + 0.0092,
+            -0.0079 * t + 0.2102,
+            -0.0441 * t - 1.6537,
+            -0.0109 * t + 0.0529,
+        ];
         let f = |c: &[f64; 5], cos_theta: f64, gamma: f64| {
-            (1.0 + c[0] * (c[1] / cos_theta.max(1e-3)).exp()) * (1.0 + c[2] * (c[3] * gamma).exp() + c[4] * gamma.cos().powi(2))
+            (1.0 + c[0] * (c[1] / cos_theta.max(1e-3)).exp())
+                * (1.0 + c[2] * (c[3] * gamma).exp() + c[4] * gamma.cos().powi(2))
         };
         // Zenith values (appendix A.2); luminance is normalised away, chromaticity is kept.
         let (ts, ts2, ts3) = (theta_s, theta_s * theta_s, theta_s * theta_s * theta_s);

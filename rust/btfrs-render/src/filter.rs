@@ -92,6 +92,9 @@ pub fn signatures<M: btfrs_fit::Shade + ?Sized>(model: &M) -> Vec<f32> {
     out
 }
 
+/// Averaged texels of [`MipChain::build_average`]: per new texel, the (texel, weight) pairs.
+pub type Groups = Vec<Vec<(u32, f32)>>;
+
 /// One level of a [`MipChain`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Level {
@@ -181,7 +184,8 @@ impl MipChain {
         let (vw, vh) = virtual_size(0, w0, h0);
         chain.levels.push(Level { width: vw, height: vh, offset: 0, stride: w0 as u32 });
         // Per node of the current level: mean signature and texel count.
-        let mut mean: Vec<f32> = ids0.iter().flat_map(|&i| sig[i as usize * k..(i as usize + 1) * k].iter().copied()).collect();
+        let mut mean: Vec<f32> =
+            ids0.iter().flat_map(|&i| sig[i as usize * k..(i as usize + 1) * k].iter().copied()).collect();
         let mut count = vec![1u32; ids0.len()];
         chain.ids.extend_from_slice(&ids0);
         let (mut w, mut h) = (w0, h0);
@@ -239,7 +243,7 @@ impl MipChain {
     /// themselves, weighted by how many level-0 texels they stand for). The caller makes the
     /// model holding them (`btfrs_fit::registry::mip_texels` for models linear in their texel
     /// arrays, a row-extended BTF for the raw data): the exact box-filtered pyramid.
-    pub fn build_average(source: Source<'_>, texels: usize) -> Result<(MipChain, Vec<Vec<(u32, f32)>>)> {
+    pub fn build_average(source: Source<'_>, texels: usize) -> Result<(MipChain, Groups)> {
         // The medoid build with a constant signature gives the level structure; the ids of the
         // coarse levels are then replaced by new texels averaging their children.
         let flat = vec![0.0f32; texels];
@@ -332,12 +336,9 @@ fn bilinear(chain: &MipChain, level: usize, f: [f32; 2], scale: f32, taps: &mut 
     let wrap = |v: i32, n: u32| -> u32 { v.rem_euclid(n as i32) as u32 };
     let (x0, y0) = (wrap(x0f as i32, w), wrap(y0f as i32, h));
     let (x1, y1) = ((x0 + 1) % w, (y0 + 1) % h);
-    for (x, y, wt) in [
-        (x0, y0, (1.0 - fx) * (1.0 - fy)),
-        (x1, y0, fx * (1.0 - fy)),
-        (x0, y1, (1.0 - fx) * fy),
-        (x1, y1, fx * fy),
-    ] {
+    for (x, y, wt) in
+        [(x0, y0, (1.0 - fx) * (1.0 - fy)), (x1, y0, fx * (1.0 - fy)), (x0, y1, (1.0 - fx) * fy), (x1, y1, fx * fy)]
+    {
         taps.texel[taps.n] = chain.texel(level, x, y);
         taps.weight[taps.n] = wt * scale;
         taps.n += 1;

@@ -516,7 +516,10 @@ pub fn render_env_sh(
     if model.shader.name != "sh" {
         return Err(Error::arg(
             "method",
-            format!("the SH environment method needs a double-SH model, not {} (use method=\"sampled\")", model.shader.name),
+            format!(
+                "the SH environment method needs a double-SH model, not {} (use method=\"sampled\")",
+                model.shader.name
+            ),
         ));
     }
     let placeholder = [crate::scene::Light::Directional { direction: [0.0, 0.0, 1.0], intensity: [0.0; 3] }];

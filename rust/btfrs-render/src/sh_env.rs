@@ -184,7 +184,10 @@ impl ShEnvironment {
     pub fn new(env: &Environment, n: usize) -> Result<ShEnvironment> {
         let deg = (n as f64).sqrt().round() as usize;
         if n == 0 || deg * deg != n || n > btfrs_fit::sh::MAX_COEFFS {
-            return Err(Error::arg("method", format!("the SH method needs a square number of light coefficients up to 64, got {n}")));
+            return Err(Error::arg(
+                "method",
+                format!("the SH method needs a square number of light coefficients up to 64, got {n}"),
+            ));
         }
         let mut dirs = Vec::with_capacity(n);
         let mut minv_t = vec![0.0; n * n]; // blockdiag(M_l^{-T})
@@ -214,6 +217,7 @@ impl ShEnvironment {
 
     /// The band-wise values `f_k = E_{band(k)}(R^T d_k)` for the tangent frame (t, b, n) (world
     /// vectors, unit), the quantity the shader computes per pixel.
+    #[allow(clippy::needless_range_loop)] // index arithmetic of the bands reads clearer
     pub fn band_values(&self, t: [f64; 3], b: [f64; 3], nrm: [f64; 3]) -> Vec<[f64; 3]> {
         let mut y = vec![0.0; self.n];
         let mut out = vec![[0.0; 3]; self.n];
@@ -291,6 +295,7 @@ impl ShEnvironment {
 }
 
 #[cfg(test)]
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
     use std::f64::consts::PI;

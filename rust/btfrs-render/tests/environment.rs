@@ -44,7 +44,17 @@ fn scenes() -> Vec<(&'static str, Mesh, Camera)> {
 }
 
 fn view<'a>(mesh: &'a Mesh, cam: &'a Camera, lights: &'a [Light]) -> View<'a> {
-    View { mesh, camera: cam, lights, width: 40, height: 32, uv_scale: [2.0, 2.0], coords: None, tiles: None, filter: None }
+    View {
+        mesh,
+        camera: cam,
+        lights,
+        width: 40,
+        height: 32,
+        uv_scale: [2.0, 2.0],
+        coords: None,
+        tiles: None,
+        filter: None,
+    }
 }
 
 #[test]

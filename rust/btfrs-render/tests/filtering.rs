@@ -38,7 +38,17 @@ fn slanted() -> (Mesh, Camera) {
 }
 
 fn view<'a>(mesh: &'a Mesh, cam: &'a Camera, lights: &'a [Light], size: (usize, usize)) -> View<'a> {
-    View { mesh, camera: cam, lights, width: size.0, height: size.1, uv_scale: [40.0, 40.0], coords: None, tiles: None, filter: None }
+    View {
+        mesh,
+        camera: cam,
+        lights,
+        width: size.0,
+        height: size.1,
+        uv_scale: [40.0, 40.0],
+        coords: None,
+        tiles: None,
+        filter: None,
+    }
 }
 
 /// Mean of each `k x k` block.
@@ -128,7 +138,15 @@ fn maps_filter_without_seams() {
     let map_chain = MipChain::build(Source::Coords(n, n, &map, n), &sig, SIGNATURE_LEN, n * n).unwrap();
     let atlas: Vec<u32> = (0..(n * n) as u32).collect();
     let layout = [1u32 << 16 | 1, 1 << 16, 1, 0];
-    let tiles = TileMap { tile: s, atlas_cols: 2, atlas_rows: 2, atlas: &atlas, layout_cols: 2, layout_rows: 2, layout: &layout };
+    let tiles = TileMap {
+        tile: s,
+        atlas_cols: 2,
+        atlas_rows: 2,
+        atlas: &atlas,
+        layout_cols: 2,
+        layout_rows: 2,
+        layout: &layout,
+    };
     let tile_chain = MipChain::build(Source::Tiles(&tiles), &sig, SIGNATURE_LEN, n * n).unwrap();
     let plane = Mesh::plane(2.0);
     let shifted = shifted_plane([s as f32 / n as f32, -(s as f32) / n as f32]);

@@ -157,7 +157,10 @@ fn check(gpu: &Gpu, name: &str, model: &dyn Renderable) -> f64 {
                     let (g, _) = gpu::render(gpu, &up, &v).unwrap();
                     let c = render_cpu(model, &v).unwrap();
                     let p = psnr(&g, &c);
-                    assert!(p >= 40.0, "{name} on {scene} (map mode {with_map}, {f:?}): GPU vs CPU PSNR {p:.1} dB < 40");
+                    assert!(
+                        p >= 40.0,
+                        "{name} on {scene} (map mode {with_map}, {f:?}): GPU vs CPU PSNR {p:.1} dB < 40"
+                    );
                     worst = worst.min(p);
                 }
             }

@@ -271,10 +271,12 @@ fn evaluation_follows_the_stored_formula() {
             assert!((img[t * 3 + ch] - want).abs() < 1e-4 * (1.0 + want.abs()));
         }
     }
-    // Between directions: the 9-tap blend of the measured pairs' values.
+    // Between directions: the 9-tap blend of the measured pairs' values, the light weights with
+    // the measured cosine divided out (directions::cos_corrected).
     let (qv, ql) = (directions::from_theta_phi(0.5, 1.0), directions::from_theta_phi(0.9, 4.0));
     let img = evaluate_image(&m, qv, ql).unwrap();
-    let (wv, wl) = (directions::interp_weights(d, qv, 3), directions::interp_weights(d, ql, 3));
+    let (wv, mut wl) = (directions::interp_weights(d, qv, 3), directions::interp_weights(d, ql, 3));
+    directions::cos_corrected(&mut wl, d, ql);
     assert_eq!(wv.len() * wl.len(), 9);
     let mut want = [0.0f64; 3];
     for &(vi, a) in &wv {

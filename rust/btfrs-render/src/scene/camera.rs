@@ -55,7 +55,10 @@ impl Camera {
         check_finite3("up", up)?;
         let dir = Vec3::from(target) - Vec3::from(eye);
         if Vec3::from(up).length_squared() == 0.0 || is_parallel(dir, Vec3::from(up)) {
-            return Err(Error::arg("up", format!("must not be zero nor parallel to the view direction {dir:?}, got {up:?}")));
+            return Err(Error::arg(
+                "up",
+                format!("must not be zero nor parallel to the view direction {dir:?}, got {up:?}"),
+            ));
         }
         camera.up = up;
         Ok(camera)
