@@ -140,9 +140,11 @@ def box_down(img, k):
     return img.reshape(h // k, k, w // k, k, c).mean(axis=(1, 3))
 
 
-@pytest.mark.parametrize("kind", ["ptm", "lafortune"])
+@pytest.mark.parametrize("kind", list(btfrs.model_kinds()))
 def test_trilinear_is_closer_to_supersampling_than_nearest(bumps, kind):
-    # PTM gets averaged mip levels, Lafortune (lobes cannot be averaged) medoid levels.
+    # Every model: averaged mip levels (PTM, HSH, SH, RBF, bilinear), projected ones (LPCA) or
+    # medoid levels (Lafortune, per-view Lafortune, SRF: lobes cannot be averaged). Measured
+    # ratios to nearest's error: trilinear 0.57 to 0.80, bilinear 0.91 to 0.94 (README).
     model = btfrs.fit.fit(kind, bumps)
     scene = btfrs.Scene.plane(8.0)
     cam = btfrs.Camera.look_at([0, -3, 3], [0, 0.5, 0], 50)
@@ -155,10 +157,8 @@ def test_trilinear_is_closer_to_supersampling_than_nearest(bumps, kind):
         c = btfrs.render(model, scene, cam, light, size=(48, 64), filter=f, backend="cpu", **kw)
         assert psnr(g, c) >= 40, f
         err[f] = float(np.sqrt(np.mean((g - ref) ** 2)))
-    if kind == "ptm":
-        assert err["trilinear"] < 0.8 * err["nearest"], err
-    else:
-        assert err["bilinear"] < err["nearest"] and err["trilinear"] < err["nearest"], err
+    assert err["bilinear"] < 0.97 * err["nearest"], err
+    assert err["trilinear"] < 0.85 * err["nearest"], err
 
 
 def test_camera_up():

@@ -117,8 +117,10 @@ def _upload(model, method: str):
 
 
 # Models whose value is linear in their per-texel arrays: their trilinear mip levels are exact
-# averages (btfrs_fit::registry::AVERAGEABLE); the others get appearance-medoid levels.
-_AVERAGEABLE = ("ptm", "hsh", "sh", "rbf", "bilinear")
+# averages (btfrs_fit::registry::AVERAGEABLE); LPCA, linear within a cluster, gets projected
+# levels (the mean appearance in the best of the block's clusters, Lpca::mip_texels); the others
+# get appearance-medoid levels.
+_AVERAGEABLE = ("ptm", "hsh", "sh", "rbf", "bilinear", "lpca")
 _filters: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_filters.clear)
@@ -164,7 +166,7 @@ def _filtered(model, filt: str, coords, tm):
             from .models import wrap
 
             drawn = wrap(_native.mip_model(model._m, idx, wts))
-        hit = (drawn, chain, "average")
+        hit = (drawn, chain, "projected" if getattr(model, "kind", None) == "lpca" else "average")
     else:
         sig = None
         if filt == "trilinear":
@@ -268,10 +270,12 @@ def render(model: Union[Model, Btf], scene, camera, lights=None, *, size=(512, 5
         (mip-mapped, eight) lookups, in the texture the surface shows: through a coordinate map
         or a tile map each tap is resolved on its own, so filtering has no seams at the map's
         discontinuities. Trilinear levels are exact box-filtered averages for models linear in
-        their texel arrays (PTM-RGB, HSH, SH, RBF, bilinear, the raw BTF) and appearance
-        medoids (the texel of each block nearest its mean appearance) for the others
-        (Lafortune, per-view Lafortune, SRF, LPCA, PTM-LRGB), whose parameters cannot be
-        averaged. Built once per model and map and cached.
+        their texel arrays (PTM-RGB, HSH, SH, RBF, bilinear, the raw BTF), projections for
+        LPCA (each coarse texel is the block's mean appearance in the best of the block's
+        clusters, least squares: exact inside one cluster) and appearance medoids (the texel of
+        each block nearest its mean appearance) for the others (Lafortune, per-view Lafortune,
+        SRF, PTM-LRGB), whose parameters cannot be averaged. Built once per model and map and
+        cached.
     progress: None, True or a callable ``(done, total)`` counting the phases: for the GPU the
         upload (immediate when the model is already on the device) and the draw with its
         read-back; for the CPU the frame.

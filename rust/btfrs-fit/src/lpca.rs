@@ -679,6 +679,91 @@ crate::gpu_params! {
 }
 
 impl Lpca {
+    /// The model extended by the texels of a filtered mip pyramid, *projected* levels: texel
+    /// `n + g` (n = the model's texel count) represents `sum w x appearance(t)` over `groups[g]`
+    /// (which may name earlier new texels) as well as one cluster can: of the clusters of the
+    /// group's texels, the one whose (dequantized, affine) subspace holds the most of that mean
+    /// ABRDF, with the least-squares offset and weights in it. LPCA's weights cannot be averaged
+    /// across clusters (each cluster has its own basis), but the mean appearance can be projected:
+    /// exact when the group shares one cluster (the weights' average), the L2-best choice
+    /// otherwise, far closer than a medoid (an existing texel) when a block mixes clusters.
+    ///
+    /// All inner products come from one Gram matrix of the `1 + K (c + 1)` basis functions over
+    /// the `3 V L` values; each new texel then costs a few `(c + 2) x (c + 2)` solves. Layout as
+    /// [`crate::registry::mip_texels`]: the width kept, `ceil(groups / width)` rows added (the
+    /// last padded with copies of texel 0). Errors: a group naming a texel not defined before it.
+    pub fn mip_texels(&self, groups: &[Vec<(u32, f32)>]) -> Result<Lpca> {
+        let (h, w) = (self.height, self.width);
+        let n = h * w;
+        for (g, grp) in groups.iter().enumerate() {
+            if let Some(&(bad, _)) = grp.iter().find(|(t, _)| *t as usize >= n + g) {
+                return Err(Error::arg("groups", format!("group {g} names texel {bad}, not defined before it")));
+            }
+        }
+        let cc = self.components + 1;
+        let vl = self.pairs();
+        let d = 3 * vl;
+        let nf = 1 + self.clusters * cc;
+        // Basis functions as columns: the constant, then q[k][j] / 255 for every cluster.
+        let f = DMatrix::<f32>::from_fn(d, nf, |p, col| {
+            if col == 0 {
+                return 1.0;
+            }
+            let (k, j) = ((col - 1) / cc, (col - 1) % cc);
+            let (pair, ch) = (p / 3, p % 3);
+            self.basis[((k * cc + j) * vl + pair) * 4 + ch] as f32 / 255.0
+        });
+        let gram = gram_t(&f);
+        let mut ids = self.ids.clone();
+        let mut weights = self.weights.clone();
+        let stride = cc + 1;
+        for grp in groups {
+            // The group's mean as sparse coefficients over the basis functions.
+            let mut y: Vec<(usize, f64)> = Vec::new();
+            let mut candidates: Vec<usize> = Vec::new();
+            for &(t, wt) in grp {
+                let (t, wt) = (t as usize, wt as f64);
+                let k = ids[t] as usize;
+                let wv = &weights[t * stride..(t + 1) * stride];
+                y.push((0, wt * wv[0] as f64));
+                y.extend((0..cc).map(|j| (1 + k * cc + j, wt * wv[1 + j] as f64)));
+                if !candidates.contains(&k) {
+                    candidates.push(k);
+                }
+            }
+            let mut best: Option<(f64, usize, Vec<f64>)> = None;
+            for &k in &candidates {
+                let cols: Vec<usize> = std::iter::once(0).chain((0..cc).map(|j| 1 + k * cc + j)).collect();
+                let m = cols.len();
+                let rhs: Vec<f64> = cols.iter().map(|&a| y.iter().map(|&(b, v)| gram[(a, b)] * v).sum()).collect();
+                // A tiny ridge: zero Eigen-BRDFs (clusters of few texels) make the system singular,
+                // and their weights should then be 0.
+                let trace: f64 = cols.iter().map(|&a| gram[(a, a)]).sum::<f64>().max(1e-300);
+                let a = DMatrix::<f64>::from_fn(m, m, |i, j| {
+                    gram[(cols[i], cols[j])] + if i == j { 1e-12 * trace } else { 0.0 }
+                });
+                let Some(chol) = a.cholesky() else { continue };
+                let x = chol.solve(&nalgebra::DVector::from_vec(rhs.clone()));
+                let captured: f64 = x.iter().zip(&rhs).map(|(a, b)| a * b).sum();
+                if best.as_ref().is_none_or(|(c, _, _)| captured > *c) {
+                    best = Some((captured, k, x.iter().copied().collect()));
+                }
+            }
+            let (_, k, x) =
+                best.ok_or_else(|| Error::Degenerate("lpca: a mip texel has no solvable cluster".into()))?;
+            ids.push(k as u32);
+            weights.extend(x.iter().map(|&v| v as f32));
+        }
+        let rows = h + groups.len().div_ceil(w.max(1));
+        while ids.len() < rows * w {
+            ids.push(ids[0]);
+            weights.extend_from_within(0..stride);
+        }
+        let out = Lpca { height: rows, ids, weights, ..self.clone() };
+        out.validate()?;
+        Ok(out)
+    }
+
     /// The cluster ids as the shaders read them: u16, two per word.
     pub fn id_words(&self) -> Vec<u32> {
         pack_u16(self.ids.iter().map(|&k| k as u16))

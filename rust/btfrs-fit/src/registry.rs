@@ -96,10 +96,15 @@ pub const AVERAGEABLE: &[&str] = &["ptm", "hsh", "sh", "rbf", "bilinear"];
 /// texel `n + g` (n = the model's texel count) is `sum w x texel t` over `groups[g]`, which
 /// may name earlier new texels. The result keeps the model's width and gains
 /// `ceil(groups / width)` rows (the last padded with copies of texel 0), so every original texel
-/// keeps its index. Errors: a model not linear in its texel arrays ([`AVERAGEABLE`]), a group
-/// naming a texel not yet defined ("groups").
+/// keeps its index. LPCA (linear within a cluster only) gets projected texels instead
+/// ([`crate::lpca::Lpca::mip_texels`]). Errors: any other model not linear in its texel arrays
+/// ([`AVERAGEABLE`]), a group naming a texel not yet defined ("groups").
 pub fn mip_texels(model: &dyn DynModel, groups: &[Vec<(u32, f32)>]) -> Result<Box<dyn DynModel>> {
     let entry = lookup(model.kind())?;
+    if let Some(lpca) = model.as_any().downcast_ref::<crate::lpca::Lpca>() {
+        // Not linear across clusters: the mean appearance projected (Lpca::mip_texels).
+        return Ok(Box::new(lpca.mip_texels(groups)?));
+    }
     if !AVERAGEABLE.contains(&entry.kind) {
         return Err(Error::arg(
             "filter",

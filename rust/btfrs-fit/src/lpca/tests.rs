@@ -355,3 +355,73 @@ fn black_and_repeated_texels() {
         assert!(model_error(&m, &btf).unwrap().relative() < 0.005);
     }
 }
+
+/// A texel's full ABRDF (`3 V L` values, pair-major) in f64, from the stored weights and basis.
+fn abrdf(m: &Lpca, t: usize) -> Vec<f64> {
+    let cc = m.components + 1;
+    let w = &m.weights[t * (cc + 1)..(t + 1) * (cc + 1)];
+    let k = m.ids[t] as usize;
+    let vl = m.views.len() * m.lights.len();
+    (0..3 * vl)
+        .map(|p| {
+            let (pair, ch) = (p / 3, p % 3);
+            w[0] as f64
+                + (0..cc)
+                    .map(|j| w[1 + j] as f64 * m.basis[((k * cc + j) * vl + pair) * 4 + ch] as f64 / 255.0)
+                    .sum::<f64>()
+        })
+        .collect()
+}
+
+#[test]
+fn projected_mip_texels_are_the_best_representation_of_the_mean_in_one_cluster() {
+    let btf = knit(8);
+    let m = fit_lpca(&btf.as_ref(), &opts(4, 3), &Monitor::new()).unwrap();
+    let n = m.height * m.width;
+    // One group inside a cluster, one mixing clusters, one naming the new texels (a coarser level).
+    let same: Vec<u32> = (0..n as u32).filter(|&t| m.ids[t as usize] == m.ids[0]).take(4).collect();
+    assert!(same.len() >= 2);
+    let mixed: Vec<u32> = vec![0, 1, 8, 9];
+    assert!(mixed.iter().any(|&t| m.ids[t as usize] != m.ids[0]), "the 2x2 block should mix clusters");
+    let eq = |ts: &[u32]| ts.iter().map(|&t| (t, 1.0 / ts.len() as f32)).collect::<Vec<_>>();
+    let groups = vec![eq(&same), eq(&mixed), eq(&[n as u32, n as u32 + 1])];
+    let out = m.mip_texels(&groups).unwrap();
+    assert_eq!((out.width, out.height), (m.width, m.height + 1));
+    assert_eq!(&out.ids[..n], &m.ids[..]);
+    let mean = |ts: &[u32], model: &Lpca| {
+        let parts: Vec<Vec<f64>> = ts.iter().map(|&t| abrdf(model, t as usize)).collect();
+        (0..parts[0].len()).map(|p| parts.iter().map(|v| v[p]).sum::<f64>() / ts.len() as f64).collect::<Vec<f64>>()
+    };
+    let err = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>().sqrt();
+    // Inside one cluster: exact (the average of the weights), to f32 rounding.
+    let t0 = mean(&same, &m);
+    assert_eq!(out.ids[n], m.ids[0]);
+    let norm = t0.iter().map(|x| x * x).sum::<f64>().sqrt();
+    assert!(err(&abrdf(&out, n), &t0) < 1e-5 * norm, "{}", err(&abrdf(&out, n), &t0) / norm);
+    // Mixed: against an f64 least-squares reference in every candidate cluster's affine
+    // subspace: the chosen one is the best, and it beats every member texel (a medoid's choice).
+    let t1 = mean(&mixed, &m);
+    let cc = m.components + 1;
+    let vl = m.views.len() * m.lights.len();
+    let mut best = f64::INFINITY;
+    for &k in &mixed.iter().map(|&t| m.ids[t as usize]).collect::<Vec<_>>() {
+        let k = k as usize;
+        let a = DMatrix::<f64>::from_fn(3 * vl, cc + 1, |p, j| {
+            if j == 0 {
+                1.0
+            } else {
+                m.basis[((k * cc + j - 1) * vl + p / 3) * 4 + p % 3] as f64 / 255.0
+            }
+        });
+        let x = a.clone().svd(true, true).solve(&DVector::from_vec(t1.clone()), 1e-12).unwrap();
+        best = best.min(err((&a * x).as_slice(), &t1));
+    }
+    let got = err(&abrdf(&out, n + 1), &t1);
+    assert!(got <= best * (1.0 + 1e-4) + 1e-6, "{got} vs {best}");
+    for &t in &mixed {
+        assert!(got <= err(&abrdf(&m, t as usize), &t1) + 1e-9);
+    }
+    // The coarser texel reads the new ones, and every stored value is finite.
+    assert!(out.weights.iter().all(|x| x.is_finite()));
+    assert!(m.mip_texels(&[vec![(n as u32, 1.0)]]).unwrap_err().to_string().starts_with("groups"));
+}
