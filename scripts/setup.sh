@@ -42,15 +42,26 @@ if ! .venv/bin/python -c "import maturin, numpy, pytest, scipy, sklearn, mypy, m
   .venv/bin/python -m pip install -q --disable-pip-version-check "maturin>=1.7,<2" "numpy>=1.22" "pytest>=7" "scipy>=1.9" "scikit-learn>=1.3" "mypy>=1.10" "matplotlib>=3.5" "pillow>=9"
 fi
 
+# Mitsuba 3 for the ground-truth tests (btfrs.groundtruth path traces a heightfield). Pinned:
+# Mitsuba 3.9 / Dr.Jit 1.5 emit llvm.minimum, which the LLVM 15 of Debian 12 (mesa's, also the
+# one lavapipe uses) cannot compile for x86 ("Cannot select: fminimum"); 3.5.2 / 0.4.6 work.
+if ! .venv/bin/python -c "import mitsuba, drjit; assert mitsuba.__version__ == '3.5.2'" >/dev/null 2>&1; then
+  log "installing Mitsuba 3 (ground-truth tests)"
+  .venv/bin/python -m pip install -q --disable-pip-version-check "mitsuba==3.5.2" "drjit==0.4.6"
+fi
+
 # --- Build -----------------------------------------------------------------------------------
-log "building the extension (release)"
+log "building the extension (${BTFRS_PROFILE:-release})"
 # A failed build must fail this script: an older extension left in place would otherwise pass
 # for the new one and the tests would run a stale binary. maturin's progress lines are dropped
 # (the `|| true` is grep's: it exits 1 when it passes no line through); with pipefail the
 # pipeline's status is then maturin's.
 stamp="$(mktemp)"
 trap 'rm -f "$stamp"' EXIT
-if ! VIRTUAL_ENV="$PWD/.venv" .venv/bin/maturin develop --release --quiet 2>&1 \
+# BTFRS_PROFILE (scripts/test.sh sets "ci", see Cargo.toml) picks another cargo profile.
+profile=(--release)
+[ -n "${BTFRS_PROFILE:-}" ] && profile=(--profile "$BTFRS_PROFILE")
+if ! VIRTUAL_ENV="$PWD/.venv" .venv/bin/maturin develop "${profile[@]}" --quiet 2>&1 \
     | { grep -v "^📦\|^✏️\|^🛠\|^🔗\|^🐍" >&2 || true; }; then
   log "error: building the extension failed (see above)"
   exit 1

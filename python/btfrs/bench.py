@@ -883,10 +883,31 @@ def main(argv=None) -> int:
                    help="only the single-view RTI captures: every light basis against bytes (charts in docs/rti)")
     p.add_argument("--env-only", action="store_true",
                    help="only the per-model frame times: point light, trilinear, environment (issue 14)")
+    p.add_argument("--ground-truth", action="store_true",
+                   help="only the path-traced ground truth (Mitsuba 3): a BTF measured from a heightfield, "
+                        "rendered on a plane, against the path trace of the heightfield (issue 14)")
     p.add_argument("--figures", metavar="DIR", help="also write paper 000 Figure 6 style images into DIR")
     a = p.parse_args(argv)
     if a.json is None:
         a.json = os.path.join(a.figures or "bench-results", "accuracy.json" if a.accuracy else "bench.json")
+    if a.ground_truth:
+        from . import groundtruth
+
+        res = groundtruth.check(progress=True)
+        print(f"ground truth: woven heightfield measured by path tracing ({res['texels']}^2 texels, 81 x 81 "
+              f"directions, {res['measure_spp']} spp) rendered by btfrs ({res['backend']}) on a plane at "
+              f"uv_scale {res['uv_scale']}, against the path-traced heightfield ({res['size']}^2, "
+              f"{res['render_spp']} spp):")
+        print(groundtruth.table(res))
+        print("seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in res["seconds"].items()))
+        if a.figures:
+            os.makedirs(a.figures, exist_ok=True)
+            path = os.path.join(a.figures, "ground_truth.png")
+            print(f"wrote {groundtruth.figure(res, path)}")
+        res.pop("images")
+        _write_json(a.json, {"machine": machine(), "ground_truth": res})
+        print(f"\nwrote {a.json}", file=sys.stderr)
+        return 0
     if a.env_only:
         res = env_bench(size=(a.size or [64])[0], repeat=max(1, a.repeat))
         print(f"frame times on {rendering_info()} (knit {(a.size or [64])[0]}^2, uv_scale 4, best of {max(1, a.repeat)}):")
