@@ -5,6 +5,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 # Mesa warns on every adapter query when XDG_RUNTIME_DIR is unset (headless machines, CI).
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}"
+# One optimised build for the extension and the Rust tests (Cargo.toml, [profile.ci]).
+export BTFRS_PROFILE="${BTFRS_PROFILE:-ci}"
 bash scripts/setup.sh
 [ -x "$HOME/.cargo/bin/cargo" ] && export PATH="$HOME/.cargo/bin:$PATH"
 
@@ -17,7 +19,7 @@ else
 fi
 
 echo "== cargo test (workspace) =="
-cargo test --quiet
+cargo test --quiet --profile "$BTFRS_PROFILE"
 
 echo "== stubtest btfrs._native =="
 .venv/bin/python -m mypy.stubtest btfrs._native
