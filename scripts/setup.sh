@@ -37,9 +37,9 @@ if [ ! -x .venv/bin/python ]; then
   log "creating .venv with $($PY --version 2>&1)"
   "$PY" -m venv .venv
 fi
-if ! .venv/bin/python -c "import maturin, numpy, pytest, scipy, sklearn, mypy, matplotlib" >/dev/null 2>&1; then
+if ! .venv/bin/python -c "import maturin, numpy, pytest, xdist, scipy, sklearn, mypy, matplotlib" >/dev/null 2>&1; then
   log "installing Python packages into .venv"
-  .venv/bin/python -m pip install -q --disable-pip-version-check "maturin>=1.7,<2" "numpy>=1.22" "pytest>=7" "scipy>=1.9" "scikit-learn>=1.3" "mypy>=1.10" "matplotlib>=3.5" "pillow>=9"
+  .venv/bin/python -m pip install -q --disable-pip-version-check "maturin>=1.7,<2" "numpy>=1.22" "pytest>=7" "pytest-xdist>=3" "scipy>=1.9" "scikit-learn>=1.3" "mypy>=1.10" "matplotlib>=3.5" "pillow>=9"
 fi
 
 # Mitsuba 3 for the ground-truth tests (btfrs.groundtruth path traces a heightfield). Pinned:

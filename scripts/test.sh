@@ -25,4 +25,6 @@ echo "== stubtest btfrs._native =="
 .venv/bin/python -m mypy.stubtest btfrs._native
 
 echo "== pytest =="
-.venv/bin/python -m pytest -q "$@"
+# Two workers (pytest-xdist), each test file on one of them, so a module's shared fixture is
+# computed once: the Rust side is parallel already, but much of the suite is Python and numpy.
+.venv/bin/python -m pytest -q -n "${BTFRS_TEST_WORKERS:-2}" --dist loadfile "$@"

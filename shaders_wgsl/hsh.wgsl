@@ -62,31 +62,47 @@ fn hsh_basis(l: vec3<f32>) -> array<f32, 16> {
     return b;
 }
 
-fn hsh_slot(texel: u32, view: u32, b: array<f32, 16>) -> vec3<f32> {
+// Per invocation, the texel's view-blended coefficients (sum over the three slots of w_s times
+// the dequantized coefficients), computed at the first light and kept for the others
+// (shade_lights loops every light at one texel with one view query): N lights read the slots'
+// coefficients once, not N times.
+var<private> c_texel: u32 = 0xffffffffu;
+var<private> blended: array<vec3<f32>, 16>;
+
+fn add_slot(texel: u32, view: u32, wt: f32) {
     let n2 = mp.order * mp.order;
     let slot = texel * mp.n_views + view;
     let base = slot * 3u * n2;
     // Planes are per (view, channel, coefficient): flat index mod k = view * 3 n^2 + ...
     let pb = view * 3u * n2;
-    var out = vec3<f32>(0.0);
-    for (var ch = 0u; ch < 3u; ch++) {
-        var acc = 0.0;
-        for (var j = 0u; j < n2; j++) {
-            acc += coef(base + ch * n2 + j, pb + ch * n2 + j) * b[j];
+    for (var j = 0u; j < n2; j++) {
+        var c = blended[j];
+        for (var ch = 0u; ch < 3u; ch++) {
+            c[ch] += wt * coef(base + ch * n2 + j, pb + ch * n2 + j);
         }
-        out[ch] = acc;
+        blended[j] = c;
     }
-    return out;
 }
 
 fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
-    let b = hsh_basis(l);
-    var out = vq.w.w0 * hsh_slot(texel, vq.w.i0, b);
-    if (vq.w.w1 > 0.0) {
-        out += vq.w.w1 * hsh_slot(texel, vq.w.i1, b);
+    let n2 = mp.order * mp.order;
+    if (texel != c_texel) {
+        for (var j = 0u; j < n2; j++) {
+            blended[j] = vec3<f32>(0.0);
+        }
+        add_slot(texel, vq.w.i0, vq.w.w0);
+        if (vq.w.w1 > 0.0) {
+            add_slot(texel, vq.w.i1, vq.w.w1);
+        }
+        if (vq.w.w2 > 0.0) {
+            add_slot(texel, vq.w.i2, vq.w.w2);
+        }
+        c_texel = texel;
     }
-    if (vq.w.w2 > 0.0) {
-        out += vq.w.w2 * hsh_slot(texel, vq.w.i2, b);
+    let b = hsh_basis(l);
+    var out = vec3<f32>(0.0);
+    for (var j = 0u; j < n2; j++) {
+        out += blended[j] * b[j];
     }
     return out;
 }

@@ -42,9 +42,18 @@ fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
     let k = load_u16(mp.ids, texel);
     let wt = mp.weights + texel * (c + 2u);
     var out = vec3<f32>(load(wt));
+    // The tile of Eigen-BRDF e = k (c + 1) + j, stepped along the row instead of e % gx and
+    // e / gx per Eigen-BRDF: lavapipe scalarises an integer division by a non-constant.
+    let e0 = k * (c + 1u);
+    var tx = e0 % gx;
+    var ty = e0 / gx;
     for (var j = 0u; j <= c; j++) {
-        let e = k * (c + 1u) + j;
-        let tile = vec2<f32>(f32(e % gx), f32(e / gx)) * nf;
+        let tile = vec2<f32>(f32(tx), f32(ty)) * nf;
+        tx += 1u;
+        if (tx == gx) {
+            tx = 0u;
+            ty += 1u;
+        }
         let uv = (tile + vq.xy) / size.xy;
         let a = textureSampleLevel(vol, vol_sampler, vec3<f32>(uv, z0), 0.0).xyz;
         let b = textureSampleLevel(vol, vol_sampler, vec3<f32>(uv, z1), 0.0).xyz;

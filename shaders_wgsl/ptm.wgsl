@@ -46,37 +46,62 @@ fn base_rgb(slot: u32, view: u32) -> vec3<f32> {
 
 // Planes are per (view, coefficient) within a texel: plane of coefficient j of view v is
 // v * (coefficients per slot) + j, the flat index mod mp.k.
-fn ptm_slot(texel: u32, view: u32, l: vec3<f32>) -> vec3<f32> {
+// Per invocation, the texel's view-blended coefficients of the six basis terms (RGB, or for
+// LRGB the luminance coefficients times each slot's base colour: sum_s w_s L_sk rgb_s), computed
+// at the first light and kept for the others (shade_lights loops every light at one texel with
+// one view query): N lights read and dequantize the 3 slots' coefficients once, not N times.
+var<private> c_texel: u32 = 0xffffffffu;
+var<private> c0: vec3<f32>;
+var<private> c1: vec3<f32>;
+var<private> c2: vec3<f32>;
+var<private> c3: vec3<f32>;
+var<private> c4: vec3<f32>;
+var<private> c5: vec3<f32>;
+
+fn add_slot(texel: u32, view: u32, wt: f32) {
     let slot = texel * mp.n_views + view;
-    let b0 = l.x * l.x;
-    let b1 = l.y * l.y;
-    let b2 = l.x * l.y;
     if (mp.kind == 0u) {
         let c = mp.coeffs + slot * 18u;
         let pc = view * 18u;
-        var out = vec3<f32>(0.0);
         for (var ch = 0u; ch < 3u; ch++) {
             let a = c + ch * 6u;
             let p = pc + ch * 6u;
-            out[ch] = coef(a, p) * b0 + coef(a + 1u, p + 1u) * b1 + coef(a + 2u, p + 2u) * b2
-                + coef(a + 3u, p + 3u) * l.x + coef(a + 4u, p + 4u) * l.y + coef(a + 5u, p + 5u);
+            c0[ch] += wt * coef(a, p);
+            c1[ch] += wt * coef(a + 1u, p + 1u);
+            c2[ch] += wt * coef(a + 2u, p + 2u);
+            c3[ch] += wt * coef(a + 3u, p + 3u);
+            c4[ch] += wt * coef(a + 4u, p + 4u);
+            c5[ch] += wt * coef(a + 5u, p + 5u);
         }
-        return out;
+        return;
     }
     let a = mp.coeffs + slot * 6u;
     let p = view * 6u;
-    let lum = coef(a, p) * b0 + coef(a + 1u, p + 1u) * b1 + coef(a + 2u, p + 2u) * b2 + coef(a + 3u, p + 3u) * l.x
-        + coef(a + 4u, p + 4u) * l.y + coef(a + 5u, p + 5u);
-    return lum * base_rgb(slot, view);
+    let rgb = wt * base_rgb(slot, view);
+    c0 += coef(a, p) * rgb;
+    c1 += coef(a + 1u, p + 1u) * rgb;
+    c2 += coef(a + 2u, p + 2u) * rgb;
+    c3 += coef(a + 3u, p + 3u) * rgb;
+    c4 += coef(a + 4u, p + 4u) * rgb;
+    c5 += coef(a + 5u, p + 5u) * rgb;
 }
 
 fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
-    var out = vq.w.w0 * ptm_slot(texel, vq.w.i0, l);
-    if (vq.w.w1 > 0.0) {
-        out += vq.w.w1 * ptm_slot(texel, vq.w.i1, l);
+    if (texel != c_texel) {
+        c0 = vec3<f32>(0.0);
+        c1 = vec3<f32>(0.0);
+        c2 = vec3<f32>(0.0);
+        c3 = vec3<f32>(0.0);
+        c4 = vec3<f32>(0.0);
+        c5 = vec3<f32>(0.0);
+        add_slot(texel, vq.w.i0, vq.w.w0);
+        if (vq.w.w1 > 0.0) {
+            add_slot(texel, vq.w.i1, vq.w.w1);
+        }
+        if (vq.w.w2 > 0.0) {
+            add_slot(texel, vq.w.i2, vq.w.w2);
+        }
+        c_texel = texel;
     }
-    if (vq.w.w2 > 0.0) {
-        out += vq.w.w2 * ptm_slot(texel, vq.w.i2, l);
-    }
-    return out;
+    return c0 * (l.x * l.x) + c1 * (l.y * l.y) + c2 * (l.x * l.y) + c3 * l.x + c4 * l.y + c5;
 }

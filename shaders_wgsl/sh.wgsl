@@ -23,6 +23,7 @@ fn sh_basis(n: u32, d: vec3<f32>) -> array<f32, 64> {
     var cm = 1.0;   // Re (x + i y)^m
     var sm = 0.0;   // Im (x + i y)^m
     var qmm = 1.0;  // Q_m^m
+    var inv_fact2m = 1.0;  // 1 / (2m)!
     for (var m = 0u; m <= deg; m++) {
         if (m > 0u) {
             let c = cm * d.x - sm * d.y;
@@ -32,7 +33,17 @@ fn sh_basis(n: u32, d: vec3<f32>) -> array<f32, 64> {
         }
         var q_prev = 0.0;
         var q = qmm;
+        // K_l^m^2 = (2l+1) / (4 pi) * (l-m)! / (l+m)!, stepped in l (no loop over factorials):
+        // at l = m it is (2m+1) / (4 pi (2m)!), and l -> l+1 multiplies it by
+        // (2l+3) / (2l+1) * (l+1-m) / (l+1+m).
+        if (m > 0u) {
+            inv_fact2m /= f32((2u * m - 1u) * (2u * m));
+        }
+        var k2 = f32(2u * m + 1u) / 12.566370614359172 * inv_fact2m;
         for (var l = m; l <= deg; l++) {
+            if (l > m) {
+                k2 *= f32(2u * l + 1u) / f32(2u * l - 1u) * f32(l - m) / f32(l + m);
+            }
             if (l == m + 1u) {
                 q_prev = q;
                 q = f32(2u * m + 1u) * d.z * qmm;
@@ -40,11 +51,6 @@ fn sh_basis(n: u32, d: vec3<f32>) -> array<f32, 64> {
                 let qn = (f32(2u * l - 1u) * d.z * q - f32(l + m - 1u) * q_prev) / f32(l - m);
                 q_prev = q;
                 q = qn;
-            }
-            // K_l^m^2 = (2l+1) / (4 pi) * (l-m)! / (l+m)!
-            var k2 = f32(2u * l + 1u) / 12.566370614359172;
-            for (var i = l - m + 1u; i <= l + m; i++) {
-                k2 /= f32(i);
             }
             let k = sqrt(k2);
             if (m == 0u) {
@@ -68,12 +74,39 @@ fn view_query(v: vec3<f32>) -> ViewQuery {
     return ViewQuery(y, s);
 }
 
-fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
+// Per invocation, the texel's light coefficients at this fragment's view, h[c][j] =
+// sum_i y_i(v) q[c][i][j] (in groups of four, as the rows), computed at the first light and
+// kept for the others: shade_lights loops every light at one texel with one view query, so a
+// frame with N lights (64 sampled environment lights) reads the 3 kv kl coefficients once, not N
+// times. A fragment has one view query, and the texel is the key (a filtered fragment visits
+// several).
+var<private> h_texel: u32 = 0xffffffffu;
+var<private> h4: array<vec4<f32>, 48>;
+
+fn light_coefficients(texel: u32, vq: ViewQuery) {
+    let kv = mp.kv;
+    let rw = (mp.kl + 3u) / 4u;
+    for (var ch = 0u; ch < 3u; ch++) {
+        let base = mp.coeffs + (texel * 3u + ch) * kv * rw;
+        for (var w = 0u; w < rw; w++) {
+            var acc = vec4<f32>(0.0);
+            for (var i = 0u; i < kv; i++) {
+                acc += vq.y[i] * unpack4x8unorm(load_u32(base + i * rw + w));
+            }
+            h4[ch * 16u + w] = acc;
+        }
+    }
+    h_texel = texel;
+}
+
+// One light: the coefficients are read once anyway, and contracting with the light basis
+// first keeps the accumulator in registers (the cached path below stores h in a private array,
+// which made a one-light frame slower on lavapipe).
+fn eval_direct(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
     let kv = mp.kv;
     let kl = mp.kl;
     let rw = (kl + 3u) / 4u;
     let yl = sh_basis(kl, l);
-    // The light basis in groups of four (zero beyond kl), matching the padded rows.
     var yl4: array<vec4<f32>, 16>;
     var sl = 0.0;
     for (var w = 0u; w < rw; w++) {
@@ -100,6 +133,38 @@ fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
             acc += vq.y[i] * r;
         }
         out[ch] = load(sb + 3u + ch) * vq.sum * sl + 255.0 * load(sb + ch) * acc;
+    }
+    return out;
+}
+
+fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
+    if (g.n_lights == 1u) {
+        return eval_direct(texel, vq, l);
+    }
+    if (texel != h_texel) {
+        light_coefficients(texel, vq);
+    }
+    let kl = mp.kl;
+    let rw = (kl + 3u) / 4u;
+    let yl = sh_basis(kl, l);
+    let sb = mp.scale_bias;
+    var acc = vec3<f32>(0.0);
+    var sl = 0.0;
+    for (var w = 0u; w < rw; w++) {
+        // The light basis in groups of four (zero beyond kl), matching the padded rows.
+        var g = vec4<f32>(0.0);
+        for (var s = 0u; s < 4u; s++) {
+            let j = 4u * w + s;
+            if (j < kl) {
+                g[s] = yl[j];
+            }
+        }
+        sl += g.x + g.y + g.z + g.w;
+        acc += vec3<f32>(dot(h4[w], g), dot(h4[16u + w], g), dot(h4[32u + w], g));
+    }
+    var out = vec3<f32>(0.0);
+    for (var ch = 0u; ch < 3u; ch++) {
+        out[ch] = load(sb + 3u + ch) * vq.sum * sl + 255.0 * load(sb + ch) * acc[ch];
     }
     return out;
 }

@@ -91,3 +91,26 @@ def test_compare_sees_a_shift_and_a_scale():
     assert shifted["structure"] > 0.1
     with pytest.raises(InvalidArgumentError, match="rendered"):
         gt.compare(base[:8], base)
+
+
+def test_the_readme_snippet_and_its_table(result, monkeypatch, tmp_path):
+    # The README's ground-truth snippet runs (on this module's result: check() is what the
+    # fixture ran) and its table holds this run's figures.
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = text[text.index("### Ground truth"):]
+    block = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(gt, "check", lambda **kw: result)
+    exec(compile(block, "README.md", "exec"), {})
+    assert (tmp_path / "ground_truth.png").stat().st_size > 10_000
+    rows = {(r["light"], r["case"]): r for r in result["rows"] if r["filter"] == "bilinear"}
+    table = re.findall(r"^\| (theta [\d.]+, phi [\d.]+) \| (measured, bilinear|rows mirrored \(wrong y\)) \| "
+                       r"([\d.]+) \| ([\d.]+) \|$", section, re.M)
+    assert len(table) == 4
+    for light, case, brightness, structure in table:
+        r = rows[(light, "measured" if case.startswith("measured") else "mirrored y")]
+        assert abs(r["brightness"] - float(brightness)) < 0.004, (light, case, r)
+        assert abs(r["structure"] - float(structure)) < 0.01, (light, case, r)
