@@ -199,7 +199,7 @@ fn a_wrong_shader_fails_the_comparison() {
     let ptm = fit_ptm(&btf.as_ref(), &PtmOptions::default(), &Monitor::new()).unwrap();
     // Mirror the light's y in the basis: a plausible bug that still renders a sensible image.
     let ptm_src = <btfrs_fit::Ptm as GpuLayout>::SHADER.source;
-    let src = ptm_src.replace("let b2 = l.x * l.y;", "let b2 = -l.x * l.y;");
+    let src = ptm_src.replace("c2 * (l.x * l.y)", "c2 * (-l.x * l.y)");
     assert_ne!(src, ptm_src);
     let bad = WithShader(&ptm, Box::leak(src.into_boxed_str()));
     let up = gpu::upload(&gpu, &bad).unwrap();
