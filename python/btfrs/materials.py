@@ -18,6 +18,8 @@ synthesis is for, and what :func:`btfrs.synth.quality` must see.
 
 from __future__ import annotations
 
+import os
+
 
 import numpy as np
 
@@ -38,7 +40,7 @@ def names() -> list[str]:
 
 
 def make(name: str = "knit", *, size: int = 64, seed: int = 0, views=None, lights=None,
-         relief: float = 1.0, subsurface: float = 0.0, progress: Progress = None) -> Btf:
+         relief: float = 1.0, subsurface: float = 0.0, out=None, progress: Progress = None) -> Btf:
     """Generate a built-in material.
 
     Parameters
@@ -49,6 +51,12 @@ def make(name: str = "knit", *, size: int = 64, seed: int = 0, views=None, light
     views, lights: ``[N, 3]`` unit directions (default: the 81 UBO directions each).
     relief: multiplier of the preset's height, in [0, 4] (0 gives a flat, shadowless surface).
     subsurface: in [0, 1), mixes each texel's values with its neighbours' (a soft blur).
+    out: None (the default) makes the BTF in memory (at most 8 GiB of values). A path
+        (``"big.btfrs"``) writes it straight into that file instead, row by row into the
+        memory-mapped file, with no size limit and without holding the values in memory (the
+        generation keeps the surface, its visibility maps, ``V + L`` values per texel, and three
+        texel rows), atomically (an error or Ctrl-C leaves nothing), and returns it opened with
+        ``Btf.load(out, mmap=True)``: the same values as in memory, for a BTF larger than RAM.
     progress: None, True for a progress bar, or a callable ``(done, total)``.
     """
     if not isinstance(name, str):
@@ -59,6 +67,12 @@ def make(name: str = "knit", *, size: int = 64, seed: int = 0, views=None, light
     subsurface = real("subsurface", subsurface, min=0.0, max=1.0, max_open=True)
     v = ubo81() if views is None else np.ascontiguousarray(views, dtype=np.float64)
     l = ubo81() if lights is None else np.ascontiguousarray(lights, dtype=np.float64)
+    if out is not None:
+        if not isinstance(out, (str, os.PathLike)):
+            raise ArgumentTypeError(f"out: expected a file path (str or os.PathLike), got {type(out).__name__}")
+        _native.make_material_file(name, size, v, l, seed, relief, subsurface, os.fspath(out),
+                                   callback(progress, f"material {name}"))
+        return Btf.load(out, mmap=True)
     data = _native.make_material(name, size, v, l, seed, relief, subsurface,
                                  callback(progress, f"material {name}"))
     return Btf(data, v, l, check=False)

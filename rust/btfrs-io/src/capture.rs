@@ -165,22 +165,43 @@ pub fn load(source: &dyn Source, monitor: &Monitor) -> Result<Vec<f32>> {
 /// left at `path`. The file is what `Btf.save` writes (kind `btf`, arrays `data`, `views`,
 /// `lights` and `mask` when pairs are absent), with the capture's meta under `"source"`.
 pub fn load_to_file(source: &dyn Source, path: &std::path::Path, monitor: &Monitor) -> Result<()> {
-    use crate::container::{as_bytes, ArrayRef, Dtype};
     let cap = source.capture();
-    let shape = [cap.height, cap.width, cap.views.len(), cap.lights.len(), 3];
-    let views: Vec<f64> = cap.views.iter().flatten().copied().collect();
-    let lights: Vec<f64> = cap.lights.iter().flatten().copied().collect();
-    let vshape = [cap.views.len(), 3];
-    let lshape = [cap.lights.len(), 3];
-    let mshape = [cap.views.len(), cap.lights.len()];
-    let mask: Option<Vec<u8>> = cap.mask.as_ref().map(|m| m.iter().map(|&b| b as u8).collect());
+    let meta = serde_json::json!({"layout": "HWVL3", "source": cap.meta});
+    write_btf_streamed(path, cap.height, cap.width, &cap.views, &cap.lights, cap.mask.as_deref(), meta, |out| {
+        source.decode_into(out, monitor)
+    })
+}
+
+/// Write a `.btfrs` BTF file (what `Btf.save` writes: kind `btf`, arrays `data`, `views`,
+/// `lights`, and `mask` when given) whose values `fill` writes in place into the memory-mapped
+/// file, so a BTF larger than memory can be made; atomic like every writer here (on an error or
+/// a cancel in `fill`, nothing is left at `path`). `fill` must write finite values only (the
+/// header flags the values finite, which lets `Btf.load(mmap=True)` skip its scan).
+#[allow(clippy::too_many_arguments)] // the file's parts, each once
+pub fn write_btf_streamed(
+    path: &std::path::Path,
+    height: usize,
+    width: usize,
+    views: &[[f64; 3]],
+    lights: &[[f64; 3]],
+    mask: Option<&[bool]>,
+    meta: serde_json::Value,
+    fill: impl FnOnce(&mut [f32]) -> Result<()>,
+) -> Result<()> {
+    use crate::container::{as_bytes, ArrayRef, Dtype};
+    let shape = [height, width, views.len(), lights.len(), 3];
+    let vflat: Vec<f64> = views.iter().flatten().copied().collect();
+    let lflat: Vec<f64> = lights.iter().flatten().copied().collect();
+    let vshape = [views.len(), 3];
+    let lshape = [lights.len(), 3];
+    let mshape = [views.len(), lights.len()];
+    let mask: Option<Vec<u8>> = mask.map(|m| m.iter().map(|&b| b as u8).collect());
     let mut arrays = vec![
-        ArrayRef { name: "views", dtype: Dtype::F64, shape: &vshape, bytes: as_bytes(&views) },
-        ArrayRef { name: "lights", dtype: Dtype::F64, shape: &lshape, bytes: as_bytes(&lights) },
+        ArrayRef { name: "views", dtype: Dtype::F64, shape: &vshape, bytes: as_bytes(&vflat) },
+        ArrayRef { name: "lights", dtype: Dtype::F64, shape: &lshape, bytes: as_bytes(&lflat) },
     ];
     if let Some(m) = &mask {
         arrays.push(ArrayRef { name: "mask", dtype: Dtype::Bool, shape: &mshape, bytes: m });
     }
-    let meta = serde_json::json!({"layout": "HWVL3", "source": cap.meta});
-    crate::container::write_streamed(path, "btf", meta, "data", &shape, &arrays, |out| source.decode_into(out, monitor))
+    crate::container::write_streamed(path, "btf", meta, "data", &shape, &arrays, fill)
 }

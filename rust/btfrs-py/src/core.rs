@@ -146,3 +146,44 @@ pub fn make_material<'py>(
         btf.data.into_pyarray(py).reshape(shape.to_vec())
     })
 }
+
+/// Generate a built-in material straight into the `.btfrs` file `out` (the values written into
+/// the memory-mapped file row by row, never held in memory; atomic: nothing is left on an
+/// error or a Ctrl-C).
+#[pyfunction]
+#[pyo3(signature = (name, size, views, lights, seed, relief, subsurface, out, progress=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn make_material_file<'py>(
+    py: Python<'py>,
+    name: &str,
+    size: usize,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    seed: u64,
+    relief: f64,
+    subsurface: f64,
+    out: std::path::PathBuf,
+    progress: Option<&Bound<'py, PyAny>>,
+) -> PyResult<()> {
+    guarded(|| {
+        let preset = Preset::from_name(name).py()?;
+        let v = borrow::<f64>("views", views)?;
+        let l = borrow::<f64>("lights", lights)?;
+        let spec = MaterialSpec {
+            preset,
+            size,
+            views: dirs("views", &v)?.to_vec(),
+            lights: dirs("lights", &l)?.to_vec(),
+            seed,
+            relief,
+            subsurface,
+        };
+        let meta = serde_json::json!({"layout": "HWVL3"});
+        monitored(py, progress, |m| {
+            btfrs_io::capture::write_btf_streamed(&out, size, size, &spec.views, &spec.lights, None, meta, |values| {
+                btfrs_core::materials::generate_into(&spec, values, m)
+            })
+        })?;
+        Ok(())
+    })
+}

@@ -62,23 +62,45 @@ impl MaterialSpec {
         if !(self.subsurface.is_finite() && (0.0..1.0).contains(&self.subsurface)) {
             return Err(Error::arg("subsurface", format!("expected a value in [0, 1), got {}", self.subsurface)));
         }
-        let bytes = (self.size * self.size * self.views.len() * self.lights.len() * 3) as u128 * 4;
-        if bytes > 8u128 << 30 {
-            return Err(Error::arg(
-                "size",
-                format!("the BTF would take {:.1} GiB; the limit is 8 GiB", bytes as f64 / (1u64 << 30) as f64),
-            ));
-        }
         Ok(())
+    }
+
+    /// The number of values, `size^2 V L 3`.
+    pub fn values(&self) -> usize {
+        self.size * self.size * self.views.len() * self.lights.len() * 3
     }
 }
 
-/// Generate the BTF described by `spec`. `monitor` counts texel rows and can cancel.
+/// Generate the BTF described by `spec` in memory (at most 8 GiB of values; larger ones go to
+/// a file with [`generate_into`]). `monitor` counts texel rows and can cancel.
 pub fn generate(spec: &MaterialSpec, monitor: &Monitor) -> Result<Btf> {
     spec.validate()?;
+    let bytes = spec.values() as u128 * 4;
+    if bytes > 8u128 << 30 {
+        return Err(Error::arg(
+            "size",
+            format!(
+                "the BTF would take {:.1} GiB; the limit in memory is 8 GiB (write it to a file instead)",
+                bytes as f64 / (1u64 << 30) as f64
+            ),
+        ));
+    }
     let surface = presets::surface(spec.preset, spec.size, spec.seed, spec.relief);
     let data = shade::render_btf(&surface, &spec.views, &spec.lights, spec.subsurface, monitor)?;
     Ok(Btf { height: spec.size, width: spec.size, views: spec.views.clone(), lights: spec.lights.clone(), data })
+}
+
+/// Generate the values of the BTF described by `spec` into `out` (`[size, size, V, L, 3]`, all
+/// [`MaterialSpec::values`] of them), e.g. a memory-mapped file, with no size limit: besides
+/// `out` the generation holds the surface, the visibility maps (`V + L` values per texel) and
+/// three texel rows. The same values as [`generate`].
+pub fn generate_into(spec: &MaterialSpec, out: &mut [f32], monitor: &Monitor) -> Result<()> {
+    spec.validate()?;
+    if out.len() != spec.values() {
+        return Err(Error::arg("out", format!("expected {} values, got {}", spec.values(), out.len())));
+    }
+    let surface = presets::surface(spec.preset, spec.size, spec.seed, spec.relief);
+    shade::render_btf_into(&surface, &spec.views, &spec.lights, spec.subsurface, out, monitor)
 }
 
 #[cfg(test)]

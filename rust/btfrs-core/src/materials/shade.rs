@@ -147,18 +147,9 @@ pub(super) fn render_btf(
     subsurface: f64,
     monitor: &Monitor,
 ) -> Result<Vec<f32>> {
-    let n = s.size;
-    let (nv, nl) = (views.len(), lights.len());
-    // Progress units: one per view (masking), one per grid row (shadows), one per output row.
-    monitor.start((nv + 2 * n) as u64);
-    let hits = hit_points(s, views, monitor);
-    monitor.check()?;
-    let shadow = shadow_maps(s, lights, monitor);
-    monitor.check()?;
-    let per_texel = nv * nl * 3;
-    let lf: Vec<[f32; 3]> = lights.iter().map(|d| d.map(|c| c as f32)).collect();
+    let maps = prepare(s, views, lights, monitor)?;
+    let len = s.size * s.size * views.len() * lights.len() * 3;
     // Fallible allocation: running out of memory must be an error, not an abort of the process.
-    let len = n * n * per_texel;
     let mut data = Vec::new();
     data.try_reserve_exact(len).map_err(|_| {
         crate::Error::arg(
@@ -167,6 +158,59 @@ pub(super) fn render_btf(
         )
     })?;
     data.resize(len, 0.0f32);
+    shade_into(s, views, lights, subsurface, &maps, &mut data, monitor)?;
+    Ok(data)
+}
+
+/// [`render_btf`] into `data` (`[size, size, V, L, 3]`, e.g. a memory-mapped file: every value
+/// is written, row by row, and the blur works in place, so nothing of the BTF's size is
+/// allocated besides `data`).
+pub(super) fn render_btf_into(
+    s: &Surface,
+    views: &[[f64; 3]],
+    lights: &[[f64; 3]],
+    subsurface: f64,
+    data: &mut [f32],
+    monitor: &Monitor,
+) -> Result<()> {
+    let maps = prepare(s, views, lights, monitor)?;
+    shade_into(s, views, lights, subsurface, &maps, data, monitor)
+}
+
+/// What every texel's shading reads: the surface point each view sees through each texel, and
+/// each light's visibility map.
+struct Maps {
+    hits: Vec<Vec<[f64; 2]>>,
+    shadow: Vec<f32>,
+}
+
+/// Starts the progress count (one unit per view for the masking, one per grid row for the
+/// shadows, one per output row) and computes the [`Maps`].
+fn prepare(s: &Surface, views: &[[f64; 3]], lights: &[[f64; 3]], monitor: &Monitor) -> Result<Maps> {
+    monitor.start((views.len() + 2 * s.size) as u64);
+    let hits = hit_points(s, views, monitor);
+    monitor.check()?;
+    let shadow = shadow_maps(s, lights, monitor);
+    monitor.check()?;
+    Ok(Maps { hits, shadow })
+}
+
+/// The shading of every texel into `data`, row by row, then the blur in place.
+fn shade_into(
+    s: &Surface,
+    views: &[[f64; 3]],
+    lights: &[[f64; 3]],
+    subsurface: f64,
+    maps: &Maps,
+    data: &mut [f32],
+    monitor: &Monitor,
+) -> Result<()> {
+    let n = s.size;
+    let (nv, nl) = (views.len(), lights.len());
+    let (hits, shadow) = (&maps.hits, &maps.shadow);
+    let per_texel = nv * nl * 3;
+    let lf: Vec<[f32; 3]> = lights.iter().map(|d| d.map(|c| c as f32)).collect();
+    assert_eq!(data.len(), n * n * per_texel, "render_btf_into: output of the wrong size");
     data.par_chunks_mut(n * per_texel).enumerate().for_each(|(row, out_row)| {
         if monitor.is_cancelled() {
             return;
@@ -219,22 +263,33 @@ pub(super) fn render_btf(
     });
     monitor.check()?;
     if subsurface > 0.0 {
-        data = blur(&data, n, per_texel, subsurface as f32);
+        blur_in_place(data, n, per_texel, subsurface as f32);
     }
-    Ok(data)
+    Ok(())
 }
 
-/// Mix each texel's ABRDF with the mean of its four neighbours (periodic), weight `a`.
-fn blur(data: &[f32], n: usize, per: usize, a: f32) -> Vec<f32> {
-    let mut out = vec![0.0f32; data.len()];
-    out.par_chunks_mut(per).enumerate().for_each(|(t, o)| {
-        let (r, c) = (t / n, t % n);
-        let nb = [((r + n - 1) % n) * n + c, ((r + 1) % n) * n + c, r * n + (c + n - 1) % n, r * n + (c + 1) % n];
-        let me = &data[t * per..(t + 1) * per];
-        for k in 0..per {
-            let m: f32 = nb.iter().map(|&q| data[q * per + k]).sum::<f32>() * 0.25;
-            o[k] = (1.0 - a) * me[k] + a * m;
-        }
-    });
-    out
+/// Mix each texel's ABRDF with the mean of its four neighbours (periodic), weight `a`, in place:
+/// row by row, keeping the original values of the row above, the row itself and row 0 (the last
+/// row's neighbour below), so three rows are copied instead of the whole BTF.
+fn blur_in_place(data: &mut [f32], n: usize, per: usize, a: f32) {
+    let row = n * per;
+    let first: Vec<f32> = data[..row].to_vec();
+    let mut above: Vec<f32> = data[(n - 1) * row..].to_vec();
+    let mut me: Vec<f32> = vec![0.0f32; row];
+    for r in 0..n {
+        me.copy_from_slice(&data[r * row..(r + 1) * row]);
+        let (head, tail) = data.split_at_mut((r + 1) * row);
+        let below: &[f32] = if r + 1 < n { &tail[..row] } else { &first };
+        head[r * row..].par_chunks_mut(per).enumerate().for_each(|(c, o)| {
+            // The neighbours in the order up, down, left, right (the sum's order).
+            let (l, rt) = ((c + n - 1) % n, (c + 1) % n);
+            let nb = [&above[c * per..], &below[c * per..], &me[l * per..], &me[rt * per..]];
+            let x = &me[c * per..(c + 1) * per];
+            for k in 0..per {
+                let m: f32 = nb.iter().map(|q| q[k]).sum::<f32>() * 0.25;
+                o[k] = (1.0 - a) * x[k] + a * m;
+            }
+        });
+        std::mem::swap(&mut above, &mut me);
+    }
 }
