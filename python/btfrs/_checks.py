@@ -12,6 +12,7 @@ each message naming the argument and the accepted range.
 from __future__ import annotations
 
 import math
+import re
 from numbers import Integral, Real
 from typing import Optional, Sequence, Tuple
 
@@ -19,7 +20,7 @@ import numpy as np
 
 from .exceptions import ArgumentTypeError, InvalidArgumentError, OutOfRangeError
 
-__all__ = ["integer", "index", "seed", "real", "boolean", "choice", "size_hw", "instance"]
+__all__ = ["integer", "index", "seed", "real", "boolean", "choice", "size_hw", "instance", "memory_size"]
 
 # The largest integer every native parameter (usize, u64, i64) can hold on a 64-bit build.
 INT_MAX = 2**63 - 1
@@ -127,3 +128,30 @@ def instance(name: str, value, cls, what: str):
     if not isinstance(value, cls):
         raise ArgumentTypeError(f"{name}: expected {what}, got {type(value).__name__}")
     return value
+
+
+# Decimal units as dask and the operating system's tools write them ("2GB" = 2e9 bytes), and the
+# binary ones for those who mean them.
+_SIZE_UNITS = {"": 1, "b": 1, "kb": 10**3, "mb": 10**6, "gb": 10**9, "tb": 10**12,
+               "kib": 2**10, "mib": 2**20, "gib": 2**30, "tib": 2**40}
+
+
+def memory_size(name: str, value) -> Optional[int]:
+    """``None``, a number of bytes, or a size such as ``"64MB"``, ``"2GB"``, ``"1.5GiB"`` as bytes."""
+    if value is None:
+        return None
+    if _is_int(value):
+        n = int(value)
+    elif isinstance(value, str):
+        m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([A-Za-z]*)\s*", value)
+        unit = m.group(2).lower() if m else None
+        if m is None or unit not in _SIZE_UNITS:
+            raise InvalidArgumentError(
+                f"{name}: expected a number of bytes or a size such as '64MB', '2GB' or '512MiB', got {value!r}")
+        n = int(float(m.group(1)) * _SIZE_UNITS[unit])
+    else:
+        raise ArgumentTypeError(
+            f"{name}: expected a number of bytes or a size string such as '2GB', got {type(value).__name__}")
+    if not 1 <= n <= INT_MAX:
+        raise InvalidArgumentError(f"{name}: expected a positive size of at most {INT_MAX} bytes, got {value!r}")
+    return n

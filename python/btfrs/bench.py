@@ -861,6 +861,57 @@ def load_table(rows: list) -> str:
     return "\n".join(lines)
 
 
+OOC_LPCA = {"clusters": 64, "components": 8}
+
+
+def out_of_core_bench(path: str, size: int, limit: str, kinds=("ptm", "lpca")) -> dict:
+    """Issue 15: fit a memory-mapped BTF larger than memory under ``memory_limit``.
+
+    Makes ``knit`` at ``size``^2 x 81 x 81 straight into ``path`` (``materials.make(out=...)``,
+    streamed; kept when a file of that size is already there), then fits each model in a fresh
+    interpreter (``btfrs._memprobe``): wall time, bytes read from storage, and the peak anonymous
+    memory above the start, against the limit plus the model."""
+    import subprocess
+
+    from .btf import Btf
+
+    made = None
+    want = size * size * 81 * 81 * 3 * 4
+    have = Btf.load(path, mmap=True).data.nbytes if os.path.exists(path) else None
+    if have != want:
+        t0 = time.perf_counter()
+        materials.make("knit", size=size, seed=1, out=path, progress=True)
+        made = time.perf_counter() - t0
+    rows = []
+    for kind in kinds:
+        opts = dict(OOC_LPCA if kind == "lpca" else {}, memory_limit=limit)
+        r = subprocess.run([sys.executable, "-m", "btfrs._memprobe", path, kind, json.dumps(opts)],
+                           capture_output=True, text=True, check=True)
+        m = json.loads(r.stdout.strip().splitlines()[-1])
+        m["options"] = opts
+        rows.append(m)
+    mem_total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    return {"path": path, "size": size, "data_bytes": want, "memory_bytes": mem_total, "made_seconds": made,
+            "limit": limit, "rows": rows}
+
+
+def out_of_core_table(res: dict) -> str:
+    gb = 1e9
+    lines = [f"{res['size']}^2 x 81 x 81 knit, {res['data_bytes'] / gb:.1f} GB on disk, "
+             f"{res['memory_bytes'] / 2**30:.1f} GiB of memory, memory_limit={res['limit']}"
+             + (f" (made in {res['made_seconds']:.0f} s)" if res.get("made_seconds") else ""),
+             "| fit | seconds | read from storage | GB/s (storage) | GB/s (data) | peak anonymous | limit + model |",
+             "|---|---|---|---|---|---|---|"]
+    from ._checks import memory_size
+
+    for r in res["rows"]:
+        bound = memory_size("limit", res["limit"]) + r["model"]
+        lines.append(f"| {r['kind']} {json.dumps({k: v for k, v in r['options'].items() if k != 'memory_limit'})} | "
+                     f"{r['seconds']:.0f} | {r['read_bytes'] / gb:.1f} GB | {r['read_bytes'] / gb / r['seconds']:.2f} | "
+                     f"{r['data'] / gb / r['seconds']:.2f} | {r['growth'] / 1e6:.0f} MB | {bound / 1e6:.0f} MB |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m btfrs.bench", description=__doc__)
     p.add_argument("--size", type=int, action="append", help="material sizes (default: 32 and 64; 32 with --accuracy)")
@@ -886,8 +937,20 @@ def main(argv=None) -> int:
     p.add_argument("--ground-truth", action="store_true",
                    help="only the path-traced ground truth (Mitsuba 3): a BTF measured from a heightfield, "
                         "rendered on a plane, against the path trace of the heightfield (issue 14)")
+    p.add_argument("--out-of-core", metavar="PATH",
+                   help="only the out-of-core fits: make knit at --size (default 640)^2 x 81 x 81 into PATH "
+                        "(31.5 GB at 640) unless it is there, fit PTM and LPCA under --memory-limit (issue 15)")
+    p.add_argument("--memory-limit", default="2GB", help="the out-of-core fits' memory_limit (default: 2GB)")
     p.add_argument("--figures", metavar="DIR", help="also write paper 000 Figure 6 style images into DIR")
     a = p.parse_args(argv)
+    if a.out_of_core:
+        res = out_of_core_bench(a.out_of_core, (a.size or [640])[0], a.memory_limit)
+        print(out_of_core_table(res))
+        if a.json is None:
+            a.json = os.path.join("bench-results", "out_of_core.json")
+        _write_json(a.json, {"machine": machine(), "out_of_core": res})
+        print(f"\nwrote {a.json}", file=sys.stderr)
+        return 0
     if a.json is None:
         a.json = os.path.join(a.figures or "bench-results", "accuracy.json" if a.accuracy else "bench.json")
     if a.ground_truth:

@@ -8,15 +8,26 @@ Every function goes through :func:`fit`, which fits any registered model by name
 (``btfrs.fit.fit("lpca", btf, clusters=8)``); the named functions add documentation and checks
 of their options. A model registered in Rust without a function here is still reachable as
 ``btfrs.fit.<kind>`` (its options are checked by the model itself).
+
+**Out of core.** Every fit reads the values in place, so a memory-mapped BTF
+(``Btf.load(path, mmap=True)``) stays on disk but for the pages being read, which the kernel's
+page cache holds and evicts as it needs, and a BTF larger than memory can be fitted. Every fit
+takes ``memory_limit`` (bytes, or ``"64MB"``, ``"2GB"``, ``"512MiB"``): the anonymous memory it
+may allocate besides the model it returns. The fits that work texel by texel (or view slot by
+view slot over all texels: PTM, HSH, SRF, Lafortune, double SH, RBF, bilinear) need a fixed
+16 MB; LPCA sizes its chunks by the limit (:func:`lpca`). A limit below what a fit needs raises
+:class:`~btfrs.exceptions.InvalidArgumentError` naming ``memory_limit`` and the least it needs,
+before any work.
 """
 
 from __future__ import annotations
 
 import json
 import time
+from typing import Union
 
 from . import _native
-from ._checks import boolean, choice, instance, integer, real
+from ._checks import boolean, choice, instance, integer, memory_size, real
 from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
@@ -37,16 +48,23 @@ def _check_btf(btf) -> Btf:
     return instance("btf", btf, Btf, "a btfrs.Btf")
 
 
-def fit(model: str, btf: Btf, /, *, progress: Progress = None, **options) -> Model:
+MemoryLimit = Union[None, int, str]
+
+
+def fit(model: str, btf: Btf, /, *, progress: Progress = None, memory_limit: MemoryLimit = None, **options) -> Model:
     """Fit the registered model ``model`` (a name of :func:`btfrs.models.model_kinds`) to the
     present pairs of ``btf``. ``options`` are the model's own (an unknown name or a wrong type
-    raises :class:`~btfrs.exceptions.InvalidArgumentError` naming it)."""
-    return _fit(model, btf, f"{model} fit", progress, options)
+    raises :class:`~btfrs.exceptions.InvalidArgumentError` naming it); ``memory_limit`` is as
+    for every fit (:func:`lpca`)."""
+    return _fit(model, btf, f"{model} fit", progress, options, memory_limit)
 
 
-def _fit(kind: str, btf: Btf, label: str, progress: Progress, options: dict) -> Model:
+def _fit(kind: str, btf: Btf, label: str, progress: Progress, options: dict, memory_limit: MemoryLimit = None) -> Model:
     b = _check_btf(btf)
     kind = choice("model", kind, tuple(model_kinds()))
+    limit = memory_size("memory_limit", memory_limit)
+    if limit is not None:
+        options = {**options, "memory_limit": limit}
     t0 = time.perf_counter()
     m = _native.fit_model(kind, b.data, b.views, b.lights, b.mask, json.dumps(options), callback(progress, label))
     return wrap(m, fit_seconds=time.perf_counter() - t0)
@@ -60,7 +78,7 @@ def __getattr__(name: str):
 
 
 def ptm(btf: Btf, *, kind: str = "rgb", rcond: float = 1e-6, on_degenerate: str = "reduce", bits: int = 8,
-        progress: Progress = None) -> Ptm:
+        memory_limit: MemoryLimit = None, progress: Progress = None) -> Ptm:
     """Fit a Polynomial Texture Map per view slot (paper 000, section 3.1).
 
     One SVD pseudo-inverse of the 6-column light design matrix per view slot, applied to every
@@ -89,11 +107,11 @@ def ptm(btf: Btf, *, kind: str = "rgb", rcond: float = 1e-6, on_degenerate: str 
     on_degenerate = choice("on_degenerate", on_degenerate, ("reduce", "raise", "clamp"))
     bits = _bits(bits)
     return _fit("ptm", b, f"PTM-{kind.upper()} fit", progress,
-                dict(kind=kind, rcond=rcond, on_degenerate=on_degenerate, bits=bits))
+                dict(kind=kind, rcond=rcond, on_degenerate=on_degenerate, bits=bits), memory_limit)
 
 
 def hsh(btf: Btf, *, order: int = 3, lambda_: float = 1e-6, rcond: float = 1e-6, on_degenerate: str = "reduce",
-        bits: int = 8, progress: Progress = None) -> Hsh:
+        bits: int = 8, memory_limit: MemoryLimit = None, progress: Progress = None) -> Hsh:
     """Fit hemispherical harmonics per view slot (Gautron et al. 2004), the basis of ``.rti`` HSH
     files that RTIViewer and relight open, fitted like the PTM (paper 000, section 3.1): one
     regularised pseudo-inverse of the ``order**2``-column light design matrix per view slot,
@@ -125,10 +143,10 @@ def hsh(btf: Btf, *, order: int = 3, lambda_: float = 1e-6, rcond: float = 1e-6,
     on_degenerate = choice("on_degenerate", on_degenerate, ("reduce", "raise", "clamp"))
     bits = _bits(bits)
     return _fit("hsh", b, f"HSH-{order} fit", progress,
-                dict(order=order, **{"lambda": lambda_}, rcond=rcond, on_degenerate=on_degenerate, bits=bits))
+                dict(order=order, **{"lambda": lambda_}, rcond=rcond, on_degenerate=on_degenerate, bits=bits), memory_limit)
 
 
-def srf(btf: Btf, *, progress: Progress = None) -> Srf:
+def srf(btf: Btf, *, memory_limit: MemoryLimit = None, progress: Progress = None) -> Srf:
     """Fit Phong + a spatially-varying residual function (paper 003, sections 4 and 5).
 
     One Blinn-Phong (kd, ks per channel, one shininess n) is fitted by Levenberg-Marquardt to
@@ -138,11 +156,11 @@ def srf(btf: Btf, *, progress: Progress = None) -> Srf:
     pairs.
     """
     b = _check_btf(btf)
-    return _fit("srf", b, "SRF fit", progress, {})
+    return _fit("srf", b, "SRF fit", progress, {}, memory_limit)
 
 
 def lafortune(btf: Btf, *, kind: str = "lum", lobes: int = 2, diffuse: bool = True, max_iter: int = 60,
-              densify: int = 0, progress: Progress = None) -> Lafortune:
+              densify: int = 0, memory_limit: MemoryLimit = None, progress: Progress = None) -> Lafortune:
     """Fit per-texel Lafortune lobes by Levenberg-Marquardt (paper 000, section 3.2).
 
     One fit per texel over all its present (view, light) samples (``kind="lum"``: the
@@ -162,11 +180,11 @@ def lafortune(btf: Btf, *, kind: str = "lum", lobes: int = 2, diffuse: bool = Tr
     max_iter = integer("max_iter", max_iter, min=1)
     densify = integer("densify", densify, min=0)
     return _fit("lafortune", b, f"Lafortune-{kind} fit", progress,
-                dict(kind=kind, lobes=lobes, diffuse=diffuse, max_iter=max_iter, densify=densify))
+                dict(kind=kind, lobes=lobes, diffuse=diffuse, max_iter=max_iter, densify=densify), memory_limit)
 
 
 def lafortune_view(btf: Btf, *, kind: str = "lum", lobes: int = 2, diffuse: bool = True, max_iter: int = 60,
-                   progress: Progress = None) -> LafortuneView:
+                   memory_limit: MemoryLimit = None, progress: Progress = None) -> LafortuneView:
     """Fit Lafortune lobes per texel and view slot, as paper 000 (section 3.2) does: "like the
     PTM", one lobe set per measured view, a function of the light, blended between the nearest
     view slots when rendered.
@@ -188,11 +206,11 @@ def lafortune_view(btf: Btf, *, kind: str = "lum", lobes: int = 2, diffuse: bool
     diffuse = boolean("diffuse", diffuse)
     max_iter = integer("max_iter", max_iter, min=1)
     return _fit("lafortune_view", b, f"per-view Lafortune-{kind} fit", progress,
-                dict(kind=kind, lobes=lobes, diffuse=diffuse, max_iter=max_iter))
+                dict(kind=kind, lobes=lobes, diffuse=diffuse, max_iter=max_iter), memory_limit)
 
 
 def sh(btf: Btf, *, light_coeffs: int = 25, view_coeffs: int = 25, cls: bool = True, quantize: bool = True,
-       chunk_texels: int = 1024, progress: Progress = None) -> Sh:
+       chunk_texels: int = 1024, memory_limit: MemoryLimit = None, progress: Progress = None) -> Sh:
     """Fit double spherical harmonics by constrained least squares (paper 002, section 3.1 and
     appendix).
 
@@ -211,11 +229,11 @@ def sh(btf: Btf, *, light_coeffs: int = 25, view_coeffs: int = 25, cls: bool = T
     quantize = boolean("quantize", quantize)
     chunk_texels = integer("chunk_texels", chunk_texels, min=1)
     return _fit("sh", b, "double SH fit", progress, dict(light_coeffs=light_coeffs, view_coeffs=view_coeffs,
-                                                         cls=cls, quantize=quantize, chunk_texels=chunk_texels))
+                                                         cls=cls, quantize=quantize, chunk_texels=chunk_texels), memory_limit)
 
 
 def lpca(btf: Btf, *, clusters: int = 32, components: int = 4, seed: int = 0, kmeans_iterations: int = 25,
-         refine_iterations: int = 2, reduced_dims: int = 64, progress: Progress = None) -> Lpca:
+         refine_iterations: int = 2, reduced_dims: int = 64, memory_limit: MemoryLimit = None, progress: Progress = None) -> Lpca:
     """Fit Local PCA (paper 004, section 3): k-means++ (seeded) over the texels' ABRDFs, PCA per
     cluster with ``components`` Eigen-BRDFs, then 8-bit Eigen-BRDFs with the scales folded into
     the per-texel weights (section 6.3).
@@ -223,6 +241,16 @@ def lpca(btf: Btf, *, clusters: int = 32, components: int = 4, seed: int = 0, km
     k-means runs in a ``reduced_dims``-dimensional randomized PCA projection of the ABRDFs
     (0 = the full space) and is refined by ``refine_iterations`` passes that reassign each texel
     to the cluster whose subspace reconstructs it best (the LPCA objective itself).
+
+    memory_limit: ``None`` (no limit), a number of bytes, or a size such as ``"64MB"`` or
+        ``"2GB"`` (decimal units; ``"MiB"``, ``"GiB"`` are binary): the anonymous memory the fit
+        may allocate besides the model it returns. Every fit takes it (see the module doc). Here
+        the range finder's texel sample and every cluster too large for the limit are streamed
+        through chunks sized by it, one cluster at a time, by randomized subspace iteration
+        (clusters that fit keep the exact PCA), so the result is within a tolerance of the
+        unlimited fit, not equal to it; the clustering itself (principal coordinates, k-means,
+        refinement) grows with the texels, not with the values per texel, and is counted in
+        the least limit the error message names.
     """
     b = _check_btf(btf)
     # "At most the texels" and "at most the pairs" are checked in Rust, which knows the counts.
@@ -235,7 +263,7 @@ def lpca(btf: Btf, *, clusters: int = 32, components: int = 4, seed: int = 0, km
     return _fit("lpca", b, "LPCA fit", progress, dict(clusters=clusters, components=components,
                                                       kmeans_iterations=kmeans_iterations,
                                                       refine_iterations=refine_iterations,
-                                                      reduced_dims=reduced_dims, seed=seed))
+                                                      reduced_dims=reduced_dims, seed=seed), memory_limit)
 
 
 def _light_pca_options(components, colour, chroma_components, resolution, seed) -> dict:
@@ -249,7 +277,7 @@ def _light_pca_options(components, colour, chroma_components, resolution, seed) 
 
 
 def rbf(btf: Btf, *, components: int = 18, colour: str = "rgb", chroma_components=None, resolution: int = 12,
-        width: float = 2.5, regularization: float = 0.1, seed: int = 0, progress: Progress = None) -> Rbf:
+        width: float = 2.5, regularization: float = 0.1, seed: int = 0, memory_limit: MemoryLimit = None, progress: Progress = None) -> Rbf:
     """Fit relight's RBF light basis per view slot (the RTI default of relight).
 
     Per view slot and texel, the values under the slot's lights are interpolated by Gaussian
@@ -283,11 +311,11 @@ def rbf(btf: Btf, *, components: int = 18, colour: str = "rgb", chroma_component
     o = _light_pca_options(components, colour, chroma_components, resolution, seed)
     o["width"] = real("width", width, min=0.0, min_open=True)
     o["regularization"] = real("regularization", regularization, min=0.0)
-    return _fit("rbf", b, f"RBF-{o['components']} fit", progress, o)
+    return _fit("rbf", b, f"RBF-{o['components']} fit", progress, o, memory_limit)
 
 
 def bilinear(btf: Btf, *, components: int = 18, colour: str = "rgb", chroma_components=None, resolution: int = 8,
-             regularization: float = 0.3, seed: int = 0, progress: Progress = None) -> Bilinear:
+             regularization: float = 0.3, seed: int = 0, memory_limit: MemoryLimit = None, progress: Progress = None) -> Bilinear:
     """Fit relight's bilinear light basis per view slot.
 
     Per view slot and texel, values on a ``resolution x resolution`` grid of the concentric
@@ -306,4 +334,4 @@ def bilinear(btf: Btf, *, components: int = 18, colour: str = "rgb", chroma_comp
     b = _check_btf(btf)
     o = _light_pca_options(components, colour, chroma_components, resolution, seed)
     o["regularization"] = real("regularization", regularization, min=0.0)
-    return _fit("bilinear", b, f"Bilinear-{o['components']} fit", progress, o)
+    return _fit("bilinear", b, f"Bilinear-{o['components']} fit", progress, o, memory_limit)

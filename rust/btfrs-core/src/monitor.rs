@@ -1,7 +1,10 @@
-//! Progress and cancellation for long work.
+//! Progress, cancellation and a memory budget for long work.
 //!
 //! Long functions take a `&Monitor`: they add to its counter as they go and stop with
-//! [`crate::Error::Interrupted`] once it is cancelled. The Python layer runs the work on a worker
+//! [`crate::Error::Interrupted`] once it is cancelled. A caller may also give it a memory limit
+//! ([`Monitor::set_memory_limit`]): the anonymous memory the work may allocate besides its
+//! result, which the out-of-core fits (memory-mapped BTFs larger than RAM) size their chunks
+//! by. The Python layer runs the work on a worker
 //! thread and polls the monitor from the main thread, so Ctrl-C and progress bars work while the
 //! GIL is released and no Python callback ever runs on a rayon thread.
 
@@ -13,6 +16,8 @@ pub struct Monitor {
     done: AtomicU64,
     total: AtomicU64,
     cancelled: AtomicBool,
+    /// Bytes; 0 = no limit.
+    memory_limit: AtomicU64,
 }
 
 impl Monitor {
@@ -41,6 +46,21 @@ impl Monitor {
     /// Ask the work to stop at its next check.
     pub fn cancel(&self) {
         self.cancelled.store(true, Ordering::Relaxed);
+    }
+
+    /// Limit the anonymous memory the work may allocate besides its result to `bytes` (`None`:
+    /// no limit, the default). Work that cannot stay within it fails with an error naming
+    /// `memory_limit` and the least it needs, before it allocates.
+    pub fn set_memory_limit(&self, bytes: Option<u64>) {
+        self.memory_limit.store(bytes.unwrap_or(0), Ordering::Relaxed);
+    }
+
+    /// The limit of [`Monitor::set_memory_limit`].
+    pub fn memory_limit(&self) -> Option<u64> {
+        match self.memory_limit.load(Ordering::Relaxed) {
+            0 => None,
+            b => Some(b),
+        }
     }
 
     /// Whether [`Monitor::cancel`] was called.

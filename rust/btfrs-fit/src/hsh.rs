@@ -245,7 +245,10 @@ pub fn fit_hsh(btf: &BtfRef<'_>, opts: &HshOptions, monitor: &Monitor) -> Result
     });
     monitor.check()?;
     let coeffs = if opts.bits == 8 {
-        Coeffs::from_planes(quantize_shared(&coeffs, nv * per, n2)?)
+        let planes = quantize_shared(&coeffs, nv * per, n2)?;
+        let mut values = coeffs;
+        planes.dequantize_into(&mut values); // the floats' own buffer: no second copy at the peak
+        Coeffs { values, planes: Some(planes) }
     } else {
         Coeffs { values: coeffs, planes: None }
     };

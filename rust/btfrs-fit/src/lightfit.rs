@@ -401,7 +401,11 @@ impl Coeffs {
             return Ok(Coeffs { values, planes: None });
         }
         let planes = Planes::quantize(&values, k)?;
-        Ok(Coeffs::from_planes(planes))
+        // Dequantized into the floats' own buffer: a second copy would double the fit's peak
+        // memory (a fit under a memory limit holds the model and little else).
+        let mut values = values;
+        planes.dequantize_into(&mut values);
+        Ok(Coeffs { values, planes: Some(planes) })
     }
 
     /// From planes (decoded once).

@@ -60,7 +60,7 @@ use crate::dense::{cols, column_mean, gemm, gram_t, sym_eigen_desc, view, view_t
 use crate::gpu::{pack_u16, words, GpuLayout, Renderable, Shader};
 use crate::kmeans::{kmeans, members_of};
 use crate::model::{unknown_renderer, Model, ReflectanceModel};
-use crate::rpca;
+use crate::rpca::{self, Columns};
 use btfrs_core::{directions, ensure_arg, rng::mix, BtfRef, Error, Monitor, NamedArrays, Result};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
@@ -76,6 +76,10 @@ pub const MAX_COMPONENTS: usize = 16;
 /// from a Gram or covariance matrix; an `n x n` symmetric eigenproblem of this size takes about
 /// 0.1 s, and above it the randomized subspace iteration is cheaper.
 const EXACT_MAX: usize = 512;
+
+/// Points per block of the refinement's error matrix (`[block, K]` errors and `[block, K (c + 1)]`
+/// dot products at a time).
+const REFINE_BLOCK: usize = 8192;
 
 /// Most clusters: the renderers store cluster ids as 16-bit values.
 pub const MAX_CLUSTERS: usize = 65536;
@@ -159,6 +163,7 @@ pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Resu
     let (nv, nl) = (btf.views.len(), btf.lights.len());
     let pairs: Vec<usize> = (0..nv * nl).filter(|&i| btf.has(i / nl, i % nl)).collect();
     let d = pairs.len() * 3;
+    let chunk = memory_plan(monitor.memory_limit(), t, d, opts, pairs.len() < nv * nl)?;
     let compact = (pairs.len() < nv * nl).then(|| gather_pairs(btf, &pairs));
     let data: &[f32] = compact.as_deref().unwrap_or(btf.data);
     check_values(data, d, &pairs, nl)?;
@@ -169,7 +174,7 @@ pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Resu
 
     // 1. The space the clustering works in: principal coordinates, or the ABRDFs themselves.
     let (space, dim): (Cow<'_, [f32]>, usize) = if opts.reduced_dims > 0 {
-        let (p, r) = rpca::coordinates(data, d, t, opts.reduced_dims, sub_seed(opts.seed, 1), monitor)?;
+        let (p, r) = rpca::coordinates(data, d, t, opts.reduced_dims, sub_seed(opts.seed, 1), chunk, monitor)?;
         (Cow::Owned(p), r)
     } else {
         (Cow::Borrowed(data), d)
@@ -209,18 +214,21 @@ pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Resu
     // 4. + 5. Final PCA per cluster in the full space, quantization, weights.
     let c = opts.components;
     let cc = c + 1;
-    let fits: Vec<ClusterFit> = members
-        .par_iter()
-        .enumerate()
-        .map(|(ci, m)| {
-            if monitor.is_cancelled() {
-                return ClusterFit::default();
-            }
-            let f = fit_cluster(data, d, m, c, sub_seed(opts.seed, 1000 + ci as u64));
-            monitor.advance(1);
-            f
-        })
-        .collect();
+    let one = |(ci, m): (usize, &Vec<u32>)| {
+        if monitor.is_cancelled() {
+            return ClusterFit::default();
+        }
+        let f = fit_cluster(data, d, m, c, sub_seed(opts.seed, 1000 + ci as u64), chunk);
+        monitor.advance(1);
+        f
+    };
+    // Under a memory limit one cluster at a time (each of its products parallel inside), so the
+    // fit holds one chunk, not one per thread (nor more: rayon's work stealing would start
+    // other clusters while a product waits).
+    let fits: Vec<ClusterFit> = match chunk {
+        None => members.par_iter().enumerate().map(one).collect(),
+        Some(_) => members.iter().enumerate().map(one).collect(),
+    };
     monitor.check()?;
 
     let mut weights = vec![0.0f32; t * (c + 2)];
@@ -281,6 +289,62 @@ pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Resu
     })
 }
 
+/// The chunk (texels of full-space ABRDFs copied at once) a fit under the memory limit `limit`
+/// (bytes, `None`: no limit, and no chunking) works in, or an error naming `memory_limit` with
+/// the least the fit needs.
+///
+/// Out of core (a memory-mapped BTF larger than memory): what grows with the texels whatever
+/// the chunking is counted as it is: the principal coordinates and the projection that makes
+/// them, k-means's `[T, K]` distances, the assignments, the refinement's gathered coordinates,
+/// the per-cluster weights before they are scattered, and, with held-out pairs, the copy of the
+/// present ones. What is left is one chunk: the range finder's sample, a large cluster's final
+/// PCA and its weights' re-solve are streamed through it (`rpca::Gathered`), one cluster at a
+/// time. The counts are upper bounds (every transient of a stage at once).
+fn memory_plan(limit: Option<u64>, t: usize, d: usize, opts: &LpcaOptions, compact: bool) -> Result<Option<usize>> {
+    let Some(limit) = limit else { return Ok(None) };
+    if opts.reduced_dims == 0 {
+        return Err(Error::arg(
+            "memory_limit",
+            "a fit under a memory limit clusters in principal coordinates: expected reduced_dims of at least 1, got 0",
+        ));
+    }
+    let (t64, d64) = (t as u64, d as u64);
+    let (k, cc) = (opts.clusters as u64, opts.components as u64 + 1);
+    let r = opts.reduced_dims.min(d) as u64;
+    let l = r + rpca::OVERSAMPLE as u64;
+    let per_texel = 4 * (3 * r + 2 * l) // coordinates, the refinement's copies, the projection (and its bands)
+        + 12 * k // k-means: [T, K] distances (f64) and dot products (f32)
+        + 4 * 3 * l // a streamed cluster's [n, l] subspace products
+        + 8 * (cc + 1) // the weights, per cluster and scattered
+        + 4 * cc // the re-solve's right-hand sides
+        + 56; // norms, distances, the seeding's CDF and potentials (f64); assignments, ids, members (u32)
+    let fixed =
+        t64 * per_texel + REFINE_BLOCK as u64 * k * (4 * cc + 8) + if compact { t64 * d64 * 4 } else { 0 } + (8 << 20); // the allocator's and the threads' own
+                                                                                                                        // Per chunk: the range finder's d x l products (f32 and their f64 sum), the mean, the
+                                                                                                                        // quantized and dequantized basis; then 4 bytes per value of each texel of the chunk.
+    let per_chunk = d64 * (4 * (2 * l + 2 * cc + 2) + 8 * l + cc);
+    let per_texel_of_chunk = 4 * d64;
+    let least = fixed + per_chunk + 32.min(t64) * per_texel_of_chunk;
+    if limit < least {
+        return Err(Error::arg(
+            "memory_limit",
+            format!(
+                "expected at least {} for an LPCA fit of {t} texels of {d} values into {k} clusters ({} of it grows with \
+                 the texels), got {}",
+                mb(least),
+                mb(fixed),
+                mb(limit)
+            ),
+        ));
+    }
+    Ok(Some(((limit - fixed - per_chunk) / per_texel_of_chunk).min(t64) as usize))
+}
+
+/// Bytes as decimal megabytes, as memory limits are written ("64MB").
+fn mb(bytes: u64) -> String {
+    format!("{:.1} MB", bytes as f64 / 1e6)
+}
+
 /// A seed for one stage of the fit, independent of the others.
 fn sub_seed(seed: u64, stage: u64) -> u64 {
     mix(seed ^ mix(stage.wrapping_add(0x5EED)))
@@ -336,8 +400,6 @@ fn top_components(xc: &DMatrix<f32>, c: usize, seed: u64) -> DMatrix<f32> {
     if c == 0 || n < 2 || dim == 0 {
         return e;
     }
-    // Eigenvalues below this fraction of the largest are f32 rounding, not directions.
-    const CUT: f64 = 1e-8;
     if dim <= EXACT_MAX && dim <= n {
         // Covariance (dim x dim).
         let cov = gemm(&view(xc), &view_t(xc));
@@ -360,6 +422,31 @@ fn top_components(xc: &DMatrix<f32>, c: usize, seed: u64) -> DMatrix<f32> {
         let ek = rpca::top_directions(xc, c, seed, CUT);
         e.columns_mut(0, ek.ncols()).copy_from(&ek);
     }
+    e
+}
+
+/// Eigenvalues below this fraction of the largest are f32 rounding, not directions.
+const CUT: f64 = 1e-8;
+
+/// [`top_components`] of the members `m` of the `d x T` data, centred on `mean`, streamed `chunk`
+/// texels at a time (a cluster too large for the memory limit): always by the randomized
+/// subspace iteration, which only multiplies by the data.
+fn streamed_components(
+    data: &[f32],
+    d: usize,
+    m: &[u32],
+    mean: &[f32],
+    c: usize,
+    chunk: usize,
+    seed: u64,
+) -> DMatrix<f32> {
+    let mut e = DMatrix::<f32>::zeros(d, c);
+    if c == 0 || m.len() < 2 || d == 0 {
+        return e;
+    }
+    let x = rpca::Gathered { data, d, idx: m, centre: Some(mean), chunk };
+    let ek = rpca::top_directions(&x, c, seed, CUT);
+    e.columns_mut(0, ek.ncols()).copy_from(&ek);
     e
 }
 
@@ -436,19 +523,29 @@ pub(crate) fn refine(
             .enumerate()
             .map(|(ci, m)| (!m.is_empty()).then(|| local_pca(points, dim, m, c, mix(seed ^ ci as u64))))
             .collect();
-        let err = lpca_errors(points, dim, &pcas, c);
-        let before: f64 = assign.iter().enumerate().map(|(i, &a)| err[i * k + a as usize]).sum();
-        let moved: usize = assign
-            .par_iter_mut()
-            .zip(err.par_chunks(k))
-            .map(|(a, e)| {
-                let best = (0..k).fold(*a as usize, |b, ci| if e[ci] < e[b] { ci } else { b });
-                let moved = best != *a as usize;
-                *a = best as u32;
-                usize::from(moved)
-            })
-            .sum();
-        let after: f64 = assign.iter().enumerate().map(|(i, &a)| err[i * k + a as usize]).sum();
+        // In blocks of points, so the [n, K] errors (and the GEMM behind them) are never held
+        // for all points at once; the sums run in point order as over one block.
+        let (mut before, mut after, mut moved) = (0.0f64, 0.0f64, 0usize);
+        for (b, block) in assign.chunks_mut(REFINE_BLOCK).enumerate() {
+            let pts = &points[b * REFINE_BLOCK * dim..(b * REFINE_BLOCK + block.len()) * dim];
+            let err = lpca_errors(pts, dim, &pcas, c);
+            for (a, e) in block.iter().zip(err.chunks(k)) {
+                before += e[*a as usize];
+            }
+            moved += block
+                .par_iter_mut()
+                .zip(err.par_chunks(k))
+                .map(|(a, e)| {
+                    let best = (0..k).fold(*a as usize, |b, ci| if e[ci] < e[b] { ci } else { b });
+                    let moved = best != *a as usize;
+                    *a = best as u32;
+                    usize::from(moved)
+                })
+                .sum::<usize>();
+            for (a, e) in block.iter().zip(err.chunks(k)) {
+                after += e[*a as usize];
+            }
+        }
         history.push(before);
         history.push(after);
         monitor.advance(1);
@@ -473,11 +570,23 @@ struct ClusterFit {
     weights: Vec<f32>,
 }
 
-/// Steps 4 and 5 for the members `m` of one cluster of the `d x T` data.
-fn fit_cluster(data: &[f32], d: usize, m: &[u32], c: usize, seed: u64) -> ClusterFit {
+/// Steps 4 and 5 for the members `m` of one cluster of the `d x T` data. `chunk`: the most
+/// texels whose values may be copied at once (`None`: any number); a larger cluster is streamed
+/// ([`streamed_components`]).
+fn fit_cluster(data: &[f32], d: usize, m: &[u32], c: usize, seed: u64, chunk: Option<usize>) -> ClusterFit {
     let cc = c + 1;
-    let (mean, xc) = gather_centred(data, d, m);
-    let e = top_components(&xc, c, seed);
+    let (mean, xc, e) = match chunk {
+        Some(s) if m.len() > s => {
+            let mean = column_mean(data, d, Some(m));
+            let e = streamed_components(data, d, m, &mean, c, s, seed);
+            (mean, None, e)
+        }
+        _ => {
+            let (mean, xc) = gather_centred(data, d, m);
+            let e = top_components(&xc, c, seed);
+            (mean, Some(xc), e)
+        }
+    };
     // Quantize each Eigen-BRDF (the mean first) over its own range.
     let mut q = vec![0u8; cc * d];
     let mut scale = vec![0.0f32; cc];
@@ -526,7 +635,13 @@ fn fit_cluster(data: &[f32], d: usize, m: &[u32], c: usize, seed: u64) -> Cluste
                     .sum()
             })
             .collect();
-        let ftx = gemm(&view_t(&f), &view(&xc));
+        let ftx = match (&xc, chunk) {
+            (Some(xc), _) => gemm(&view_t(&f), &view(xc)),
+            (None, s) => {
+                let x = rpca::Gathered { data, d, idx: m, centre: Some(&mean), chunk: s.unwrap_or(n) };
+                x.t_times(&f).transpose()
+            }
+        };
         for i in 0..n {
             let rhs = nalgebra::DVector::<f64>::from_fn(c, |j, _| ftx[(j, i)] as f64 + shift[j]);
             a.column_mut(i).copy_from(&(&pinv * rhs));
@@ -811,6 +926,11 @@ impl Model for Lpca {
             return Err(Error::arg("clusters", format!("expected 1 to {MAX_CLUSTERS}, got {}", options.clusters)));
         }
         fit_lpca(btf, options, monitor)
+    }
+
+    /// LPCA sizes its chunks by the limit and names the least it needs itself (`memory_plan`).
+    fn least_memory(_btf: &BtfRef<'_>, _options: &LpcaOptions) -> u64 {
+        0
     }
 
     /// `ids` `[H, W]` i32, `weights` `[H, W, c + 2]` f32, `basis` `[K, c + 1, V, L, 4]` u8,

@@ -82,7 +82,19 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     type Options: DeserializeOwned + Default + std::fmt::Debug;
 
     /// Fit to the present pairs of `btf` (its values are finite: the caller checked).
+    ///
+    /// Under a memory limit ([`Monitor::memory_limit`]) the fit allocates at most that much
+    /// anonymous memory besides the model it returns, reading the values in place (a
+    /// memory-mapped BTF stays on disk but for the pages being read).
     fn fit(btf: &BtfRef<'_>, options: &Self::Options, monitor: &Monitor) -> Result<Self>;
+    /// The least memory limit (bytes, besides the model) the fit can keep to on `btf`; the
+    /// registry rejects a lower `memory_limit` before fitting. The default is for the fits that
+    /// stream the values texel by texel, solving each texel (or each view slot over all texels)
+    /// with small scratch: a fixed 16 MB. A fit whose need grows with the data overrides it or
+    /// sizes its chunks by the limit and reports the least itself (LPCA).
+    fn least_memory(_btf: &BtfRef<'_>, _options: &Self::Options) -> u64 {
+        16_000_000
+    }
     /// The arrays that describe the model completely (what a file stores).
     fn to_arrays(&self) -> NamedArrays;
     /// Rebuild from [`Model::to_arrays`] output, validating every array (it may come from a

@@ -111,6 +111,15 @@ impl Planes {
         self.q.par_iter().enumerate().map(|(i, &b)| self.bias[i % self.k] + self.scale[i % self.k] * b as f32).collect()
     }
 
+    /// [`Planes::dequantize`] into `out` (resized to the values' count), reusing its buffer.
+    pub fn dequantize_into(&self, out: &mut Vec<f32>) {
+        out.resize(self.q.len(), 0.0);
+        out.par_iter_mut()
+            .zip(self.q.par_iter())
+            .enumerate()
+            .for_each(|(i, (o, &b))| *o = self.bias[i % self.k] + self.scale[i % self.k] * b as f32);
+    }
+
     /// The bytes packed four to a little-endian 32-bit word (the GPU store; zero padded).
     pub fn words(&self) -> Vec<u32> {
         self.q.chunks(4).map(|c| c.iter().enumerate().fold(0u32, |w, (i, &b)| w | (b as u32) << (8 * i))).collect()

@@ -346,9 +346,10 @@ impl Ptm {
             scale: vec![(1.0f64 / 255.0) as f32; nv * 3],
             bias: vec![0.0; nv * 3],
         });
-        self.coeffs = c.dequantize();
-        if let Some(p) = &r {
-            self.rgb = Some(p.dequantize());
+        // Into the floats' own buffers: no second copy of the coefficients at the peak.
+        c.dequantize_into(&mut self.coeffs);
+        if let (Some(p), Some(rgb)) = (&r, self.rgb.as_mut()) {
+            p.dequantize_into(rgb);
         }
         self.quantized = Some(PtmPlanes { coeffs: c, rgb: r });
         Ok(())

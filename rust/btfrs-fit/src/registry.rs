@@ -29,8 +29,43 @@ pub struct Entry {
 }
 
 fn fit_erased<M: Model + std::fmt::Debug>(btf: &BtfRef<'_>, options: &str, mon: &Monitor) -> Result<Box<dyn DynModel>> {
-    let o: M::Options = parse_options(options)?;
+    let (options, limit) = take_memory_limit(options)?;
+    let o: M::Options = parse_options(&options)?;
+    if let Some(limit) = limit {
+        let least = M::least_memory(btf, &o);
+        if limit < least {
+            return Err(Error::arg(
+                "memory_limit",
+                format!(
+                    "expected at least {:.1} MB for a {} fit of {} x {} texels, got {:.1} MB",
+                    least as f64 / 1e6,
+                    M::KIND,
+                    btf.height,
+                    btf.width,
+                    limit as f64 / 1e6
+                ),
+            ));
+        }
+    }
+    mon.set_memory_limit(limit);
     Ok(Box::new(M::fit(btf, &o, mon)?))
+}
+
+/// The option every fit takes besides its own: `memory_limit`, the anonymous memory in bytes
+/// the fit may allocate besides the model it returns (out-of-core fitting of memory-mapped
+/// BTFs); taken out of the JSON object before the model's options are parsed.
+fn take_memory_limit(options: &str) -> Result<(String, Option<u64>)> {
+    let Ok(serde_json::Value::Object(mut map)) = serde_json::from_str::<serde_json::Value>(options) else {
+        return Ok((options.to_string(), None)); // parse_options reports it
+    };
+    let limit = match map.remove("memory_limit") {
+        None | Some(serde_json::Value::Null) => None,
+        Some(v) => match v.as_u64() {
+            Some(b) if b > 0 => Some(b),
+            _ => return Err(Error::arg("memory_limit", format!("expected a positive number of bytes, got {v}"))),
+        },
+    };
+    Ok((serde_json::Value::Object(map).to_string(), limit))
 }
 
 fn from_arrays_erased<M: Model + std::fmt::Debug>(a: &NamedArrays) -> Result<Box<dyn DynModel>> {

@@ -26,7 +26,7 @@ use rayon::prelude::*;
 use std::borrow::Cow;
 
 /// Extra columns of every randomized range finder.
-const OVERSAMPLE: usize = 10;
+pub(crate) const OVERSAMPLE: usize = 10;
 /// Subspace iterations of [`top_directions`].
 const POWER_ITERS: usize = 2;
 /// Points the range finder of [`coordinates`] samples.
@@ -50,7 +50,7 @@ pub fn principal_coordinates(
 ) -> Result<(Vec<f32>, usize)> {
     ensure_arg!(d > 0 && n > 0 && data.len() == d * n, "data", "expected {n} x {d} values, got {}", data.len());
     ensure_arg!(r > 0, "dims", "expected at least 1 principal component, got 0");
-    coordinates(data, d, n, r, seed, monitor)
+    coordinates(data, d, n, r, seed, None, monitor)
 }
 
 /// `[T, r']` principal coordinates (`r' <= r`; 0 when all texels are equal) of the
@@ -63,17 +63,22 @@ pub fn principal_coordinates(
 /// instead of 4, and the cost of the reduction stops growing with the sample size beyond one
 /// projection pass. A few thousand ABRDFs pin down the leading principal directions of a
 /// material well; the coordinates only steer the clustering, never the stored basis.
+///
+/// `chunk`: the most texels whose values may be copied at once (`None`: no bound). When the
+/// sample does not fit, it is streamed through [`Gathered`] instead of copied: the same
+/// subspace up to rounding, in bounded memory (an out-of-core fit of a memory-mapped BTF).
 pub(crate) fn coordinates(
     data: &[f32],
     d: usize,
     t: usize,
     r: usize,
     seed: u64,
+    chunk: Option<usize>,
     monitor: &Monitor,
 ) -> Result<(Vec<f32>, usize)> {
     let mut rng = Rng::new(seed);
     let s = t.min(RANGE_SAMPLE);
-    let sub: Cow<'_, [f32]> = if s < t {
+    let pick = (s < t).then(|| {
         // Partial Fisher-Yates: a uniform subset, kept in texel order.
         let mut idx: Vec<u32> = (0..t as u32).collect();
         for i in 0..s {
@@ -81,6 +86,14 @@ pub(crate) fn coordinates(
         }
         let mut pick = idx[..s].to_vec();
         pick.sort_unstable();
+        pick
+    });
+    if let (Some(pick), Some(chunk)) = (&pick, chunk) {
+        if chunk < s {
+            return coordinates_streamed(data, d, t, r, pick, chunk, rng, monitor);
+        }
+    }
+    let sub: Cow<'_, [f32]> = if let Some(pick) = pick {
         let mut g = vec![0.0f32; s * d];
         g.par_chunks_mut(d).zip(pick.par_iter()).for_each(|(o, &j)| {
             o.copy_from_slice(&data[j as usize * d..(j as usize + 1) * d]);
@@ -110,7 +123,57 @@ pub(crate) fn coordinates(
     drop(sub);
     monitor.advance(1);
     monitor.check()?;
-    let z = centred_t_times(data, d, t, &mu, &q);
+    project(data, d, t, r, &mu, &q, monitor)
+}
+
+/// [`coordinates`] with the sample `pick` streamed `chunk` texels at a time: the same steps,
+/// each product over the sample summed chunk by chunk.
+#[allow(clippy::too_many_arguments)] // coordinates' own parameters, passed through once
+fn coordinates_streamed(
+    data: &[f32],
+    d: usize,
+    t: usize,
+    r: usize,
+    pick: &[u32],
+    chunk: usize,
+    mut rng: Rng,
+    monitor: &Monitor,
+) -> Result<(Vec<f32>, usize)> {
+    let s = pick.len();
+    let sub = Gathered { data, d, idx: pick, centre: None, chunk };
+    let l = (r + OVERSAMPLE).min(s).min(d);
+    let mu = dense::column_mean(data, d, Some(pick));
+    let omega = gaussian(s, l, rng.next_u64());
+    let mut y = sub.times(&omega);
+    subtract_mean_outer(&mut y, &mu, &omega);
+    let q = orthonormalize(&y);
+    monitor.advance(1);
+    monitor.check()?;
+    let mut z = sub.t_times(&q);
+    subtract_mu_q(&mut z, &mu, &q);
+    let z = orthonormalize(&z);
+    monitor.advance(1);
+    monitor.check()?;
+    let mut y = sub.times(&z);
+    subtract_mean_outer(&mut y, &mu, &z);
+    let q = orthonormalize(&y);
+    monitor.advance(1);
+    monitor.check()?;
+    project(data, d, t, r, &mu, &q, monitor)
+}
+
+/// The last step of [`coordinates`]: every texel projected on the subspace `q` (one pass over
+/// the data, read in place), rotated to principal axes, the `r` strongest kept.
+fn project(
+    data: &[f32],
+    d: usize,
+    t: usize,
+    r: usize,
+    mu: &[f32],
+    q: &DMatrix<f32>,
+    monitor: &Monitor,
+) -> Result<(Vec<f32>, usize)> {
+    let z = centred_t_times(data, d, t, mu, q);
     monitor.advance(1);
     // Rotate to principal axes within the subspace and keep the r strongest.
     let (vals, vecs) = sym_eigen_desc(gram_t(&z));
@@ -137,33 +200,201 @@ fn subtract_mean_outer(m: &mut DMatrix<f32>, u: &[f32], x: &DMatrix<f32>) {
 /// `A_c^T q` for the centred data `A_c = A - mu 1^T` (`A` is `d x t` over `data`): `t x l`.
 fn centred_t_times(data: &[f32], d: usize, t: usize, mu: &[f32], q: &DMatrix<f32>) -> DMatrix<f32> {
     let mut z = gemm(&cols_t(data, d, t), &view(q));
-    // Subtract 1 (mu^T q): the same number from every row of a column.
+    subtract_mu_q(&mut z, mu, q);
+    z
+}
+
+/// `z -= 1 (mu^T q)`: the same number from every row of a column (centring `A^T q` afterwards).
+fn subtract_mu_q(z: &mut DMatrix<f32>, mu: &[f32], q: &DMatrix<f32>) {
     for (j, mut col) in z.column_iter_mut().enumerate() {
         let mq: f64 = q.column(j).iter().zip(mu).map(|(&a, &b)| a as f64 * b as f64).sum();
         col.iter_mut().for_each(|v| *v -= mq as f32);
     }
-    z
 }
 
 /// The (at most) `c` leading principal directions of the centred columns of `xc` (`dim x n`), as
 /// orthonormal columns (`dim x c'`, `c' <= c`: directions whose eigenvalue is below `cut` times
 /// the largest are dropped), by randomized subspace iteration (Halko et al., algorithm 4.4, with
 /// [`POWER_ITERS`] iterations and [`OVERSAMPLE`] extra columns) and a Rayleigh-Ritz step on the
-/// subspace found. For matrices too large for an exact eigenproblem in both dimensions.
-pub(crate) fn top_directions(xc: &DMatrix<f32>, c: usize, seed: u64, cut: f64) -> DMatrix<f32> {
+/// subspace found. For matrices too large for an exact eigenproblem in both dimensions; `xc` is
+/// only ever multiplied, so it may be one streamed from a memory-mapped BTF ([`Gathered`]).
+pub(crate) fn top_directions(xc: &impl Columns, c: usize, seed: u64, cut: f64) -> DMatrix<f32> {
     let (dim, n) = xc.shape();
     let l = (c + OVERSAMPLE).min(n).min(dim);
     let omega = gaussian(n, l, seed);
-    let mut q = orthonormalize(&gemm(&view(xc), &view(&omega)));
+    let mut q = orthonormalize(&xc.times(&omega));
     for _ in 0..POWER_ITERS {
-        let z = orthonormalize(&gemm(&view_t(xc), &view(&q)));
-        q = orthonormalize(&gemm(&view(xc), &view(&z)));
+        let z = orthonormalize(&xc.t_times(&q));
+        q = orthonormalize(&xc.times(&z));
     }
-    let b = gemm(&view_t(&q), &view(xc));
+    let b = xc.t_times(&q).transpose();
     let s = gemm(&view(&b), &view_t(&b));
     let s = DMatrix::from_fn(s.nrows(), s.ncols(), |i, j| 0.5 * (s[(i, j)] as f64 + s[(j, i)] as f64));
     let (vals, vecs) = sym_eigen_desc(s);
     let keep = (0..c.min(vals.len())).take_while(|&j| vals[0] > 0.0 && vals[j] > cut * vals[0]).count();
     let u = DMatrix::<f32>::from_fn(q.ncols(), keep, |i, j| vecs[(i, j)] as f32);
     gemm(&view(&q), &view(&u))
+}
+
+/// A `d x n` matrix that the randomized PCA only multiplies: held in memory, or gathered chunk
+/// by chunk from a larger one ([`Gathered`]) so that a fit of a memory-mapped BTF never holds
+/// more than one chunk of its values.
+pub(crate) trait Columns: Sync {
+    /// `(d, n)`.
+    fn shape(&self) -> (usize, usize);
+    /// `A M` (`d x l`) for an `n x l` matrix `M`.
+    fn times(&self, m: &DMatrix<f32>) -> DMatrix<f32>;
+    /// `A^T Q` (`n x l`) for a `d x l` matrix `Q`.
+    fn t_times(&self, q: &DMatrix<f32>) -> DMatrix<f32>;
+}
+
+impl Columns for DMatrix<f32> {
+    fn shape(&self) -> (usize, usize) {
+        self.shape()
+    }
+    fn times(&self, m: &DMatrix<f32>) -> DMatrix<f32> {
+        gemm(&view(self), &view(m))
+    }
+    fn t_times(&self, q: &DMatrix<f32>) -> DMatrix<f32> {
+        gemm(&view_t(self), &view(q))
+    }
+}
+
+/// Columns `idx` of the `d x T` matrix over `data` (a BTF's texel-major values: one texel per
+/// column), minus `centre` when given, gathered at most `chunk` columns at a time: the products
+/// are summed (`A M`) or stacked (`A^T Q`) chunk by chunk, so the memory held is one `d x chunk`
+/// block whatever the number of columns. Every product is the same sum of the same terms as over
+/// the gathered matrix, only blocked.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Gathered<'a> {
+    pub(crate) data: &'a [f32],
+    pub(crate) d: usize,
+    pub(crate) idx: &'a [u32],
+    pub(crate) centre: Option<&'a [f32]>,
+    pub(crate) chunk: usize,
+}
+
+impl Gathered<'_> {
+    /// Calls `f(first, block)` for each chunk: `block` is `d x s`, columns `first..first + s`.
+    fn for_each_chunk(&self, mut f: impl FnMut(usize, &DMatrix<f32>)) {
+        let chunk = self.chunk.max(1);
+        let mut block = DMatrix::<f32>::zeros(self.d, chunk.min(self.idx.len()));
+        for (ci, ids) in self.idx.chunks(chunk).enumerate() {
+            if block.ncols() != ids.len() {
+                // The last, shorter chunk: free the full block before allocating it.
+                drop(std::mem::replace(&mut block, DMatrix::<f32>::zeros(0, 0)));
+                block = DMatrix::<f32>::zeros(self.d, ids.len());
+            }
+            block.as_mut_slice().par_chunks_mut(self.d.max(1)).zip(ids.par_iter()).for_each(|(o, &j)| {
+                let x = &self.data[j as usize * self.d..(j as usize + 1) * self.d];
+                match self.centre {
+                    Some(mu) => o.iter_mut().zip(x).zip(mu).for_each(|((o, &x), &m)| *o = x - m),
+                    None => o.copy_from_slice(x),
+                }
+            });
+            f(ci * chunk, &block);
+        }
+    }
+}
+
+impl Columns for Gathered<'_> {
+    fn shape(&self) -> (usize, usize) {
+        (self.d, self.idx.len())
+    }
+    fn times(&self, m: &DMatrix<f32>) -> DMatrix<f32> {
+        let (n, l) = m.shape();
+        // The chunks' products summed in f64 (a long fit sums thousands of them).
+        let mut acc = DMatrix::<f64>::zeros(self.d, l);
+        self.for_each_chunk(|first, x| {
+            // Rows first..first + s of the column-major n x l matrix m.
+            let s = x.ncols();
+            let rows = crate::dense::View::from_slice_with_strides(&m.as_slice()[first..], s, l, 1, n);
+            let p = gemm(&view(x), &rows);
+            acc.iter_mut().zip(p.iter()).for_each(|(a, &v)| *a += v as f64);
+        });
+        acc.map(|v| v as f32)
+    }
+    fn t_times(&self, q: &DMatrix<f32>) -> DMatrix<f32> {
+        let mut out = DMatrix::<f32>::zeros(self.idx.len(), q.ncols());
+        self.for_each_chunk(|first, x| {
+            out.rows_mut(first, x.ncols()).copy_from(&gemm(&view_t(x), &view(q)));
+        });
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `d x n` matrix of columns `idx` of the `d x t` data minus `centre`, gathered at once.
+    fn gathered(data: &[f32], d: usize, idx: &[u32], centre: &[f32]) -> DMatrix<f32> {
+        DMatrix::from_fn(d, idx.len(), |i, j| data[idx[j] as usize * d + i] - centre[i])
+    }
+
+    #[test]
+    fn streamed_products_equal_the_gathered_ones_for_every_chunk_size() {
+        let (d, t) = (37, 90);
+        let data = gaussian(d, t, 1);
+        let idx: Vec<u32> = (0..t as u32).filter(|j| j % 3 != 1).collect();
+        let centre: Vec<f32> = (0..d).map(|i| 0.1 * i as f32).collect();
+        let full = gathered(data.as_slice(), d, &idx, &centre);
+        let m = gaussian(idx.len(), 9, 2);
+        let q = gaussian(d, 9, 3);
+        let (am, atq) = (full.times(&m), full.t_times(&q));
+        for chunk in [1, 5, 32, idx.len(), 1000] {
+            let g = Gathered { data: data.as_slice(), d, idx: &idx, centre: Some(&centre), chunk };
+            assert_eq!(g.shape(), (d, idx.len()));
+            let close = |a: &DMatrix<f32>, b: &DMatrix<f32>| (a - b).abs().max() <= 1e-4 * b.abs().max();
+            assert!(close(&g.times(&m), &am), "A M, chunk {chunk}");
+            assert!(close(&g.t_times(&q), &atq), "A^T Q, chunk {chunk}");
+        }
+        // Without a centre the columns are the data's own.
+        let g = Gathered { data: data.as_slice(), d, idx: &idx, centre: None, chunk: 4 };
+        let zero = vec![0.0f32; d];
+        let raw = gathered(data.as_slice(), d, &idx, &zero);
+        assert!((g.t_times(&q) - raw.t_times(&q)).abs().max() <= 1e-4 * raw.t_times(&q).abs().max());
+    }
+
+    #[test]
+    fn streamed_top_directions_span_the_same_subspace() {
+        // Rank-3 data plus small noise: the three leading directions, found in memory and
+        // streamed 7 columns at a time, span the same subspace (projector difference ~ 0).
+        let (d, n) = (60, 200);
+        let basis = orthonormalize(&gaussian(d, 3, 4));
+        let coef = gaussian(3, n, 5) * 10.0;
+        let x = &basis * coef + gaussian(d, n, 6) * 1e-3;
+        let idx: Vec<u32> = (0..n as u32).collect();
+        let zero = vec![0.0f32; d];
+        let a = top_directions(&x, 3, 7, 1e-8);
+        let g = Gathered { data: x.as_slice(), d, idx: &idx, centre: Some(&zero), chunk: 7 };
+        let b = top_directions(&g, 3, 7, 1e-8);
+        assert_eq!((a.ncols(), b.ncols()), (3, 3));
+        let pa = &a * a.transpose();
+        let pb = &b * b.transpose();
+        let pt = &basis * basis.transpose();
+        assert!((&pa - &pb).abs().max() < 1e-4, "{}", (&pa - &pb).abs().max());
+        assert!((&pa - &pt).abs().max() < 1e-3, "{}", (&pa - &pt).abs().max());
+    }
+
+    #[test]
+    fn streamed_coordinates_match_the_in_memory_ones() {
+        // 3000 texels (above the 2048-texel range sample) streamed 100 at a time: the same
+        // seeded sample and steps, so the same coordinates up to rounding and sign.
+        let (d, t) = (24, 3000);
+        let basis = gaussian(d, 4, 8);
+        let data = &basis * gaussian(4, t, 9) + gaussian(d, t, 10) * 0.01;
+        let m = Monitor::new();
+        let (a, ra) = coordinates(data.as_slice(), d, t, 4, 11, None, &m).unwrap();
+        let (b, rb) = coordinates(data.as_slice(), d, t, 4, 11, Some(100), &m).unwrap();
+        assert_eq!((ra, rb), (4, 4));
+        let scale = a.iter().fold(0.0f32, |s, v| s.max(v.abs()));
+        for j in 0..4 {
+            let col = |p: &[f32]| (0..t).map(|i| p[i * 4 + j]).collect::<Vec<f32>>();
+            let (ca, cb) = (col(&a), col(&b));
+            let sign = if ca.iter().zip(&cb).map(|(x, y)| x * y).sum::<f32>() < 0.0 { -1.0 } else { 1.0 };
+            let worst = ca.iter().zip(&cb).map(|(x, y)| (x - sign * y).abs()).fold(0.0f32, f32::max);
+            assert!(worst < 1e-3 * scale, "coordinate {j}: {worst} of {scale}");
+        }
+    }
 }

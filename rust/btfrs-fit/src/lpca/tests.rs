@@ -166,7 +166,7 @@ fn refinement_never_increases_the_lpca_objective() {
     let b = knit(16);
     let (t, d) = (256, 81 * 81 * 3);
     // In the reduced space the fit clusters in, and in the full space (reduced_dims = 0).
-    let (p, r) = crate::rpca::coordinates(&b.data, d, t, 32, 5, &Monitor::new()).unwrap();
+    let (p, r) = crate::rpca::coordinates(&b.data, d, t, 32, 5, None, &Monitor::new()).unwrap();
     for (points, dim) in [(&p[..], r), (&b.data[..], d)] {
         let km = kmeans(points, dim, 8, 25, 1, &Monitor::new()).unwrap();
         let (assign, hist) = refine(points, dim, km.assign.clone(), km.k(), 3, 6, 2, &Monitor::new()).unwrap();
@@ -424,4 +424,43 @@ fn projected_mip_texels_are_the_best_representation_of_the_mean_in_one_cluster()
     // The coarser texel reads the new ones, and every stored value is finite.
     assert!(out.weights.iter().all(|x| x.is_finite()));
     assert!(m.mip_texels(&[vec![(n as u32, 1.0)]]).unwrap_err().to_string().starts_with("groups"));
+}
+
+#[test]
+fn a_fit_under_a_memory_limit_streams_and_matches_the_unlimited_fit() {
+    // knit 48^2 (2304 texels, above the 2048-texel range sample) with 81 x 81 pairs: 19683
+    // values (79 kB) a texel. A limit leaving chunks of ~100 texels streams the sample and every
+    // cluster; the clustering steers by the same coordinates, the reconstruction error stays
+    // within 1 % of the unlimited fit's.
+    let btf = knit(48);
+    let b = btf.as_ref();
+    let o = LpcaOptions { clusters: 6, components: 3, ..Default::default() };
+    let free = fit_lpca(&b, &o, &Monitor::new()).unwrap();
+    let d = 3 * 81 * 81;
+    let t = b.texels();
+    let fixed = memory_plan(Some(u64::MAX / 4), t, d, &o, false).unwrap().unwrap();
+    assert_eq!(fixed, t, "an ample limit gathers everything");
+    let m = Monitor::new();
+    let least = match memory_plan(Some(1), t, d, &o, false) {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("a 1-byte limit was accepted"),
+    };
+    assert!(least.starts_with("memory_limit: expected at least "), "{least}");
+    // Find the limit that leaves 100-texel chunks, from the plan itself.
+    let mut limit = 1u64 << 20;
+    while memory_plan(Some(limit), t, d, &o, false).map_or(true, |c| c.unwrap() < 100) {
+        limit += 1 << 20;
+    }
+    let chunk = memory_plan(Some(limit), t, d, &o, false).unwrap().unwrap();
+    assert!((100..200).contains(&chunk), "{chunk}");
+    m.set_memory_limit(Some(limit));
+    let tight = fit_lpca(&b, &o, &m).unwrap();
+    let err = |l: &Lpca| model_error(l, &b).unwrap().relative();
+    let (ef, et) = (err(&free), err(&tight));
+    assert!((et - ef).abs() <= 0.01 * ef, "unlimited {ef}, under {limit} bytes {et}");
+    let agree = free.ids.iter().zip(&tight.ids).filter(|(a, b)| a == b).count() as f64 / t as f64;
+    assert!(agree > 0.95, "{agree}");
+    // A limit too small for the fit is refused before any work, naming the least it needs.
+    m.set_memory_limit(Some(limit / 4));
+    assert!(fit_lpca(&b, &o, &m).unwrap_err().to_string().starts_with("memory_limit: expected at least"));
 }
