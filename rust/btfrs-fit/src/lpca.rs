@@ -318,10 +318,13 @@ fn memory_plan(limit: Option<u64>, t: usize, d: usize, opts: &LpcaOptions, compa
         + 8 * (cc + 1) // the weights, per cluster and scattered
         + 4 * cc // the re-solve's right-hand sides
         + 56; // norms, distances, the seeding's CDF and potentials (f64); assignments, ids, members (u32)
-    let fixed =
-        t64 * per_texel + REFINE_BLOCK as u64 * k * (4 * cc + 8) + if compact { t64 * d64 * 4 } else { 0 } + (8 << 20); // the allocator's and the threads' own
-                                                                                                                        // Per chunk: the range finder's d x l products (f32 and their f64 sum), the mean, the
-                                                                                                                        // quantized and dequantized basis; then 4 bytes per value of each texel of the chunk.
+
+    // Besides: the refinement's blocks, the copy of the present pairs (held-out pairs), and
+    // 8 MiB for the allocator's and the threads' own.
+    let present_copy = if compact { t64 * d64 * 4 } else { 0 };
+    let fixed = t64 * per_texel + REFINE_BLOCK as u64 * k * (4 * cc + 8) + present_copy + (8 << 20);
+    // Per chunk: the range finder's d x l products (f32 and their f64 sum), the mean, the
+    // quantized and dequantized basis; then 4 bytes per value of each texel of the chunk.
     let per_chunk = d64 * (4 * (2 * l + 2 * cc + 2) + 8 * l + cc);
     let per_texel_of_chunk = 4 * d64;
     let least = fixed + per_chunk + 32.min(t64) * per_texel_of_chunk;

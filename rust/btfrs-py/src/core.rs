@@ -113,6 +113,31 @@ pub fn material_names() -> Vec<&'static str> {
     Preset::ALL.iter().map(|p| p.name()).collect()
 }
 
+/// The material spec of the arguments both material functions take.
+#[allow(clippy::too_many_arguments)]
+fn material_spec(
+    name: &str,
+    size: usize,
+    views: &Bound<'_, PyAny>,
+    lights: &Bound<'_, PyAny>,
+    seed: u64,
+    relief: f64,
+    subsurface: f64,
+) -> PyResult<MaterialSpec> {
+    let preset = Preset::from_name(name).py()?;
+    let v = borrow::<f64>("views", views)?;
+    let l = borrow::<f64>("lights", lights)?;
+    Ok(MaterialSpec {
+        preset,
+        size,
+        views: dirs("views", &v)?.to_vec(),
+        lights: dirs("lights", &l)?.to_vec(),
+        seed,
+        relief,
+        subsurface,
+    })
+}
+
 /// Generate a built-in material, `[size, size, V, L, 3]` float32.
 #[pyfunction]
 #[pyo3(signature = (name, size, views, lights, seed, relief=1.0, subsurface=0.0, progress=None))]
@@ -129,18 +154,7 @@ pub fn make_material<'py>(
     progress: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
     guarded(|| {
-        let preset = Preset::from_name(name).py()?;
-        let v = borrow::<f64>("views", views)?;
-        let l = borrow::<f64>("lights", lights)?;
-        let spec = MaterialSpec {
-            preset,
-            size,
-            views: dirs("views", &v)?.to_vec(),
-            lights: dirs("lights", &l)?.to_vec(),
-            seed,
-            relief,
-            subsurface,
-        };
+        let spec = material_spec(name, size, views, lights, seed, relief, subsurface)?;
         let btf = monitored(py, progress, |m| generate(&spec, m))?;
         let shape = [btf.height, btf.width, btf.views.len(), btf.lights.len(), 3];
         btf.data.into_pyarray(py).reshape(shape.to_vec())
@@ -166,18 +180,7 @@ pub fn make_material_file<'py>(
     progress: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<()> {
     guarded(|| {
-        let preset = Preset::from_name(name).py()?;
-        let v = borrow::<f64>("views", views)?;
-        let l = borrow::<f64>("lights", lights)?;
-        let spec = MaterialSpec {
-            preset,
-            size,
-            views: dirs("views", &v)?.to_vec(),
-            lights: dirs("lights", &l)?.to_vec(),
-            seed,
-            relief,
-            subsurface,
-        };
+        let spec = material_spec(name, size, views, lights, seed, relief, subsurface)?;
         let meta = serde_json::json!({"layout": "HWVL3"});
         monitored(py, progress, |m| {
             btfrs_io::capture::write_btf_streamed(&out, size, size, &spec.views, &spec.lights, None, meta, |values| {
