@@ -7,6 +7,7 @@ fit, and the growth must stay below the limit plus the model it returns.
 """
 
 import json
+import os
 import subprocess
 import sys
 
@@ -15,7 +16,7 @@ import pytest
 
 import btfrs
 from btfrs._checks import memory_size
-from btfrs.exceptions import ArgumentTypeError, InvalidArgumentError
+from btfrs.exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
 
 LIMIT = "64MB"
 
@@ -51,6 +52,23 @@ def test_every_fit_of_a_mapped_btf_stays_within_its_memory_limit(big, kind):
     m = json.loads(r.stdout.strip().splitlines()[-1])
     assert m["data"] > 190e6  # the data is three times the limit: it cannot have been copied
     assert m["growth"] <= memory_size("limit", LIMIT) + m["model"], (kind, m)
+
+
+def test_the_analysis_of_a_mapped_btf_stays_within_its_memory_limit(big):
+    # Its result (1024 textons, their distance table, the candidate lists) is not added: the
+    # growth must stay below the limit alone. Without a limit the range finder's sample alone
+    # copies 2048 texels of 40 kB (82 MB).
+    r = subprocess.run([sys.executable, "-m", "btfrs._memprobe", str(big), "analyse",
+                        json.dumps({"textons": 1024, "memory_limit": LIMIT})],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    m = json.loads(r.stdout.strip().splitlines()[-1])
+    assert m["growth"] <= memory_size("limit", LIMIT), m
+    btf = btfrs.Btf.load(big, mmap=True)
+    with pytest.raises(InvalidArgumentError, match=r"memory_limit: expected at least [\d.]+ MB for the analysis"):
+        btfrs.synth.analyse(btf, textons=64, memory_limit="8MB")
+    with pytest.raises(InvalidArgumentError, match="memory_limit: applies to a Btf sample"):
+        btfrs.synth.analyse(np.zeros((16, 16, 3), np.float32), memory_limit="1GB")
 
 
 def test_lpca_under_a_limit_streams_and_stays_close_to_the_unlimited_fit(big):
@@ -115,3 +133,20 @@ def test_a_failed_material_write_leaves_nothing(tmp_path):
     with pytest.raises(InvalidArgumentError, match="views"):
         btfrs.materials.make("knit", size=16, views=np.array([[0.0, 0.0, -1.0]]), out=path)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_file_changed_on_disk_during_a_fit_is_an_error(tmp_path):
+    path = tmp_path / "small.btfrs"
+    btf = btfrs.materials.make("knit", size=16, out=path)
+    btfrs.fit.ptm(btf)  # unchanged: fine
+    st = path.stat()
+    # Another process rewriting the file moves its modification time (and maybe its size).
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    with pytest.raises(FormatError, match="the file changed on disk during the PTM-RGB fit"):
+        btfrs.fit.ptm(btf)
+    with pytest.raises(FormatError, match="changed on disk during the analysis"):
+        btfrs.synth.analyse(btf, textons=16, levels=1)
+    fresh = btfrs.Btf.load(path, mmap=True)  # reopening it: the fit works again
+    assert btfrs.fit.ptm(fresh).height == 16
+    # A Btf in memory has no file to watch.
+    btfrs.fit.ptm(btfrs.Btf.load(path))

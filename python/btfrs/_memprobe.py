@@ -1,5 +1,6 @@
 """Measure one fit of a memory-mapped ``.btfrs`` in this process: ``python -m btfrs._memprobe
-PATH MODEL OPTIONS_JSON`` prints one JSON line.
+PATH MODEL OPTIONS_JSON`` prints one JSON line (``MODEL`` a registered model, or ``analyse`` for
+:func:`btfrs.synth.analyse`).
 
 What the out-of-core tests and ``python -m btfrs.bench --out-of-core`` run in a fresh
 interpreter per fit (memory an earlier fit freed stays with the allocator and would hide the next
@@ -11,7 +12,7 @@ fit's growth). The figures are the operating system's own:
 * ``read_bytes``: bytes this process caused to be fetched from storage (``/proc/self/io``), i.e.
   what the page cache did not already hold.
 * ``model``: the model's bytes in memory: its arrays, and for PTM and HSH, which evaluate from a
-  float copy of their 8-bit planes, 4 more bytes per plane byte.
+  float copy of their 8-bit planes, 4 more bytes per plane byte (0 for an analysis).
 """
 
 from __future__ import annotations
@@ -43,6 +44,8 @@ def read_bytes() -> int:
 
 
 def model_bytes(kind: str, model) -> int:
+    if kind == "analyse":
+        return 0
     arrays = model.arrays
     n = sum(a.nbytes for a in arrays.values())
     if kind in ("ptm", "hsh"):
@@ -65,7 +68,10 @@ def measure(path: str, kind: str, options: dict) -> dict:
     r0, t0 = read_bytes(), time.perf_counter()
     th.start()
     try:
-        model = btfrs.fit.fit(kind, btf, **options)
+        if kind == "analyse":
+            model = btfrs.synth.analyse(btf, **options)
+        else:
+            model = btfrs.fit.fit(kind, btf, **options)
     finally:
         stop.set()
         th.join()

@@ -304,6 +304,7 @@ def analyse_btf_native(
     neighbourhoods: list[int] = ...,
     iterations: int = 20,
     seed: int = 0,
+    memory_limit: Optional[int] = None,
     progress: _Progress = None,
 ) -> Analysis: ...
 def analyse_features_native(

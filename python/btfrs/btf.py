@@ -81,7 +81,7 @@ class Btf:
         Scan the values for NaN/inf (a parallel pass over the data; on by default).
     """
 
-    __slots__ = ("_data", "_views", "_lights", "_mask", "__weakref__")
+    __slots__ = ("_data", "_views", "_lights", "_mask", "_source", "__weakref__")
 
     def __init__(self, data, views, lights, mask=None, *, check: bool = True) -> None:
         a = data if isinstance(data, np.ndarray) else np.asarray(data)
@@ -92,6 +92,8 @@ class Btf:
         if a.dtype != np.float32 or not a.flags.c_contiguous:
             a = np.ascontiguousarray(a, dtype=np.float32)
         self._data = a
+        # (path, size, mtime) of the file whose values are mapped (Btf.load with mmap=True).
+        self._source: Optional[tuple] = None
         self._views = _directions("views", views)
         self._lights = _directions("lights", lights)
         if mask is not None:
@@ -234,7 +236,25 @@ class Btf:
         kind, _, arrays, finite = _read_container(path, mmap=mmap)
         if kind != "btf":
             raise FormatError(f"{os.fspath(path)}: holds a {kind!r}, not a BTF (use btfrs.load)")
-        return cls.from_arrays(path, arrays, check=not (mmap and "data" in finite))
+        btf = cls.from_arrays(path, arrays, check=not (mmap and "data" in finite))
+        if mmap:
+            btf._source = (os.fspath(path),) + _stamp(os.fspath(path))
+        return btf
+
+    def _check_unchanged(self, what: str) -> None:
+        """For a memory-mapped Btf: a FormatError when its file changed on disk (size or
+        modification time) since it was opened, so a fit or analysis that read it while another
+        process rewrote it is not returned as if it had read one BTF."""
+        if self._source is None:
+            return
+        path, size, mtime = self._source
+        try:
+            now = _stamp(path)
+        except OSError:
+            now = None
+        if now != (size, mtime):
+            raise FormatError(f"{path}: the file changed on disk during the {what} (its size or modification time "
+                              f"is not what it was when opened); open it again and rerun")
 
     @classmethod
     def from_arrays(cls, path, arrays: dict, *, check: bool = True) -> "Btf":
@@ -327,6 +347,11 @@ class ExpandedBtf:
 
 _DTYPES = {"f32": np.float32, "f64": np.float64, "u8": np.uint8, "u16": np.uint16, "i32": np.int32,
            "bool": np.bool_}
+
+
+def _stamp(path: str) -> tuple:
+    st = os.stat(path)
+    return (st.st_size, st.st_mtime_ns)
 
 
 def _read_container(path, mmap: bool = False) -> tuple[str, dict, dict, set]:

@@ -67,6 +67,7 @@ def _fit(kind: str, btf: Btf, label: str, progress: Progress, options: dict, mem
         options = {**options, "memory_limit": limit}
     t0 = time.perf_counter()
     m = _native.fit_model(kind, b.data, b.views, b.lights, b.mask, json.dumps(options), callback(progress, label))
+    b._check_unchanged(label)
     return wrap(m, fit_seconds=time.perf_counter() - t0)
 
 

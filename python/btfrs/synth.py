@@ -33,7 +33,7 @@ from typing import Optional, Sequence, Union
 import numpy as np
 
 from . import _native
-from ._checks import boolean, choice, index, instance, integer, real, size_hw
+from ._checks import boolean, choice, index, instance, integer, memory_size, real, size_hw
 from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
@@ -166,7 +166,7 @@ def _texture(sample) -> np.ndarray:
 
 def analyse(sample: Union[Btf, np.ndarray], *, textons: int = 1024, features: str = "pca", dims: int = 48,
             images: int = 150, levels: int = 3, m: int = 10, neighbourhoods: Sequence[int] = (2,),
-            iterations: int = 20, seed: int = 0, progress: Progress = None) -> Analysis:
+            iterations: int = 20, seed: int = 0, memory_limit=None, progress: Progress = None) -> Analysis:
     """Analyse a sample for synthesis (paper 000, section 4.1).
 
     Parameters
@@ -190,6 +190,13 @@ def analyse(sample: Union[Btf, np.ndarray], *, textons: int = 1024, features: st
         Window radii whose similar neighbourhoods are computed now (others on first use).
     seed:
         Seeds k-means++ and the PCA sketch: same seed, same analysis.
+    memory_limit:
+        For a Btf, as for the fits (``"64MB"``, ``"2GB"``, bytes; see :mod:`btfrs.fit`): the
+        anonymous memory the analysis may allocate besides its result, so a memory-mapped BTF
+        larger than memory can be analysed. With ``features="pca"`` the range finder's texel
+        sample is streamed through chunks sized by the limit (the same coordinates up to
+        rounding); ``"all"`` and ``"images"`` copy values for every texel, which must fit. A limit
+        below the least the analysis needs raises InvalidArgumentError naming it.
     """
     textons = integer("textons", textons, min=1)
     levels = integer("levels", levels, min=1)
@@ -204,13 +211,17 @@ def analyse(sample: Union[Btf, np.ndarray], *, textons: int = 1024, features: st
         features = choice("features", features, ("pca", "all", "images"))
         dims = integer("dims", dims, min=1)
         images = integer("images", images, min=1)
+        limit = memory_size("memory_limit", memory_limit)
         native = _native.analyse_btf_native(sample.data, sample.views, sample.lights, sample.mask, textons,
-                                            features, dims, images, levels, m, radii, iterations, seed,
+                                            features, dims, images, levels, m, radii, iterations, seed, limit,
                                             callback(progress, "analysis"))
+        sample._check_unchanged("analysis")
         name = features if features != "pca" else f"pca{dims}"
         return Analysis(native, "btf", name, time.perf_counter() - t0)
     if features != "pca":
         raise InvalidArgumentError(f"features: a texture's pixels are its features; got features={features!r}")
+    if memory_limit is not None:
+        raise InvalidArgumentError("memory_limit: applies to a Btf sample (a texture is in memory already)")
     tex = _texture(sample)
     native = _native.analyse_features_native(tex, textons, levels, m, radii, iterations, seed,
                                              callback(progress, "analysis"))

@@ -295,7 +295,7 @@ pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Resu
 ///
 /// Out of core (a memory-mapped BTF larger than memory): what grows with the texels whatever
 /// the chunking is counted as it is: the principal coordinates and the projection that makes
-/// them, k-means's `[T, K]` distances, the assignments, the refinement's gathered coordinates,
+/// them, the assignments, the refinement's gathered coordinates,
 /// the per-cluster weights before they are scattered, and, with held-out pairs, the copy of the
 /// present ones. What is left is one chunk: the range finder's sample, a large cluster's final
 /// PCA and its weights' re-solve are streamed through it (`rpca::Gathered`), one cluster at a
@@ -313,16 +313,17 @@ fn memory_plan(limit: Option<u64>, t: usize, d: usize, opts: &LpcaOptions, compa
     let r = opts.reduced_dims.min(d) as u64;
     let l = r + rpca::OVERSAMPLE as u64;
     let per_texel = 4 * (3 * r + 2 * l) // coordinates, the refinement's copies, the projection (and its bands)
-        + 12 * k // k-means: [T, K] distances (f64) and dot products (f32)
         + 4 * 3 * l // a streamed cluster's [n, l] subspace products
         + 8 * (cc + 1) // the weights, per cluster and scattered
         + 4 * cc // the re-solve's right-hand sides
         + 56; // norms, distances, the seeding's CDF and potentials (f64); assignments, ids, members (u32)
 
-    // Besides: the refinement's blocks, the copy of the present pairs (held-out pairs), and
-    // 8 MiB for the allocator's and the threads' own.
+    // Besides: k-means's and the refinement's blocks of distances, the copy of the present pairs
+    // (held-out pairs), and 8 MiB for the allocator's and the threads' own.
     let present_copy = if compact { t64 * d64 * 4 } else { 0 };
-    let fixed = t64 * per_texel + REFINE_BLOCK as u64 * k * (4 * cc + 8) + present_copy + (8 << 20);
+    let blocks =
+        12 * (crate::kmeans::ASSIGN_BLOCK_VALUES as u64).min(t64 * k) + REFINE_BLOCK.min(t) as u64 * k * (4 * cc + 8);
+    let fixed = t64 * per_texel + blocks + present_copy + (8 << 20);
     // Per chunk: the range finder's d x l products (f32 and their f64 sum), the mean, the
     // quantized and dequantized basis; then 4 bytes per value of each texel of the chunk.
     let per_chunk = d64 * (4 * (2 * l + 2 * cc + 2) + 8 * l + cc);

@@ -39,18 +39,20 @@ pub(crate) const PROGRESS_UNITS: u64 = 4;
 /// range finder with one power iteration, see `coordinates`' notes). Distances between the
 /// coordinates approximate the distances between the points, which is what the texton analysis
 /// of the synthesis (paper 000 section 4.1, "a PCA projection of them") needs. `monitor`
-/// advances by 4 (`PROGRESS_UNITS`).
+/// advances by 4 (`PROGRESS_UNITS`). `chunk`: the most points whose values may be copied at
+/// once (`None`: no bound; an out-of-core caller streams the range finder's sample through it).
 pub fn principal_coordinates(
     data: &[f32],
     d: usize,
     n: usize,
     r: usize,
     seed: u64,
+    chunk: Option<usize>,
     monitor: &Monitor,
 ) -> Result<(Vec<f32>, usize)> {
     ensure_arg!(d > 0 && n > 0 && data.len() == d * n, "data", "expected {n} x {d} values, got {}", data.len());
     ensure_arg!(r > 0, "dims", "expected at least 1 principal component, got 0");
-    coordinates(data, d, n, r, seed, None, monitor)
+    coordinates(data, d, n, r, seed, chunk, monitor)
 }
 
 /// `[T, r']` principal coordinates (`r' <= r`; 0 when all texels are equal) of the

@@ -72,6 +72,7 @@ pub fn btf_features(
     }
     let (h, w, n) = (btf.height, btf.width, btf.texels());
     let all_present = pairs.len() == btf.views.len() * btf.lights.len();
+    let chunk = feature_chunk(monitor.memory_limit(), n, 3 * pairs.len(), mode, all_present)?;
     match mode {
         FeatureMode::All => {
             let data = if all_present { btf.data.to_vec() } else { gather(btf, &pairs) };
@@ -89,7 +90,7 @@ pub fn btf_features(
                 owned = gather(btf, &pairs);
                 &owned
             };
-            let (coords, r) = btfrs_fit::principal_coordinates(data, 3 * pairs.len(), n, dims, seed, monitor)?;
+            let (coords, r) = btfrs_fit::principal_coordinates(data, 3 * pairs.len(), n, dims, seed, chunk, monitor)?;
             if r == 0 {
                 // Every pixel is the same: one coordinate of zeros keeps the shapes valid.
                 return Features::new(h, w, 1, vec![0.0; n]);
@@ -107,6 +108,48 @@ pub fn btf_features(
             Features::new(h, w, 3 * chosen.len(), gather(btf, &chosen))
         }
     }
+}
+
+/// Under a memory limit (`limit`, bytes; out-of-core analysis of a memory-mapped BTF): the most
+/// texels of `d` values the PCA features may copy at once (its range finder's sample is streamed
+/// through them), or an error naming `memory_limit` when the features themselves do not fit
+/// ("all" and "images" copy values for every texel, as does a mask with absent pairs).
+///
+/// What the analysis holds whatever the chunking is estimated per texel: the features (`d'`
+/// values: the principal coordinates, at most 64 of them, and the projection making them),
+/// k-means's per-point state and its blocks of distances, the pyramid's levels, and each level's
+/// candidate lists (`m` per pixel, a few radii): 2 kB per texel plus 24 MB, an upper bound
+/// checked by the out-of-core tests' subprocess measurements rather than derived term by term.
+fn feature_chunk(
+    limit: Option<u64>,
+    n: usize,
+    d: usize,
+    mode: FeatureMode,
+    all_present: bool,
+) -> Result<Option<usize>> {
+    let Some(limit) = limit else { return Ok(None) };
+    let (n64, d64) = (n as u64, d as u64);
+    let copied = match mode {
+        FeatureMode::All => n64 * d64 * 4,
+        FeatureMode::Images { count } => n64 * 3 * count as u64 * 4,
+        FeatureMode::Pca { .. } if !all_present => n64 * d64 * 4,
+        FeatureMode::Pca { .. } => 0,
+    };
+    let fixed = n64 * 2048 + (24 << 20) + copied;
+    let least = fixed + 32 * d64 * 4;
+    if limit < least {
+        let mb = |b: u64| format!("{:.1} MB", b as f64 / 1e6);
+        return Err(Error::arg(
+            "memory_limit",
+            format!(
+                "expected at least {} for the analysis of {n} texels of {d} values ({} of it the features' copy), got {}",
+                mb(least),
+                mb(copied),
+                mb(limit)
+            ),
+        ));
+    }
+    Ok(Some(((limit - fixed) / (d64 * 4)).min(n64) as usize))
 }
 
 /// `count` representative pairs: k-means over the images' thumbnails (block means of at most

@@ -274,7 +274,7 @@ fn opts(textons: usize, levels: usize, m: usize, iterations: usize, seed: u64) -
 
 /// Analyse a BTF sample.
 #[pyfunction]
-#[pyo3(signature = (data, views, lights, mask=None, textons=1024, features="pca", dims=48, images=150, levels=3, m=10, neighbourhoods=vec![2], iterations=20, seed=0, progress=None))]
+#[pyo3(signature = (data, views, lights, mask=None, textons=1024, features="pca", dims=48, images=150, levels=3, m=10, neighbourhoods=vec![2], iterations=20, seed=0, memory_limit=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn analyse_btf_native<'py>(
     py: Python<'py>,
@@ -291,6 +291,7 @@ pub fn analyse_btf_native<'py>(
     neighbourhoods: Vec<usize>,
     iterations: usize,
     seed: u64,
+    memory_limit: Option<u64>,
     progress: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<PyAnalysis> {
     let mode = match features {
@@ -303,6 +304,7 @@ pub fn analyse_btf_native<'py>(
     let b = args.btf()?;
     let o = opts(textons, levels, m, iterations, seed);
     let inner = monitored(py, progress, |mon| {
+        mon.set_memory_limit(memory_limit);
         btfrs_core::btf::check_finite("data", b.data)?;
         Analysis::of_btf(&b, mode, o, &neighbourhoods, mon)
     })?;
