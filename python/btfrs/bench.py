@@ -939,7 +939,7 @@ def main(argv=None) -> int:
                         "rendered on a plane, against the path trace of the heightfield (issue 14)")
     p.add_argument("--out-of-core", metavar="PATH",
                    help="only the out-of-core fits: make knit at --size (default 640)^2 x 81 x 81 into PATH "
-                        "(31.5 GB at 640) unless it is there, fit PTM and LPCA under --memory-limit (issue 15)")
+                        "(32.2 GB at 640) unless it is there, fit PTM and LPCA under --memory-limit (issue 15)")
     p.add_argument("--memory-limit", default="2GB", help="the out-of-core fits' memory_limit (default: 2GB)")
     p.add_argument("--figures", metavar="DIR", help="also write paper 000 Figure 6 style images into DIR")
     a = p.parse_args(argv)

@@ -238,7 +238,8 @@ class Btf:
             raise FormatError(f"{os.fspath(path)}: holds a {kind!r}, not a BTF (use btfrs.load)")
         btf = cls.from_arrays(path, arrays, check=not (mmap and "data" in finite))
         if mmap:
-            btf._source = (os.fspath(path),) + _stamp(os.fspath(path))
+            full = os.path.abspath(os.fspath(path))  # a later chdir must not look like a change
+            btf._source = (full,) + _stamp(full)
         return btf
 
     def _check_unchanged(self, what: str) -> None:

@@ -14,8 +14,10 @@ of their options. A model registered in Rust without a function here is still re
 page cache holds and evicts as it needs, and a BTF larger than memory can be fitted. Every fit
 takes ``memory_limit`` (bytes, or ``"64MB"``, ``"2GB"``, ``"512MiB"``): the anonymous memory it
 may allocate besides the model it returns. The fits that work texel by texel (or view slot by
-view slot over all texels: PTM, HSH, SRF, Lafortune, double SH, RBF, bilinear) need a fixed
-16 MB; LPCA sizes its chunks by the limit (:func:`lpca`). A limit below what a fit needs raises
+view slot over all texels: PTM, HSH, SRF, Lafortune) need a fixed 16 MB; double SH (8-bit), RBF
+and bilinear hold every texel's float coefficients before quantizing them (and RBF and bilinear
+one view slot's resampled data), so their least limit grows with the texels; LPCA sizes its
+chunks by the limit (:func:`lpca`). A limit below what a fit needs raises
 :class:`~btfrs.exceptions.InvalidArgumentError` naming ``memory_limit`` and the least it needs,
 before any work.
 """

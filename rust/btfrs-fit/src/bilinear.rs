@@ -161,6 +161,17 @@ pub fn slot_operator(
     Ok((bilinear_operator(lights, n, regularization.max(1.0), Penalty::Membrane)?, Some(a)))
 }
 
+/// The light-PCA options of `o`.
+fn pca_options(o: &BilinearOptions) -> PcaOptions {
+    PcaOptions {
+        resolution: o.resolution,
+        components: o.components,
+        chroma_components: o.chroma_components,
+        colour: o.colour,
+        seed: o.seed,
+    }
+}
+
 /// Fit a bilinear light grid to the present pairs of `btf`; `monitor` counts view slots.
 pub fn fit_bilinear(btf: &BtfRef<'_>, o: &BilinearOptions, monitor: &Monitor) -> Result<Bilinear> {
     ensure_arg!(
@@ -169,13 +180,7 @@ pub fn fit_bilinear(btf: &BtfRef<'_>, o: &BilinearOptions, monitor: &Monitor) ->
         "expected a finite value >= 0, got {}",
         o.regularization
     );
-    let pca = PcaOptions {
-        resolution: o.resolution,
-        components: o.components,
-        chroma_components: o.chroma_components,
-        colour: o.colour,
-        seed: o.seed,
-    };
+    let pca = pca_options(o);
     pca.check()?;
     let op = |lights: &[[f64; 3]], n: usize| slot_operator(lights, n, o.regularization, btf.lights);
     Ok(Bilinear(light_pca::fit(btf, &pca, &op, "bilinear", monitor)?))
@@ -197,6 +202,12 @@ impl Model for Bilinear {
 
     fn fit(btf: &BtfRef<'_>, options: &BilinearOptions, monitor: &Monitor) -> Result<Self> {
         fit_bilinear(btf, options, monitor)
+    }
+
+    /// Not streamed below one view slot's resampled data and the float coefficients
+    /// ([`light_pca::least_memory`]).
+    fn least_memory(btf: &BtfRef<'_>, options: &BilinearOptions) -> u64 {
+        light_pca::least_memory(btf, &pca_options(options))
     }
 
     /// See [`LightPca::to_arrays`].

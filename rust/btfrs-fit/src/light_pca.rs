@@ -442,6 +442,17 @@ pub struct FallbackSlot {
     pub amplification: f64,
 }
 
+/// The least memory limit of [`fit`] on `btf` (bytes, besides the model): it does not stream
+/// below it. The float coefficients of every slot before they are quantized (4 bytes per stored
+/// byte), one view slot's samples and its resampled data with their centred copy (`3 L + 6 G`
+/// floats per texel), and 16 MB.
+pub fn least_memory(btf: &BtfRef<'_>, opts: &PcaOptions) -> u64 {
+    let kc = opts.check().unwrap_or(0) as u64; // a bad option is reported by the fit itself
+    let (t, nv, nl) = (btf.texels() as u64, btf.views.len() as u64, btf.lights.len() as u64);
+    let g = (opts.resolution * opts.resolution) as u64;
+    16_000_000 + 4 * t * nv * (opts.components as u64 + kc) + 4 * t * (3 * nl + 6 * g)
+}
+
 /// Fit: resample every slot with `op`, then PCA and quantize (see the module doc). `what`
 /// names the model in errors; `monitor` counts slots.
 pub fn fit(btf: &BtfRef<'_>, opts: &PcaOptions, op: &Operator<'_>, what: &str, monitor: &Monitor) -> Result<LightPca> {

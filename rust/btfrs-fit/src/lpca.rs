@@ -316,17 +316,21 @@ fn memory_plan(limit: Option<u64>, t: usize, d: usize, opts: &LpcaOptions, compa
         + 4 * 3 * l // a streamed cluster's [n, l] subspace products
         + 8 * (cc + 1) // the weights, per cluster and scattered
         + 4 * cc // the re-solve's right-hand sides
-        + 56; // norms, distances, the seeding's CDF and potentials (f64); assignments, ids, members (u32)
+        + 56 // norms, distances, the seeding's CDF and potentials (f64); assignments, ids, members (u32)
+        + 8 * (3 + (k as f64).ln() as u64); // k-means++'s distances to its candidates (f64)
 
     // Besides: k-means's and the refinement's blocks of distances, the copy of the present pairs
     // (held-out pairs), and 8 MiB for the allocator's and the threads' own.
     let present_copy = if compact { t64 * d64 * 4 } else { 0 };
     let blocks =
         12 * (crate::kmeans::ASSIGN_BLOCK_VALUES as u64).min(t64 * k) + REFINE_BLOCK.min(t) as u64 * k * (4 * cc + 8);
-    let fixed = t64 * per_texel + blocks + present_copy + (8 << 20);
-    // Per chunk: the range finder's d x l products (f32 and their f64 sum), the mean, the
-    // quantized and dequantized basis; then 4 bytes per value of each texel of the chunk.
-    let per_chunk = d64 * (4 * (2 * l + 2 * cc + 2) + 8 * l + cc);
+    // The quantized Eigen-BRDFs of every cluster, kept until they are scattered into the basis.
+    let quantized = k * cc * d64;
+    let fixed = t64 * per_texel + blocks + present_copy + quantized + (8 << 20);
+    // Per chunk: the range finder's d x l products (an f32 product, its row bands, the f64
+    // sum, the subspace kept: 24 bytes per value), the mean, the quantized and dequantized
+    // basis; then 4 bytes per value of each texel of the chunk.
+    let per_chunk = d64 * (24 * l + 4 * (2 * cc + 2) + cc);
     let per_texel_of_chunk = 4 * d64;
     let least = fixed + per_chunk + 32.min(t64) * per_texel_of_chunk;
     if limit < least {

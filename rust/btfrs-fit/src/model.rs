@@ -90,8 +90,9 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     /// The least memory limit (bytes, besides the model) the fit can keep to on `btf`; the
     /// registry rejects a lower `memory_limit` before fitting. The default is for the fits that
     /// stream the values texel by texel, solving each texel (or each view slot over all texels)
-    /// with small scratch: a fixed 16 MB. A fit whose need grows with the data overrides it or
-    /// sizes its chunks by the limit and reports the least itself (LPCA).
+    /// with small scratch: a fixed 16 MB. A fit whose need grows with the data overrides it
+    /// (double SH, RBF, bilinear: their float coefficients before quantizing), or sizes its
+    /// chunks by the limit and reports the least itself (LPCA).
     fn least_memory(_btf: &BtfRef<'_>, _options: &Self::Options) -> u64 {
         16_000_000
     }

@@ -124,6 +124,17 @@ pub fn rbf_operator(
     Ok(w)
 }
 
+/// The light-PCA options of `o`.
+fn pca_options(o: &RbfOptions) -> PcaOptions {
+    PcaOptions {
+        resolution: o.resolution,
+        components: o.components,
+        chroma_components: o.chroma_components,
+        colour: o.colour,
+        seed: o.seed,
+    }
+}
+
 /// Fit an RBF light basis to the present pairs of `btf`; `monitor` counts view slots.
 pub fn fit_rbf(btf: &BtfRef<'_>, o: &RbfOptions, monitor: &Monitor) -> Result<Rbf> {
     ensure_arg!(o.width.is_finite() && o.width > 0.0, "width", "expected a positive kernel width, got {}", o.width);
@@ -133,13 +144,7 @@ pub fn fit_rbf(btf: &BtfRef<'_>, o: &RbfOptions, monitor: &Monitor) -> Result<Rb
         "expected a finite value >= 0, got {}",
         o.regularization
     );
-    let pca = PcaOptions {
-        resolution: o.resolution,
-        components: o.components,
-        chroma_components: o.chroma_components,
-        colour: o.colour,
-        seed: o.seed,
-    };
+    let pca = pca_options(o);
     pca.check()?;
     let grid = light_pca::grid_directions(o.resolution);
     let op = |lights: &[[f64; 3]], _n: usize| Ok((rbf_operator(lights, &grid, o.width, o.regularization)?, None));
@@ -159,6 +164,12 @@ impl Model for Rbf {
 
     fn fit(btf: &BtfRef<'_>, options: &RbfOptions, monitor: &Monitor) -> Result<Self> {
         fit_rbf(btf, options, monitor)
+    }
+
+    /// Not streamed below one view slot's resampled data and the float coefficients
+    /// ([`light_pca::least_memory`]).
+    fn least_memory(btf: &BtfRef<'_>, options: &RbfOptions) -> u64 {
+        light_pca::least_memory(btf, &pca_options(options))
     }
 
     /// See [`LightPca::to_arrays`].

@@ -149,16 +149,19 @@ fn coordinates_streamed(
     let mut y = sub.times(&omega);
     subtract_mean_outer(&mut y, &mu, &omega);
     let q = orthonormalize(&y);
+    drop(y); // each d x l intermediate goes as soon as it is used (the memory plan counts two)
     monitor.advance(1);
     monitor.check()?;
     let mut z = sub.t_times(&q);
     subtract_mu_q(&mut z, &mu, &q);
+    drop(q);
     let z = orthonormalize(&z);
     monitor.advance(1);
     monitor.check()?;
     let mut y = sub.times(&z);
     subtract_mean_outer(&mut y, &mu, &z);
     let q = orthonormalize(&y);
+    drop(y);
     monitor.advance(1);
     monitor.check()?;
     project(data, d, t, r, &mu, &q, monitor)
@@ -305,6 +308,10 @@ impl Columns for Gathered<'_> {
     }
     fn times(&self, m: &DMatrix<f32>) -> DMatrix<f32> {
         let (n, l) = m.shape();
+        if l == 0 {
+            // No columns (a subspace of a constant cluster): nothing to sum, and no rows to view.
+            return DMatrix::<f32>::zeros(self.d, 0);
+        }
         // The chunks' products summed in f64 (a long fit sums thousands of them).
         let mut acc = DMatrix::<f64>::zeros(self.d, l);
         self.for_each_chunk(|first, x| {
@@ -351,6 +358,10 @@ mod tests {
             assert!(close(&g.times(&m), &am), "A M, chunk {chunk}");
             assert!(close(&g.t_times(&q), &atq), "A^T Q, chunk {chunk}");
         }
+        // A product with no columns (the subspace of a constant cluster) is empty, not a panic.
+        let g = Gathered { data: data.as_slice(), d, idx: &idx, centre: Some(&centre), chunk: 5 };
+        assert_eq!(g.times(&DMatrix::zeros(idx.len(), 0)).shape(), (d, 0));
+        assert_eq!(g.t_times(&DMatrix::zeros(d, 0)).shape(), (idx.len(), 0));
         // Without a centre the columns are the data's own.
         let g = Gathered { data: data.as_slice(), d, idx: &idx, centre: None, chunk: 4 };
         let zero = vec![0.0f32; d];

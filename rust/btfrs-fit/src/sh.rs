@@ -695,6 +695,14 @@ impl Model for Sh {
         fit_sh(btf, options, monitor)
     }
 
+    /// The float coefficients of every texel before they are quantized (4 bytes per stored
+    /// byte; none when not quantized: then they are the model), and 16 MB for a chunk of texels'
+    /// solver scratch.
+    fn least_memory(btf: &BtfRef<'_>, options: &ShOptions) -> u64 {
+        let n = (options.view_coeffs * options.light_coeffs) as u64;
+        16_000_000 + if options.quantize { 4 * 3 * n * btf.texels() as u64 } else { 0 }
+    }
+
     /// Quantized: `q` `[H, W, 3, kv, kl]` u8 with `scale` and `bias` `[3]` f32; else `coeffs`
     /// `[H, W, 3, kv, kl]` f32.
     fn to_arrays(&self) -> NamedArrays {

@@ -115,11 +115,12 @@ pub fn btf_features(
 /// through them), or an error naming `memory_limit` when the features themselves do not fit
 /// ("all" and "images" copy values for every texel, as does a mask with absent pairs).
 ///
-/// What the analysis holds whatever the chunking is estimated per texel: the features (`d'`
-/// values: the principal coordinates, at most 64 of them, and the projection making them),
-/// k-means's per-point state and its blocks of distances, the pyramid's levels, and each level's
-/// candidate lists (`m` per pixel, a few radii): 2 kB per texel plus 24 MB, an upper bound
-/// checked by the out-of-core tests' subprocess measurements rather than derived term by term.
+/// What the analysis holds whatever the chunking is estimated per texel: the features (16
+/// bytes per feature: the principal coordinates and the projection making them), k-means's
+/// per-point state and its blocks of distances, the pyramid's levels and each level's candidate
+/// lists (`m` per pixel, a few radii): 2 kB per texel plus 16 bytes per feature plus 24 MB, and
+/// the streamed range finder's `d x l` products. The per-texel figure is an upper bound checked
+/// by the out-of-core tests' subprocess measurements, not derived term by term.
 fn feature_chunk(
     limit: Option<u64>,
     n: usize,
@@ -135,8 +136,16 @@ fn feature_chunk(
         FeatureMode::Pca { .. } if !all_present => n64 * d64 * 4,
         FeatureMode::Pca { .. } => 0,
     };
-    let fixed = n64 * 2048 + (24 << 20) + copied;
-    let least = fixed + 32 * d64 * 4;
+    let dims = match mode {
+        FeatureMode::Pca { dims } => dims as u64,
+        FeatureMode::Images { count } => 3 * count as u64,
+        FeatureMode::All => d64,
+    };
+    // Per texel: 2 kB, and 16 bytes per feature (the features and the projection making them).
+    let fixed = n64 * (2048 + 16 * dims) + (24 << 20) + copied;
+    // The streamed range finder's d x l products (24 bytes per value, as in the LPCA plan).
+    let per_chunk = 24 * d64 * (dims.min(d64) + 10);
+    let least = fixed + per_chunk + 32 * d64 * 4;
     if limit < least {
         let mb = |b: u64| format!("{:.1} MB", b as f64 / 1e6);
         return Err(Error::arg(
@@ -149,7 +158,7 @@ fn feature_chunk(
             ),
         ));
     }
-    Ok(Some(((limit - fixed) / (d64 * 4)).min(n64) as usize))
+    Ok(Some(((limit - fixed - per_chunk) / (d64 * 4)).min(n64) as usize))
 }
 
 /// `count` representative pairs: k-means over the images' thumbnails (block means of at most

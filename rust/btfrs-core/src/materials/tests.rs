@@ -154,3 +154,32 @@ fn masking_finds_the_first_surface_point_along_the_view_ray() {
     let top = shade::hit_points(&s, &[[0.0, 0.0, 1.0]], &Monitor::new());
     assert!(top[0].iter().enumerate().all(|(g, p)| p[0] == (g % 32) as f64 + 0.5));
 }
+
+#[test]
+fn the_in_place_blur_equals_the_out_of_place_formula() {
+    // Each texel mixed with the mean of its four periodic neighbours (up, down, left, right, in
+    // that order of summation), computed here from an unblurred copy: the streaming generator's
+    // row-by-row in-place blur must give exactly these values.
+    let d = directions::ubo81();
+    let mut spec = MaterialSpec::new(Preset::Weave, 12, 4);
+    spec.views = d[..9].to_vec();
+    spec.lights = d[..7].to_vec();
+    let plain = generate(&spec, &Monitor::new()).unwrap().data;
+    spec.subsurface = 0.35;
+    let blurred = generate(&spec, &Monitor::new()).unwrap().data;
+    let (n, per, a) = (12usize, 9 * 7 * 3, 0.35f32);
+    for t in 0..n * n {
+        let (r, c) = (t / n, t % n);
+        let nb = [((r + n - 1) % n) * n + c, ((r + 1) % n) * n + c, r * n + (c + n - 1) % n, r * n + (c + 1) % n];
+        for k in 0..per {
+            let m: f32 = nb.iter().map(|&q| plain[q * per + k]).sum::<f32>() * 0.25;
+            let want = (1.0 - a) * plain[t * per + k] + a * m;
+            assert_eq!(blurred[t * per + k], want, "texel {t} value {k}");
+        }
+    }
+    // And the values written into a buffer (a mapped file) are the same.
+    let mut out = vec![0.0f32; spec.values()];
+    generate_into(&spec, &mut out, &Monitor::new()).unwrap();
+    assert_eq!(out, blurred);
+    assert!(generate_into(&spec, &mut out[1..], &Monitor::new()).unwrap_err().to_string().starts_with("out:"));
+}
