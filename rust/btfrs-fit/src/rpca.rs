@@ -23,7 +23,6 @@ use crate::dense::{self, cols, cols_t, gaussian, gemm, gram_t, orthonormalize, s
 use btfrs_core::{ensure_arg, rng::Rng, Monitor, Result};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
-use std::borrow::Cow;
 
 /// Extra columns of every randomized range finder.
 pub(crate) const OVERSAMPLE: usize = 10;
@@ -90,81 +89,57 @@ pub(crate) fn coordinates(
         pick.sort_unstable();
         pick
     });
-    if let (Some(pick), Some(chunk)) = (&pick, chunk) {
-        if chunk < s {
-            return coordinates_streamed(data, d, t, r, pick, chunk, rng, monitor);
-        }
-    }
-    let sub: Cow<'_, [f32]> = if let Some(pick) = pick {
-        let mut g = vec![0.0f32; s * d];
-        g.par_chunks_mut(d).zip(pick.par_iter()).for_each(|(o, &j)| {
-            o.copy_from_slice(&data[j as usize * d..(j as usize + 1) * d]);
-        });
-        Cow::Owned(g)
-    } else {
-        Cow::Borrowed(data)
-    };
     let l = (r + OVERSAMPLE).min(s).min(d);
     // Centre on the subset's mean: any fixed centre gives the same clustering, and this one
     // costs no pass over the whole data.
-    let mu = dense::column_mean(&sub, d, None);
-    let omega = gaussian(s, l, rng.next_u64());
-    let mut y = gemm(&cols(&sub, d, s), &view(&omega));
-    subtract_mean_outer(&mut y, &mu, &omega);
-    let q = orthonormalize(&y);
-    monitor.advance(1);
-    monitor.check()?;
-    // One power iteration sharpens the subspace towards the leading singular vectors.
-    let z = centred_t_times(&sub, d, s, &mu, &q);
-    let z = orthonormalize(&z);
-    monitor.advance(1);
-    monitor.check()?;
-    let mut y = gemm(&cols(&sub, d, s), &view(&z));
-    subtract_mean_outer(&mut y, &mu, &z);
-    let q = orthonormalize(&y);
-    drop(sub);
-    monitor.advance(1);
-    monitor.check()?;
+    let (q, mu) = match &pick {
+        Some(pick) if chunk.is_some_and(|c| c < s) => {
+            // Streamed: the sample read chunk by chunk, never copied whole.
+            let sub = Gathered { data, d, idx: pick, centre: None, chunk: chunk.unwrap_or(s) };
+            let mu = dense::column_mean(data, d, Some(pick));
+            (range_finder(&sub, &mu, l, &mut rng, monitor)?, mu)
+        }
+        Some(pick) => {
+            let mut g = vec![0.0f32; s * d];
+            g.par_chunks_mut(d).zip(pick.par_iter()).for_each(|(o, &j)| {
+                o.copy_from_slice(&data[j as usize * d..(j as usize + 1) * d]);
+            });
+            let mu = dense::column_mean(&g, d, None);
+            (range_finder(&Dense { data: &g, d, n: s }, &mu, l, &mut rng, monitor)?, mu)
+        }
+        None => {
+            let mu = dense::column_mean(data, d, None);
+            (range_finder(&Dense { data, d, n: s }, &mu, l, &mut rng, monitor)?, mu)
+        }
+    };
     project(data, d, t, r, &mu, &q, monitor)
 }
 
-/// [`coordinates`] with the sample `pick` streamed `chunk` texels at a time: the same steps,
-/// each product over the sample summed chunk by chunk.
-#[allow(clippy::too_many_arguments)] // coordinates' own parameters, passed through once
-fn coordinates_streamed(
-    data: &[f32],
-    d: usize,
-    t: usize,
-    r: usize,
-    pick: &[u32],
-    chunk: usize,
-    mut rng: Rng,
-    monitor: &Monitor,
-) -> Result<(Vec<f32>, usize)> {
-    let s = pick.len();
-    let sub = Gathered { data, d, idx: pick, centre: None, chunk };
-    let l = (r + OVERSAMPLE).min(s).min(d);
-    let mu = dense::column_mean(data, d, Some(pick));
-    let omega = gaussian(s, l, rng.next_u64());
+/// The range finder of [`coordinates`] on the sample `sub` (centred on `mu` inside the products):
+/// `l` orthonormal columns spanning its leading principal directions, after one power iteration.
+/// `monitor` advances by 3.
+fn range_finder(sub: &impl Columns, mu: &[f32], l: usize, rng: &mut Rng, monitor: &Monitor) -> Result<DMatrix<f32>> {
+    let omega = gaussian(sub.shape().1, l, rng.next_u64());
     let mut y = sub.times(&omega);
-    subtract_mean_outer(&mut y, &mu, &omega);
+    subtract_mean_outer(&mut y, mu, &omega);
     let q = orthonormalize(&y);
-    drop(y); // each d x l intermediate goes as soon as it is used (the memory plan counts two)
+    drop(y); // each d x l intermediate goes as soon as it is used (the memory plans count two)
     monitor.advance(1);
     monitor.check()?;
+    // One power iteration sharpens the subspace towards the leading singular vectors.
     let mut z = sub.t_times(&q);
-    subtract_mu_q(&mut z, &mu, &q);
+    subtract_mu_q(&mut z, mu, &q);
     drop(q);
     let z = orthonormalize(&z);
     monitor.advance(1);
     monitor.check()?;
     let mut y = sub.times(&z);
-    subtract_mean_outer(&mut y, &mu, &z);
+    subtract_mean_outer(&mut y, mu, &z);
     let q = orthonormalize(&y);
     drop(y);
     monitor.advance(1);
     monitor.check()?;
-    project(data, d, t, r, &mu, &q, monitor)
+    Ok(q)
 }
 
 /// The last step of [`coordinates`]: every texel projected on the subspace `q` (one pass over
@@ -262,6 +237,26 @@ impl Columns for DMatrix<f32> {
     }
     fn t_times(&self, q: &DMatrix<f32>) -> DMatrix<f32> {
         gemm(&view_t(self), &view(q))
+    }
+}
+
+/// The `d x n` column-major matrix over `data`, borrowed (a sample copied whole, or all the data).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Dense<'a> {
+    pub(crate) data: &'a [f32],
+    pub(crate) d: usize,
+    pub(crate) n: usize,
+}
+
+impl Columns for Dense<'_> {
+    fn shape(&self) -> (usize, usize) {
+        (self.d, self.n)
+    }
+    fn times(&self, m: &DMatrix<f32>) -> DMatrix<f32> {
+        gemm(&cols(self.data, self.d, self.n), &view(m))
+    }
+    fn t_times(&self, q: &DMatrix<f32>) -> DMatrix<f32> {
+        gemm(&cols_t(self.data, self.d, self.n), &view(q))
     }
 }
 
