@@ -12,7 +12,7 @@ _F32 = npt.NDArray[np.float32]
 _F64 = npt.NDArray[np.float64]
 _Bool = npt.NDArray[np.bool_]
 
-__all__ = ['__version__', '_panic_for_test', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'make_material_file', 'Model', 'fit_model', 'load_model', 'model_registry', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_rti', 'read_rti', 'write_png', 'read_png', 'write_exr', 'read_exr', 'write_exr_channels', 'load_capture', 'texel_arrays', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_raw', 'gpu_render', 'cpu_render_raw', 'gpu_upload_model', 'cpu_render_model', 'env_check', 'env_sky', 'env_sample', 'env_quadrature', 'env_sh', 'render_env_sh', 'MipChain', 'filter_signature', 'filter_build', 'mip_model', 'scene_directions', 'Analysis', 'analyse_btf_native', 'analyse_features_native', 'min_cut_native', 'grid_min_cut_native', 'wang_model_features', 'wang_synthesize', 'wang_tiling', 'wang_check', 'wang_atlas_positions', 'wang_seam_errors', 'wang_random_crops', 'texture_names', 'make_texture']
+__all__ = ['__version__', '_panic_for_test', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'Model', 'fit_model', 'load_model', 'model_registry', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'save_container', 'read_container_header', 'write_ptm', 'read_ptm', 'write_rti', 'read_rti', 'write_png', 'read_png', 'write_exr', 'read_exr', 'write_exr_channels', 'load_capture', 'texel_arrays', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_raw', 'gpu_render', 'cpu_render_raw', 'gpu_upload_model', 'cpu_render_model', 'env_check', 'env_sky', 'env_sample', 'env_quadrature', 'env_sh', 'render_env_sh', 'MipChain', 'filter_signature', 'filter_build', 'mip_model', 'scene_directions', 'Analysis', 'analyse_btf_native', 'analyse_features_native', 'min_cut_native', 'grid_min_cut_native', 'wang_model_features', 'wang_synthesize', 'wang_tiling', 'wang_check', 'wang_atlas_positions', 'wang_seam_errors', 'wang_random_crops', 'texture_names', 'make_texture']
 __version__: str
 
 def _panic_for_test(place: str) -> None: ...
@@ -32,19 +32,9 @@ def make_material(
     seed: int,
     relief: float = 1.0,
     subsurface: float = 0.0,
+    out: Optional[Union[str, PathLike[str]]] = None,
     progress: _Progress = None,
-) -> _F32: ...
-def make_material_file(
-    name: str,
-    size: int,
-    views: _F64,
-    lights: _F64,
-    seed: int,
-    relief: float,
-    subsurface: float,
-    out: Union[str, PathLike[str]],
-    progress: _Progress = None,
-) -> None: ...
+) -> Optional[_F32]: ...
 def square_to_disk(st: npt.NDArray[Any]) -> npt.NDArray[Any]: ...
 def disk_to_square(xy: npt.NDArray[Any]) -> npt.NDArray[Any]: ...
 def square_to_hemisphere(st: npt.NDArray[Any]) -> npt.NDArray[Any]: ...

@@ -70,10 +70,10 @@ def make(name: str = "knit", *, size: int = 64, seed: int = 0, views=None, light
     if out is not None:
         if not isinstance(out, (str, os.PathLike)):
             raise ArgumentTypeError(f"out: expected a file path (str or os.PathLike), got {type(out).__name__}")
-        _native.make_material_file(name, size, v, l, seed, relief, subsurface, os.fspath(out),
-                                   callback(progress, f"material {name}"))
+        _native.make_material(name, size, v, l, seed, relief, subsurface, os.fspath(out),
+                              callback(progress, f"material {name}"))
         return Btf.load(out, mmap=True)
-    data = _native.make_material(name, size, v, l, seed, relief, subsurface,
+    data = _native.make_material(name, size, v, l, seed, relief, subsurface, None,
                                  callback(progress, f"material {name}"))
     return Btf(data, v, l, check=False)
 

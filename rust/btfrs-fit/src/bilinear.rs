@@ -163,13 +163,7 @@ pub fn slot_operator(
 
 /// The light-PCA options of `o`.
 fn pca_options(o: &BilinearOptions) -> PcaOptions {
-    PcaOptions {
-        resolution: o.resolution,
-        components: o.components,
-        chroma_components: o.chroma_components,
-        colour: o.colour,
-        seed: o.seed,
-    }
+    light_pca::pca_options_of!(o)
 }
 
 /// Fit a bilinear light grid to the present pairs of `btf`; `monitor` counts view slots.

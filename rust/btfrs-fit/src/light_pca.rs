@@ -699,6 +699,20 @@ macro_rules! light_pca_model {
 }
 pub(crate) use light_pca_model;
 
+/// The [`PcaOptions`] of a light-PCA model's options (RBF's and bilinear's share these fields).
+macro_rules! pca_options_of {
+    ($o:expr) => {
+        $crate::light_pca::PcaOptions {
+            resolution: $o.resolution,
+            components: $o.components,
+            chroma_components: $o.chroma_components,
+            colour: $o.colour,
+            seed: $o.seed,
+        }
+    };
+}
+pub(crate) use pca_options_of;
+
 #[cfg(test)]
 mod tests {
     use super::*;

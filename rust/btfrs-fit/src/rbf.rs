@@ -126,13 +126,7 @@ pub fn rbf_operator(
 
 /// The light-PCA options of `o`.
 fn pca_options(o: &RbfOptions) -> PcaOptions {
-    PcaOptions {
-        resolution: o.resolution,
-        components: o.components,
-        chroma_components: o.chroma_components,
-        colour: o.colour,
-        seed: o.seed,
-    }
+    light_pca::pca_options_of!(o)
 }
 
 /// Fit an RBF light basis to the present pairs of `btf`; `monitor` counts view slots.

@@ -113,34 +113,11 @@ pub fn material_names() -> Vec<&'static str> {
     Preset::ALL.iter().map(|p| p.name()).collect()
 }
 
-/// The material spec of the arguments both material functions take.
-#[allow(clippy::too_many_arguments)]
-fn material_spec(
-    name: &str,
-    size: usize,
-    views: &Bound<'_, PyAny>,
-    lights: &Bound<'_, PyAny>,
-    seed: u64,
-    relief: f64,
-    subsurface: f64,
-) -> PyResult<MaterialSpec> {
-    let preset = Preset::from_name(name).py()?;
-    let v = borrow::<f64>("views", views)?;
-    let l = borrow::<f64>("lights", lights)?;
-    Ok(MaterialSpec {
-        preset,
-        size,
-        views: dirs("views", &v)?.to_vec(),
-        lights: dirs("lights", &l)?.to_vec(),
-        seed,
-        relief,
-        subsurface,
-    })
-}
-
-/// Generate a built-in material, `[size, size, V, L, 3]` float32.
+/// Generate a built-in material: `[size, size, V, L, 3]` float32, or with `out` straight into
+/// that `.btfrs` file (the values written into the memory-mapped file row by row, never held in
+/// memory; atomic: nothing is left on an error or a Ctrl-C), returning None.
 #[pyfunction]
-#[pyo3(signature = (name, size, views, lights, seed, relief=1.0, subsurface=0.0, progress=None))]
+#[pyo3(signature = (name, size, views, lights, seed, relief=1.0, subsurface=0.0, out=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn make_material<'py>(
     py: Python<'py>,
@@ -151,42 +128,33 @@ pub fn make_material<'py>(
     seed: u64,
     relief: f64,
     subsurface: f64,
+    out: Option<std::path::PathBuf>,
     progress: Option<&Bound<'py, PyAny>>,
-) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+) -> PyResult<Option<Bound<'py, PyArrayDyn<f32>>>> {
     guarded(|| {
-        let spec = material_spec(name, size, views, lights, seed, relief, subsurface)?;
-        let btf = monitored(py, progress, |m| generate(&spec, m))?;
-        let shape = [btf.height, btf.width, btf.views.len(), btf.lights.len(), 3];
-        btf.data.into_pyarray(py).reshape(shape.to_vec())
-    })
-}
-
-/// Generate a built-in material straight into the `.btfrs` file `out` (the values written into
-/// the memory-mapped file row by row, never held in memory; atomic: nothing is left on an
-/// error or a Ctrl-C).
-#[pyfunction]
-#[pyo3(signature = (name, size, views, lights, seed, relief, subsurface, out, progress=None))]
-#[allow(clippy::too_many_arguments)]
-pub fn make_material_file<'py>(
-    py: Python<'py>,
-    name: &str,
-    size: usize,
-    views: &Bound<'py, PyAny>,
-    lights: &Bound<'py, PyAny>,
-    seed: u64,
-    relief: f64,
-    subsurface: f64,
-    out: std::path::PathBuf,
-    progress: Option<&Bound<'py, PyAny>>,
-) -> PyResult<()> {
-    guarded(|| {
-        let spec = material_spec(name, size, views, lights, seed, relief, subsurface)?;
+        let preset = Preset::from_name(name).py()?;
+        let v = borrow::<f64>("views", views)?;
+        let l = borrow::<f64>("lights", lights)?;
+        let spec = MaterialSpec {
+            preset,
+            size,
+            views: dirs("views", &v)?.to_vec(),
+            lights: dirs("lights", &l)?.to_vec(),
+            seed,
+            relief,
+            subsurface,
+        };
+        let Some(out) = out else {
+            let btf = monitored(py, progress, |m| generate(&spec, m))?;
+            let shape = [btf.height, btf.width, btf.views.len(), btf.lights.len(), 3];
+            return Ok(Some(btf.data.into_pyarray(py).reshape(shape.to_vec())?));
+        };
         let meta = serde_json::json!({"layout": "HWVL3"});
         monitored(py, progress, |m| {
             btfrs_io::capture::write_btf_streamed(&out, size, size, &spec.views, &spec.lights, None, meta, |values| {
                 btfrs_core::materials::generate_into(&spec, values, m)
             })
         })?;
-        Ok(())
+        Ok(None)
     })
 }

@@ -30,7 +30,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(core::split_pairs, m)?)?;
     m.add_function(wrap_pyfunction!(core::material_names, m)?)?;
     m.add_function(wrap_pyfunction!(core::make_material, m)?)?;
-    m.add_function(wrap_pyfunction!(core::make_material_file, m)?)?;
     m.add_function(wrap_pyfunction!(hemimap::square_to_disk, m)?)?;
     m.add_function(wrap_pyfunction!(hemimap::disk_to_square, m)?)?;
     m.add_function(wrap_pyfunction!(hemimap::square_to_hemisphere, m)?)?;
