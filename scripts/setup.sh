@@ -41,6 +41,11 @@ if ! .venv/bin/python -c "import maturin, numpy, pytest, xdist, scipy, sklearn, 
   log "installing Python packages into .venv"
   .venv/bin/python -m pip install -q --disable-pip-version-check "maturin>=1.7,<2" "numpy>=1.22" "pytest>=7" "pytest-xdist>=3" "scipy>=1.9" "scikit-learn>=1.3" "mypy>=1.10" "matplotlib>=3.5" "pillow>=9"
 fi
+# The btfrs[dask] extra (btfrs.dask and its LocalCluster tests).
+if ! .venv/bin/python -c "import dask.array, distributed, zarr" >/dev/null 2>&1; then
+  log "installing dask, distributed and zarr into .venv"
+  .venv/bin/python -m pip install -q --disable-pip-version-check "dask[array]>=2024.1" "distributed>=2024.1" "zarr>=3"
+fi
 
 # Mitsuba 3 for the ground-truth tests (btfrs.groundtruth path traces a heightfield). Pinned:
 # Mitsuba 3.9 / Dr.Jit 1.5 emit llvm.minimum, which the LLVM 15 of Debian 12 (mesa's, also the

@@ -18,6 +18,7 @@ from .btf import Btf, ExpandedBtf
 from .exceptions import (
     ArgumentTypeError,
     BtfrsError,
+    ClusterError,
     DegenerateDataError,
     DeviceError,
     FormatError,
@@ -104,6 +105,7 @@ __all__ = [
     "stability",
     "synth",
     "BtfrsError",
+    "ClusterError",
     "DegenerateDataError",
     "DeviceError",
     "FormatError",
@@ -112,3 +114,13 @@ __all__ = [
     "ArgumentTypeError",
     "OutOfRangeError",
 ]
+
+
+def __getattr__(name: str):
+    # btfrs.dask needs the optional extra (dask, distributed, zarr): imported on first use, so
+    # `import btfrs` works without it and `btfrs.dask.open(...)` works with it.
+    if name == "dask":
+        import importlib
+
+        return importlib.import_module(".dask", __name__)
+    raise AttributeError(f"module 'btfrs' has no attribute {name!r}")

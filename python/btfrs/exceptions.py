@@ -15,6 +15,8 @@ class                     also a                       raised when
 ``DegenerateDataError``   ``ValueError``               the data cannot support the requested fit
 ``FormatError``           ``ValueError``               a file is not what it claims to be
 ``DeviceError``           ``RuntimeError``             no usable graphics adapter, or the GPU failed
+``ClusterError``          ``RuntimeError``             the Dask cluster of a :mod:`btfrs.dask` fit failed
+                                                       (a worker died, the scheduler went away)
 ``InternalError``         ``RuntimeError``             a bug in btfrs (a Rust panic caught at the
                                                        boundary)
 ========================  ===========================  ==============================================
@@ -34,6 +36,7 @@ __all__ = [
     "FormatError",
     "InternalError",
     "DeviceError",
+    "ClusterError",
 ]
 
 
@@ -64,6 +67,11 @@ class FormatError(BtfrsError, ValueError):
 
 class DeviceError(BtfrsError, RuntimeError):
     """No graphics adapter could be used, or the GPU device failed; the message says what to install."""
+
+
+class ClusterError(BtfrsError, RuntimeError):
+    """The Dask cluster of a :mod:`btfrs.dask` call failed (a worker died, the scheduler went
+    away); nothing was written, and the call can be rerun once the cluster is healthy."""
 
 
 class InternalError(BtfrsError, RuntimeError):

@@ -193,6 +193,10 @@ impl Model for Bilinear {
     ];
     const TEXEL_ARRAYS: &'static [&'static str] = &["coeffs_q"];
     type Options = BilinearOptions;
+    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Unsupported(
+        "its light PCA compresses the grid functions of every texel of a view slot together; the \
+         per-slot covariance reduction that would split it over texel blocks is not built yet",
+    );
 
     fn fit(btf: &BtfRef<'_>, options: &BilinearOptions, monitor: &Monitor) -> Result<Self> {
         fit_bilinear(btf, options, monitor)

@@ -244,15 +244,18 @@ pub fn fit_hsh(btf: &BtfRef<'_>, opts: &HshOptions, monitor: &Monitor) -> Result
         monitor.advance(1);
     });
     monitor.check()?;
-    let coeffs = if opts.bits == 8 {
-        let planes = quantize_shared(&coeffs, nv * per, n2)?;
-        let mut values = coeffs;
-        planes.dequantize_into(&mut values); // the floats' own buffer: no second copy at the peak
-        Coeffs { values, planes: Some(planes) }
-    } else {
-        Coeffs { values: coeffs, planes: None }
-    };
+    let coeffs =
+        if opts.bits == 8 { quantized(coeffs, nv * per, n2)? } else { Coeffs { values: coeffs, planes: None } };
     Ok(Hsh { order: opts.order, height: h, width: w, views: btf.views.to_vec(), coeffs, degenerate_slots })
+}
+
+/// The float coefficients (`k` per texel) as 8-bit planes ([`quantize_shared`]), the values
+/// replaced by the decoded planes.
+fn quantized(values: Vec<f32>, k: usize, n2: usize) -> Result<Coeffs> {
+    let planes = quantize_shared(&values, k, n2)?;
+    let mut values = values;
+    planes.dequantize_into(&mut values); // the floats' own buffer: no second copy at the peak
+    Ok(Coeffs { values, planes: Some(planes) })
 }
 
 impl Hsh {
@@ -420,9 +423,22 @@ impl Model for Hsh {
     const EXAMPLES: &'static [(&'static str, &'static str)] =
         &[("HSH-2", r#"{"order": 2}"#), ("HSH-3", r#"{"order": 3}"#), ("HSH-4", r#"{"order": 4}"#)];
     type Options = HshOptions;
+    // As the PTM: the slots' pseudo-inverses depend on the lights and the mask only.
+    const BLOCKWISE: crate::blockwise::Blockwise =
+        crate::blockwise::Blockwise::Texels { overrides: r#"{"bits": 32}"#, counts: &[] };
 
     fn fit(btf: &BtfRef<'_>, options: &HshOptions, monitor: &Monitor) -> Result<Self> {
         fit_hsh(btf, options, monitor)
+    }
+
+    /// The planes' scales span every texel: quantized over the stitched floats, as `fit_hsh`.
+    fn finish_blocks(mut self, options: &HshOptions) -> Result<Self> {
+        check_bits(options.bits)?;
+        if options.bits == 8 && self.coeffs.planes.is_none() {
+            let k = self.views.len() * 3 * self.n2();
+            self.coeffs = quantized(std::mem::take(&mut self.coeffs.values), k, self.n2())?;
+        }
+        Ok(self)
     }
 
     /// `coeffs` `[H, W, V, 3, n^2]` (f32), or quantized `coeffs_q` (uint8, that shape) with

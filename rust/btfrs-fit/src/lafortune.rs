@@ -716,6 +716,12 @@ impl Model for Lafortune {
     ];
     type Options = LafortuneOptions;
 
+    // One Levenberg-Marquardt fit per texel (per texel and view slot), nothing shared.
+    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Texels {
+        overrides: "{}",
+        counts: &["converged", "extrapolated", "failed", "fell_back", "fits"],
+    };
+
     fn fit(btf: &BtfRef<'_>, options: &LafortuneOptions, monitor: &Monitor) -> Result<Self> {
         fit_lafortune(btf, options, monitor)
     }

@@ -23,8 +23,10 @@
 //!   (view, light), error against a BTF (parallel, f64 accumulation), named arrays, bytes.
 //! * [`gpu`]: the GPU half of the contract: shader, parameter struct ([`gpu_params!`]), store.
 //! * [`registry`]: the list of models every consumer iterates over.
+//! * [`blockwise`]: how each fit splits over texel blocks fitted apart (`btfrs.dask`).
 
 pub mod bilinear;
+pub mod blockwise;
 mod cls;
 mod dense;
 pub mod gpu;

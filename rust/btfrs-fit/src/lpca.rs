@@ -69,6 +69,8 @@ use std::borrow::Cow;
 /// Moved to [`crate::rpca`] (the synthesis uses it too); kept here for the old path.
 pub use crate::rpca::principal_coordinates;
 
+pub mod staged;
+
 /// The most Eigen-BRDFs per cluster (besides the mean) a fit may ask for.
 pub const MAX_COMPONENTS: usize = 16;
 
@@ -150,16 +152,7 @@ pub struct Lpca {
 /// the quantization; it can cancel between stages and between clusters.
 pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Result<Lpca> {
     let t = btf.texels();
-    if opts.clusters == 0 || opts.clusters > t {
-        return Err(Error::arg(
-            "clusters",
-            format!("expected 1 to {t} (the number of texels, {} x {}), got {}", btf.height, btf.width, opts.clusters),
-        ));
-    }
-    if opts.components > MAX_COMPONENTS {
-        return Err(Error::arg("components", format!("expected 0 to {MAX_COMPONENTS}, got {}", opts.components)));
-    }
-    ensure_arg!(opts.kmeans_iterations > 0, "kmeans_iterations", "expected at least 1, got 0");
+    check_options(opts, btf.height, btf.width)?;
     let (nv, nl) = (btf.views.len(), btf.lights.len());
     let pairs: Vec<usize> = (0..nv * nl).filter(|&i| btf.has(i / nl, i % nl)).collect();
     let d = pairs.len() * 3;
@@ -181,39 +174,13 @@ pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Resu
     };
     monitor.check()?;
 
-    // 2. k-means. A space of dimension 0 means every texel has the same ABRDF: one cluster.
-    let (mut ids, k) = if dim == 0 {
-        monitor.advance(opts.kmeans_iterations as u64);
-        (vec![0u32; t], 1)
-    } else {
-        let km = kmeans(&space, dim, opts.clusters, opts.kmeans_iterations, sub_seed(opts.seed, 2), monitor)?;
-        let k = km.k();
-        (km.assign, k)
-    };
-
-    // 3. Local-PCA refinement.
-    if dim > 0 && opts.refine_iterations > 0 {
-        let r = refine(&space, dim, ids, k, opts.components, opts.refine_iterations, sub_seed(opts.seed, 3), monitor)?;
-        ids = r.0;
-    } else {
-        monitor.advance(opts.refine_iterations as u64);
-    }
+    // 2. + 3. k-means and the local-PCA refinement; clusters left empty dropped.
+    let (ids, members) = cluster_space(&space, dim, t, opts, monitor)?;
     drop(space);
     monitor.check()?;
 
-    // Drop the clusters the refinement emptied; the others keep their order.
-    let mut members: Vec<Vec<u32>> = members_of(&ids, k).into_iter().filter(|m| !m.is_empty()).collect();
-    members.shrink_to_fit();
-    let k = members.len();
-    for (c, m) in members.iter().enumerate() {
-        for &i in m {
-            ids[i as usize] = c as u32;
-        }
-    }
-
     // 4. + 5. Final PCA per cluster in the full space, quantization, weights.
     let c = opts.components;
-    let cc = c + 1;
     let one = |(ci, m): (usize, &Vec<u32>)| {
         if monitor.is_cancelled() {
             return ClusterFit::default();
@@ -230,13 +197,99 @@ pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Resu
         Some(_) => members.iter().enumerate().map(one).collect(),
     };
     monitor.check()?;
+    let lpca = assemble(btf.height, btf.width, btf.views, btf.lights, btf.mask, ids, &members, &fits, c)?;
+    monitor.advance((opts.clusters - members.len()) as u64 + 1);
+    Ok(lpca)
+}
 
+/// The options' ranges for a `height x width` BTF.
+fn check_options(opts: &LpcaOptions, height: usize, width: usize) -> Result<()> {
+    let t = height * width;
+    if opts.clusters == 0 || opts.clusters > t {
+        return Err(Error::arg(
+            "clusters",
+            format!("expected 1 to {t} (the number of texels, {height} x {width}), got {}", opts.clusters),
+        ));
+    }
+    if opts.components > MAX_COMPONENTS {
+        return Err(Error::arg("components", format!("expected 0 to {MAX_COMPONENTS}, got {}", opts.components)));
+    }
+    ensure_arg!(opts.kmeans_iterations > 0, "kmeans_iterations", "expected at least 1, got 0");
+    Ok(())
+}
+
+/// Steps 2 and 3 on the `dim`-dimensional points `space` (`t` texels, texel-major): k-means,
+/// the local-PCA refinement, then the clusters left empty dropped (the others keep their order).
+/// Returns every texel's cluster and each cluster's members in texel order. A space of
+/// dimension 0 means every texel has the same ABRDF: one cluster.
+fn cluster_space(
+    space: &[f32],
+    dim: usize,
+    t: usize,
+    opts: &LpcaOptions,
+    monitor: &Monitor,
+) -> Result<(Vec<u32>, Vec<Vec<u32>>)> {
+    let (mut ids, k) = if dim == 0 {
+        monitor.advance(opts.kmeans_iterations as u64);
+        (vec![0u32; t], 1)
+    } else {
+        let km = kmeans(space, dim, opts.clusters, opts.kmeans_iterations, sub_seed(opts.seed, 2), monitor)?;
+        let k = km.k();
+        (km.assign, k)
+    };
+    if dim > 0 && opts.refine_iterations > 0 {
+        let r = refine(space, dim, ids, k, opts.components, opts.refine_iterations, sub_seed(opts.seed, 3), monitor)?;
+        ids = r.0;
+    } else {
+        monitor.advance(opts.refine_iterations as u64);
+    }
+    let mut members: Vec<Vec<u32>> = members_of(&ids, k).into_iter().filter(|m| !m.is_empty()).collect();
+    members.shrink_to_fit();
+    for (c, m) in members.iter().enumerate() {
+        for &i in m {
+            ids[i as usize] = c as u32;
+        }
+    }
+    Ok((ids, members))
+}
+
+/// The model from the clusters' fits (step 5's weights scattered to the texels, the quantized
+/// Eigen-BRDFs of the present pairs scattered into the `[K, c + 1, V, L, 4]` layout and the
+/// absent pairs filled by interpolation).
+#[allow(clippy::too_many_arguments)] // the model's dimensions and the stages' results, once
+fn assemble(
+    height: usize,
+    width: usize,
+    views: &[[f64; 3]],
+    lights: &[[f64; 3]],
+    mask: Option<&[bool]>,
+    ids: Vec<u32>,
+    members: &[Vec<u32>],
+    fits: &[ClusterFit],
+    c: usize,
+) -> Result<Lpca> {
+    let (nv, nl, t) = (views.len(), lights.len(), height * width);
+    let vl = nv * nl;
+    let has = |i: usize| mask.is_none_or(|m| m[i]);
+    let pairs: Vec<usize> = (0..vl).filter(|&i| has(i)).collect();
+    let d = pairs.len() * 3;
+    let k = members.len();
+    let cc = c + 1;
+    ensure_arg!(fits.len() == k, "fits", "expected one fit per cluster ({k}), got {}", fits.len());
+    ensure_arg!(ids.len() == t, "ids", "expected {t} cluster ids, got {}", ids.len());
+    for (ci, (f, m)) in fits.iter().zip(members).enumerate() {
+        ensure_arg!(
+            f.q.len() == cc * d && f.scale.len() == cc && f.bias.len() == cc && f.weights.len() == m.len() * (c + 2),
+            "fits",
+            "cluster {ci}'s fit does not match its {} members, {c} components and {d} values",
+            m.len()
+        );
+    }
     let mut weights = vec![0.0f32; t * (c + 2)];
     let mut scale = vec![0.0f32; k * cc];
     let mut bias = vec![0.0f32; k * cc];
-    let vl = nv * nl;
     let mut basis = vec![0u8; k * cc * vl * 4];
-    for (ci, (f, m)) in fits.iter().zip(&members).enumerate() {
+    for (ci, (f, m)) in fits.iter().zip(members).enumerate() {
         scale[ci * cc..(ci + 1) * cc].copy_from_slice(&f.scale);
         bias[ci * cc..(ci + 1) * cc].copy_from_slice(&f.bias);
         for (slot, &texel) in m.iter().enumerate() {
@@ -246,17 +299,11 @@ pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Resu
     }
     // Scatter the present pairs into the [K, c + 1, V, L, 4] layout, then fill the absent ones.
     let absent: Vec<(usize, Vec<(usize, f64)>)> = (0..vl)
-        .filter(|&i| !btf.has(i / nl, i % nl))
+        .filter(|&i| !has(i))
         .collect::<Vec<_>>()
         .into_par_iter()
         .map(|i| {
-            let w = directions::present_pair_weights(
-                btf.views,
-                btf.lights,
-                btf.mask,
-                btf.views[i / nl],
-                btf.lights[i % nl],
-            );
+            let w = directions::present_pair_weights(views, lights, mask, views[i / nl], lights[i % nl]);
             (i, w.into_iter().map(|(v, l, x)| (v * nl + l, x)).collect())
         })
         .collect();
@@ -272,13 +319,11 @@ pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Resu
             }
         }
     });
-    monitor.advance((opts.clusters - k) as u64 + 1);
-
     Ok(Lpca {
-        height: btf.height,
-        width: btf.width,
-        views: btf.views.to_vec(),
-        lights: btf.lights.to_vec(),
+        height,
+        width,
+        views: views.to_vec(),
+        lights: lights.to_vec(),
         clusters: k,
         components: c,
         ids,
@@ -567,15 +612,15 @@ pub(crate) fn refine(
 
 /// One cluster's share of the model.
 #[derive(Debug, Clone, Default)]
-struct ClusterFit {
+pub struct ClusterFit {
     /// `[c + 1, D]` quantized present values.
-    q: Vec<u8>,
+    pub q: Vec<u8>,
     /// `[c + 1]`.
-    scale: Vec<f32>,
+    pub scale: Vec<f32>,
     /// `[c + 1]`.
-    bias: Vec<f32>,
+    pub bias: Vec<f32>,
     /// `[n, c + 2]` per member, in member order.
-    weights: Vec<f32>,
+    pub weights: Vec<f32>,
 }
 
 /// Steps 4 and 5 for the members `m` of one cluster of the `d x T` data. `chunk`: the most
@@ -928,6 +973,8 @@ impl Model for Lpca {
     const EXAMPLES: &'static [(&'static str, &'static str)] =
         &[("LPCA 8x4", r#"{"clusters": 8, "components": 4}"#), ("LPCA 32x4", r#"{"clusters": 32, "components": 4}"#)];
     type Options = LpcaOptions;
+    // The clustering spans all texels: run as stages (`staged`).
+    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Staged;
 
     fn fit(btf: &BtfRef<'_>, options: &LpcaOptions, monitor: &Monitor) -> Result<Self> {
         if options.clusters > MAX_CLUSTERS {

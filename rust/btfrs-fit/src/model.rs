@@ -96,6 +96,18 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     fn least_memory(_btf: &BtfRef<'_>, _options: &Self::Options) -> u64 {
         16_000_000
     }
+    /// How the fit splits over blocks of texels fitted apart (a Dask cluster's chunks,
+    /// `btfrs.dask`): see [`crate::blockwise`]. The default is the safe answer for a new model.
+    const BLOCKWISE: crate::blockwise::Blockwise =
+        crate::blockwise::Blockwise::Unsupported("it has not been split into texel blocks yet");
+    /// Make the model stitched from the blocks of a [`crate::blockwise::Blockwise::Texels`] fit
+    /// (each fitted with its `overrides`) what [`Model::fit`] with `options` returns on the
+    /// whole BTF: the 8-bit models quantize here, over every texel at once, as their fit does.
+    /// The default: unchanged.
+    fn finish_blocks(self, options: &Self::Options) -> Result<Self> {
+        let _ = options;
+        Ok(self)
+    }
     /// The arrays that describe the model completely (what a file stores).
     fn to_arrays(&self) -> NamedArrays;
     /// Rebuild from [`Model::to_arrays`] output, validating every array (it may come from a

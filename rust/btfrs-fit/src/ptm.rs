@@ -504,9 +504,21 @@ impl Model for Ptm {
     const EXAMPLES: &'static [(&'static str, &'static str)] =
         &[("PTM-LRGB", r#"{"kind": "lrgb"}"#), ("PTM-RGB", r#"{"kind": "rgb"}"#)];
     type Options = PtmOptions;
+    // The slots' pseudo-inverses depend on the lights and the mask only: texels fit apart.
+    const BLOCKWISE: crate::blockwise::Blockwise =
+        crate::blockwise::Blockwise::Texels { overrides: r#"{"bits": 32}"#, counts: &[] };
 
     fn fit(btf: &BtfRef<'_>, options: &PtmOptions, monitor: &Monitor) -> Result<Self> {
         fit_ptm(btf, options, monitor)
+    }
+
+    /// The planes' scales span every texel: quantized over the stitched floats, as `fit_ptm`.
+    fn finish_blocks(mut self, options: &PtmOptions) -> Result<Self> {
+        check_bits(options.bits)?;
+        if options.bits == 8 && self.quantized.is_none() {
+            self.quantize()?;
+        }
+        Ok(self)
     }
 
     /// `coeffs` (RGB `[H, W, V, 3, 6]`, LRGB `[H, W, V, 6]`), `views` `[V, 3]` and, for LRGB,

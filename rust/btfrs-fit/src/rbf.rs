@@ -155,6 +155,10 @@ impl Model for Rbf {
         &[("RBF-9", r#"{"components": 9}"#), ("RBF-18", r#"{"components": 18}"#), ("RBF-27", r#"{"components": 27}"#)];
     const TEXEL_ARRAYS: &'static [&'static str] = &["coeffs_q"];
     type Options = RbfOptions;
+    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Unsupported(
+        "its light PCA compresses the grid functions of every texel of a view slot together; the \
+         per-slot covariance reduction that would split it over texel blocks is not built yet",
+    );
 
     fn fit(btf: &BtfRef<'_>, options: &RbfOptions, monitor: &Monitor) -> Result<Self> {
         fit_rbf(btf, options, monitor)

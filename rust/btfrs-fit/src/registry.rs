@@ -26,6 +26,11 @@ pub struct Entry {
     pub shaders: fn() -> Vec<crate::gpu::Shader>,
     /// [`Model::TEXEL_ARRAYS`].
     pub texel_arrays: &'static [&'static str],
+    /// [`Model::BLOCKWISE`].
+    pub blockwise: crate::blockwise::Blockwise,
+    /// Rebuild from the stitched arrays of a blockwise fit and [`Model::finish_blocks`] with
+    /// options given as a JSON object (those of the whole fit, not the blocks').
+    pub finish_blocks: fn(&NamedArrays, &str) -> Result<Box<dyn DynModel>>,
 }
 
 fn fit_erased<M: Model + std::fmt::Debug>(btf: &BtfRef<'_>, options: &str, mon: &Monitor) -> Result<Box<dyn DynModel>> {
@@ -72,6 +77,12 @@ fn from_arrays_erased<M: Model + std::fmt::Debug>(a: &NamedArrays) -> Result<Box
     Ok(Box::new(M::from_arrays(a)?))
 }
 
+fn finish_blocks_erased<M: Model + std::fmt::Debug>(a: &NamedArrays, options: &str) -> Result<Box<dyn DynModel>> {
+    let (options, _) = take_memory_limit(options)?;
+    let o: M::Options = parse_options(&options)?;
+    Ok(Box::new(M::from_arrays(a)?.finish_blocks(&o)?))
+}
+
 fn default_options<M: Model>() -> String {
     format!("{:?}", M::Options::default())
 }
@@ -88,6 +99,8 @@ pub const fn entry<M: Model + std::fmt::Debug>() -> Entry {
         default_options: default_options::<M>,
         shaders: M::shaders,
         texel_arrays: M::TEXEL_ARRAYS,
+        blockwise: M::BLOCKWISE,
+        finish_blocks: finish_blocks_erased::<M>,
     }
 }
 

@@ -79,16 +79,7 @@ pub(crate) fn coordinates(
 ) -> Result<(Vec<f32>, usize)> {
     let mut rng = Rng::new(seed);
     let s = t.min(RANGE_SAMPLE);
-    let pick = (s < t).then(|| {
-        // Partial Fisher-Yates: a uniform subset, kept in texel order.
-        let mut idx: Vec<u32> = (0..t as u32).collect();
-        for i in 0..s {
-            idx.swap(i, i + rng.below(t - i));
-        }
-        let mut pick = idx[..s].to_vec();
-        pick.sort_unstable();
-        pick
-    });
+    let pick = pick_sample(&mut rng, t);
     let l = (r + OVERSAMPLE).min(s).min(d);
     // Centre on the subset's mean: any fixed centre gives the same clustering, and this one
     // costs no pass over the whole data.
@@ -113,6 +104,65 @@ pub(crate) fn coordinates(
         }
     };
     project(data, d, t, r, &mu, &q, monitor)
+}
+
+/// The range finder's sample of [`coordinates`]: `None` when it is every texel (at most
+/// [`RANGE_SAMPLE`]), else [`RANGE_SAMPLE`] texels drawn by a partial Fisher-Yates shuffle from
+/// `rng`, in texel order.
+fn pick_sample(rng: &mut Rng, t: usize) -> Option<Vec<u32>> {
+    let s = t.min(RANGE_SAMPLE);
+    (s < t).then(|| {
+        let mut idx: Vec<u32> = (0..t as u32).collect();
+        for i in 0..s {
+            idx.swap(i, i + rng.below(t - i));
+        }
+        let mut pick = idx[..s].to_vec();
+        pick.sort_unstable();
+        pick
+    })
+}
+
+/// The texels (`None`: all `t`) whose ABRDFs [`coordinates`] with `seed` finds its subspace on:
+/// the first stage of the blockwise LPCA fit ([`crate::lpca::staged`]), which gathers them.
+pub fn sample_texels(t: usize, seed: u64) -> Option<Vec<u32>> {
+    pick_sample(&mut Rng::new(seed), t)
+}
+
+/// The centre and the orthonormal `d x l` subspace [`coordinates`] with `seed` finds on the
+/// sample of [`sample_texels`], given that sample's values (`s x d`, texel-major, in the
+/// sample's order): the same numbers as the in-memory path of [`coordinates`].
+pub fn sample_subspace(
+    sample: &[f32],
+    d: usize,
+    t: usize,
+    r: usize,
+    seed: u64,
+    monitor: &Monitor,
+) -> Result<(Vec<f32>, DMatrix<f32>)> {
+    let mut rng = Rng::new(seed);
+    let s = t.min(RANGE_SAMPLE);
+    ensure_arg!(d > 0 && sample.len() == s * d, "sample", "expected {s} x {d} values, got {}", sample.len());
+    ensure_arg!(r > 0, "reduced_dims", "expected at least 1 principal coordinate, got 0");
+    let _ = pick_sample(&mut rng, t); // the same random stream as `coordinates`
+    let l = (r + OVERSAMPLE).min(s).min(d);
+    let mu = dense::column_mean(sample, d, None);
+    let q = range_finder(&Dense { data: sample, d, n: s }, &mu, l, &mut rng, monitor)?;
+    Ok((mu, q))
+}
+
+/// `[n, l]` (column-major `n x l`) coordinates of the `n` texels of `data` (`n x d`,
+/// texel-major) in the subspace `q` centred on `mu`: one block's share of [`coordinates`]'
+/// projection pass; the rows of all blocks in texel order go to [`principal_axes`].
+pub fn project_texels(data: &[f32], d: usize, mu: &[f32], q: &DMatrix<f32>) -> Result<DMatrix<f32>> {
+    ensure_arg!(
+        d > 0 && data.len().is_multiple_of(d) && mu.len() == d && q.nrows() == d,
+        "data",
+        "expected texels of {d} values for a {} x {} subspace, got {} values",
+        q.nrows(),
+        q.ncols(),
+        data.len()
+    );
+    Ok(centred_t_times(data, d, data.len() / d, mu, q))
 }
 
 /// The range finder of [`coordinates`] on the sample `sub` (centred on `mu` inside the products):
@@ -155,16 +205,21 @@ fn project(
 ) -> Result<(Vec<f32>, usize)> {
     let z = centred_t_times(data, d, t, mu, q);
     monitor.advance(1);
-    // Rotate to principal axes within the subspace and keep the r strongest.
-    let (vals, vecs) = sym_eigen_desc(gram_t(&z));
+    Ok(principal_axes(&z, r))
+}
+
+/// The projected texels `z` (`t x l`) rotated to principal axes within the subspace, the `r`
+/// strongest kept: `([t, r'], r')` texel-major, `r' = 0` when every texel projects the same.
+pub fn principal_axes(z: &DMatrix<f32>, r: usize) -> (Vec<f32>, usize) {
+    let (vals, vecs) = sym_eigen_desc(gram_t(z));
     let top = vals.first().copied().unwrap_or(0.0);
     let keep = vals.iter().take(r).take_while(|&&v| top > 0.0 && v > 1e-10 * top).count();
     if keep == 0 {
-        return Ok((Vec::new(), 0));
+        return (Vec::new(), 0);
     }
     let vr = DMatrix::<f32>::from_fn(vecs.nrows(), keep, |i, j| vecs[(i, j)] as f32);
-    let p = gemm(&view_t(&vr), &view_t(&z));
-    Ok((p.as_slice().to_vec(), keep))
+    let p = gemm(&view_t(&vr), &view_t(z));
+    (p.as_slice().to_vec(), keep)
 }
 
 /// `m -= u s^T` for a column vector `u` (rows) and the column sums `s` of `x`.

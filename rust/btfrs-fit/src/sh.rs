@@ -690,9 +690,31 @@ impl Model for Sh {
         ("SH-CLS 25x25", r#"{"view_coeffs": 25, "light_coeffs": 25}"#),
     ];
     type Options = ShOptions;
+    // The CLS solves each texel alone; only the quantization's scale and bias span all texels.
+    const BLOCKWISE: crate::blockwise::Blockwise =
+        crate::blockwise::Blockwise::Texels { overrides: r#"{"quantize": false}"#, counts: &[] };
 
     fn fit(btf: &BtfRef<'_>, options: &ShOptions, monitor: &Monitor) -> Result<Self> {
         fit_sh(btf, options, monitor)
+    }
+
+    /// Quantized over the stitched floats of every texel, as `fit_sh`.
+    fn finish_blocks(mut self, options: &ShOptions) -> Result<Self> {
+        check_options(options)?;
+        ensure_arg!(
+            (options.view_coeffs, options.light_coeffs) == (self.view_coeffs, self.light_coeffs),
+            "options",
+            "the blocks were fitted with {} x {} coefficients, the options ask for {} x {}",
+            self.view_coeffs,
+            self.light_coeffs,
+            options.view_coeffs,
+            options.light_coeffs
+        );
+        if let (true, ShCoeffs::Float(c)) = (options.quantize, &self.coeffs) {
+            let (q, scale, bias) = quantize(c, self.per_channel());
+            self.coeffs = ShCoeffs::Quantized { q, scale, bias };
+        }
+        Ok(self)
     }
 
     /// The float coefficients of every texel before they are quantized (4 bytes per stored

@@ -23,7 +23,7 @@
 
 use crate::gpu::{words, GpuLayout, Shader};
 use crate::model::{Model, NoOptions, ReflectanceModel};
-use btfrs_core::{BtfRef, Error, Monitor, NamedArrays, Result};
+use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
 use rayon::prelude::*;
 use std::borrow::Cow;
 
@@ -95,6 +95,14 @@ pub struct SrfReport {
     pub srf_relative: f64,
     /// LM iterations of the Phong fit.
     pub iterations: usize,
+}
+
+impl SrfReport {
+    /// The report from the sums of [`residual`] (over every texel) and the Phong fit's iterations.
+    pub fn of_sums(sums: [f64; 3], iterations: usize) -> Self {
+        let rel = |e: f64| if sums[2] > 0.0 { (e / sums[2]).sqrt() } else { 0.0 };
+        SrfReport { phong_relative: rel(sums[0]), srf_relative: rel(sums[1]), iterations }
+    }
 }
 
 /// Least-squares fit of `kd`, `ks`, `n` to `mean` (`[pairs][3]`) at `(l_z, h_z)` per pair.
@@ -252,58 +260,119 @@ fn solve7(a: [[f64; 7]; 7], b: [f64; 7]) -> Option<[f64; 7]> {
     Some(x)
 }
 
+/// The present (view, light) pairs and what the fit needs of their directions.
+#[derive(Debug, Clone)]
+pub struct PairGeometry {
+    /// `(view, light)` of every present pair, in pair order.
+    pub pairs: Vec<(usize, usize)>,
+    /// The halfway vector of each pair.
+    pub hs: Vec<[f64; 3]>,
+    /// `(l_z, h_z)` of each pair: what the Phong lobe depends on.
+    pub geom: Vec<(f64, f64)>,
+}
+
+impl PairGeometry {
+    /// The present pairs of `views` x `lights` under `mask` (`[V, L]`, None: all); an error when
+    /// fewer than 3 are present (the residual's 3 unknowns).
+    pub fn new(views: &[[f64; 3]], lights: &[[f64; 3]], mask: Option<&[bool]>) -> Result<Self> {
+        let nl = lights.len();
+        let pairs: Vec<(usize, usize)> = (0..views.len())
+            .flat_map(|v| (0..nl).map(move |l| (v, l)))
+            .filter(|&(v, l)| mask.is_none_or(|m| m[v * nl + l]))
+            .collect();
+        if pairs.len() < 3 {
+            return Err(Error::Degenerate(format!(
+                "the sample has {} present (view, light) pairs; the residual s(P) . H needs at least 3",
+                pairs.len()
+            )));
+        }
+        let hs: Vec<[f64; 3]> = pairs.iter().map(|&(v, l)| halfway(views[v], lights[l])).collect();
+        let geom: Vec<(f64, f64)> = pairs.iter().zip(&hs).map(|(&(_, l), h)| (lights[l][2], h[2])).collect();
+        Ok(PairGeometry { pairs, hs, geom })
+    }
+
+    fn of(btf: &BtfRef<'_>) -> Result<Self> {
+        Self::new(btf.views, btf.lights, btf.mask)
+    }
+}
+
 /// Fit Phong to the mean BRDF of `btf`'s present pairs, then s(P) per texel and channel.
 /// `monitor` counts texel rows of the residual fit.
+///
+/// Three stages, public so that a blockwise driver (`btfrs.dask`, [`crate::blockwise`]) can run
+/// the first as a reduction over texel blocks: [`mean_sums`] (per block, summed), then
+/// [`phong_of_mean`] once, then [`residual`] (per block).
 pub fn fit_srf(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<(Srf, SrfReport)> {
-    let nl = btf.lights.len();
-    let pairs: Vec<(usize, usize)> =
-        (0..btf.views.len()).flat_map(|v| (0..nl).map(move |l| (v, l))).filter(|&(v, l)| btf.has(v, l)).collect();
-    if pairs.len() < 3 {
-        return Err(Error::Degenerate(format!(
-            "the sample has {} present (view, light) pairs; the residual s(P) . H needs at least 3",
-            pairs.len()
-        )));
-    }
-    let hs: Vec<[f64; 3]> = pairs.iter().map(|&(v, l)| halfway(btf.views[v], btf.lights[l])).collect();
-    let geom: Vec<(f64, f64)> = pairs.iter().zip(&hs).map(|(&(_, l), h)| (btf.lights[l][2], h[2])).collect();
-
-    // The mean BRDF over texels (f64 accumulation, parallel over texel blocks).
-    let texels = btf.texels();
-    let mean: Vec<[f64; 3]> = {
-        let sums = (0..texels)
-            .into_par_iter()
-            .fold(
-                || vec![[0.0f64; 3]; pairs.len()],
-                |mut acc, t| {
-                    let x = btf.texel(t);
-                    for (a, &(v, l)) in acc.iter_mut().zip(&pairs) {
-                        let o = (v * nl + l) * 3;
-                        for c in 0..3 {
-                            a[c] += x[o + c] as f64;
-                        }
-                    }
-                    acc
-                },
-            )
-            .reduce(
-                || vec![[0.0f64; 3]; pairs.len()],
-                |mut a, b| {
-                    for (x, y) in a.iter_mut().zip(&b) {
-                        for c in 0..3 {
-                            x[c] += y[c];
-                        }
-                    }
-                    a
-                },
-            );
-        sums.into_iter().map(|s| s.map(|x| x / texels as f64)).collect()
-    };
+    let geo = PairGeometry::of(btf)?;
+    let sums = mean_sums(btf)?;
     monitor.check()?;
-    let (phong, iterations) = fit_phong(&geom, &mean);
+    let (phong, iterations) = phong_of_mean(&geo, &sums, btf.texels())?;
+    let (s, sums) = residual(btf, &geo, &phong, monitor)?;
+    let report = SrfReport::of_sums(sums, iterations);
+    Ok((Srf { height: btf.height, width: btf.width, phong, s, report }, report))
+}
 
+/// Stage 1: the per-pair sums over `btf`'s texels of the present values (`[pairs]` RGB, pair
+/// order of [`PairGeometry`]), f64 accumulation, parallel over texels.
+pub fn mean_sums(btf: &BtfRef<'_>) -> Result<Vec<[f64; 3]>> {
+    let geo = PairGeometry::of(btf)?;
+    let (pairs, nl) = (&geo.pairs, btf.lights.len());
+    Ok((0..btf.texels())
+        .into_par_iter()
+        .fold(
+            || vec![[0.0f64; 3]; pairs.len()],
+            |mut acc, t| {
+                let x = btf.texel(t);
+                for (a, &(v, l)) in acc.iter_mut().zip(pairs) {
+                    let o = (v * nl + l) * 3;
+                    for c in 0..3 {
+                        a[c] += x[o + c] as f64;
+                    }
+                }
+                acc
+            },
+        )
+        .reduce(
+            || vec![[0.0f64; 3]; pairs.len()],
+            |mut a, b| {
+                for (x, y) in a.iter_mut().zip(&b) {
+                    for c in 0..3 {
+                        x[c] += y[c];
+                    }
+                }
+                a
+            },
+        ))
+}
+
+/// Stage 2: the Phong lobe fitted to the mean BRDF, `sums` (of [`mean_sums`], summed over every
+/// block) divided by the `texels` they cover; and the Levenberg-Marquardt iterations.
+pub fn phong_of_mean(geo: &PairGeometry, sums: &[[f64; 3]], texels: usize) -> Result<(Phong, usize)> {
+    ensure_arg!(
+        sums.len() == geo.pairs.len(),
+        "sums",
+        "expected one RGB sum per present pair ({}), got {}",
+        geo.pairs.len(),
+        sums.len()
+    );
+    ensure_arg!(texels > 0, "texels", "expected at least one texel, got 0");
+    ensure_arg!(sums.iter().flatten().all(|x| x.is_finite()), "sums", "expected finite sums");
+    let mean: Vec<[f64; 3]> = sums.iter().map(|s| s.map(|x| x / texels as f64)).collect();
+    Ok(fit_phong(&geo.geom, &mean))
+}
+
+/// Stage 3: `s(P)` (`[H, W, 3, 3]`) of every texel of `btf` given the Phong lobe, and the sums
+/// behind the report (Phong error², Phong + SRF error², ground truth²).
+pub fn residual(
+    btf: &BtfRef<'_>,
+    geo: &PairGeometry,
+    phong: &Phong,
+    monitor: &Monitor,
+) -> Result<(Vec<f32>, [f64; 3])> {
+    let (pairs, hs, nl) = (&geo.pairs, &geo.hs, btf.lights.len());
     // Pseudo-inverse of the shared H design matrix: (H^T H)^-1 H^T, 3 x n.
     let mut hth = [[0.0f64; 3]; 3];
-    for h in &hs {
+    for h in hs {
         for a in 0..3 {
             for b in 0..3 {
                 hth[a][b] += h[a] * h[b];
@@ -318,10 +387,10 @@ pub fn fit_srf(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<(Srf, SrfReport)> 
     let pinv: Vec<[f64; 3]> =
         hs.iter().map(|h| std::array::from_fn(|a| (0..3).map(|b| inv[a][b] * h[b]).sum::<f64>())).collect();
     let phong_vals: Vec<[f64; 3]> =
-        geom.iter().map(|&(lz, hz)| std::array::from_fn(|c| phong.eval(c, lz, hz))).collect();
+        geo.geom.iter().map(|&(lz, hz)| std::array::from_fn(|c| phong.eval(c, lz, hz))).collect();
 
     let (h, w) = (btf.height, btf.width);
-    let mut s = vec![0.0f32; texels * 9];
+    let mut s = vec![0.0f32; btf.texels() * 9];
     monitor.start(h as u64);
     let sums = s
         .par_chunks_mut(w * 9)
@@ -365,9 +434,7 @@ pub fn fit_srf(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<(Srf, SrfReport)> 
         })
         .reduce(|| [0.0; 3], |a, b| [a[0] + b[0], a[1] + b[1], a[2] + b[2]]);
     monitor.check()?;
-    let rel = |e: f64| if sums[2] > 0.0 { (e / sums[2]).sqrt() } else { 0.0 };
-    let report = SrfReport { phong_relative: rel(sums[0]), srf_relative: rel(sums[1]), iterations };
-    Ok((Srf { height: h, width: w, phong, s, report }, report))
+    Ok((s, sums))
 }
 
 fn invert3(m: [[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
@@ -475,6 +542,8 @@ impl Model for Srf {
     const DOC: &'static str = "Phong + spatially-varying residual function (paper 003, sections 4 and 5)";
     const EXAMPLES: &'static [(&'static str, &'static str)] = &[("Phong+SRF", "{}")];
     type Options = NoOptions;
+    // One Phong for the material's mean BRDF: a sum over texels before the per-texel residual.
+    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Staged;
 
     fn fit(btf: &BtfRef<'_>, _options: &NoOptions, monitor: &Monitor) -> Result<Self> {
         fit_srf(btf, monitor).map(|(m, _)| m)

@@ -5,6 +5,7 @@
 //! errors onto the exception classes of `btfrs.exceptions`. Algorithms live in the plain crates.
 
 mod arrays;
+mod blockwise;
 mod core;
 mod errors;
 mod graphcut;
@@ -39,6 +40,17 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(models::load_model, m)?)?;
     m.add_function(wrap_pyfunction!(models::model_registry, m)?)?;
     m.add_function(wrap_pyfunction!(models::texel_arrays, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::blockwise_plan, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::finish_blocks, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::srf_sums, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::srf_phong, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::srf_residual, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::lpca_sample, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::lpca_subspace, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::lpca_project, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::lpca_cluster, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::lpca_fit_cluster, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::lpca_assemble, m)?)?;
     m.add_function(wrap_pyfunction!(io::save_container, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_container_header, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_ptm, m)?)?;

@@ -624,6 +624,12 @@ impl Model for LafortuneView {
     ];
     type Options = LafortuneViewOptions;
 
+    // One Levenberg-Marquardt fit per texel (per texel and view slot), nothing shared.
+    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Texels {
+        overrides: "{}",
+        counts: &["converged", "extrapolated", "failed", "fell_back", "fits"],
+    };
+
     fn fit(btf: &BtfRef<'_>, options: &LafortuneViewOptions, monitor: &Monitor) -> Result<Self> {
         fit_lafortune_view(btf, options, monitor)
     }

@@ -1,0 +1,564 @@
+"""BTFs on a Dask cluster: chunked zarr storage in btfrs's layout, and every fit it can split run
+over texel tiles on the cluster (``pip install btfrs[dask]``).
+
+>>> from dask.distributed import Client, LocalCluster
+>>> client = Client(LocalCluster(n_workers=2, threads_per_worker=1))
+>>> btfrs.dask.save_zarr(big, "floortile.zarr", chunks=64)   # convert, chunked by texel tiles
+>>> arr = btfrs.dask.open("floortile.zarr")                  # a BtfArray: dask array + directions
+>>> lp = btfrs.dask.fit("lpca", arr, clusters=64, components=8)   # the same Lpca as btfrs.fit.lpca
+
+**Storage.** A zarr group (``zarr`` 3) holding ``data`` ``[H, W, V, L, 3]`` float32 in the
+texel-major layout of :class:`~btfrs.Btf`, chunked by texel tiles ``(t, t, V, L, 3)`` (all views,
+lights and RGB of a texel in one chunk, so one chunk is one block a fit reads whole),
+``views`` ``[V, 3]`` and ``lights`` ``[L, 3]`` float64, optionally ``mask`` ``[V, L]`` bool, and
+the attribute ``btfrs = "btf"`` with the layout version.
+
+**Fits.** :func:`fit` runs the ordinary Rust fit per chunk on the workers (the GIL released, so a
+worker's threads fit chunks in parallel), with the global steps as reductions on the client, as
+the model declares in Rust (``rust/btfrs-fit/src/blockwise.rs``):
+
+* per texel (PTM, HSH, Lafortune, per-view Lafortune, double SH): each tile fitted alone (8-bit
+  models in floats), the per-texel arrays stitched, the 8-bit quantization done once over all
+  texels on the client: **bit for bit the local fit**;
+* SRF: the mean BRDF as a sum reduction over tiles, the Phong fit on the client, the residual
+  per tile: equal to the local fit to rounding (the sums add in another order);
+* LPCA (paper 004): the range finder's seeded 2048-texel sample gathered from the tiles, the
+  projection per tile, k-means and refinement on the client over ``T x reduced_dims``
+  coordinates, one task per cluster over its members' ABRDFs: **the same model as the local
+  in-memory fit** (same seeds, same code);
+* RBF and bilinear: not split yet (their light PCA spans all texels of a view slot): a clear
+  error; fit them out of core with ``btfrs.fit.rbf(btf, memory_limit=...)``.
+
+The result is the model class of the local fit, saved like any other. ``model.report`` holds the
+blocks' reports combined (the counts a model declares summed, means weighted by texels,
+``rms_*`` as root mean squares; entries equal in every block kept as they are).
+
+It runs on whichever scheduler is current: a ``dask.distributed`` client if one exists, else
+dask's threads. Failures: an error raised by btfrs inside a task is raised as itself; a cluster
+that fails (a worker killed, the scheduler gone) raises :class:`~btfrs.exceptions.ClusterError`.
+A fit writes nothing, and :func:`save_zarr` writes into a temporary directory renamed into place
+at the end, so a failed or interrupted run leaves nothing half-written and can simply be rerun.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+import uuid
+from dataclasses import dataclass
+from typing import Any, Optional, Union
+
+import numpy as np
+
+from . import _native
+from ._checks import choice, instance, integer
+from ._progress import Progress, callback
+from .btf import Btf
+from .exceptions import (ArgumentTypeError, BtfrsError, ClusterError, FormatError, InternalError,
+                         InvalidArgumentError)
+from .models import Model, model_kinds, wrap
+
+__all__ = ["BtfArray", "save_zarr", "open", "from_btf", "fit", "LAYOUT_VERSION"]
+
+LAYOUT_VERSION = 1
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+def _dask():
+    try:
+        import dask
+        import dask.array as da
+    except ImportError as e:  # pragma: no cover - exercised only without the extra
+        raise ImportError("btfrs.dask needs dask: pip install 'btfrs[dask]' (dask[array], distributed, zarr)") from e
+    return dask, da
+
+
+def _zarr():
+    try:
+        import zarr
+    except ImportError as e:  # pragma: no cover
+        raise ImportError("btfrs.dask needs zarr: pip install 'btfrs[dask]' (dask[array], distributed, zarr)") from e
+    return zarr
+
+
+@dataclass(frozen=True)
+class BtfArray:
+    """A BTF as a dask array: ``data`` ``[H, W, V, L, 3]`` float32 chunked by texel tiles (every
+    chunk holds all views, lights and RGB of its texels), with its directions and mask (numpy)."""
+
+    data: Any
+    views: np.ndarray
+    lights: np.ndarray
+    mask: Optional[np.ndarray] = None
+
+    def __post_init__(self) -> None:
+        _, da = _dask()
+        if not isinstance(self.data, da.Array):
+            raise ArgumentTypeError(f"data: expected a dask array, got {type(self.data).__name__}")
+        d = self.data
+        if d.ndim != 5 or d.shape[-1] != 3:
+            raise InvalidArgumentError(f"data: expected shape (H, W, V, L, 3), got {d.shape}")
+        if d.dtype != np.float32:
+            raise InvalidArgumentError(f"data: expected float32 values, got dtype {d.dtype}")
+        v = np.ascontiguousarray(self.views, dtype=np.float64)
+        li = np.ascontiguousarray(self.lights, dtype=np.float64)
+        if v.shape != (d.shape[2], 3) or li.shape != (d.shape[3], 3):
+            raise InvalidArgumentError(f"views, lights: expected [{d.shape[2]}, 3] and [{d.shape[3]}, 3] for data "
+                                       f"of shape {d.shape}, got {v.shape} and {li.shape}")
+        object.__setattr__(self, "views", v)
+        object.__setattr__(self, "lights", li)
+        if self.mask is not None:
+            m = np.asarray(self.mask)
+            if m.dtype != np.bool_ or m.shape != d.shape[2:4]:
+                raise InvalidArgumentError(f"mask: expected a bool array of shape {d.shape[2:4]}, got {m.dtype} {m.shape}")
+            object.__setattr__(self, "mask", np.ascontiguousarray(m))
+        for axis, name in ((2, "views"), (3, "lights"), (4, "RGB")):
+            if len(d.chunks[axis]) != 1:
+                raise InvalidArgumentError(f"data: expected chunks that hold all {name} of a texel (chunks "
+                                           f"(t, t, V, L, 3)), got chunks {d.chunksize}; rechunk with "
+                                           f"data.rechunk((t, t, -1, -1, -1))")
+
+    @property
+    def shape(self) -> tuple:
+        return tuple(self.data.shape)
+
+    @property
+    def height(self) -> int:
+        return int(self.data.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.data.shape[1])
+
+    @property
+    def tiles(self) -> tuple:
+        """The texel tiles' rows and columns (``data.chunks[:2]``)."""
+        return tuple(self.data.chunks[:2])
+
+    def to_btf(self) -> Btf:
+        """The whole BTF computed into memory."""
+        return Btf(np.asarray(self.data.compute()), self.views, self.lights, self.mask)
+
+    def __repr__(self) -> str:
+        h, w, v, l, _ = self.shape
+        return (f"BtfArray({h} x {w} texels, {v} views x {l} lights, {self.data.nbytes / 2**20:.1f} MiB, "
+                f"tiles {self.data.chunksize[0]} x {self.data.chunksize[1]})")
+
+
+def _tile(chunks) -> int:
+    return integer("chunks", chunks, min=1)
+
+
+def _read_tile(path: str, stamp: tuple, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+    """One tile of a memory-mapped ``.btfrs`` file, read on the worker (the file is mapped, not
+    loaded, so opening it per tile costs nothing); an error if the file changed since."""
+    b = Btf.load(path, mmap=True)
+    if b._source is None or b._source[1:] != stamp:
+        raise FormatError(f"{path}: the file changed on disk since it was opened for the Dask fit; open it again and rerun")
+    return np.array(b.data[r0:r1, c0:c1])
+
+
+def from_btf(btf: Btf, *, chunks: int = 64) -> BtfArray:
+    """A :class:`BtfArray` over ``btf``, chunked by ``chunks x chunks`` texel tiles. A
+    memory-mapped Btf (``Btf.load(path, mmap=True)``) is read by path on the workers, tile by
+    tile (they must see the same file system); an in-memory one is sent with the task graph."""
+    _, da = _dask()
+    b = instance("btf", btf, Btf, "a btfrs.Btf")
+    t = _tile(chunks)
+    h, w, v, l, _ = b.shape
+    if b._source is not None:
+        import dask
+
+        path, size, mtime = b._source
+        rows = []
+        for r0 in range(0, h, t):
+            r1 = min(h, r0 + t)
+            row = []
+            for c0 in range(0, w, t):
+                c1 = min(w, c0 + t)
+                blk = dask.delayed(_read_tile, pure=True)(path, (size, mtime), r0, r1, c0, c1)
+                row.append(da.from_delayed(blk, shape=(r1 - r0, c1 - c0, v, l, 3), dtype=np.float32))
+            rows.append(row)
+        data = da.concatenate([da.concatenate(row, axis=1) for row in rows], axis=0)
+    else:
+        data = da.from_array(b.data, chunks=(t, t, v, l, 3))
+    return BtfArray(data, b.views, b.lights, b.mask)
+
+
+def save_zarr(btf: Union[Btf, BtfArray], path: PathLike, *, chunks: int = 64, overwrite: bool = False,
+              progress: Progress = None) -> str:
+    """Write ``btf`` (a :class:`~btfrs.Btf`, memory-mapped or not, or a :class:`BtfArray`) as a
+    zarr group in btfrs's layout (module doc), chunked by ``chunks x chunks`` texel tiles, one
+    band of tile rows at a time (memory: one band). Written into a temporary directory beside
+    ``path`` and renamed into place at the end: an error or Ctrl-C leaves nothing. ``path`` must
+    not exist unless ``overwrite``. Returns the path."""
+    zarr = _zarr()
+    t = _tile(chunks)
+    if isinstance(btf, Btf):
+        src, views, lights, mask = btf.data, btf.views, btf.lights, btf.mask
+    elif isinstance(btf, BtfArray):
+        src, views, lights, mask = btf.data, btf.views, btf.lights, btf.mask
+    else:
+        raise ArgumentTypeError(f"btf: expected a btfrs.Btf or a btfrs.dask.BtfArray, got {type(btf).__name__}")
+    p = os.path.abspath(os.fspath(path))
+    if os.path.exists(p) and not overwrite:
+        raise InvalidArgumentError(f"path: {p} exists; pass overwrite=True to replace it")
+    h, w, v, l, _ = src.shape
+    tmp = f"{p}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    cb = callback(progress, "save zarr")
+    try:
+        g = zarr.open_group(tmp, mode="w")
+        g.attrs.update({"btfrs": "btf", "layout_version": LAYOUT_VERSION})
+        data = g.create_array("data", shape=(h, w, v, l, 3), chunks=(min(t, h), min(t, w), v, l, 3), dtype="float32")
+        g.create_array("views", shape=views.shape, dtype="float64")[...] = views
+        g.create_array("lights", shape=lights.shape, dtype="float64")[...] = lights
+        if mask is not None:
+            g.create_array("mask", shape=mask.shape, dtype="bool")[...] = mask
+        bands = range(0, h, t)
+        for i, r0 in enumerate(bands):
+            band = src[r0:r0 + t]
+            band = np.asarray(band.compute() if hasattr(band, "compute") else band, dtype=np.float32)
+            if not np.isfinite(band).all():
+                raise InvalidArgumentError(f"btf: rows {r0} to {r0 + band.shape[0] - 1} hold values that are not finite")
+            data[r0:r0 + band.shape[0]] = band
+            if cb:
+                cb(i + 1, len(bands))
+        if os.path.exists(p):
+            old = f"{p}.old-{uuid.uuid4().hex[:8]}"
+            os.replace(p, old)
+            os.replace(tmp, p)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, p)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return p
+
+
+def open(path: PathLike) -> BtfArray:  # noqa: A001 - the module's verb, as btfrs.dask.open
+    """The zarr group written by :func:`save_zarr` as a :class:`BtfArray` (nothing is read but
+    the directions); a group in another layout or dtype raises
+    :class:`~btfrs.exceptions.FormatError` saying what is wrong."""
+    zarr = _zarr()
+    _, da = _dask()
+    p = os.fspath(path)
+    if not os.path.exists(p):
+        raise FileNotFoundError(p)
+    try:
+        g = zarr.open_group(p, mode="r")
+    except Exception as e:
+        raise FormatError(f"{p}: not a zarr group ({e})") from e
+    if g.attrs.get("btfrs") != "btf":
+        raise FormatError(f"{p}: not a btfrs BTF (attribute btfrs = {g.attrs.get('btfrs')!r}, expected 'btf'; "
+                          f"write it with btfrs.dask.save_zarr)")
+    if g.attrs.get("layout_version") != LAYOUT_VERSION:
+        raise FormatError(f"{p}: layout version {g.attrs.get('layout_version')!r}, this btfrs reads {LAYOUT_VERSION}")
+    names = set(g.array_keys())
+    for need in ("data", "views", "lights"):
+        if need not in names:
+            raise FormatError(f"{p}: missing array {need!r}")
+    z = g["data"]
+    if z.dtype != np.float32:
+        raise FormatError(f"{p}: data has dtype {z.dtype}, expected float32")
+    if len(z.shape) != 5 or z.shape[-1] != 3:
+        raise FormatError(f"{p}: data has shape {z.shape}, expected (H, W, V, L, 3)")
+    if tuple(z.chunks[2:]) != tuple(z.shape[2:]):
+        raise FormatError(f"{p}: data is chunked {z.chunks}: a chunk must hold all views, lights and RGB of its "
+                          f"texels (t, t, {z.shape[2]}, {z.shape[3]}, 3)")
+    views, lights = np.asarray(g["views"][...]), np.asarray(g["lights"][...])
+    for name, a, n in (("views", views, z.shape[2]), ("lights", lights, z.shape[3])):
+        if a.dtype != np.float64 or a.shape != (n, 3):
+            raise FormatError(f"{p}: {name} is {a.dtype} {a.shape}, expected float64 ({n}, 3)")
+    mask = None
+    if "mask" in names:
+        mask = np.asarray(g["mask"][...])
+        if mask.dtype != np.bool_ or mask.shape != tuple(z.shape[2:4]):
+            raise FormatError(f"{p}: mask is {mask.dtype} {mask.shape}, expected bool {tuple(z.shape[2:4])}")
+    try:
+        return BtfArray(da.from_zarr(z), views, lights, mask)
+    except InvalidArgumentError as e:
+        raise FormatError(f"{p}: {e}") from e
+
+
+# --- fitting ---------------------------------------------------------------------------------
+
+def _client():
+    try:
+        from distributed import get_client
+    except ImportError:
+        return None
+    try:
+        return get_client()
+    except ValueError:
+        return None
+
+
+def _is_cluster_failure(e: BaseException) -> bool:
+    mod = type(e).__module__ or ""
+    return (mod.split(".")[0] in ("distributed", "tornado", "asyncio", "concurrent")
+            or isinstance(e, (OSError, TimeoutError)) and not isinstance(e, FileNotFoundError))
+
+
+def _compute(tasks: list, cb, stage: str) -> list:
+    """Compute ``tasks`` on the current scheduler, reporting each one finished; a failure of the
+    cluster becomes :class:`ClusterError`, btfrs's own errors pass as they are."""
+    dask, _ = _dask()
+    client = _client()
+    total = len(tasks)
+    try:
+        if client is None:
+            out = list(dask.compute(*tasks))
+            if cb:
+                cb(total, total)
+            return out
+        from distributed import as_completed
+
+        futures = client.compute(tasks)
+        try:
+            for done, _f in enumerate(as_completed(futures), 1):
+                if cb:
+                    cb(done, total)
+            return client.gather(futures)
+        except BaseException:
+            client.cancel(futures)
+            raise
+    except (BtfrsError, KeyboardInterrupt):
+        raise
+    except Exception as e:
+        if _is_cluster_failure(e):
+            raise ClusterError(f"cluster: the Dask cluster failed during the {stage} ({type(e).__name__}: {e}); "
+                               f"nothing was written; rerun once the cluster is healthy") from e
+        raise
+
+
+def _present(mask: Optional[np.ndarray], v: int, l: int) -> Optional[np.ndarray]:
+    return None if mask is None else np.flatnonzero(mask.reshape(-1))
+
+
+def _abrdfs(block: np.ndarray, present: Optional[np.ndarray]) -> np.ndarray:
+    """The tile's texels' ABRDFs ``[n, d]`` (row-major texels), present pairs only."""
+    h, w, v, l, _ = block.shape
+    x = np.asarray(block, dtype=np.float32).reshape(h * w, v * l, 3)
+    if present is not None:
+        x = x[:, present]
+    return _own(x.reshape(h * w, -1))
+
+
+def _texel_index(r0: int, c0: int, h: int, w: int, width: int) -> np.ndarray:
+    """The row-major indices in the whole BTF of a tile's texels (tile row-major)."""
+    rr, cc = np.meshgrid(np.arange(r0, r0 + h), np.arange(c0, c0 + w), indexing="ij")
+    return (rr * width + cc).reshape(-1)
+
+
+def _own(a, dtype=None):
+    """An aligned C-contiguous array: what arrives on a worker may be a view of a message buffer
+    (not aligned), which the native functions refuse."""
+    return None if a is None else np.require(a, dtype=dtype, requirements=["C", "A"])
+
+
+def _fit_block(block, views, lights, mask, kind, options_json):
+    m = _native.fit_model(kind, _own(block, np.float32), _own(views), _own(lights), _own(mask), options_json, None)
+    return m.arrays(), m.report(), m.dims[0] * m.dims[1]
+
+
+def _srf_sums(block, views, lights, mask):
+    return _native.srf_sums(_own(block, np.float32), _own(views), _own(lights), _own(mask))
+
+
+def _srf_residual(block, views, lights, mask, phong):
+    return _native.srf_residual(_own(block, np.float32), _own(views), _own(lights), _own(mask), phong)
+
+
+def _gather_rows(block, present, local):
+    return _abrdfs(block, present)[local]
+
+
+def _project(block, present, mu, q):
+    return _native.lpca_project(_abrdfs(block, present), _own(mu), _own(q))
+
+
+def _split_clusters(block, present, ids, k):
+    """The tile's ABRDFs split by cluster: ``k`` arrays (empty where no member is here)."""
+    x = _abrdfs(block, present)
+    return tuple(x[ids == c] for c in range(k))
+
+
+def _fit_cluster(index, options_json, *pieces):
+    # Pieces come in tile order; the members must be in texel order as the local fit has them.
+    rows = [p for p in pieces[0::2] if len(p)]
+    idx = np.concatenate([i for i in pieces[1::2] if len(i)])
+    x = np.concatenate(rows)[np.argsort(idx, kind="stable")]
+    return _native.lpca_fit_cluster(_own(x), index, options_json)
+
+
+def _merge_reports(reports: list, texels: list, counts: list) -> dict:
+    """The blocks' reports as one (module doc): the model's ``counts`` summed, other entries
+    equal in every block kept, differing numbers weighted by texels (``rms_*`` as root mean
+    squares), differing lists concatenated."""
+    if not reports:
+        return {}
+    total = float(sum(texels))
+    out: dict = {}
+    for key in reports[0]:
+        vals = [r.get(key) for r in reports]
+        if key in counts:
+            out[key] = sum(vals)
+        elif all(v == vals[0] for v in vals):
+            out[key] = vals[0]
+        elif all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vals):
+            if key.startswith("rms"):
+                out[key] = float(np.sqrt(sum(t * v * v for t, v in zip(texels, vals)) / total))
+            else:
+                out[key] = float(sum(t * v for t, v in zip(texels, vals)) / total)
+        elif all(isinstance(v, list) for v in vals):
+            out[key] = [x for v in vals for x in v]
+        else:
+            out[key] = vals
+    return out
+
+
+def fit(model: str, arr: Union[BtfArray, Btf], /, *, progress: Progress = None, chunks: int = 64, **options) -> Model:
+    """Fit the registered model ``model`` to ``arr`` (a :class:`BtfArray`; a
+    :class:`~btfrs.Btf` is wrapped by :func:`from_btf` with ``chunks``) on the current Dask
+    scheduler, texel tile by texel tile (module doc), with the options of the local fit
+    (``btfrs.fit.<model>``). Returns the model class the local fit returns.
+
+    ``memory_limit`` is not taken: on a cluster each worker's own ``memory_limit`` bounds it (a
+    tile, or for LPCA one cluster's member ABRDFs, is what a task holds). ``progress`` reports
+    the tasks finished per stage."""
+    kind = choice("model", model, tuple(model_kinds()))
+    if isinstance(arr, Btf):
+        arr = from_btf(arr, chunks=chunks)
+    instance("arr", arr, BtfArray, "a btfrs.dask.BtfArray (btfrs.dask.open or from_btf) or a btfrs.Btf")
+    if "memory_limit" in options:
+        raise InvalidArgumentError("memory_limit: a Dask fit is bounded by its workers' memory_limit, not by a "
+                                   "btfrs limit; for one machine use btfrs.fit." + kind + "(btf, memory_limit=...)")
+    strategy, detail, counts = _native.blockwise_plan(kind)
+    if strategy == "unsupported":
+        raise InvalidArgumentError(f"model: the {kind} fit cannot run blockwise on a Dask cluster ({detail}); "
+                                   f"fit it out of core with btfrs.fit.{kind}(btfrs.Btf.load(path, mmap=True), "
+                                   f"memory_limit=...)")
+    options_json = json.dumps(options)
+    t0 = time.perf_counter()
+    if strategy == "texels":
+        m = _fit_texels(kind, arr, options, json.loads(detail), list(counts), progress)
+    elif kind == "srf":
+        m = _fit_srf(arr, options, progress)
+    elif kind == "lpca":
+        m = _fit_lpca(arr, options_json, progress)
+    else:  # pragma: no cover - a model declared staged needs its stages here
+        raise InternalError(f"model: {kind} is declared staged but btfrs.dask has no stages for it")
+    m.fit_seconds = time.perf_counter() - t0
+    return m
+
+
+def _blocks(arr: BtfArray):
+    """``(delayed block, row offset, column offset, rows, columns)`` of every tile, row-major."""
+    dl = arr.data.to_delayed()
+    rows, cols = arr.data.chunks[0], arr.data.chunks[1]
+    r0s, c0s = np.cumsum((0,) + rows[:-1]), np.cumsum((0,) + cols[:-1])
+    return [(dl[i, j, 0, 0, 0], int(r0s[i]), int(c0s[j]), rows[i], cols[j])
+            for i in range(len(rows)) for j in range(len(cols))]
+
+
+def _fit_texels(kind: str, arr: BtfArray, options: dict, overrides: dict, counts: list, progress: Progress) -> Model:
+    dask, _ = _dask()
+    block_json = json.dumps({**options, **overrides})
+    blocks = _blocks(arr)
+    tasks = [dask.delayed(_fit_block, pure=True)(b, arr.views, arr.lights, arr.mask, kind, block_json)
+             for b, *_ in blocks]
+    results = _compute(tasks, callback(progress, f"{kind} blocks"), f"{kind} fit")
+    texel_names = set(_native.texel_arrays(kind))
+    h, w = arr.height, arr.width
+    stitched: dict = {}
+    first = results[0][0]
+    for name, a in first.items():
+        if name in texel_names:
+            out = np.empty((h, w) + a.shape[2:], dtype=a.dtype)
+            for (arrays, _, _), (_, r0, c0, nr, nc) in zip(results, blocks):
+                out[r0:r0 + nr, c0:c0 + nc] = arrays[name]
+            stitched[name] = out
+        else:
+            for arrays, _, _ in results[1:]:
+                if name not in arrays or not np.array_equal(arrays[name], a):
+                    raise InternalError(f"model: the {kind} array {name!r} differs between texel blocks, so the fit is "
+                                        f"not separable as its blockwise contract says; please report it")
+            stitched[name] = a
+    native = _native.finish_blocks(kind, stitched, json.dumps(options))
+    return wrap(native, report=_merge_reports([r for _, r, _ in results], [n for _, _, n in results], counts))
+
+
+def _fit_srf(arr: BtfArray, options: dict, progress: Progress) -> Model:
+    dask, _ = _dask()
+    if options:
+        raise InvalidArgumentError(f"{next(iter(options))}: unknown option; the srf fit takes none")
+    blocks = _blocks(arr)
+    sums = _compute([dask.delayed(_srf_sums, pure=True)(b, arr.views, arr.lights, arr.mask) for b, *_ in blocks],
+                    callback(progress, "SRF mean BRDF"), "SRF mean BRDF")
+    total = np.sum(np.stack(sums), axis=0)
+    phong, iterations = _native.srf_phong(arr.views, arr.lights, arr.mask, np.ascontiguousarray(total),
+                                          arr.height * arr.width)
+    res = _compute([dask.delayed(_srf_residual, pure=True)(b, arr.views, arr.lights, arr.mask, phong)
+                    for b, *_ in blocks], callback(progress, "SRF residual"), "SRF residual")
+    s = np.empty((arr.height, arr.width, 3, 3), dtype=np.float32)
+    e = np.zeros(3)
+    for (sb, eb), (_, r0, c0, nr, nc) in zip(res, blocks):
+        s[r0:r0 + nr, c0:c0 + nc] = sb
+        e += np.asarray(eb)
+    native = _native.Model.from_arrays("srf", {"phong": np.asarray(phong, dtype=np.float64), "s": s})
+    rel = (lambda x: float(np.sqrt(x / e[2])) if e[2] > 0 else 0.0)
+    return wrap(native, report={"iterations": int(iterations), "phong_relative": rel(e[0]), "srf_relative": rel(e[1])})
+
+
+def _fit_lpca(arr: BtfArray, options_json: str, progress: Progress) -> Model:
+    dask, _ = _dask()
+    h, w = arr.height, arr.width
+    present = _present(arr.mask, len(arr.views), len(arr.lights))
+    blocks = _blocks(arr)
+    index = [_texel_index(r0, c0, nr, nc, w) for _, r0, c0, nr, nc in blocks]
+    # 1. The range finder's seeded sample, gathered from the tiles in texel order.
+    pick = _native.lpca_sample(h, w, options_json)
+    if pick is None:
+        pick = np.arange(h * w, dtype=np.uint32)
+    in_pick = np.zeros(h * w, dtype=bool)
+    in_pick[pick] = True
+    parts, where = [], []
+    for (b, *_), idx in zip(blocks, index):
+        local = np.flatnonzero(in_pick[idx])
+        if len(local):
+            parts.append(dask.delayed(_gather_rows, pure=True)(b, present, local))
+            where.append(idx[local])
+    rows = _compute(parts, callback(progress, "LPCA sample"), "LPCA sample")
+    sample = np.concatenate(rows)[np.argsort(np.concatenate(where), kind="stable")]
+    mu, q = _native.lpca_subspace(np.ascontiguousarray(sample), h, w, options_json)
+    del sample, rows
+    # 2. Every tile projected; the rows put back in texel order.
+    mu_d, q_d = dask.delayed(mu), dask.delayed(q)
+    zs = _compute([dask.delayed(_project, pure=True)(b, present, mu_d, q_d) for b, *_ in blocks],
+                  callback(progress, "LPCA projection"), "LPCA projection")
+    z = np.empty((h * w, q.shape[0]), dtype=np.float32)
+    for zb, idx in zip(zs, index):
+        z[idx] = zb
+    del zs
+    # 3. k-means and refinement on the client.
+    ids, members = _native.lpca_cluster(z, h, w, options_json)
+    del z
+    k = len(members)
+    # 4. One task per cluster over its members' ABRDFs, split from the tiles.
+    split = [dask.delayed(_split_clusters, pure=True, nout=k)(b, present, ids[idx], k) for (b, *_), idx in zip(blocks, index)]
+    tasks = []
+    for c in range(k):
+        pieces = []
+        for s, idx in zip(split, index):
+            mine = idx[ids[idx] == c]
+            if len(mine):
+                pieces += [s[c], mine]
+        tasks.append(dask.delayed(_fit_cluster, pure=True)(c, options_json, *pieces))
+    fits = _compute(tasks, callback(progress, "LPCA clusters"), "LPCA cluster fits")
+    # 5. The model.
+    native = _native.lpca_assemble(h, w, arr.views, arr.lights, arr.mask, ids, members, fits, options_json)
+    return wrap(native)

@@ -1,0 +1,283 @@
+//! Bindings of the blockwise contract ([`btfrs_fit::blockwise`]): what `btfrs.dask` calls on the
+//! workers (per texel block) and on the client (reductions, finishing). Every call releases the
+//! GIL, so a Dask worker's threads fit blocks in parallel.
+
+use crate::arrays::{borrow, check_shape, dirs};
+use crate::core::BtfArgs;
+use crate::errors::{arg, IntoPy};
+use crate::models::{named_arrays, PyModel};
+use crate::run::{detach, guarded};
+use btfrs_fit::lpca::{staged, ClusterFit, LpcaOptions};
+use btfrs_fit::model::parse_options;
+use btfrs_fit::{registry, srf};
+use nalgebra::DMatrix;
+use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+type F32Array<'py> = Bound<'py, PyArrayDyn<f32>>;
+/// One cluster's fit as `lpca_fit_cluster` returns it: `(q, scale, bias, weights)`.
+type ClusterFitArgs<'py> = (Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>);
+
+/// A vector as a 1-D numpy array (moved, not copied).
+fn vec1<T: numpy::Element>(py: Python<'_>, v: Vec<T>) -> PyResult<Bound<'_, PyArrayDyn<T>>> {
+    let n = v.len();
+    v.into_pyarray(py).reshape(vec![n])
+}
+
+fn mask_of<'a>(
+    m: &'a Option<numpy::PyReadonlyArrayDyn<'_, bool>>,
+    nv: usize,
+    nl: usize,
+) -> PyResult<Option<&'a [bool]>> {
+    match m {
+        Some(m) => {
+            check_shape("mask", m.shape(), &[Some(nv), Some(nl)])?;
+            Ok(Some(m.as_slice().map_err(|e| arg("mask", e))?))
+        }
+        None => Ok(None),
+    }
+}
+
+/// How model `kind` splits over texel blocks: `("texels", overrides JSON, report counts)`,
+/// `("staged", "", [])` or `("unsupported", reason, [])`.
+#[pyfunction]
+pub fn blockwise_plan(kind: &str) -> PyResult<(&'static str, &'static str, &'static [&'static str])> {
+    Ok(registry::lookup(kind).py()?.blockwise.describe())
+}
+
+/// Model `kind` from the stitched arrays of its blocks, finished for the whole fit's options.
+#[pyfunction]
+pub fn finish_blocks(py: Python<'_>, kind: &str, arrays: &Bound<'_, PyDict>, options_json: &str) -> PyResult<PyModel> {
+    let entry = registry::lookup(kind).py()?;
+    let a = named_arrays(arrays)?;
+    let inner = detach(py, || (entry.finish_blocks)(&a, options_json))?;
+    Ok(PyModel { inner })
+}
+
+/// SRF stage 1 on one block: the per-pair RGB sums of the present values, `[pairs, 3]` float64.
+#[pyfunction]
+#[pyo3(signature = (data, views, lights, mask=None))]
+pub fn srf_sums<'py>(
+    py: Python<'py>,
+    data: &Bound<'py, PyAny>,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    let args = BtfArgs::new(data, views, lights, mask)?;
+    let b = args.btf()?;
+    let s = detach(py, || {
+        btfrs_core::btf::check_finite("data", b.data)?;
+        srf::mean_sums(&b)
+    })?;
+    let n = s.len();
+    s.into_flattened().into_pyarray(py).reshape(vec![n, 3])
+}
+
+/// SRF stage 2: `(phong [7], iterations)` from the sums of every block and their texel count.
+#[pyfunction]
+#[pyo3(signature = (views, lights, mask, sums, texels))]
+pub fn srf_phong<'py>(
+    py: Python<'py>,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+    sums: &Bound<'py, PyAny>,
+    texels: usize,
+) -> PyResult<(Vec<f64>, usize)> {
+    guarded(|| {
+        let (v, l) = (borrow::<f64>("views", views)?, borrow::<f64>("lights", lights)?);
+        let m = mask.map(|m| borrow::<bool>("mask", m)).transpose()?;
+        let (v, l) = (dirs("views", &v)?, dirs("lights", &l)?);
+        let mask = mask_of(&m, v.len(), l.len())?;
+        let s = borrow::<f64>("sums", sums)?;
+        check_shape("sums", s.shape(), &[None, Some(3)])?;
+        let sums: Vec<[f64; 3]> = s.as_slice().map_err(|e| arg("sums", e))?.as_chunks::<3>().0.to_vec();
+        let (phong, it) = detach(py, || {
+            let geo = srf::PairGeometry::new(v, l, mask)?;
+            srf::phong_of_mean(&geo, &sums, texels)
+        })?;
+        Ok((phong.kd.iter().chain(&phong.ks).chain([&phong.n]).copied().collect(), it))
+    })
+}
+
+/// SRF stage 3 on one block: `(s [h, w, 3, 3] float32, [phong err², srf err², truth²])`.
+#[pyfunction]
+#[pyo3(signature = (data, views, lights, mask, phong))]
+pub fn srf_residual<'py>(
+    py: Python<'py>,
+    data: &Bound<'py, PyAny>,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+    phong: [f64; 7],
+) -> PyResult<(F32Array<'py>, [f64; 3])> {
+    let args = BtfArgs::new(data, views, lights, mask)?;
+    let b = args.btf()?;
+    let p = srf::Phong { kd: [phong[0], phong[1], phong[2]], ks: [phong[3], phong[4], phong[5]], n: phong[6] };
+    let (s, sums) = detach(py, || {
+        btfrs_core::btf::check_finite("data", b.data)?;
+        let geo = srf::PairGeometry::new(b.views, b.lights, b.mask)?;
+        srf::residual(&b, &geo, &p, &btfrs_core::Monitor::new())
+    })?;
+    Ok((s.into_pyarray(py).reshape(vec![b.height, b.width, 3, 3])?, sums))
+}
+
+fn lpca_options(json: &str) -> PyResult<LpcaOptions> {
+    parse_options(json).py()
+}
+
+/// `[n, d]` float32 borrowed as a slice with `d`.
+fn texel_rows<'a>(name: &str, a: &'a numpy::PyReadonlyArrayDyn<'_, f32>) -> PyResult<(&'a [f32], usize)> {
+    check_shape(name, a.shape(), &[None, None])?;
+    Ok((a.as_slice().map_err(|e| arg(name, e))?, a.shape()[1]))
+}
+
+/// LPCA stage 1a: the texels the range finder samples (uint32, texel order), None for all.
+#[pyfunction]
+pub fn lpca_sample<'py>(
+    py: Python<'py>,
+    height: usize,
+    width: usize,
+    options_json: &str,
+) -> PyResult<Option<Bound<'py, PyArrayDyn<u32>>>> {
+    let o = lpca_options(options_json)?;
+    let pick = detach(py, || staged::sample(height, width, &o))?;
+    pick.map(|p| vec1(py, p)).transpose()
+}
+
+/// LPCA stage 1b: `(mu [d], q [l, d])` from the sample's ABRDFs `[s, d]`.
+#[pyfunction]
+pub fn lpca_subspace<'py>(
+    py: Python<'py>,
+    sample: &Bound<'py, PyAny>,
+    height: usize,
+    width: usize,
+    options_json: &str,
+) -> PyResult<(F32Array<'py>, F32Array<'py>)> {
+    let o = lpca_options(options_json)?;
+    let s = borrow::<f32>("sample", sample)?;
+    let (x, d) = texel_rows("sample", &s)?;
+    let (mu, q) = detach(py, || {
+        btfrs_core::btf::check_finite("sample", x)?;
+        staged::subspace(x, d, height, width, &o, &btfrs_core::Monitor::new())
+    })?;
+    let l = q.ncols();
+    Ok((vec1(py, mu)?, q.as_slice().to_vec().into_pyarray(py).reshape(vec![l, d])?))
+}
+
+/// LPCA stage 2 on one block: its texels' ABRDFs `[n, d]` projected, `[n, l]`.
+#[pyfunction]
+pub fn lpca_project<'py>(
+    py: Python<'py>,
+    block: &Bound<'py, PyAny>,
+    mu: &Bound<'py, PyAny>,
+    q: &Bound<'py, PyAny>,
+) -> PyResult<F32Array<'py>> {
+    let b = borrow::<f32>("block", block)?;
+    let (x, d) = texel_rows("block", &b)?;
+    let mu = borrow::<f32>("mu", mu)?;
+    let q = borrow::<f32>("q", q)?;
+    check_shape("q", q.shape(), &[None, Some(d)])?;
+    let l = q.shape()[0];
+    let qm = DMatrix::from_column_slice(d, l, q.as_slice().map_err(|e| arg("q", e))?);
+    let mu = mu.as_slice().map_err(|e| arg("mu", e))?;
+    let z = detach(py, || {
+        btfrs_core::btf::check_finite("data", x)?;
+        staged::project(x, d, mu, &qm)
+    })?;
+    let n = z.nrows();
+    z.transpose().as_slice().to_vec().into_pyarray(py).reshape(vec![n, l])
+}
+
+/// LPCA stage 3: `(ids [T] uint32, [members of each cluster, uint32, texel order])` from the
+/// projected texels of all blocks `[T, l]` in texel order.
+#[allow(clippy::type_complexity)]
+#[pyfunction]
+pub fn lpca_cluster<'py>(
+    py: Python<'py>,
+    z: &Bound<'py, PyAny>,
+    height: usize,
+    width: usize,
+    options_json: &str,
+) -> PyResult<(Bound<'py, PyArrayDyn<u32>>, Vec<Bound<'py, PyArrayDyn<u32>>>)> {
+    let o = lpca_options(options_json)?;
+    let z = borrow::<f32>("z", z)?;
+    let (x, l) = texel_rows("z", &z)?;
+    let zm = DMatrix::from_row_slice(x.len() / l.max(1), l, x);
+    let (ids, members) = crate::run::monitored(py, None, |mon| staged::cluster(&zm, height, width, &o, mon))?;
+    Ok((vec1(py, ids)?, members.into_iter().map(|m| vec1(py, m)).collect::<PyResult<_>>()?))
+}
+
+/// LPCA stage 4: cluster `index`'s fit from its members' ABRDFs `[n, d]` (texel order):
+/// `(q [c + 1, d] uint8, scale [c + 1], bias [c + 1], weights [n, c + 2])`.
+#[allow(clippy::type_complexity)]
+#[pyfunction]
+pub fn lpca_fit_cluster<'py>(
+    py: Python<'py>,
+    members: &Bound<'py, PyAny>,
+    index: usize,
+    options_json: &str,
+) -> PyResult<(Bound<'py, PyArrayDyn<u8>>, F32Array<'py>, F32Array<'py>, F32Array<'py>)> {
+    let o = lpca_options(options_json)?;
+    let m = borrow::<f32>("members", members)?;
+    let (x, d) = texel_rows("members", &m)?;
+    let n = x.len() / d.max(1);
+    let f = detach(py, || {
+        btfrs_core::btf::check_finite("members", x)?;
+        staged::fit_cluster(x, d, index, &o)
+    })?;
+    let cc = f.scale.len();
+    Ok((
+        f.q.into_pyarray(py).reshape(vec![cc, d])?,
+        vec1(py, f.scale)?,
+        vec1(py, f.bias)?,
+        f.weights.into_pyarray(py).reshape(vec![n, cc + 1])?,
+    ))
+}
+
+/// LPCA stage 5: the model from the clusters and their fits (tuples of [`lpca_fit_cluster`]).
+#[pyfunction]
+#[pyo3(signature = (height, width, views, lights, mask, ids, members, fits, options_json))]
+#[allow(clippy::too_many_arguments)]
+pub fn lpca_assemble<'py>(
+    py: Python<'py>,
+    height: usize,
+    width: usize,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+    ids: &Bound<'py, PyAny>,
+    members: Vec<Bound<'py, PyAny>>,
+    fits: Vec<ClusterFitArgs<'py>>,
+    options_json: &str,
+) -> PyResult<PyModel> {
+    let o = lpca_options(options_json)?;
+    let (v, l) = (borrow::<f64>("views", views)?, borrow::<f64>("lights", lights)?);
+    let mk = mask.map(|m| borrow::<bool>("mask", m)).transpose()?;
+    let (v, l) = (dirs("views", &v)?, dirs("lights", &l)?);
+    let mask = mask_of(&mk, v.len(), l.len())?;
+    let ids: Vec<u32> = borrow::<u32>("ids", ids)?.as_array().iter().copied().collect();
+    let members: Vec<Vec<u32>> = members
+        .iter()
+        .map(|m| Ok(borrow::<u32>("members", m)?.as_array().iter().copied().collect()))
+        .collect::<PyResult<_>>()?;
+    let t = height * width;
+    if let Some(bad) = members.iter().flatten().find(|&&i| i as usize >= t) {
+        return Err(arg("members", format!("texel {bad} is outside the {height} x {width} BTF")));
+    }
+    let fits: Vec<ClusterFit> = fits
+        .iter()
+        .map(|(q, s, b, w)| {
+            Ok(ClusterFit {
+                q: borrow::<u8>("fits", q)?.as_array().iter().copied().collect(),
+                scale: borrow::<f32>("fits", s)?.as_array().iter().copied().collect(),
+                bias: borrow::<f32>("fits", b)?.as_array().iter().copied().collect(),
+                weights: borrow::<f32>("fits", w)?.as_array().iter().copied().collect(),
+            })
+        })
+        .collect::<PyResult<_>>()?;
+    let m = detach(py, || staged::assemble(height, width, v, l, mask, ids, &members, &fits, &o))?;
+    Ok(PyModel { inner: Box::new(m) })
+}
