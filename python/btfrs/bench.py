@@ -912,6 +912,76 @@ def out_of_core_table(res: dict) -> str:
     return "\n".join(lines)
 
 
+DASK_FITS = (("ptm", {"kind": "rgb"}), ("lpca", {"clusters": 32, "components": 4}))
+
+
+def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int = 1) -> dict:
+    """Issue 15 item 3: the same fits locally and on a Dask LocalCluster of 1 and 2 workers.
+
+    knit ``size``^2 x 81 x 81 is made into a memory-mapped ``.btfrs`` (the local fits read it in
+    place, the page cache warm) and converted to zarr by :func:`btfrs.dask.save_zarr` (tiles of
+    ``chunks``^2 texels, zstd: the cluster decodes them). Each worker is one process, one thread
+    and one rayon thread (``RAYON_NUM_THREADS=1``: one core, as a cluster node's slot), so the 1-
+    and 2-worker rows are 1 and 2 cores; the local fit uses every core of this machine. Every
+    cluster fit is checked equal, array for array, to the local one."""
+    import logging
+    import shutil
+
+    from distributed import Client, LocalCluster
+
+    from . import dask as bd
+    from .btf import Btf
+
+    work = workdir or tempfile.mkdtemp(prefix="btfrs-dask-bench-")
+    os.makedirs(work, exist_ok=True)
+    path, zpath = os.path.join(work, f"knit{size}.btfrs"), os.path.join(work, f"knit{size}.zarr")
+    try:
+        b = materials.make("knit", size=size, seed=1, out=path)
+        t0 = time.perf_counter()
+        bd.save_zarr(b, zpath, chunks=chunks, overwrite=True)
+        save_s = time.perf_counter() - t0
+        zbytes = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(zpath) for f in fs)
+        b = Btf.load(path, mmap=True)
+        rows = []
+        local = {}
+        for kind, o in DASK_FITS:
+            fit.fit(kind, b, **o)  # warm the page cache
+            secs, m = best_of(lambda: fit.fit(kind, b, **o), repeat)
+            local[kind] = m
+            rows.append({"kind": kind, "options": o, "local_s": secs})
+        for n in (1, 2):
+            with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                              silence_logs=logging.CRITICAL, env={"RAYON_NUM_THREADS": "1"}) as cluster, \
+                    Client(cluster):
+                arr = bd.open(zpath)
+                bd.fit("ptm", bd.from_btf(Btf(b.data[:8, :8].copy(), b.views, b.lights), chunks=8))  # warm the workers
+                for r, (kind, o) in zip(rows, DASK_FITS):
+                    secs, m = best_of(lambda: bd.fit(kind, arr, **o), repeat)
+                    same = all(np.array_equal(m.arrays[k], v) for k, v in local[kind].arrays.items())
+                    r[f"dask{n}_s"], r[f"dask{n}_equal"] = secs, bool(same)
+        return {"size": size, "chunks": chunks, "data_bytes": b.data.nbytes, "zarr_bytes": zbytes,
+                "save_zarr_s": save_s, "rows": rows}
+    finally:
+        if not workdir:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+def dask_table(res: dict) -> str:
+    gb = res["data_bytes"] / 1e9
+    lines = [f"knit {res['size']}^2 x 81 x 81, {gb:.2f} GB of values; zarr tiles {res['chunks']}^2 texels, "
+             f"{res['zarr_bytes'] / 1e9:.2f} GB on disk, written by save_zarr in {res['save_zarr_s']:.1f} s "
+             f"({gb / res['save_zarr_s']:.2f} GB/s)",
+             "| fit | local (2 cores) | Dask 1 worker | Dask 2 workers | GB/s local / 1 / 2 | 1 -> 2 workers | "
+             "2 workers vs local | equal to local |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in res["rows"]:
+        lo, d1, d2 = r["local_s"], r["dask1_s"], r["dask2_s"]
+        lines.append(f"| {r['kind']} {json.dumps(r['options'])} | {lo:.2f} s | {d1:.2f} s | {d2:.2f} s | "
+                     f"{gb / lo:.2f} / {gb / d1:.2f} / {gb / d2:.2f} | {d1 / d2:.2f}x | {d2 / lo:.2f}x the time | "
+                     f"{'yes' if r['dask1_equal'] and r['dask2_equal'] else 'NO'} |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m btfrs.bench", description=__doc__)
     p.add_argument("--size", type=int, action="append", help="material sizes (default: 32 and 64; 32 with --accuracy)")
@@ -941,8 +1011,20 @@ def main(argv=None) -> int:
                    help="only the out-of-core fits: make knit at --size (default 640)^2 x 81 x 81 into PATH "
                         "(32.2 GB at 640) unless it is there, fit PTM and LPCA under --memory-limit (issue 15)")
     p.add_argument("--memory-limit", default="2GB", help="the out-of-core fits' memory_limit (default: 2GB)")
+    p.add_argument("--dask", action="store_true",
+                   help="only the Dask fits: PTM and LPCA locally and on a LocalCluster of 1 and 2 workers, "
+                        "knit at --size (default 96)^2 x 81 x 81 from zarr (issue 15; needs btfrs[dask])")
+    p.add_argument("--dask-chunks", type=int, default=32, help="the zarr tiles' side in texels (default: 32)")
     p.add_argument("--figures", metavar="DIR", help="also write paper 000 Figure 6 style images into DIR")
     a = p.parse_args(argv)
+    if a.dask:
+        res = dask_bench((a.size or [96])[0], a.dask_chunks, repeat=a.repeat)
+        print(dask_table(res))
+        if a.json is None:
+            a.json = os.path.join("bench-results", "dask.json")
+        _write_json(a.json, {"machine": machine(), "dask": res})
+        print(f"\nwrote {a.json}", file=sys.stderr)
+        return 0
     if a.out_of_core:
         res = out_of_core_bench(a.out_of_core, (a.size or [640])[0], a.memory_limit)
         print(out_of_core_table(res))
