@@ -197,7 +197,7 @@ pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Resu
         Some(_) => members.iter().enumerate().map(one).collect(),
     };
     monitor.check()?;
-    let lpca = assemble(btf.height, btf.width, btf.views, btf.lights, btf.mask, ids, &members, &fits, c)?;
+    let lpca = assemble(btf.height, btf.width, btf.views, btf.lights, btf.mask, ids, &members, &fits, opts)?;
     monitor.advance((opts.clusters - members.len()) as u64 + 1);
     Ok(lpca)
 }
@@ -253,11 +253,12 @@ fn cluster_space(
     Ok((ids, members))
 }
 
-/// The model from the clusters' fits (step 5's weights scattered to the texels, the quantized
-/// Eigen-BRDFs of the present pairs scattered into the `[K, c + 1, V, L, 4]` layout and the
-/// absent pairs filled by interpolation).
+/// The model from the clusters' fits, in cluster order (step 5's weights scattered to the
+/// texels, the quantized Eigen-BRDFs of the present pairs scattered into the
+/// `[K, c + 1, V, L, 4]` layout and the absent pairs filled by interpolation). The last stage of
+/// the blockwise fit too ([`staged`]).
 #[allow(clippy::too_many_arguments)] // the model's dimensions and the stages' results, once
-fn assemble(
+pub fn assemble(
     height: usize,
     width: usize,
     views: &[[f64; 3]],
@@ -266,8 +267,10 @@ fn assemble(
     ids: Vec<u32>,
     members: &[Vec<u32>],
     fits: &[ClusterFit],
-    c: usize,
+    opts: &LpcaOptions,
 ) -> Result<Lpca> {
+    check_options(opts, height, width)?;
+    let c = opts.components;
     let (nv, nl, t) = (views.len(), lights.len(), height * width);
     let vl = nv * nl;
     let has = |i: usize| mask.is_none_or(|m| m[i]);

@@ -9,13 +9,13 @@
 //!    coordinates (what the local fit holds too).
 //! 4. [`fit_cluster`]: one task per cluster over its members' ABRDFs, in texel order (the
 //!    driver gathers them from the blocks).
-//! 5. [`assemble`]: the model.
+//! 5. [`assemble`]: the model (the same function as the local fit's).
 //!
 //! The texels' ABRDFs are their present pairs only (`V L` pairs, or the mask's present ones),
 //! three values each, as the fit compacts them. The principal coordinates must be on
 //! (`reduced_dims > 0`): clustering the full ABRDFs needs every value on one machine.
 
-use super::{check_options, sub_seed, ClusterFit, Lpca, LpcaOptions};
+use super::{check_options, sub_seed, ClusterFit, LpcaOptions};
 use crate::rpca;
 use btfrs_core::{ensure_arg, Monitor, Result};
 use nalgebra::DMatrix;
@@ -76,22 +76,9 @@ pub fn fit_cluster(members: &[f32], d: usize, index: usize, opts: &LpcaOptions) 
     Ok(super::fit_cluster(members, d, &m, opts.components, sub_seed(opts.seed, 1000 + index as u64), None))
 }
 
-/// Stage 5: the model from the clusters of [`cluster`] and their fits (in cluster order).
-#[allow(clippy::too_many_arguments)] // the model's dimensions and the stages' results, once
-pub fn assemble(
-    height: usize,
-    width: usize,
-    views: &[[f64; 3]],
-    lights: &[[f64; 3]],
-    mask: Option<&[bool]>,
-    ids: Vec<u32>,
-    members: &[Vec<u32>],
-    fits: &[ClusterFit],
-    opts: &LpcaOptions,
-) -> Result<Lpca> {
-    check(opts, height, width)?;
-    super::assemble(height, width, views, lights, mask, ids, members, fits, opts.components)
-}
+/// Stage 5: the model from the clusters of [`cluster`] and their fits (in cluster order): the
+/// local fit's own assembly.
+pub use super::assemble;
 
 fn check(opts: &LpcaOptions, height: usize, width: usize) -> Result<()> {
     check_options(opts, height, width)?;
