@@ -235,3 +235,14 @@ def test_a_worker_that_dies_mid_fit_is_a_cluster_error_and_a_rerun_works(client,
         bd.fit("ptm", poisoned)
     client.wait_for_workers(2, timeout=60)
     _same_model(bd.fit("ptm", arr), btfrs.fit.ptm(sample))
+
+
+def test_progress_reports_every_stage_to_its_end(client, stored, sample):
+    calls = []
+    m = bd.fit("lpca", bd.open(stored), clusters=4, components=2, progress=lambda d, t: calls.append((d, t)))
+    _same_model(m, btfrs.fit.lpca(sample, clusters=4, components=2))
+    # One count per task in each of the three stages run on the cluster (the sample's and the
+    # projection's 9 tiles, the 4 clusters), each ending at its total.
+    ends = [c for c in calls if c[0] == c[1]]
+    assert [t for _, t in ends][-1] == 4 and 9 in [t for _, t in ends] and len(ends) == 3, calls
+    assert all(0 < d <= t for d, t in calls)
