@@ -27,8 +27,8 @@ pytestmark = [
     pytest.mark.filterwarnings("ignore:Sending large graph:UserWarning"),
 ]
 
-# Every model the blockwise contract covers, with options that make the 8-bit and masked paths
-# run; and the options rbf/bilinear would take.
+# Every model the blockwise contract fits bit for bit, with options that make the 8-bit and
+# masked paths run (RBF and bilinear, equal to rounding, are LIGHT_PCA below).
 FITS = [
     ("ptm", {}),
     ("ptm", {"kind": "lrgb", "bits": 32}),
@@ -40,6 +40,12 @@ FITS = [
     # 48 x 48 = 2304 texels: more than the range finder's 2048-texel sample, so the seeded
     # sample is gathered from the tiles.
     ("lpca", {"clusters": 8, "components": 3}),
+]
+
+# The light bases (per-slot moments reduced on the cluster), both colour groupings.
+LIGHT_PCA = [
+    ("rbf", {"components": 6}),
+    ("bilinear", {"components": 5, "colour": "ycc", "chroma_components": 2}),
 ]
 
 
@@ -66,6 +72,31 @@ def _same_model(a, b):
         assert np.array_equal(x[k], y[k]), f"array {k} differs"
 
 
+def _same_light_basis(m, local, btf):
+    """A staged RBF / bilinear fit against the local one: the same layout, and every
+    evaluation equal to rounding (each principal function may have the other sign, its
+    coefficients with it, so the arrays themselves need not be equal)."""
+    assert type(m) is type(local)
+    x, y = m.arrays, local.arrays
+    assert sorted(x) == sorted(y)
+    for k in y:
+        assert x[k].dtype == y[k].dtype and x[k].shape == y[k].shape, k
+    assert np.array_equal(x["layout"], y["layout"]) and np.array_equal(x["views"], y["views"])
+    assert m.report == local.report
+    # The first principal function's magnitude is fixed by the data, whatever its sign.
+    assert np.allclose(np.abs(x["table"]), np.abs(y["table"]), atol=1e-4)
+    peak = 0.0
+    worst = 0.0
+    for v, l in [(0, 0), (3, 11), (btf.n_views - 1, btf.n_lights - 1), (5, 20)]:
+        a = m.evaluate(btf.views[v], btf.lights[l])
+        b = local.evaluate(btf.views[v], btf.lights[l])
+        peak = max(peak, float(np.abs(b).max()))
+        worst = max(worst, float(np.abs(a - b).max()))
+    # Float rounding only (measured below 1e-6); one 8-bit step of a coefficient is ~1e-3.
+    assert worst <= 2e-3 * peak, (worst, peak)
+    assert m.error(btf).rmse == pytest.approx(local.error(btf).rmse, rel=1e-3)
+
+
 def _close_reports(a, b):
     assert sorted(a) == sorted(b)
     for k, v in b.items():
@@ -86,6 +117,8 @@ def test_without_a_cluster_the_threaded_scheduler_fits_the_same_model(sample):
     assert isinstance(m, btfrs.models.Ptm)
     _same_model(m, local)
     assert m.fit_seconds > 0
+    # The light bases' moments are merged in a tree of delayed tasks here (no futures).
+    _same_light_basis(bd.fit("rbf", arr, components=4), btfrs.fit.rbf(sample, components=4), sample)
 
 
 @pytest.fixture(scope="module")
@@ -141,6 +174,22 @@ def test_a_masked_btf_fits_the_same_on_the_cluster(client, tmp_path, masked, kin
     _same_model(bd.fit(kind, arr, **options), btfrs.fit.fit(kind, masked, **options))
 
 
+@pytest.mark.parametrize("kind,options", LIGHT_PCA, ids=[k for k, _ in LIGHT_PCA])
+def test_light_bases_on_a_local_cluster_evaluate_as_the_local_fit(client, stored, sample, masked, tmp_path, kind,
+                                                                   options):
+    calls = []
+    m = bd.fit(kind, bd.open(stored), progress=lambda d, t: calls.append((d, t)), **options)
+    _same_light_basis(m, btfrs.fit.fit(kind, sample, **options), sample)
+    # Two stages on the cluster, the moments and the projection, each counting the 9 tiles.
+    ends = [c for c in calls if c[0] == c[1]]
+    assert ends == [(9, 9), (9, 9)] and all(0 < d <= t for d, t in calls), calls
+    # With a mask (one view slot left with a single light: pooled from its neighbours).
+    arr = bd.open(bd.save_zarr(masked, tmp_path / "masked.zarr", chunks=20))
+    local = btfrs.fit.fit(kind, masked, **options)
+    assert local.report["pooled_slots"], "the masked sample should pool a slot"
+    _same_light_basis(bd.fit(kind, arr, **options), local, masked)
+
+
 def test_a_memory_mapped_btf_is_read_by_path_on_the_workers(client, tmp_path, sample):
     f = tmp_path / "s.btfrs"
     sample.save(f)
@@ -157,8 +206,10 @@ def test_a_memory_mapped_btf_is_read_by_path_on_the_workers(client, tmp_path, sa
 
 def test_bad_input_gets_clear_errors(client, tmp_path, stored, sample):
     arr = bd.open(stored)
-    with pytest.raises(InvalidArgumentError, match="^model: the rbf fit cannot run blockwise"):
-        bd.fit("rbf", arr)
+    with pytest.raises(InvalidArgumentError, match="^resolution: the blockwise rbf fit sums a 867 x 867 covariance"):
+        bd.fit("rbf", arr, resolution=17)
+    with pytest.raises(InvalidArgumentError, match="^width: expected a positive kernel width"):
+        bd.fit("rbf", arr, width=-1.0)
     with pytest.raises(InvalidArgumentError, match="^model: "):
         bd.fit("nope", arr)
     with pytest.raises(InvalidArgumentError, match="^memory_limit: a Dask fit is bounded by its workers"):

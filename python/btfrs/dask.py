@@ -27,8 +27,14 @@ the model declares in Rust (``rust/btfrs-fit/src/blockwise.rs``):
   projection per tile, k-means and refinement on the client over ``T x reduced_dims``
   coordinates, one task per cluster over its members' ABRDFs: **the same model as the local
   in-memory fit** (same seeds, same code);
-* RBF and bilinear: not split yet (their light PCA spans all texels of a view slot): a clear
-  error; fit them out of core with ``btfrs.fit.rbf(btf, memory_limit=...)``.
+* RBF and bilinear (relight's light bases): per tile and view slot the count, mean and centred
+  second moment of the texels' resampled light functions (``float64``), merged in pairs on the
+  workers (Chan et al.'s update), the principal functions from their eigenvectors on the client,
+  the projection per tile, the 8-bit quantization on the client: **equal to the local fit to
+  rounding** (each principal function possibly of the opposite sign, its coefficients with it).
+  A tile's moments are ``8 V d^2`` bytes (``d = 3 n^2``, rgb, or ``2 n^2``, ycc; RBF defaults
+  with 81 views: 121 MB), so the blockwise fit takes ``d <= 768`` (rgb resolution <= 16, ycc
+  <= 19): above, a clear error.
 
 The result is the model class of the local fit, saved like any other. ``model.report`` holds the
 blocks' reports combined (the counts a model declares summed, means weighted by texels,
@@ -43,6 +49,7 @@ at the end, so a failed or interrupted run leaves nothing half-written and can s
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -313,13 +320,28 @@ def _is_cluster_failure(e: BaseException) -> bool:
             or isinstance(e, (OSError, TimeoutError)) and not isinstance(e, FileNotFoundError))
 
 
+@contextlib.contextmanager
+def _cluster_errors(stage: str):
+    """A failure of the cluster inside becomes :class:`ClusterError`; btfrs's own errors and
+    Ctrl-C pass as they are."""
+    try:
+        yield
+    except (BtfrsError, KeyboardInterrupt):
+        raise
+    except Exception as e:
+        if _is_cluster_failure(e):
+            raise ClusterError(f"cluster: the Dask cluster failed during the {stage} ({type(e).__name__}: {e}); "
+                               f"nothing was written; rerun once the cluster is healthy") from e
+        raise
+
+
 def _compute(tasks: list, cb, stage: str) -> list:
     """Compute ``tasks`` on the current scheduler, reporting each one finished; a failure of the
     cluster becomes :class:`ClusterError`, btfrs's own errors pass as they are."""
     dask, _ = _dask()
     client = _client()
     total = len(tasks)
-    try:
+    with _cluster_errors(stage):
         if client is None:
             out = list(dask.compute(*tasks))
             if cb:
@@ -336,13 +358,54 @@ def _compute(tasks: list, cb, stage: str) -> list:
         except BaseException:
             client.cancel(futures)
             raise
-    except (BtfrsError, KeyboardInterrupt):
-        raise
-    except Exception as e:
-        if _is_cluster_failure(e):
-            raise ClusterError(f"cluster: the Dask cluster failed during the {stage} ({type(e).__name__}: {e}); "
-                               f"nothing was written; rerun once the cluster is healthy") from e
-        raise
+
+
+def _reduce(tasks: list, merge, cb, stage: str):
+    """``merge`` of all ``tasks``' results, merged in pairs on the workers (a tree, so the client
+    never holds more than one result), reporting each task finished. With a distributed client
+    the results are paired as they finish, so merging overlaps the remaining tasks; ``merge``
+    must be associative and commutative (to rounding)."""
+    dask, _ = _dask()
+    client = _client()
+    total = len(tasks)
+    with _cluster_errors(stage):
+        if client is None:
+            level = list(tasks)
+            while len(level) > 1:
+                level = [dask.delayed(merge, pure=True)(level[i], level[i + 1]) if i + 1 < len(level) else level[i]
+                         for i in range(0, len(level), 2)]
+            (out,) = dask.compute(level[0])
+            if cb:
+                cb(total, total)
+            return out
+        from distributed import as_completed
+
+        futures = client.compute(tasks)
+        inputs = {f.key for f in futures}
+        live = set(futures)
+        ac = as_completed(futures)
+        del futures  # merged results are released as soon as they are merged again
+        try:
+            pending, done = None, 0
+            for f in ac:
+                if f.status == "error":
+                    f.result()  # raises the task's own error
+                if f.key in inputs:
+                    done += 1
+                    if cb:
+                        cb(done, total)
+                if pending is None:
+                    pending = f
+                    continue
+                m = client.submit(merge, pending, f, pure=False)
+                live -= {pending, f}
+                live.add(m)
+                ac.add(m)
+                pending = None
+            return pending.result()
+        except BaseException:
+            client.cancel(list(live))
+            raise
 
 
 def _present(mask: Optional[np.ndarray], v: int, l: int) -> Optional[np.ndarray]:
@@ -395,6 +458,21 @@ def _split_clusters(block, present, ids, k):
     """The tile's ABRDFs split by cluster: ``k`` arrays (empty where no member is here)."""
     x = _abrdfs(block, present)
     return tuple(x[ids == c] for c in range(k))
+
+
+def _lp_moments(block, views, lights, mask, kind, options_json):
+    return _native.light_pca_moments(kind, _own(block, np.float32), _own(views), _own(lights), _own(mask),
+                                     options_json)
+
+
+def _lp_merge(a, b):
+    own = (lambda m: (m[0], [_own(x) for x in m[1]], [_own(x) for x in m[2]]))
+    return _native.light_pca_merge(own(a), own(b))
+
+
+def _lp_project(block, views, lights, mask, kind, table, options_json):
+    return _native.light_pca_project(kind, _own(block, np.float32), _own(views), _own(lights), _own(mask),
+                                     _own(table), options_json)
 
 
 def _fit_cluster(index, options_json, *pieces):
@@ -460,6 +538,8 @@ def fit(model: str, arr: Union[BtfArray, Btf], /, *, progress: Progress = None, 
         m = _fit_srf(arr, options, progress)
     elif kind == "lpca":
         m = _fit_lpca(arr, options_json, progress)
+    elif kind in ("rbf", "bilinear"):
+        m = _fit_light_pca(kind, arr, options_json, progress)
     else:  # pragma: no cover - a model declared staged needs its stages here
         raise InternalError(f"model: {kind} is declared staged but btfrs.dask has no stages for it")
     m.fit_seconds = time.perf_counter() - t0
@@ -572,3 +652,27 @@ def _fit_lpca(arr: BtfArray, options_json: str, progress: Progress) -> Model:
     # 5. The model.
     native = _native.lpca_assemble(h, w, arr.views, arr.lights, arr.mask, ids, members, fits, options_json)
     return wrap(native)
+
+
+def _fit_light_pca(kind: str, arr: BtfArray, options_json: str, progress: Progress) -> Model:
+    dask, _ = _dask()
+    _native.light_pca_check(kind, options_json)
+    blocks = _blocks(arr)
+    name = "RBF" if kind == "rbf" else "bilinear"
+    # 1. Every tile's moments, merged in pairs on the workers.
+    moments = _reduce([dask.delayed(_lp_moments, pure=True)(b, arr.views, arr.lights, arr.mask, kind, options_json)
+                       for b, *_ in blocks], _lp_merge, callback(progress, f"{name} moments"), f"{name} moments")
+    # 2. The principal functions on the client.
+    table = _native.light_pca_table(kind, (moments[0], [_own(x) for x in moments[1]], [_own(x) for x in moments[2]]),
+                                    len(arr.views), options_json)
+    del moments
+    # 3. Every tile projected; the coefficients stitched in texel order.
+    table_d = dask.delayed(table)
+    cs = _compute([dask.delayed(_lp_project, pure=True)(b, arr.views, arr.lights, arr.mask, kind, table_d, options_json)
+                   for b, *_ in blocks], callback(progress, f"{name} projection"), f"{name} projection")
+    coeffs = np.empty((arr.height, arr.width, cs[0].shape[2]), dtype=np.float32)
+    for c, (_, r0, c0, nr, nc) in zip(cs, blocks):
+        coeffs[r0:r0 + nr, c0:c0 + nc] = c
+    del cs
+    # 4. Quantized over all texels, as the local fit does.
+    return wrap(_native.light_pca_assemble(kind, arr.views, arr.lights, arr.mask, table, coeffs, options_json))

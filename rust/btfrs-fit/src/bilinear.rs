@@ -166,8 +166,12 @@ fn pca_options(o: &BilinearOptions) -> PcaOptions {
     light_pca::pca_options_of!(o)
 }
 
-/// Fit a bilinear light grid to the present pairs of `btf`; `monitor` counts view slots.
-pub fn fit_bilinear(btf: &BtfRef<'_>, o: &BilinearOptions, monitor: &Monitor) -> Result<Bilinear> {
+/// The options checked, as the light-PCA options and the resampling operator of one slot
+/// (its amplification measured at `queries`, the BTF's lights).
+pub(crate) fn prepare<'a>(
+    o: &BilinearOptions,
+    queries: &'a [[f64; 3]],
+) -> Result<(PcaOptions, Box<light_pca::Operator<'a>>)> {
     ensure_arg!(
         o.regularization.is_finite() && o.regularization >= 0.0,
         "regularization",
@@ -176,8 +180,15 @@ pub fn fit_bilinear(btf: &BtfRef<'_>, o: &BilinearOptions, monitor: &Monitor) ->
     );
     let pca = pca_options(o);
     pca.check()?;
-    let op = |lights: &[[f64; 3]], n: usize| slot_operator(lights, n, o.regularization, btf.lights);
-    Ok(Bilinear(light_pca::fit(btf, &pca, &op, "bilinear", monitor)?))
+    let regularization = o.regularization;
+    let op = move |lights: &[[f64; 3]], n: usize| slot_operator(lights, n, regularization, queries);
+    Ok((pca, Box::new(op)))
+}
+
+/// Fit a bilinear light grid to the present pairs of `btf`; `monitor` counts view slots.
+pub fn fit_bilinear(btf: &BtfRef<'_>, o: &BilinearOptions, monitor: &Monitor) -> Result<Bilinear> {
+    let (pca, op) = prepare(o, btf.lights)?;
+    Ok(Bilinear(light_pca::fit(btf, &pca, &*op, "bilinear", monitor)?))
 }
 
 light_pca::light_pca_model!(Bilinear);
@@ -193,10 +204,7 @@ impl Model for Bilinear {
     ];
     const TEXEL_ARRAYS: &'static [&'static str] = &["coeffs_q"];
     type Options = BilinearOptions;
-    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Unsupported(
-        "its light PCA compresses the grid functions of every texel of a view slot together; the \
-         per-slot covariance reduction that would split it over texel blocks is not built yet",
-    );
+    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Staged;
 
     fn fit(btf: &BtfRef<'_>, options: &BilinearOptions, monitor: &Monitor) -> Result<Self> {
         fit_bilinear(btf, options, monitor)

@@ -49,6 +49,8 @@ use nalgebra::DMatrix;
 use rayon::prelude::*;
 use std::borrow::Cow;
 
+pub mod staged;
+
 /// Largest grid resolution (nodes per side).
 pub const MAX_RESOLUTION: usize = 32;
 /// Largest number of planes per slot (luminance/RGB plus chroma).
@@ -453,42 +455,80 @@ pub fn least_memory(btf: &BtfRef<'_>, opts: &PcaOptions) -> u64 {
     16_000_000 + 4 * t * nv * (opts.components as u64 + kc) + 4 * t * (3 * nl + 6 * g)
 }
 
-/// Fit: resample every slot with `op`, then PCA and quantize (see the module doc). `what`
-/// names the model in errors; `monitor` counts slots.
-pub fn fit(btf: &BtfRef<'_>, opts: &PcaOptions, op: &Operator<'_>, what: &str, monitor: &Monitor) -> Result<LightPca> {
-    let kc = opts.check()?;
-    let (nv, nl, t) = (btf.views.len(), btf.lights.len(), btf.texels());
-    let n = opts.resolution;
-    let g = n * n;
-    let km = opts.components;
-    let k = km + kc;
-    let lw = if opts.colour == Colour::Rgb { 3 } else { 1 };
-    let stride = 3 + lw * km + 2 * kc;
-    let mut coeffs = vec![0.0f32; t * nv * k];
-    let mut table = vec![0.0f32; nv * g * stride];
-    let mut pooled = Vec::new();
-    let mut fallback_slots = Vec::new();
-    monitor.start(nv as u64);
-    for v in 0..nv {
-        let (pairs, from) = slot_pairs(btf, v);
-        if pairs.is_empty() {
-            let (theta, phi) = directions::to_theta_phi(btf.views[v]);
-            return Err(Error::Degenerate(format!(
-                "{what}: view slot {v} (theta {:.1}, phi {:.1} deg) has no lights, and no other view has any",
-                theta.to_degrees(),
-                phi.to_degrees()
-            )));
+/// One view slot's resampling: the (view, light) pairs it is fitted from and the operator from
+/// their samples to the grid (`G x m`).
+#[derive(Debug, Clone)]
+pub(crate) struct SlotPlan {
+    pairs: Vec<(usize, usize)>,
+    w: DMatrix<f32>,
+}
+
+/// The resampling of every view slot, with what the report says about it: a function of the
+/// directions, the mask and the options only, so every texel block of a blockwise fit
+/// ([`staged`]) computes the same one.
+#[derive(Debug, Clone)]
+pub struct Plan {
+    slots: Vec<SlotPlan>,
+    /// The slots fitted from pooled lights.
+    pub pooled: Vec<PooledSlot>,
+    /// The slots whose operator fell back to a more stable one.
+    pub fallback_slots: Vec<FallbackSlot>,
+}
+
+/// One slot's plan and what the report says about it.
+type PlannedSlot = (SlotPlan, Option<PooledSlot>, Option<FallbackSlot>);
+
+impl Plan {
+    /// The plan of every slot of a BTF with these directions and mask: the pairs of
+    /// [`slot_pairs`] and the operator `op` of their lights. `what` names the model in errors.
+    pub fn new(
+        views: &[[f64; 3]],
+        lights: &[[f64; 3]],
+        mask: Option<&[bool]>,
+        n: usize,
+        op: &Operator<'_>,
+        what: &str,
+    ) -> Result<Plan> {
+        let geo = BtfRef { height: 0, width: 0, views, lights, data: &[], mask };
+        // The operators are independent per slot (an RBF or least-squares solve each): in
+        // parallel, the first failing slot's error reported.
+        let per: Vec<Result<PlannedSlot>> = (0..views.len())
+            .into_par_iter()
+            .map(|v| {
+                let (pairs, from) = slot_pairs(&geo, v);
+                if pairs.is_empty() {
+                    let (theta, phi) = directions::to_theta_phi(views[v]);
+                    return Err(Error::Degenerate(format!(
+                        "{what}: view slot {v} (theta {:.1}, phi {:.1} deg) has no lights, and no other view has any",
+                        theta.to_degrees(),
+                        phi.to_degrees()
+                    )));
+                }
+                let pooled =
+                    (!from.is_empty()).then(|| PooledSlot { slot: v, lights: geo.lights_of_view(v).len(), from });
+                let dirs: Vec<[f64; 3]> = pairs.iter().map(|&(_, l)| lights[l]).collect();
+                let (w, fell_back) = op(&dirs, n)?;
+                let w = DMatrix::<f32>::from_fn(w.nrows(), w.ncols(), |i, j| w[(i, j)] as f32);
+                let fallback = fell_back.map(|amplification| FallbackSlot { slot: v, amplification });
+                Ok((SlotPlan { pairs, w }, pooled, fallback))
+            })
+            .collect();
+        let mut plan = Plan { slots: Vec::new(), pooled: Vec::new(), fallback_slots: Vec::new() };
+        for r in per {
+            let (s, p, f) = r?;
+            plan.slots.push(s);
+            plan.pooled.extend(p);
+            plan.fallback_slots.extend(f);
         }
-        if !from.is_empty() {
-            pooled.push(PooledSlot { slot: v, lights: btf.lights_of_view(v).len(), from });
-        }
-        let dirs: Vec<[f64; 3]> = pairs.iter().map(|&(_, l)| btf.lights[l]).collect();
-        let (w, fell_back) = op(&dirs, n)?;
-        if let Some(amplification) = fell_back {
-            fallback_slots.push(FallbackSlot { slot: v, amplification });
-        }
-        let m = pairs.len();
-        let w32 = DMatrix::<f32>::from_fn(g, m, |i, j| w[(i, j)] as f32);
+        Ok(plan)
+    }
+
+    /// Slot `v`'s functions of every texel of `btf` on the grid: column `3 t + c` (`G` values) is
+    /// texel `t`'s channel `c`, so the `3 G x T` matrix over the same storage is the joint RGB
+    /// data (channel-major per texel).
+    pub(crate) fn resample(&self, btf: &BtfRef<'_>, v: usize) -> DMatrix<f32> {
+        let SlotPlan { pairs, w } = &self.slots[v];
+        let (m, nl, t) = (pairs.len(), btf.lights.len(), btf.texels());
         // Samples: column 3 t + c is texel t's channel c over the slot's lights.
         let mut s = vec![0.0f32; m * 3 * t];
         s.par_chunks_mut(3 * m).enumerate().for_each(|(tx, out)| {
@@ -499,71 +539,158 @@ pub fn fit(btf: &BtfRef<'_>, opts: &PcaOptions, op: &Operator<'_>, what: &str, m
                 }
             }
         });
-        // Resampled: column 3 t + c is texel t's channel c on the grid, so the `3 G x T` matrix
-        // over the same storage is the joint RGB data (channel-major per texel).
-        let r = gemm(&view(&w32), &crate::dense::cols(&s, m, 3 * t));
-        drop(s);
-        monitor.check()?;
-        let r = r.as_slice();
-        let slot_table = &mut table[v * g * stride..(v + 1) * g * stride];
-        let seed = opts.seed.wrapping_add(v as u64);
-        match opts.colour {
-            Colour::Rgb => {
-                let (mean, basis, c) = pca(r, 3 * g, t, km, seed)?;
+        gemm(&view(w), &crate::dense::cols(&s, m, 3 * t))
+    }
+}
+
+/// The vectors one PCA compresses, from a slot's resampled functions `r` (`3 G x T`, see
+/// [`Plan::resample`]): `rgb` one group of `3 G` values per texel; `ycc` the luminance (`G`)
+/// and the two chroma differences (`2 G`, Cb then Cr). Each group is `(values, d)`, column-major
+/// `d x T`.
+pub(crate) fn groups(r: &[f32], g: usize, t: usize, colour: Colour) -> Vec<(Cow<'_, [f32]>, usize)> {
+    match colour {
+        Colour::Rgb => vec![(Cow::Borrowed(r), 3 * g)],
+        Colour::Ycc => {
+            let mut y = vec![0.0f32; g * t];
+            let mut ch = vec![0.0f32; 2 * g * t];
+            y.par_chunks_mut(g).zip(ch.par_chunks_mut(2 * g)).enumerate().for_each(|(tx, (yo, co))| {
+                let x = &r[tx * 3 * g..(tx + 1) * 3 * g];
                 for node in 0..g {
-                    let row = &mut slot_table[node * stride..(node + 1) * stride];
-                    for ch in 0..3 {
-                        row[ch] = mean[ch * g + node];
-                        for p in 0..km {
-                            row[3 + 3 * p + ch] = basis[(ch * g + node, p)];
-                        }
-                    }
+                    let (rr, gg, bb) = (x[node], x[g + node], x[2 * g + node]);
+                    let lum = (rr + gg + bb) / 3.0;
+                    yo[node] = lum;
+                    co[node] = bb - lum;
+                    co[g + node] = rr - lum;
                 }
-                put_coeffs(&mut coeffs, &c, v, nv, k, 0);
-            }
-            Colour::Ycc => {
-                let mut y = vec![0.0f32; g * t];
-                let mut ch = vec![0.0f32; 2 * g * t];
-                y.par_chunks_mut(g).zip(ch.par_chunks_mut(2 * g)).enumerate().for_each(|(tx, (yo, co))| {
-                    let x = &r[tx * 3 * g..(tx + 1) * 3 * g];
-                    for node in 0..g {
-                        let (rr, gg, bb) = (x[node], x[g + node], x[2 * g + node]);
-                        let lum = (rr + gg + bb) / 3.0;
-                        yo[node] = lum;
-                        co[node] = bb - lum;
-                        co[g + node] = rr - lum;
-                    }
-                });
-                let (ym, yb, yc) = pca(&y, g, t, km, seed)?;
-                let (cm, cbas, cc) = pca(&ch, 2 * g, t, kc, seed ^ 0x9e37)?;
-                for node in 0..g {
-                    let row = &mut slot_table[node * stride..(node + 1) * stride];
-                    row[0] = ym[node];
-                    row[1] = cm[node];
-                    row[2] = cm[g + node];
-                    for p in 0..km {
-                        row[3 + p] = yb[(node, p)];
-                    }
-                    for p in 0..kc {
-                        row[3 + km + 2 * p] = cbas[(node, p)];
-                        row[3 + km + 2 * p + 1] = cbas[(g + node, p)];
-                    }
-                }
-                put_coeffs(&mut coeffs, &yc, v, nv, k, 0);
-                put_coeffs(&mut coeffs, &cc, v, nv, k, km);
+            });
+            vec![(Cow::Owned(y), g), (Cow::Owned(ch), 2 * g)]
+        }
+    }
+}
+
+/// The groups' `(components, first plane)` within a slot's `K` planes (as [`groups`]).
+pub(crate) fn group_planes(colour: Colour, km: usize, kc: usize) -> Vec<(usize, usize)> {
+    match colour {
+        Colour::Rgb => vec![(km, 0)],
+        Colour::Ycc => vec![(km, 0), (kc, km)],
+    }
+}
+
+/// Where value `i` of group `group` lives in a slot's table: `(node, mean column, first basis
+/// column, basis column step)`, component `p` at `first + step p` (see the module doc).
+fn place(colour: Colour, km: usize, g: usize, group: usize, i: usize) -> (usize, usize, usize, usize) {
+    let (c, node) = (i / g, i % g);
+    match (colour, group) {
+        (Colour::Rgb, _) => (node, c, 3 + c, 3),
+        (Colour::Ycc, 0) => (node, 0, 3, 1),
+        (Colour::Ycc, _) => (node, 1 + c, 3 + km + c, 2),
+    }
+}
+
+/// Write a slot's table (`G` rows of `stride`) from each group's mean and principal directions.
+pub(crate) fn write_slot(table: &mut [f32], colour: Colour, km: usize, g: usize, parts: &[(&[f32], &DMatrix<f32>)]) {
+    let stride = table.len() / g;
+    for (gi, (mean, basis)) in parts.iter().enumerate() {
+        for (i, &m) in mean.iter().enumerate() {
+            let (node, mc, first, step) = place(colour, km, g, gi, i);
+            let row = &mut table[node * stride..(node + 1) * stride];
+            row[mc] = m;
+            for p in 0..basis.ncols() {
+                row[first + step * p] = basis[(i, p)];
             }
         }
+    }
+}
+
+/// Read back what [`write_slot`] wrote: each group's mean and principal directions.
+pub(crate) fn read_slot(
+    table: &[f32],
+    colour: Colour,
+    km: usize,
+    kc: usize,
+    g: usize,
+) -> Vec<(Vec<f32>, DMatrix<f32>)> {
+    let stride = table.len() / g;
+    let dims = match colour {
+        Colour::Rgb => vec![3 * g],
+        Colour::Ycc => vec![g, 2 * g],
+    };
+    dims.iter()
+        .zip(group_planes(colour, km, kc))
+        .enumerate()
+        .map(|(gi, (&d, (k, _)))| {
+            let mut mean = vec![0.0f32; d];
+            let mut basis = DMatrix::<f32>::zeros(d, k);
+            for (i, m) in mean.iter_mut().enumerate() {
+                let (node, mc, first, step) = place(colour, km, g, gi, i);
+                let row = &table[node * stride..(node + 1) * stride];
+                *m = row[mc];
+                for p in 0..k {
+                    basis[(i, p)] = row[first + step * p];
+                }
+            }
+            (mean, basis)
+        })
+        .collect()
+}
+
+/// Fit: resample every slot with `op`, then PCA and quantize (see the module doc). `what`
+/// names the model in errors; `monitor` counts slots.
+pub fn fit(btf: &BtfRef<'_>, opts: &PcaOptions, op: &Operator<'_>, what: &str, monitor: &Monitor) -> Result<LightPca> {
+    let kc = opts.check()?;
+    let (nv, t) = (btf.views.len(), btf.texels());
+    let n = opts.resolution;
+    let g = n * n;
+    let km = opts.components;
+    let k = km + kc;
+    let lw = if opts.colour == Colour::Rgb { 3 } else { 1 };
+    let stride = 3 + lw * km + 2 * kc;
+    monitor.start(nv as u64);
+    let plan = Plan::new(btf.views, btf.lights, btf.mask, n, op, what)?;
+    let mut coeffs = vec![0.0f32; t * nv * k];
+    let mut table = vec![0.0f32; nv * g * stride];
+    for v in 0..nv {
+        let r = plan.resample(btf, v);
+        monitor.check()?;
+        let slot_table = &mut table[v * g * stride..(v + 1) * g * stride];
+        let seed = opts.seed.wrapping_add(v as u64);
+        let mut parts = Vec::new();
+        for (gi, ((x, d), (kk, off))) in
+            groups(r.as_slice(), g, t, opts.colour).into_iter().zip(group_planes(opts.colour, km, kc)).enumerate()
+        {
+            // The chroma PCA's seed differs from the luminance's (randomized path only).
+            let (mean, basis, c) = pca(&x, d, t, kk, if gi == 0 { seed } else { seed ^ 0x9e37 })?;
+            put_coeffs(&mut coeffs, &c, v, nv, k, off);
+            parts.push((mean, basis));
+        }
+        let refs: Vec<(&[f32], &DMatrix<f32>)> = parts.iter().map(|(m, b)| (m.as_slice(), b)).collect();
+        write_slot(slot_table, opts.colour, km, g, &refs);
         monitor.advance(1);
     }
-    let planes = Planes::quantize(&coeffs, nv * k)?;
+    let Plan { pooled, fallback_slots, .. } = plan;
+    assemble(btf.height, btf.width, btf.views, opts, Planes::quantize(&coeffs, nv * k)?, table, pooled, fallback_slots)
+}
+
+/// The model from its parts (validated).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn assemble(
+    height: usize,
+    width: usize,
+    views: &[[f64; 3]],
+    opts: &PcaOptions,
+    planes: Planes,
+    table: Vec<f32>,
+    pooled: Vec<PooledSlot>,
+    fallback_slots: Vec<FallbackSlot>,
+) -> Result<LightPca> {
     let m = LightPca {
-        height: btf.height,
-        width: btf.width,
-        views: btf.views.to_vec(),
-        resolution: n,
+        height,
+        width,
+        views: views.to_vec(),
+        resolution: opts.resolution,
         colour: opts.colour,
-        k_main: km,
-        k_chroma: kc,
+        k_main: opts.components,
+        k_chroma: opts.check()?,
         planes,
         table,
         pooled,
@@ -600,7 +727,7 @@ fn slot_pairs(btf: &BtfRef<'_>, v: usize) -> (Vec<(usize, usize)>, Vec<usize>) {
 }
 
 /// Write the `kk x T` coefficients `c` of slot `v` at plane offset `off`.
-fn put_coeffs(out: &mut [f32], c: &DMatrix<f32>, v: usize, nv: usize, k: usize, off: usize) {
+pub(crate) fn put_coeffs(out: &mut [f32], c: &DMatrix<f32>, v: usize, nv: usize, k: usize, off: usize) {
     let kk = c.nrows();
     out.par_chunks_mut(nv * k).enumerate().for_each(|(t, o)| {
         for p in 0..kk {

@@ -129,8 +129,8 @@ fn pca_options(o: &RbfOptions) -> PcaOptions {
     light_pca::pca_options_of!(o)
 }
 
-/// Fit an RBF light basis to the present pairs of `btf`; `monitor` counts view slots.
-pub fn fit_rbf(btf: &BtfRef<'_>, o: &RbfOptions, monitor: &Monitor) -> Result<Rbf> {
+/// The options checked, as the light-PCA options and the resampling operator of one slot.
+pub(crate) fn prepare(o: &RbfOptions) -> Result<(PcaOptions, Box<light_pca::Operator<'static>>)> {
     ensure_arg!(o.width.is_finite() && o.width > 0.0, "width", "expected a positive kernel width, got {}", o.width);
     ensure_arg!(
         o.regularization.is_finite() && o.regularization >= 0.0,
@@ -141,8 +141,15 @@ pub fn fit_rbf(btf: &BtfRef<'_>, o: &RbfOptions, monitor: &Monitor) -> Result<Rb
     let pca = pca_options(o);
     pca.check()?;
     let grid = light_pca::grid_directions(o.resolution);
-    let op = |lights: &[[f64; 3]], _n: usize| Ok((rbf_operator(lights, &grid, o.width, o.regularization)?, None));
-    Ok(Rbf(light_pca::fit(btf, &pca, &op, "rbf", monitor)?))
+    let (width, regularization) = (o.width, o.regularization);
+    let op = move |lights: &[[f64; 3]], _n: usize| Ok((rbf_operator(lights, &grid, width, regularization)?, None));
+    Ok((pca, Box::new(op)))
+}
+
+/// Fit an RBF light basis to the present pairs of `btf`; `monitor` counts view slots.
+pub fn fit_rbf(btf: &BtfRef<'_>, o: &RbfOptions, monitor: &Monitor) -> Result<Rbf> {
+    let (pca, op) = prepare(o)?;
+    Ok(Rbf(light_pca::fit(btf, &pca, &*op, "rbf", monitor)?))
 }
 
 light_pca::light_pca_model!(Rbf);
@@ -155,10 +162,7 @@ impl Model for Rbf {
         &[("RBF-9", r#"{"components": 9}"#), ("RBF-18", r#"{"components": 18}"#), ("RBF-27", r#"{"components": 27}"#)];
     const TEXEL_ARRAYS: &'static [&'static str] = &["coeffs_q"];
     type Options = RbfOptions;
-    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Unsupported(
-        "its light PCA compresses the grid functions of every texel of a view slot together; the \
-         per-slot covariance reduction that would split it over texel blocks is not built yet",
-    );
+    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Staged;
 
     fn fit(btf: &BtfRef<'_>, options: &RbfOptions, monitor: &Monitor) -> Result<Self> {
         fit_rbf(btf, options, monitor)

@@ -7,6 +7,7 @@ use crate::core::BtfArgs;
 use crate::errors::{arg, IntoPy};
 use crate::models::{named_arrays, PyModel};
 use crate::run::{detach, guarded};
+use btfrs_fit::light_pca::staged as lp;
 use btfrs_fit::lpca::{staged, ClusterFit, LpcaOptions};
 use btfrs_fit::model::parse_options;
 use btfrs_fit::{registry, srf};
@@ -280,4 +281,163 @@ pub fn lpca_assemble<'py>(
         .collect::<PyResult<_>>()?;
     let m = detach(py, || staged::assemble(height, width, v, l, mask, ids, &members, &fits, &o))?;
     Ok(PyModel { inner: Box::new(m) })
+}
+
+/// Moments as they cross into Python: `(n, [mean [V, d] float64], [m2 [V, d, d] float64])`,
+/// one entry per group.
+type MomentsArgs<'py> = (u64, Vec<Bound<'py, PyArrayDyn<f64>>>, Vec<Bound<'py, PyArrayDyn<f64>>>);
+
+fn basis_of(kind: &str, options_json: &str) -> PyResult<lp::Basis> {
+    lp::Basis::parse(kind, options_json).py()
+}
+
+fn moments_to_py(py: Python<'_>, m: lp::Moments) -> PyResult<MomentsArgs<'_>> {
+    let mut means = Vec::new();
+    let mut m2s = Vec::new();
+    for g in m.groups {
+        let nv = g.mean.len() / g.d.max(1);
+        means.push(g.mean.into_pyarray(py).reshape(vec![nv, g.d])?);
+        m2s.push(g.m2.into_pyarray(py).reshape(vec![nv, g.d, g.d])?);
+    }
+    Ok((m.n, means, m2s))
+}
+
+fn moments_from_py(m: &MomentsArgs<'_>) -> PyResult<lp::Moments> {
+    let (n, means, m2s) = m;
+    if means.len() != m2s.len() {
+        return Err(arg("moments", format!("{} means but {} second moments", means.len(), m2s.len())));
+    }
+    let groups = means
+        .iter()
+        .zip(m2s)
+        .map(|(mean, m2)| {
+            let (mean, m2) = (mean.readonly(), m2.readonly());
+            check_shape("moments", mean.shape(), &[None, None])?;
+            let (nv, d) = (mean.shape()[0], mean.shape()[1]);
+            check_shape("moments", m2.shape(), &[Some(nv), Some(d), Some(d)])?;
+            Ok(lp::GroupMoments {
+                d,
+                mean: mean.as_array().iter().copied().collect(),
+                m2: m2.as_array().iter().copied().collect(),
+            })
+        })
+        .collect::<PyResult<_>>()?;
+    Ok(lp::Moments { n: *n, groups })
+}
+
+/// RBF / bilinear stage 2 on one block: the moments of its resampled light functions.
+#[pyfunction]
+#[pyo3(signature = (kind, data, views, lights, mask, options_json))]
+pub fn light_pca_moments<'py>(
+    py: Python<'py>,
+    kind: &str,
+    data: &Bound<'py, PyAny>,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+    options_json: &str,
+) -> PyResult<MomentsArgs<'py>> {
+    let basis = basis_of(kind, options_json)?;
+    let args = BtfArgs::new(data, views, lights, mask)?;
+    let b = args.btf()?;
+    let m = detach(py, || {
+        btfrs_core::btf::check_finite("data", b.data)?;
+        let plan = basis.plan(b.views, b.lights, b.mask)?;
+        lp::moments(&b, &plan, &basis.options()?)
+    })?;
+    moments_to_py(py, m)
+}
+
+/// RBF / bilinear stage 3: two sets of moments as one.
+#[pyfunction]
+pub fn light_pca_merge<'py>(py: Python<'py>, a: MomentsArgs<'py>, b: MomentsArgs<'py>) -> PyResult<MomentsArgs<'py>> {
+    let (a, b) = (moments_from_py(&a)?, moments_from_py(&b)?);
+    let m = detach(py, || a.merge(&b))?;
+    moments_to_py(py, m)
+}
+
+/// RBF / bilinear stage 4: the model's table `[V, n, n, R]` float32 from all texels' moments.
+#[pyfunction]
+pub fn light_pca_table<'py>(
+    py: Python<'py>,
+    kind: &str,
+    moments: MomentsArgs<'py>,
+    n_views: usize,
+    options_json: &str,
+) -> PyResult<F32Array<'py>> {
+    let basis = basis_of(kind, options_json)?;
+    let m = moments_from_py(&moments)?;
+    let (o, t) = detach(py, || {
+        let o = basis.options()?;
+        let t = lp::table(&m, &o, n_views)?;
+        Ok((o, t))
+    })?;
+    let r = t.len() / (n_views * o.resolution * o.resolution).max(1);
+    t.into_pyarray(py).reshape(vec![n_views, o.resolution, o.resolution, r])
+}
+
+/// RBF / bilinear stage 5 on one block: its coefficients `[h, w, V K]` float32.
+#[pyfunction]
+#[pyo3(signature = (kind, data, views, lights, mask, table, options_json))]
+#[allow(clippy::too_many_arguments)]
+pub fn light_pca_project<'py>(
+    py: Python<'py>,
+    kind: &str,
+    data: &Bound<'py, PyAny>,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+    table: &Bound<'py, PyAny>,
+    options_json: &str,
+) -> PyResult<F32Array<'py>> {
+    let basis = basis_of(kind, options_json)?;
+    let args = BtfArgs::new(data, views, lights, mask)?;
+    let b = args.btf()?;
+    let tab = borrow::<f32>("table", table)?;
+    let tab = tab.as_slice().map_err(|e| arg("table", e))?;
+    let c = detach(py, || {
+        btfrs_core::btf::check_finite("data", b.data)?;
+        let plan = basis.plan(b.views, b.lights, b.mask)?;
+        lp::project(&b, &plan, tab, &basis.options()?)
+    })?;
+    let per = c.len() / b.texels().max(1);
+    c.into_pyarray(py).reshape(vec![b.height, b.width, per])
+}
+
+/// RBF / bilinear stage 6: the model from its table and every texel's coefficients `[H, W, V K]`.
+#[pyfunction]
+#[pyo3(signature = (kind, views, lights, mask, table, coeffs, options_json))]
+#[allow(clippy::too_many_arguments)]
+pub fn light_pca_assemble<'py>(
+    py: Python<'py>,
+    kind: &str,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+    table: &Bound<'py, PyAny>,
+    coeffs: &Bound<'py, PyAny>,
+    options_json: &str,
+) -> PyResult<PyModel> {
+    let basis = basis_of(kind, options_json)?;
+    let (v, l) = (borrow::<f64>("views", views)?, borrow::<f64>("lights", lights)?);
+    let mk = mask.map(|m| borrow::<bool>("mask", m)).transpose()?;
+    let (v, l) = (dirs("views", &v)?, dirs("lights", &l)?);
+    let mask = mask_of(&mk, v.len(), l.len())?;
+    let tab: Vec<f32> = borrow::<f32>("table", table)?.as_array().iter().copied().collect();
+    let c = borrow::<f32>("coeffs", coeffs)?;
+    check_shape("coeffs", c.shape(), &[None, None, None])?;
+    let (h, w) = (c.shape()[0], c.shape()[1]);
+    let c = c.as_slice().map_err(|e| arg("coeffs", e))?;
+    let inner = detach(py, || {
+        let plan = basis.plan(v, l, mask)?;
+        let m = lp::assemble(h, w, v, plan, tab, c, &basis.options()?)?;
+        Ok(basis.model(m))
+    })?;
+    Ok(PyModel { inner })
+}
+
+/// Check RBF / bilinear options for the blockwise fit (before any task is sent).
+#[pyfunction]
+pub fn light_pca_check(kind: &str, options_json: &str) -> PyResult<()> {
+    basis_of(kind, options_json).map(|_| ())
 }

@@ -51,6 +51,12 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(blockwise::lpca_cluster, m)?)?;
     m.add_function(wrap_pyfunction!(blockwise::lpca_fit_cluster, m)?)?;
     m.add_function(wrap_pyfunction!(blockwise::lpca_assemble, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::light_pca_check, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::light_pca_moments, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::light_pca_merge, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::light_pca_table, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::light_pca_project, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::light_pca_assemble, m)?)?;
     m.add_function(wrap_pyfunction!(io::save_container, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_container_header, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_ptm, m)?)?;
