@@ -6,7 +6,8 @@
 // plane (x = s_v, y = t_v), and z = t_l index * N + s_l (the t_l slices stacked, section 6.2).
 // The sampler filters s_v, t_v and s_l trilinearly; t_l is interpolated here: two fetches and
 // one lerp per Eigen-BRDF. Coordinates are clamped to the sample centres of their tile and
-// slice, so neighbouring tiles and slices never bleed in.
+// slice, so neighbouring tiles and slices never bleed in. Alpha holds the sum S of the light
+// weights with the cosine divided out (S = 0.5 + a, texture3d.rs): the value is scaled by it.
 //
 // Parameters: `mp`, the `Lpca3dParams` struct of rust/btfrs-fit/src/lpca/texture3d.rs (its fields and their meaning are
 // written there once; the WGSL `struct Params` is generated from it).
@@ -47,6 +48,7 @@ fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
     let e0 = k * (c + 1u);
     var tx = e0 % gx;
     var ty = e0 / gx;
+    var s = 1.0;
     for (var j = 0u; j <= c; j++) {
         let tile = vec2<f32>(f32(tx), f32(ty)) * nf;
         tx += 1u;
@@ -55,9 +57,12 @@ fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
             ty += 1u;
         }
         let uv = (tile + vq.xy) / size.xy;
-        let a = textureSampleLevel(vol, vol_sampler, vec3<f32>(uv, z0), 0.0).xyz;
-        let b = textureSampleLevel(vol, vol_sampler, vec3<f32>(uv, z1), 0.0).xyz;
-        out += load(wt + 1u + j) * mix(a, b, w);
+        let a = textureSampleLevel(vol, vol_sampler, vec3<f32>(uv, z0), 0.0);
+        let b = textureSampleLevel(vol, vol_sampler, vec3<f32>(uv, z1), 0.0);
+        out += load(wt + 1u + j) * mix(a.xyz, b.xyz, w);
+        if (j == 0u) {
+            s = 0.5 + mix(a.w, b.w, w);
+        }
     }
-    return out;
+    return out * s;
 }

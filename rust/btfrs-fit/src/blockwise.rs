@@ -14,8 +14,10 @@
 //! * [`Blockwise::Staged`]: a global step sits between per-block passes, so the model exposes
 //!   its stages and the driver runs them as reductions: SRF (the mean BRDF is a sum over texels,
 //!   paper 003 section 4: [`crate::srf::mean_sums`], [`crate::srf::phong_of_mean`],
-//!   [`crate::srf::residual`]) and LPCA (principal coordinates from a seeded sample, k-means and
-//!   refinement on the client, one task per cluster: [`crate::lpca::staged`]).
+//!   [`crate::srf::residual`]), LPCA (principal coordinates from a seeded sample, k-means and
+//!   refinement on the client, one task per cluster: [`crate::lpca::staged`]) and the light
+//!   bases RBF and bilinear (per-slot moments of the resampled light functions merged in
+//!   pairs, eigenvectors on the client, projection per block: [`crate::light_pca::staged`]).
 //! * [`Blockwise::Unsupported`]: the reason, which the driver puts in its error.
 
 /// How a model's fit splits over blocks of texels (see the module doc).

@@ -10,11 +10,20 @@
 //! The grid values are the 9-tap interpolation of the measured Eigen-BRDFs at the grid's
 //! directions, rounded to 8 bits with each Eigen-BRDF's own scale and bias, so the texel weights
 //! (which fold those in, section 6.3) are shared by both renderers.
+//!
+//! **The light cosine.** The 9-tap renderer blends the measured lights with the cosine divided
+//! out ([`btfrs_core::directions::cos_corrected`]: weights `w_k cos(l) / cos(l_k)`, which no
+//! longer sum to 1, so the texel's constant term scales with their sum `S(l)` too). The grid
+//! keeps the same blend as the normalised weights `(w_k / cos(l_k)) / sum` (values stay in the
+//! 8-bit range) and stores `S` at each light node in the alpha channel (`S = 0.5 + a / 255`,
+//! 0.5 to 1.5; `S` is 1 at a measured light and about 1.07 midway at 70 degrees); the renderer
+//! multiplies the whole texel value by the interpolated `S`. Without it the 3D renderer drifted
+//! to 34 dB from the 9-tap one (paper 004's target: 35).
 
 use super::Lpca;
 use crate::gpu::{words, GpuLayout, Shader, Volume};
 use crate::model::ReflectanceModel;
-use btfrs_core::directions::interp_weights;
+use btfrs_core::directions::{interp_weights, COS_FLOOR};
 use btfrs_core::{Error, Result};
 use btfrs_hemimap::{hemisphere_to_square, square_to_hemisphere};
 use rayon::prelude::*;
@@ -67,7 +76,17 @@ impl<'a> Lpca3d<'a> {
         };
         // Interpolation weights of every grid direction over the measured ones (the 9-tap rule).
         let wv: Vec<Vec<(usize, f64)>> = (0..n * n).map(|i| interp_weights(&lpca.views, at(i), 3)).collect();
-        let wl: Vec<Vec<(usize, f64)>> = (0..n * n).map(|i| interp_weights(&lpca.lights, at(i), 3)).collect();
+        // Lights with the cosine divided out (module doc): normalised weights and their sum S.
+        let wl: Vec<(Vec<(usize, f64)>, f64)> = (0..n * n)
+            .map(|i| {
+                let d = at(i);
+                let mut w = interp_weights(&lpca.lights, d, 3);
+                w.iter_mut().for_each(|(l, x)| *x /= lpca.lights[*l][2].max(COS_FLOOR));
+                let sum: f64 = w.iter().map(|x| x.1).sum();
+                w.iter_mut().for_each(|x| x.1 /= sum);
+                (w, d[2].max(0.0) * sum)
+            })
+            .collect();
         let (w, h, d) = (n * gx, n * gy, n * n);
         let mut vol = vec![0u8; w * h * d * 4];
         // One z slice (a light grid direction) at a time: z = t_l * N + s_l = the light grid index.
@@ -78,7 +97,7 @@ impl<'a> Lpca3d<'a> {
                     let (x, y) = (tx * n + vi % n, ty * n + vi / n);
                     let mut rgb = [0.0f64; 3];
                     for &(v, a) in wvi {
-                        for &(l, b) in &wl[z] {
+                        for &(l, b) in &wl[z].0 {
                             let o = ((ei * nv + v) * nl + l) * 4;
                             for (x, &q) in rgb.iter_mut().zip(&lpca.basis[o..o + 3]) {
                                 *x += a * b * q as f64;
@@ -89,7 +108,7 @@ impl<'a> Lpca3d<'a> {
                     for c in 0..3 {
                         px[c] = rgb[c].round().clamp(0.0, 255.0) as u8;
                     }
-                    px[3] = 255;
+                    px[3] = ((wl[z].1 - 0.5) * 255.0).round().clamp(0.0, 255.0) as u8;
                 }
             }
         });
@@ -107,8 +126,8 @@ impl<'a> Lpca3d<'a> {
     }
 
     /// Clamp-to-edge trilinear sample of the texture at texel coordinates (x, y, z) (sample
-    /// centres at i + 0.5), as the GPU's linear sampler computes it.
-    fn sample(&self, p: [f32; 3]) -> [f32; 3] {
+    /// centres at i + 0.5), as the GPU's linear sampler computes it: RGBA in 0..1.
+    fn sample(&self, p: [f32; 3]) -> [f32; 4] {
         let size = [self.n * self.gx, self.n * self.gy, self.n * self.n];
         let mut idx = [[0usize; 2]; 3];
         let mut f = [0.0f32; 3];
@@ -119,12 +138,12 @@ impl<'a> Lpca3d<'a> {
             let clampi = |v: f32| (v.max(0.0) as usize).min(size[a] - 1);
             idx[a] = [clampi(i), clampi(i + 1.0)];
         }
-        let mut out = [0.0f32; 3];
+        let mut out = [0.0f32; 4];
         for (dz, wz) in [(0, 1.0 - f[2]), (1, f[2])] {
             for (dy, wy) in [(0, 1.0 - f[1]), (1, f[1])] {
                 for (dx, wx) in [(0, 1.0 - f[0]), (1, f[0])] {
                     let o = ((idx[2][dz] * size[1] + idx[1][dy]) * size[0] + idx[0][dx]) * 4;
-                    for (x, &q) in out.iter_mut().zip(&self.vol[o..o + 3]) {
+                    for (x, &q) in out.iter_mut().zip(&self.vol[o..o + 4]) {
                         *x += wx * wy * wz * q as f32 / 255.0;
                     }
                 }
@@ -177,6 +196,7 @@ impl ReflectanceModel for Lpca3d<'_> {
         let wt = &m.weights[t * (c + 2)..(t + 1) * (c + 2)];
         let mut out = [wt[0]; 3];
         let nf = self.n as f32;
+        let mut s = 0.0f32;
         for j in 0..=c {
             let e = k * (c + 1) + j;
             let tile = [(e % self.gx) as f32 * nf, (e / self.gx) as f32 * nf];
@@ -186,8 +206,11 @@ impl ReflectanceModel for Lpca3d<'_> {
             for ch in 0..3 {
                 out[ch] += wt[1 + j] * (a[ch] + (b[ch] - a[ch]) * q.w);
             }
+            if j == 0 {
+                s = 0.5 + a[3] + (b[3] - a[3]) * q.w;
+            }
         }
-        out
+        out.map(|x| x * s)
     }
 }
 
