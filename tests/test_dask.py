@@ -301,3 +301,19 @@ def test_progress_reports_every_stage_to_its_end(client, stored, sample):
     ends = [c for c in calls if c[0] == c[1]]
     assert [t for _, t in ends][-1] == 4 and 9 in [t for _, t in ends] and len(ends) == 3, calls
     assert all(0 < d <= t for d, t in calls)
+
+
+def test_light_basis_steps_counts_quantisation_steps(sample):
+    # The measure the staged light bases are held to must see a real difference: a copy is 0
+    # steps, a copy with one code moved by 3 is 3, the fit of other data is inf.
+    m = btfrs.fit.bilinear(sample, components=3)
+    assert light_basis_steps(m, m) == 0.0
+    arrays = dict(m.arrays)
+    q = arrays["coeffs_q"].copy()
+    q[0, 0, 0, 0] = q[0, 0, 0, 0] + 3 if q[0, 0, 0, 0] < 250 else q[0, 0, 0, 0] - 3
+    arrays["coeffs_q"] = q
+    moved = type(m).from_arrays(arrays)
+    assert light_basis_steps(moved, m) == pytest.approx(3.0, rel=1e-4)
+    u = _native.ubo81()
+    other = btfrs.materials.make("knit", size=48, views=u[::6], lights=u[::3], seed=7)
+    assert light_basis_steps(btfrs.fit.bilinear(other, components=3), m) == float("inf")

@@ -953,7 +953,7 @@ def light_basis_steps(m, local) -> float:
     return float((np.abs(cx - cy) / step).max())
 
 
-def _dask_agrees(kind: str, m, local, btf) -> bool:
+def _dask_agrees(kind: str, m, local) -> bool:
     """The cluster fit against the local one: array for array, except the light bases, whose
     principal functions may have the other sign and whose coefficients, projected in another
     float order, may round to the neighbouring 8-bit code (:func:`light_basis_steps`)."""
@@ -1021,7 +1021,7 @@ def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int 
                 bd.fit("ptm", bd.from_btf(Btf(b.data[:8, :8].copy(), b.views, b.lights), chunks=8))  # warm the workers
                 for r, (kind, o) in zip(rows, DASK_FITS):
                     secs, m = best_of(lambda: bd.fit(kind, arr, **o), repeat)
-                    same = _dask_agrees(kind, m, local[kind], b)
+                    same = _dask_agrees(kind, m, local[kind])
                     r[f"dask{n}_s"], r[f"dask{n}_equal"] = secs, bool(same)
         return {"size": size, "chunks": chunks, "data_bytes": b.data.nbytes, "zarr_bytes": zbytes,
                 "save_zarr_s": save_s, "rows": rows}
