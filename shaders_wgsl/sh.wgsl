@@ -12,10 +12,18 @@
 // Parameters: `mp`, the `ShParams` struct of rust/btfrs-fit/src/sh.rs (its fields and their meaning are
 // written there once; the WGSL `struct Params` is generated from it).
 
+// Regions marked <view>, <direct> and <cached> are the generic form: rust/btfrs-fit/src/sh/wgsl.rs
+// replaces them, for models up to 25 x 25, by straight-line code generated for the model's
+// kv x kl (larger ones keep these loops: the compile time explodes; lavapipe keeps
+// dynamically indexed private arrays in memory and gathers them per lane; with constant
+// indices they stay in registers: a 25x25 one-light frame 1.54 s -> 0.51 s, BENCHMARKS.md).
+// <view>
 struct ViewQuery {
     y: array<f32, 64>,
     sum: f32,
 };
+
+// </view>
 
 fn sh_basis(n: u32, d: vec3<f32>) -> array<f32, 64> {
     var y: array<f32, 64>;
@@ -64,6 +72,7 @@ fn sh_basis(n: u32, d: vec3<f32>) -> array<f32, 64> {
     return y;
 }
 
+// <view>
 fn view_query(v: vec3<f32>) -> ViewQuery {
     let kv = mp.kv;
     let y = sh_basis(kv, v);
@@ -73,7 +82,9 @@ fn view_query(v: vec3<f32>) -> ViewQuery {
     }
     return ViewQuery(y, s);
 }
+// </view>
 
+// <cached>
 // Per invocation, the texel's light coefficients at this fragment's view, h[c][j] =
 // sum_i y_i(v) q[c][i][j] (in groups of four, as the rows), computed at the first light and
 // kept for the others: shade_lights loops every light at one texel with one view query, so a
@@ -99,6 +110,9 @@ fn light_coefficients(texel: u32, vq: ViewQuery) {
     h_texel = texel;
 }
 
+// </cached>
+
+// <direct>
 // One light: the coefficients are read once anyway, and contracting with the light basis
 // first keeps the accumulator in registers (the cached path below stores h in a private array,
 // which made a one-light frame slower on lavapipe).
@@ -136,6 +150,9 @@ fn eval_direct(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
     }
     return out;
 }
+// </direct>
+
+// <cached>
 
 fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
     if (g.n_lights == 1u) {
@@ -168,6 +185,8 @@ fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
     }
     return out;
 }
+
+// </cached>
 
 // --- Environment light in the SH domain (paper 002, section 4; rust/btfrs-render/src/sh_env.rs) ---
 //

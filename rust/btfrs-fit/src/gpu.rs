@@ -214,6 +214,11 @@ pub trait GpuLayout: ReflectanceModel {
     fn volume(&self) -> Option<Volume<'_>> {
         None
     }
+    /// The shader this instance draws with: [`GpuLayout::SHADER`], or a variant specialised to
+    /// the instance's sizes (double SH: straight-line code for its `kv x kl`).
+    fn instance_shader(&self) -> Shader {
+        Self::SHADER
+    }
 }
 
 impl<T: GpuLayout + ?Sized> GpuLayout for &T {
@@ -231,11 +236,14 @@ impl<T: GpuLayout + ?Sized> GpuLayout for &T {
     fn volume(&self) -> Option<Volume<'_>> {
         (**self).volume()
     }
+    fn instance_shader(&self) -> Shader {
+        (**self).instance_shader()
+    }
 }
 
 impl<T: GpuLayout> GpuModel for T {
     fn shader(&self) -> Shader {
-        T::SHADER
+        self.instance_shader()
     }
     fn gpu_dims(&self) -> (usize, usize) {
         self.dims()

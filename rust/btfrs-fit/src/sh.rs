@@ -53,6 +53,7 @@
 mod basis;
 mod quadrature;
 mod quantize;
+pub mod wgsl;
 
 use crate::cls::Solver;
 use crate::dense::{gemm, gemm_into, rows, rows_mut, rows_t, sym_eigen_desc, view, view_t};
@@ -656,7 +657,7 @@ pub fn sh_words(q: &[u8], kl: usize) -> Vec<u32> {
 
 impl GpuLayout for Sh {
     type Params = ShParams;
-    const SHADER: Shader = Shader::new::<ShParams>("sh", include_str!("../../../shaders_wgsl/sh.wgsl"));
+    const SHADER: Shader = Shader::new::<ShParams>("sh", wgsl::GENERIC);
 
     fn parts(&self) -> Vec<Cow<'_, [u32]>> {
         // The shader reads 8-bit coefficients; an unquantized model is quantized for the GPU.
@@ -679,6 +680,11 @@ impl GpuLayout for Sh {
             coeffs: offsets[1],
         }
     }
+
+    /// Straight-line code for this model's `kv x kl` where that pays ([`wgsl`]).
+    fn instance_shader(&self) -> Shader {
+        wgsl::shader(self.view_coeffs, self.light_coeffs)
+    }
 }
 
 impl Model for Sh {
@@ -690,6 +696,13 @@ impl Model for Sh {
         ("SH-CLS 25x25", r#"{"view_coeffs": 25, "light_coeffs": 25}"#),
     ];
     type Options = ShOptions;
+    /// The generic shader and the variants of the example sizes (and one with kv != kl);
+    /// every size is validated in rust/btfrs-render/tests/shader_validation.rs.
+    fn shaders() -> Vec<Shader> {
+        let mut v = vec![<Self as GpuLayout>::SHADER];
+        v.extend([(16, 16), (25, 25), (25, 9)].map(|(kv, kl)| wgsl::shader_for(kv, kl)));
+        v
+    }
     // The CLS solves each texel alone; only the quantization's scale and bias span all texels.
     const BLOCKWISE: crate::blockwise::Blockwise =
         crate::blockwise::Blockwise::Texels { overrides: r#"{"quantize": false}"#, counts: &[] };

@@ -8,7 +8,7 @@ use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::{Btf, Monitor};
 use btfrs_fit::gpu::GpuLayout;
 use btfrs_fit::registry::MODELS;
-use btfrs_fit::{fit_ptm, PtmOptions, RawModel, Renderable};
+use btfrs_fit::{fit_ptm, fit_sh, PtmOptions, RawModel, Renderable, ShOptions};
 use btfrs_render::cpu::render_cpu;
 use btfrs_render::filter::{Filter, MipChain, Source};
 use btfrs_render::scene::{Camera, Light, Mesh};
@@ -190,6 +190,41 @@ fn every_model_matches_the_cpu_reference_on_every_scene() {
         }
     }
     assert!(checked >= 10, "every example of every model, every renderer");
+}
+
+#[test]
+fn double_sh_variants_match_the_cpu_reference_and_the_generic_shader() {
+    // The SH renderer draws with code generated for the model's kv x kl (btfrs_fit::sh::wgsl)
+    // up to 25 x 25: sizes beyond the registry's examples (kv != kl, kl not a multiple of 4,
+    // degree 0), with one light (the direct path) and with two (the cached light
+    // coefficients), against the CPU reference and against the generic loop shader; and a size
+    // above the limit (9 x 36) still forced to the variant, as a user could not.
+    let gpu = Gpu::shared().expect("a wgpu adapter");
+    let btf = material();
+    let (_, mesh, cam) = scenes().swap_remove(1);
+    let two = lights();
+    let one = vec![two[0]];
+    for (kv, kl) in [(9, 16), (25, 9), (1, 4), (9, 36)] {
+        let opts = ShOptions { view_coeffs: kv, light_coeffs: kl, ..Default::default() };
+        let sh = fit_sh(&btf.as_ref(), &opts, &Monitor::new()).unwrap();
+        let variant = btfrs_fit::sh::wgsl::shader_for(kv, kl);
+        let drawn = btfrs_fit::gpu::GpuModel::shader(&sh);
+        assert_eq!(drawn == variant, kv <= 25 && kl <= 25, "{kv} x {kl}: the variant where it pays");
+        assert!(variant.source.contains(&format!("y: array<f32, {kv}>")));
+        let (special, generic) = (WithShader(&sh, variant.source), WithShader(&sh, btfrs_fit::sh::wgsl::GENERIC));
+        let (up, up_generic) = (gpu::upload(&gpu, &special).unwrap(), gpu::upload(&gpu, &generic).unwrap());
+        for lights in [&one, &two] {
+            let view = plain_view(&mesh, &cam, lights, (96, 80), [3.0, 2.0]);
+            let (g, _) = gpu::render(&gpu, &up, &view).unwrap();
+            let (gg, _) = gpu::render(&gpu, &up_generic, &view).unwrap();
+            let c = render_cpu(&sh, &view).unwrap();
+            assert!(c.iter().filter(|&&x| x > 0.0).count() > 96 * 80 / 10);
+            let (p, pg) = (psnr(&g, &c), psnr(&g, &gg));
+            eprintln!("SH {kv}x{kl}, {} light(s): {p:.1} dB vs CPU, {pg:.1} dB vs the generic shader", lights.len());
+            assert!(p >= 40.0, "SH {kv}x{kl}, {} light(s): GPU vs CPU PSNR {p:.1} dB < 40", lights.len());
+            assert!(pg >= 60.0, "SH {kv}x{kl}, {} light(s): variant vs generic {pg:.1} dB < 60", lights.len());
+        }
+    }
 }
 
 #[test]

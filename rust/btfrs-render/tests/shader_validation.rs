@@ -90,3 +90,18 @@ fn globals_match_their_rust_mirror() {
     assert_eq!(*span as usize, size);
     assert_eq!(size % 16, 0, "a uniform block's size is a multiple of 16");
 }
+
+#[test]
+fn every_double_sh_size_validates() {
+    // The SH renderer draws with straight-line code generated per (kv, kl): every size the fit
+    // accepts (degree 0 to 7 on each side, kl not a multiple of 4 included) must validate.
+    let sizes = [1, 4, 9, 16, 25, 36, 49, 64];
+    for kv in sizes {
+        for kl in sizes {
+            let s = btfrs_fit::sh::wgsl::shader_for(kv, kl);
+            if let Err(e) = parse(&shader_source(s, true)) {
+                panic!("sh.wgsl for {kv} x {kl} does not validate:\n{e}");
+            }
+        }
+    }
+}
