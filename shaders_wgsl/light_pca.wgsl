@@ -24,7 +24,15 @@ fn lp_coeff(texel: u32, p: u32) -> f32 {
     return load(mp.scale + kt + p) + load(mp.scale + p) * f32(q);
 }
 
-// The value of slot `v` at texel `texel` for the light at square point `st`.
+// The bilinear blend of the light's four grid nodes, `w` = (w00, w10, w01, w11), of table
+// column `o` (rows `row0` and `row1` of the node grid, node stride `r`).
+fn lp_tap(row0: u32, row1: u32, r: u32, o: u32, w: vec4<f32>) -> f32 {
+    return w.x * load(row0 + o) + w.y * load(row0 + r + o) + w.z * load(row1 + o) + w.w * load(row1 + r + o);
+}
+
+// The value of slot `v` at texel `texel` for the light at square point `st`. Channels are
+// written as whole vectors, never `acc[ch]` in a loop: lavapipe keeps a dynamically indexed
+// vector variable in memory and scalarises every access to it.
 fn lp_slot(texel: u32, v: u32, st: vec2<f32>) -> vec3<f32> {
     let n = mp.resolution;
     let d = f32(n - 1u);
@@ -34,43 +42,29 @@ fn lp_slot(texel: u32, v: u32, st: vec2<f32>) -> vec3<f32> {
     let r = mp.stride;
     let row0 = mp.table + (v * n * n + i.y * n + i.x) * r;
     let row1 = row0 + n * r;
-    let w00 = (1.0 - f.x) * (1.0 - f.y);
-    let w10 = f.x * (1.0 - f.y);
-    let w01 = (1.0 - f.x) * f.y;
-    let w11 = f.x * f.y;
-    var acc = vec3<f32>(0.0);
-    for (var c = 0u; c < 3u; c++) {
-        acc[c] = w00 * load(row0 + c) + w10 * load(row0 + r + c) + w01 * load(row1 + c) + w11 * load(row1 + r + c);
-    }
+    let w = vec4<f32>((1.0 - f.x) * (1.0 - f.y), f.x * (1.0 - f.y), (1.0 - f.x) * f.y, f.x * f.y);
+    var acc = vec3<f32>(lp_tap(row0, row1, r, 0u, w), lp_tap(row0, row1, r, 1u, w), lp_tap(row0, row1, r, 2u, w));
     let k = mp.k_main + mp.k_chroma;
     let p0 = v * k;
     if (mp.colour == 0u) {
         for (var p = 0u; p < k; p++) {
             let c = lp_coeff(texel, p0 + p);
             let o = 3u + 3u * p;
-            for (var ch = 0u; ch < 3u; ch++) {
-                let b = w00 * load(row0 + o + ch) + w10 * load(row0 + r + o + ch) + w01 * load(row1 + o + ch)
-                    + w11 * load(row1 + r + o + ch);
-                acc[ch] += c * b;
-            }
+            acc += c * vec3<f32>(lp_tap(row0, row1, r, o, w), lp_tap(row0, row1, r, o + 1u, w), lp_tap(row0, row1, r, o + 2u, w));
         }
         return acc;
     }
+    var luma = acc.x;
     for (var p = 0u; p < mp.k_main; p++) {
-        let c = lp_coeff(texel, p0 + p);
-        let o = 3u + p;
-        acc.x += c * (w00 * load(row0 + o) + w10 * load(row0 + r + o) + w01 * load(row1 + o) + w11 * load(row1 + r + o));
+        luma += lp_coeff(texel, p0 + p) * lp_tap(row0, row1, r, 3u + p, w);
     }
+    var chroma = acc.yz;
     for (var p = 0u; p < mp.k_chroma; p++) {
         let c = lp_coeff(texel, p0 + mp.k_main + p);
         let o = 3u + mp.k_main + 2u * p;
-        for (var ch = 0u; ch < 2u; ch++) {
-            let b = w00 * load(row0 + o + ch) + w10 * load(row0 + r + o + ch) + w01 * load(row1 + o + ch)
-                + w11 * load(row1 + r + o + ch);
-            acc[1u + ch] += c * b;
-        }
+        chroma += c * vec2<f32>(lp_tap(row0, row1, r, o, w), lp_tap(row0, row1, r, o + 1u, w));
     }
-    return vec3<f32>(acc.x + acc.z, acc.x - acc.y - acc.z, acc.x + acc.y);
+    return vec3<f32>(luma + chroma.y, luma - chroma.x - chroma.y, luma + chroma.x);
 }
 
 fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
