@@ -50,7 +50,8 @@ fi
 # Mitsuba 3 for the ground-truth tests (btfrs.groundtruth path traces a heightfield). Pinned:
 # Mitsuba 3.9 / Dr.Jit 1.5 emit llvm.minimum, which the LLVM 15 of Debian 12 (mesa's, also the
 # one lavapipe uses) cannot compile for x86 ("Cannot select: fminimum"); 3.5.2 / 0.4.6 work.
-if ! .venv/bin/python -c "import mitsuba, drjit; assert mitsuba.__version__ == '3.5.2'" >/dev/null 2>&1; then
+# (The version from the package metadata: mitsuba refuses attribute access before set_variant.)
+if ! .venv/bin/python -c "import importlib.metadata as m, drjit; assert m.version('mitsuba') == '3.5.2'" >/dev/null 2>&1; then
   log "installing Mitsuba 3 (ground-truth tests)"
   .venv/bin/python -m pip install -q --disable-pip-version-check "mitsuba==3.5.2" "drjit==0.4.6"
 fi
