@@ -3,7 +3,7 @@
 //! 64 importance-sampled lights (the `--env-only` bench's scenes), knit 32², for PTM-RGB (the
 //! reference of the 3x target), double SH 25x25 with its generated straight-line variant and
 //! with the generic loop shader, and RBF / bilinear. `ALT_LIGHT_PCA=path.wgsl` adds rows for
-//! RBF and bilinear drawn with another `light_pca.wgsl` (e.g. `git show HEAD~1:shaders_wgsl/light_pca.wgsl`).
+//! RBF and bilinear drawn with another `light_pca.wgsl` (e.g. the one before 7ed5146: `git show c597a3c:shaders_wgsl/light_pca.wgsl`).
 //! `cargo run --release -p btfrs-render --example shader_cost`
 use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::Monitor;

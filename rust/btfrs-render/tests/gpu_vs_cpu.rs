@@ -228,6 +228,37 @@ fn double_sh_variants_match_the_cpu_reference_and_the_generic_shader() {
 }
 
 #[test]
+fn light_bases_in_ycc_match_the_cpu_reference() {
+    // The registry's RBF and bilinear examples are RGB; the shader's other branch (a PCA of the
+    // luminance and one of the chroma pair, recombined per channel) is checked here on every
+    // scene and lookup, and a shader that swaps the two chroma differences must fail.
+    let gpu = Gpu::shared().expect("a wgpu adapter");
+    let btf = material();
+    let right = "luma + chroma.y, luma - chroma.x - chroma.y, luma + chroma.x";
+    let source = <btfrs_fit::Rbf as GpuLayout>::SHADER.source;
+    assert_eq!(source.matches(right).count(), 1, "light_pca.wgsl recombines YCC in one place");
+    let swapped: &'static str = Box::leak(
+        source.replace(right, "luma + chroma.x, luma - chroma.x - chroma.y, luma + chroma.y").into_boxed_str(),
+    );
+    for kind in ["rbf", "bilinear"] {
+        let e = btfrs_fit::registry::lookup(kind).unwrap();
+        let options = r#"{"components": 6, "chroma_components": 3, "colour": "ycc"}"#;
+        let m = (e.fit)(&btf.as_ref(), options, &Monitor::new()).unwrap();
+        let r = m.renderer(e.renderers[0], 2048).unwrap();
+        let p = check(&gpu, kind, r.as_ref());
+        eprintln!("{kind} ycc: worst PSNR {p:.1} dB");
+        let (_, mesh, cam) = scenes().swap_remove(1);
+        let lights = lights();
+        let view = plain_view(&mesh, &cam, &lights, (96, 80), [3.0, 2.0]);
+        let c = render_cpu(r.as_ref(), &view).unwrap();
+        let (g, _) = gpu::render(&gpu, &gpu::upload(&gpu, &WithShader(r.as_ref(), swapped)).unwrap(), &view).unwrap();
+        let bad = psnr(&g, &c);
+        eprintln!("{kind} ycc, chroma swapped: {bad:.1} dB");
+        assert!(bad < 40.0, "{kind}: a shader with Cb and Cr swapped passes the comparison ({bad:.1} dB)");
+    }
+}
+
+#[test]
 fn a_wrong_shader_fails_the_comparison() {
     let gpu = Gpu::shared().expect("a wgpu adapter");
     let btf = material();

@@ -99,8 +99,10 @@ fn every_double_sh_size_validates() {
     for kv in sizes {
         for kl in sizes {
             let s = btfrs_fit::sh::wgsl::shader_for(kv, kl);
-            if let Err(e) = parse(&shader_source(s, true)) {
-                panic!("sh.wgsl for {kv} x {kl} does not validate:\n{e}");
+            for single_chunk in [true, false] {
+                if let Err(e) = parse(&shader_source(s, single_chunk)) {
+                    panic!("sh.wgsl for {kv} x {kl} (single chunk: {single_chunk}) does not validate:\n{e}");
+                }
             }
         }
     }

@@ -51,7 +51,9 @@ pub const MAX_STRAIGHT_LINE: usize = 25;
 /// The shader a `kv x kl` model draws with: its straight-line variant up to
 /// [`MAX_STRAIGHT_LINE`] coefficients on each side, else the generic loops.
 pub fn shader(kv: usize, kl: usize) -> Shader {
-    if kv <= MAX_STRAIGHT_LINE && kl <= MAX_STRAIGHT_LINE {
+    // A size the fit would not make (`Sh`'s fields are public) draws with the generic loops,
+    // which read theirs from the parameters, and fails there as any malformed model would.
+    if valid(kv) && valid(kl) && kv <= MAX_STRAIGHT_LINE && kl <= MAX_STRAIGHT_LINE {
         shader_for(kv, kl)
     } else {
         <super::Sh as crate::gpu::GpuLayout>::SHADER
@@ -61,10 +63,17 @@ pub fn shader(kv: usize, kl: usize) -> Shader {
 /// The shader specialised to `kv x kl` coefficients (perfect squares in 1..=64, as the fit
 /// checks), whatever the size; the same source (and address) for every call with the same sizes.
 pub fn shader_for(kv: usize, kl: usize) -> Shader {
+    assert!(valid(kv) && valid(kl), "double SH sizes are perfect squares in 1..=64, got {kv} x {kl}");
     static CACHE: OnceLock<Mutex<HashMap<(usize, usize), &'static str>>> = OnceLock::new();
     let mut cache = CACHE.get_or_init(Default::default).lock().unwrap_or_else(|e| e.into_inner());
     let source = *cache.entry((kv, kl)).or_insert_with(|| Box::leak(source_for(kv, kl).into_boxed_str()));
     Shader::new::<ShParams>("sh", source)
+}
+
+/// A coefficient count the fit accepts: a perfect square in 1..=64.
+fn valid(n: usize) -> bool {
+    let d = (n as f64).sqrt().round() as usize;
+    (1..=super::MAX_COEFFS).contains(&n) && d * d == n
 }
 
 /// The full WGSL of the `kv x kl` variant (without common.wgsl and the parameter struct).
@@ -252,7 +261,7 @@ mod tests {
     fn large_models_keep_the_generic_loops() {
         assert_eq!(shader(25, 25), shader_for(25, 25));
         assert_eq!(shader(16, 4), shader_for(16, 4));
-        for (kv, kl) in [(36, 25), (25, 36), (64, 64)] {
+        for (kv, kl) in [(36, 25), (25, 36), (64, 64), (0, 9), (9, 0), (10, 9), (9, 24)] {
             assert_eq!(shader(kv, kl).source, GENERIC, "{kv} x {kl}");
         }
     }
