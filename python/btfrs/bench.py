@@ -1075,6 +1075,8 @@ def main(argv=None) -> int:
                    help="only the out-of-core fits: make knit at --size (default 640)^2 x 81 x 81 into PATH "
                         "(32.2 GB at 640) unless it is there, fit PTM and LPCA under --memory-limit (issue 15)")
     p.add_argument("--memory-limit", default="2GB", help="the out-of-core fits' memory_limit (default: 2GB)")
+    p.add_argument("--out-of-core-fits", default="ptm,lpca", metavar="KINDS",
+                   help="the models --out-of-core fits, comma-separated (default: ptm,lpca)")
     p.add_argument("--dask", action="store_true",
                    help="only the Dask fits: PTM and LPCA locally and on a LocalCluster of 1 and 2 workers, "
                         "knit at --size (default 96)^2 x 81 x 81 from zarr (issue 15; needs btfrs[dask])")
@@ -1090,7 +1092,8 @@ def main(argv=None) -> int:
         print(f"\nwrote {a.json}", file=sys.stderr)
         return 0
     if a.out_of_core:
-        res = out_of_core_bench(a.out_of_core, (a.size or [640])[0], a.memory_limit)
+        res = out_of_core_bench(a.out_of_core, (a.size or [640])[0], a.memory_limit,
+                                tuple(k.strip() for k in a.out_of_core_fits.split(",") if k.strip()))
         print(out_of_core_table(res))
         if a.json is None:
             a.json = os.path.join("bench-results", "out_of_core.json")

@@ -119,6 +119,49 @@ pub fn check_finite(name: &str, data: &[f32]) -> Result<()> {
     }
 }
 
+/// The finite-value check done inside a fit's own pass over the texels instead of as a scan
+/// before it (a fit whose [`crate`] user skips [`check_finite`]): each texel's values are tested
+/// as the fit reads them, while they are in cache, so a memory-mapped BTF is read from storage
+/// once, not twice. On a non-finite value the pass stops early and [`TexelScan::finish`] gives
+/// the same error as [`check_finite`] (the first bad value of the whole array).
+#[derive(Debug, Default)]
+pub struct TexelScan {
+    bad: std::sync::atomic::AtomicBool,
+}
+
+impl TexelScan {
+    /// A scan that has seen nothing bad yet.
+    pub fn new() -> TexelScan {
+        TexelScan::default()
+    }
+
+    /// Whether every value of `values` is finite (else it remembers that one was not).
+    #[inline]
+    pub fn check(&self, values: &[f32]) -> bool {
+        // A fold without early exit vectorises; NaN and infinities have every exponent bit set.
+        let bad = values.iter().fold(false, |b, x| b | (x.to_bits() & 0x7f80_0000 == 0x7f80_0000));
+        if bad {
+            self.bad.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+        !bad
+    }
+
+    /// Whether a non-finite value was seen (so the rest of the pass can stop).
+    #[inline]
+    pub fn failed(&self) -> bool {
+        self.bad.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// After the pass: [`check_finite`]'s error for `data` if a non-finite value was seen.
+    pub fn finish(&self, name: &str, data: &[f32]) -> Result<()> {
+        if self.failed() {
+            check_finite(name, data)
+        } else {
+            Ok(())
+        }
+    }
+}
+
 /// An owned BTF (what the material generator and the file loader produce).
 #[derive(Debug, Clone)]
 pub struct Btf {
@@ -166,6 +209,30 @@ mod tests {
         bad[1234] = f32::INFINITY;
         let e = check_finite("data", &bad).unwrap_err().to_string();
         assert!(e.contains("1234"), "{e}");
+    }
+
+    #[test]
+    fn texel_scan_sees_what_check_finite_sees() {
+        // Every kind of non-finite value (NaN of either sign, both infinities) and the largest
+        // finite values, against Rust's is_finite; then the error after a pass is check_finite's.
+        let specials = [f32::NAN, -f32::NAN, f32::INFINITY, f32::NEG_INFINITY, f32::MAX, f32::MIN, 0.0, -0.0, 1e-45];
+        for x in specials {
+            let mut v = vec![1.0f32; 37];
+            v[29] = x;
+            assert_eq!(TexelScan::new().check(&v), x.is_finite(), "{x}");
+        }
+        let mut data = vec![0.5f32; 4 * 100];
+        data[250] = f32::NAN;
+        data[320] = f32::INFINITY;
+        let scan = TexelScan::new();
+        let ok: Vec<bool> = data.chunks(100).map(|t| scan.check(t)).collect();
+        assert_eq!(ok, [true, true, false, false]);
+        assert!(scan.failed());
+        assert_eq!(
+            scan.finish("data", &data).unwrap_err().to_string(),
+            check_finite("data", &data).unwrap_err().to_string()
+        );
+        assert!(TexelScan::new().finish("data", &data).is_ok(), "only what it saw counts");
     }
 
     #[test]

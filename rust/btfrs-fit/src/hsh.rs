@@ -61,6 +61,7 @@ use crate::gpu::{GpuLayout, Shader};
 use crate::lightfit::{check_bits, fit_slots, Coeffs, Degenerate, DegenerateSlot, LightBasis, SlotOptions};
 use crate::model::{Model, ReflectanceModel};
 use crate::planes::Planes;
+use btfrs_core::btf::TexelScan;
 use btfrs_core::{directions, ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
 use rayon::prelude::*;
 use std::borrow::Cow;
@@ -231,12 +232,16 @@ pub fn fit_hsh(btf: &BtfRef<'_>, opts: &HshOptions, monitor: &Monitor) -> Result
     let per = 3 * n2;
     let mut coeffs = vec![0.0f32; h * w * nv * per];
     monitor.start(h as u64);
+    let scan = TexelScan::new();
     coeffs.par_chunks_mut(w * nv * per).enumerate().for_each(|(row, crow)| {
-        if monitor.is_cancelled() {
+        if monitor.is_cancelled() || scan.failed() {
             return;
         }
         for col in 0..w {
             let abrdf = btf.texel(row * w + col);
+            if !scan.check(abrdf) {
+                return;
+            }
             for (v, slot) in slots.iter().enumerate() {
                 slot.fit_rgb(abrdf, &mut crow[(col * nv + v) * per..(col * nv + v + 1) * per]);
             }
@@ -244,6 +249,7 @@ pub fn fit_hsh(btf: &BtfRef<'_>, opts: &HshOptions, monitor: &Monitor) -> Result
         monitor.advance(1);
     });
     monitor.check()?;
+    scan.finish("data", btf.data)?;
     let coeffs =
         if opts.bits == 8 { quantized(coeffs, nv * per, n2)? } else { Coeffs { values: coeffs, planes: None } };
     Ok(Hsh { order: opts.order, height: h, width: w, views: btf.views.to_vec(), coeffs, degenerate_slots })
@@ -423,6 +429,8 @@ impl Model for Hsh {
     const EXAMPLES: &'static [(&'static str, &'static str)] =
         &[("HSH-2", r#"{"order": 2}"#), ("HSH-3", r#"{"order": 3}"#), ("HSH-4", r#"{"order": 4}"#)];
     type Options = HshOptions;
+    // Each texel's values are checked as the per-texel pass reads them (TexelScan).
+    const SCANS_VALUES: bool = true;
     // As the PTM: the slots' pseudo-inverses depend on the lights and the mask only.
     const BLOCKWISE: crate::blockwise::Blockwise =
         crate::blockwise::Blockwise::Texels { overrides: r#"{"bits": 32}"#, counts: &[] };

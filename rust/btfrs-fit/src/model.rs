@@ -81,7 +81,8 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     /// naming the option.
     type Options: DeserializeOwned + Default + std::fmt::Debug;
 
-    /// Fit to the present pairs of `btf` (its values are finite: the caller checked).
+    /// Fit to the present pairs of `btf` (its values are finite: the caller checked, unless
+    /// [`Model::SCANS_VALUES`]).
     ///
     /// Under a memory limit ([`Monitor::memory_limit`]) the fit allocates at most that much
     /// anonymous memory besides the model it returns, reading the values in place (a
@@ -96,6 +97,10 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     fn least_memory(_btf: &BtfRef<'_>, _options: &Self::Options) -> u64 {
         16_000_000
     }
+    /// Whether [`Model::fit`] checks every value of `btf` as it reads it
+    /// ([`btfrs_core::btf::TexelScan`]) and fails as [`btfrs_core::btf::check_finite`] would,
+    /// so its caller need not scan first: a memory-mapped BTF is then read once, not twice.
+    const SCANS_VALUES: bool = false;
     /// How the fit splits over blocks of texels fitted apart (a Dask cluster's chunks,
     /// `btfrs.dask`): see [`crate::blockwise`]. The default is the safe answer for a new model.
     const BLOCKWISE: crate::blockwise::Blockwise =

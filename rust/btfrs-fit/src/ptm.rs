@@ -44,6 +44,7 @@ use crate::gpu::{words, GpuLayout, Shader};
 use crate::lightfit::{check_bits, fit_slots, Coeffs, LightBasis, Slot, SlotOptions};
 use crate::model::{Model, ReflectanceModel};
 use crate::planes::Planes;
+use btfrs_core::btf::TexelScan;
 use btfrs_core::{directions, BtfRef, Error, Monitor, NamedArrays, Result};
 use rayon::prelude::*;
 use std::borrow::Cow;
@@ -160,12 +161,16 @@ pub fn fit_ptm(btf: &BtfRef<'_>, opts: &PtmOptions, monitor: &Monitor) -> Result
     let row_rgb = if opts.kind == PtmKind::Lrgb { w * nv * 3 } else { 0 };
     let mut rgb_rows: Vec<&mut [f32]> =
         if row_rgb > 0 { rgb.chunks_mut(row_rgb).collect() } else { (0..h).map(|_| &mut [][..]).collect() };
+    let scan = TexelScan::new();
     coeffs.par_chunks_mut(row_c).zip(rgb_rows.par_iter_mut()).enumerate().for_each(|(row, (crow, rrow))| {
-        if monitor.is_cancelled() {
+        if monitor.is_cancelled() || scan.failed() {
             return;
         }
         for col in 0..w {
             let abrdf = btf.texel(row * w + col);
+            if !scan.check(abrdf) {
+                return;
+            }
             for (v, slot) in slots.iter().enumerate() {
                 let out = &mut crow[(col * nv + v) * per_coef..(col * nv + v + 1) * per_coef];
                 match opts.kind {
@@ -180,6 +185,7 @@ pub fn fit_ptm(btf: &BtfRef<'_>, opts: &PtmOptions, monitor: &Monitor) -> Result
         monitor.advance(1);
     });
     monitor.check()?;
+    scan.finish("data", btf.data)?;
     let mut ptm = Ptm {
         kind: opts.kind,
         height: h,
@@ -504,6 +510,8 @@ impl Model for Ptm {
     const EXAMPLES: &'static [(&'static str, &'static str)] =
         &[("PTM-LRGB", r#"{"kind": "lrgb"}"#), ("PTM-RGB", r#"{"kind": "rgb"}"#)];
     type Options = PtmOptions;
+    // Each texel's values are checked as the per-texel pass reads them (TexelScan).
+    const SCANS_VALUES: bool = true;
     // The slots' pseudo-inverses depend on the lights and the mask only: texels fit apart.
     const BLOCKWISE: crate::blockwise::Blockwise =
         crate::blockwise::Blockwise::Texels { overrides: r#"{"bits": 32}"#, counts: &[] };

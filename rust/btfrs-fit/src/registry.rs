@@ -26,6 +26,8 @@ pub struct Entry {
     pub shaders: fn() -> Vec<crate::gpu::Shader>,
     /// [`Model::TEXEL_ARRAYS`].
     pub texel_arrays: &'static [&'static str],
+    /// [`Model::SCANS_VALUES`]: the fit checks the values itself, in its own pass.
+    pub scans_values: bool,
     /// [`Model::BLOCKWISE`].
     pub blockwise: crate::blockwise::Blockwise,
     /// Rebuild from the stitched arrays of a blockwise fit and [`Model::finish_blocks`] with
@@ -99,6 +101,7 @@ pub const fn entry<M: Model + std::fmt::Debug>() -> Entry {
         default_options: default_options::<M>,
         shaders: M::shaders,
         texel_arrays: M::TEXEL_ARRAYS,
+        scans_values: M::SCANS_VALUES,
         blockwise: M::BLOCKWISE,
         finish_blocks: finish_blocks_erased::<M>,
     }
@@ -295,6 +298,37 @@ mod tests {
             let y = r.evaluate_image(norm(v), norm(l)).unwrap();
             assert_eq!(x, y, "{}", e.kind);
             assert!(x.iter().all(|p| p.is_finite()) && x.iter().any(|&p| p > 0.0), "{}", e.kind);
+        }
+    }
+
+    #[test]
+    fn models_that_scan_their_values_fail_as_the_scan_would() {
+        // Their caller skips check_finite (rust/btfrs-py/src/models.rs fit_model), so a
+        // non-finite value anywhere, in a pair the mask leaves out too, must fail the fit with
+        // check_finite's own error, wherever it lies (first and last texel, middle of the data).
+        let btf = sample();
+        let mut mask = vec![true; btf.views.len() * btf.lights.len()];
+        mask[5] = false;
+        let scanning: Vec<_> = MODELS.iter().filter(|e| e.scans_values).collect();
+        assert!(scanning.iter().any(|e| e.kind == "ptm") && scanning.iter().any(|e| e.kind == "hsh"));
+        for e in scanning {
+            for (at, x) in [
+                (0, f32::NAN),
+                (btf.data.len() / 2 + 7, f32::INFINITY),
+                (btf.data.len() - 1, f32::NAN),
+                (5 * 3, f32::NAN),
+            ] {
+                let mut data = btf.data.clone();
+                data[at] = x;
+                let mut b = btf.as_ref();
+                b.data = &data;
+                b.mask = Some(&mask);
+                let want = btfrs_core::btf::check_finite("data", &data).unwrap_err().to_string();
+                for (label, options) in e.examples {
+                    let got = (e.fit)(&b, options, &Monitor::new()).unwrap_err().to_string();
+                    assert_eq!(got, want, "{label}, non-finite at {at}");
+                }
+            }
         }
     }
 
