@@ -74,3 +74,21 @@ def test_json_write_is_atomic(tmp_path):
         bench._write_json(str(path), {"a": 2, "b": object()})
     assert json.loads(path.read_text()) == {"a": 1}
     assert os.listdir(tmp_path) == ["bench.json"]
+
+
+def test_frames_mode_times_every_example_and_renderer_against_ptm_rgb():
+    # The 3x-of-PTM check must cover what the registry lists, not a hand-kept subset: every
+    # example of every model, once per renderer, with PTM-RGB's own ratio exactly 1.
+    from btfrs.models import model_kinds
+
+    rows = bench.frames_bench(size=8, repeat=1)
+    want = [(k, label, r) for k, info in model_kinds().items() for label, _ in info["examples"]
+            for r in info["renderers"]]
+    assert [(r["kind"], r["model"], r["method"]) for r in rows] == want
+    assert all(np.isfinite(r["point_ms"]) and r["point_ms"] > 0 for r in rows)
+    ptm = [r for r in rows if r["model"] == "PTM-RGB"]
+    assert len(ptm) == 1 and ptm[0]["vs_ptm"] == 1.0
+    for r in rows:
+        assert r["vs_ptm"] == pytest.approx(r["point_ms"] / ptm[0]["point_ms"])
+    table = bench.frames_table(rows).splitlines()
+    assert len(table) == len(rows) + 1 and "x PTM-RGB" in table[0]

@@ -198,6 +198,46 @@ def env_bench(size: int = 64, repeat: int = 2) -> list:
     return rows
 
 
+def frames_bench(size: int = 32, repeat: int = 2) -> list:
+    """The "every model within 3x of PTM-RGB" check over every example option set of every
+    registered model and each of its renderers (``env_bench`` takes one per model): a 512^2
+    sphere under one point light on the knit at ``size``^2, best of ``repeat`` after a warm-up
+    frame, as a ratio to PTM-RGB's frame in the same run."""
+    from . import rendering
+    from .models import model_kinds
+
+    btf = materials.make("knit", size=size, seed=1)
+    scene = rendering.Scene.sphere()
+    cam = rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
+    light = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
+
+    def best(m, method: str) -> float:
+        kw = dict(size=512, uv_scale=4, method=method)
+        rendering.render(m, scene, cam, light, **kw)
+        t = float("inf")
+        for _ in range(repeat):
+            rendering.render(m, scene, cam, light, **kw)
+            t = min(t, rendering.last_timings().draw_ms)
+        return t
+
+    rows = []
+    for kind, info in model_kinds().items():
+        for label, opts in info["examples"]:
+            m = fit.fit(kind, btf, **opts)
+            for method in info["renderers"]:
+                rows.append(dict(model=label, kind=kind, method=method, point_ms=best(m, method)))
+    ptm = next(r["point_ms"] for r in rows if r["model"] == "PTM-RGB")
+    for r in rows:
+        r["vs_ptm"] = r["point_ms"] / ptm
+    return rows
+
+
+def frames_table(rows: list) -> str:
+    out = [f"{'model':<24} {'renderer':<9} {'512^2 point':>12} {'x PTM-RGB':>10}"]
+    out += [f"{r['model']:<24} {r['method']:<9} {r['point_ms']:>10.1f}ms {r['vs_ptm']:>10.2f}" for r in rows]
+    return "\n".join(out)
+
+
 def env_table(rows: list) -> str:
     out = [f"{'model':<22} {'512^2 point':>12} {'x PTM':>6} {'trilinear':>10} {'640x480 env 64':>15} {'SH method':>10}"]
     for r in rows:
@@ -1068,6 +1108,9 @@ def main(argv=None) -> int:
                    help="only the single-view RTI captures: every light basis against bytes (charts in docs/rti)")
     p.add_argument("--env-only", action="store_true",
                    help="only the per-model frame times: point light, trilinear, environment (issue 14)")
+    p.add_argument("--frames-only", action="store_true",
+                   help="only the one-light frame of every example of every model and renderer, against "
+                        "PTM-RGB's (issue 14's 3x target)")
     p.add_argument("--ground-truth", action="store_true",
                    help="only the path-traced ground truth (Mitsuba 3): a BTF measured from a heightfield, "
                         "rendered on a plane, against the path trace of the heightfield (issue 14)")
@@ -1120,6 +1163,11 @@ def main(argv=None) -> int:
         _write_json(a.json, {"machine": machine(), "ground_truth": res})
         print(f"\nwrote {a.json}", file=sys.stderr)
         return 0
+    if a.frames_only:
+        res = frames_bench(size=(a.size or [32])[0], repeat=max(1, a.repeat))
+        print(f"frame times on {rendering_info()} (knit {(a.size or [32])[0]}^2, uv_scale 4, best of {max(1, a.repeat)}):")
+        print(frames_table(res))
+        return _finish(a, {"machine": machine(), "frames": res})
     if a.env_only:
         res = env_bench(size=(a.size or [64])[0], repeat=max(1, a.repeat))
         print(f"frame times on {rendering_info()} (knit {(a.size or [64])[0]}^2, uv_scale 4, best of {max(1, a.repeat)}):")
