@@ -356,10 +356,10 @@ def test_btf_files_record_finite_data_and_mmap_trusts_it(tmp_path):
     assert np.isnan(mapped.data.reshape(-1)[7]) and np.isfinite(np.delete(mapped.data.reshape(-1), 7)).all()
     with pytest.raises(FormatError, match="not finite"):
         btfrs.Btf.load(p)
-    # The fits scan their input: the NaN surfaces as an error there, not as a NaN model. PTM
-    # and HSH check each texel in their own pass (one read of a mapped file), the others scan
-    # before fitting; the error is the same.
-    for kind in ("ptm", "hsh", "lafortune"):
+    # The fits scan their input: the NaN surfaces as an error there, not as a NaN model. PTM,
+    # HSH, SRF and Lafortune check each texel in their own pass (one read of a mapped file),
+    # the others (SH here) scan before fitting; the error is the same.
+    for kind in ("ptm", "hsh", "srf", "lafortune", "sh"):
         with pytest.raises(btfrs.exceptions.InvalidArgumentError, match=r"^data: value NaN at flat index 7 is not finite"):
             btfrs.fit.fit(kind, mapped)
     del mapped

@@ -61,6 +61,7 @@ pub mod per_view;
 
 use crate::gpu::{words, GpuLayout, Shader};
 use crate::model::{Model, ReflectanceModel};
+use btfrs_core::btf::TexelScan;
 use btfrs_core::{directions, BtfRef, Error, Monitor, NamedArrays, Result};
 use init::Basis;
 use kernels::{Geometry, Layout, Work, MAXM};
@@ -236,6 +237,7 @@ pub fn fit_lafortune(btf: &BtfRef<'_>, opts: &LafortuneOptions, monitor: &Monito
     let mut iters = vec![0u32; nt * nf];
     let mut extrap = vec![false; nt * nf];
     monitor.start(nt as u64);
+    let scan = TexelScan::new();
     params
         .par_chunks_mut(nf * pp)
         .zip(base.par_chunks_mut(3))
@@ -247,10 +249,13 @@ pub fn fit_lafortune(btf: &BtfRef<'_>, opts: &LafortuneOptions, monitor: &Monito
         .for_each_init(
             || Work::new(ctx.geo.npad(), opts.lobes),
             |work, (t, (((((p, rgb), st), e), it), ex))| {
-                if monitor.is_cancelled() {
+                if monitor.is_cancelled() || scan.failed() {
                     return;
                 }
                 let texel = btf.texel(t);
+                if !scan.check(texel) {
+                    return;
+                }
                 match opts.kind {
                     LafortuneKind::Lum => {
                         ctx.gather(texel, None, &mut work.y);
@@ -272,6 +277,7 @@ pub fn fit_lafortune(btf: &BtfRef<'_>, opts: &LafortuneOptions, monitor: &Monito
             },
         );
     monitor.check()?;
+    scan.finish("data", btf.data)?;
 
     let fits = nt * nf;
     let count = |s: u8| status.iter().filter(|&&x| x == s).count();
@@ -715,6 +721,8 @@ impl Model for Lafortune {
         ("Lafortune-RGB 2", r#"{"kind": "rgb", "lobes": 2}"#),
     ];
     type Options = LafortuneOptions;
+    // Each texel's values are checked as the per-texel pass reads them (TexelScan).
+    const SCANS_VALUES: bool = true;
 
     // One Levenberg-Marquardt fit per texel (per texel and view slot), nothing shared.
     const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Texels {

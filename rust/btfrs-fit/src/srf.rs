@@ -23,6 +23,7 @@
 
 use crate::gpu::{words, GpuLayout, Shader};
 use crate::model::{Model, NoOptions, ReflectanceModel};
+use btfrs_core::btf::TexelScan;
 use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
 use rayon::prelude::*;
 use std::borrow::Cow;
@@ -317,12 +318,18 @@ pub fn fit_srf(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<(Srf, SrfReport)> 
 pub fn mean_sums(btf: &BtfRef<'_>) -> Result<Vec<[f64; 3]>> {
     let geo = PairGeometry::of(btf)?;
     let (pairs, nl) = (&geo.pairs, btf.lights.len());
-    Ok((0..btf.texels())
+    // This pass reads every texel first, so it checks the values for the whole fit (the
+    // residual's pass then reads only what was checked).
+    let scan = TexelScan::new();
+    let sums = (0..btf.texels())
         .into_par_iter()
         .fold(
             || vec![[0.0f64; 3]; pairs.len()],
             |mut acc, t| {
                 let x = btf.texel(t);
+                if scan.failed() || !scan.check(x) {
+                    return acc;
+                }
                 for (a, &(v, l)) in acc.iter_mut().zip(pairs) {
                     let o = (v * nl + l) * 3;
                     for c in 0..3 {
@@ -342,7 +349,9 @@ pub fn mean_sums(btf: &BtfRef<'_>) -> Result<Vec<[f64; 3]>> {
                 }
                 a
             },
-        ))
+        );
+    scan.finish("data", btf.data)?;
+    Ok(sums)
 }
 
 /// Stage 2: the Phong lobe fitted to the mean BRDF, `sums` (of [`mean_sums`], summed over every
@@ -542,6 +551,8 @@ impl Model for Srf {
     const DOC: &'static str = "Phong + spatially-varying residual function (paper 003, sections 4 and 5)";
     const EXAMPLES: &'static [(&'static str, &'static str)] = &[("Phong+SRF", "{}")];
     type Options = NoOptions;
+    // The mean BRDF's pass (mean_sums) checks every texel's values (TexelScan).
+    const SCANS_VALUES: bool = true;
     // One Phong for the material's mean BRDF: a sum over texels before the per-texel residual.
     const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Staged;
 

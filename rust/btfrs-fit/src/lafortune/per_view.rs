@@ -43,6 +43,7 @@ use super::{
 use crate::gpu::{words, GpuLayout, Shader};
 use crate::model::{Model, ReflectanceModel};
 use btfrs_core::arrays::check_finite;
+use btfrs_core::btf::TexelScan;
 use btfrs_core::{directions, BtfRef, Error, Monitor, NamedArrays, Result};
 use rayon::prelude::*;
 use std::borrow::Cow;
@@ -206,6 +207,7 @@ pub fn fit_lafortune_view(btf: &BtfRef<'_>, opts: &LafortuneViewOptions, monitor
     let mut iters = vec![0u32; nt * nv * nf];
     let mut extrap = vec![false; nt * nv * nf];
     monitor.start(nt as u64);
+    let scan = TexelScan::new();
     params
         .par_chunks_mut(nv * nf * pp)
         .zip(base.par_chunks_mut(nv * 3))
@@ -217,10 +219,13 @@ pub fn fit_lafortune_view(btf: &BtfRef<'_>, opts: &LafortuneViewOptions, monitor
         .for_each_init(
             || Work::new(0, opts.lobes),
             |work, (t, (((((p, rgb), st), e), it), ex))| {
-                if monitor.is_cancelled() {
+                if monitor.is_cancelled() || scan.failed() {
                     return;
                 }
                 let texel = btf.texel(t);
+                if !scan.check(texel) {
+                    return;
+                }
                 for (v, chain) in ctxs.iter().enumerate() {
                     let Some(chain) = chain else { continue };
                     let geo = &chain[0].geo;
@@ -261,6 +266,7 @@ pub fn fit_lafortune_view(btf: &BtfRef<'_>, opts: &LafortuneViewOptions, monitor
             },
         );
     monitor.check()?;
+    scan.finish("data", btf.data)?;
 
     // Counts over the real fits only (a borrowed slot repeats its source's).
     let (mut counts, mut total_iters, mut total_sse, mut fits) = ([0usize; 3], 0u64, 0.0f64, 0usize);
@@ -623,6 +629,8 @@ impl Model for LafortuneView {
         ("Lafortune-view-RGB 1", r#"{"kind": "rgb", "lobes": 1}"#),
     ];
     type Options = LafortuneViewOptions;
+    // Each texel's values are checked as the per-texel pass reads them (TexelScan).
+    const SCANS_VALUES: bool = true;
 
     // One Levenberg-Marquardt fit per texel (per texel and view slot), nothing shared.
     const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Texels {
