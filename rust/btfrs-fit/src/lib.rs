@@ -12,9 +12,6 @@
 //! * [`sh`]: double spherical harmonics fitted by constrained least squares, 8-bit quantized
 //!   (paper 002, section 3.1 and appendix).
 //! * [`lpca`]: local PCA, clustered Eigen-BRDFs quantized to 8 bits (paper 004, sections 3 and 6).
-//! * [`mod@kmeans`]: k-means++ and Lloyd on column-major points (the clustering of [`lpca`]).
-//! * [`rpca`]: randomized PCA (Halko et al.'s range finder), for [`lpca`] and the synthesis'
-//!   texton analysis ([`principal_coordinates`]).
 //! * [`rbf`] and [`bilinear`]: relight's RTI light bases (Gaussian RBF interpolation, a
 //!   bilinear light grid) per view slot, resampled on a light grid and compressed by PCA into
 //!   8-bit planes ([`light_pca`]).
@@ -23,15 +20,13 @@
 //!   (view, light), error against a BTF (parallel, f64 accumulation), named arrays, bytes.
 //! * [`gpu`]: the GPU half of the contract: shader, parameter struct ([`gpu_params!`]), store.
 //! * [`registry`]: the list of models every consumer iterates over.
+//! * the general numerics (dense products, CLS, k-means, randomized PCA) are in `btfrs-numerics`.
 //! * [`blockwise`]: how each fit splits over texel blocks fitted apart (`btfrs.dask`).
 
 pub mod bilinear;
 pub mod blockwise;
-mod cls;
-mod dense;
 pub mod gpu;
 pub mod hsh;
-pub mod kmeans;
 pub mod lafortune;
 pub mod light_pca;
 pub mod lightfit;
@@ -41,14 +36,12 @@ pub mod planes;
 pub mod ptm;
 pub mod rbf;
 pub mod registry;
-pub mod rpca;
 pub mod sh;
 pub mod srf;
 
 pub use bilinear::{fit_bilinear, Bilinear, BilinearOptions};
 pub use gpu::{GpuLayout, GpuModel, Renderable};
 pub use hsh::{fit_hsh, hsh_basis, Hsh, HshOptions, HshSlot};
-pub use kmeans::{kmeans, KMeans};
 pub use lafortune::per_view::{fit_lafortune_view, LafortuneView, LafortuneViewOptions, LafortuneViewReport};
 pub use lafortune::{fit_lafortune, FitReport, Lafortune, LafortuneKind, LafortuneOptions};
 pub use light_pca::{Colour, LightPca};
@@ -56,6 +49,5 @@ pub use lpca::{fit_lpca, Lpca, Lpca3d, LpcaOptions, LpcaQuery};
 pub use model::{evaluate_image, model_error, DynModel, Model, RawModel, ReflectanceModel, Shade};
 pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions, PtmPlanes, PtmSlot};
 pub use rbf::{fit_rbf, Rbf, RbfOptions};
-pub use rpca::principal_coordinates;
 pub use sh::{fit_sh, quantize, sh_basis, Sh, ShCoeffs, ShOptions};
 pub use srf::{fit_srf, Phong, Srf, SrfReport};

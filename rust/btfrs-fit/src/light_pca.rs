@@ -25,7 +25,7 @@
 //! The PCA is centred (the mean function is a row of the table). It is exact (the `f64`
 //! eigenvectors of the covariance, or of the Gram matrix when there are fewer texels than values)
 //! when the vectors have at most [`EXACT_PCA_DIM`] values, the randomized subspace iteration of
-//! [`crate::rpca`] above. When the data have fewer directions
+//! [`btfrs_numerics::rpca`] above. When the data have fewer directions
 //! than asked for (fewer texels than components, or a constant slot), the missing components
 //! are zero functions with zero coefficients: every slot has the same number of planes.
 //!
@@ -40,11 +40,11 @@
 //! (per query, not per texel), then each channel is the interpolated mean plus one dot product of
 //! the texel's decoded coefficients with the interpolated component values.
 
-use crate::dense::{gemm, sym_eigen_desc, view, view_t};
 use crate::gpu::{words, Shader};
 use crate::planes::Planes;
 use btfrs_core::arrays::{check_finite, ArrayData};
 use btfrs_core::{directions, ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
+use btfrs_numerics::dense::{gemm, sym_eigen_desc, view, view_t};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 use std::borrow::Cow;
@@ -539,7 +539,7 @@ impl Plan {
                 }
             }
         });
-        gemm(&view(w), &crate::dense::cols(&s, m, 3 * t))
+        gemm(&view(w), &btfrs_numerics::dense::cols(&s, m, 3 * t))
     }
 }
 
@@ -741,7 +741,7 @@ pub(crate) fn put_coeffs(out: &mut [f32], c: &DMatrix<f32>, v: usize, nv: usize,
 /// the coefficients (`k x t`). Exact (`f64` eigenvectors of the covariance) for
 /// `d <= EXACT_PCA_DIM` (from the `t x t` Gram matrix when there are fewer vectors than values,
 /// the same directions at a smaller eigenproblem), randomized subspace iteration
-/// ([`crate::rpca`]) above.
+/// ([`btfrs_numerics::rpca`]) above.
 pub(crate) fn pca(
     data: &[f32],
     d: usize,
@@ -751,9 +751,9 @@ pub(crate) fn pca(
 ) -> Result<(Vec<f32>, DMatrix<f32>, DMatrix<f32>)> {
     let mut basis = DMatrix::<f32>::zeros(d, k);
     if k == 0 {
-        return Ok((crate::dense::column_mean(data, d, None), basis, DMatrix::zeros(0, t)));
+        return Ok((btfrs_numerics::dense::column_mean(data, d, None), basis, DMatrix::zeros(0, t)));
     }
-    let mean = crate::dense::column_mean(data, d, None);
+    let mean = btfrs_numerics::dense::column_mean(data, d, None);
     let mut xc = DMatrix::<f32>::from_column_slice(d, t, data);
     xc.column_iter_mut().for_each(|mut c| c.iter_mut().zip(&mean).for_each(|(x, m)| *x -= m));
     let dirs: DMatrix<f32> = if t < d && t <= EXACT_PCA_DIM {
@@ -781,7 +781,7 @@ pub(crate) fn pca(
         let keep = (0..k.min(d)).take_while(|&j| top > 0.0 && vals[j] > 1e-12 * top).count();
         DMatrix::from_fn(d, keep, |i, j| vecs[(i, j)] as f32)
     } else {
-        crate::rpca::top_directions(&xc, k, seed, 1e-12)
+        btfrs_numerics::rpca::top_directions(&xc, k, seed, 1e-12)
     };
     let keep = dirs.ncols().min(k);
     basis.columns_mut(0, keep).copy_from(&dirs.columns(0, keep));

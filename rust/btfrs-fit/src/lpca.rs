@@ -30,13 +30,13 @@
 //! distance, and the clusters should minimise what LPCA actually stores, the reconstruction error
 //! in the cluster's subspace, not the distance to a centre. So:
 //!
-//! 1. *Reduce*: a randomized PCA of the centred `texels x D` matrix ([`crate::rpca`]: Halko,
+//! 1. *Reduce*: a randomized PCA of the centred `texels x D` matrix ([`btfrs_numerics::rpca`]: Halko,
 //!    Martinsson and Tropp's range finder, Gaussian test matrix from the seed, one power iteration,
 //!    orthonormalisation, small eigenproblem) gives every texel `reduced_dims` principal
 //!    coordinates. The subspace is found on at most 2048 texels drawn with the seed, then all
 //!    texels are projected on it: about two and a half GEMM passes over the data for 64^2 texels,
 //!    which is read in place.
-//! 2. *k-means* ([`mod@crate::kmeans`]: k-means++ seeding, Lloyd) on those coordinates.
+//! 2. *k-means* ([`btfrs_numerics::kmeans`]: k-means++ seeding, Lloyd) on those coordinates.
 //! 3. *Refine* (Kambhatla and Leen's local PCA, the objective of Müller et al.): per cluster PCA
 //!    of `c` components, then every texel moves to the cluster whose affine subspace reconstructs it
 //!    best, `|x - m_k|^2 - |E_k^T (x - m_k)|^2`; repeated `refine_iterations` times. Each half-step
@@ -44,7 +44,7 @@
 //!    beats k-means followed by PCA.
 //! 4. *Final PCA* of every cluster in the full space, on its member ABRDFs: exactly (eigenvectors of
 //!    the member Gram matrix) for clusters of at most 512 texels, by randomized subspace iteration
-//!    ([`crate::rpca`]) for larger ones. The `D x D` covariance is never formed.
+//!    ([`btfrs_numerics::rpca`]) for larger ones. The `D x D` covariance is never formed.
 //! 5. *Quantize and re-solve* as above.
 //!
 //! Clusters that end up empty are dropped (`clusters` is the number used, which is also below the
@@ -56,18 +56,15 @@
 //! interpolating its present pairs ([`directions::present_pair_weights`]). That is linear, so it
 //! equals interpolating the data, and the model answers every (view, light) pair.
 
-use crate::dense::{cols, column_mean, gemm, gram_t, sym_eigen_desc, view, view_t};
 use crate::gpu::{pack_u16, words, GpuLayout, Renderable, Shader};
-use crate::kmeans::{kmeans, members_of};
 use crate::model::{unknown_renderer, Model, ReflectanceModel};
-use crate::rpca::{self, Columns};
 use btfrs_core::{directions, ensure_arg, rng::mix, BtfRef, Error, Monitor, NamedArrays, Result};
+use btfrs_numerics::dense::{cols, column_mean, gemm, gram_t, sym_eigen_desc, view, view_t};
+use btfrs_numerics::kmeans::{kmeans, members_of};
+use btfrs_numerics::rpca::{self, Columns};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 use std::borrow::Cow;
-
-/// Moved to [`crate::rpca`] (the synthesis uses it too); kept here for the old path.
-pub use crate::rpca::principal_coordinates;
 
 pub mod staged;
 
@@ -370,8 +367,8 @@ fn memory_plan(limit: Option<u64>, t: usize, d: usize, opts: &LpcaOptions, compa
     // Besides: k-means's and the refinement's blocks of distances, the copy of the present pairs
     // (held-out pairs), and 8 MiB for the allocator's and the threads' own.
     let present_copy = if compact { t64 * d64 * 4 } else { 0 };
-    let blocks =
-        12 * (crate::kmeans::ASSIGN_BLOCK_VALUES as u64).min(t64 * k) + REFINE_BLOCK.min(t) as u64 * k * (4 * cc + 8);
+    let blocks = 12 * (btfrs_numerics::kmeans::ASSIGN_BLOCK_VALUES as u64).min(t64 * k)
+        + REFINE_BLOCK.min(t) as u64 * k * (4 * cc + 8);
     // The quantized Eigen-BRDFs of every cluster, kept until they are scattered into the basis.
     let quantized = k * cc * d64;
     let fixed = t64 * per_texel + blocks + present_copy + quantized + (8 << 20);

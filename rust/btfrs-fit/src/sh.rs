@@ -55,13 +55,13 @@ mod quadrature;
 mod quantize;
 pub mod wgsl;
 
-use crate::cls::Solver;
-use crate::dense::{gemm, gemm_into, rows, rows_mut, rows_t, sym_eigen_desc, view, view_t};
 use crate::gpu::{GpuLayout, Shader};
 use crate::model::{Model, ReflectanceModel};
 use basis::basis_matrix;
 use btfrs_core::arrays::check_finite;
 use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
+use btfrs_numerics::cls::Solver;
+use btfrs_numerics::dense::{gemm, gemm_into, rows, rows_mut, rows_t, sym_eigen_desc, view, view_t};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 use std::borrow::Cow;

@@ -90,7 +90,8 @@ pub fn btf_features(
                 owned = gather(btf, &pairs);
                 &owned
             };
-            let (coords, r) = btfrs_fit::principal_coordinates(data, 3 * pairs.len(), n, dims, seed, chunk, monitor)?;
+            let (coords, r) =
+                btfrs_numerics::principal_coordinates(data, 3 * pairs.len(), n, dims, seed, chunk, monitor)?;
             if r == 0 {
                 // Every pixel is the same: one coordinate of zeros keeps the shapes valid.
                 return Features::new(h, w, 1, vec![0.0; n]);
@@ -195,7 +196,7 @@ fn representative_images(
             }
         }
     });
-    let km = btfrs_fit::kmeans(&thumbs, d, count, iterations, seed, monitor)?;
+    let km = btfrs_numerics::kmeans(&thumbs, d, count, iterations, seed, monitor)?;
     let mut best = vec![(f64::INFINITY, usize::MAX); km.k()];
     for (i, &c) in km.assign.iter().enumerate() {
         let (x, y) = (&thumbs[i * d..(i + 1) * d], &km.centers[c as usize * d..(c as usize + 1) * d]);
@@ -239,7 +240,7 @@ impl Textons {
             monitor.advance(iterations as u64);
             return Self::from_parts(f.dim, f.data.clone(), (0..n as u16).collect());
         }
-        let km = btfrs_fit::kmeans(&f.data, f.dim, count, iterations, seed, monitor)?;
+        let km = btfrs_numerics::kmeans(&f.data, f.dim, count, iterations, seed, monitor)?;
         Self::from_parts(f.dim, km.centers, km.assign.iter().map(|&a| a as u16).collect())
     }
 

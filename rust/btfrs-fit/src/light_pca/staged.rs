@@ -34,11 +34,11 @@ use super::{
     group_planes, groups, put_coeffs, read_slot, write_slot, Colour, LightPca, PcaOptions, Plan, EXACT_PCA_DIM,
 };
 use crate::bilinear::{self, BilinearOptions};
-use crate::dense::{gemm, sym_eigen_desc, view, view_t};
 use crate::model::parse_options;
 use crate::planes::Planes;
 use crate::rbf::{self, RbfOptions};
 use btfrs_core::{ensure_arg, BtfRef, Error, Result};
+use btfrs_numerics::dense::{gemm, sym_eigen_desc, view, view_t};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 

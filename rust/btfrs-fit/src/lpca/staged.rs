@@ -16,8 +16,8 @@
 //! (`reduced_dims > 0`): clustering the full ABRDFs needs every value on one machine.
 
 use super::{check_options, sub_seed, ClusterFit, LpcaOptions};
-use crate::rpca;
 use btfrs_core::{ensure_arg, Monitor, Result};
+use btfrs_numerics::rpca;
 use nalgebra::DMatrix;
 
 /// Stage 1a: the texels whose ABRDFs [`subspace`] needs (`None`: every texel) for a

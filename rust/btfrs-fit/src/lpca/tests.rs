@@ -1,11 +1,11 @@
 #![allow(clippy::needless_range_loop)] // index loops mirror the formulas being checked
 use super::*;
-use crate::kmeans::kmeans;
 use crate::model::{evaluate_image, model_error};
 use btfrs_core::directions::ubo81;
 use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::rng::Rng;
 use btfrs_core::Btf;
+use btfrs_numerics::kmeans::kmeans;
 use nalgebra::DVector;
 
 /// `n` texels drawn from `k` clusters, each an exact mean + `c` components (model data):
@@ -88,7 +88,7 @@ fn one_cluster_is_a_float64_pca() {
     let mean: Vec<f64> = (0..dd).map(|_| rng.next_f64()).collect();
     let comps: Vec<Vec<f64>> = (0..c).map(|_| (0..dd).map(|_| rng.next_f64() - 0.5).collect()).collect();
     let sig = [1.0, 0.6, 0.35];
-    let gauss = crate::dense::gaussian(dd + c, 600, 8);
+    let gauss = btfrs_numerics::dense::gaussian(dd + c, 600, 8);
     let make = |n: usize| -> Vec<f32> {
         let mut x = vec![0.0f32; n * dd];
         for t in 0..n {
@@ -166,7 +166,7 @@ fn refinement_never_increases_the_lpca_objective() {
     let b = knit(16);
     let (t, d) = (256, 81 * 81 * 3);
     // In the reduced space the fit clusters in, and in the full space (reduced_dims = 0).
-    let (p, r) = crate::rpca::coordinates(&b.data, d, t, 32, 5, None, &Monitor::new()).unwrap();
+    let (p, r) = btfrs_numerics::rpca::coordinates(&b.data, d, t, 32, 5, None, &Monitor::new()).unwrap();
     for (points, dim) in [(&p[..], r), (&b.data[..], d)] {
         let km = kmeans(points, dim, 8, 25, 1, &Monitor::new()).unwrap();
         let (assign, hist) = refine(points, dim, km.assign.clone(), km.k(), 3, 6, 2, &Monitor::new()).unwrap();
@@ -176,7 +176,7 @@ fn refinement_never_increases_the_lpca_objective() {
         }
         assert!(hist.last().unwrap() < &(hist[0] * 0.999), "dim {dim}: the refinement did nothing {hist:?}");
         // The first entry is the plain k-means + PCA objective, checked against a brute-force sum.
-        let members = crate::kmeans::members_of(&km.assign, km.k());
+        let members = btfrs_numerics::kmeans::members_of(&km.assign, km.k());
         let brute: f64 = members
             .iter()
             .map(|m| {

@@ -1,5 +1,5 @@
 //! Constrained least squares (paper 002, appendix): the solver that keeps the double-SH fit of
-//! [`crate::sh`] well posed on hemispherical data.
+//! double SH (`btfrs_fit::sh`) well posed on hemispherical data.
 //!
 //! A least-squares fit `min |Y c - beta|^2` whose samples leave some combinations of the basis
 //! unconstrained (SH over the full sphere fitted to upper-hemisphere data) puts large coefficients
@@ -26,14 +26,14 @@ const LAMBDA_RTOL: f64 = 1e-7;
 
 /// One constrained least-squares solve at a time in the eigenbasis of `A`, with reusable scratch
 /// (one per thread: a fit calls [`Solver::solve`] once per texel and colour channel).
-pub(crate) struct Solver {
+pub struct Solver {
     /// Squared rotated right-hand sides and eigenvalues of the nonzero entries.
     b2: Vec<f64>,
     d: Vec<f64>,
 }
 
 impl Solver {
-    pub(crate) fn new(n: usize) -> Self {
+    pub fn new(n: usize) -> Self {
         Solver { b2: Vec::with_capacity(n), d: Vec::with_capacity(n) }
     }
 
@@ -58,7 +58,7 @@ impl Solver {
     /// Replace `coef` (the rotated `b~`) by `c~ = b~ / (d + lambda)` and return lambda: 0 for
     /// plain least squares or when the least-squares solution meets `||c||^2 <= energy`,
     /// otherwise the smallest lambda that meets it (to 1e-6 relative, on the feasible side).
-    pub(crate) fn solve(&mut self, coef: &mut [f64], d: &[f64], energy: f64, cls: bool) -> f64 {
+    pub fn solve(&mut self, coef: &mut [f64], d: &[f64], energy: f64, cls: bool) -> f64 {
         self.b2.clear();
         self.d.clear();
         for (&b, &dk) in coef.iter().zip(d) {

@@ -1,6 +1,6 @@
 //! k-means clustering (k-means++ seeding, Lloyd iterations) of points stored column-major.
 //!
-//! Used by the local PCA fit ([`crate::lpca`], paper 004 section 3: "k-means on ABRDFs, PCA per
+//! Used by the local PCA fit (`btfrs_fit::lpca`, paper 004 section 3: "k-means on ABRDFs, PCA per
 //! cluster") and meant for texton analysis too. Points are the columns of a `dim x n` `f32`
 //! matrix, i.e. point `i` is `points[i * dim..(i + 1) * dim]` (a BTF's texel-major data is such a
 //! matrix of ABRDFs). Squared distances are computed as `|x|^2 - 2 x.c + |c|^2` with one GEMM per
@@ -199,7 +199,7 @@ fn assign_nearest(
 
 /// Point-centre distances per block of [`assign_nearest`] (2^20: 12 MB of f64 distances and f32
 /// dot products).
-pub(crate) const ASSIGN_BLOCK_VALUES: usize = 1 << 20;
+pub const ASSIGN_BLOCK_VALUES: usize = 1 << 20;
 
 /// Give every empty cluster the point farthest from its centre (see the module doc).
 fn reseed_empty(points: &[f32], dim: usize, k: usize, assign: &mut [u32], dist: &mut [f64], centers: &mut [f32]) {
@@ -246,7 +246,7 @@ fn means(points: &[f32], dim: usize, k: usize, assign: &[u32]) -> Vec<f32> {
 }
 
 /// The members of each of `k` clusters, in increasing point order.
-pub(crate) fn members_of(assign: &[u32], k: usize) -> Vec<Vec<u32>> {
+pub fn members_of(assign: &[u32], k: usize) -> Vec<Vec<u32>> {
     let mut m = vec![Vec::new(); k];
     for (i, &a) in assign.iter().enumerate() {
         m[a as usize].push(i as u32);

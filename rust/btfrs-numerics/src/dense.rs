@@ -16,14 +16,14 @@ use rayon::prelude::*;
 
 /// The scalars of the products: `f32` and `f64`, the two types for which nalgebra hands a
 /// dynamic product to `matrixmultiply` (it dispatches on the type at run time).
-pub(crate) trait Real: nalgebra::RealField + Copy {}
+pub trait Real: nalgebra::RealField + Copy {}
 impl Real for f32 {}
 impl Real for f64 {}
 
 /// A borrowed matrix with arbitrary strides.
-pub(crate) type View<'a, T = f32> = MatrixView<'a, T, Dyn, Dyn, Dyn, Dyn>;
+pub type View<'a, T = f32> = MatrixView<'a, T, Dyn, Dyn, Dyn, Dyn>;
 /// A mutably borrowed matrix with arbitrary strides.
-pub(crate) type ViewMut<'a, T = f32> = MatrixViewMut<'a, T, Dyn, Dyn, Dyn, Dyn>;
+pub type ViewMut<'a, T = f32> = MatrixViewMut<'a, T, Dyn, Dyn, Dyn, Dyn>;
 
 /// The strides of an `nrows x ncols` view: `strides`, except for an empty view, which reads
 /// nothing but which nalgebra's length check rejects unless the stride along its non-empty
@@ -38,40 +38,40 @@ fn empty_strides(nrows: usize, ncols: usize, strides: (usize, usize)) -> (usize,
 }
 
 /// `rows x cols` column-major matrix over `data` (column `j` is `data[j * rows..(j + 1) * rows]`).
-pub(crate) fn cols<T: Real>(data: &[T], rows: usize, cols: usize) -> View<'_, T> {
+pub fn cols<T: Real>(data: &[T], rows: usize, cols: usize) -> View<'_, T> {
     let (rs, cs) = empty_strides(rows, cols, (1, rows));
     View::from_slice_with_strides(data, rows, cols, rs, cs)
 }
 
 /// The transpose of the column-major `rows x cols` matrix over `data`, i.e. a `cols x rows` view.
-pub(crate) fn cols_t<T: Real>(data: &[T], rows: usize, cols: usize) -> View<'_, T> {
+pub fn cols_t<T: Real>(data: &[T], rows: usize, cols: usize) -> View<'_, T> {
     let (rs, cs) = empty_strides(cols, rows, (rows, 1));
     View::from_slice_with_strides(data, cols, rows, rs, cs)
 }
 
 /// `nrows x ncols` row-major matrix over `data` (row `i` is `data[i * ncols..(i + 1) * ncols]`).
-pub(crate) fn rows<T: Real>(data: &[T], nrows: usize, ncols: usize) -> View<'_, T> {
+pub fn rows<T: Real>(data: &[T], nrows: usize, ncols: usize) -> View<'_, T> {
     cols_t(data, ncols, nrows)
 }
 
 /// The transpose of the row-major `nrows x ncols` matrix over `data`, i.e. an `ncols x nrows` view.
-pub(crate) fn rows_t<T: Real>(data: &[T], nrows: usize, ncols: usize) -> View<'_, T> {
+pub fn rows_t<T: Real>(data: &[T], nrows: usize, ncols: usize) -> View<'_, T> {
     cols(data, ncols, nrows)
 }
 
 /// [`rows`], writable (the output of [`gemm_into`]).
-pub(crate) fn rows_mut<T: Real>(data: &mut [T], nrows: usize, ncols: usize) -> ViewMut<'_, T> {
+pub fn rows_mut<T: Real>(data: &mut [T], nrows: usize, ncols: usize) -> ViewMut<'_, T> {
     let (rs, cs) = empty_strides(nrows, ncols, (ncols, 1));
     ViewMut::from_slice_with_strides_mut(data, nrows, ncols, rs, cs)
 }
 
 /// A view of an owned matrix.
-pub(crate) fn view<T: Real>(m: &DMatrix<T>) -> View<'_, T> {
+pub fn view<T: Real>(m: &DMatrix<T>) -> View<'_, T> {
     cols(m.as_slice(), m.nrows(), m.ncols())
 }
 
 /// A transposed view of an owned matrix.
-pub(crate) fn view_t<T: Real>(m: &DMatrix<T>) -> View<'_, T> {
+pub fn view_t<T: Real>(m: &DMatrix<T>) -> View<'_, T> {
     cols_t(m.as_slice(), m.nrows(), m.ncols())
 }
 
@@ -99,7 +99,7 @@ fn padded<T: Real>(x: &View<'_, T>, rows: usize, cols: usize) -> Option<DMatrix<
 ///
 /// # Panics
 /// If the shapes do not agree (like nalgebra's products).
-pub(crate) fn gemm_into<T: Real>(a: &View<'_, T>, b: &View<'_, T>, c: &mut ViewMut<'_, T>) {
+pub fn gemm_into<T: Real>(a: &View<'_, T>, b: &View<'_, T>, c: &mut ViewMut<'_, T>) {
     let (m, k) = a.shape();
     let n = b.ncols();
     assert!(k == b.nrows() && c.shape() == (m, n), "gemm_into: {m}x{k} times {:?} into {:?}", b.shape(), c.shape());
@@ -131,7 +131,7 @@ pub(crate) fn gemm_into<T: Real>(a: &View<'_, T>, b: &View<'_, T>, c: &mut ViewM
 /// Each block is one `matrixmultiply` call whose result does not depend on the number of
 /// threads, so the product is deterministic. Operands with a dimension below [`MIN_GEMM_DIM`]
 /// are first copied into zero-padded matrices (see [`gemm_into`]).
-pub(crate) fn gemm<T: Real>(a: &View<'_, T>, b: &View<'_, T>) -> DMatrix<T> {
+pub fn gemm<T: Real>(a: &View<'_, T>, b: &View<'_, T>) -> DMatrix<T> {
     let (m, k) = a.shape();
     let n = b.ncols();
     assert_eq!(k, b.nrows(), "gemm: inner dimensions differ");
@@ -181,7 +181,7 @@ pub(crate) fn gemm<T: Real>(a: &View<'_, T>, b: &View<'_, T>) -> DMatrix<T> {
 
 /// Per-row means of a column-major `rows x n` matrix over the given columns (all when `None`),
 /// accumulated in `f64` in column order (deterministic).
-pub(crate) fn column_mean(data: &[f32], rows: usize, columns: Option<&[u32]>) -> Vec<f32> {
+pub fn column_mean(data: &[f32], rows: usize, columns: Option<&[u32]>) -> Vec<f32> {
     let n = columns.map_or(data.len() / rows.max(1), |c| c.len());
     let mut out = vec![0.0f32; rows];
     const BAND: usize = 2048;
@@ -206,7 +206,7 @@ pub(crate) fn column_mean(data: &[f32], rows: usize, columns: Option<&[u32]>) ->
 }
 
 /// A `rows x cols` matrix of independent standard normal values (Box-Muller on the seeded RNG).
-pub(crate) fn gaussian(rows: usize, cols: usize, seed: u64) -> DMatrix<f32> {
+pub fn gaussian(rows: usize, cols: usize, seed: u64) -> DMatrix<f32> {
     let mut rng = Rng::new(seed);
     let mut m = DMatrix::<f32>::zeros(rows, cols);
     let s = m.as_mut_slice();
@@ -226,7 +226,7 @@ pub(crate) fn gaussian(rows: usize, cols: usize, seed: u64) -> DMatrix<f32> {
 
 /// Eigenpairs of a symmetric `f64` matrix sorted by decreasing eigenvalue: (values, vectors as
 /// the columns of a matrix in the same order).
-pub(crate) fn sym_eigen_desc(m: DMatrix<f64>) -> (Vec<f64>, DMatrix<f64>) {
+pub fn sym_eigen_desc(m: DMatrix<f64>) -> (Vec<f64>, DMatrix<f64>) {
     let n = m.nrows();
     if n == 0 {
         return (Vec::new(), DMatrix::zeros(0, 0));
@@ -244,7 +244,7 @@ pub(crate) fn sym_eigen_desc(m: DMatrix<f64>) -> (Vec<f64>, DMatrix<f64>) {
 /// Only the blocks on and above the diagonal are multiplied (column band `j` against the columns
 /// up to its end), which saves about 40% of the work of a full product for a large Gram matrix;
 /// the lower triangle is mirrored.
-pub(crate) fn gram_t(a: &DMatrix<f32>) -> DMatrix<f64> {
+pub fn gram_t(a: &DMatrix<f32>) -> DMatrix<f64> {
     let n = a.ncols();
     let bands = if n >= 128 { 8 } else { 1 };
     let edges: Vec<(usize, usize)> = (0..bands).map(|b| (b * n / bands, (b + 1) * n / bands)).collect();
@@ -272,7 +272,7 @@ pub(crate) fn gram_t(a: &DMatrix<f32>) -> DMatrix<f64> {
 /// `f32` precision. Directions whose eigenvalue is below `1e-10` of the largest (numerically
 /// absent: `f32` data cannot resolve them) are dropped, so a rank-deficient `y` gives fewer
 /// columns, and an all-zero `y` none.
-pub(crate) fn orthonormalize(y: &DMatrix<f32>) -> DMatrix<f32> {
+pub fn orthonormalize(y: &DMatrix<f32>) -> DMatrix<f32> {
     let mut q = whiten(y, 1e-10);
     if q.ncols() > 0 {
         // The second pass sees eigenvalues near 1; anything far below is a lost direction.

@@ -13,7 +13,7 @@
 //!
 //! Used by:
 //!
-//! * the local PCA fit (paper 004, sections 3 and 6.3; [`crate::lpca`]): step 1, the principal
+//! * the local PCA fit (paper 004, sections 3 and 6.3; `btfrs_fit::lpca`): step 1, the principal
 //!   coordinates the clustering works in (`coordinates`), and the final PCA of large clusters
 //!   (`top_directions`);
 //! * the texture synthesis (paper 000, section 4.1: the textons are compared "by a PCA projection
@@ -25,13 +25,13 @@ use nalgebra::DMatrix;
 use rayon::prelude::*;
 
 /// Extra columns of every randomized range finder.
-pub(crate) const OVERSAMPLE: usize = 10;
+pub const OVERSAMPLE: usize = 10;
 /// Subspace iterations of [`top_directions`].
 const POWER_ITERS: usize = 2;
 /// Points the range finder of [`coordinates`] samples.
 const RANGE_SAMPLE: usize = 2048;
 /// Progress units of [`coordinates`] and [`principal_coordinates`] (one per pass over the data).
-pub(crate) const PROGRESS_UNITS: u64 = 4;
+pub const PROGRESS_UNITS: u64 = 4;
 
 /// `[n, r']` principal coordinates (`r' <= r`, texel-major) of the `n` points of dimension `d`
 /// stored point-major in `data`, by the randomized PCA of the LPCA fit's first step (a random
@@ -68,7 +68,7 @@ pub fn principal_coordinates(
 /// `chunk`: the most texels whose values may be copied at once (`None`: no bound). When the
 /// sample does not fit, it is streamed through [`Gathered`] instead of copied: the same
 /// subspace up to rounding, in bounded memory (an out-of-core fit of a memory-mapped BTF).
-pub(crate) fn coordinates(
+pub fn coordinates(
     data: &[f32],
     d: usize,
     t: usize,
@@ -123,7 +123,7 @@ fn pick_sample(rng: &mut Rng, t: usize) -> Option<Vec<u32>> {
 }
 
 /// The texels (`None`: all `t`) whose ABRDFs [`coordinates`] with `seed` finds its subspace on:
-/// the first stage of the blockwise LPCA fit ([`crate::lpca::staged`]), which gathers them.
+/// the first stage of the blockwise LPCA fit (`btfrs_fit::lpca::staged`), which gathers them.
 pub fn sample_texels(t: usize, seed: u64) -> Option<Vec<u32>> {
     pick_sample(&mut Rng::new(seed), t)
 }
@@ -253,7 +253,7 @@ fn subtract_mu_q(z: &mut DMatrix<f32>, mu: &[f32], q: &DMatrix<f32>) {
 /// [`POWER_ITERS`] iterations and [`OVERSAMPLE`] extra columns) and a Rayleigh-Ritz step on the
 /// subspace found. For matrices too large for an exact eigenproblem in both dimensions; `xc` is
 /// only ever multiplied, so it may be one streamed from a memory-mapped BTF ([`Gathered`]).
-pub(crate) fn top_directions(xc: &impl Columns, c: usize, seed: u64, cut: f64) -> DMatrix<f32> {
+pub fn top_directions(xc: &impl Columns, c: usize, seed: u64, cut: f64) -> DMatrix<f32> {
     let (dim, n) = xc.shape();
     let l = (c + OVERSAMPLE).min(n).min(dim);
     let omega = gaussian(n, l, seed);
@@ -274,7 +274,7 @@ pub(crate) fn top_directions(xc: &impl Columns, c: usize, seed: u64, cut: f64) -
 /// A `d x n` matrix that the randomized PCA only multiplies: held in memory, or gathered chunk
 /// by chunk from a larger one ([`Gathered`]) so that a fit of a memory-mapped BTF never holds
 /// more than one chunk of its values.
-pub(crate) trait Columns: Sync {
+pub trait Columns: Sync {
     /// `(d, n)`.
     fn shape(&self) -> (usize, usize);
     /// `A M` (`d x l`) for an `n x l` matrix `M`.
@@ -297,10 +297,10 @@ impl Columns for DMatrix<f32> {
 
 /// The `d x n` column-major matrix over `data`, borrowed (a sample copied whole, or all the data).
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Dense<'a> {
-    pub(crate) data: &'a [f32],
-    pub(crate) d: usize,
-    pub(crate) n: usize,
+pub struct Dense<'a> {
+    pub data: &'a [f32],
+    pub d: usize,
+    pub n: usize,
 }
 
 impl Columns for Dense<'_> {
@@ -321,12 +321,12 @@ impl Columns for Dense<'_> {
 /// block whatever the number of columns. Every product is the same sum of the same terms as over
 /// the gathered matrix, only blocked.
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Gathered<'a> {
-    pub(crate) data: &'a [f32],
-    pub(crate) d: usize,
-    pub(crate) idx: &'a [u32],
-    pub(crate) centre: Option<&'a [f32]>,
-    pub(crate) chunk: usize,
+pub struct Gathered<'a> {
+    pub data: &'a [f32],
+    pub d: usize,
+    pub idx: &'a [u32],
+    pub centre: Option<&'a [f32]>,
+    pub chunk: usize,
 }
 
 impl Gathered<'_> {
