@@ -393,7 +393,7 @@ def test_load_dispatches_on_the_file_type(tmp_path):
     h = btfrs.fit.hsh(one, order=2)
     h.save_rti(tmp_path / "h.rti")
     back = io.load(tmp_path / "h.rti")
-    assert isinstance(back, btfrs.Hsh) and io.capture_kind(tmp_path / "h.rti") == "rti"
+    assert isinstance(back, btfrs.Hsh) and io.capture_kind(tmp_path / "h.rti") == "model_file"
     np.testing.assert_allclose(back.evaluate([0, 0, 1], RTI_LIGHTS[3]), h.evaluate([0, 0, 1], RTI_LIGHTS[3]), atol=1e-5)
     p = btfrs.fit.ptm(one)
     p.save_ptm(tmp_path / "p.ptm")

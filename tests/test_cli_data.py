@@ -35,7 +35,7 @@ def test_rti_folder_info_fit_export_render(tmp_path, capsys):
     np.testing.assert_allclose(back.evaluate([0, 0, 1], RTI_LIGHTS[1]), got, atol=0.02)
     assert (tmp_path / "lion.exr").stat().st_size > 0
     png = tmp_path / "lion.png"
-    assert main(["render", str(model), "--scene", "plane", "--light", "0.3", "0.2", "0.93", "--size", "64", "64",
+    assert main(["render", str(model), "--scene", "plane", "--light", "0.3", "0.2", "0.93", "--image-size", "64", "64",
                  "-o", str(png), "--backend", "cpu"]) == 0
     img = io.load_image(png)
     assert img.shape == (64, 64, 3) and img.mean() > 0.05
@@ -50,13 +50,13 @@ def test_ubo_archive_fit_and_render_gpu_matches_cpu(tmp_path, capsys):
     assert main(["fit", str(tmp_path / "cloth.zip"), "--model", "lpca", "--set", "clusters=4", "--set",
                  "components=3", "-o", str(model), "--quiet"]) == 0
     for backend in ("cpu", "gpu"):
-        assert main(["render", str(model), "--scene", "sphere", "--size", "48", "48", "-o",
+        assert main(["render", str(model), "--scene", "sphere", "--image-size", "48", "48", "-o",
                      str(tmp_path / f"{backend}.exr"), "--backend", backend]) == 0
     cpu, gpu = io.load_image(tmp_path / "cpu.exr"), io.load_image(tmp_path / "gpu.exr")
     assert cpu.max() > 0
     assert np.abs(cpu - gpu).max() < 0.02 * cpu.max()
     # the raw capture renders too (the measured data interpolated)
-    assert main(["render", str(tmp_path / "cloth.zip"), "-o", str(tmp_path / "raw.png"), "--size", "32", "32",
+    assert main(["render", str(tmp_path / "cloth.zip"), "-o", str(tmp_path / "raw.png"), "--image-size", "32", "32",
                  "--backend", "cpu"]) == 0
 
 
@@ -78,8 +78,13 @@ def test_export_stack_round_trip_and_errors(tmp_path, capsys):
     assert "crop" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("argv", [["info"], ["fit", "x.lp"], ["render", "x"]])
+@pytest.mark.parametrize("argv", [["fit", "x.lp"], ["render", "x"]])
 def test_missing_arguments_are_usage_errors(argv):
     with pytest.raises(SystemExit) as e:
         main(argv)
     assert e.value.code == 2
+
+
+def test_a_command_without_input_names_what_it_takes(capsys):
+    assert main(["info"]) == 2
+    assert "path: expected a capture or btfrs file, or --material NAME" in capsys.readouterr().err

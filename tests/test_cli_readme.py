@@ -24,7 +24,7 @@ def test_demo_writes_images_and_a_summary_with_numbers(tmp_path):
     assert "materials.png" in pngs and len([p for p in pngs if p.startswith("compare_")]) == 3
     img = btfrs.io.load_image(tmp_path / "materials.png")
     assert img.shape[0] == 4 * 24 * 3 and img.std() > 0.05  # four materials, not a blank image
-    back = btfrs.io.load_ptm(tmp_path / "ptm_rgb_top.ptm")
+    back = btfrs.load(tmp_path / "ptm_rgb_top.ptm")
     assert back.height == 24
     # The speed-against-accuracy charts and report, with a row per registered model.
     ev = json.loads((tmp_path / "evaluate" / "report.json").read_text())

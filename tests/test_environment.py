@@ -111,8 +111,8 @@ def test_sh_method_matches_the_cpu_and_the_integral(bumps, sky):
     sh = btfrs.fit.sh(bumps, light_coeffs=16, view_coeffs=16)
     scene = btfrs.Scene.sphere(1.0, 48, 24)
     cam = btfrs.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
-    g = btfrs.render(sh, scene, cam, environment=sky, method="sh", size=(32, 40))
-    c = btfrs.render(sh, scene, cam, environment=sky, method="sh", size=(32, 40), backend="cpu")
+    g = btfrs.render(sh, scene, cam, environment=sky, lighting="sh", size=(32, 40))
+    c = btfrs.render(sh, scene, cam, environment=sky, lighting="sh", size=(32, 40), backend="cpu")
     assert psnr(g, c) >= 40
     ref = btfrs.render(sh, scene, cam, sky.quadrature(), size=(32, 40), backend="cpu")
     assert rel_rms(c, ref) < 0.03
@@ -122,11 +122,13 @@ def test_environment_errors_name_the_argument(bumps, sky):
     ptm = btfrs.fit.ptm(bumps)
     scene, cam = plane_view()
     with pytest.raises(InvalidArgumentError, match="sampled"):
-        btfrs.render(ptm, scene, cam, environment=sky, method="sh")
+        btfrs.render(ptm, scene, cam, environment=sky, lighting="sh")
     with pytest.raises(InvalidArgumentError, match="samples"):
         btfrs.render(ptm, scene, cam, environment=sky, samples=0)
-    with pytest.raises(InvalidArgumentError, match="method"):
-        btfrs.render(ptm, scene, cam, environment=sky, method="fast")
+    with pytest.raises(InvalidArgumentError, match="lighting"):
+        btfrs.render(ptm, scene, cam, environment=sky, lighting="fast")
+    with pytest.raises(InvalidArgumentError, match="lighting"):
+        btfrs.render(ptm, scene, cam, [btfrs.PointLight([0, 0, 2], 1.0)], lighting="sh")
     with pytest.raises(InvalidArgumentError, match="filter"):
         btfrs.render(ptm, scene, cam, btfrs.DirectionalLight([0, 0, 1]), filter="cubic")
     with pytest.raises(InvalidArgumentError, match="lights"):

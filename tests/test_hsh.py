@@ -107,7 +107,7 @@ def test_rti_round_trip(tmp_path, single_view):
     assert len(body) == 8 * 9 + 24 * 24 * 3 * 9
     np.testing.assert_array_equal(np.frombuffer(body[:36], "<f4"), np.float32(scale))
     np.testing.assert_array_equal(np.frombuffer(body[36:72], "<f4"), np.float32(bias))
-    back = btfrs.io.load_rti(p)
+    back = btfrs.load(p)
     assert isinstance(back, btfrs.Hsh) and back.order == 3 and len(back.views) == 1
     np.testing.assert_array_equal(back.views, [[0, 0, 1]])
     np.testing.assert_array_equal(back.coeffs, m.coeffs)  # the planes come back bit for bit
@@ -125,7 +125,7 @@ def test_rti_round_trip(tmp_path, single_view):
 def test_rti_of_a_float_model_and_errors(tmp_path, single_view):
     f = btfrs.fit.hsh(single_view, order=2, bits=32)
     f.save_rti(tmp_path / "f.rti")
-    back = btfrs.io.load_rti(tmp_path / "f.rti")
+    back = btfrs.load(tmp_path / "f.rti")
     step = back.arrays["coeffs_scale"].max()
     assert np.max(np.abs(back.coeffs[:, :, 0] - f.coeffs[:, :, 0])) <= step / 2 + 1e-6
     with pytest.raises(InvalidArgumentError, match="view"):
@@ -133,18 +133,20 @@ def test_rti_of_a_float_model_and_errors(tmp_path, single_view):
     p = tmp_path / "ptm_type.rti"
     p.write_bytes(b"#HSH1.2\n1\n2 2 3\n")
     with pytest.raises(FormatError, match=r"ptm_type\.rti.*RTI type 1"):
-        btfrs.io.load_rti(p)
+        btfrs.load(p)
     p.write_bytes(b"#HSH1.2\n3\n2 2 3\n9 2 1\n" + b"\0" * 10)
     with pytest.raises(FormatError, match="truncated"):
-        btfrs.io.load_rti(p)
+        btfrs.load(p)
     p.write_bytes(b"PTM_1.2\n")
     with pytest.raises(FormatError, match="not an HSH"):
-        btfrs.io.load_rti(p)
+        btfrs.load(p)
     with pytest.raises(FileNotFoundError):
-        btfrs.io.load_rti(tmp_path / "missing.rti")
+        btfrs.load(tmp_path / "missing.rti")
     ptm = btfrs.fit.ptm(single_view)
-    with pytest.raises(InvalidArgumentError, match="model"):
-        btfrs._native.write_rti(str(tmp_path / "y.rti"), ptm._m, 0)
+    with pytest.raises(InvalidArgumentError, match="format: the ptm model cannot be written as 'rti'"):
+        ptm.export(tmp_path / "y.rti")
+    with pytest.raises(InvalidArgumentError, match="format: the ptm model cannot be written as \"rti\""):
+        btfrs._native.export_model(str(tmp_path / "y.rti"), ptm._m, "rti", 0)
 
 
 def test_hand_made_rti_file(tmp_path):
@@ -154,7 +156,7 @@ def test_hand_made_rti_file(tmp_path):
     data = bytes(range(24))  # bottom row = the only row
     p = tmp_path / "hand.rti"
     p.write_bytes(head + struct.pack("<4f", *scale) + struct.pack("<4f", *bias) + data)
-    m = btfrs.io.load_rti(p)
+    m = btfrs.load(p)
     assert m.order == 2 and (m.height, m.width) == (1, 2)
     q = np.arange(24).reshape(1, 2, 3, 4)
     np.testing.assert_allclose(m.coeffs[:, :, 0], np.float32(bias) + np.float32(scale) / 255 * q, atol=1e-6)
@@ -204,7 +206,7 @@ def test_ptm_is_8_bit_and_written_byte_for_byte(tmp_path, single_view):
         assert np.all(np.abs(q.coeffs - f.coeffs) <= step / 2 + 1e-6)
         p = tmp_path / f"{kind}.ptm"
         q.save_ptm(p)
-        back = btfrs.io.load_ptm(p)
+        back = btfrs.load(p)
         assert back.bits == 8 and back.nbytes == q.nbytes
         np.testing.assert_array_equal(back.arrays["coeffs_q"], q.arrays["coeffs_q"])  # the model's own bytes
         np.testing.assert_allclose(back.coeffs, q.coeffs, rtol=1e-6, atol=1e-7)

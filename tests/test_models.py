@@ -276,13 +276,13 @@ def test_every_model_renders_like_its_cpu_reference(bumps):
     lights = [btfrs.PointLight([2, -2, 3], 8.0), btfrs.DirectionalLight([-1, -0.5, 1], 0.4)]
     for name, m in models.items():
         for method in (["9tap", "3d"] if name == "lpca" else [None]):
-            kw = dict(size=(48, 64), uv_scale=2.0, method=method)
+            kw = dict(size=(48, 64), uv_scale=2.0, renderer=method)
             g = btfrs.render(m, scene, cam, lights, **kw)
             c = btfrs.render(m, scene, cam, lights, backend="cpu", **kw)
             assert (c > 0).mean() > 0.2
             assert psnr(g, c) >= 40, (name, method, psnr(g, c))
-    with pytest.raises(InvalidArgumentError, match="method"):
-        btfrs.render(models["sh"], scene, cam, lights, method="3d")
+    with pytest.raises(InvalidArgumentError, match="renderer"):
+        btfrs.render(models["sh"], scene, cam, lights, renderer="3d")
 
 
 def test_lpca_3d_texture_renderer_agrees_with_the_9tap_one():
@@ -294,8 +294,8 @@ def test_lpca_3d_texture_renderer_agrees_with_the_9tap_one():
     scene, cam = btfrs.Scene.sphere(), btfrs.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
     lights = [btfrs.PointLight([2.0, -2.0, 3.0], 8.0)]
     kw = dict(size=160, uv_scale=4, backend="cpu")
-    a = btfrs.render(m, scene, cam, lights, method="9tap", **kw)
-    b = btfrs.render(m, scene, cam, lights, method="3d", **kw)
+    a = btfrs.render(m, scene, cam, lights, renderer="9tap", **kw)
+    b = btfrs.render(m, scene, cam, lights, renderer="3d", **kw)
     assert (a > 0).mean() > 0.2
     assert psnr(a, b) >= 38, psnr(a, b)
 

@@ -22,7 +22,7 @@ def test_round_trip_within_the_8bit_bound(tmp_path, knit, kind):
     scale, bias = ptm.save_ptm(p, view=1)
     head, _ = header_and_body(p)
     assert head[0] == "PTM_1.2" and head[1] == f"PTM_FORMAT_{kind.upper()}" and head[2:4] == ["32", "32"]
-    back = btfrs.io.load_ptm(p)
+    back = btfrs.load(p)
     assert back.variant == kind and back.height == 32 and back.width == 32
     got = back.coeffs[:, :, 0]
     want = ptm.coeffs[:, :, 1]
@@ -61,7 +61,7 @@ def test_rows_are_stored_bottom_to_top(tmp_path, kind):
     if kind == "lrgb":
         red = np.frombuffer(body[3 * 2 * 6 : 3 * 2 * 9], np.uint8).reshape(3, 2, 3)[:, :, 0]
         np.testing.assert_array_equal(red, np.round(255 * a5[::-1] / 0.9))
-    back = btfrs.io.load_ptm(p)
+    back = btfrs.load(p)
     np.testing.assert_allclose(back.coeffs[:, :, 0, ..., 5].reshape(3, 2, -1)[:, :, 0], a5, atol=0.01)
 
 
@@ -74,7 +74,7 @@ def test_reads_a_file_written_by_another_tool(tmp_path):
     rgb = bytes([255, 0, 0, 0, 255, 255])
     p = tmp_path / "other.ptm"
     p.write_bytes(head.encode() + coef + rgb)
-    m = btfrs.io.load_ptm(p)
+    m = btfrs.load(p)
     # Decoded a_k = (byte - bias_k) * scale_k, in byte units; ours are /255.
     np.testing.assert_allclose(m.coeffs[0, 0, 0], np.array([1, 2, 3, 4, 5, 50]) * 2 / 255, rtol=1e-6)
     np.testing.assert_allclose(m.coeffs[0, 1, 0, 5], 100 * 2 / 255, rtol=1e-6)
@@ -85,11 +85,11 @@ def test_reads_a_file_written_by_another_tool(tmp_path):
 
 def test_bad_files(tmp_path):
     with pytest.raises(FileNotFoundError):
-        btfrs.io.load_ptm(tmp_path / "nope.ptm")
+        btfrs.load(tmp_path / "nope.ptm")
     p = tmp_path / "jpeg.ptm"
     p.write_bytes(b"PTM_1.2\nPTM_FORMAT_JPEG_LRGB\n2\n2\n")
     with pytest.raises(FormatError, match="PTM_FORMAT_JPEG_LRGB"):
-        btfrs.io.load_ptm(p)
+        btfrs.load(p)
     p.write_bytes(b"PTM_1.2\nPTM_FORMAT_RGB\n2\n2\n1 1 1 1 1 1\n0 0 0 0 0 0\n" + bytes(10))
     with pytest.raises(FormatError):
-        btfrs.io.load_ptm(p)
+        btfrs.load(p)

@@ -264,7 +264,7 @@ def read_analysis(path) -> None:
 
 
 def read_ptm(path) -> None:
-    btfrs.io.load_ptm(path)
+    btfrs.load(path)
 
 
 def read_image(path) -> None:

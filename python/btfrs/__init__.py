@@ -26,7 +26,8 @@ from .exceptions import (
     InvalidArgumentError,
     OutOfRangeError,
 )
-from .models import ErrorReport, Hsh, Lafortune, LafortuneView, Lpca, Model, Ptm, Sh, Srf, load, model_kinds
+from .models import Bilinear, ErrorReport, Hsh, Lafortune, LafortuneView, Lpca, Model, Ptm, Rbf, Sh, Srf, model_kinds
+from .io import load
 from .evaluation import EvaluationReport, evaluate
 from .environment import Environment
 from .rendering import Camera, DirectionalLight, PointLight, Scene, gpu_info, last_timings, render
@@ -79,6 +80,8 @@ __all__ = [
     "Srf",
     "Sh",
     "Lpca",
+    "Rbf",
+    "Bilinear",
     "ErrorReport",
     "load",
     "render",

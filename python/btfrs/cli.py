@@ -25,12 +25,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     d.add_argument("--seed", type=int, default=1, help="material seed (default: 1)")
     d.add_argument("--quiet", action="store_true", help="no progress bars")
     s = sub.add_parser("synth", help="synthesize a large BTF (or RGB texture) as a coordinate map")
-    src = s.add_mutually_exclusive_group()
-    src.add_argument("--material", default="knit", help="built-in material as the sample (default: knit)")
-    src.add_argument("--texture", help="an RGB image (.png or .exr) as the sample instead")
-    src.add_argument("--btf", help="a .btfrs BTF file as the sample instead")
-    s.add_argument("--size", type=int, default=64, help="material sample texels per side (default: 64)")
-    s.add_argument("--material-seed", type=int, default=1, help="material seed (default: 1)")
+    _sample_args(s, material="knit", size=64, seed=1, texture=True)
     s.add_argument("--analysis", help="a .btfrs analysis file: loaded if it exists, else written after analysing")
     s.add_argument("--textons", type=int, default=1024, help="textons (default: 1024)")
     s.add_argument("--out-size", type=int, nargs=2, default=[512, 512], metavar=("H", "W"),
@@ -42,9 +37,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     s.add_argument("--toroidal", action="store_true", help="a tileable output")
     s.add_argument("--seed", type=int, default=7, help="synthesis seed (default: 7)")
     s.add_argument("--out", default="synth", help="output folder (default: synth)")
-    s.add_argument("--quiet", action="store_true", help="no progress bars")
     e = sub.add_parser("evaluate", help="speed against accuracy of every model on one material: table + charts")
-    _material_args(e, default="weave")
+    _sample_args(e, material="weave", size=32, seed=1)
     e.add_argument("--models", default="all", help="'all' or a comma-separated list of model names (default: all)")
     e.add_argument("--holdout", choices=["pairs", "directions", "both"], default="both",
                    help="held-out protocol: random pairs, whole directions, or both (default: both)")
@@ -54,13 +48,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     e.add_argument("--no-render", action="store_true", help="leave out render ms and scene PSNR")
     e.add_argument("--eval-seed", type=int, default=0, help="seed of the splits and of seeded fits (default: 0)")
     e.add_argument("--out", default="evaluate", help="output folder (default: evaluate)")
-    e.add_argument("--quiet", action="store_true", help="no progress bars")
     c = sub.add_parser("choose", help="the cheapest model that meets a tolerance on a scene's own directions")
-    csrc = c.add_mutually_exclusive_group()
-    csrc.add_argument("--material", default="weave", help="built-in material (default: weave)")
-    csrc.add_argument("--btf", help="a .btfrs BTF file instead")
-    c.add_argument("--size", type=int, default=32, help="material texels per side (default: 32)")
-    c.add_argument("--material-seed", type=int, default=1, help="material seed (default: 1)")
+    _sample_args(c, material="weave", size=32, seed=1)
     c.add_argument("--scene", choices=["plane", "sphere"], default="plane", help="the surface (default: plane)")
     c.add_argument("--camera", type=float, nargs=3, action="append", metavar=("X", "Y", "Z"),
                    help="a camera eye looking at the origin; repeat for a camera path (default: 0 0 3)")
@@ -79,29 +68,18 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                    help="only these candidates: registered model kinds and/or raw (default: all)")
     c.add_argument("--no-render", action="store_true", help="do not time the renders")
     c.add_argument("--seed", type=int, default=0, help="sampling seed (default: 0)")
-    c.add_argument("--quiet", action="store_true", help="no progress bars")
     st = sub.add_parser("stability", help="every model in the regimes where methods fail: error curves, flags, charts")
-    st.add_argument("--material", default="grooves", help="built-in material (default: grooves)")
-    st.add_argument("--btf", help="a .btfrs BTF file instead of a built-in material")
-    st.add_argument("--size", type=int, default=16, help="material texels per side (default: 16)")
-    st.add_argument("--material-seed", type=int, default=0, help="material seed (default: 0)")
+    _sample_args(st, material="grooves", size=16, seed=0)
     st.add_argument("--seed", type=int, default=0, help="seed of the regimes: splits, noise, texels (default: 0)")
     st.add_argument("--models", nargs="+", default=None, help="model kinds (default: one cheap setting of each)")
     st.add_argument("--regimes", nargs="+", default=None, help="regimes (default: all)")
     st.add_argument("--out", default="stability", help="output folder (default: stability)")
-    st.add_argument("--quiet", action="store_true", help="no progress bars")
     t = sub.add_parser("tiles", help="a graph-cut Wang tile set (paper 002): tiles, their picture, a rendered tiling")
-    tsrc = t.add_mutually_exclusive_group()
-    tsrc.add_argument("--material", default="bumps", help="built-in material (default: bumps)")
-    tsrc.add_argument("--btf", help="a .btfrs BTF file instead")
-    tsrc.add_argument("--texture", help="an RGB image (.png or .exr) instead: an RGB tile set")
-    t.add_argument("--size", type=int, default=128, help="material texels per side (default: 128)")
-    t.add_argument("--material-seed", type=int, default=3, help="material seed (default: 3)")
-    t.add_argument("--model", default="sh",
-                   help="the model whose domain the tiles are synthesized in (any registered kind, or raw; default: sh)")
-    t.add_argument("--options", default=None,
-                   help='fit options as JSON (default for sh: {"light_coeffs": 16, "view_coeffs": 16}; '
-                        'lpca: {"clusters": 32, "components": 4})')
+    _sample_args(t, material="bumps", size=128, seed=3, texture=True)
+    t.add_argument("--model", default="sh", choices=[*_kinds(), "raw"], metavar="MODEL",
+                   help="the model whose domain the tiles are synthesized in: " + ", ".join(_kinds())
+                        + " or raw (default: sh, at its quick-sweep setting)")
+    _option_args(t)
     t.add_argument("--tile", type=int, default=64, help="tile side in texels (default: 64)")
     t.add_argument("--edge-height", type=int, default=16, help="edge height h (default: 16)")
     t.add_argument("--colors", type=int, default=2, help="colours per edge direction (default: 2: 16 tiles)")
@@ -109,7 +87,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                    help="the tiling rendered on a cylinder, columns around it (default: 3 10)")
     t.add_argument("--seed", type=int, default=5, help="synthesis and tiling seed (default: 5)")
     t.add_argument("--out", default="tiles", help="output folder (default: tiles)")
-    t.add_argument("--quiet", action="store_true", help="no progress bars")
     _data_commands(sub)
     args = p.parse_args(argv)
 
@@ -134,29 +111,93 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     return 0
 
 
-def _material_args(p: argparse.ArgumentParser, default: str) -> None:
-    """``--material NAME --size N --seed S`` or ``--btf FILE``: the sample a command works on."""
-    src = p.add_mutually_exclusive_group()
-    src.add_argument("--material", default=default, help=f"built-in material (default: {default})")
-    src.add_argument("--btf", help="a .btfrs BTF file instead")
-    p.add_argument("--size", type=int, default=32, help="material texels per side (default: 32)")
-    p.add_argument("--seed", type=int, default=1, help="material seed (default: 1)")
+def _facts() -> dict:
+    """Every registered model's facts (the registry's)."""
+    from .models import model_kinds
+
+    return model_kinds()
+
+
+def _kinds() -> list:
+    """The registered model kinds (the registry's list)."""
+    return list(_facts())
+
+
+def _formats() -> list:
+    """Other tools' model formats: ``(name, extension, doc)``."""
+    from . import _native
+
+    return list(_native.model_formats())
+
+
+def _sample_args(p: argparse.ArgumentParser, material: Optional[str] = None, size: int = 32, seed: int = 1,
+                 texture: bool = False, required: bool = False) -> None:
+    """The input every command takes the same way: a positional path to any capture or btfrs
+    file (what :func:`btfrs.load` opens), or ``--material NAME`` (with ``--size``,
+    ``--material-seed``); ``texture``: or ``--texture IMAGE``, an RGB image."""
+    p.add_argument("path", nargs=None if required else "?",
+                   help="a capture (UBO .zip or folder, UBO2014 .btf, RTI .lp or folder, an image folder with "
+                        "--directions) or a btfrs file (.btfrs, .ptm, .rti)"
+                        + ("" if required or material is None else f"; default: --material {material}"))
+    if not required:
+        p.add_argument("--material", default=None, metavar="NAME",
+                       help=f"a built-in material instead of a file (default: {material})" if material
+                       else "a built-in material instead of a file")
+        p.add_argument("--size", type=int, default=size, help=f"material texels per side (default: {size})")
+        p.add_argument("--material-seed", type=int, default=seed, help=f"material seed (default: {seed})")
+        if texture:
+            p.add_argument("--texture", help="an RGB image (.png or .exr) as the sample instead")
+        p.set_defaults(default_material=material)
+    p.add_argument("--directions", help="direction table (.csv or .json) of an image folder")
+    p.add_argument("--crop", type=int, nargs=4, metavar=("ROW", "COL", "ROWS", "COLS"),
+                   help="keep a rectangle of texels (row 0 at the top)")
+    p.add_argument("--views", help="comma-separated view indices to keep")
+    p.add_argument("--lights", help="comma-separated light indices to keep")
+    p.add_argument("--linear", action="store_true", help="8/16-bit images are linear, not sRGB")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
 def _load_sample(args, progress: bool):
-    """The Btf of :func:`_material_args` and its name."""
+    """The input of :func:`_sample_args`: ``(object, name)`` (a Btf for a material)."""
     import os
 
     from . import materials
+    from .exceptions import InvalidArgumentError
+
+    given = [n for n, v in (("path", args.path), ("--material", getattr(args, "material", None)),
+                            ("--texture", getattr(args, "texture", None))) if v]
+    if len(given) > 1:
+        raise InvalidArgumentError(f"{' and '.join(given)}: give one input, a path or --material"
+                                   + (" or --texture" if hasattr(args, "texture") else ""))
+    if args.path:
+        return _open(args), os.path.basename(os.path.normpath(args.path))
+    if getattr(args, "texture", None):
+        from . import io
+
+        return io.load_image(args.texture), os.path.basename(args.texture)
+    name = args.material or args.default_material
+    if name is None:
+        raise InvalidArgumentError("path: expected a capture or btfrs file, or --material NAME")
+    return materials.make(name, size=args.size, seed=args.material_seed, progress=progress), name
+
+
+def _load_btf(args, progress: bool):
+    """:func:`_load_sample`, which must be measured data (a Btf)."""
     from .btf import Btf
+    from .exceptions import InvalidArgumentError
 
-    if args.btf:
-        return Btf.load(args.btf), os.path.basename(args.btf)
-    return materials.make(args.material, size=args.size, seed=args.seed, progress=progress), args.material
+    obj, name = _load_sample(args, progress)
+    if not isinstance(obj, Btf):
+        raise InvalidArgumentError(f"path: {args.path} holds a {type(obj).__name__}, not measured data (a BTF)")
+    return obj, name
 
 
-#: Fit options of ``btfrs tiles`` when ``--options`` is not given.
-TILE_MODEL_DEFAULTS = {"sh": {"light_coeffs": 16, "view_coeffs": 16}, "lpca": {"clusters": 32, "components": 4}}
+def _option_args(p: argparse.ArgumentParser) -> None:
+    """``--options JSON`` and ``--set NAME=VALUE``: a fit's options, checked against the model's
+    schema before any work."""
+    p.add_argument("--options", default="{}", help='fit options as JSON, e.g. \'{"order": 3}\'')
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="one fit option (VALUE read as JSON, else as text); repeatable")
 
 
 def tiles_command(args) -> None:
@@ -170,28 +211,24 @@ def tiles_command(args) -> None:
     from . import fit as fitting
     from . import io, tiles
     from .btf import Btf
+    from .models import model_kinds
     from .rendering import Camera, PointLight, Scene, render
 
     progress = not args.quiet
+    opts = None if args.model == "raw" else _fit_options(args, args.model)
     os.makedirs(args.out, exist_ok=True)
     written = []
-    if args.texture:
-        sample = io.load_image(args.texture)
-        name, model = os.path.basename(args.texture), None
-        source = sample
+    sample, name = _load_sample(args, progress)
+    if not isinstance(sample, Btf):
+        model, source = None, sample
+    elif args.model == "raw":
+        model, source = sample, sample
     else:
-        btf = Btf.load(args.btf) if args.btf else None
-        if btf is None:
-            from . import materials
-
-            btf = materials.make(args.material, size=args.size, seed=args.material_seed, progress=progress)
-        name = os.path.basename(args.btf) if args.btf else args.material
-        if args.model == "raw":
-            model, source = btf, btf
-        else:
-            opts = json.loads(args.options) if args.options else TILE_MODEL_DEFAULTS.get(args.model, {})
-            model = fitting.fit(args.model, btf, progress=progress, **opts)
-            source = model
+        if not opts:
+            # The model's quick setting: the one the evaluate and stability suites start from.
+            opts = next(dict(o) for _, o, quick, _ in model_kinds()[args.model]["sweep"] if quick)
+        model = fitting.fit(args.model, sample, progress=progress, **opts)
+        source = model
     ts = tiles.wang(source, tile=args.tile, edge_height=args.edge_height, colors=args.colors, seed=args.seed,
                     progress=progress)
     print(ts.report)
@@ -235,7 +272,7 @@ def evaluate_command(args) -> None:
     from .evaluation import evaluate
 
     progress = not args.quiet
-    btf, name = _load_sample(args, progress)
+    btf, name = _load_btf(args, progress)
     models = args.models if args.models == "all" else [m.strip() for m in args.models.split(",") if m.strip()]
     rep = evaluate(btf, models, holdout=args.holdout, fraction=args.fraction, sweep=args.sweep,
                    baselines=False if args.no_baselines else None, render=not args.no_render, seed=args.eval_seed,
@@ -253,17 +290,15 @@ def synth_command(args) -> None:
 
     import numpy as np
 
-    from . import io, materials, synth
+    from . import io, synth
     from .btf import Btf
+    from .exceptions import InvalidArgumentError
 
     progress = not args.quiet
     os.makedirs(args.out, exist_ok=True)
-    if args.texture:
-        sample = io.load_image(args.texture)
-    elif args.btf:
-        sample = Btf.load(args.btf)
-    else:
-        sample = materials.make(args.material, size=args.size, seed=args.material_seed, progress=progress)
+    sample, _ = _load_sample(args, progress)
+    if not isinstance(sample, (Btf, np.ndarray)):
+        raise InvalidArgumentError(f"path: {args.path} holds a {type(sample).__name__}, not a BTF or image")
     if args.analysis and os.path.exists(args.analysis):
         an = synth.Analysis.load(args.analysis)
         print(f"loaded {an}")
@@ -299,15 +334,12 @@ def synth_command(args) -> None:
 
 def choose_command(args) -> None:
     """``btfrs choose``: what a scene needs of a material, and the cheapest model that gives it."""
-    from . import materials
-    from .btf import Btf
     from .choosing import SceneUse, choose
     from .exceptions import InvalidArgumentError
     from .rendering import Camera, DirectionalLight, Scene
 
     progress = not args.quiet
-    btf = Btf.load(args.btf) if args.btf else materials.make(args.material, size=args.size, seed=args.material_seed,
-                                                              progress=progress)
+    btf, _ = _load_btf(args, progress)
     cams = [Camera.look_at(eye, [0.0, 0.0, 0.0], args.fov) for eye in (args.camera or [[0.0, 0.0, 3.0]])]
     lights = [[DirectionalLight(d, 1.0)] for d in (args.light or [[0.3, -0.2, 1.0]])]
     surface = Scene.sphere() if args.scene == "sphere" else Scene.plane()
@@ -329,15 +361,12 @@ def choose_command(args) -> None:
 def stability_command(args) -> None:
     """``btfrs stability``: run every model in every regime, write report.json, report.md and
     one chart per regime, print the table."""
-    from . import materials, stability
-    from .btf import Btf
+    from . import stability
 
     progress = not args.quiet
-    if args.btf:
-        btf, name = Btf.load(args.btf), args.btf
-    else:
-        btf = materials.make(args.material, size=args.size, seed=args.material_seed, progress=progress)
-        name = f"{args.material} {args.size}x{args.size}, seed {args.material_seed}"
+    btf, name = _load_btf(args, progress)
+    if not args.path:
+        name = f"{name} {args.size}x{args.size}, seed {args.material_seed}"
     rep = stability.run(btf, models=args.models or "all", regimes=args.regimes or "all", seed=args.seed,
                         progress=progress, name=name)
     paths = rep.save(args.out)
@@ -347,19 +376,6 @@ def stability_command(args) -> None:
 
 
 # --- a user's own data: info, fit, export, render -------------------------------------------------
-
-def _source_args(p: argparse.ArgumentParser) -> None:
-    """The arguments of :func:`btfrs.io.load`."""
-    p.add_argument("path", help="a capture (UBO .zip/folder, UBO2014 .btf, RTI .lp or folder, image folder "
-                                "with --directions) or a btfrs file (.btfrs, .ptm, .rti)")
-    p.add_argument("--directions", help="direction table (.csv or .json) of an image folder")
-    p.add_argument("--crop", type=int, nargs=4, metavar=("ROW", "COL", "ROWS", "COLS"),
-                   help="keep a rectangle of texels (row 0 at the top)")
-    p.add_argument("--views", help="comma-separated view indices to keep")
-    p.add_argument("--lights", help="comma-separated light indices to keep")
-    p.add_argument("--linear", action="store_true", help="8/16-bit images are linear, not sRGB")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
-
 
 def _indices(name: str, text: Optional[str]):
     if text is None:
@@ -381,39 +397,39 @@ def _open(args):
 
 def _data_commands(sub) -> None:
     i = sub.add_parser("info", help="what a capture or btfrs file holds: sizes, directions, values, what fits")
-    _source_args(i)
+    _sample_args(i)
     f = sub.add_parser("fit", help="fit any model to a capture or BTF file and save it")
-    _source_args(f)
-    f.add_argument("--model", required=True, help="registered model kind (ptm, hsh, rbf, lpca, ...)")
-    f.add_argument("--options", default="{}", help='fit options as JSON, e.g. \'{"order": 3}\'')
-    f.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                   help="one fit option (VALUE read as JSON, else as text); repeatable")
+    _sample_args(f)
+    f.add_argument("--model", required=True, choices=_kinds(), metavar="MODEL",
+                   help="the model: " + ", ".join(_kinds()))
+    _option_args(f)
     f.add_argument("--holdout", type=float, default=0.0,
                    help="share of (view, light) pairs held out to report the prediction error (default: 0)")
     f.add_argument("--seed", type=int, default=0, help="seed of the held-out split (default: 0)")
     f.add_argument("-o", "--out", required=True, help="the model file (.btfrs)")
     x = sub.add_parser("export", help="write a model or BTF for other tools: .ptm, .rti, EXR maps, image stack")
-    x.add_argument("path", help="a .btfrs model or BTF (or anything btfrs.io.load opens)")
-    x.add_argument("--ptm", help="write a PTM_1.2 file (PTM models)")
-    x.add_argument("--rti", help="write an HSH .rti file (HSH models)")
+    _sample_args(x)
+    for name, ext, doc in _formats():
+        able = [k for k, info in _facts().items() if name in info["exports"]]
+        x.add_argument(f"--{name}", metavar=f"FILE.{ext}", help=f"write {doc} ({', '.join(able)} models)")
     x.add_argument("--exr", help="write the per-texel coefficient maps as one multi-channel EXR (models)")
     x.add_argument("--stack", help="write a BTF as an image stack + directions.csv into this folder")
     x.add_argument("--format", choices=["exr", "png"], default="exr", help="image format of --stack (default: exr)")
     x.add_argument("--view", type=int, default=0, help="view slot written to .ptm / .rti (default: 0)")
     r = sub.add_parser("render", help="render a model, BTF or capture on a plane, sphere or cylinder")
-    r.add_argument("path", help="a .btfrs model or BTF, .ptm, .rti, or a capture")
-    r.add_argument("--directions", help="direction table of an image folder")
+    _sample_args(r)
     r.add_argument("--scene", choices=["plane", "sphere", "cylinder"], default="plane")
     r.add_argument("--light", type=float, nargs=3, action="append", metavar=("X", "Y", "Z"),
                    help="a directional light towards (X, Y, Z) in the scene; repeatable (default: 0.3 0.2 0.93)")
     r.add_argument("--camera", type=float, nargs=3, metavar=("X", "Y", "Z"),
                    help="camera position looking at the origin (default: straight above a plane, oblique otherwise)")
     r.add_argument("--fov", type=float, default=40.0, help="vertical field of view, degrees (default: 40)")
-    r.add_argument("--size", type=int, nargs=2, default=[512, 512], metavar=("H", "W"), help="image size (default: 512 512)")
+    r.add_argument("--image-size", type=int, nargs=2, default=[512, 512], metavar=("H", "W"),
+                   help="image height then width (default: 512 512)")
     r.add_argument("--uv-scale", type=float, default=1.0, help="repetitions of the sample (default: 1)")
     r.add_argument("--exposure", type=float, default=1.0, help="PNG exposure (default: 1)")
     r.add_argument("--backend", choices=["gpu", "cpu"], default="gpu", help="wgpu or the CPU reference (default: gpu)")
-    r.add_argument("--method", help="the model's renderer (default: its first)")
+    r.add_argument("--renderer", help="the model's renderer (default: its first)")
     r.add_argument("-o", "--out", required=True, help="the image (.png or .exr)")
 
 
@@ -441,8 +457,8 @@ def info_command(args) -> None:
     from .btf import Btf
     from .models import Model, model_kinds
 
-    obj = _open(args)
-    print(f"{args.path}")
+    obj, name = _load_sample(args, not args.quiet)
+    print(f"{args.path or name}")
     if isinstance(obj, Model):
         print(f"  model {obj.kind}: {obj.height} x {obj.width} texels, {obj.nbytes / 1024:.1f} KiB as stored")
         for name, a in obj.arrays.items():
@@ -465,30 +481,30 @@ def info_command(args) -> None:
     print(f"  values: min {float(data.min()):.4g}, max {float(data.max()):.4g}, mean {float(data.mean()):.4g} "
           f"(linear RGB)")
     fewest = min(per_view)
-    # Per view slot models need enough lights in every slot for their unknowns (the default
-    # options'); the others fit any sampling, with what a single view cannot tell them noted.
-    needs = {"ptm": (6, "biquadratic"), "hsh": (9, "order 3; order 2 needs 4"), "rbf": (3, "18 planes"),
-             "bilinear": (4, "8 x 8 grid"), "lafortune_view": (4, "1 lobe")}
+    # Each model's registry entry says what sampling it needs: per view slot models need enough
+    # lights in every slot for their unknowns (the default options'); the others fit any
+    # sampling, with what a single view cannot tell them noted.
     one = b.n_views == 1
-    notes = {"lpca": "any sampling (per-texel ABRDFs, clustered)",
-             "sh": "view_coeffs=1 for a single view" if one else "over all pairs",
-             "lafortune": "one view: the lobes see no view dependence" if one else "over all pairs",
-             "srf": "one view: the lobes see no view dependence" if one else "over all pairs"}
     print("  what fits (default options):")
-    for kind in model_kinds():
-        if kind in needs:
-            n, what = needs[kind]
+    for kind, info in model_kinds().items():
+        s = info["sampling"]
+        if s["per_view"]:
+            n = s["min_lights"]
             ok = fewest >= n
-            note = f"per view slot, needs >= {n} lights per view ({what})" + ("" if ok else f": only {fewest}")
+            note = f"per view slot, needs >= {n} lights per view ({s['why']})" + ("" if ok else f": only {fewest}")
         else:
-            ok, note = True, notes.get(kind, "over all pairs")
+            ok, note = True, s["one_view"] if one else s["note"]
         print(f"    {'yes' if ok else 'no ':3s} {kind:15s} {note}")
 
 
-def _fit_options(args) -> dict:
+def _fit_options(args, kind: str) -> dict:
+    """The options of ``--options`` and ``--set`` for a ``kind`` fit, each ``--set`` value read
+    as its schema's type says, all checked against the model's schema before any work."""
     import json
 
+    from . import _native
     from .exceptions import InvalidArgumentError
+    from .models import model_kinds
 
     try:
         opts = json.loads(args.options)
@@ -496,14 +512,30 @@ def _fit_options(args) -> dict:
         raise InvalidArgumentError(f"--options: not valid JSON ({e})") from None
     if not isinstance(opts, dict):
         raise InvalidArgumentError("--options: expected a JSON object")
+    schema = {o["name"]: o for o in model_kinds()[kind]["options"]}
     for item in args.set:
         if "=" not in item:
             raise InvalidArgumentError(f"--set: expected NAME=VALUE, got {item!r}")
-        k, v = item.split("=", 1)
-        try:
-            opts[k.strip()] = json.loads(v)
-        except json.JSONDecodeError:
-            opts[k.strip()] = v
+        k, v = (t.strip() for t in item.split("=", 1))
+        o = schema.get(k)
+        if o is None:
+            names = ", ".join(schema) or "none: this model takes no options"
+            raise InvalidArgumentError(f"--set {k}: unknown option of the {kind} model; expected one of {names}")
+        if o["type"] == "choice":
+            opts[k] = v
+        elif v.lower() in ("null", "none") and o["type"] == "optional_int":
+            opts[k] = None
+        elif o["type"] == "bool" and v.lower() in ("true", "false", "1", "0", "yes", "no"):
+            opts[k] = v.lower() in ("true", "1", "yes")
+        else:
+            try:
+                opts[k] = int(v) if o["type"] in ("int", "optional_int", "int_choice") else float(v)
+            except ValueError:
+                raise InvalidArgumentError(f"--set {k}: expected {o['allowed']}, got {v!r}") from None
+    bad = [k for k, x in opts.items() if isinstance(x, float) and x != x or x in (float("inf"), float("-inf"))]
+    if bad:
+        raise InvalidArgumentError(f"--set {bad[0]}: expected {schema[bad[0]]['allowed']}, got {opts[bad[0]]}")
+    _native.check_options(kind, json.dumps(opts))
     return opts
 
 
@@ -511,14 +543,19 @@ def fit_command(args) -> None:
     """``btfrs fit``: load, fit, save; print time, size and errors."""
     import time
 
+    import os
+
     from . import fit as fit_mod
-    from .btf import Btf
     from .exceptions import InvalidArgumentError
 
-    btf = _open(args)
-    if not isinstance(btf, Btf):
-        raise InvalidArgumentError(f"path: {args.path} holds a {type(btf).__name__}, not measured data to fit")
-    opts = _fit_options(args)
+    opts = _fit_options(args, args.model)
+    out = os.path.abspath(args.out)
+    if not os.path.isdir(os.path.dirname(out)):
+        raise InvalidArgumentError(f"-o: {args.out}: its folder does not exist")
+    if args.path and (os.path.abspath(args.path) == out
+                      or (os.path.exists(out) and os.path.exists(args.path) and os.path.samefile(args.path, out))):
+        raise InvalidArgumentError(f"-o: {args.out} is the input; write the model to another file")
+    btf, _ = _load_btf(args, not args.quiet)
     train, test = (btf, None) if args.holdout <= 0 else btf.split(holdout=args.holdout, seed=args.seed)
     t0 = time.perf_counter()
     model = fit_mod.fit(args.model, train, progress=not args.quiet, **opts)
@@ -535,28 +572,28 @@ def export_command(args) -> None:
     from . import io
     from .btf import Btf
     from .exceptions import InvalidArgumentError
-    from .models import Model
+    from .models import Model, model_kinds
 
-    if not any([args.ptm, args.rti, args.exr, args.stack]):
-        raise InvalidArgumentError("export: give at least one of --ptm, --rti, --exr, --stack")
-    obj = io.load(args.path)
+    formats = [(name, getattr(args, name)) for name, _, _ in _formats()]
+    if not any([path for _, path in formats] + [args.exr, args.stack]):
+        flags = ", ".join(f"--{name}" for name, _ in formats)
+        raise InvalidArgumentError(f"export: give at least one of {flags}, --exr, --stack")
+    obj, _ = _load_sample(args, not args.quiet)
     if args.stack:
         if not isinstance(obj, Btf):
             raise InvalidArgumentError(f"--stack: {args.path} holds a {type(obj).__name__}, not a BTF")
         print(f"wrote {io.save_stack(obj, args.stack, format=args.format)}")
-    if args.ptm or args.rti or args.exr:
+    if args.exr or any(path for _, path in formats):
         if not isinstance(obj, Model):
-            raise InvalidArgumentError(f"--ptm/--rti/--exr: {args.path} holds a {type(obj).__name__}, not a model")
-    if args.ptm:
-        if not hasattr(obj, "save_ptm"):
-            raise InvalidArgumentError(f"--ptm: a {obj.kind} model cannot be written as .ptm (fit --model ptm)")
-        obj.save_ptm(args.ptm, view=args.view)
-        print(f"wrote {args.ptm}")
-    if args.rti:
-        if not hasattr(obj, "save_rti"):
-            raise InvalidArgumentError(f"--rti: a {obj.kind} model cannot be written as .rti (fit --model hsh)")
-        obj.save_rti(args.rti, view=args.view)
-        print(f"wrote {args.rti}")
+            raise InvalidArgumentError(f"export: {args.path} holds a {type(obj).__name__}, not a model")
+    for fmt, path in formats:
+        if path:
+            if fmt not in obj.exports:
+                able = [k for k, info in model_kinds().items() if fmt in info["exports"]]
+                raise InvalidArgumentError(f"--{fmt}: a {obj.kind} model cannot be written as .{fmt} "
+                                           f"(fit --model {' or '.join(able)})")
+            obj.export(path, format=fmt, view=args.view)
+            print(f"wrote {path}")
     if args.exr:
         names = io.save_coefficients(obj, args.exr)
         print(f"wrote {args.exr}: {len(names)} channels ({names[0]} ... {names[-1]})")
@@ -571,7 +608,7 @@ def render_command(args) -> None:
     from .exceptions import InvalidArgumentError
     from .models import Model
 
-    obj = io.load(args.path, directions=args.directions)
+    obj, _ = _load_sample(args, not args.quiet)
     if not isinstance(obj, (Model, Btf)):
         raise InvalidArgumentError(f"path: {args.path} holds a {type(obj).__name__}, not a model or BTF")
     scene = {"plane": lambda: rendering.Scene.plane(2.0), "sphere": rendering.Scene.sphere,
@@ -579,10 +616,10 @@ def render_command(args) -> None:
     eye = args.camera or ([0.0, -0.01, 3.2] if args.scene == "plane" else [0.0, -3.0, 2.0])
     cam = rendering.Camera.look_at(eye, [0, 0, 0], args.fov)
     lights = [rendering.DirectionalLight(l) for l in (args.light or [[0.3, 0.2, 0.93]])]
-    img = rendering.render(obj, scene, cam, lights, size=tuple(args.size), uv_scale=args.uv_scale,
-                           backend=args.backend, method=args.method)
+    img = rendering.render(obj, scene, cam, lights, size=tuple(args.image_size), uv_scale=args.uv_scale,
+                           backend=args.backend, renderer=args.renderer)
     io.save_image(args.out, img, exposure=args.exposure)
-    print(f"wrote {args.out} ({args.size[0]} x {args.size[1]}, mean {float(np.mean(img)):.4f})")
+    print(f"wrote {args.out} ({args.image_size[0]} x {args.image_size[1]}, mean {float(np.mean(img)):.4f})")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -534,14 +534,11 @@ def fit(model: str, arr: Union[BtfArray, Btf], /, *, progress: Progress = None, 
     t0 = time.perf_counter()
     if strategy == "texels":
         m = _fit_texels(kind, arr, options, json.loads(detail), list(counts), progress)
-    elif kind == "srf":
-        m = _fit_srf(arr, options, progress)
-    elif kind == "lpca":
-        m = _fit_lpca(arr, options_json, progress)
-    elif kind in ("rbf", "bilinear"):
-        m = _fit_light_pca(kind, arr, options_json, progress)
-    else:  # pragma: no cover - a model declared staged needs its stages here
-        raise InternalError(f"model: {kind} is declared staged but btfrs.dask has no stages for it")
+    elif detail in _STAGES:
+        # The model's registry entry names the stage protocol its fit follows.
+        m = _STAGES[detail](kind, arr, options, options_json, progress)
+    else:  # pragma: no cover - a model declared staged needs its protocol here
+        raise InternalError(f"model: {kind} is declared staged by {detail!r}, a protocol btfrs.dask does not know")
     m.fit_seconds = time.perf_counter() - t0
     return m
 
@@ -582,7 +579,7 @@ def _fit_texels(kind: str, arr: BtfArray, options: dict, overrides: dict, counts
     return wrap(native, report=_merge_reports([r for _, r, _ in results], [n for _, _, n in results], counts))
 
 
-def _fit_srf(arr: BtfArray, options: dict, progress: Progress) -> Model:
+def _fit_mean_brdf(kind: str, arr: BtfArray, options: dict, options_json: str, progress: Progress) -> Model:
     dask, _ = _dask()
     if options:
         raise InvalidArgumentError(f"{next(iter(options))}: unknown option; the srf fit takes none")
@@ -599,12 +596,12 @@ def _fit_srf(arr: BtfArray, options: dict, progress: Progress) -> Model:
     for (sb, eb), (_, r0, c0, nr, nc) in zip(res, blocks):
         s[r0:r0 + nr, c0:c0 + nc] = sb
         e += np.asarray(eb)
-    native = _native.Model.from_arrays("srf", {"phong": np.asarray(phong, dtype=np.float64), "s": s})
+    native = _native.Model.from_arrays(kind, {"phong": np.asarray(phong, dtype=np.float64), "s": s})
     rel = (lambda x: float(np.sqrt(x / e[2])) if e[2] > 0 else 0.0)
     return wrap(native, report={"iterations": int(iterations), "phong_relative": rel(e[0]), "srf_relative": rel(e[1])})
 
 
-def _fit_lpca(arr: BtfArray, options_json: str, progress: Progress) -> Model:
+def _fit_clustered_pca(kind: str, arr: BtfArray, options: dict, options_json: str, progress: Progress) -> Model:
     dask, _ = _dask()
     h, w = arr.height, arr.width
     present = _present(arr.mask, len(arr.views), len(arr.lights))
@@ -654,11 +651,11 @@ def _fit_lpca(arr: BtfArray, options_json: str, progress: Progress) -> Model:
     return wrap(native)
 
 
-def _fit_light_pca(kind: str, arr: BtfArray, options_json: str, progress: Progress) -> Model:
+def _fit_light_pca(kind: str, arr: BtfArray, options: dict, options_json: str, progress: Progress) -> Model:
     dask, _ = _dask()
     _native.light_pca_check(kind, options_json)
     blocks = _blocks(arr)
-    name = "RBF" if kind == "rbf" else "bilinear"
+    name = kind
     # 1. Every tile's moments, merged in pairs on the workers.
     moments = _reduce([dask.delayed(_lp_moments, pure=True)(b, arr.views, arr.lights, arr.mask, kind, options_json)
                        for b, *_ in blocks], _lp_merge, callback(progress, f"{name} moments"), f"{name} moments")
@@ -676,3 +673,7 @@ def _fit_light_pca(kind: str, arr: BtfArray, options_json: str, progress: Progre
     del cs
     # 4. Quantized over all texels, as the local fit does.
     return wrap(_native.light_pca_assemble(kind, arr.views, arr.lights, arr.mask, table, coeffs, options_json))
+
+
+# The stage protocols of staged fits (a registry entry's ``Blockwise::Staged(protocol)``).
+_STAGES = {"mean_brdf": _fit_mean_brdf, "clustered_pca": _fit_clustered_pca, "light_pca": _fit_light_pca}

@@ -1,8 +1,8 @@
 """Speed against accuracy: ``btfrs.evaluate(btf, ...)`` charts every model against the others.
 
 The users' question is "which representation, at what size and cost, for *this* material". For
-every registered model and a sweep of its parameters (:data:`SWEEPS`; a model registered without
-a sweep contributes its registry examples), and for the plain numpy / scipy / scikit-learn ways
+every registered model and the sweep of its parameters its registry entry names (:func:`sweeps`),
+and for the plain numpy / scipy / scikit-learn ways
 and the raw measured data, one row of:
 
 * ``fit_s``: wall seconds of the fit (on the train half of the pairs protocol);
@@ -40,37 +40,19 @@ from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import BtfrsError, InvalidArgumentError
+from .models import model_kinds
 
-__all__ = ["evaluate", "EvaluationReport", "split_directions", "SWEEPS", "QUICK", "METRICS", "reference_scene",
+__all__ = ["evaluate", "EvaluationReport", "split_directions", "sweeps", "METRICS", "reference_scene",
            "pareto_front"]
 
-#: The parameter sweep of each model kind: ``(label, options)``. A registered kind missing here
-#: is evaluated at its registry examples.
-SWEEPS: dict = {
-    "ptm": [("PTM-RGB", {"kind": "rgb"}), ("PTM-LRGB", {"kind": "lrgb"})],
-    "lafortune": [(f"Lafortune-Lum {n}", {"kind": "lum", "lobes": n}) for n in (1, 2, 3, 4)]
-    + [(f"Lafortune-RGB {n}", {"kind": "rgb", "lobes": n}) for n in (1, 2)],
-    "lafortune_view": [(f"Lafortune/view-Lum {n}", {"kind": "lum", "lobes": n}) for n in (1, 2)]
-    + [("Lafortune/view-RGB 1", {"kind": "rgb", "lobes": 1})],
-    "srf": [("Phong+SRF", {})],
-    # SH a x b: a view and b light coefficients (9 = order 2, ..., 36 = order 5).
-    "sh": [(f"SH-CLS {n}x{n}", {"light_coeffs": n, "view_coeffs": n}) for n in (9, 16, 25, 36)]
-    + [("SH-CLS 25x25 float", {"light_coeffs": 25, "view_coeffs": 25, "quantize": False}),
-       ("SH-LS 25x25", {"light_coeffs": 25, "view_coeffs": 25, "cls": False}),
-       ("SH-LS 25x25 float", {"light_coeffs": 25, "view_coeffs": 25, "cls": False, "quantize": False})],
-    "lpca": [(f"LPCA {k}x{c}", {"clusters": k, "components": c, "seed": 0}) for k in (8, 32) for c in (2, 4, 8)],
-}
+def sweeps(sweep: str = "full") -> dict:
+    """The settings :func:`evaluate` fits per model kind: ``{kind: [(label, options), ...]}``,
+    each model's registry sweep (``sweep="quick"``: the settings it marks quick, what the demo
+    and the tests run)."""
+    choice("sweep", sweep, ("full", "quick"))
+    return {kind: [(label, dict(opts)) for label, opts, quick, _ in info["sweep"] if sweep == "full" or quick]
+            for kind, info in model_kinds().items()}
 
-#: A short sweep (one or two points per model, no slow baselines): ``evaluate(..., sweep="quick")``,
-#: what the demo and the tests run.
-QUICK: dict = {
-    "ptm": [("PTM-RGB", {"kind": "rgb"})],
-    "lafortune": [("Lafortune-Lum 2", {"kind": "lum", "lobes": 2})],
-    "lafortune_view": [("Lafortune/view-Lum 1", {"kind": "lum", "lobes": 1})],
-    "srf": [("Phong+SRF", {})],
-    "sh": [("SH-CLS 16x16", {"light_coeffs": 16, "view_coeffs": 16})],
-    "lpca": [("LPCA 8x4", {"clusters": 8, "components": 4, "seed": 0})],
-}
 
 #: The numbers of a row, and whether smaller is better (``psnr_scene`` is the one that is not).
 METRICS = {"fit_s": True, "bytes": True, "render_ms": True, "reconstruction": True, "heldout_pairs": True,
@@ -340,10 +322,8 @@ def chart(report: EvaluationReport, x: str, path: Union[str, os.PathLike]) -> No
 def _settings(models, sweep: str) -> list:
     """``(label, kind, options)`` for ``models``: "all", a kind, a list of kinds, or of
     ``(label, kind, options)`` triples."""
-    from .models import model_kinds
-
     kinds = model_kinds()
-    table = SWEEPS if sweep == "full" else QUICK
+    table = sweeps(sweep)
     if isinstance(models, str):
         models = list(kinds) if models == "all" else [models]
     if not isinstance(models, (list, tuple)) or not models:
@@ -356,10 +336,7 @@ def _settings(models, sweep: str) -> list:
             out.append((str(label), kind, dict(opts)))
             continue
         kind = choice("models", m, tuple(kinds))
-        if kind in table:
-            out += [(label, kind, dict(opts)) for label, opts in table[kind]]
-        else:
-            out += [(label, kind, dict(opts)) for label, opts in kinds[kind]["examples"][:1 if sweep == "quick" else None]]
+        out += [(label, kind, dict(opts)) for label, opts in table[kind]]
     return out
 
 
@@ -403,7 +380,7 @@ def evaluate(btf: Btf, models: Union[str, Sequence[Any]] = "all", *, holdout: st
         :func:`split_directions`) or ``"both"``; ``"heldout"`` in :meth:`EvaluationReport.pareto`
         means the first of them.
     fraction: the share held out (of the pairs; of the views and of the lights).
-    sweep: ``"full"`` (:data:`SWEEPS`) or ``"quick"`` (:data:`QUICK`).
+    sweep: ``"full"`` or ``"quick"`` (:func:`sweeps`: each model's registry sweep).
     baselines: add the numpy / scipy / scikit-learn ways and raw interpolation as rows (default:
         with the full sweep). The scipy Lafortune fit runs on ``baseline_texels`` texels only (its
         time is per texel, times the texels; the table says so).
@@ -467,9 +444,9 @@ def evaluate(btf: Btf, models: Union[str, Sequence[Any]] = "all", *, holdout: st
                 row[f"heldout_{p}"] = mm.error(pte).relative
             rep = m.report or {}
             row["note"] = _report_note(rep)
-            if kind == "sh" and opts.get("quantize") is False:
-                # sh.wgsl reads 8-bit coefficients: the GPU gets this model quantized.
-                row["note"] = "rendered (and bytes counted) after 8-bit quantization for the GPU"
+            note = next((n for lab, _, _, n in model_kinds()[kind]["sweep"] if lab == label and n), None)
+            if note:
+                row["note"] = note
             row["report"] = rep
             if render:
                 ms, img = _timed_render(m, scene, size)

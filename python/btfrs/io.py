@@ -28,10 +28,10 @@ from ._checks import real
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import FormatError, InvalidArgumentError
-from .models import Hsh, Model, Ptm
+from .models import Model, wrap
 from .models import load as load_btfrs
 
-__all__ = ["load", "load_btfrs", "load_ptm", "load_rti", "save_image", "load_image", "save_stack", "save_coefficients",
+__all__ = ["load", "load_btfrs", "load_as_format", "save_image", "load_image", "save_stack", "save_coefficients",
            "capture_kind", "atomic_write", "save_array", "save_text"]
 
 PathLike = Union[str, os.PathLike]
@@ -89,21 +89,14 @@ def save_text(path: PathLike, text: str) -> None:
         f.write(text)
 
 
-def load_ptm(path: PathLike) -> Ptm:
-    """Read an uncompressed ``PTM_1.2`` (or 1.1) RGB or LRGB file, ours or another tool's, as a
-    one-slot :class:`~btfrs.Ptm` (view = the normal). Values are in units where the viewer's
-    white (byte 255) is 1.0. Compressed (JPEG) and LUM variants raise
-    :class:`~btfrs.exceptions.FormatError`."""
-    return Ptm(_native.read_ptm(os.fspath(path)))
-
-
-def load_rti(path: PathLike) -> Hsh:
-    """Read a ``.rti`` hemispherical-harmonics file (``#HSH1.2``, RTI type 3, 8-bit data, orders 1
-    to 4) as a one-slot :class:`~btfrs.Hsh` (view = the normal), its 8-bit planes the file's
-    bytes. The two float arrays are read as relight reads them (byte ``c`` of term ``j`` is
-    ``bias[j] + scale[j] * c / 255``). Other RTI types raise :class:`~btfrs.exceptions.FormatError`
-    naming the type."""
-    return Hsh(_native.read_rti(os.fspath(path)))
+def load_as_format(path: PathLike, cls: type = Model) -> Model:
+    """Read another tool's model file (``.ptm``, ``.rti``: the formats of
+    ``_native.model_formats()``, chosen by the extension) as a one-slot model, checking that it
+    is a ``cls``."""
+    m = wrap(_native.import_model(os.fspath(path)))
+    if not isinstance(m, cls):
+        raise FormatError(f"{os.fspath(path)}: holds a {type(m).__name__}, not a {cls.__name__}")
+    return m
 
 
 def save_image(path: PathLike, image, *, exposure: float = 1.0) -> None:
@@ -135,8 +128,14 @@ def load_image(path: PathLike) -> np.ndarray:
 _IMAGE_EXT = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".exr")
 
 
+def _model_extensions() -> tuple[str, ...]:
+    """The extensions of other tools' model files btfrs reads (``.ptm``, ``.rti``)."""
+    return tuple("." + ext for _, ext, _ in _native.model_formats())
+
+
 def capture_kind(path: PathLike, directions: Optional[PathLike] = None) -> str:
-    """What :func:`load` takes ``path`` for: ``"btfrs"``, ``"ptm"``, ``"rti"``, ``"ubo2014"``,
+    """What :func:`load` takes ``path`` for: ``"btfrs"``, ``"model_file"`` (another tool's model
+    file: ``.ptm``, ``.rti``), ``"ubo2014"``,
     ``"lp"`` (an RTI ``.lp`` file, or a folder holding exactly one), ``"table"`` (a folder with
     a ``directions=`` table, or holding ``directions.csv`` / ``.json``), ``"ubo2003"`` (a zip archive or a folder of images whose names carry
     the angles). Raises :class:`~btfrs.exceptions.FormatError` when it is none of these."""
@@ -159,9 +158,11 @@ def capture_kind(path: PathLike, directions: Optional[PathLike] = None) -> str:
         return "ubo2003"
     if not os.path.exists(p):
         raise FileNotFoundError(f"{p}: no such file or folder")
-    table = {".btfrs": "btfrs", ".ptm": "ptm", ".rti": "rti", ".btf": "ubo2014", ".lp": "lp", ".zip": "ubo2003"}
+    table = {".btfrs": "btfrs", ".btf": "ubo2014", ".lp": "lp", ".zip": "ubo2003"}
     if ext in table:
         return table[ext]
+    if ext in _model_extensions():
+        return "model_file"
     with open(p, "rb") as f:
         head = f.read(16)
     if head.startswith(b"BTFRS01"):
@@ -208,8 +209,10 @@ def _crop(crop) -> Optional[tuple]:
 
 def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optional[Sequence[int]] = None,
          views: Optional[Sequence[int]] = None, lights: Optional[Sequence[int]] = None,
-         mmap_to: Optional[PathLike] = None, linear: bool = False, progress: Progress = None):
-    """Open a measured sample (or any btfrs file), chosen by its file type (:func:`capture_kind`).
+         mmap_to: Optional[PathLike] = None, linear: bool = False, mmap: bool = False, progress: Progress = None):
+    """Load any file btfrs reads, chosen by its type (:func:`capture_kind`): a measured capture,
+    a ``.btfrs`` file (a BTF, a fitted model, a synthesis analysis, a Wang tile set), or another
+    tool's model file (``.ptm``, ``.rti``). This is ``btfrs.load``.
 
     * ``WoolPKNT256.zip`` or a folder of images named ``..._tl015_pl000_tv015_pv120.jpg``
       (Bonn UBO2003 / ATRIUM; JPEG/PNG are sRGB-decoded, EXR kept linear);
@@ -219,8 +222,10 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
       ``directions.json`` inside the folder is found without it): columns ``file`` and
       ``light_theta, light_phi`` (degrees) or ``lx, ly, lz``, optionally ``view_theta, view_phi``
       or ``vx, vy, vz``;
-    * ``.btfrs`` (any btfrs file, as :func:`btfrs.load`), ``.ptm`` (:func:`load_ptm`), ``.rti``
-      (HSH, :func:`load_rti`).
+    * ``.btfrs``: a BTF (``mmap=True`` maps its values instead of reading them, so a BTF larger
+      than memory opens at once), a fitted model, an analysis or a tile set;
+    * ``.ptm`` (RGB and LRGB PTM 1.2) and ``.rti`` (HSH) files of RTIViewer and relight, as
+      one-slot models.
 
     Captures come back as a :class:`~btfrs.Btf` in btfrs's frame (z the normal, x along the image
     columns, y up the image). ``crop=(row, col, rows, cols)`` keeps a rectangle (row 0 is the top
@@ -236,11 +241,11 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
     p = os.fspath(path)
     kind = capture_kind(p, directions)
     given = {k: v for k, v in dict(crop=crop, views=views, lights=lights, mmap_to=mmap_to).items() if v is not None}
-    if kind in ("btfrs", "ptm", "rti"):
-        if kind == "ptm":
-            obj = load_ptm(p)
-        elif kind == "rti":
-            obj = load_rti(p)
+    if kind in ("btfrs", "model_file"):
+        if kind == "model_file":
+            obj = load_as_format(p)
+        elif mmap and _native.read_container_header(p)[0] == "btf":
+            obj = Btf.load(p, mmap=True)
         else:
             obj = load_btfrs(p)
         if given:

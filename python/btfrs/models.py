@@ -23,8 +23,7 @@ from ._checks import choice, index, instance
 from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
 
 __all__ = ["ErrorReport", "Model", "Ptm", "Hsh", "Lafortune", "LafortuneView", "Srf", "Sh", "Lpca", "Rbf", "Bilinear", "load",
-           "model_kinds",
-           "wrap"]
+           "model_kinds", "class_of", "wrap"]
 
 PathLike = Union[str, os.PathLike]
 
@@ -101,8 +100,38 @@ class Model:
 
     @property
     def renderers(self) -> list:
-        """The renderer names (``method=`` of :func:`btfrs.render`), the default first."""
+        """The renderer names (``renderer=`` of :func:`btfrs.render`), the default first."""
         return list(self._m.renderers)
+
+    @property
+    def mip(self) -> str:
+        """How the coarse levels of its mip pyramid are made (``filter="trilinear"``):
+        ``"average"`` (its parameters averaged: exact, the model being linear in them),
+        ``"projected"`` (the mean appearance projected on the model) or ``"medoid"``."""
+        return self._m.mip
+
+    @property
+    def sh_lighting(self) -> bool:
+        """Whether it renders under an environment by the SH method
+        (``btfrs.render(..., environment=env, lighting="sh")``): a double-SH expansion."""
+        return self._m.sh_lighting
+
+    @property
+    def exports(self) -> list:
+        """The other tools' file formats it can be written as (:meth:`export`)."""
+        return list(model_kinds()[self.kind]["exports"])
+
+    def export(self, path: PathLike, *, format: Optional[str] = None, view=0) -> dict:
+        """Write view slot ``view`` (an index or a direction) as another tool's file format
+        (:attr:`exports`; by default chosen by the extension of ``path``). Returns what the writer
+        chose, e.g. the quantization's ``scale`` and ``bias``."""
+        p = os.fspath(path)
+        if format is None:
+            format = os.path.splitext(p)[1].lstrip(".").lower()
+        if format not in self.exports:
+            can = ", ".join(repr(e) for e in self.exports) or "none"
+            raise InvalidArgumentError(f"format: the {self.kind} model cannot be written as {format!r} (its formats: {can})")
+        return json.loads(_native.export_model(p, self._m, format, _slot_index(self, view)))
 
     def evaluate(self, view, light) -> np.ndarray:
         """The ``[H, W, 3]`` float32 image for one view and one light direction (any non-zero
@@ -229,7 +258,8 @@ class Ptm(Model):
         multiply the data beforehand to choose another exposure. An 8-bit model (``bits=8``, the
         default of :func:`btfrs.fit.ptm`) is written byte for byte from its planes; a float model
         is quantized for the file."""
-        return _native.write_ptm(os.fspath(path), self._m, _slot_index(self, view))
+        r = self.export(path, format="ptm", view=view)
+        return r["scale"], r["bias"]
 
     def __repr__(self) -> str:
         return (f"Ptm({self.variant}, {self.height} x {self.width} texels, {len(self.views)} view slots, "
@@ -282,7 +312,8 @@ class Hsh(Model):
         two float arrays ``(scale, bias)``: byte ``c`` of term ``j`` decodes to
         ``bias[j] + scale[j] * c / 255`` (relight's reading; RTIViewer's ``.rti`` loader reads the
         two arrays as a minimum and a maximum instead). Our value 1.0 is the viewer's white."""
-        return _native.write_rti(os.fspath(path), self._m, _slot_index(self, view))
+        r = self.export(path, format="rti", view=view)
+        return r["scale"], r["bias"]
 
     def __repr__(self) -> str:
         return (f"Hsh(order {self.order}, {self.height} x {self.width} texels, {len(self.views)} view slots, "
@@ -376,9 +407,9 @@ class Lpca(Model):
     """Local PCA: clustered Eigen-BRDFs (paper 004, section 3), 8-bit quantized per
     Eigen-BRDF with the scales folded into the per-texel weights (section 6.3).
 
-    Rendered by the original 9-tap interpolation (section 5, ``method="9tap"``) or by the
+    Rendered by the original 9-tap interpolation (section 5, ``renderer="9tap"``) or by the
     Eigen-BRDFs resampled on the elevated concentric map and stored in one 3D texture
-    (section 6, ``method="3d"``).
+    (section 6, ``renderer="3d"``).
     """
 
     _kind = "lpca"
@@ -445,13 +476,27 @@ class Bilinear(_LightPca):
 
 
 def model_kinds() -> dict:
-    """The registered models: ``{kind: {"doc", "renderers", "examples"}}`` (``examples`` are
-    ``(label, options)`` pairs, what the demo and the bench fit)."""
+    """Every registered model and its facts, from the Rust registry: ``{kind: facts}`` with
+    ``doc`` (one line), ``about`` (a few paragraphs), ``options`` (the schema: ``name``,
+    ``type``, ``default``, ``allowed``, ``doc``, and ``min``/``max``/``choices``), ``renderers``
+    (the default first), ``examples`` (``(label, options)`` pairs, what the demo and the bench
+    fit), ``sweep`` (``(label, options, quick, note)`` of :func:`btfrs.evaluate`), ``sampling``,
+    ``exports`` (other tools' formats), ``mip``, ``blockwise`` and ``scans_values``."""
     global _REGISTRY
     if _REGISTRY is None:
-        _REGISTRY = {k: {"doc": d, "renderers": list(r), "examples": [(lab, json.loads(o)) for lab, o in ex]}
-                     for k, d, r, ex in _native.model_registry()}
+        facts = json.loads(_native.model_facts())
+        _REGISTRY = {}
+        for f in facts:
+            f["examples"] = [(lab, json.loads(o)) for lab, o in f["examples"]]
+            f["sweep"] = [(s["label"], json.loads(s["options"]), bool(s["quick"]), s["note"]) for s in f["sweep"]]
+            _REGISTRY[f.pop("kind")] = f
     return _REGISTRY
+
+
+def class_of(kind: str) -> type:
+    """The Python class of model ``kind``: its own class where one adds accessors, else
+    :class:`Model`."""
+    return next((c for c in _all_subclasses(Model) if c._kind == kind), Model)
 
 
 _REGISTRY: Optional[dict] = None
@@ -460,8 +505,7 @@ _REGISTRY: Optional[dict] = None
 def wrap(native: "_native.Model", fit_seconds: Optional[float] = None, report: Optional[dict] = None) -> Model:
     """The Python object of a native model: the class documented for its kind, else
     :class:`Model` itself (a model registered in Rust needs no Python code)."""
-    cls = next((c for c in _all_subclasses(Model) if c._kind == native.kind), Model)
-    return cls(native, fit_seconds=fit_seconds, report=report)
+    return class_of(native.kind)(native, fit_seconds=fit_seconds, report=report)
 
 
 def _all_subclasses(c):

@@ -116,11 +116,9 @@ def _upload(model, method: str):
     return up, (time.perf_counter() - t0) * 1e3
 
 
-# Models whose value is linear in their per-texel arrays: their trilinear mip levels are exact
-# averages (btfrs_fit::registry::AVERAGEABLE); LPCA, linear within a cluster, gets projected
-# levels (the mean appearance in the best of the block's clusters, Lpca::mip_texels); the others
-# get appearance-medoid levels.
-_AVERAGEABLE = ("ptm", "hsh", "sh", "rbf", "bilinear", "lpca")
+# How a model's trilinear mip levels are made is the model's own fact (``model.mip``, from its
+# registry entry): exact averages of its parameters, projections of the mean appearance, or
+# appearance medoids. The raw BTF averages.
 _filters: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_filters.clear)
@@ -143,7 +141,7 @@ def _filtered(model, filt: str, coords, tm):
     per model, filter and map."""
     is_raw = isinstance(model, Btf)
     dims = (model.height, model.width)
-    avg = filt == "trilinear" and (is_raw or (model.kind in _AVERAGEABLE and getattr(model, "variant", "rgb") != "lrgb"))
+    avg = filt == "trilinear" and (is_raw or model.mip != "medoid")
     key = (filt, avg, _map_key(coords, tm))
     per_model = _filters.setdefault(model, {})
     hit = per_model.get(key)
@@ -166,7 +164,7 @@ def _filtered(model, filt: str, coords, tm):
             from .models import wrap
 
             drawn = wrap(_native.mip_model(model._m, idx, wts))
-        hit = (drawn, chain, "projected" if getattr(model, "kind", None) == "lpca" else "average")
+        hit = (drawn, chain, "average" if is_raw else model.mip)
     else:
         sig = None
         if filt == "trilinear":
@@ -192,7 +190,7 @@ def _method(model, method: Optional[str]) -> str:
     names = model.renderers if isinstance(model, Model) else ["default"]
     if method is None or method == "default":
         return names[0]
-    return choice("method", method, tuple(names))
+    return choice("renderer", method, tuple(names))
 
 
 def _uv_scale(uv_scale) -> list:
@@ -230,9 +228,9 @@ class TileMap:
 
 
 def render(model: Union[Model, Btf], scene, camera, lights=None, *, size=(512, 512), uv_scale=1.0,
-           coords: Optional[np.ndarray] = None, backend: str = "gpu", method: Optional[str] = None,
+           coords: Optional[np.ndarray] = None, backend: str = "gpu", renderer: Optional[str] = None,
            tiles=None, layout=None, tile_map: Optional[TileMap] = None,
-           environment=None, samples: int = 64, seed: int = 0, renderer: Optional[str] = None,
+           environment=None, lighting: str = "sampled", samples: int = 64, seed: int = 0,
            filter: str = "nearest", progress: Progress = None) -> np.ndarray:
     """Render ``model`` (a fitted model, or a :class:`~btfrs.Btf` for the raw measured data)
     on ``scene`` seen by ``camera`` under ``lights`` and/or an ``environment``; returns
@@ -257,15 +255,15 @@ def render(model: Union[Model, Btf], scene, camera, lights=None, *, size=(512, 5
         model / Btf it was synthesized from.
     tile_map: the general form (:class:`TileMap`), exclusive with ``tiles`` and ``coords``.
     backend: ``"gpu"`` (wgpu) or ``"cpu"`` (the reference renderer).
-    method: the renderer, one of ``model.renderers`` (the first is the default). For
-        :class:`~btfrs.Lpca`: ``"9tap"`` (three nearest views x three nearest lights, section 5,
-        the default) or ``"3d"`` (Eigen-BRDFs resampled on the elevated concentric map in one 3D
-        texture: two trilinear fetches and a lerp, paper 004 section 6).
-    environment: a :class:`btfrs.Environment` (distant light, paper 002 section 4); ``method``
-        then names the lighting method: ``"sampled"`` (the default, every model: ``samples``
-        importance-sampled directional lights, ``seed``, rendered in one pass; ``lights`` are
-        added to them) or ``"sh"`` (double-SH models: the SH-domain method, no ``lights``), and
-        ``renderer`` the model's renderer (what ``method`` names without an environment).
+    renderer: the model's renderer, one of ``model.renderers`` (``None``: the first, the
+        default). For :class:`~btfrs.Lpca`: ``"9tap"`` (three nearest views x three nearest
+        lights, section 5, the default) or ``"3d"`` (Eigen-BRDFs resampled on the elevated
+        concentric map in one 3D texture: two trilinear fetches and a lerp, paper 004 section 6).
+    environment: a :class:`btfrs.Environment` (distant light, paper 002 section 4).
+    lighting: how an ``environment`` lights the model: ``"sampled"`` (the default, every model:
+        ``samples`` importance-sampled directional lights, ``seed``, rendered in one pass;
+        ``lights`` are added to them) or ``"sh"`` (models with a double-SH expansion,
+        ``model.sh_lighting``: the SH-domain method, no ``lights``).
     filter: ``"nearest"`` (one texel, the default), ``"bilinear"`` (four) or ``"trilinear"``
         (mip-mapped, eight) lookups, in the texture the surface shows: through a coordinate map
         or a tile map each tap is resolved on its own, so filtering has no seams at the map's
@@ -283,20 +281,21 @@ def render(model: Union[Model, Btf], scene, camera, lights=None, *, size=(512, 5
     instance("scene", scene, Scene, "a btfrs.Scene")
     instance("camera", camera, Camera, "a btfrs.Camera")
     env_method = None
+    method = renderer
+    lighting = choice("lighting", lighting, ("sampled", "sh"))
     if environment is not None:
         from .environment import Environment
 
         instance("environment", environment, Environment, "a btfrs.Environment")
-        env_method = choice("method", "sampled" if method is None else method, ("sampled", "sh"))
-        method = renderer
+        env_method = lighting
         if env_method == "sh":
             if lights is not None and (not hasattr(lights, "__len__") or len(lights)):
-                raise InvalidArgumentError("lights: method=\"sh\" lights by the environment alone; use "
-                                           "method=\"sampled\" to add lights")
-            if not isinstance(model, Model) or model.kind != "sh":
+                raise InvalidArgumentError("lights: lighting=\"sh\" lights by the environment alone; use "
+                                           "lighting=\"sampled\" to add lights")
+            if not isinstance(model, Model) or not model.sh_lighting:
                 what = "the raw BTF" if isinstance(model, Btf) else f"a {getattr(model, 'kind', type(model).__name__)} model"
-                raise InvalidArgumentError(f"method: \"sh\" needs a double-SH model (btfrs.fit.sh), not {what}; "
-                                           f"use method=\"sampled\", which renders every model")
+                raise InvalidArgumentError(f"lighting: \"sh\" needs a double-SH model (btfrs.fit.sh), not {what}; "
+                                           f"use lighting=\"sampled\", which renders every model")
             lights = []
         else:
             n = integer("samples", samples, min=1, max=65536)
@@ -304,8 +303,8 @@ def render(model: Union[Model, Btf], scene, camera, lights=None, *, size=(512, 5
             if isinstance(extra, (str, bytes)) or not hasattr(extra, "__iter__"):
                 raise ArgumentTypeError(f"lights: expected a light or a list of PointLight/DirectionalLight, got {lights!r}")
             lights = environment.lights(n, seed=integer("seed", seed, min=0)) + list(extra)
-    elif renderer is not None:
-        raise InvalidArgumentError("renderer: only with environment= (otherwise method= names the renderer)")
+    elif lighting != "sampled":
+        raise InvalidArgumentError(f"lighting: {lighting!r} only with environment=")
     if lights is None:
         raise InvalidArgumentError("lights: expected a light, a list of lights or environment=")
     if isinstance(lights, (PointLight, DirectionalLight)):
@@ -351,7 +350,7 @@ def render(model: Union[Model, Btf], scene, camera, lights=None, *, size=(512, 5
     fa = None
     if filt != "nearest":
         if isinstance(model, Model) and meth != model.renderers[0]:
-            raise InvalidArgumentError(f"filter: filtered lookups use the default renderer; got method={meth!r}")
+            raise InvalidArgumentError(f"filter: filtered lookups use the default renderer; got renderer={meth!r}")
         model, chain, _ = _filtered(model, filt, coords, tm)
         fa = (filt, chain)
     if env_method == "sh":

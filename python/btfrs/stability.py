@@ -73,21 +73,14 @@ _DESCRIPTION = {
     "outliers": "fraction of training values x 1000",
 }
 
-# The preferred cheap setting per kind (else the kind's first, smallest example): two lobes, since
-# one lobe hides the extrapolation of sparse fits that paper 000 warns about.
-_PREFERRED = {"ptm": "PTM-RGB", "lafortune": "Lafortune-Lum 2", "sh": "SH-CLS 16x16", "lpca": "LPCA 8x4"}
-
-
 def default_models() -> list:
-    """One cheap ``(label, kind, options)`` per registered kind (from its example option sets)."""
+    """One cheap ``(label, kind, options)`` per registered kind: the first setting of its quick
+    sweep (its registry entry chooses it; Lafortune's has two lobes, since one lobe hides the
+    extrapolation of sparse fits that paper 000 warns about)."""
     out = []
     for kind, info in model_kinds().items():
-        ex = list(info.get("examples") or [])
-        if not ex:
-            out.append((kind, kind, {}))
-            continue
-        pick = next((e for e in ex if e[0] == _PREFERRED.get(kind)), ex[0])
-        out.append((pick[0], kind, dict(pick[1])))
+        label, opts, _, _ = next(s for s in info["sweep"] if s[2])
+        out.append((label, kind, dict(opts)))
     return out
 
 

@@ -12,6 +12,10 @@ pub enum Error {
     /// An argument has the wrong shape, range or value. `name` is the argument as the user wrote it.
     #[error("{name}: {msg}")]
     InvalidArgument { name: String, msg: String },
+    /// An argument has the wrong type (a float where an integer is expected, ...): in Python a
+    /// `btfrs.exceptions.ArgumentTypeError`, which is also an `InvalidArgumentError`.
+    #[error("{name}: {msg}")]
+    ArgumentType { name: String, msg: String },
     /// The data make the requested fit impossible (too few or degenerate directions, ...).
     #[error("{0}")]
     Degenerate(String),

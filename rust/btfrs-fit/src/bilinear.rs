@@ -28,13 +28,14 @@
 //! table of principal functions, as for [`crate::rbf`].
 
 use crate::light_pca::{self, Colour, LightPca, PcaOptions};
-use crate::model::Model;
+use crate::model::{average_texels, Mip, Model, Sampling};
+use crate::options::Spec;
 use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
 use nalgebra::DMatrix;
 
 /// Fit options.
 #[derive(Debug, Clone, Copy, serde::Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(deny_unknown_fields)]
 pub struct BilinearOptions {
     /// Coefficient planes per slot (rgb), or luminance planes (ycc).
     pub components: usize,
@@ -54,15 +55,9 @@ pub struct BilinearOptions {
 }
 
 impl Default for BilinearOptions {
+    /// The defaults of [`Bilinear`]'s option schema.
     fn default() -> Self {
-        BilinearOptions {
-            components: 18,
-            colour: Colour::Rgb,
-            chroma_components: None,
-            resolution: 8,
-            regularization: 0.3,
-            seed: 0,
-        }
+        crate::options::defaults(<Bilinear as Model>::OPTIONS)
     }
 }
 
@@ -197,14 +192,54 @@ impl Model for Bilinear {
     const KIND: &'static str = "bilinear";
     const DOC: &'static str =
         "bilinear light grid per view slot by regularised least squares, PCA into 8-bit planes (relight's bilinear)";
+    const ABOUT: &'static str = "\
+relight's bilinear light basis per view slot. Per slot and texel, values on a `resolution x
+resolution` grid of the concentric square are fitted by regularised least squares so that their
+bilinear interpolation at each light's square point matches its sample (`min |B g - y|^2 + lambda
+|D g|^2`, `D` the second differences of the grid; a tiny ridge towards the samples' mean decides
+the nodes nothing else does). A slot whose fit would amplify its samples more than 6 times at
+some light direction is fitted with first differences instead (`model.report[\"fallback_slots\"]`);
+a slot of a multi-view BTF with fewer than 6 lights borrows the nearest views'
+(`report[\"pooled_slots\"]`). The grid functions are then compressed by PCA into 8-bit planes
+exactly as for the RBF basis.";
+    const OPTIONS: &'static [Spec] = &[
+        Spec::int(
+            "components",
+            18,
+            1,
+            Some(light_pca::MAX_COMPONENTS as i64),
+            "coefficient planes per slot (\"rgb\"), or luminance planes (\"ycc\")",
+        ),
+        Spec::choice(
+            "colour",
+            "rgb",
+            &["rgb", "ycc"],
+            "\"rgb\": one PCA of the three channels; \"ycc\": luminance and chroma compressed apart",
+        ),
+        Spec::opt_int(
+            "chroma_components",
+            0,
+            Some(light_pca::MAX_COMPONENTS as i64),
+            "chroma planes for \"ycc\" (null: max(1, components // 4))",
+        ),
+        Spec::int("resolution", 8, 2, Some(light_pca::MAX_RESOLUTION as i64), "light grid nodes per side"),
+        Spec::float("regularization", 0.3, 0.0, "weight of the second-difference smoothness (relative)"),
+        Spec::seed("seed of the randomized PCA (vectors longer than 768 values only)"),
+    ];
+    const SAMPLING: Sampling = Sampling::PerView { min_lights: 4, why: "8 x 8 grid" };
     const EXAMPLES: &'static [(&'static str, &'static str)] = &[
         ("Bilinear-9", r#"{"components": 9}"#),
         ("Bilinear-18", r#"{"components": 18}"#),
         ("Bilinear-27", r#"{"components": 27}"#),
     ];
     const TEXEL_ARRAYS: &'static [&'static str] = &["coeffs_q"];
+    const MIP: Mip = Mip::Average;
     type Options = BilinearOptions;
-    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Staged;
+    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Staged("light_pca");
+
+    fn mip_texels(&self, groups: &[Vec<(u32, f32)>]) -> Result<Self> {
+        average_texels(self, groups)
+    }
 
     fn fit(btf: &BtfRef<'_>, options: &BilinearOptions, monitor: &Monitor) -> Result<Self> {
         fit_bilinear(btf, options, monitor)

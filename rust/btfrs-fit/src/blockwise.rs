@@ -31,19 +31,21 @@ pub enum Blockwise {
         /// (the others: equal in every block and kept, or means weighted by the texels).
         counts: &'static [&'static str],
     },
-    /// A global step between per-block passes; the model's stages are run by the driver.
-    Staged,
+    /// A global step between per-block passes; the driver runs the model's stages by the
+    /// protocol named here (`"mean_brdf"`: SRF's; `"clustered_pca"`: LPCA's; `"light_pca"`: the
+    /// light bases'), so a second model with the same stages needs no new driver code.
+    Staged(&'static str),
     /// Cannot be fitted blockwise (yet): why.
     Unsupported(&'static str),
 }
 
 impl Blockwise {
     /// `(strategy, detail, counts)` as the bindings report it: `("texels", overrides,
-    /// counts)`, `("staged", "", [])` or `("unsupported", reason, [])`.
+    /// counts)`, `("staged", protocol, [])` or `("unsupported", reason, [])`.
     pub fn describe(&self) -> (&'static str, &'static str, &'static [&'static str]) {
         match *self {
             Blockwise::Texels { overrides, counts } => ("texels", overrides, counts),
-            Blockwise::Staged => ("staged", "", &[]),
+            Blockwise::Staged(protocol) => ("staged", protocol, &[]),
             Blockwise::Unsupported(why) => ("unsupported", why, &[]),
         }
     }

@@ -59,7 +59,8 @@
 
 use crate::gpu::{GpuLayout, Shader};
 use crate::lightfit::{check_bits, fit_slots, Coeffs, Degenerate, DegenerateSlot, LightBasis, SlotOptions};
-use crate::model::{Model, ReflectanceModel};
+use crate::model::{average_texels, Mip, Model, ReflectanceModel, Sampling};
+use crate::options::Spec;
 use crate::planes::Planes;
 use btfrs_core::btf::TexelScan;
 use btfrs_core::{directions, ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
@@ -116,7 +117,7 @@ pub fn hsh_basis(order: usize, l: [f64; 3], out: &mut [f64]) {
 
 /// Fit options.
 #[derive(Debug, Clone, Copy, serde::Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(deny_unknown_fields)]
 pub struct HshOptions {
     /// The order `n` (1 to 4): `n^2` coefficients per channel.
     pub order: usize,
@@ -134,8 +135,9 @@ pub struct HshOptions {
 }
 
 impl Default for HshOptions {
+    /// The defaults of [`Hsh`]'s option schema.
     fn default() -> Self {
-        HshOptions { order: 3, lambda: 1e-6, rcond: 1e-6, on_degenerate: Degenerate::Reduce, bits: 8 }
+        crate::options::defaults(<Hsh as Model>::OPTIONS)
     }
 }
 
@@ -426,8 +428,27 @@ impl Model for Hsh {
     const TEXEL_ARRAYS: &'static [&'static str] = &["coeffs", "coeffs_q"];
     const DOC: &'static str =
         "Hemispherical harmonics (Gautron et al. 2004, the basis of .rti HSH files) per view slot, 8-bit planes";
+    const ABOUT: &'static str = "\
+Hemispherical harmonics (Gautron et al. 2004) per view slot, the basis of the `.rti` HSH files
+that RTIViewer and relight open, fitted like the PTM (paper 000, section 3.1): one regularised
+pseudo-inverse of the `order^2`-column light design matrix per view slot, applied to every texel.
+The basis is orthonormal on the hemisphere, with the RTI viewers' signs (term `j = l (l + 1) + m`,
+`x = cos(theta)`: `1/sqrt(2 pi)`; `sqrt(6/pi) s cos(phi)`, `sqrt(3/(2 pi)) (2x - 1)`, ... up to
+order 4). A slot with too few or degenerate lights gets a lower order of its own lights, else the
+nearest views' lights pooled, and is listed in `model.report[\"degenerate_slots\"]`. With `bits=8`
+the three channels of a slot and term share a scale and bias, as in a `.rti` file.";
+    const OPTIONS: &'static [Spec] = &[
+        Spec::int("order", 3, 1, Some(4), "the order n: n^2 coefficients per channel"),
+        Spec::float("lambda", 1e-6, 0.0, "ridge weight relative to the largest squared singular value of a slot's design matrix (0: plain least squares)"),
+        Spec::float("rcond", 1e-6, 0.0, "singular values below rcond x the largest count as zero"),
+        Spec::choice("on_degenerate", "reduce", &["reduce", "raise", "clamp"], "a slot with too few or degenerate lights: a lower order or pooled lights (listed in the report), an error, or the minimum-norm solution"),
+        Spec::int_choice("bits", 8, &[8, 32], "8: 8-bit planes with a scale and bias per slot and term (as .rti files); 32: float32 coefficients"),
+    ];
     const EXAMPLES: &'static [(&'static str, &'static str)] =
         &[("HSH-2", r#"{"order": 2}"#), ("HSH-3", r#"{"order": 3}"#), ("HSH-4", r#"{"order": 4}"#)];
+    const SAMPLING: Sampling = Sampling::PerView { min_lights: 9, why: "order 3; order 2 needs 4" };
+    const EXPORTS: &'static [&'static str] = &["rti"];
+    const MIP: Mip = Mip::Average;
     type Options = HshOptions;
     // Each texel's values are checked as the per-texel pass reads them (TexelScan).
     const SCANS_VALUES: bool = true;
@@ -437,6 +458,10 @@ impl Model for Hsh {
 
     fn fit(btf: &BtfRef<'_>, options: &HshOptions, monitor: &Monitor) -> Result<Self> {
         fit_hsh(btf, options, monitor)
+    }
+
+    fn mip_texels(&self, groups: &[Vec<(u32, f32)>]) -> Result<Self> {
+        average_texels(self, groups)
     }
 
     /// The planes' scales span every texel: quantized over the stitched floats, as `fit_hsh`.

@@ -19,6 +19,7 @@
 //! * [`model`]: the model contract ([`Model`], [`ReflectanceModel`]): fit, evaluation at any
 //!   (view, light), error against a BTF (parallel, f64 accumulation), named arrays, bytes.
 //! * [`gpu`]: the GPU half of the contract: shader, parameter struct ([`gpu_params!`]), store.
+//! * [`options`]: the option schema each model declares, and the checks made from it.
 //! * [`registry`]: the list of models every consumer iterates over.
 //! * the general numerics (dense products, CLS, k-means, randomized PCA) are in `btfrs-numerics`.
 //! * [`blockwise`]: how each fit splits over texel blocks fitted apart (`btfrs.dask`).
@@ -32,6 +33,7 @@ pub mod light_pca;
 pub mod lightfit;
 pub mod lpca;
 pub mod model;
+pub mod options;
 pub mod planes;
 pub mod ptm;
 pub mod rbf;

@@ -57,7 +57,8 @@
 //! equals interpolating the data, and the model answers every (view, light) pair.
 
 use crate::gpu::{pack_u16, words, GpuLayout, Renderable, Shader};
-use crate::model::{unknown_renderer, Model, ReflectanceModel};
+use crate::model::{unknown_renderer, Mip, Model, ReflectanceModel, Sampling, Setting};
+use crate::options::Spec;
 use btfrs_core::{directions, ensure_arg, rng::mix, BtfRef, Error, Monitor, NamedArrays, Result};
 use btfrs_numerics::dense::{cols, column_mean, gemm, gram_t, sym_eigen_desc, view, view_t};
 use btfrs_numerics::kmeans::{kmeans, members_of};
@@ -85,7 +86,7 @@ pub const MAX_CLUSTERS: usize = 65536;
 
 /// Fit options.
 #[derive(Debug, Clone, Copy, serde::Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(deny_unknown_fields)]
 pub struct LpcaOptions {
     /// Clusters asked for, 1 to the number of texels.
     pub clusters: usize,
@@ -102,15 +103,9 @@ pub struct LpcaOptions {
 }
 
 impl Default for LpcaOptions {
+    /// The defaults of [`Lpca`]'s option schema.
     fn default() -> Self {
-        LpcaOptions {
-            clusters: 32,
-            components: 4,
-            kmeans_iterations: 25,
-            refine_iterations: 2,
-            reduced_dims: 64,
-            seed: 0,
-        }
+        crate::options::defaults(<Lpca as Model>::OPTIONS)
     }
 }
 
@@ -970,11 +965,61 @@ impl Model for Lpca {
     const TEXEL_ARRAYS: &'static [&'static str] = &["ids", "weights"];
     const DOC: &'static str = "local PCA, clustered 8-bit Eigen-BRDFs (paper 004, sections 3 and 6)";
     const RENDERERS: &'static [&'static str] = &["9tap", "3d"];
+    const ABOUT: &'static str = "\
+k-means++ (seeded) over the texels' ABRDFs, a PCA per cluster with `components` Eigen-BRDFs
+besides the mean, then 8-bit Eigen-BRDFs with their scales folded into the per-texel weights
+(section 6.3). The k-means runs in a `reduced_dims`-dimensional randomized PCA projection of the
+ABRDFs (0: the full space) and is refined by `refine_iterations` passes that reassign each texel
+to the cluster whose subspace reconstructs it best (the LPCA objective itself). Under a
+`memory_limit` the range finder's texel sample and every cluster too large for the limit are
+streamed through chunks sized by it, so a memory-mapped BTF larger than memory fits (within a
+tolerance of the unlimited fit). Two renderers: `\"9tap\"` (three nearest views x three nearest
+lights, section 5) and `\"3d\"` (Eigen-BRDFs resampled on the elevated concentric map in one 3D
+texture, section 6).";
+    const OPTIONS: &'static [Spec] = &[
+        Spec::int("clusters", 32, 1, None, "clusters asked for (at most the texels)"),
+        Spec::int("components", 4, 0, Some(MAX_COMPONENTS as i64), "Eigen-BRDFs per cluster besides the mean"),
+        Spec::int("kmeans_iterations", 25, 1, None, "most Lloyd iterations of the k-means (stops earlier once stable)"),
+        Spec::int(
+            "refine_iterations",
+            2,
+            0,
+            None,
+            "local-PCA reassignment passes after the k-means (0: plain k-means + PCA)",
+        ),
+        Spec::int(
+            "reduced_dims",
+            64,
+            0,
+            None,
+            "principal coordinates the clustering works in (0: the full ABRDFs, slow)",
+        ),
+        Spec::seed("seed of every random choice (k-means++ seeding, the randomized PCA)"),
+    ];
     const EXAMPLES: &'static [(&'static str, &'static str)] =
         &[("LPCA 8x4", r#"{"clusters": 8, "components": 4}"#), ("LPCA 32x4", r#"{"clusters": 32, "components": 4}"#)];
+    const SWEEP: &'static [Setting] = &[
+        Setting::full("LPCA 8x2", r#"{"clusters": 8, "components": 2}"#),
+        Setting::quick("LPCA 8x4", r#"{"clusters": 8, "components": 4}"#),
+        Setting::full("LPCA 8x8", r#"{"clusters": 8, "components": 8}"#),
+        Setting::full("LPCA 32x2", r#"{"clusters": 32, "components": 2}"#),
+        Setting::full("LPCA 32x4", r#"{"clusters": 32, "components": 4}"#),
+        Setting::full("LPCA 32x8", r#"{"clusters": 32, "components": 8}"#),
+    ];
+    const SAMPLING: Sampling = Sampling::Any {
+        note: "any sampling (per-texel ABRDFs, clustered)",
+        one_view: "any sampling (per-texel ABRDFs, clustered)",
+    };
     type Options = LpcaOptions;
     // The clustering spans all texels: run as stages (`staged`).
-    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Staged;
+    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Staged("clustered_pca");
+
+    /// Not linear across clusters: the mean appearance projected ([`Lpca::mip_texels`]).
+    const MIP: Mip = Mip::Projected;
+
+    fn mip_texels(&self, groups: &[Vec<(u32, f32)>]) -> Result<Self> {
+        Lpca::mip_texels(self, groups)
+    }
 
     fn fit(btf: &BtfRef<'_>, options: &LpcaOptions, monitor: &Monitor) -> Result<Self> {
         if options.clusters > MAX_CLUSTERS {

@@ -71,15 +71,29 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     /// Renderer names; the first is the default. A model with several renderers (LPCA: the 9-tap
     /// lookup and the 3D texture) overrides [`Model::renderer`].
     const RENDERERS: &'static [&'static str] = &["default"];
+    /// What the model is and how it is fitted, in a few paragraphs (Markdown): the docstring of
+    /// `btfrs.fit.<kind>` and the top of its docs page.
+    const ABOUT: &'static str;
+    /// The fit's options ([`crate::options`]): names, types, defaults, allowed values, docs.
+    /// `Options` is built from them; nothing else states a default.
+    const OPTIONS: &'static [crate::options::Spec];
     /// Example option sets `(label, JSON)` from small to large: what the demo and the bench fit.
     const EXAMPLES: &'static [(&'static str, &'static str)];
+    /// The settings `btfrs.evaluate` sweeps (its quick sweep takes those marked `quick`); empty:
+    /// the [`Model::EXAMPLES`], the first of them quick.
+    const SWEEP: &'static [Setting] = &[];
+    /// What sampling the fit needs, for `btfrs info`'s advice on a capture.
+    const SAMPLING: Sampling;
+    /// File formats of other tools the model can be written as (`"ptm"`, `"rti"`); the writers
+    /// are in `btfrs-io`, one file per format.
+    const EXPORTS: &'static [&'static str] = &[];
     /// The arrays of [`Model::to_arrays`] that hold one entry per texel (shape `[H, W, ...]`):
     /// what [`crate::registry::select_texels`] gathers to make the model of a subset of texels
     /// (a tile set's BTFel table).
     const TEXEL_ARRAYS: &'static [&'static str];
     /// Fit options, read from JSON (`{"lobes": 2}`): unknown names and wrong types are errors
     /// naming the option.
-    type Options: DeserializeOwned + Default + std::fmt::Debug;
+    type Options: DeserializeOwned + std::fmt::Debug;
 
     /// Fit to the present pairs of `btf` (its values are finite: the caller checked, unless
     /// [`Model::SCANS_VALUES`]).
@@ -130,6 +144,34 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     fn nbytes(&self) -> usize {
         GpuModel::gpu_bytes(self)
     }
+    /// How the coarse levels of a mip pyramid are made for filtered lookups (what the docs
+    /// say; a model whose form depends on its fit overrides [`Model::mip`] as well).
+    const MIP: Mip = Mip::Medoid;
+    /// How this model's mip levels are made: [`Model::MIP`] unless the fit decides.
+    fn mip(&self) -> Mip {
+        Self::MIP
+    }
+    /// The model extended by averaged texels, for [`Mip::Average`] and [`Mip::Projected`] models
+    /// (see [`crate::registry::mip_texels`]); [`average_texels`] is the exact average of a model
+    /// linear in its [`Model::TEXEL_ARRAYS`].
+    fn mip_texels(&self, groups: &[Vec<(u32, f32)>]) -> Result<Self> {
+        let _ = groups;
+        Err(Error::arg(
+            "filter",
+            format!("the {} model's parameters cannot be averaged (use medoid levels)", Self::KIND),
+        ))
+    }
+    /// Per-texel features in a linear coefficient domain, for tile synthesis (paper 002, section
+    /// 3.2: distances between texels there are distances between their appearances); `None`:
+    /// the model has none, and the features are decoded at probe directions.
+    fn coefficient_features(&self) -> Option<Result<CoefficientFeatures>> {
+        None
+    }
+    /// The model as a double-SH expansion per texel and channel, for the SH environment method
+    /// (paper 002, section 4); `None` for models that are not one.
+    fn sh_expansion(&self) -> Option<ShExpansion<'_>> {
+        None
+    }
     /// The model as renderer `method` draws it (GPU layout and CPU reference). `max_3d` is the
     /// device's 3D texture limit per side.
     fn renderer(&self, method: &str, max_3d: usize) -> Result<Box<dyn Renderable + '_>> {
@@ -146,35 +188,167 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
 #[serde(deny_unknown_fields)]
 pub struct NoOptions {}
 
+/// One setting of `btfrs.evaluate`'s sweep of a model.
+#[derive(Debug, Clone, Copy)]
+pub struct Setting {
+    /// The row's label (`"PTM-RGB"`).
+    pub label: &'static str,
+    /// The options, a JSON object.
+    pub options: &'static str,
+    /// Part of the quick sweep (the demo's and the tests').
+    pub quick: bool,
+    /// A note for the row (`""`: none).
+    pub note: &'static str,
+}
+
+impl Setting {
+    /// A setting of the full sweep.
+    pub const fn full(label: &'static str, options: &'static str) -> Setting {
+        Setting { label, options, quick: false, note: "" }
+    }
+    /// A setting of the quick sweep too.
+    pub const fn quick(label: &'static str, options: &'static str) -> Setting {
+        Setting { label, options, quick: true, note: "" }
+    }
+    /// With a note.
+    pub const fn note(self, note: &'static str) -> Setting {
+        Setting { note, ..self }
+    }
+}
+
+/// What sampling of (view, light) pairs a fit needs.
+#[derive(Debug, Clone, Copy)]
+pub enum Sampling {
+    /// A fit per view slot: at least `min_lights` lights in a slot, for the reason `why`.
+    PerView {
+        /// Lights per view slot.
+        min_lights: usize,
+        /// What needs them (`"biquadratic"`).
+        why: &'static str,
+    },
+    /// Any sampling: `note`, and `one_view` for a capture with one view.
+    Any {
+        /// For several views.
+        note: &'static str,
+        /// For one view.
+        one_view: &'static str,
+    },
+}
+
+/// How a model's mip levels are made (filtered lookups, `btfrs.render(filter="trilinear")`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mip {
+    /// The coarse texels are averages of the fine ones' parameters: exact, the model being
+    /// linear in its texel arrays.
+    Average,
+    /// The coarse texels are projections of the averaged appearance ([`Model::mip_texels`]).
+    Projected,
+    /// Appearance medoids: the texel of each block nearest its mean appearance.
+    Medoid,
+}
+
+impl Mip {
+    /// Its name in Python (`model.mip`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Mip::Average => "average",
+            Mip::Projected => "projected",
+            Mip::Medoid => "medoid",
+        }
+    }
+}
+
+/// Per-texel features in a model's linear coefficient domain ([`Model::coefficient_features`]).
+#[derive(Debug, Clone)]
+pub struct CoefficientFeatures {
+    /// Values per texel.
+    pub dim: usize,
+    /// `[texels][dim]`.
+    pub data: Vec<f32>,
+    /// What they are, for reports (`"sh coefficients"`).
+    pub label: &'static str,
+}
+
+/// A model as a double-SH expansion ([`Model::sh_expansion`]): per texel and channel a
+/// `view_coeffs x light_coeffs` matrix of real SH coefficients (paper 002, section 3.1).
+#[derive(Debug, Clone)]
+pub struct ShExpansion<'a> {
+    /// View coefficients (a perfect square).
+    pub view_coeffs: usize,
+    /// Light coefficients (a perfect square).
+    pub light_coeffs: usize,
+    /// `[texel][channel][view_coeffs][light_coeffs]`, dequantized.
+    pub coeffs: std::borrow::Cow<'a, [f32]>,
+}
+
+/// The exact mip texels of a model linear in its [`Model::TEXEL_ARRAYS`]: texel `n + g`
+/// (n = the model's texel count) is `sum w x texel t` over `groups[g]`, which may name earlier
+/// new texels. The result keeps the model's width and gains `ceil(groups / width)` rows (the last
+/// padded with copies of texel 0), so every original texel keeps its index.
+pub fn average_texels<M: Model>(model: &M, groups: &[Vec<(u32, f32)>]) -> Result<M> {
+    use btfrs_core::arrays::ArrayData as D;
+    let (h, w) = ReflectanceModel::dims(model);
+    let n = h * w;
+    for (g, grp) in groups.iter().enumerate() {
+        if let Some(&(bad, _)) = grp.iter().find(|(t, _)| *t as usize >= n + g) {
+            return Err(Error::arg("groups", format!("group {g} names texel {bad}, not defined before it")));
+        }
+    }
+    let rows = h + groups.len().div_ceil(w.max(1));
+    let arrays = model.to_arrays();
+    let mut out = NamedArrays::new();
+    for (name, a) in arrays.iter() {
+        if !M::TEXEL_ARRAYS.contains(&name) {
+            out.insert(name, a.clone());
+            continue;
+        }
+        if a.shape.len() < 2 || a.shape[0] != h || a.shape[1] != w {
+            return Err(Error::arg(
+                "model",
+                format!("{} array {name} has shape {:?}, not [{h}, {w}, ...]", M::KIND, a.shape),
+            ));
+        }
+        let per: usize = a.shape[2..].iter().product();
+        let mut shape = vec![rows, w];
+        shape.extend_from_slice(&a.shape[2..]);
+        // Averages in f64 over f64 copies, then back to the array's type (integers rounded).
+        let mut v: Vec<f64> = match &a.data {
+            D::U8(x) => x.iter().map(|&y| y as f64).collect(),
+            D::U16(x) => x.iter().map(|&y| y as f64).collect(),
+            D::I32(x) => x.iter().map(|&y| y as f64).collect(),
+            D::F32(x) => x.iter().map(|&y| y as f64).collect(),
+            D::F64(x) => x.clone(),
+        };
+        v.reserve((rows * w - n) * per);
+        for grp in groups {
+            let mut acc = vec![0.0f64; per];
+            for &(t, wt) in grp {
+                for (o, x) in acc.iter_mut().zip(&v[t as usize * per..(t as usize + 1) * per]) {
+                    *o += wt as f64 * x;
+                }
+            }
+            v.extend(acc);
+        }
+        let pad: Vec<f64> = v[..per].to_vec();
+        while v.len() < rows * w * per {
+            v.extend_from_slice(&pad);
+        }
+        let data = match &a.data {
+            D::U8(_) => D::U8(v.iter().map(|x| x.round().clamp(0.0, 255.0) as u8).collect()),
+            D::U16(_) => D::U16(v.iter().map(|x| x.round().clamp(0.0, 65535.0) as u16).collect()),
+            D::I32(_) => D::I32(v.iter().map(|x| x.round() as i32).collect()),
+            D::F32(_) => D::F32(v.iter().map(|&x| x as f32).collect()),
+            D::F64(_) => D::F64(v),
+        };
+        out.insert_checked(name, shape, data)?;
+    }
+    M::from_arrays(&out)
+}
+
 /// The error for a renderer name a model does not have.
 pub fn unknown_renderer(kind: &str, renderers: &[&str], method: &str) -> Error {
     let list: Vec<String> = renderers.iter().map(|r| format!("{r:?}")).collect();
     Error::arg("method", format!("the {kind} model has no renderer {method:?}; expected one of {}", list.join(", ")))
-}
-
-/// Parse fit options from a JSON object, naming the option at fault.
-pub fn parse_options<O: DeserializeOwned + Default>(json: &str) -> Result<O> {
-    let v: serde_json::Value =
-        serde_json::from_str(json).map_err(|e| Error::arg("options", format!("not valid JSON: {e}")))?;
-    let serde_json::Value::Object(map) = &v else {
-        return Err(Error::arg("options", "expected a JSON object of option names"));
-    };
-    match serde_json::from_value::<O>(v.clone()) {
-        Ok(o) => Ok(o),
-        Err(whole) => {
-            // serde names an unknown field but not the field of a type error: try each option
-            // alone (the others defaulted) to find the culprit.
-            for (k, x) in map {
-                let one = serde_json::Value::Object([(k.clone(), x.clone())].into_iter().collect());
-                if let Err(e) = serde_json::from_value::<O>(one) {
-                    let msg = e.to_string();
-                    let msg = msg.split(" at line ").next().unwrap_or(&msg).to_string();
-                    return Err(Error::arg(k, format!("{msg} (got {x})")));
-                }
-            }
-            Err(Error::arg("options", whole.to_string()))
-        }
-    }
 }
 
 /// The object-safe face of every [`Model`]: what the registry, the bindings and the renderer
@@ -198,7 +372,16 @@ pub trait DynModel: Renderable + Send + std::fmt::Debug {
     fn evaluate_image(&self, view: [f64; 3], light: [f64; 3]) -> Result<Vec<f32>>;
     /// [`model_error`].
     fn error(&self, btf: &BtfRef<'_>) -> Result<ErrorSums>;
-    /// For the few places that need the concrete type (writing a `.ptm` file).
+    /// [`Model::mip`].
+    fn mip(&self) -> Mip;
+    /// [`Model::mip_texels`].
+    fn mip_texels(&self, groups: &[Vec<(u32, f32)>]) -> Result<Box<dyn DynModel>>;
+    /// [`Model::coefficient_features`].
+    fn coefficient_features(&self) -> Option<Result<CoefficientFeatures>>;
+    /// [`Model::sh_expansion`].
+    fn sh_expansion(&self) -> Option<ShExpansion<'_>>;
+    /// The concrete model, for its own files only (a format writer of that model in
+    /// `btfrs-io`): everything else asks the registry and the methods above.
     fn as_any(&self) -> &dyn Any;
 }
 
@@ -229,6 +412,18 @@ impl<M: Model + std::fmt::Debug> DynModel for M {
     }
     fn error(&self, btf: &BtfRef<'_>) -> Result<ErrorSums> {
         model_error(self, btf)
+    }
+    fn mip(&self) -> Mip {
+        Model::mip(self)
+    }
+    fn mip_texels(&self, groups: &[Vec<(u32, f32)>]) -> Result<Box<dyn DynModel>> {
+        Ok(Box::new(Model::mip_texels(self, groups)?))
+    }
+    fn coefficient_features(&self) -> Option<Result<CoefficientFeatures>> {
+        Model::coefficient_features(self)
+    }
+    fn sh_expansion(&self) -> Option<ShExpansion<'_>> {
+        Model::sh_expansion(self)
     }
     fn as_any(&self) -> &dyn Any {
         self

@@ -42,7 +42,8 @@ mod slot;
 
 use crate::gpu::{words, GpuLayout, Shader};
 use crate::lightfit::{check_bits, fit_slots, Coeffs, LightBasis, Slot, SlotOptions};
-use crate::model::{Model, ReflectanceModel};
+use crate::model::{average_texels, CoefficientFeatures, Mip, Model, ReflectanceModel, Sampling, Setting};
+use crate::options::Spec;
 use crate::planes::Planes;
 use btfrs_core::btf::TexelScan;
 use btfrs_core::{directions, BtfRef, Error, Monitor, NamedArrays, Result};
@@ -68,7 +69,7 @@ pub use crate::lightfit::{Degenerate, DegenerateSlot, K_AMP};
 
 /// Fit options.
 #[derive(Debug, Clone, Copy, serde::Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(deny_unknown_fields)]
 pub struct PtmOptions {
     /// The variant.
     pub kind: PtmKind,
@@ -83,8 +84,9 @@ pub struct PtmOptions {
 }
 
 impl Default for PtmOptions {
+    /// The defaults of [`Ptm`]'s option schema.
     fn default() -> Self {
-        PtmOptions { kind: PtmKind::Rgb, rcond: 1e-6, on_degenerate: Degenerate::Reduce, bits: 8 }
+        crate::options::defaults(<Ptm as Model>::OPTIONS)
     }
 }
 
@@ -503,12 +505,60 @@ impl GpuLayout for Ptm {
     }
 }
 
+/// The Gram matrix of the PTM basis averaged over the light hemisphere (uniform in solid
+/// angle: the concentric map is area-preserving, so a uniform grid on its square is uniform on
+/// the hemisphere), and its Cholesky factor.
+pub fn gram_factor() -> [[f64; 6]; 6] {
+    let n = 96;
+    let mut g = nalgebra::DMatrix::<f64>::zeros(6, 6);
+    for i in 0..n {
+        for j in 0..n {
+            let l = btfrs_hemimap::square_to_hemisphere((i as f64 + 0.5) / n as f64, (j as f64 + 0.5) / n as f64);
+            let b = basis(l);
+            for a in 0..6 {
+                for c in 0..6 {
+                    g[(a, c)] += b[a] * b[c];
+                }
+            }
+        }
+    }
+    g /= (n * n) as f64;
+    let l = nalgebra::Cholesky::new(g).expect("the PTM basis is linearly independent on the hemisphere").l();
+    let mut out = [[0.0; 6]; 6];
+    for (a, row) in out.iter_mut().enumerate() {
+        for (c, v) in row.iter_mut().enumerate() {
+            *v = l[(a, c)];
+        }
+    }
+    out
+}
+
 impl Model for Ptm {
     const KIND: &'static str = "ptm";
     const TEXEL_ARRAYS: &'static [&'static str] = &["coeffs", "rgb", "coeffs_q", "rgb_q"];
     const DOC: &'static str = "Polynomial Texture Maps per view slot (paper 000, section 3.1)";
+    const ABOUT: &'static str = "\
+One SVD pseudo-inverse of the 6-column light design matrix per view slot, applied to every texel
+(float64 accumulation), so the fit costs one pass over the data. `kind=\"rgb\"` fits one
+biquadratic `a0 lu^2 + a1 lv^2 + a2 lu lv + a3 lu + a4 lv + a5` per channel, `\"lrgb\"` one for the
+luminance times a base colour. A view slot with fewer than 6 lights, or degenerate (collinear)
+lights, or whose biquadratic would extrapolate (a prediction above 4 times its samples' range),
+gets the plane of its own lights or the lights of the nearest views pooled
+(`on_degenerate=\"reduce\"`); `model.report[\"degenerate_slots\"]` lists each such slot. With
+`bits=8` the coefficients are 8-bit planes as a `.ptm` file holds them (per slot and coefficient
+a scale and a bias), so `nbytes` is what a viewer holds and `save_ptm` writes these bytes.";
+    const OPTIONS: &'static [Spec] = &[
+        Spec::choice("kind", "rgb", &["rgb", "lrgb"], "\"rgb\": 6 coefficients per channel; \"lrgb\": 6 for the luminance and a base colour"),
+        Spec::float("rcond", 1e-6, 0.0, "singular values below rcond x the largest count as zero"),
+        Spec::choice("on_degenerate", "reduce", &["reduce", "raise", "clamp"], "a slot with too few or degenerate lights: a reduced fit (listed in the report), an error, or the minimum-norm solution"),
+        Spec::int_choice("bits", 8, &[8, 32], "8: 8-bit planes with a scale and bias per plane (as .ptm files); 32: float32 coefficients"),
+    ];
     const EXAMPLES: &'static [(&'static str, &'static str)] =
         &[("PTM-LRGB", r#"{"kind": "lrgb"}"#), ("PTM-RGB", r#"{"kind": "rgb"}"#)];
+    const SWEEP: &'static [Setting] =
+        &[Setting::quick("PTM-RGB", r#"{"kind": "rgb"}"#), Setting::full("PTM-LRGB", r#"{"kind": "lrgb"}"#)];
+    const SAMPLING: Sampling = Sampling::PerView { min_lights: 6, why: "biquadratic" };
+    const EXPORTS: &'static [&'static str] = &["ptm"];
     type Options = PtmOptions;
     // Each texel's values are checked as the per-texel pass reads them (TexelScan).
     const SCANS_VALUES: bool = true;
@@ -518,6 +568,43 @@ impl Model for Ptm {
 
     fn fit(btf: &BtfRef<'_>, options: &PtmOptions, monitor: &Monitor) -> Result<Self> {
         fit_ptm(btf, options, monitor)
+    }
+
+    const MIP: Mip = Mip::Average;
+
+    /// RGB is linear in its coefficients; LRGB multiplies two texel arrays, so its average is
+    /// not the average appearance.
+    fn mip(&self) -> Mip {
+        match self.kind {
+            PtmKind::Rgb => Mip::Average,
+            PtmKind::Lrgb => Mip::Medoid,
+        }
+    }
+
+    fn mip_texels(&self, groups: &[Vec<(u32, f32)>]) -> Result<Self> {
+        match self.kind {
+            PtmKind::Rgb => average_texels(self, groups),
+            PtmKind::Lrgb => {
+                Err(Error::arg("filter", "the LRGB PTM's parameters cannot be averaged (use medoid levels)"))
+            }
+        }
+    }
+
+    /// RGB: the coefficients whitened by the hemisphere Gram matrix ([`gram_factor`]), so that
+    /// distances between texels are L2 distances of their light functions.
+    fn coefficient_features(&self) -> Option<Result<CoefficientFeatures>> {
+        if self.kind != PtmKind::Rgb {
+            return None;
+        }
+        let l = gram_factor();
+        // f = L^T c, so that |f|^2 = c^T G c = mean over the hemisphere of the squared value.
+        let data: Vec<f32> = self
+            .coeffs
+            .par_chunks(6)
+            .flat_map_iter(|c| (0..6).map(move |k| (0..6).map(|a| l[a][k] * c[a] as f64).sum::<f64>() as f32))
+            .collect();
+        let dim = data.len() / (self.height * self.width).max(1);
+        Some(Ok(CoefficientFeatures { dim, data, label: "ptm coefficients (hemisphere Gram-whitened)" }))
     }
 
     /// The planes' scales span every texel: quantized over the stitched floats, as `fit_ptm`.

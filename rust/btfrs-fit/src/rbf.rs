@@ -21,13 +21,14 @@
 //! with duplicate lights (a singular kernel matrix) is an error asking for a positive one.
 
 use crate::light_pca::{self, Colour, LightPca, PcaOptions};
-use crate::model::Model;
+use crate::model::{average_texels, Mip, Model, Sampling};
+use crate::options::Spec;
 use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
 use nalgebra::DMatrix;
 
 /// Fit options.
 #[derive(Debug, Clone, Copy, serde::Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(deny_unknown_fields)]
 pub struct RbfOptions {
     /// Coefficient planes per slot (rgb), or luminance planes (ycc).
     pub components: usize,
@@ -48,16 +49,9 @@ pub struct RbfOptions {
 }
 
 impl Default for RbfOptions {
+    /// The defaults of [`Rbf`]'s option schema.
     fn default() -> Self {
-        RbfOptions {
-            components: 18,
-            colour: Colour::Rgb,
-            chroma_components: None,
-            resolution: 12,
-            width: 2.5,
-            regularization: 0.1,
-            seed: 0,
-        }
+        crate::options::defaults(<Rbf as Model>::OPTIONS)
     }
 }
 
@@ -158,11 +152,58 @@ impl Model for Rbf {
     const KIND: &'static str = "rbf";
     const DOC: &'static str =
         "Gaussian RBF light interpolation per view slot, resampled on a light grid, PCA into 8-bit planes (relight's RBF)";
+    const ABOUT: &'static str = "\
+relight's RBF light basis (the RTI default of relight) per view slot. Per slot and texel, the
+values under the slot's lights are interpolated by Gaussian radial basis functions (`f(l) = mu +
+sum_j a_j exp(-|l - l_j|^2 / 2 sigma^2)` with `(K + regularization I) a = y - mu`), `sigma =
+width` times the light spacing. The interpolant is resampled on a `resolution x resolution` grid
+of the concentric square, and the grid functions of all texels are compressed by PCA into
+`components` planes stored 8-bit with a scale and bias per plane, next to a float32 table of the
+principal functions (counted in `nbytes`). A light is evaluated by a bilinear lookup of the table
+and one dot product per channel; the three nearest view slots are blended, as for the PTM. A slot
+of a multi-view BTF with fewer than 6 present lights borrows the nearest views' lights
+(`model.report[\"pooled_slots\"]`).";
+    const OPTIONS: &'static [Spec] = &[
+        Spec::int(
+            "components",
+            18,
+            1,
+            Some(light_pca::MAX_COMPONENTS as i64),
+            "coefficient planes per slot (\"rgb\"), or luminance planes (\"ycc\")",
+        ),
+        Spec::choice(
+            "colour",
+            "rgb",
+            &["rgb", "ycc"],
+            "\"rgb\": one PCA of the three channels; \"ycc\": luminance and chroma compressed apart",
+        ),
+        Spec::opt_int(
+            "chroma_components",
+            0,
+            Some(light_pca::MAX_COMPONENTS as i64),
+            "chroma planes for \"ycc\" (null: max(1, components // 4))",
+        ),
+        Spec::int("resolution", 12, 2, Some(light_pca::MAX_RESOLUTION as i64), "light grid nodes per side"),
+        Spec::positive("width", 2.5, "kernel width in units of the light spacing"),
+        Spec::float(
+            "regularization",
+            0.1,
+            0.0,
+            "ridge on the kernel matrix's unit diagonal (0 with duplicate lights is an error)",
+        ),
+        Spec::seed("seed of the randomized PCA (vectors longer than 768 values only)"),
+    ];
     const EXAMPLES: &'static [(&'static str, &'static str)] =
         &[("RBF-9", r#"{"components": 9}"#), ("RBF-18", r#"{"components": 18}"#), ("RBF-27", r#"{"components": 27}"#)];
+    const SAMPLING: Sampling = Sampling::PerView { min_lights: 3, why: "18 planes" };
     const TEXEL_ARRAYS: &'static [&'static str] = &["coeffs_q"];
+    const MIP: Mip = Mip::Average;
     type Options = RbfOptions;
-    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Staged;
+    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Staged("light_pca");
+
+    fn mip_texels(&self, groups: &[Vec<(u32, f32)>]) -> Result<Self> {
+        average_texels(self, groups)
+    }
 
     fn fit(btf: &BtfRef<'_>, options: &RbfOptions, monitor: &Monitor) -> Result<Self> {
         fit_rbf(btf, options, monitor)

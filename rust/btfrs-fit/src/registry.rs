@@ -1,9 +1,12 @@
 //! The model registry: the one list of models. Everything that iterates over models (the
-//! bindings, `btfrs.load`, the renderers, the demo, the bench) asks it, so a new model is
-//! registered by one line in [`MODELS`] (see CONTRIBUTING.md).
+//! bindings, `btfrs.load`, `btfrs.fit.<kind>`, the CLI, `btfrs.evaluate`, the renderers, the
+//! demo, the bench, the docs) asks it, so a new model is registered by one line in [`MODELS`]
+//! (see CONTRIBUTING.md), and every fact about a model is read from its entry ([`describe`]).
 
-use crate::model::{parse_options, DynModel, Model};
+use crate::model::{DynModel, Mip, Model, Sampling, Setting};
+use crate::options::{self, Spec};
 use btfrs_core::{BtfRef, Error, Monitor, NamedArrays, Result};
+use serde_json::{json, Value};
 
 /// What the registry knows of one model, independent of its type.
 #[derive(Debug, Clone, Copy)]
@@ -12,16 +15,26 @@ pub struct Entry {
     pub kind: &'static str,
     /// [`Model::DOC`].
     pub doc: &'static str,
+    /// [`Model::ABOUT`].
+    pub about: &'static str,
+    /// [`Model::OPTIONS`].
+    pub options: &'static [Spec],
     /// [`Model::RENDERERS`].
     pub renderers: &'static [&'static str],
     /// [`Model::EXAMPLES`].
     pub examples: &'static [(&'static str, &'static str)],
+    /// [`Model::SWEEP`].
+    pub sweep: &'static [Setting],
+    /// [`Model::SAMPLING`].
+    pub sampling: Sampling,
+    /// [`Model::EXPORTS`].
+    pub exports: &'static [&'static str],
+    /// [`Model::MIP`].
+    pub mip: Mip,
     /// Fit with options given as a JSON object.
     pub fit: fn(&BtfRef<'_>, &str, &Monitor) -> Result<Box<dyn DynModel>>,
     /// [`Model::from_arrays`].
     pub from_arrays: fn(&NamedArrays) -> Result<Box<dyn DynModel>>,
-    /// The defaults of its options, for display (`{:?}` of `Options::default()`).
-    pub default_options: fn() -> String,
     /// [`Model::shaders`].
     pub shaders: fn() -> Vec<crate::gpu::Shader>,
     /// [`Model::TEXEL_ARRAYS`].
@@ -35,9 +48,23 @@ pub struct Entry {
     pub finish_blocks: fn(&NamedArrays, &str) -> Result<Box<dyn DynModel>>,
 }
 
+impl Entry {
+    /// The settings `btfrs.evaluate` sweeps: [`Model::SWEEP`], or the examples (the first quick).
+    pub fn sweep(&self) -> Vec<Setting> {
+        if !self.sweep.is_empty() {
+            return self.sweep.to_vec();
+        }
+        self.examples
+            .iter()
+            .enumerate()
+            .map(|(i, &(label, options))| Setting { label, options, quick: i == 0, note: "" })
+            .collect()
+    }
+}
+
 fn fit_erased<M: Model + std::fmt::Debug>(btf: &BtfRef<'_>, options: &str, mon: &Monitor) -> Result<Box<dyn DynModel>> {
-    let (options, limit) = take_memory_limit(options)?;
-    let o: M::Options = parse_options(&options)?;
+    let (map, limit) = take_memory_limit(options)?;
+    let o: M::Options = options::build(M::OPTIONS, map)?;
     if let Some(limit) = limit {
         let least = M::least_memory(btf, &o);
         if limit < least {
@@ -60,19 +87,20 @@ fn fit_erased<M: Model + std::fmt::Debug>(btf: &BtfRef<'_>, options: &str, mon: 
 
 /// The option every fit takes besides its own: `memory_limit`, the anonymous memory in bytes
 /// the fit may allocate besides the model it returns (out-of-core fitting of memory-mapped
-/// BTFs); taken out of the JSON object before the model's options are parsed.
-fn take_memory_limit(options: &str) -> Result<(String, Option<u64>)> {
-    let Ok(serde_json::Value::Object(mut map)) = serde_json::from_str::<serde_json::Value>(options) else {
-        return Ok((options.to_string(), None)); // parse_options reports it
+/// BTFs); taken out of the JSON object before the model's options are checked.
+fn take_memory_limit(options: &str) -> Result<(serde_json::Map<String, Value>, Option<u64>)> {
+    let v: Value = serde_json::from_str(options).map_err(|e| Error::arg("options", format!("not valid JSON: {e}")))?;
+    let Value::Object(mut map) = v else {
+        return Err(Error::arg("options", "expected a JSON object of option names"));
     };
     let limit = match map.remove("memory_limit") {
-        None | Some(serde_json::Value::Null) => None,
+        None | Some(Value::Null) => None,
         Some(v) => match v.as_u64() {
             Some(b) if b > 0 => Some(b),
             _ => return Err(Error::arg("memory_limit", format!("expected a positive number of bytes, got {v}"))),
         },
     };
-    Ok((serde_json::Value::Object(map).to_string(), limit))
+    Ok((map, limit))
 }
 
 fn from_arrays_erased<M: Model + std::fmt::Debug>(a: &NamedArrays) -> Result<Box<dyn DynModel>> {
@@ -80,13 +108,9 @@ fn from_arrays_erased<M: Model + std::fmt::Debug>(a: &NamedArrays) -> Result<Box
 }
 
 fn finish_blocks_erased<M: Model + std::fmt::Debug>(a: &NamedArrays, options: &str) -> Result<Box<dyn DynModel>> {
-    let (options, _) = take_memory_limit(options)?;
-    let o: M::Options = parse_options(&options)?;
+    let (map, _) = take_memory_limit(options)?;
+    let o: M::Options = options::build(M::OPTIONS, map)?;
     Ok(Box::new(M::from_arrays(a)?.finish_blocks(&o)?))
-}
-
-fn default_options<M: Model>() -> String {
-    format!("{:?}", M::Options::default())
 }
 
 /// The registry entry of `M`.
@@ -94,11 +118,16 @@ pub const fn entry<M: Model + std::fmt::Debug>() -> Entry {
     Entry {
         kind: M::KIND,
         doc: M::DOC,
+        about: M::ABOUT,
+        options: M::OPTIONS,
         renderers: M::RENDERERS,
         examples: M::EXAMPLES,
+        sweep: M::SWEEP,
+        sampling: M::SAMPLING,
+        exports: M::EXPORTS,
+        mip: M::MIP,
         fit: fit_erased::<M>,
         from_arrays: from_arrays_erased::<M>,
-        default_options: default_options::<M>,
         shaders: M::shaders,
         texel_arrays: M::TEXEL_ARRAYS,
         scans_values: M::SCANS_VALUES,
@@ -133,92 +162,65 @@ pub fn fit(kind: &str, btf: &BtfRef<'_>, options: &str, monitor: &Monitor) -> Re
     (lookup(kind)?.fit)(btf, options, monitor)
 }
 
+/// Check options (a JSON object) for model `kind` as its fit would, without fitting: the CLI
+/// checks `--set` before reading any data.
+pub fn check_options(kind: &str, options: &str) -> Result<()> {
+    let e = lookup(kind)?;
+    let (map, _) = take_memory_limit(options)?;
+    options::check(e.options, &map)
+}
+
 /// Rebuild model `kind` from its arrays.
 pub fn from_arrays(kind: &str, arrays: &NamedArrays) -> Result<Box<dyn DynModel>> {
     (lookup(kind)?.from_arrays)(arrays)
 }
 
-/// Models whose value is linear in their per-texel arrays, so that averaging the arrays of a
-/// block of texels averages their appearance exactly: what [`mip_texels`] accepts. (PTM's LRGB
-/// variant multiplies two texel arrays; its average is exact for the RGB variant only.)
-pub const AVERAGEABLE: &[&str] = &["ptm", "hsh", "sh", "rbf", "bilinear"];
+/// Every fact of every model as JSON: what the Python API, the CLI and the docs are built from.
+pub fn describe() -> Value {
+    Value::Array(
+        MODELS
+            .iter()
+            .map(|e| {
+                let (blockwise, why, _) = e.blockwise.describe();
+                let sampling = match e.sampling {
+                    Sampling::PerView { min_lights, why } => json!({"per_view": true, "min_lights": min_lights, "why": why}),
+                    Sampling::Any { note, one_view } => json!({"per_view": false, "note": note, "one_view": one_view}),
+                };
+                json!({
+                    "kind": e.kind,
+                    "doc": e.doc,
+                    "about": e.about,
+                    "options": options::schema_json(e.options),
+                    "renderers": e.renderers,
+                    "examples": e.examples.iter().map(|(l, o)| json!([l, o])).collect::<Vec<_>>(),
+                    "sweep": e.sweep().iter().map(|s| json!({"label": s.label, "options": s.options, "quick": s.quick, "note": s.note})).collect::<Vec<_>>(),
+                    "sampling": sampling,
+                    "exports": e.exports,
+                    "mip": e.mip.name(),
+                    "texel_arrays": e.texel_arrays,
+                    "scans_values": e.scans_values,
+                    "blockwise": blockwise,
+                    "blockwise_note": why,
+                })
+            })
+            .collect(),
+    )
+}
 
 /// The model extended by averaged texels (the coarse levels of a box-filtered mip pyramid):
-/// texel `n + g` (n = the model's texel count) is `sum w x texel t` over `groups[g]`, which
-/// may name earlier new texels. The result keeps the model's width and gains
-/// `ceil(groups / width)` rows (the last padded with copies of texel 0), so every original texel
-/// keeps its index. LPCA (linear within a cluster only) gets projected texels instead
-/// ([`crate::lpca::Lpca::mip_texels`]). Errors: any other model not linear in its texel arrays
-/// ([`AVERAGEABLE`]), a group naming a texel not yet defined ("groups").
+/// texel `n + g` (n = the model's texel count) is a weighted sum of the texels `groups[g]`
+/// names, which may name earlier new texels; the width is kept and `ceil(groups / width)` rows
+/// are added, so every original texel keeps its index. What "averaged" means is the model's own
+/// ([`Model::mip`]): the exact average of its parameters ([`Mip::Average`]), or a projection of
+/// the averaged appearance ([`Mip::Projected`]); medoid models are an error naming `filter`.
 pub fn mip_texels(model: &dyn DynModel, groups: &[Vec<(u32, f32)>]) -> Result<Box<dyn DynModel>> {
-    let entry = lookup(model.kind())?;
-    if let Some(lpca) = model.as_any().downcast_ref::<crate::lpca::Lpca>() {
-        // Not linear across clusters: the mean appearance projected (Lpca::mip_texels).
-        return Ok(Box::new(lpca.mip_texels(groups)?));
-    }
-    if !AVERAGEABLE.contains(&entry.kind) {
+    if model.mip() == Mip::Medoid {
         return Err(Error::arg(
             "filter",
-            format!("the {} model's parameters cannot be averaged (use medoid levels)", entry.kind),
+            format!("the {} model's parameters cannot be averaged (use medoid levels)", model.kind()),
         ));
     }
-    let (h, w) = model.dims();
-    let n = h * w;
-    for (g, grp) in groups.iter().enumerate() {
-        if let Some(&(bad, _)) = grp.iter().find(|(t, _)| *t as usize >= n + g) {
-            return Err(Error::arg("groups", format!("group {g} names texel {bad}, not defined before it")));
-        }
-    }
-    let rows = h + groups.len().div_ceil(w.max(1));
-    let arrays = model.to_arrays();
-    let mut out = NamedArrays::new();
-    use btfrs_core::arrays::ArrayData as D;
-    for (name, a) in arrays.iter() {
-        if !entry.texel_arrays.contains(&name) {
-            out.insert(name, a.clone());
-            continue;
-        }
-        if a.shape.len() < 2 || a.shape[0] != h || a.shape[1] != w {
-            return Err(Error::arg(
-                "model",
-                format!("{} array {name} has shape {:?}, not [{h}, {w}, ...]", entry.kind, a.shape),
-            ));
-        }
-        let per: usize = a.shape[2..].iter().product();
-        let mut shape = vec![rows, w];
-        shape.extend_from_slice(&a.shape[2..]);
-        // Averages in f64 over f64 copies, then back to the array's type (integers rounded).
-        let mut v: Vec<f64> = match &a.data {
-            D::U8(x) => x.iter().map(|&y| y as f64).collect(),
-            D::U16(x) => x.iter().map(|&y| y as f64).collect(),
-            D::I32(x) => x.iter().map(|&y| y as f64).collect(),
-            D::F32(x) => x.iter().map(|&y| y as f64).collect(),
-            D::F64(x) => x.clone(),
-        };
-        v.reserve((rows * w - n) * per);
-        for grp in groups {
-            let mut acc = vec![0.0f64; per];
-            for &(t, wt) in grp {
-                for (o, x) in acc.iter_mut().zip(&v[t as usize * per..(t as usize + 1) * per]) {
-                    *o += wt as f64 * x;
-                }
-            }
-            v.extend(acc);
-        }
-        let pad: Vec<f64> = v[..per].to_vec();
-        while v.len() < rows * w * per {
-            v.extend_from_slice(&pad);
-        }
-        let data = match &a.data {
-            D::U8(_) => D::U8(v.iter().map(|x| x.round().clamp(0.0, 255.0) as u8).collect()),
-            D::U16(_) => D::U16(v.iter().map(|x| x.round().clamp(0.0, 65535.0) as u16).collect()),
-            D::I32(_) => D::I32(v.iter().map(|x| x.round() as i32).collect()),
-            D::F32(_) => D::F32(v.iter().map(|&x| x as f32).collect()),
-            D::F64(_) => D::F64(v),
-        };
-        out.insert_checked(name, shape, data)?;
-    }
-    (entry.from_arrays)(&out)
+    model.mip_texels(groups)
 }
 
 /// The model of a subset of texels: texel `k` of the result is texel `texels[k]` (row-major
@@ -346,17 +348,73 @@ mod tests {
     }
 
     #[test]
-    fn options_errors_name_the_option() {
+    fn options_errors_name_the_option_the_value_and_what_is_allowed() {
         let btf = sample();
         let b = btf.as_ref();
         let err = |kind: &str, o: &str| fit(kind, &b, o, &Monitor::new()).unwrap_err().to_string();
-        assert!(err("lafortune", r#"{"lobes": 2.9}"#).starts_with("lobes: invalid type: floating point `2.9`"));
-        assert!(err("lpca", r#"{"clusters": -1}"#).starts_with("clusters: invalid value: integer `-1`"));
-        assert!(err("ptm", r#"{"knd": "rgb"}"#).starts_with("knd: unknown field `knd`"));
-        assert!(err("ptm", r#"{"kind": "xyz"}"#).starts_with("kind: unknown variant `xyz`"));
-        assert!(err("srf", r#"{"x": 1}"#).starts_with("x: unknown field `x`"));
+        assert_eq!(err("lafortune", r#"{"lobes": 2.9}"#), "lobes: expected an integer from 1 to 7, got 2.9");
+        assert_eq!(err("lpca", r#"{"clusters": -1}"#), "clusters: expected an integer >= 1, got -1");
+        assert!(err("ptm", r#"{"knd": "rgb"}"#).starts_with("knd: unknown option; expected one of kind, rcond,"));
+        assert_eq!(err("ptm", r#"{"kind": "xyz"}"#), "kind: expected \"rgb\" or \"lrgb\", got \"xyz\"");
+        assert_eq!(err("ptm", r#"{"bits": 16}"#), "bits: expected 8 or 32, got 16");
+        assert_eq!(
+            err("sh", r#"{"light_coeffs": 20}"#),
+            "light_coeffs: expected 1, 4, 9, 16, 25, 36, 49 or 64, got 20"
+        );
+        assert_eq!(err("srf", r#"{"x": 1}"#), "x: unknown option; this model takes no options");
         assert!(err("nope", "{}").contains("unknown model \"nope\""));
-        assert!(err("ptm", "[1]").starts_with("options: expected a JSON object"));
+        assert_eq!(err("ptm", "[1]"), "options: expected a JSON object of option names");
+        assert!(check_options("rbf", r#"{"width": 0}"#)
+            .unwrap_err()
+            .to_string()
+            .starts_with("width: expected a number > 0"));
+        assert!(check_options("rbf", r#"{"width": 1, "memory_limit": 1000000}"#).is_ok());
+    }
+
+    #[test]
+    fn every_schema_builds_its_options() {
+        // The schema is the one place a default is written: its defaults must build the options
+        // struct (a field missing from either side fails here), every option must be settable
+        // alone to its default, and each example and sweep setting must pass the checks.
+        let btf = sample();
+        for e in MODELS {
+            assert!(!e.about.is_empty() && !e.doc.is_empty(), "{}", e.kind);
+            let mut names = std::collections::HashSet::new();
+            for s in e.options {
+                assert!(names.insert(s.name), "{}: option {} twice", e.kind, s.name);
+                assert!(!s.doc.is_empty(), "{}.{}", e.kind, s.name);
+                s.check(&s.default_value()).unwrap_or_else(|x| panic!("{}: default of {}: {x}", e.kind, s.name));
+                check_options(e.kind, &json!({ s.name: s.default_value() }).to_string()).unwrap();
+            }
+            for st in e.sweep() {
+                check_options(e.kind, st.options).unwrap_or_else(|x| panic!("{} {}: {x}", e.kind, st.label));
+            }
+            assert!(e.sweep().iter().any(|s| s.quick), "{}: no quick setting", e.kind);
+            for (label, o) in e.examples {
+                check_options(e.kind, o).unwrap_or_else(|x| panic!("{} {label}: {x}", e.kind));
+            }
+            // The defaults fit (an error naming the options struct would mean a schema mismatch).
+            if let Err(x) = fit(e.kind, &btf.as_ref(), "{}", &Monitor::new()) {
+                assert!(!x.to_string().contains("internal"), "{}: {x}", e.kind);
+            }
+        }
+    }
+
+    #[test]
+    fn describe_carries_every_fact_the_python_surface_needs() {
+        let d = describe();
+        let a = d.as_array().unwrap();
+        assert_eq!(a.len(), MODELS.len());
+        for (m, e) in a.iter().zip(MODELS) {
+            assert_eq!(m["kind"], e.kind);
+            assert_eq!(m["options"].as_array().unwrap().len(), e.options.len());
+            for key in ["doc", "about", "renderers", "examples", "sweep", "sampling", "exports", "blockwise"] {
+                assert!(!m[key].is_null(), "{} lacks {key}", e.kind);
+            }
+        }
+        let ptm = &a[0];
+        assert_eq!(ptm["options"][0]["choices"], json!(["rgb", "lrgb"]));
+        assert_eq!(ptm["exports"], json!(["ptm"]));
     }
 
     #[test]

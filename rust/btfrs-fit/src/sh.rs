@@ -56,7 +56,13 @@ mod quantize;
 pub mod wgsl;
 
 use crate::gpu::{GpuLayout, Shader};
-use crate::model::{Model, ReflectanceModel};
+use crate::model::{average_texels, CoefficientFeatures, Mip, Model, ReflectanceModel, Sampling, Setting, ShExpansion};
+use crate::options::Spec;
+
+/// The coefficient counts the fit accepts: perfect squares up to [`MAX_COEFFS`].
+const SQUARES: &[i64] = &[1, 4, 9, 16, 25, 36, 49, 64];
+/// The evaluate sweep's note on a float model.
+const FLOAT_NOTE: &str = "rendered (and bytes counted) after 8-bit quantization for the GPU";
 use basis::basis_matrix;
 use btfrs_core::arrays::check_finite;
 use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
@@ -72,7 +78,7 @@ pub use quantize::quantize;
 
 /// Fit options.
 #[derive(Debug, Clone, Copy, serde::Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(deny_unknown_fields)]
 pub struct ShOptions {
     /// SH coefficients over the light direction, a perfect square in 1..=64 (degree <= 7).
     pub light_coeffs: usize,
@@ -87,8 +93,9 @@ pub struct ShOptions {
 }
 
 impl Default for ShOptions {
+    /// The defaults of [`Sh`]'s option schema.
     fn default() -> Self {
-        ShOptions { light_coeffs: 25, view_coeffs: 25, cls: true, quantize: true, chunk_texels: 1024 }
+        crate::options::defaults(<Sh as Model>::OPTIONS)
     }
 }
 
@@ -691,10 +698,52 @@ impl Model for Sh {
     const KIND: &'static str = "sh";
     const TEXEL_ARRAYS: &'static [&'static str] = &["q", "coeffs"];
     const DOC: &'static str = "double spherical harmonics by constrained least squares (paper 002, section 3.1)";
+    const ABOUT: &'static str = "\
+Real spherical harmonics over the view and over the light direction, `view_coeffs x
+light_coeffs` coefficients per texel and channel, fitted by constrained least squares (the
+paper's appendix): each fit's coefficient energy is kept within the sampled function's (the
+Lagrange multiplier found by bisection), which makes the coefficients robust to the 8-bit
+quantization that follows (`quantize=false` keeps float32; `cls=false` is plain least squares,
+for comparison). Texels are processed `chunk_texels` at a time, so a memory-mapped BTF streams
+through. Double-SH models also render under an environment by the SH method (paper 002,
+section 4: `btfrs.render(..., environment=env, lighting=\"sh\")`).";
+    const OPTIONS: &'static [Spec] = &[
+        Spec::int_choice(
+            "light_coeffs",
+            25,
+            SQUARES,
+            "SH coefficients over the light direction (a perfect square: degree + 1 squared)",
+        ),
+        Spec::int_choice(
+            "view_coeffs",
+            25,
+            SQUARES,
+            "SH coefficients over the view direction (a perfect square; 1 for a single view)",
+        ),
+        Spec::bool("cls", true, "constrained least squares (the paper's); false: plain least squares"),
+        Spec::bool("quantize", true, "store 8-bit coefficients (a scale and bias per channel); false: float32"),
+        Spec::int("chunk_texels", 1024, 1, None, "texels fitted per chunk: the working memory besides the model"),
+    ];
     const EXAMPLES: &'static [(&'static str, &'static str)] = &[
         ("SH-CLS 16x16", r#"{"view_coeffs": 16, "light_coeffs": 16}"#),
         ("SH-CLS 25x25", r#"{"view_coeffs": 25, "light_coeffs": 25}"#),
     ];
+    const SWEEP: &'static [Setting] = &[
+        Setting::full("SH-CLS 9x9", r#"{"light_coeffs": 9, "view_coeffs": 9}"#),
+        Setting::quick("SH-CLS 16x16", r#"{"light_coeffs": 16, "view_coeffs": 16}"#),
+        Setting::full("SH-CLS 25x25", r#"{"light_coeffs": 25, "view_coeffs": 25}"#),
+        Setting::full("SH-CLS 36x36", r#"{"light_coeffs": 36, "view_coeffs": 36}"#),
+        Setting::full("SH-CLS 25x25 float", r#"{"light_coeffs": 25, "view_coeffs": 25, "quantize": false}"#)
+            .note(FLOAT_NOTE),
+        Setting::full("SH-LS 25x25", r#"{"light_coeffs": 25, "view_coeffs": 25, "cls": false}"#),
+        Setting::full(
+            "SH-LS 25x25 float",
+            r#"{"light_coeffs": 25, "view_coeffs": 25, "cls": false, "quantize": false}"#,
+        )
+        .note(FLOAT_NOTE),
+    ];
+    const SAMPLING: Sampling = Sampling::Any { note: "over all pairs", one_view: "view_coeffs=1 for a single view" };
+    const MIP: Mip = Mip::Average;
     type Options = ShOptions;
     /// The generic shader and the variants of the example sizes (and one with kv != kl);
     /// every size is validated in rust/btfrs-render/tests/shader_validation.rs.
@@ -709,6 +758,26 @@ impl Model for Sh {
 
     fn fit(btf: &BtfRef<'_>, options: &ShOptions, monitor: &Monitor) -> Result<Self> {
         fit_sh(btf, options, monitor)
+    }
+
+    fn mip_texels(&self, groups: &[Vec<(u32, f32)>]) -> Result<Self> {
+        average_texels(self, groups)
+    }
+
+    /// The dequantized coefficients: the SH domain is linear, so distances there are distances
+    /// between the texels' appearances.
+    fn coefficient_features(&self) -> Option<Result<CoefficientFeatures>> {
+        let data = self.dequantized();
+        let dim = data.len() / (self.height * self.width).max(1);
+        Some(Ok(CoefficientFeatures { dim, data, label: "sh coefficients" }))
+    }
+
+    fn sh_expansion(&self) -> Option<ShExpansion<'_>> {
+        Some(ShExpansion {
+            view_coeffs: self.view_coeffs,
+            light_coeffs: self.light_coeffs,
+            coeffs: std::borrow::Cow::Owned(self.dequantized()),
+        })
     }
 
     /// Quantized over the stitched floats of every texel, as `fit_sh`.

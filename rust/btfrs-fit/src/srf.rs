@@ -22,7 +22,8 @@
 //! (section 5).
 
 use crate::gpu::{words, GpuLayout, Shader};
-use crate::model::{Model, NoOptions, ReflectanceModel};
+use crate::model::{Model, NoOptions, ReflectanceModel, Sampling};
+use crate::options::Spec;
 use btfrs_core::btf::TexelScan;
 use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
 use rayon::prelude::*;
@@ -549,12 +550,21 @@ impl Model for Srf {
     const KIND: &'static str = "srf";
     const TEXEL_ARRAYS: &'static [&'static str] = &["s"];
     const DOC: &'static str = "Phong + spatially-varying residual function (paper 003, sections 4 and 5)";
+    const ABOUT: &'static str = "\
+One Blinn-Phong lobe (kd, ks per channel, one shininess n) is fitted by Levenberg-Marquardt to
+the material's mean BRDF (section 4); the residual `BTF - Phong` is fitted per texel and channel
+as `s(P) . H` by linear least squares over the halfway vectors, one pseudo-inverse shared by
+every texel (section 5). `model.report` gives the relative error of Phong alone and of
+Phong + SRF on the fitted pairs.";
+    const OPTIONS: &'static [Spec] = &[];
     const EXAMPLES: &'static [(&'static str, &'static str)] = &[("Phong+SRF", "{}")];
+    const SAMPLING: Sampling =
+        Sampling::Any { note: "over all pairs", one_view: "one view: the lobes see no view dependence" };
     type Options = NoOptions;
     // The mean BRDF's pass (mean_sums) checks every texel's values (TexelScan).
     const SCANS_VALUES: bool = true;
     // One Phong for the material's mean BRDF: a sum over texels before the per-texel residual.
-    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Staged;
+    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Staged("mean_brdf");
 
     fn fit(btf: &BtfRef<'_>, _options: &NoOptions, monitor: &Monitor) -> Result<Self> {
         fit_srf(btf, monitor).map(|(m, _)| m)

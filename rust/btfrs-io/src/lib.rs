@@ -17,6 +17,7 @@ pub mod atomic;
 pub mod capture;
 pub mod container;
 pub mod decode;
+pub mod formats;
 pub mod image;
 pub mod model_file;
 pub mod ptm_file;

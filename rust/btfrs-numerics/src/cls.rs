@@ -26,6 +26,7 @@ const LAMBDA_RTOL: f64 = 1e-7;
 
 /// One constrained least-squares solve at a time in the eigenbasis of `A`, with reusable scratch
 /// (one per thread: a fit calls [`Solver::solve`] once per texel and colour channel).
+#[derive(Debug)]
 pub struct Solver {
     /// Squared rotated right-hand sides and eigenvalues of the nonzero entries.
     b2: Vec<f64>,

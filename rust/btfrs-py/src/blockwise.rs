@@ -9,7 +9,6 @@ use crate::models::{named_arrays, PyModel};
 use crate::run::{detach, guarded};
 use btfrs_fit::light_pca::staged as lp;
 use btfrs_fit::lpca::{staged, ClusterFit, LpcaOptions};
-use btfrs_fit::model::parse_options;
 use btfrs_fit::{registry, srf};
 use nalgebra::DMatrix;
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
@@ -126,7 +125,7 @@ pub fn srf_residual<'py>(
 }
 
 fn lpca_options(json: &str) -> PyResult<LpcaOptions> {
-    parse_options(json).py()
+    staged::parse_options(json).py()
 }
 
 /// `[n, d]` float32 borrowed as a slice with `d`.

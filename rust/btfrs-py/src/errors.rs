@@ -19,6 +19,7 @@ pub fn to_py(e: Error) -> PyErr {
     let msg = e.to_string();
     match e {
         Error::InvalidArgument { .. } => InvalidArgumentError::new_err(msg),
+        Error::ArgumentType { .. } => ArgumentTypeError::new_err(msg),
         Error::Degenerate(_) => DegenerateDataError::new_err(msg),
         Error::Format { .. } => FormatError::new_err(msg),
         Error::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound => PyFileNotFoundError::new_err(msg),

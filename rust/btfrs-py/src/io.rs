@@ -4,10 +4,8 @@ use crate::arrays::{borrow, check_shape};
 use crate::errors::{arg, IntoPy};
 use crate::models::PyModel;
 use crate::run::detach;
-use btfrs_fit::{Hsh, Ptm, PtmKind};
 use btfrs_io::container::{self, as_bytes, ArrayRef, Dtype};
-use btfrs_io::ptm_file::{self, PtmBytes, PtmFormat, PtmImage};
-use btfrs_io::rti_file::{self, RtiHsh};
+use btfrs_io::formats;
 use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use std::path::PathBuf;
@@ -97,58 +95,55 @@ pub fn read_container_header(
     Ok((c.kind, c.meta.to_string(), arrays))
 }
 
-/// Write one view slot of a PTM as a `.ptm` file; returns (scale, bias) per coefficient index
-/// (scale in our units, the quantization step). A model quantized by the fit (`bits` 8) is
-/// written byte for byte from its planes; a float model is quantized for the file.
+/// The file formats of other tools: `[(name, extension, doc)]` (btfrs_io::formats).
+#[pyfunction]
+pub fn model_formats() -> Vec<(&'static str, &'static str, &'static str)> {
+    formats::FORMATS.iter().map(|f| (f.name, f.extension, f.doc)).collect()
+}
+
+/// Write view slot `view` of a model as `format` (one of its registry exports); returns what
+/// the writer chose (scales and biases) as JSON.
+#[pyfunction]
+pub fn export_model(py: Python<'_>, path: PathBuf, model: &PyModel, format: &str, view: usize) -> PyResult<String> {
+    Ok(detach(py, || formats::export(model.inner.as_ref(), format, view, &path))?.to_string())
+}
+
+/// Read a file of another tool's format (by its extension) as a one-slot model.
+#[pyfunction]
+pub fn import_model(py: Python<'_>, path: PathBuf) -> PyResult<PyModel> {
+    let f = formats::of_path(&path).ok_or_else(|| {
+        let list: Vec<String> = formats::FORMATS.iter().map(|f| format!(".{}", f.extension)).collect();
+        arg("path", format!("{}: expected a file ending in {}", path.display(), list.join(" or ")))
+    })?;
+    Ok(PyModel { inner: detach(py, || (f.import)(&path))? })
+}
+
+// TRANSITION: the old per-format functions, until every Python caller uses export_model.
 #[pyfunction]
 pub fn write_ptm(py: Python<'_>, path: PathBuf, model: &PyModel, view: usize) -> PyResult<(Vec<f32>, Vec<i32>)> {
-    let p = model
-        .inner
-        .as_any()
-        .downcast_ref::<Ptm>()
-        .ok_or_else(|| arg("model", format!("expected a PTM, got a {} model", model.inner.kind())))?;
-    let slot = p.slot(view).py()?;
-    if let Some(b) = PtmBytes::from_slot(&slot) {
-        detach(py, || ptm_file::write_ptm_bytes(&path, &b))?;
-        let scale = b.scale.iter().map(|&s| (f64::from(s) / 255.0) as f32).collect();
-        return Ok((scale, b.bias.iter().map(|&x| x as i32).collect()));
-    }
-    let format = match slot.kind {
-        PtmKind::Rgb => PtmFormat::Rgb,
-        PtmKind::Lrgb => PtmFormat::Lrgb,
-    };
-    let img = PtmImage { width: slot.width, height: slot.height, format, coeffs: slot.coeffs, rgb: slot.rgb };
-    let q = detach(py, || ptm_file::write_ptm(&path, &img))?;
-    Ok((q.scale.to_vec(), q.bias.to_vec()))
+    let v: serde_json::Value =
+        serde_json::from_str(&export_model(py, path, model, "ptm", view)?).map_err(|e| arg("ptm", e))?;
+    Ok((
+        serde_json::from_value(v["scale"].clone()).unwrap_or_default(),
+        serde_json::from_value(v["bias"].clone()).unwrap_or_default(),
+    ))
 }
-
-/// Read a `.ptm` file as a one-slot model (view = the normal), its 8-bit planes the file's bytes.
 #[pyfunction]
 pub fn read_ptm(py: Python<'_>, path: PathBuf) -> PyResult<PyModel> {
-    let b = detach(py, || ptm_file::read_ptm_bytes(&path))?;
-    Ok(PyModel { inner: Box::new(Ptm::from_slot(b.to_slot()).py()?) })
+    import_model(py, path)
 }
-
-/// Write one view slot of an HSH model as a `.rti` HSH file (relight's scale/bias reading);
-/// returns the file's (scale, bias) arrays.
 #[pyfunction]
 pub fn write_rti(py: Python<'_>, path: PathBuf, model: &PyModel, view: usize) -> PyResult<(Vec<f32>, Vec<f32>)> {
-    let h = model
-        .inner
-        .as_any()
-        .downcast_ref::<Hsh>()
-        .ok_or_else(|| arg("model", format!("expected an HSH model, got a {} model", model.inner.kind())))?;
-    let slot = h.slot(view).py()?;
-    let img = RtiHsh::from_slot(&slot).py()?;
-    detach(py, || rti_file::write_rti(&path, &img))?;
-    Ok((img.scale, img.bias))
+    let v: serde_json::Value =
+        serde_json::from_str(&export_model(py, path, model, "rti", view)?).map_err(|e| arg("rti", e))?;
+    Ok((
+        serde_json::from_value(v["scale"].clone()).unwrap_or_default(),
+        serde_json::from_value(v["bias"].clone()).unwrap_or_default(),
+    ))
 }
-
-/// Read a `.rti` HSH file as a one-slot HSH model (view = the normal).
 #[pyfunction]
 pub fn read_rti(py: Python<'_>, path: PathBuf) -> PyResult<PyModel> {
-    let img = detach(py, || rti_file::read_rti(&path))?;
-    Ok(PyModel { inner: Box::new(Hsh::from_slot(img.to_slot().py()?).py()?) })
+    import_model(py, path)
 }
 
 /// Write a `[H, W, 3]` float32 linear image as an 8-bit sRGB PNG.

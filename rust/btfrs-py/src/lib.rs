@@ -39,6 +39,12 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(models::fit_model, m)?)?;
     m.add_function(wrap_pyfunction!(models::load_model, m)?)?;
     m.add_function(wrap_pyfunction!(models::model_registry, m)?)?;
+    m.add_function(wrap_pyfunction!(models::check_options, m)?)?;
+    m.add_function(wrap_pyfunction!(models::model_facts, m)?)?;
+    m.add_function(wrap_pyfunction!(io::write_ptm, m)?)?;
+    m.add_function(wrap_pyfunction!(io::read_ptm, m)?)?;
+    m.add_function(wrap_pyfunction!(io::write_rti, m)?)?;
+    m.add_function(wrap_pyfunction!(io::read_rti, m)?)?;
     m.add_function(wrap_pyfunction!(models::texel_arrays, m)?)?;
     m.add_function(wrap_pyfunction!(blockwise::blockwise_plan, m)?)?;
     m.add_function(wrap_pyfunction!(blockwise::finish_blocks, m)?)?;
@@ -59,10 +65,9 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(blockwise::light_pca_assemble, m)?)?;
     m.add_function(wrap_pyfunction!(io::save_container, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_container_header, m)?)?;
-    m.add_function(wrap_pyfunction!(io::write_ptm, m)?)?;
-    m.add_function(wrap_pyfunction!(io::read_ptm, m)?)?;
-    m.add_function(wrap_pyfunction!(io::write_rti, m)?)?;
-    m.add_function(wrap_pyfunction!(io::read_rti, m)?)?;
+    m.add_function(wrap_pyfunction!(io::model_formats, m)?)?;
+    m.add_function(wrap_pyfunction!(io::export_model, m)?)?;
+    m.add_function(wrap_pyfunction!(io::import_model, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_png, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_png, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_exr, m)?)?;

@@ -106,6 +106,18 @@ impl PyModel {
     }
 
     /// Renderer names, the default first.
+    /// How its mip levels are made: "average", "projected" or "medoid".
+    #[getter]
+    fn mip(&self) -> &'static str {
+        self.inner.mip().name()
+    }
+
+    /// Whether it renders under an environment by the SH method (a double-SH expansion).
+    #[getter]
+    fn sh_lighting(&self) -> bool {
+        self.inner.sh_expansion().is_some()
+    }
+
     #[getter]
     fn renderers(&self) -> Vec<&'static str> {
         self.inner.renderers().to_vec()
@@ -177,11 +189,25 @@ pub fn load_model(py: Python<'_>, path: PathBuf) -> PyResult<(PyModel, String)> 
     Ok((PyModel { inner }, meta.to_string()))
 }
 
+/// Every fact of every registered model, as JSON (`btfrs_fit::registry::describe`): what the
+/// Python API, the CLI and the docs are built from.
+#[pyfunction]
+pub fn model_facts() -> String {
+    registry::describe().to_string()
+}
+
 /// The registered models: (kind, doc, renderers, [(label, options JSON)]).
+// TRANSITION: the old form, until every Python caller reads model_facts.
 #[pyfunction]
 #[allow(clippy::type_complexity)]
 pub fn model_registry() -> Vec<(&'static str, &'static str, Vec<&'static str>, Vec<(&'static str, &'static str)>)> {
     registry::MODELS.iter().map(|e| (e.kind, e.doc, e.renderers.to_vec(), e.examples.to_vec())).collect()
+}
+
+/// Check fit options (a JSON object) for model `kind` as its fit would, without fitting.
+#[pyfunction]
+pub fn check_options(kind: &str, options_json: &str) -> PyResult<()> {
+    registry::check_options(kind, options_json).py()
 }
 
 /// The arrays of model `kind` that hold one entry per texel (shape `[H, W, ...]`).

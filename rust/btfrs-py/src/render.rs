@@ -505,19 +505,6 @@ pub fn env_sh<'py>(py: Python<'py>, rgb: &Bound<'py, PyAny>, n: usize) -> PyResu
     c.into_iter().flatten().collect::<Vec<f64>>().into_pyarray(py).reshape(vec![k, 3])
 }
 
-/// The double-SH model inside a Python model object, or an error naming the method to use.
-fn sh_of(model: &PyModel) -> PyResult<&btfrs_fit::Sh> {
-    model.inner.as_any().downcast_ref::<btfrs_fit::Sh>().ok_or_else(|| {
-        arg(
-            "method",
-            format!(
-                "method=\"sh\" needs a double-SH model (btfrs.fit.sh), not {}; use method=\"sampled\"",
-                model.inner.kind()
-            ),
-        )
-    })
-}
-
 /// Render a double-SH model under an environment by the SH method, on the GPU (`gpu` given:
 /// the uploaded model) or the CPU: (image, draw ms, read-back ms; 0 on the CPU).
 #[pyfunction]
@@ -537,7 +524,7 @@ pub fn render_env_sh<'py>(
     tile_map: Option<&Bound<'py, PyAny>>,
     filter: Option<(String, PyRef<'py, PyMipChain>)>,
 ) -> PyResult<(Image<'py>, f64, f64)> {
-    let sh = sh_of(model)?;
+    let kl = btfrs_render::cpu::sh_expansion_of(model.inner.as_ref()).py()?.light_coeffs;
     let env = environment_of(environment)?;
     let args = ViewArgs::new(Vec::new(), coords, tile_map)?;
     let f = filter_of(filter)?;
@@ -545,10 +532,10 @@ pub fn render_env_sh<'py>(
         View { filter: f.as_ref().map(|(m, c)| (*m, &c.chain)), ..args.view(scene, camera, (width, height), uv_scale) };
     check_size(width, height)?;
     let (img, t) = detach(py, || {
-        let she = ShEnvironment::new(&env, sh.light_coeffs)?;
+        let she = ShEnvironment::new(&env, kl)?;
         match uploaded {
             Some(u) => gpu::render_env_sh(&u.gpu, &u.up, &view, &she),
-            None => Ok((render_cpu_env_sh(sh, &view, &she)?, Default::default())),
+            None => Ok((render_cpu_env_sh(model.inner.as_ref(), &view, &she)?, Default::default())),
         }
     })?;
     Ok((image(py, img, width, height)?, t.draw_ms, t.readback_ms))

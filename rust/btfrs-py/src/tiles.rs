@@ -51,7 +51,7 @@ pub fn wang_synthesize<'py>(
     progress: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Synthesized<'py>> {
     let f = features_of(sample)?;
-    let opts: WangOptions = btfrs_fit::model::parse_options(options_json).map_err(crate::errors::to_py)?;
+    let opts: WangOptions = btfrs_fit::options::from_serde(options_json).map_err(crate::errors::to_py)?;
     let (set, tab) = monitored(py, progress, |mon| {
         let set = tiles::synthesize(&f, &opts, mon)?;
         let tab = Table::new(&set);

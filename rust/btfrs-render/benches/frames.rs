@@ -53,7 +53,7 @@ fn bench(c: &mut Criterion) {
     // (label, renderer, the light coefficients of a double-SH model for the SH method)
     let mut models: Vec<(&str, Box<dyn Renderable + '_>, Option<usize>)> = vec![("raw", Box::new(&raw), None)];
     for (label, m, method) in &fitted {
-        let sh = m.as_any().downcast_ref::<btfrs_fit::Sh>().map(|s| s.light_coeffs);
+        let sh = m.sh_expansion().map(|s| s.light_coeffs);
         models.push((label, m.renderer(method, gpu.limits.max_texture_dimension_3d as usize).unwrap(), sh));
     }
 

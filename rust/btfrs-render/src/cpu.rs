@@ -163,15 +163,29 @@ pub fn render_cpu<M: Shade + ?Sized>(model: &M, view: &View<'_>) -> Result<Vec<f
     Ok(img)
 }
 
+/// The model's double-SH expansion, or an error naming the lighting method to use.
+pub fn sh_expansion_of(model: &dyn btfrs_fit::DynModel) -> Result<btfrs_fit::model::ShExpansion<'_>> {
+    model.sh_expansion().ok_or_else(|| {
+        Error::arg(
+            "lighting",
+            format!(
+                "lighting=\"sh\" needs a double-SH model (btfrs.fit.sh), not a {} model; use lighting=\"sampled\"",
+                model.kind()
+            ),
+        )
+    })
+}
+
 /// Render a double-SH model under an environment by the SH method on the CPU: the reference of
 /// `fs_env` in sh.wgsl (same frame arithmetic, same steps; the model's coefficients
 /// dequantized, the sums in f64). `view.lights` is not used.
 pub fn render_cpu_env_sh(
-    model: &btfrs_fit::Sh,
+    model: &dyn btfrs_fit::DynModel,
     view: &View<'_>,
     env: &crate::sh_env::ShEnvironment,
 ) -> Result<Vec<f32>> {
-    let dims = (model.height, model.width);
+    let dims = model.dims();
+    let model = sh_expansion_of(model)?;
     if env.n != model.light_coeffs {
         return Err(Error::arg(
             "environment",
@@ -182,7 +196,7 @@ pub fn render_cpu_env_sh(
     validate_common(&View { lights: &placeholder, ..*view }, dims)?;
     let gb = raster::rasterize(view.mesh, view.camera, view.width, view.height)?;
     let eye = Vec3::from(view.camera.eye);
-    let coeffs = model.dequantized();
+    let coeffs = &model.coeffs;
     let (kv, kl) = (model.view_coeffs, model.light_coeffs);
     let mut img = vec![0.0f32; view.width * view.height * 3];
     img.par_chunks_mut(3).zip(gb.pixels.par_iter()).for_each(|(px, frag)| {

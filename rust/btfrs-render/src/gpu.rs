@@ -513,11 +513,13 @@ pub fn render_env_sh(
     view: &View<'_>,
     env: &crate::sh_env::ShEnvironment,
 ) -> Result<(Vec<f32>, FrameTimes)> {
-    if model.shader.name != "sh" {
+    // The SH method is the shader's own entry point (`fs_env`), which only shaders of models
+    // with an SH expansion define.
+    if !model.shader.source.contains("fn fs_env(") {
         return Err(Error::arg(
-            "method",
+            "lighting",
             format!(
-                "the SH environment method needs a double-SH model, not {} (use method=\"sampled\")",
+                "the SH environment method needs a double-SH model, not {} (use lighting=\"sampled\")",
                 model.shader.name
             ),
         ));

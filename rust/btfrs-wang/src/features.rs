@@ -175,21 +175,16 @@ fn dir(theta_deg: f64, phi_deg: f64) -> [f64; 3] {
 /// Returns the features and the name of the domain used.
 pub fn model_features(model: &dyn DynModel, domain: &str) -> Result<(Features, &'static str)> {
     let (h, w) = model.dims();
+    // Computed once: the model's linear coefficient domain, where it has one.
     let coefficients = match domain {
-        "auto" => model.kind() == "sh" || is_rgb_ptm(model),
-        "coefficients" => {
-            if !(model.kind() == "sh" || is_rgb_ptm(model)) {
-                return Err(Error::arg(
-                    "domain",
-                    format!(
-                        "the {} model has no linear coefficient domain (only sh and RGB ptm do); use \"decoded\"",
-                        model.kind()
-                    ),
-                ));
-            }
-            true
-        }
-        "decoded" => false,
+        "auto" => model.coefficient_features(),
+        "coefficients" => Some(model.coefficient_features().ok_or_else(|| {
+            Error::arg(
+                "domain",
+                format!("the {} model has no linear coefficient domain; use \"decoded\"", model.kind()),
+            )
+        })?),
+        "decoded" => None,
         other => {
             return Err(Error::arg(
                 "domain",
@@ -197,15 +192,9 @@ pub fn model_features(model: &dyn DynModel, domain: &str) -> Result<(Features, &
             ))
         }
     };
-    if coefficients {
-        if let Some(sh) = model.as_any().downcast_ref::<btfrs_fit::sh::Sh>() {
-            let c = sh.dequantized();
-            let dim = c.len() / (h * w);
-            return Ok((Features::new(h, w, dim, c)?, "sh coefficients"));
-        }
-        if let Some(ptm) = model.as_any().downcast_ref::<btfrs_fit::ptm::Ptm>() {
-            return Ok((ptm_whitened(ptm)?, "ptm coefficients (hemisphere Gram-whitened)"));
-        }
+    if let Some(f) = coefficients {
+        let f = f?;
+        return Ok((Features::new(h, w, f.dim, f.data)?, f.label));
     }
     let pairs: Vec<([f64; 3], [f64; 3])> = PROBE_VIEWS
         .iter()
@@ -226,78 +215,10 @@ pub fn model_features(model: &dyn DynModel, domain: &str) -> Result<(Features, &
     Ok((Features::new(h, w, dim, data)?, "decoded at 40 probe pairs"))
 }
 
-fn is_rgb_ptm(model: &dyn DynModel) -> bool {
-    model.as_any().downcast_ref::<btfrs_fit::ptm::Ptm>().is_some_and(|p| matches!(p.kind, btfrs_fit::ptm::PtmKind::Rgb))
-}
-
-/// The Gram matrix of the PTM basis averaged over the light hemisphere (uniform in solid
-/// angle: the concentric map is area-preserving, so a uniform grid on its square is uniform on
-/// the hemisphere), and its Cholesky factor.
-pub fn ptm_gram_factor() -> [[f64; 6]; 6] {
-    let n = 96;
-    let mut g = nalgebra::DMatrix::<f64>::zeros(6, 6);
-    for i in 0..n {
-        for j in 0..n {
-            let l = btfrs_hemimap::square_to_hemisphere((i as f64 + 0.5) / n as f64, (j as f64 + 0.5) / n as f64);
-            let b = btfrs_fit::ptm::basis(l);
-            for a in 0..6 {
-                for c in 0..6 {
-                    g[(a, c)] += b[a] * b[c];
-                }
-            }
-        }
-    }
-    g /= (n * n) as f64;
-    let l = nalgebra::Cholesky::new(g).expect("the PTM basis is linearly independent on the hemisphere").l();
-    let mut out = [[0.0; 6]; 6];
-    for (a, row) in out.iter_mut().enumerate() {
-        for (c, v) in row.iter_mut().enumerate() {
-            *v = l[(a, c)];
-        }
-    }
-    out
-}
-
-fn ptm_whitened(ptm: &btfrs_fit::ptm::Ptm) -> Result<Features> {
-    let l = ptm_gram_factor();
-    let (h, w) = (ptm.height, ptm.width);
-    let per = ptm.coeffs.len() / (h * w);
-    // f = L^T c, so that |f|^2 = c^T G c = mean over the hemisphere of the squared value.
-    let data: Vec<f32> = ptm
-        .coeffs
-        .par_chunks(6)
-        .flat_map_iter(|c| (0..6).map(move |k| (0..6).map(|a| l[a][k] * c[a] as f64).sum::<f64>() as f32))
-        .collect();
-    Features::new(h, w, per, data)
-}
-
 #[cfg(test)]
 #[allow(clippy::needless_range_loop)] // index loops mirror the set-ups being checked
 mod tests {
     use super::*;
-
-    #[test]
-    fn ptm_whitening_turns_coefficient_distance_into_hemisphere_l2() {
-        // |L^T c|^2 must equal the mean over the hemisphere of (b(l) . c)^2, computed here by an
-        // independent quadrature (a finer polar grid weighted by sin(theta)).
-        let l = ptm_gram_factor();
-        let c = [0.3, -0.2, 0.5, 0.1, -0.4, 0.7];
-        let f: Vec<f64> = (0..6).map(|k| (0..6).map(|a| l[a][k] * c[a]).sum()).collect();
-        let lhs: f64 = f.iter().map(|x| x * x).sum();
-        let (nt, np) = (400, 400);
-        let (mut num, mut den) = (0.0, 0.0);
-        for i in 0..nt {
-            let t = (i as f64 + 0.5) / nt as f64 * std::f64::consts::FRAC_PI_2;
-            for j in 0..np {
-                let p = (j as f64 + 0.5) / np as f64 * std::f64::consts::TAU;
-                let b = btfrs_fit::ptm::basis([t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]);
-                let v: f64 = b.iter().zip(&c).map(|(x, y)| x * y).sum();
-                num += v * v * t.sin();
-                den += t.sin();
-            }
-        }
-        assert!((lhs - num / den).abs() < 2e-3 * lhs, "{lhs} vs {}", num / den);
-    }
 
     #[test]
     fn pca_reduction_keeps_distances_of_low_rank_data() {

@@ -41,7 +41,8 @@ use super::{
     base_colour, Context, FitOut, FitReport, Interp, LafortuneKind, MAX_LOBES_LUM, MAX_LOBES_RGB, N_MAX, N_MIN,
 };
 use crate::gpu::{words, GpuLayout, Shader};
-use crate::model::{Model, ReflectanceModel};
+use crate::model::{Model, ReflectanceModel, Sampling, Setting};
+use crate::options::Spec;
 use btfrs_core::arrays::check_finite;
 use btfrs_core::btf::TexelScan;
 use btfrs_core::{directions, BtfRef, Error, Monitor, NamedArrays, Result};
@@ -51,7 +52,7 @@ use std::borrow::Cow;
 /// Fit options of the per-view model (those of the global one without `densify`: a slot's
 /// samples are its lights, and the paper's densification is over views and lights together).
 #[derive(Debug, Clone, Copy, serde::Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(deny_unknown_fields)]
 pub struct LafortuneViewOptions {
     /// The variant.
     pub kind: LafortuneKind,
@@ -64,8 +65,9 @@ pub struct LafortuneViewOptions {
 }
 
 impl Default for LafortuneViewOptions {
+    /// The defaults of [`LafortuneView`]'s option schema.
     fn default() -> Self {
-        LafortuneViewOptions { kind: LafortuneKind::Lum, lobes: 2, diffuse: true, max_iter: 60 }
+        crate::options::defaults(<LafortuneView as Model>::OPTIONS)
     }
 }
 
@@ -624,10 +626,42 @@ impl Model for LafortuneView {
     const DOC: &'static str =
         "Lafortune lobes per texel and view slot, blended between slots like the PTM (paper 000, section 3.2)";
     // Cheap ones: they are fitted and rendered in the GPU-vs-CPU tests and the demo.
+    const ABOUT: &'static str = "\
+Lafortune lobes per texel and view slot, as paper 000 (section 3.2) does: \"like the PTM\", one
+lobe set per measured view, a function of the light, blended between the nearest view slots when
+rendered. The same Levenberg-Marquardt fit as the global model (kernels, initialisation, bounds,
+fallbacks, `status` and `report` counts) fed with one slot's samples at a time. About `V` times
+the parameters of the global model (81 for the UBO sampling), and it follows how the reflectance
+changes with the view (parallax, masking) that one lobe set per texel cannot. A view slot with
+fewer present lights than a fit's unknowns borrows the lobes of the nearest fitted slot
+(`model.report[\"borrowed_slots\"]`; `model.arrays[\"source\"]` maps each slot to the slot it uses).";
+    const OPTIONS: &'static [Spec] = &[
+        Spec::choice(
+            "kind",
+            "lum",
+            &["lum", "rgb"],
+            "\"lum\": lobes on the luminance times a base colour; \"rgb\": lobes per channel",
+        ),
+        Spec::int(
+            "lobes",
+            2,
+            1,
+            Some(crate::lafortune::MAX_LOBES_LUM as i64),
+            "lobes per fit: 1 to 7 for \"lum\", 1 to 3 for \"rgb\"",
+        ),
+        Spec::bool("diffuse", true, "fit the diffuse term kd (false: kd = 0)"),
+        Spec::int("max_iter", 60, 1, None, "most Levenberg-Marquardt steps per run"),
+    ];
     const EXAMPLES: &'static [(&'static str, &'static str)] = &[
         ("Lafortune-view-Lum 1", r#"{"kind": "lum", "lobes": 1}"#),
         ("Lafortune-view-RGB 1", r#"{"kind": "rgb", "lobes": 1}"#),
     ];
+    const SWEEP: &'static [Setting] = &[
+        Setting::quick("Lafortune/view-Lum 1", r#"{"kind": "lum", "lobes": 1}"#),
+        Setting::full("Lafortune/view-Lum 2", r#"{"kind": "lum", "lobes": 2}"#),
+        Setting::full("Lafortune/view-RGB 1", r#"{"kind": "rgb", "lobes": 1}"#),
+    ];
+    const SAMPLING: Sampling = Sampling::PerView { min_lights: 4, why: "1 lobe" };
     type Options = LafortuneViewOptions;
     // Each texel's values are checked as the per-texel pass reads them (TexelScan).
     const SCANS_VALUES: bool = true;

@@ -34,7 +34,8 @@ use super::{
     group_planes, groups, put_coeffs, read_slot, write_slot, Colour, LightPca, PcaOptions, Plan, EXACT_PCA_DIM,
 };
 use crate::bilinear::{self, BilinearOptions};
-use crate::model::parse_options;
+use crate::model::Model;
+use crate::options;
 use crate::planes::Planes;
 use crate::rbf::{self, RbfOptions};
 use btfrs_core::{ensure_arg, BtfRef, Error, Result};
@@ -56,8 +57,8 @@ impl Basis {
     /// them), checked, including the blockwise limit on the vector length (module doc).
     pub fn parse(kind: &str, options_json: &str) -> Result<Basis> {
         let b = match kind {
-            "rbf" => Basis::Rbf(parse_options(options_json)?),
-            "bilinear" => Basis::Bilinear(parse_options(options_json)?),
+            "rbf" => Basis::Rbf(options::parse(<rbf::Rbf as Model>::OPTIONS, options_json)?),
+            "bilinear" => Basis::Bilinear(options::parse(<bilinear::Bilinear as Model>::OPTIONS, options_json)?),
             other => {
                 return Err(Error::arg(
                     "kind",

@@ -20,6 +20,11 @@ use btfrs_core::{ensure_arg, Monitor, Result};
 use btfrs_numerics::rpca;
 use nalgebra::DMatrix;
 
+/// The options of a staged fit, given as JSON (checked against the LPCA schema).
+pub fn parse_options(json: &str) -> Result<LpcaOptions> {
+    crate::options::parse(<super::Lpca as crate::model::Model>::OPTIONS, json)
+}
+
 /// Stage 1a: the texels whose ABRDFs [`subspace`] needs (`None`: every texel) for a
 /// `height x width` BTF.
 pub fn sample(height: usize, width: usize, opts: &LpcaOptions) -> Result<Option<Vec<u32>>> {

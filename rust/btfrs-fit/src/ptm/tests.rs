@@ -412,3 +412,26 @@ fn eight_bit_planes_are_within_half_a_step_and_are_what_is_stored() {
     let e = fit_ptm(&btf, &PtmOptions { bits: 16, ..Default::default() }, &Monitor::new()).unwrap_err().to_string();
     assert!(e.contains("bits") && e.contains("got 16"), "{e}");
 }
+
+#[test]
+fn ptm_whitening_turns_coefficient_distance_into_hemisphere_l2() {
+    // |L^T c|^2 must equal the mean over the hemisphere of (b(l) . c)^2, computed here by an
+    // independent quadrature (a finer polar grid weighted by sin(theta)).
+    let l = super::gram_factor();
+    let c = [0.3, -0.2, 0.5, 0.1, -0.4, 0.7];
+    let f: Vec<f64> = (0..6).map(|k| (0..6).map(|a| l[a][k] * c[a]).sum()).collect();
+    let lhs: f64 = f.iter().map(|x| x * x).sum();
+    let (nt, np) = (400, 400);
+    let (mut num, mut den) = (0.0, 0.0);
+    for i in 0..nt {
+        let t = (i as f64 + 0.5) / nt as f64 * std::f64::consts::FRAC_PI_2;
+        for j in 0..np {
+            let p = (j as f64 + 0.5) / np as f64 * std::f64::consts::TAU;
+            let b = super::basis([t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]);
+            let v: f64 = b.iter().zip(&c).map(|(x, y)| x * y).sum();
+            num += v * v * t.sin();
+            den += t.sin();
+        }
+    }
+    assert!((lhs - num / den).abs() < 2e-3 * lhs, "{lhs} vs {}", num / den);
+}

@@ -1,0 +1,213 @@
+"""The model registry is the one source of every fact about a model.
+
+* No file outside a model's own files names a model kind (its registered name as a string, its
+  Rust type, its Python class) or downcasts to one: everything else asks the registry.
+* The generated Python surface (``btfrs.fit``, the stub's ``ModelKind``, the docs' option tables)
+  is what ``scripts/generate_surface.py`` makes from the registry today.
+* The signatures of ``btfrs.fit.<kind>`` are the schema's: names, defaults, and errors that name
+  the option, the value and what is allowed.
+"""
+
+from __future__ import annotations
+
+import ast
+import inspect
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import btfrs
+from btfrs.exceptions import InvalidArgumentError
+
+ROOT = Path(__file__).resolve().parent.parent
+KINDS = btfrs.model_kinds()
+
+# Each kind's own files (globs from the repository root), besides the registry's list itself
+# (rust/btfrs-fit/src/registry.rs) and the crate's re-exports (rust/btfrs-fit/src/lib.rs). A
+# model's files are its fit, its shader, the files of the formats only it is written as, and the
+# code of an ability only it has (the SH lighting method). Two models that share a fit share
+# its file (lightfit: PTM and HSH; light_pca: RBF and bilinear).
+OWN = {
+    "ptm": ["rust/btfrs-fit/src/ptm.rs", "rust/btfrs-fit/src/ptm/*", "rust/btfrs-fit/src/lightfit.rs",
+            "rust/btfrs-io/src/ptm_file.rs", "shaders_wgsl/ptm.wgsl"],
+    "hsh": ["rust/btfrs-fit/src/hsh.rs", "rust/btfrs-fit/src/hsh/*", "rust/btfrs-fit/src/lightfit.rs",
+            "rust/btfrs-io/src/rti_file.rs", "shaders_wgsl/hsh.wgsl"],
+    "lafortune": ["rust/btfrs-fit/src/lafortune.rs", "rust/btfrs-fit/src/lafortune/*", "shaders_wgsl/lafortune*.wgsl"],
+    "lafortune_view": ["rust/btfrs-fit/src/lafortune.rs", "rust/btfrs-fit/src/lafortune/*",
+                       "shaders_wgsl/lafortune*.wgsl"],
+    "srf": ["rust/btfrs-fit/src/srf.rs", "rust/btfrs-fit/src/srf/*", "shaders_wgsl/srf.wgsl"],
+    "sh": ["rust/btfrs-fit/src/sh.rs", "rust/btfrs-fit/src/sh/*", "shaders_wgsl/sh.wgsl",
+           "rust/btfrs-render/src/sh_env.rs"],
+    "lpca": ["rust/btfrs-fit/src/lpca.rs", "rust/btfrs-fit/src/lpca/*", "shaders_wgsl/lpca*.wgsl"],
+    "rbf": ["rust/btfrs-fit/src/rbf.rs", "rust/btfrs-fit/src/light_pca.rs", "rust/btfrs-fit/src/light_pca/*",
+            "shaders_wgsl/light_pca.wgsl"],
+    "bilinear": ["rust/btfrs-fit/src/bilinear.rs", "rust/btfrs-fit/src/light_pca.rs",
+                 "rust/btfrs-fit/src/light_pca/*", "shaders_wgsl/light_pca.wgsl"],
+}
+EVERY = ["rust/btfrs-fit/src/registry.rs", "rust/btfrs-fit/src/lib.rs"]
+# Rust files where a kind's name is another thing's name: (file, kind) -> what it is.
+NOT_KINDS_RUST = {("rust/btfrs-render/src/filter.rs", "bilinear"): "the bilinear texture filter (Filter::Bilinear)"}
+# The Rust type of each kind.
+TYPES = {"ptm": "Ptm", "hsh": "Hsh", "lafortune": "Lafortune", "lafortune_view": "LafortuneView", "srf": "Srf",
+         "sh": "Sh", "lpca": "Lpca", "rbf": "Rbf", "bilinear": "Bilinear"}
+
+
+def _owned(kind: str, rel: str) -> bool:
+    return any(Path(rel).match(g) for g in OWN[kind] + EVERY)
+
+
+def _library_rust() -> list[Path]:
+    """The library's Rust sources: not tests, benches or examples (tools, which may pick models)."""
+    out = []
+    for p in sorted((ROOT / "rust").glob("*/src/**/*.rs")):
+        rel = p.relative_to(ROOT).as_posix()
+        if "/tests/" in rel or rel.endswith("/tests.rs"):
+            continue
+        out.append(p)
+    return out
+
+
+def _strip_rust_tests(text: str) -> str:
+    """The file without its `#[cfg(test)] mod tests { ... }` (tests fit models by name)."""
+    i = text.find("#[cfg(test)]")
+    return text if i < 0 else text[:i]
+
+
+def _strip_rust_comments(text: str) -> str:
+    return re.sub(r"//[^\n]*", "", text)
+
+
+def test_registry_knows_every_kind_with_a_class_and_owned_files():
+    assert set(KINDS) == set(OWN) == set(TYPES), "a new model needs its files listed in OWN and TYPES here"
+    for kind in KINDS:
+        assert getattr(btfrs, TYPES[kind]) is btfrs.models.class_of(kind), kind
+        for g in OWN[kind]:
+            assert list(ROOT.glob(g)), f"{kind}: no file matches {g}"
+
+
+def test_no_rust_file_outside_a_models_own_files_names_it():
+    found = []
+    for p in _library_rust():
+        rel = p.relative_to(ROOT).as_posix()
+        text = _strip_rust_comments(_strip_rust_tests(p.read_text()))
+        for n, line in enumerate(text.splitlines(), 1):
+            if "downcast_ref" in line and rel not in ("rust/btfrs-io/src/formats.rs", "rust/btfrs-py/src/errors.rs"):
+                found.append(f"{rel}:{n}: downcast: {line.strip()}")
+            for kind, ty in TYPES.items():
+                if _owned(kind, rel) or (rel, kind) in NOT_KINDS_RUST:
+                    continue
+                if re.search(rf'"{kind}"', line) or re.search(rf"\b{ty}\b", line):
+                    found.append(f"{rel}:{n}: names {kind}: {line.strip()}")
+    assert not found, "model kinds named outside their own files:\n" + "\n".join(found)
+
+
+def _python_library() -> list[Path]:
+    """The library's Python modules: not the tools, not the generated fit functions, not the
+    module that defines the classes and the package's re-exports of them."""
+    skip = {"fit.py", "models.py", "__init__.py"}
+    return [p for p in sorted((ROOT / "python" / "btfrs").glob("*.py")) if p.name not in skip]
+
+
+# Strings that are another thing's name and happen to spell a kind, with how often they occur:
+# (module, string) -> count.
+NOT_KINDS = {
+    ("rendering.py", "sh"): 3,  # lighting="sh", the SH lighting method (a model ability's name)
+    ("rendering.py", "bilinear"): 1,  # filter="bilinear", four-texel lookups
+    ("cli.py", "sh"): 1,  # btfrs tiles --model's default: paper 002 synthesizes tiles of double SH
+}
+
+
+def test_no_python_module_outside_the_models_names_a_kind():
+    classes = {TYPES[k] for k in KINDS}
+    found = []
+    seen: dict = {}
+    for p in _python_library():
+        tree = ast.parse(p.read_text())
+        docstrings = {id(n.body[0].value) for n in ast.walk(tree)
+                      if isinstance(n, (ast.Module, ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))
+                      and n.body and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings:
+                if node.value in KINDS:
+                    key = (p.name, node.value)
+                    seen[key] = seen.get(key, 0) + 1
+                    if seen[key] > NOT_KINDS.get(key, 0):
+                        found.append(f"{p.name}:{node.lineno}: the string {node.value!r}")
+            elif isinstance(node, (ast.Name, ast.Attribute)):
+                name = node.id if isinstance(node, ast.Name) else node.attr
+                if name in classes:
+                    found.append(f"{p.name}:{node.lineno}: the class {name}")
+            elif isinstance(node, ast.alias) and node.name in classes:
+                found.append(f"{p.name}: imports {node.name}")
+    assert not found, "model kinds named outside their own files:\n" + "\n".join(found)
+
+
+def test_the_generated_surface_is_what_the_registry_makes():
+    r = subprocess.run([sys.executable, str(ROOT / "scripts" / "generate_surface.py"), "--check"],
+                       capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+
+
+def test_fit_functions_have_the_schemas_signatures():
+    for kind, info in KINDS.items():
+        f = getattr(btfrs.fit, kind)
+        sig = inspect.signature(f)
+        names = [n for n in sig.parameters if n not in ("btf", "memory_limit", "progress")]
+        assert names == [o["name"] + ("_" if o["name"] == "lambda" else "") for o in info["options"]], kind
+        for o in info["options"]:
+            p = sig.parameters[o["name"] + ("_" if o["name"] == "lambda" else "")]
+            assert p.default == o["default"] and p.kind is inspect.Parameter.KEYWORD_ONLY, (kind, o["name"])
+            assert o["doc"].split()[0].lower() in (f.__doc__ or "").lower(), (kind, o["name"])
+        assert info["doc"] in (f.__doc__ or ""), kind
+    assert set(btfrs.fit.__all__) == {"fit", *KINDS}
+
+
+@pytest.fixture(scope="module")
+def small():
+    return btfrs.materials.make("bumps", size=8, seed=3)
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_every_option_out_of_its_range_is_refused_naming_it(kind, small):
+    # One bad value per option, made from the schema itself: above the maximum, below the
+    # minimum, outside the choices. Each error names the option and what is allowed.
+    for o in KINDS[kind]["options"]:
+        bad = []
+        if o["type"] in ("int", "optional_int"):
+            bad.append(o["min"] - 1)
+            if o.get("max") is not None:
+                bad.append(o["max"] + 1)
+            bad.append(1.5)
+        elif o["type"] == "float":
+            bad += [o["min"] - 1.0, "x"]
+        elif o["type"] in ("choice", "int_choice"):
+            bad.append("no-such-choice" if o["type"] == "choice" else 3)
+        elif o["type"] == "bool":
+            bad.append(1)
+        for v in bad:
+            with pytest.raises(InvalidArgumentError) as e:
+                btfrs.fit.fit(kind, small, **{o["name"]: v})
+            msg = str(e.value)
+            assert msg.startswith(o["name"] + ": expected ") and o["allowed"] in msg, msg
+    with pytest.raises(InvalidArgumentError, match="unknown option"):
+        btfrs.fit.fit(kind, small, no_such_option=1)
+    with pytest.raises(InvalidArgumentError, match="finite"):
+        btfrs.fit.fit(kind, small, memory_limit=None, **{"x": float("nan")})
+
+
+def test_numpy_scalars_are_options_too(small):
+    m = btfrs.fit.hsh(small, order=np.int64(2), lambda_=np.float32(1e-6))
+    assert m.order == 2
+
+
+def test_every_model_class_is_exported_and_the_cli_lists_every_kind():
+    for kind in KINDS:
+        assert TYPES[kind] in btfrs.__all__
+    r = subprocess.run([sys.executable, "-m", "btfrs.cli", "fit", "--help"], capture_output=True, text=True)
+    assert r.returncode == 0
+    for kind in KINDS:
+        assert kind in r.stdout
