@@ -10,6 +10,7 @@ ignored by GitHub) and is only checked to compile.
 
 from __future__ import annotations
 
+import linecache
 import os
 import re
 import textwrap
@@ -60,7 +61,9 @@ _STATE: dict[Path, _Page] = {}
 
 
 def _run(page: Path, state: _Page, i: int, line: int, code: str, runs: bool) -> None:
-    compiled = compile(code, f"{page.relative_to(ROOT)}:{line}", "exec")
+    name = f"{page.relative_to(ROOT)}:{line}"
+    linecache.cache[name] = (len(code), None, code.splitlines(True), name)  # tracebacks show the block
+    compiled = compile(code, name, "exec")
     if not runs:
         state.done = i + 1
         return
