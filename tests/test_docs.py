@@ -79,9 +79,15 @@ def _run(page: Path, state: _Page, i: int, line: int, code: str, runs: bool) -> 
         state.done = i + 1
 
 
-def test_the_pages_have_python_blocks():
+def test_the_pages_have_python_blocks_and_few_skip_any():
     assert len(blocks(ROOT / "README.md")) >= 3
-    assert sum(len(blocks(p)) for p in pages()) >= 20
+    found = [(p, b) for p in pages() for b in blocks(p)]
+    assert len(found) >= 20
+    # The marker is for what cannot run here (a 32 GB file, a data set, a cluster); not a way to
+    # quiet a block that fails.
+    skipped = [f"{p.relative_to(ROOT)}:{line}" for p, (line, _, runs) in found if not runs]
+    assert len(skipped) <= 5, skipped
+    assert all(runs for _, _, runs in blocks(ROOT / "README.md")), "every README block runs"
 
 
 @pytest.mark.parametrize("page, index", CASES)
