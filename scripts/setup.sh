@@ -47,6 +47,13 @@ if ! .venv/bin/python -c "import dask.array, distributed, zarr" >/dev/null 2>&1;
   .venv/bin/python -m pip install -q --disable-pip-version-check "dask[array]>=2024.1" "distributed>=2024.1" "zarr>=3"
 fi
 
+# The documentation site (mkdocs.yml, docs/): scripts/test.sh builds it with --strict; the API
+# reference is read from the sources by griffe (mkdocstrings' Python handler), without importing.
+if ! .venv/bin/python -c "import mkdocs, material, mkdocstrings, mkdocstrings_handlers.python" >/dev/null 2>&1; then
+  log "installing mkdocs-material and mkdocstrings into .venv"
+  .venv/bin/python -m pip install -q --disable-pip-version-check "mkdocs>=1.6,<2" "mkdocs-material>=9.5" "mkdocstrings[python]>=0.26"
+fi
+
 # Mitsuba 3 for the ground-truth tests (btfrs.groundtruth path traces a heightfield). Pinned:
 # Mitsuba 3.9 / Dr.Jit 1.5 emit llvm.minimum, which the LLVM 15 of Debian 12 (mesa's, also the
 # one lavapipe uses) cannot compile for x86 ("Cannot select: fminimum"); 3.5.2 / 0.4.6 work.

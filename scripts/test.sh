@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Every test of btfrs: the Rust workspace (cargo test, without the PyO3 crate, so no Python is
-# linked), the stub check of the native module, and the Python suite (pytest).
+# linked), the stub check of the native module, the documentation build (mkdocs --strict) and
+# the Python suite (pytest, which also runs every python block of README.md and docs/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # Mesa warns on every adapter query when XDG_RUNTIME_DIR is unset (headless machines, CI).
@@ -39,6 +40,14 @@ cargo build --quiet --profile "$BTFRS_PROFILE" --benches
 
 stage "stubtest btfrs._native"
 .venv/bin/python -m mypy.stubtest btfrs._native
+
+stage "mkdocs build --strict (the documentation site)"
+# Not -q: mkdocs 1.6 counts only the warnings it logs, and -q logs none, so --strict -q passes
+# with warnings. The INFO lines are dropped instead (grep's `|| true`: it exits 1 when it passes
+# no line; with pipefail the pipeline's status is then mkdocs's).
+docs_site="$(mktemp -d)"
+NO_MKDOCS_2_WARNING=1 .venv/bin/mkdocs build --strict -d "$docs_site" 2>&1 | { grep -v "^INFO" || true; }
+rm -rf "$docs_site"
 
 stage "pytest"
 # Two workers (pytest-xdist), each test file on one of them, so a module's shared fixture is

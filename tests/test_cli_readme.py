@@ -9,7 +9,6 @@ import numpy as np
 import btfrs
 from btfrs.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_demo_writes_images_and_a_summary_with_numbers(tmp_path):
@@ -41,68 +40,9 @@ def test_cli_reports_errors_without_a_traceback(tmp_path):
     assert r.returncode == 2 and "unknown material" in r.stderr and "Traceback" not in r.stderr
 
 
-def test_readme_python_snippet_runs():
-    text = (ROOT / "README.md").read_text()
-    block = re.search(r"## Python in a few lines\s+```python\n(.*?)```", text, re.S).group(1)
-    ns: dict = {}
-    exec(compile(block, "README.md", "exec"), ns)
-    img, ptm, test = ns["img"], ns["ptm"], ns["test"]
-    assert img.shape == (64, 64, 3) and img.dtype == np.float32 and np.all(np.isfinite(img))
-    assert 0 < ptm.error(test).relative < 0.5
 
 
-def test_readme_rendering_snippet_runs(tmp_path, monkeypatch):
-    text = (ROOT / "README.md").read_text()
-    block = re.search(r"## Rendering\s+```python\n(.*?)```", text, re.S).group(1)
-    monkeypatch.chdir(tmp_path)
-    ns: dict = {}
-    exec(compile(block, "README.md", "exec"), ns)
-    img, ref = ns["img"], ns["ref"]
-    # size=(384, 512) is (height, width), as numpy shapes are.
-    assert img.shape == (384, 512, 3) and ref.shape == img.shape and (img.sum(-1) > 0).mean() > 0.2
-    mse = float(np.mean((img - ref) ** 2))
-    assert 10 * np.log10(float(ref.max()) ** 2 / mse) > 40
-    assert (tmp_path / "sphere.png").exists()
 
-
-def test_readme_models_snippet_runs(monkeypatch, tmp_path):
-    text = (ROOT / "README.md").read_text()
-    block = re.search(r"## The other models[^\n]*\s+```python\n(.*?)```", text, re.S).group(1)
-    monkeypatch.chdir(tmp_path)
-    ns: dict = {}
-    exec(compile(block, "README.md", "exec"), ns)
-    img, test = ns["img"], ns["test"]
-    assert img.shape == (512, 512, 3) and (img.sum(-1) > 0).mean() > 0.2
-    for name in ("laf", "srf", "sh", "lp"):
-        assert 0 < ns[name].error(test).relative < 0.6, name
-    assert set(ns["laf"].report) >= {"converged", "fell_back", "failed"}
-
-
-def test_readme_synthesis_snippet_runs(monkeypatch, tmp_path):
-    text = (ROOT / "README.md").read_text()
-    block = re.search(r"## Synthesis[^\n]*\s+```python\n(.*?)```", text, re.S).group(1)
-    monkeypatch.chdir(tmp_path)
-    ns: dict = {}
-    exec(compile(block, "README.md", "exec"), ns)
-    img, cmap, big = ns["img"], ns["cmap"], ns["big"]
-    assert cmap.shape == (512, 512, 2) and big.shape[:2] == (512, 512)
-    assert img.shape == (384, 384, 3) and (img.sum(-1) > 0).mean() > 0.2
-    assert (tmp_path / "knit.analysis.btfrs").exists()
-
-
-def test_readme_tiles_snippet_runs(tmp_path, monkeypatch):
-    # The user code of the tile section, as written (issue 12's "what a user can do").
-    text = (ROOT / "README.md").read_text()
-    block = re.search(r"## Tileable BTFs[^\n]*\s+```python\n(.*?)```", text, re.S).group(1)
-    monkeypatch.chdir(tmp_path)
-    ns: dict = {}
-    exec(compile(block, "README.md", "exec"), ns)
-    img, tiles, layout = ns["img"], ns["tiles"], ns["layout"]
-    assert img.shape == (512, 512, 3) and np.isfinite(img).all() and (img.sum(-1) > 0).mean() > 0.2
-    tiles.check(layout)
-    assert isinstance(btfrs.load(tmp_path / "bumps.tiles"), btfrs.tiles.TileSet)
-    assert ns["tiles_lp"].model.kind == "lpca" and ns["rgb"].model is None
-    assert ns["flow"] == 2 and list(ns["source_side"]) == [True, True, False]
 
 
 def test_tiles_cli_writes_the_set_its_picture_and_a_render(tmp_path):

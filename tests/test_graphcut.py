@@ -175,14 +175,3 @@ def test_bench_maxflow_mode(tmp_path, capsys):
     rows = json.loads(path.read_text())["maxflow"]
     assert {r["case"] for r in rows} == {"kwatra", "segmentation"}
     assert all(r["size"] == 24 and r["flow"] > 0 for r in rows)
-
-
-def test_readme_snippet_runs():
-    import pathlib
-    import re
-
-    text = (pathlib.Path(__file__).resolve().parents[1] / "README.md").read_text()
-    block = re.search(r"## Max-flow / min-cut\s.*?```python\n(.*?)```", text, re.S).group(1)
-    ns: dict = {}
-    exec(compile(block, "README.md", "exec"), ns)
-    assert ns["side"].shape == (4, 5)
