@@ -211,3 +211,12 @@ def test_every_model_class_is_exported_and_the_cli_lists_every_kind():
     assert r.returncode == 0
     for kind in KINDS:
         assert kind in r.stdout
+
+
+def test_the_readme_and_the_docs_list_every_kind():
+    readme = (ROOT / "README.md").read_text()
+    rows = set(re.findall(r"^\| `([a-z_]+)` \|", readme, re.M))
+    assert rows == set(KINDS), "README's model table lists exactly the registered kinds"
+    pages = "".join(p.read_text() for p in (ROOT / "docs" / "models").glob("*.md"))
+    for kind in KINDS:
+        assert f'--8<-- "docs/_generated/{kind}.md"' in pages, f"no docs page includes {kind}'s options"

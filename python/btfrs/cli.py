@@ -197,7 +197,7 @@ def _option_args(p: argparse.ArgumentParser) -> None:
     schema before any work."""
     p.add_argument("--options", default="{}", help='fit options as JSON, e.g. \'{"order": 3}\'')
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                   help="one fit option (VALUE read as JSON, else as text); repeatable")
+                   help="one fit option, VALUE read as the option's type (see docs/cli.md); repeatable")
 
 
 def tiles_command(args) -> None:

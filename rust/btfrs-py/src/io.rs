@@ -118,34 +118,6 @@ pub fn import_model(py: Python<'_>, path: PathBuf) -> PyResult<PyModel> {
     Ok(PyModel { inner: detach(py, || (f.import)(&path))? })
 }
 
-// TRANSITION: the old per-format functions, until every Python caller uses export_model.
-#[pyfunction]
-pub fn write_ptm(py: Python<'_>, path: PathBuf, model: &PyModel, view: usize) -> PyResult<(Vec<f32>, Vec<i32>)> {
-    let v: serde_json::Value =
-        serde_json::from_str(&export_model(py, path, model, "ptm", view)?).map_err(|e| arg("ptm", e))?;
-    Ok((
-        serde_json::from_value(v["scale"].clone()).unwrap_or_default(),
-        serde_json::from_value(v["bias"].clone()).unwrap_or_default(),
-    ))
-}
-#[pyfunction]
-pub fn read_ptm(py: Python<'_>, path: PathBuf) -> PyResult<PyModel> {
-    import_model(py, path)
-}
-#[pyfunction]
-pub fn write_rti(py: Python<'_>, path: PathBuf, model: &PyModel, view: usize) -> PyResult<(Vec<f32>, Vec<f32>)> {
-    let v: serde_json::Value =
-        serde_json::from_str(&export_model(py, path, model, "rti", view)?).map_err(|e| arg("rti", e))?;
-    Ok((
-        serde_json::from_value(v["scale"].clone()).unwrap_or_default(),
-        serde_json::from_value(v["bias"].clone()).unwrap_or_default(),
-    ))
-}
-#[pyfunction]
-pub fn read_rti(py: Python<'_>, path: PathBuf) -> PyResult<PyModel> {
-    import_model(py, path)
-}
-
 /// Write a `[H, W, 3]` float32 linear image as an 8-bit sRGB PNG.
 #[pyfunction]
 #[pyo3(signature = (path, image, exposure=1.0))]

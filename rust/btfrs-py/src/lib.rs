@@ -38,13 +38,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<models::PyModel>()?;
     m.add_function(wrap_pyfunction!(models::fit_model, m)?)?;
     m.add_function(wrap_pyfunction!(models::load_model, m)?)?;
-    m.add_function(wrap_pyfunction!(models::model_registry, m)?)?;
     m.add_function(wrap_pyfunction!(models::check_options, m)?)?;
     m.add_function(wrap_pyfunction!(models::model_facts, m)?)?;
-    m.add_function(wrap_pyfunction!(io::write_ptm, m)?)?;
-    m.add_function(wrap_pyfunction!(io::read_ptm, m)?)?;
-    m.add_function(wrap_pyfunction!(io::write_rti, m)?)?;
-    m.add_function(wrap_pyfunction!(io::read_rti, m)?)?;
     m.add_function(wrap_pyfunction!(models::texel_arrays, m)?)?;
     m.add_function(wrap_pyfunction!(blockwise::blockwise_plan, m)?)?;
     m.add_function(wrap_pyfunction!(blockwise::finish_blocks, m)?)?;

@@ -196,13 +196,6 @@ pub fn model_facts() -> String {
     registry::describe().to_string()
 }
 
-/// The registered models: (kind, doc, renderers, [(label, options JSON)]).
-// TRANSITION: the old form, until every Python caller reads model_facts.
-#[pyfunction]
-#[allow(clippy::type_complexity)]
-pub fn model_registry() -> Vec<(&'static str, &'static str, Vec<&'static str>, Vec<(&'static str, &'static str)>)> {
-    registry::MODELS.iter().map(|e| (e.kind, e.doc, e.renderers.to_vec(), e.examples.to_vec())).collect()
-}
 
 /// Check fit options (a JSON object) for model `kind` as its fit would, without fitting.
 #[pyfunction]
