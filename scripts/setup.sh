@@ -47,7 +47,7 @@ if ! .venv/bin/python -c "import dask.array, distributed, zarr" >/dev/null 2>&1;
   .venv/bin/python -m pip install -q --disable-pip-version-check "dask[array]>=2024.1" "distributed>=2024.1" "zarr>=3"
 fi
 
-# Mitsuba 3 for the ground-truth tests (btfrs.groundtruth path traces a heightfield). Pinned:
+# Mitsuba 3 for the ground-truth tests (btfrs.tools.groundtruth path traces a heightfield). Pinned:
 # Mitsuba 3.9 / Dr.Jit 1.5 emit llvm.minimum, which the LLVM 15 of Debian 12 (mesa's, also the
 # one lavapipe uses) cannot compile for x86 ("Cannot select: fminimum"); 3.5.2 / 0.4.6 work.
 # (The version from the package metadata: mitsuba refuses attribute access before set_variant.)

@@ -82,7 +82,7 @@ def lafortune_scipy(train: Btf, test: Btf, lobes: int = 2, jac: str = "2-point")
 
     Returns ``{"seconds_per_texel", "held_out", "reconstruction", "texels"}`` (relative errors
     over all texels of the window, RGB)."""
-    from scipy.optimize import least_squares
+    from scipy.optimize import least_squares  # optional (test/bench extras): only this baseline needs it
 
     vi, li = _present(train)
     tv, tl = _present(test)
@@ -148,7 +148,7 @@ def real_sh(n: int, dirs: np.ndarray) -> np.ndarray:
     complex ones (Condon-Shortley phase included, as btfrs's): ``sqrt(2) Re Y_L^M`` for M > 0,
     ``sqrt(2) Im Y_L^|M|`` for M < 0, index ``L(L+1)+M``. An independent construction of the
     basis btfrs computes by recurrences."""
-    from scipy import special
+    from scipy import special  # optional (test/bench extras): only this baseline needs it
 
     d = np.asarray(dirs, dtype=np.float64)
     theta = np.arccos(np.clip(d[:, 2], -1, 1))
@@ -289,8 +289,8 @@ def lpca_sklearn_fit(btf: Btf, clusters: int = 32, components: int = 4, seed: in
     reconstruction as a Btf with ``btf``'s directions and mask (``"reconstructed"``), which
     :func:`raw_interpolation` fills in at held-out pairs (btfrs's LPCA fills its Eigen-BRDFs'
     held-out entries by the same interpolation)."""
-    from sklearn.cluster import KMeans
-    from sklearn.decomposition import PCA
+    from sklearn.cluster import KMeans  # optional (test/bench extras), heavy: only this baseline
+    from sklearn.decomposition import PCA  # optional (test/bench extras), heavy: only this baseline
 
     vi, li = _present(btf)
     x = btf.data[:, :, vi, li, :].reshape(btf.height * btf.width, -1)

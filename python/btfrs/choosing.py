@@ -51,7 +51,8 @@ from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import ArgumentTypeError, BtfrsError, DegenerateDataError, InvalidArgumentError
 from .models import Model, model_kinds
-from .rendering import Camera, DirectionalLight, PointLight, Scene, _uv_scale
+from .fit import fit as fit_model
+from .rendering import Camera, DirectionalLight, PointLight, Scene, _uv_scale, last_timings, render
 
 __all__ = ["SceneUse", "Choice", "choose", "default_candidates", "interp_weights", "SUBSETS"]
 
@@ -345,8 +346,6 @@ def default_candidates() -> list:
 def _render_ms(model, use: SceneUse) -> float:
     """Draw milliseconds of the scene's first frame on the GPU path: a warm-up frame (upload and
     pipeline compilation), then the best of two."""
-    from .rendering import last_timings, render
-
     def frame() -> None:
         render(model, use._scene, use.cameras[0], list(use.light_sets[0]), size=use._hw, uv_scale=list(use._uvs))
 
@@ -480,8 +479,6 @@ def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: 
     if cb is not None:
         cb(0, len(jobs))
     rows: list = []
-    from .fit import fit as fit_model
-
     for j, ((kind, label, options), (sname, vv, ll)) in enumerate(jobs):
         row: dict = dict(label=label, kind=kind, options=options, subset=sname, views=len(vv), lights=len(ll),
                          error=None, nbytes=None, render_ms=None, fit_s=None, status="", model=None)

@@ -8,10 +8,24 @@ bars on a terminal, one line per phase otherwise.
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import sys
+import time
 from typing import Optional, Sequence
 
-from . import __version__
+import numpy as np
+
+from . import __version__, io, materials, rendering, stability, synth, tiles
+from . import fit as fit_mod
+from . import fit as fitting
+from .btf import Btf
+from .choosing import SceneUse, choose, default_candidates
+from .evaluation import evaluate
+from .exceptions import BtfrsError, InvalidArgumentError
+from .models import Model, model_kinds
+from .rendering import Camera, DirectionalLight, PointLight, Scene, render
+from .tools import demo
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -113,12 +127,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     _data_commands(sub)
     args = p.parse_args(argv)
 
-    from .exceptions import BtfrsError
-
     try:
         if args.command == "demo":
-            from . import demo
-
             demo.run(args.out, material=args.material, size=args.size, seed=args.seed, progress=not args.quiet)
         else:
             commands = {"synth": synth_command, "evaluate": evaluate_command, "choose": choose_command,
@@ -145,11 +155,6 @@ def _material_args(p: argparse.ArgumentParser, default: str) -> None:
 
 def _load_sample(args, progress: bool):
     """The Btf of :func:`_material_args` and its name."""
-    import os
-
-    from . import materials
-    from .btf import Btf
-
     if args.btf:
         return Btf.load(args.btf), os.path.basename(args.btf)
     return materials.make(args.material, size=args.size, seed=args.seed, progress=progress), args.material
@@ -162,16 +167,6 @@ TILE_MODEL_DEFAULTS = {"sh": {"light_coeffs": 16, "view_coeffs": 16}, "lpca": {"
 def tiles_command(args) -> None:
     """``btfrs tiles``: fit (or read) the sample, synthesize a Wang tile set in its domain, write
     the set, a picture of the tiles with their edge colours, a tiling and its rendering."""
-    import json
-    import os
-
-    import numpy as np
-
-    from . import fit as fitting
-    from . import io, tiles
-    from .btf import Btf
-    from .rendering import Camera, PointLight, Scene, render
-
     progress = not args.quiet
     os.makedirs(args.out, exist_ok=True)
     written = []
@@ -182,8 +177,6 @@ def tiles_command(args) -> None:
     else:
         btf = Btf.load(args.btf) if args.btf else None
         if btf is None:
-            from . import materials
-
             btf = materials.make(args.material, size=args.size, seed=args.material_seed, progress=progress)
         name = os.path.basename(args.btf) if args.btf else args.material
         if args.model == "raw":
@@ -232,8 +225,6 @@ def tiles_command(args) -> None:
 def evaluate_command(args) -> None:
     """``btfrs evaluate``: :func:`btfrs.evaluate` on a material, the table on stdout, the report
     and charts in ``--out``."""
-    from .evaluation import evaluate
-
     progress = not args.quiet
     btf, name = _load_sample(args, progress)
     models = args.models if args.models == "all" else [m.strip() for m in args.models.split(",") if m.strip()]
@@ -249,13 +240,6 @@ def evaluate_command(args) -> None:
 
 def synth_command(args) -> None:
     """``btfrs synth``: analyse (or load the analysis), synthesize, save the map and pictures."""
-    import os
-
-    import numpy as np
-
-    from . import io, materials, synth
-    from .btf import Btf
-
     progress = not args.quiet
     os.makedirs(args.out, exist_ok=True)
     if args.texture:
@@ -299,12 +283,6 @@ def synth_command(args) -> None:
 
 def choose_command(args) -> None:
     """``btfrs choose``: what a scene needs of a material, and the cheapest model that gives it."""
-    from . import materials
-    from .btf import Btf
-    from .choosing import SceneUse, choose
-    from .exceptions import InvalidArgumentError
-    from .rendering import Camera, DirectionalLight, Scene
-
     progress = not args.quiet
     btf = Btf.load(args.btf) if args.btf else materials.make(args.material, size=args.size, seed=args.material_seed,
                                                               progress=progress)
@@ -314,8 +292,6 @@ def choose_command(args) -> None:
     use = SceneUse(camera=cams, lights=lights, size=tuple(args.image_size), scene=surface, uv_scale=args.uv_scale)
     cands = None
     if args.kinds:
-        from .choosing import default_candidates
-
         known = default_candidates()
         cands = [c for c in known if c[0] in args.kinds]
         unknown = sorted(set(args.kinds) - {c[0] for c in known})
@@ -329,9 +305,6 @@ def choose_command(args) -> None:
 def stability_command(args) -> None:
     """``btfrs stability``: run every model in every regime, write report.json, report.md and
     one chart per regime, print the table."""
-    from . import materials, stability
-    from .btf import Btf
-
     progress = not args.quiet
     if args.btf:
         btf, name = Btf.load(args.btf), args.btf
@@ -364,8 +337,6 @@ def _source_args(p: argparse.ArgumentParser) -> None:
 def _indices(name: str, text: Optional[str]):
     if text is None:
         return None
-    from .exceptions import InvalidArgumentError
-
     try:
         return [int(t) for t in text.split(",") if t.strip()]
     except ValueError:
@@ -373,8 +344,6 @@ def _indices(name: str, text: Optional[str]):
 
 
 def _open(args):
-    from . import io
-
     return io.load(args.path, directions=args.directions, crop=args.crop, views=_indices("views", args.views),
                    lights=_indices("lights", args.lights), linear=args.linear, progress=not args.quiet)
 
@@ -420,8 +389,6 @@ def _data_commands(sub) -> None:
 def _coverage(dirs) -> str:
     """Theta range and the largest angular gap: the biggest angle from any direction of the
     hemisphere to its nearest sample (a fine Fibonacci set of 4000 directions)."""
-    import numpy as np
-
     d = np.asarray(dirs, dtype=np.float64)
     theta = np.degrees(np.arccos(np.clip(d[:, 2], -1, 1)))
     n = 4000
@@ -436,11 +403,6 @@ def _coverage(dirs) -> str:
 
 def info_command(args) -> None:
     """``btfrs info``: print what the file holds and which models its sampling supports."""
-    import numpy as np
-
-    from .btf import Btf
-    from .models import Model, model_kinds
-
     obj = _open(args)
     print(f"{args.path}")
     if isinstance(obj, Model):
@@ -486,10 +448,6 @@ def info_command(args) -> None:
 
 
 def _fit_options(args) -> dict:
-    import json
-
-    from .exceptions import InvalidArgumentError
-
     try:
         opts = json.loads(args.options)
     except json.JSONDecodeError as e:
@@ -509,12 +467,6 @@ def _fit_options(args) -> dict:
 
 def fit_command(args) -> None:
     """``btfrs fit``: load, fit, save; print time, size and errors."""
-    import time
-
-    from . import fit as fit_mod
-    from .btf import Btf
-    from .exceptions import InvalidArgumentError
-
     btf = _open(args)
     if not isinstance(btf, Btf):
         raise InvalidArgumentError(f"path: {args.path} holds a {type(btf).__name__}, not measured data to fit")
@@ -532,11 +484,6 @@ def fit_command(args) -> None:
 
 def export_command(args) -> None:
     """``btfrs export``: the formats other tools read."""
-    from . import io
-    from .btf import Btf
-    from .exceptions import InvalidArgumentError
-    from .models import Model
-
     if not any([args.ptm, args.rti, args.exr, args.stack]):
         raise InvalidArgumentError("export: give at least one of --ptm, --rti, --exr, --stack")
     obj = io.load(args.path)
@@ -564,13 +511,6 @@ def export_command(args) -> None:
 
 def render_command(args) -> None:
     """``btfrs render``: one image of a model, BTF or capture."""
-    import numpy as np
-
-    from . import io, rendering
-    from .btf import Btf
-    from .exceptions import InvalidArgumentError
-    from .models import Model
-
     obj = io.load(args.path, directions=args.directions)
     if not isinstance(obj, (Model, Btf)):
         raise InvalidArgumentError(f"path: {args.path} holds a {type(obj).__name__}, not a model or BTF")

@@ -27,6 +27,8 @@ import numpy as np
 from . import _native
 from ._checks import integer, real
 from .exceptions import ArgumentTypeError, InvalidArgumentError
+from .io import load_image
+from .rendering import DirectionalLight
 
 __all__ = ["Environment"]
 
@@ -57,8 +59,6 @@ class Environment:
     @classmethod
     def load(cls, path) -> "Environment":
         """Read a lat-long image: OpenEXR (linear HDR) or PNG (sRGB-decoded to linear)."""
-        from .io import load_image
-
         p = os.fspath(path)
         try:
             img = load_image(p)
@@ -93,8 +93,6 @@ class Environment:
     def lights(self, samples: int = 64, *, seed: int = 0):
         """``samples`` importance-sampled :class:`~btfrs.DirectionalLight` s whose sum estimates
         the lighting integral (what ``method="sampled"`` renders with)."""
-        from .rendering import DirectionalLight
-
         n = integer("samples", samples, min=1, max=65536)
         sd = integer("seed", seed, min=0)
         d, i = _native.env_sample(self.data, n, sd)
@@ -103,8 +101,6 @@ class Environment:
     def quadrature(self):
         """Every lit pixel as one :class:`~btfrs.DirectionalLight` at its centre carrying
         radiance x solid angle: the brute-force integral the sampled renders converge to."""
-        from .rendering import DirectionalLight
-
         d, i = _native.env_quadrature(self.data)
         return [DirectionalLight(tuple(map(float, a)), tuple(map(float, b))) for a, b in zip(d, i)]
 

@@ -52,6 +52,7 @@ from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import BtfrsError, InvalidArgumentError
+from .io import atomic_write
 from .models import model_kinds
 
 __all__ = ["REGIMES", "StabilityReport", "default_models", "run"]
@@ -490,8 +491,6 @@ class StabilityReport:
     def save(self, directory: Union[str, os.PathLike]) -> list:
         """Write ``report.json``, ``report.md`` and one chart ``<regime>.png`` per regime into
         ``directory`` (created); returns the paths written."""
-        from .io import atomic_write
-
         d = os.fspath(directory)
         os.makedirs(d, exist_ok=True)
         paths = []
@@ -510,12 +509,10 @@ class StabilityReport:
         return paths
 
     def _chart(self, regime: str, path: str) -> None:
-        import matplotlib
+        import matplotlib  # heavy (~0.5 s): only for the charts, so `import btfrs` stays light
 
         matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        from .io import atomic_write
+        import matplotlib.pyplot as plt  # after use("Agg"); heavy, charts only
 
         rows = [r for r in self.rows if r["regime"] == regime]
         labels = []

@@ -38,6 +38,7 @@ from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
+from .models import load_as
 
 __all__ = [
     "Analysis",
@@ -132,8 +133,6 @@ class Analysis:
     @classmethod
     def load(cls, path: PathLike) -> "Analysis":
         """Read an analysis written by :meth:`save`."""
-        from .models import load_as
-
         return load_as(path, cls)
 
     @classmethod

@@ -26,7 +26,10 @@ import numpy as np
 from . import _native
 from ._checks import integer, real
 from ._progress import Progress, callback
+from .btf import Btf
 from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
+from .models import Model, load_as, wrap
+from .rendering import TileMap
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -135,8 +138,6 @@ class TileSet:
     def tile_map(self, model, layout):
         """The :class:`btfrs.rendering.TileMap` that draws ``layout`` with ``model``: the set's own
         BTFel model (:attr:`model`), or the model / Btf it was synthesized from (same size)."""
-        from .rendering import TileMap
-
         lay = _layout(layout)
         if lay.size and int(lay.max()) >= self.n_tiles:
             raise InvalidArgumentError(f"layout: tile {int(lay.max())} does not exist (the set has {self.n_tiles})")
@@ -173,7 +174,6 @@ class TileSet:
         if src is None:
             raise InvalidArgumentError("tiles: a set made from a raw Btf keeps no BTFel values once saved; "
                                        "render it with the Btf (btfrs.render(btf, ..., tiles=, layout=))")
-        from .btf import Btf
         if isinstance(src, Btf):
             vi = int(np.argmax(src.views @ np.asarray(_unit(view))))
             li = int(np.argmax(src.lights @ np.asarray(_unit(light))))
@@ -254,14 +254,10 @@ class TileSet:
     @classmethod
     def load(cls, path: PathLike) -> "TileSet":
         """Read a set written by :meth:`save`."""
-        from .models import load_as
-
         return load_as(path, cls)
 
     @classmethod
     def _from_container(cls, path: PathLike, meta: dict, arrays: dict) -> "TileSet":
-        from .models import wrap
-
         try:
             model = None
             if "model_kind" in meta:
@@ -297,8 +293,6 @@ def wang(source, *, tile: int = 64, edge_height: int = 16, colors: int = 2, seed
     ``pixel_threshold`` (0.3) and ``total_threshold`` (0.02) in units of the sample's mean squared
     distance between random texel pairs, ``refine`` (refinement patches per fill, 24),
     ``corner_candidates`` (48), ``matching_dims`` (8)."""
-    from .models import wrap
-
     tile = integer("tile", tile, min=4)
     edge_height = integer("edge_height", edge_height, min=2)
     colors = integer("colors", colors, min=2, max=8)
@@ -336,9 +330,6 @@ def wang(source, *, tile: int = 64, edge_height: int = 16, colors: int = 2, seed
 
 def _features_of(source, domain: str):
     """Features ``[H, W, D]`` float32, the domain's name, and the source kind."""
-    from .btf import Btf
-    from .models import Model
-
     if isinstance(source, Model):
         f, name = _native.wang_model_features(source._m, domain)
         return f, name, "model"
@@ -387,8 +378,6 @@ def _layout(layout) -> np.ndarray:
 
 
 def _dims_of(model) -> tuple:
-    from .btf import Btf
-
     if isinstance(model, Btf):
         return tuple(model.data.shape[:2])
     return (model.height, model.width)

@@ -1,4 +1,4 @@
-"""End-to-end benchmarks: ``python -m btfrs.bench [--size 64] [--json PATH]``.
+"""End-to-end benchmarks: ``python -m btfrs.tools.bench [--size 64] [--json PATH]``.
 
 Every btfrs figure is measured in the same run as the plain numpy way of doing the same work,
 so the ratios do not depend on the machine's mood; the table goes to stdout and everything,
@@ -13,17 +13,30 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import platform
+import shutil
+import subprocess
 import sys
 import tempfile
 import time
+import zipfile
 from datetime import datetime, timezone
 from typing import Callable
 
 import numpy as np
 
-from . import __version__, baselines, fit, materials
+from .. import __version__, baselines, evaluation, fit, graphcut, io, materials, rendering, synth
+from .. import dask as bd
+from .. import directions as dirs
+from .. import tiles as wang
+from .._checks import memory_size
+from ..btf import Btf
+from ..environment import Environment
+from ..models import model_kinds
+from ..rendering import Camera, PointLight, Scene, render
+from . import groundtruth
 
 
 def best_of(fn: Callable[[], object], repeat: int) -> tuple[float, object]:
@@ -74,8 +87,6 @@ def render_bench(repeat: int) -> list:
     """ms per frame on this machine's adapter: raw BTF and PTM-RGB, 512^2 and 1024^2, with and
     without a coordinate map; draw and read-back timed separately (the first, pipeline-compiling
     frame is not counted)."""
-    from . import rendering
-
     btf = materials.make("knit", size=64, seed=1)
     ptm = fit.ptm(btf, kind="rgb")
     scene = rendering.Scene.sphere()
@@ -132,8 +143,6 @@ def accuracy_table(rows: list) -> str:
 def _render_ms(model, method=None, size=512, repeat=2) -> float:
     """Best draw time (ms) of a 512^2 sphere frame with one point light (the first frame, which
     compiles the pipeline, is not counted)."""
-    from . import rendering
-
     scene = rendering.Scene.sphere()
     cam = rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
     lights = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
@@ -147,8 +156,6 @@ def _render_ms(model, method=None, size=512, repeat=2) -> float:
 
 
 def rendering_info() -> str:
-    from . import rendering
-
     return rendering.gpu_info()
 
 
@@ -158,10 +165,6 @@ def env_bench(size: int = 64, repeat: int = 2) -> list:
     the same with trilinear lookups, and a 640 x 480 sphere under the built-in sky with 64
     importance-sampled lights; double-SH models also by the SH method (paper 002, section 4:
     3.2 to 4.5 minutes per 640 x 480 frame). Best of ``repeat`` after a warm-up frame."""
-    from . import rendering
-    from .environment import Environment
-    from .models import model_kinds
-
     btf = materials.make("knit", size=size, seed=1)
     env = Environment.sky(sun=[0.3, 0.2, 0.9], turbidity=3)
     scene = rendering.Scene.sphere()
@@ -203,9 +206,6 @@ def frames_bench(size: int = 32, repeat: int = 2) -> list:
     registered model and each of its renderers (``env_bench`` takes one per model): a 512^2
     sphere under one point light on the knit at ``size``^2, best of ``repeat`` after a warm-up
     frame, as a ratio to PTM-RGB's frame in the same run."""
-    from . import rendering
-    from .models import model_kinds
-
     btf = materials.make("knit", size=size, seed=1)
     scene = rendering.Scene.sphere()
     cam = rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
@@ -259,8 +259,6 @@ EXTRA_SETTINGS = [
 
 
 def _settings() -> list:
-    from .models import model_kinds
-
     out = [(label, kind, opts) for kind, info in model_kinds().items() for label, opts in info["examples"]]
     return [(label, (lambda b, k=kind, o=opts: fit.fit(k, b, **o))) for label, kind, opts in out + EXTRA_SETTINGS]
 
@@ -478,8 +476,6 @@ def rti_settings() -> list:
     """``(label, kind, options)`` for the single-view comparison, iterating over the registry:
     the light bases (PTM, RBF, bilinear, HSH when registered) at several sizes, LPCA and
     single-view SH at a few, every other model at its examples."""
-    from .models import model_kinds
-
     out = []
     for kind, info in model_kinds().items():
         if kind == "ptm":
@@ -508,8 +504,6 @@ def rti_bench(captures=RTI_CAPTURES, size: int = RTI_SIZE, chart_dir: str = "doc
     """Every setting of :func:`rti_settings` on each single-view capture: held-out relative
     error (``RTI_HOLDOUT`` of the lights, seed 0) against bytes, via
     :func:`btfrs.evaluation.evaluate`; one chart per capture in ``chart_dir``."""
-    from . import evaluation
-
     out = []
     settings = rti_settings()
     for name, nl in captures:
@@ -586,8 +580,6 @@ SH_BIG_TARGET_S = 1.0
 def synth_bench(repeat: int, material: str = "knit", size: int = 64) -> dict:
     """Paper 000 Table 1 settings, the jump map and the analysis of a size^2 x 81 x 81 sample,
     with the quality measures of every result beside plain tiling and random placement."""
-    from . import synth
-
     btf = materials.make(material, size=size, seed=1)
     t_an, an = best_of(lambda: synth.analyse(btf, textons=min(1024, size * size), seed=0), min(repeat, 2))
     an.prepare(3, 3)
@@ -650,7 +642,7 @@ def maxflow_problems(n: int, seed: int = 1) -> dict:
 
 def _grid_csr(right, down, term):
     """The grid with a source node N and a sink node N + 1 as the int32 CSR matrix scipy takes."""
-    import scipy.sparse
+    import scipy.sparse  # optional (bench extra): only the max-flow comparison
 
     h, w = term.shape[:2]
     nn = h * w
@@ -671,9 +663,7 @@ def maxflow_bench(repeat: int, sizes=MAXFLOW_SIZES) -> list:
     """btfrs.graphcut (grid path and general path, argument conversion included) against
     scipy.sparse.csgraph.maximum_flow (its default method, on a CSR matrix built beforehand, so
     the building is not timed for scipy) on the same integer grids, in the same run."""
-    from scipy.sparse.csgraph import maximum_flow
-
-    from . import graphcut
+    from scipy.sparse.csgraph import maximum_flow  # optional (bench extra): only the max-flow comparison
 
     rows = []
     for n in sizes:
@@ -706,8 +696,6 @@ def figure6(out_dir: str, material: str = "bumps", size: int = 64, out: int = 19
     """Paper 000 Figure 6 for a built-in material: rows (neighbourhood 1, one level),
     (neighbourhood 2, one level), (neighbourhood 2, three levels); columns k = 1 and k = 5, plus
     the tiled sample on the right of each row. Seen from above under a light at 45 degrees."""
-    from . import io, synth
-
     btf = materials.make(material, size=size, seed=1)
     an = synth.analyse(btf, textons=min(1024, size * size), neighbourhoods=(1, 2), seed=0)
     light = int(np.argmin(np.abs(btf.lights[:, 2] - np.cos(np.radians(45.0)))))
@@ -736,10 +724,6 @@ def tiles_bench(repeat: int) -> dict:
     """Graph-cut Wang tile sets (issue 12): synthesis of 16 tiles of 64^2, 128^2 and 256^2 in the
     SH 16x16 domain (bumps; 81 x 81 directions at 128^2, 25 x 25 at 256^2 to fit in memory), the
     tiling of a 1024 x 1024 layout, render ms with a tile map and without."""
-    from . import directions as dirs
-    from . import tiles as wang
-    from .rendering import Camera, PointLight, Scene, render
-
     rows = []
     b128 = materials.make("bumps", size=128, seed=3)
     sh128 = fit.sh(b128, light_coeffs=16, view_coeffs=16)
@@ -814,18 +798,12 @@ def load_bench(repeat: int) -> list:
     """Load throughput of the real-data readers: MB/s of decoded float32 data (and of files read)
     for a UBO2003-style archive (6561 JPEG / PNG images, folder and zip), an RTI capture (.lp +
     200 JPEG photographs of 512^2) and the same into a memory-mapped file (``mmap_to``)."""
-    import shutil
-    import zipfile
-
-    from PIL import Image
-
-    from . import directions as dirs_mod
-    from . import io as bio
+    from PIL import Image  # optional (bench extra): only the RTI captures
 
     rows = []
     tmp = tempfile.mkdtemp(prefix="btfrs-load-")
     try:
-        ubo = dirs_mod.ubo81()
+        ubo = dirs.ubo81()
         ang = [(round(float(np.degrees(np.arccos(d[2])))), round(float(np.degrees(np.arctan2(d[1], d[0]))) % 360))
                for d in ubo]
         btf = materials.make("bumps", size=64, seed=1)
@@ -848,7 +826,7 @@ def load_bench(repeat: int) -> list:
             for label, src in ((f"UBO2003 folder, 6561 {ext.upper()} 64^2", folder),
                                (f"UBO2003 zip, 6561 {ext.upper()} 64^2", zpath)):
                 files = (sum(os.path.getsize(os.path.join(folder, n)) for n in os.listdir(folder)))
-                t, b = best_of(lambda: bio.load(src), repeat)
+                t, b = best_of(lambda: io.load(src), repeat)
                 rows.append({"task": label, "seconds": t, "decoded_MB": b.nbytes / 1e6, "file_MB": files / 1e6,
                              "MB_per_s": b.nbytes / 1e6 / t, "file_MB_per_s": files / 1e6 / t})
         # RTI: 200 lights on a spiral over the hemisphere (theta 5 to 75 degrees), 512^2 JPEGs
@@ -867,7 +845,7 @@ def load_bench(repeat: int) -> list:
             f.write("\n".join(lines) + "\n")
         files = sum(os.path.getsize(os.path.join(cap, n)) for n in os.listdir(cap))
         lp = os.path.join(cap, "capture.lp")
-        t, b = best_of(lambda: bio.load(lp), repeat)
+        t, b = best_of(lambda: io.load(lp), repeat)
         rows.append({"task": "RTI .lp, 200 JPEG 512^2", "seconds": t, "decoded_MB": b.nbytes / 1e6,
                      "file_MB": files / 1e6, "MB_per_s": b.nbytes / 1e6 / t, "file_MB_per_s": files / 1e6 / t})
         # the same with Pillow + numpy, the way one would assemble it by hand: decode each photo,
@@ -884,7 +862,7 @@ def load_bench(repeat: int) -> list:
                      "decoded_MB": arr.nbytes / 1e6, "file_MB": files / 1e6, "MB_per_s": arr.nbytes / 1e6 / tp,
                      "file_MB_per_s": files / 1e6 / tp})
         out = os.path.join(tmp, "rti.btfrs")
-        t, b = best_of(lambda: bio.load(lp, mmap_to=out), repeat)
+        t, b = best_of(lambda: io.load(lp, mmap_to=out), repeat)
         rows.append({"task": "RTI .lp, 200 JPEG 512^2, mmap_to a .btfrs", "seconds": t,
                      "decoded_MB": b.nbytes / 1e6, "file_MB": files / 1e6, "MB_per_s": b.nbytes / 1e6 / t,
                      "file_MB_per_s": files / 1e6 / t})
@@ -909,12 +887,8 @@ def out_of_core_bench(path: str, size: int, limit: str, kinds=("ptm", "lpca")) -
 
     Makes ``knit`` at ``size``^2 x 81 x 81 straight into ``path`` (``materials.make(out=...)``,
     streamed; kept when a file of that size is already there), then fits each model in a fresh
-    interpreter (``btfrs._memprobe``): wall time, bytes read from storage, and the peak anonymous
+    interpreter (``btfrs.tools.memprobe``): wall time, bytes read from storage, and the peak anonymous
     memory above the start, against the limit plus the model."""
-    import subprocess
-
-    from .btf import Btf
-
     made = None
     want = size * size * 81 * 81 * 3 * 4
     have = Btf.load(path, mmap=True).data.nbytes if os.path.exists(path) else None
@@ -925,7 +899,7 @@ def out_of_core_bench(path: str, size: int, limit: str, kinds=("ptm", "lpca")) -
     rows = []
     for kind in kinds:
         opts = dict(OOC_LPCA if kind == "lpca" else {}, memory_limit=limit)
-        r = subprocess.run([sys.executable, "-m", "btfrs._memprobe", path, kind, json.dumps(opts)],
+        r = subprocess.run([sys.executable, "-m", "btfrs.tools.memprobe", path, kind, json.dumps(opts)],
                            capture_output=True, text=True, check=True)
         m = json.loads(r.stdout.strip().splitlines()[-1])
         m["options"] = opts
@@ -942,8 +916,6 @@ def out_of_core_table(res: dict) -> str:
              + (f" (made in {res['made_seconds']:.0f} s)" if res.get("made_seconds") else ""),
              "| fit | seconds | read from storage | GB/s (storage) | GB/s (data) | peak anonymous | limit + model |",
              "|---|---|---|---|---|---|---|"]
-    from ._checks import memory_size
-
     for r in res["rows"]:
         bound = memory_size("limit", res["limit"]) + r["model"]
         lines.append(f"| {r['kind']} {json.dumps({k: v for k, v in r['options'].items() if k != 'memory_limit'})} | "
@@ -1011,13 +983,7 @@ def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int 
     and one rayon thread (``RAYON_NUM_THREADS=1``: one core, as a cluster node's slot), so the 1-
     and 2-worker rows are 1 and 2 cores; the local fit uses every core of this machine. Every
     cluster fit is checked equal, array for array, to the local one."""
-    import logging
-    import shutil
-
-    from distributed import Client, LocalCluster
-
-    from . import dask as bd
-    from .btf import Btf
+    from distributed import Client, LocalCluster  # optional (dask extra): only --dask
 
     work = workdir or tempfile.mkdtemp(prefix="btfrs-dask-bench-")
     os.makedirs(work, exist_ok=True)
@@ -1038,8 +1004,6 @@ def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int 
             rows.append({"kind": kind, "options": o, "local_s": secs})
         # The same local fits on one core (a fresh interpreter with one rayon thread): the
         # cluster's overhead at equal cores is dask1_s / local1_s.
-        import subprocess
-
         code = ("import json, sys, time; import btfrs; from btfrs import fit; from btfrs.btf import Btf; "
                 "b = Btf.load(sys.argv[1], mmap=True); out = {}\n"
                 "for kind, o in json.loads(sys.argv[2]):\n"
@@ -1087,7 +1051,7 @@ def dask_table(res: dict) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m btfrs.bench", description=__doc__)
+    p = argparse.ArgumentParser(prog="python -m btfrs.tools.bench", description=__doc__)
     p.add_argument("--size", type=int, action="append", help="material sizes (default: 32 and 64; 32 with --accuracy)")
     p.add_argument("--repeat", type=int, default=3, help="runs per figure; the best is kept (default: 3)")
     p.add_argument("--json", help="where to write the JSON (default: bench.json, or accuracy.json with --accuracy, "
@@ -1146,8 +1110,6 @@ def main(argv=None) -> int:
     if a.json is None:
         a.json = os.path.join(a.figures or "bench-results", "accuracy.json" if a.accuracy else "bench.json")
     if a.ground_truth:
-        from . import groundtruth
-
         res = groundtruth.check(progress=True)
         print(f"ground truth: woven heightfield measured by path tracing ({res['texels']}^2 texels, 81 x 81 "
               f"directions, {res['measure_spp']} spp) rendered by btfrs ({res['backend']}) on a plane at "

@@ -1,8 +1,8 @@
-"""Measure one fit of a memory-mapped ``.btfrs`` in this process: ``python -m btfrs._memprobe
+"""Measure one fit of a memory-mapped ``.btfrs`` in this process: ``python -m btfrs.tools.memprobe
 PATH MODEL OPTIONS_JSON`` prints one JSON line (``MODEL`` a registered model, or ``analyse`` for
 :func:`btfrs.synth.analyse`).
 
-What the out-of-core tests and ``python -m btfrs.bench --out-of-core`` run in a fresh
+What the out-of-core tests and ``python -m btfrs.tools.bench --out-of-core`` run in a fresh
 interpreter per fit (memory an earlier fit freed stays with the allocator and would hide the next
 fit's growth). The figures are the operating system's own:
 

@@ -16,8 +16,12 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from . import __version__, baselines, fit, io, materials
-from .btf import Btf
+from .. import __version__, baselines, fit, io, materials, rendering, synth, tiles
+from ..btf import Btf
+from ..directions import from_theta_phi
+from ..environment import Environment
+from ..evaluation import evaluate
+from ..models import Ptm, Sh, model_kinds
 
 __all__ = ["Context", "STEPS", "run"]
 
@@ -77,8 +81,6 @@ def step_models(ctx: Context) -> None:
     """Every registered model (:func:`btfrs.model_kinds`) with each of its example option sets,
     fitted on the same train half: PTM (000), per-texel Lafortune (000), Phong + SRF (003),
     double SH with CLS (002), Local PCA (004), and whatever is registered next."""
-    from .models import Ptm, model_kinds
-
     for kind, info in model_kinds().items():
         for label, options in info["examples"]:
             m = fit.fit(kind, ctx.train, progress=ctx.progress, **options)
@@ -124,8 +126,6 @@ def step_compare_images(ctx: Context) -> None:
 
 def step_render(ctx: Context) -> None:
     """The material on a sphere and a plane: the raw BTF (the reference) next to each model."""
-    from . import rendering
-
     lights = [rendering.PointLight(position=[2.0, -2.0, 3.0], intensity=8.0)]
     shots = [("sphere", rendering.Scene.sphere(), rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40), 4.0),
              ("plane", rendering.Scene.plane(2.0), rendering.Camera.look_at([0, -2.2, 1.6], [0, 0, 0], 45), 3.0)]
@@ -153,10 +153,6 @@ def step_environment(ctx: Context) -> None:
     """Environment light (paper 002, section 4): the material on a sphere under the built-in
     sky, by the sampled method (64 importance-sampled lights, PTM-RGB) and by the SH method
     (the double-SH model); then a slanted plane with nearest and trilinear lookups."""
-    from . import rendering
-    from .environment import Environment
-    from .models import Sh
-
     env = Environment.sky(sun=[0.3, 0.2, 0.9], turbidity=3)
     sphere, cam = rendering.Scene.sphere(), rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
     ptm = next(m for n, m in ctx.models.items() if m.kind == "ptm" and getattr(m, "variant", "") == "rgb")
@@ -188,8 +184,6 @@ def step_environment(ctx: Context) -> None:
 
 def step_materials_overview(ctx: Context) -> None:
     """Every built-in material under three lights (view from above), to see what they are."""
-    from .directions import from_theta_phi
-
     lights = from_theta_phi(np.radians([0.0, 60.0, 75.0]), np.radians([0.0, 45.0, 200.0]))
     top = np.array([[0.0, 0.0, 1.0]])
     rows = []
@@ -205,8 +199,6 @@ def step_synthesis(ctx: Context) -> None:
     """A large BTF synthesized from the sample (paper 000 section 4): texton analysis,
     hierarchical k-coherence into a 512^2 coordinate map, rendered with the sample's PTM next to
     the plainly tiled sample, with the quality measures of both."""
-    from . import rendering, synth
-
     # Three levels as in the paper when the sample allows 5 x 5 windows at its coarsest level.
     levels = next(L for L in (3, 2, 1) if ((ctx.size >> (L - 1)) - 4) ** 2 - 25 >= 10)
     an = synth.analyse(ctx.btf, textons=min(1024, ctx.size * ctx.size), levels=levels, seed=0, progress=ctx.progress)
@@ -246,8 +238,6 @@ def step_tiles(ctx: Context) -> None:
     """Graph-cut Wang tile sets (paper 002): one set of the demo material (SH domain) dressing a
     sphere and a cylinder, and a second material's set swapped in on the same layout, with no
     re-synthesis and no re-tiling; the sets' pictures with their edge colours."""
-    from . import rendering, tiles
-
     t0 = time.perf_counter()
     sh_a = fit.sh(ctx.btf, light_coeffs=16, view_coeffs=16)
     other = "bumps" if ctx.material != "bumps" else "weave"
@@ -289,8 +279,6 @@ def step_evaluate(ctx: Context) -> None:
     """Speed against accuracy (:func:`btfrs.evaluate`): one or two points per model (the quick
     sweep) and the numpy / scipy / scikit-learn ways, both held-out protocols, charts in
     ``evaluate/``. ``btfrs evaluate`` runs the full sweep."""
-    from .evaluation import evaluate
-
     t0 = time.perf_counter()
     rep = evaluate(ctx.btf, "all", holdout="both", sweep="quick", baselines=True, baseline_texels=8, seed=0,
                    material=ctx.material, progress=ctx.progress)

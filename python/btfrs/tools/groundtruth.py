@@ -30,11 +30,13 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from ._checks import integer, real
-from ._checks import seed as check_seed
-from ._progress import Progress, callback
-from .btf import Btf
-from .exceptions import BtfrsError, InvalidArgumentError
+from .. import directions, io
+from .._checks import integer, real
+from .._checks import seed as check_seed
+from .._progress import Progress, callback
+from ..btf import Btf
+from ..exceptions import BtfrsError, InvalidArgumentError
+from ..rendering import Camera, DirectionalLight, Scene, render
 
 __all__ = ["Heightfield", "available", "measure_btf", "render_geometry", "compare", "check", "table", "figure"]
 
@@ -57,14 +59,14 @@ def _mitsuba():
     try:
         import mitsuba as mi  # noqa: PLC0415  (optional dependency)
     except ImportError as e:
-        raise BtfrsError("btfrs.groundtruth needs Mitsuba 3: pip install mitsuba") from e
+        raise BtfrsError("btfrs.tools.groundtruth needs Mitsuba 3: pip install mitsuba") from e
     if mi.variant() is None:
         try:
             mi.set_variant("llvm_ad_rgb")
         except (ImportError, AttributeError) as e:
             raise BtfrsError(f"Mitsuba's llvm_ad_rgb variant is unavailable (it needs libLLVM): {e}") from e
     elif not mi.variant().startswith("llvm"):
-        raise BtfrsError(f"btfrs.groundtruth traces batches of rays and needs an llvm Mitsuba variant, "
+        raise BtfrsError(f"btfrs.tools.groundtruth traces batches of rays and needs an llvm Mitsuba variant, "
                          f"the process has {mi.variant()!r}")
     return mi
 
@@ -156,7 +158,7 @@ def measure_btf(hf: Heightfield, views, lights, *, texels: int = 16, spp: int = 
     measurement at a large distance sees the sample.
     """
     mi = _mitsuba()
-    import drjit as dr  # noqa: PLC0415
+    import drjit as dr  # noqa: PLC0415  (optional groundtruth extra, comes with Mitsuba)
 
     views = np.asarray(views, float)
     lights = np.asarray(lights, float)
@@ -281,9 +283,6 @@ def check(*, texels: int = 8, size: int = 160, measure_spp: int = 16, render_spp
     Returns ``{"rows": [{"light", "case", "filter", "brightness", "structure", "pixels"}],
     "images": {name: image}, "seconds": {...}}`` and the settings.
     """
-    from . import directions  # noqa: PLC0415  (rendering imports are heavy; only here)
-    from .rendering import Camera, DirectionalLight, Scene, render  # noqa: PLC0415
-
     seed = check_seed(seed)
     size = integer("size", size, min=32, max=2048)
     pairs = [(real("lights", t, min=0.0, max=85.0), real("lights", p)) for t, p in lights]
@@ -340,12 +339,10 @@ def figure(result: dict, path) -> str:
     measured sample, the same of the mirrored one, and both differences to the path trace (the
     grey of zero difference at mid scale); the structural errors in the titles. Written
     atomically (matplotlib, ``Agg``)."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib  # noqa: PLC0415  (heavy: only for the figure)
 
     matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    from . import io  # noqa: PLC0415
+    import matplotlib.pyplot as plt  # noqa: PLC0415  (after use("Agg"); heavy)
 
     lights = list(dict.fromkeys(r["light"] for r in result["rows"]))
     err = {(r["light"], r["case"], r["filter"]): r for r in result["rows"]}
