@@ -20,12 +20,12 @@ radiance 1 a white Lambertian surface reads pi.
 from __future__ import annotations
 
 import os
-from typing import Sequence, Tuple
+from typing import List, Sequence, Tuple
 
 import numpy as np
 
 from . import _native
-from ._checks import integer, real
+from ._checks import PathLike, integer, real
 from .exceptions import ArgumentTypeError, InvalidArgumentError
 from .io import load_image
 from .rendering import DirectionalLight
@@ -57,7 +57,7 @@ class Environment:
         return cls(data)
 
     @classmethod
-    def load(cls, path) -> "Environment":
+    def load(cls, path: PathLike) -> "Environment":
         """Read a lat-long image: OpenEXR (linear HDR) or PNG (sRGB-decoded to linear)."""
         p = os.fspath(path)
         try:
@@ -90,7 +90,7 @@ class Environment:
         """(height, width) in pixels."""
         return self.data.shape[0], self.data.shape[1]
 
-    def lights(self, samples: int = 64, *, seed: int = 0):
+    def lights(self, samples: int = 64, *, seed: int = 0) -> List[DirectionalLight]:
         """``samples`` importance-sampled :class:`~btfrs.DirectionalLight` s whose sum estimates
         the lighting integral (what ``method="sampled"`` renders with)."""
         n = integer("samples", samples, min=1, max=65536)
@@ -98,7 +98,7 @@ class Environment:
         d, i = _native.env_sample(self.data, n, sd)
         return [DirectionalLight(tuple(map(float, a)), tuple(map(float, b))) for a, b in zip(d, i)]
 
-    def quadrature(self):
+    def quadrature(self) -> List[DirectionalLight]:
         """Every lit pixel as one :class:`~btfrs.DirectionalLight` at its centre carrying
         radiance x solid angle: the brute-force integral the sampled renders converge to."""
         d, i = _native.env_quadrature(self.data)
