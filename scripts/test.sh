@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Every test of btfrs: the Rust workspace (cargo test, without the PyO3 crate, so no Python is
-# linked), the stub check of the native module, and the Python suite (pytest).
+# linked), the stub check of the native module, the package's types (mypy --strict) and the Python
+# suite (pytest).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # Mesa warns on every adapter query when XDG_RUNTIME_DIR is unset (headless machines, CI).
@@ -39,6 +40,10 @@ cargo build --quiet --profile "$BTFRS_PROFILE" --benches
 
 stage "stubtest btfrs._native"
 .venv/bin/python -m mypy.stubtest btfrs._native
+
+# The package's types ([tool.mypy] in pyproject.toml: strict, with the overrides listed there).
+stage "mypy --strict"
+.venv/bin/python -m mypy
 
 stage "pytest"
 # Two workers (pytest-xdist), each test file on one of them, so a module's shared fixture is

@@ -12,6 +12,7 @@ gives the command of each of its tables.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import logging
 import os
@@ -23,9 +24,10 @@ import tempfile
 import time
 import zipfile
 from datetime import datetime, timezone
-from typing import Callable
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, TypeVar
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .. import __version__, baselines, evaluation, fit, graphcut, io, materials, rendering, synth
 from .. import dask as bd
@@ -39,17 +41,30 @@ from ..rendering import Camera, PointLight, Scene, render
 from . import groundtruth
 
 
-def best_of(fn: Callable[[], object], repeat: int) -> tuple[float, object]:
-    """Minimum wall time of ``repeat`` calls (the least disturbed run) and the last result."""
-    best, out = float("inf"), None
-    for _ in range(repeat):
+T = TypeVar("T")
+
+
+def best_of(fn: Callable[[], T], repeat: int) -> Tuple[float, T]:
+    """Minimum wall time of ``repeat`` calls (at least one; the least disturbed run) and the last
+    result."""
+    best = float("inf")
+    for _ in range(max(repeat, 1) - 1):
         t0 = time.perf_counter()
-        out = fn()
+        fn()
         best = min(best, time.perf_counter() - t0)
-    return best, out
+    t0 = time.perf_counter()
+    out = fn()
+    return min(best, time.perf_counter() - t0), out
 
 
-def machine() -> dict:
+def _timings() -> rendering.RenderResult:
+    """The timings of the render that just ran."""
+    t = rendering.last_timings()
+    assert t is not None, "no render ran"
+    return t
+
+
+def machine() -> Dict[str, Any]:
     cpu = platform.processor() or platform.machine()
     try:
         with open("/proc/cpuinfo") as f:
@@ -63,8 +78,8 @@ def machine() -> dict:
             "btfrs": __version__, "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}
 
 
-def run(sizes: list, repeat: int) -> list:
-    rows = []
+def run(sizes: Sequence[int], repeat: int) -> List[Any]:
+    rows: List[Dict[str, Any]] = []
     for size in sizes:
         t_gen, btf = best_of(lambda: materials.make("knit", size=size, seed=1), repeat)
         rows.append(dict(task=f"material knit {size}^2 x 81 x 81", btfrs_s=t_gen, numpy_s=None,
@@ -83,7 +98,7 @@ def run(sizes: list, repeat: int) -> list:
     return rows
 
 
-def render_bench(repeat: int) -> list:
+def render_bench(repeat: int) -> List[Any]:
     """ms per frame on this machine's adapter: raw BTF and PTM-RGB, 512^2 and 1024^2, with and
     without a coordinate map; draw and read-back timed separately (the first, pipeline-compiling
     frame is not counted)."""
@@ -94,32 +109,33 @@ def render_bench(repeat: int) -> list:
     lights = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
     rng = np.random.default_rng(0)
     cmap = rng.integers(0, 64, size=(256, 256, 2)).astype(np.uint16)
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for name, model in (("raw", btf), ("PTM-RGB", ptm)):
         for size in (512, 1024):
             for coords in (None, cmap):
                 rendering.render(model, scene, cam, lights, size=size, uv_scale=4, coords=coords)  # warm-up
-                best = None
-                for _ in range(repeat):
+                best: Optional[rendering.RenderResult] = None
+                for _ in range(max(repeat, 1)):
                     rendering.render(model, scene, cam, lights, size=size, uv_scale=4, coords=coords)
-                    t = rendering.last_timings()
+                    t = _timings()
                     best = t if best is None or t.draw_ms < best.draw_ms else best
+                assert best is not None
                 rows.append(dict(model=name, size=size, coords=coords is not None, draw_ms=best.draw_ms,
                                  readback_ms=best.readback_ms, adapter=rendering.gpu_info()))
     return rows
 
 
-def render_table(rows: list) -> str:
+def render_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'model':<8} {'size':>6} {'map':>4} {'draw ms':>9} {'read-back ms':>13}"]
     for r in rows:
         out.append(f"{r['model']:<8} {r['size']:>6} {'yes' if r['coords'] else 'no':>4} {r['draw_ms']:>9.1f} {r['readback_ms']:>13.1f}")
     return "\n".join(out)
 
 
-def accuracy(size: int) -> list:
+def accuracy(size: int) -> List[Any]:
     """Held-out and reconstruction error of every model on every built-in material, beside the
     raw-data baseline (3 nearest measured lights of the same view slot)."""
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for name in materials.names():
         btf = materials.make(name, size=size, seed=1)
         train, test = btf.split(holdout=0.1, seed=0)
@@ -132,7 +148,7 @@ def accuracy(size: int) -> list:
     return rows
 
 
-def accuracy_table(rows: list) -> str:
+def accuracy_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'material':<9} {'model':<22} {'MiB':>8} {'reconstruction':>15} {'held-out':>9}"]
     for r in rows:
         rec = "exact" if r["reconstruction"] is None else f"{100 * r['reconstruction']:.2f}%"
@@ -140,18 +156,19 @@ def accuracy_table(rows: list) -> str:
     return "\n".join(out)
 
 
-def _render_ms(model, method=None, size=512, repeat=2) -> float:
+def _render_ms(model: Any, method: Optional[str] = None, size: int = 512,
+               repeat: int = 2) -> Tuple[float, NDArray[np.float32]]:
     """Best draw time (ms) of a 512^2 sphere frame with one point light (the first frame, which
-    compiles the pipeline, is not counted)."""
+    compiles the pipeline, is not counted), and the frame."""
     scene = rendering.Scene.sphere()
     cam = rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
     lights = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
-    kw = dict(size=size, uv_scale=4, method=method)
+    kw: Dict[str, Any] = dict(size=size, uv_scale=4, method=method)
     img = rendering.render(model, scene, cam, lights, **kw)
     best = float("inf")
     for _ in range(repeat):
         img = rendering.render(model, scene, cam, lights, **kw)
-        best = min(best, rendering.last_timings().draw_ms)
+        best = min(best, _timings().draw_ms)
     return best, img
 
 
@@ -159,7 +176,7 @@ def rendering_info() -> str:
     return rendering.gpu_info()
 
 
-def env_bench(size: int = 64, repeat: int = 2) -> list:
+def env_bench(size: int = 64, repeat: int = 2) -> List[Any]:
     """Frame times (ms) on this machine's adapter, one model per registered kind (its first
     example option set) on the knit at ``size``^2: a 512^2 sphere with one point light (nearest),
     the same with trilinear lookups, and a 640 x 480 sphere under the built-in sky with 64
@@ -171,21 +188,21 @@ def env_bench(size: int = 64, repeat: int = 2) -> list:
     cam = rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
     light = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
 
-    def best(**kw) -> float:
+    def best(**kw: Any) -> float:
         rendering.render(**kw)
         t = float("inf")
         for _ in range(repeat):
             rendering.render(**kw)
-            t = min(t, rendering.last_timings().draw_ms)
+            t = min(t, _timings().draw_ms)
         return t
 
-    models = [("raw BTF", btf)]
+    models: List[Tuple[str, Any]] = [("raw BTF", btf)]
     for kind, info in model_kinds().items():
         # PTM-RGB (the reference of the 3x target) and SH 25x25 (the slowest) where listed.
         pick = {"ptm": "PTM-RGB", "sh": "SH-CLS 25x25"}.get(kind)
         label, opts = next((e for e in info["examples"] if e[0] == pick), info["examples"][0])
         models.append((label, fit.fit(kind, btf, **opts)))
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for label, m in models:
         base = dict(model=m, scene=scene, camera=cam, uv_scale=4)
         r = dict(model=label, kind=getattr(m, "kind", "raw"), point_ms=best(lights=light, size=512, **base),
@@ -201,7 +218,7 @@ def env_bench(size: int = 64, repeat: int = 2) -> list:
     return rows
 
 
-def frames_bench(size: int = 32, repeat: int = 2) -> list:
+def frames_bench(size: int = 32, repeat: int = 2) -> List[Any]:
     """The "every model within 3x of PTM-RGB" check over every example option set of every
     registered model and each of its renderers (``env_bench`` takes one per model): a 512^2
     sphere under one point light on the knit at ``size``^2, best of ``repeat`` after a warm-up
@@ -211,16 +228,16 @@ def frames_bench(size: int = 32, repeat: int = 2) -> list:
     cam = rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
     light = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
 
-    def best(m, method: str) -> float:
-        kw = dict(size=512, uv_scale=4, method=method)
+    def best(m: Any, method: str) -> float:
+        kw: Dict[str, Any] = dict(size=512, uv_scale=4, method=method)
         rendering.render(m, scene, cam, light, **kw)
         t = float("inf")
         for _ in range(repeat):
             rendering.render(m, scene, cam, light, **kw)
-            t = min(t, rendering.last_timings().draw_ms)
+            t = min(t, _timings().draw_ms)
         return t
 
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for kind, info in model_kinds().items():
         for label, opts in info["examples"]:
             m = fit.fit(kind, btf, **opts)
@@ -232,13 +249,13 @@ def frames_bench(size: int = 32, repeat: int = 2) -> list:
     return rows
 
 
-def frames_table(rows: list) -> str:
+def frames_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'model':<24} {'renderer':<9} {'512^2 point':>12} {'x PTM-RGB':>10}"]
     out += [f"{r['model']:<24} {r['method']:<9} {r['point_ms']:>10.1f}ms {r['vs_ptm']:>10.2f}" for r in rows]
     return "\n".join(out)
 
 
-def env_table(rows: list) -> str:
+def env_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'model':<22} {'512^2 point':>12} {'x PTM':>6} {'trilinear':>10} {'640x480 env 64':>15} {'SH method':>10}"]
     for r in rows:
         sh = f"{r['env_sh_ms'] / 1e3:>9.2f}s" if "env_sh_ms" in r else f"{'':>10}"
@@ -258,7 +275,7 @@ EXTRA_SETTINGS = [
 ]
 
 
-def _settings() -> list:
+def _settings() -> List[Any]:
     out = [(label, kind, opts) for kind, info in model_kinds().items() for label, opts in info["examples"]]
     return [(label, (lambda b, k=kind, o=opts: fit.fit(k, b, **o))) for label, kind, opts in out + EXTRA_SETTINGS]
 
@@ -266,13 +283,13 @@ def _settings() -> list:
 MODEL_SETTINGS = _settings()
 
 
-def models_bench(size: int, material: str = "knit", lm_texels: int = 64) -> list:
+def models_bench(size: int, material: str = "knit", lm_texels: int = 64) -> List[Any]:
     """Every model at several settings on one material: fit seconds, bytes, held-out RMSE and
     relative error, reconstruction error, render ms (512^2 sphere); then the numpy / scipy /
     scikit-learn way of the same fits as rows of the same table."""
     btf = materials.make(material, size=size, seed=1)
     train, test = btf.split(holdout=0.1, seed=0)
-    rows = []
+    rows: List[Dict[str, Any]] = []
     fitted = {}
     for name, make in MODEL_SETTINGS:
         t0 = time.perf_counter()
@@ -280,7 +297,7 @@ def models_bench(size: int, material: str = "knit", lm_texels: int = 64) -> list
         secs = time.perf_counter() - t0
         fitted[name] = m
         held, rec = m.error(test), m.error(train)
-        ms = {}
+        ms: Dict[str, float] = {}
         for method in (("9tap", "3d") if name.startswith("LPCA") else (None,)):
             ms[method or "default"], _ = _render_ms(m, method)
         rows.append(dict(model=name, way="btfrs", fit_s=secs, nbytes=m.nbytes, held_out_rmse=held.rmse,
@@ -315,7 +332,7 @@ def models_bench(size: int, material: str = "knit", lm_texels: int = 64) -> list
     return rows
 
 
-def models_table(rows: list) -> str:
+def models_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'model':<21} {'way':<44} {'fit s':>9} {'MiB':>7} {'held-out':>9} {'recon.':>8}  render ms (512^2)"]
     for r in rows:
         fs = f"{r['fit_s']:.4f}" + ("/tx" if r.get("per_texel") else "")
@@ -330,11 +347,11 @@ def models_table(rows: list) -> str:
     return "\n".join(out)
 
 
-def lpca_render_bench(size: int = 64, repeat: int = 2) -> list:
+def lpca_render_bench(size: int = 64, repeat: int = 2) -> List[Any]:
     """Paper 004, Table 1: the 9-tap and the 3D-texture LPCA renderers at 512^2 and 1024^2 for
     c = 2, 4, 8 (32 clusters), with the PSNR between the two images."""
     btf = materials.make("knit", size=size, seed=1)
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for c in (2, 4, 8):
         m = fit.lpca(btf, clusters=32, components=c, seed=0)
         for px in (512, 1024):
@@ -347,7 +364,7 @@ def lpca_render_bench(size: int = 64, repeat: int = 2) -> list:
     return rows
 
 
-def lpca_render_table(rows: list) -> str:
+def lpca_render_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'c':>2} {'size':>5} {'9-tap ms':>9} {'3D ms':>8} {'speed-up':>9} {'PSNR 9-tap vs 3D':>17}"]
     for r in rows:
         out.append(f"{r['components']:>2} {r['size']:>5} {r['ms_9tap']:>9.1f} {r['ms_3d']:>8.1f} {r['speedup']:>8.2f}x "
@@ -355,13 +372,13 @@ def lpca_render_table(rows: list) -> str:
     return "\n".join(out)
 
 
-def lpca_sweep(size: int) -> list:
+def lpca_sweep(size: int) -> List[Any]:
     """Which (clusters, components) reaches the paper's 2% reconstruction error on each built-in
     material, and at what compression (raw at one byte per value over the model's bytes)."""
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for name in materials.names():
         btf = materials.make(name, size=size, seed=1)
-        best = None
+        best: Optional[Dict[str, Any]] = None
         for k in (8, 16, 32, 64):
             for c in (2, 4, 8, 12, 16):
                 m = fit.lpca(btf, clusters=k, components=c, seed=0)
@@ -375,8 +392,8 @@ def lpca_sweep(size: int) -> list:
     return rows
 
 
-def lpca_sweep_table(rows: list) -> str:
-    out = []
+def lpca_sweep_table(rows: List[Dict[str, Any]]) -> str:
+    out: List[Any] = []
     for r in rows:
         if "best_2pct" in r:
             b = r["best_2pct"]
@@ -395,13 +412,13 @@ def lpca_sweep_table(rows: list) -> str:
 ACCURACY_MODELS = ("PTM-RGB", "PTM-LRGB", "Phong+SRF", "Lafortune-Lum 2", "SH-CLS 25x25", "LPCA 32x4")
 
 
-def accuracy_models(size: int) -> list:
+def accuracy_models(size: int) -> List[Any]:
     """Reconstruction and held-out relative error of every model (:data:`ACCURACY_MODELS`) on
     every built-in material at ``size``^2, beside the raw-data baseline (3 nearest measured lights
     of the same view slot), with each model's bytes, its size ratio to the float32 BTF, its fit
     seconds and its fit report (Phong alone for SRF, converged / fell back / failed for Lafortune)."""
     settings = dict(MODEL_SETTINGS)
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for name in materials.names():
         btf = materials.make(name, size=size, seed=1)
         train, test = btf.split(holdout=0.1, seed=0)
@@ -418,7 +435,7 @@ def accuracy_models(size: int) -> list:
     return rows
 
 
-def _report_note(r: dict) -> str:
+def _report_note(r: Dict[str, Any]) -> str:
     rep = r["report"]
     if "phong_relative" in rep:
         return f"Phong alone {100 * rep['phong_relative']:.2f}% (train)"
@@ -427,7 +444,7 @@ def _report_note(r: dict) -> str:
     return ""
 
 
-def accuracy_models_table(rows: list) -> str:
+def accuracy_models_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'material':<9} {'model':<22} {'MiB':>8} {'1:x':>7} {'fit s':>7} {'recon.':>8} {'held-out':>9}  note"]
     for r in rows:
         rec = "exact" if r["reconstruction"] is None else f"{100 * r['reconstruction']:.2f}%"
@@ -472,11 +489,11 @@ def rti_lights(n: int, seed: int = 0, max_theta_deg: float = 80.0) -> np.ndarray
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
-def rti_settings() -> list:
+def rti_settings() -> List[Any]:
     """``(label, kind, options)`` for the single-view comparison, iterating over the registry:
     the light bases (PTM, RBF, bilinear, HSH when registered) at several sizes, LPCA and
     single-view SH at a few, every other model at its examples."""
-    out = []
+    out: List[Any] = []
     for kind, info in model_kinds().items():
         if kind == "ptm":
             out += [("PTM-RGB", kind, {"kind": "rgb"}), ("PTM-LRGB", kind, {"kind": "lrgb"})]
@@ -500,11 +517,11 @@ def rti_settings() -> list:
     return out
 
 
-def rti_bench(captures=RTI_CAPTURES, size: int = RTI_SIZE, chart_dir: str = "docs/rti") -> list:
+def rti_bench(captures: Sequence[Tuple[str, int]] = RTI_CAPTURES, size: int = RTI_SIZE, chart_dir: str = "docs/rti") -> List[Any]:
     """Every setting of :func:`rti_settings` on each single-view capture: held-out relative
     error (``RTI_HOLDOUT`` of the lights, seed 0) against bytes, via
     :func:`btfrs.evaluation.evaluate`; one chart per capture in ``chart_dir``."""
-    out = []
+    out: List[Any] = []
     settings = rti_settings()
     for name, nl in captures:
         btf = materials.make(name, size=size, seed=1, views=np.array([[0.0, 0.0, 1.0]]), lights=rti_lights(nl, 1))
@@ -521,12 +538,16 @@ def rti_bench(captures=RTI_CAPTURES, size: int = RTI_SIZE, chart_dir: str = "doc
     return out
 
 
-def _best(rows, pred):
+def _best(rows: List[Dict[str, Any]], pred: Callable[[Dict[str, Any]], bool]) -> Optional[Dict[str, Any]]:
     ok = [r for r in rows if r.get("heldout_pairs") is not None and r.get("bytes") and pred(r)]
     return min(ok, key=lambda r: r["heldout_pairs"]) if ok else None
 
 
-def rti_summary(res: list) -> str:
+def _within(budget: int, row: Dict[str, Any]) -> bool:
+    return bool(row["bytes"] <= budget)
+
+
+def rti_summary(res: List[Dict[str, Any]]) -> str:
     """Per capture: the best model within relight's byte budgets (26, 50, 85 KB) and under
     100 KB (all models; the RTI bases alone; the others alone), PTM-RGB, RBF-18, Bilinear-18 and
     LPCA 8x4, each with its ratio to PTM-RGB's held-out error (relight's figures give RBF 0.70 and
@@ -535,7 +556,7 @@ def rti_summary(res: list) -> str:
     for c in res:
         rows = c["rows"]
         ptm = _best(rows, lambda r: r["label"] == "PTM-RGB")
-        picks = [(f"best <= {b // 1000} KB", _best(rows, lambda r, b=b: r["bytes"] <= b))
+        picks = [(f"best <= {b // 1000} KB", _best(rows, functools.partial(_within, b)))
                  for b in (26_000, 50_000, 85_000)]
         picks += [("best < 100 KB", _best(rows, lambda r: r["bytes"] < 100_000)),
                  ("best RTI basis < 100 KB", _best(rows, lambda r: r["bytes"] < 100_000
@@ -557,7 +578,7 @@ def rti_summary(res: list) -> str:
     return "\n".join(lines)
 
 
-def table(rows: list) -> str:
+def table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'task':<36} {'btfrs s':>9} {'numpy s':>9} {'speed-up':>9}  {'target':<24} note"]
     for r in rows:
         b = "" if r["btfrs_s"] is None else f"{r['btfrs_s']:.4f}"
@@ -577,13 +598,13 @@ ANALYSIS_TARGET_S = 0.5
 SH_BIG_TARGET_S = 1.0
 
 
-def synth_bench(repeat: int, material: str = "knit", size: int = 64) -> dict:
+def synth_bench(repeat: int, material: str = "knit", size: int = 64) -> Dict[str, Any]:
     """Paper 000 Table 1 settings, the jump map and the analysis of a size^2 x 81 x 81 sample,
     with the quality measures of every result beside plain tiling and random placement."""
     btf = materials.make(material, size=size, seed=1)
     t_an, an = best_of(lambda: synth.analyse(btf, textons=min(1024, size * size), seed=0), min(repeat, 2))
     an.prepare(3, 3)
-    rows = []
+    rows: List[Dict[str, Any]] = []
     settings = [(s, k, n, p) for (s, k, n, p) in TABLE1] + [(512, 1, 2, None), (512, 3, 2, None)]
     for (out, k, n, paper) in settings:
         t, cmap = best_of(lambda: synth.kcoherence(an, size=out, k=k, neighbourhood=n, levels=3, seed=7), repeat)
@@ -601,13 +622,15 @@ def synth_bench(repeat: int, material: str = "knit", size: int = 64) -> dict:
     return dict(material=material, sample=size, analysis_s=t_an, analysis=repr(an), rows=rows)
 
 
-def synth_table(res: dict) -> str:
+def synth_table(res: Dict[str, Any]) -> str:
     out = [f"analysis of {res['material']} {res['sample']}^2 x 81 x 81: {res['analysis_s']:.2f} s "
            f"(target <= {ANALYSIS_TARGET_S} s)",
            f"{'method':<16} {'size':>5} {'k':>2} {'n':>2} {'seconds':>8} {'paper':>7} {'target':>7} "
            f"{'nn_dist':>8} {'coher':>6} {'seam':>7} {'seam_m':>7} {'repet':>6}"]
     for r in res["rows"]:
-        f = lambda v, fmt: "-" if v is None else format(v, fmt)
+        def f(v: Any, fmt: str) -> str:
+            return "-" if v is None else format(v, fmt)
+
         out.append(f"{r['method']:<16} {r['size']:>5} {f(r['k'], 'd'):>2} {f(r['neighbourhood'], 'd'):>2} "
                    f"{r['seconds']:>8.3f} {f(r['paper_s'], '.1f'):>7} {f(r['target_s'], '.2f'):>7} "
                    f"{r['nn_distance']:>8.4f} {r['coherence']:>6.3f} {r['seam']:>7.4f} {r['seam_mean']:>7.4f} "
@@ -619,7 +642,7 @@ def synth_table(res: dict) -> str:
 MAXFLOW_SIZES = (256, 512)
 
 
-def maxflow_problems(n: int, seed: int = 1) -> dict:
+def maxflow_problems(n: int, seed: int = 1) -> Dict[str, Any]:
     """Integer-capacity ``n x n`` grids as ``(right, down, terminal_caps)``, the same shapes the
     criterion bench of btfrs-graphcut uses: ``kwatra``, a seam problem (cutting between p and q
     costs ``|A(p) - B(p)| + |A(q) - B(q)|`` for two noise images, scaled by 1000; the two left
@@ -640,7 +663,7 @@ def maxflow_problems(n: int, seed: int = 1) -> dict:
             "segmentation": (np.full((n, n - 1, 2), lam, np.int64), np.full((n - 1, n, 2), lam, np.int64), unary)}
 
 
-def _grid_csr(right, down, term):
+def _grid_csr(right: NDArray[Any], down: NDArray[Any], term: NDArray[Any]) -> Any:
     """The grid with a source node N and a sink node N + 1 as the int32 CSR matrix scipy takes."""
     import scipy.sparse  # optional (bench extra): only the max-flow comparison
 
@@ -659,13 +682,13 @@ def _grid_csr(right, down, term):
     return m
 
 
-def maxflow_bench(repeat: int, sizes=MAXFLOW_SIZES) -> list:
+def maxflow_bench(repeat: int, sizes: Sequence[int] = MAXFLOW_SIZES) -> List[Any]:
     """btfrs.graphcut (grid path and general path, argument conversion included) against
     scipy.sparse.csgraph.maximum_flow (its default method, on a CSR matrix built beforehand, so
     the building is not timed for scipy) on the same integer grids, in the same run."""
     from scipy.sparse.csgraph import maximum_flow  # optional (bench extra): only the max-flow comparison
 
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for n in sizes:
         for case, (right, down, term) in maxflow_problems(n).items():
             t_grid, (flow, side) = best_of(lambda: graphcut.grid_min_cut(right, down, term), repeat)
@@ -683,7 +706,7 @@ def maxflow_bench(repeat: int, sizes=MAXFLOW_SIZES) -> list:
     return rows
 
 
-def maxflow_table(rows: list) -> str:
+def maxflow_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'case':<13} {'size':>9} {'flow':>9} {'grid s':>8} {'graph s':>8} {'scipy s':>8} "
            f"{'scipy/grid':>10} {'scipy/graph':>11}"]
     for r in rows:
@@ -701,7 +724,7 @@ def figure6(out_dir: str, material: str = "bumps", size: int = 64, out: int = 19
     light = int(np.argmin(np.abs(btf.lights[:, 2] - np.cos(np.radians(45.0)))))
     img = btf.image(0, light)
     gap = np.full((out, 6, 3), 10.0, np.float32)
-    rows = []
+    rows: List[NDArray[Any]] = []
     for n, levels in [(1, 1), (2, 1), (2, 3)]:
         cells = [synth.apply(img, synth.kcoherence(an, size=out, k=k, neighbourhood=n, levels=levels, seed=7))
                  for k in (1, 5)]
@@ -720,11 +743,11 @@ TABLE3 = [("FLOORTILE", 128, 33, 37.86, 186.10), ("IMPALLA", 256, 51, 49.92, 61.
 TILES_TARGET_S = 10.0
 
 
-def tiles_bench(repeat: int) -> dict:
+def tiles_bench(repeat: int) -> Dict[str, Any]:
     """Graph-cut Wang tile sets (issue 12): synthesis of 16 tiles of 64^2, 128^2 and 256^2 in the
     SH 16x16 domain (bumps; 81 x 81 directions at 128^2, 25 x 25 at 256^2 to fit in memory), the
     tiling of a 1024 x 1024 layout, render ms with a tile map and without."""
-    rows = []
+    rows: List[Dict[str, Any]] = []
     b128 = materials.make("bumps", size=128, seed=3)
     sh128 = fit.sh(b128, light_coeffs=16, view_coeffs=16)
     del b128
@@ -749,8 +772,10 @@ def tiles_bench(repeat: int) -> dict:
     scene = Scene.cylinder(radius=1.0, height=2.0)
     render_rows = []
     try:
-        for label, kw in [("without (uv_scale 8)", dict(uv_scale=8.0)), ("tile map 8 x 8", dict(tiles=ts64, layout=lay))]:
-            m = ts64.model if "tiles" in kw else sh128
+        cases: List[Tuple[str, Dict[str, Any]]] = [("without (uv_scale 8)", dict(uv_scale=8.0)),
+                                                   ("tile map 8 x 8", dict(tiles=ts64, layout=lay))]
+        for label, kw in cases:
+            m: Any = ts64.model if "tiles" in kw else sh128
             render(m, scene, cam, lights, size=(512, 512), **kw)
             t, _ = best_of(lambda: render(m, scene, cam, lights, size=(512, 512), **kw), repeat)
             render_rows.append(dict(case=label, ms=1000 * t))
@@ -759,7 +784,7 @@ def tiles_bench(repeat: int) -> dict:
     return dict(rows=rows, tiling_1024_s=t_tiling, render=render_rows, table3=TABLE3)
 
 
-def tiles_table(res: dict) -> str:
+def tiles_table(res: Dict[str, Any]) -> str:
     out = [f"{'tile':>5} {'edge':>4} {'sample':<22} {'seconds':>8} {'target':>7} {'corner':>7} {'edges':>6} "
            f"{'interior':>8} {'referenced':>10} {'MiB':>7}"]
     for r in res["rows"]:
@@ -794,13 +819,13 @@ def _relief_images(size: int, lights: np.ndarray, seed: int = 1) -> np.ndarray:
     return out
 
 
-def load_bench(repeat: int) -> list:
+def load_bench(repeat: int) -> List[Any]:
     """Load throughput of the real-data readers: MB/s of decoded float32 data (and of files read)
     for a UBO2003-style archive (6561 JPEG / PNG images, folder and zip), an RTI capture (.lp +
     200 JPEG photographs of 512^2) and the same into a memory-mapped file (``mmap_to``)."""
     from PIL import Image  # optional (bench extra): only the RTI captures
 
-    rows = []
+    rows: List[Dict[str, Any]] = []
     tmp = tempfile.mkdtemp(prefix="btfrs-load-")
     try:
         ubo = dirs.ubo81()
@@ -818,7 +843,7 @@ def load_bench(repeat: int) -> list:
                     img = np.round(255 * np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055))
                     Image.fromarray(img.astype(np.uint8)).save(
                         os.path.join(folder, f"Bumps64_{i:05d}_tl{tl:03d}_pl{pl:03d}_tv{tv:03d}_pv{pv:03d}.{ext}"),
-                        **({"quality": 95} if ext == "jpg" else {}))
+                        **({"quality": 95} if ext == "jpg" else {}))  # type: ignore[arg-type]
             zpath = folder + ".zip"
             with zipfile.ZipFile(zpath, "w", compression=zipfile.ZIP_STORED if ext == "jpg" else zipfile.ZIP_DEFLATED) as z:
                 for n in sorted(os.listdir(folder)):
@@ -853,7 +878,7 @@ def load_bench(repeat: int) -> list:
         lut = np.where(np.arange(256) / 255 <= 0.04045, np.arange(256) / 255 / 12.92,
                        ((np.arange(256) / 255 + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
-        def by_hand():
+        def by_hand() -> NDArray[np.float32]:
             st = np.stack([lut[np.asarray(Image.open(os.path.join(cap, f"img_{i:03d}.jpg")))] for i in range(len(L))])
             return np.ascontiguousarray(st.transpose(1, 2, 0, 3))[:, :, None]
 
@@ -871,7 +896,7 @@ def load_bench(repeat: int) -> list:
     return rows
 
 
-def load_table(rows: list) -> str:
+def load_table(rows: List[Dict[str, Any]]) -> str:
     lines = ["| capture | seconds | decoded MB | MB/s decoded | file MB/s |", "|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['task']} | {r['seconds']:.3f} | {r['decoded_MB']:.0f} | {r['MB_per_s']:.0f} | "
@@ -882,7 +907,7 @@ def load_table(rows: list) -> str:
 OOC_LPCA = {"clusters": 64, "components": 8}
 
 
-def out_of_core_bench(path: str, size: int, limit: str, kinds=("ptm", "lpca")) -> dict:
+def out_of_core_bench(path: str, size: int, limit: str, kinds: Sequence[str] = ("ptm", "lpca")) -> Dict[str, Any]:
     """Issue 15: fit a memory-mapped BTF larger than memory under ``memory_limit``.
 
     Makes ``knit`` at ``size``^2 x 81 x 81 straight into ``path`` (``materials.make(out=...)``,
@@ -896,7 +921,7 @@ def out_of_core_bench(path: str, size: int, limit: str, kinds=("ptm", "lpca")) -
         t0 = time.perf_counter()
         materials.make("knit", size=size, seed=1, out=path, progress=True)
         made = time.perf_counter() - t0
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for kind in kinds:
         opts = dict(OOC_LPCA if kind == "lpca" else {}, memory_limit=limit)
         r = subprocess.run([sys.executable, "-m", "btfrs.tools.memprobe", path, kind, json.dumps(opts)],
@@ -909,7 +934,7 @@ def out_of_core_bench(path: str, size: int, limit: str, kinds=("ptm", "lpca")) -
             "limit": limit, "rows": rows}
 
 
-def out_of_core_table(res: dict) -> str:
+def out_of_core_table(res: Dict[str, Any]) -> str:
     gb = 1e9
     lines = [f"{res['size']}^2 x 81 x 81 knit, {res['data_bytes'] / gb:.1f} GB on disk, "
              f"{res['memory_bytes'] / 2**30:.1f} GiB of memory, memory_limit={res['limit']}"
@@ -924,11 +949,11 @@ def out_of_core_table(res: dict) -> str:
     return "\n".join(lines)
 
 
-DASK_FITS = (("ptm", {"kind": "rgb"}), ("lpca", {"clusters": 32, "components": 4}), ("rbf", {"components": 9}),
+DASK_FITS: Tuple[Tuple[str, Dict[str, Any]], ...] = (("ptm", {"kind": "rgb"}), ("lpca", {"clusters": 32, "components": 4}), ("rbf", {"components": 9}),
              ("bilinear", {"components": 9}))
 
 
-def light_basis_steps(m, local) -> float:
+def light_basis_steps(m: Any, local: Any) -> float:
     """How far apart two light-basis fits (RBF, bilinear) are, in 8-bit quantisation steps.
 
     The principal functions of each view slot are compared up to sign (the table's columns, a
@@ -965,7 +990,7 @@ def light_basis_steps(m, local) -> float:
     return float((np.abs(cx - cy) / step).max())
 
 
-def _dask_agrees(kind: str, m, local) -> bool:
+def _dask_agrees(kind: str, m: Any, local: Any) -> bool:
     """The cluster fit against the local one: array for array, except the light bases, whose
     principal functions may have the other sign and whose coefficients, projected in another
     float order, may round to the neighbouring 8-bit code (:func:`light_basis_steps`)."""
@@ -974,7 +999,7 @@ def _dask_agrees(kind: str, m, local) -> bool:
     return light_basis_steps(m, local) <= 1.01
 
 
-def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int = 1) -> dict:
+def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int = 1) -> Dict[str, Any]:
     """Issue 15 item 3: the same fits locally and on a Dask LocalCluster of 1 and 2 workers.
 
     knit ``size``^2 x 81 x 81 is made into a memory-mapped ``.btfrs`` (the local fits read it in
@@ -995,7 +1020,7 @@ def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int 
         save_s = time.perf_counter() - t0
         zbytes = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(zpath) for f in fs)
         b = Btf.load(path, mmap=True)
-        rows = []
+        rows: List[Dict[str, Any]] = []
         local = {}
         for kind, o in DASK_FITS:
             fit.fit(kind, b, **o)  # warm the page cache
@@ -1012,9 +1037,9 @@ def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int 
                 "        t0 = time.perf_counter(); fit.fit(kind, b, **o); best = min(best, time.perf_counter() - t0)\n"
                 "    out[kind] = best\n"
                 "print(json.dumps(out))")
-        r = subprocess.run([sys.executable, "-c", code, path, json.dumps(DASK_FITS), str(repeat)], check=True,
+        proc = subprocess.run([sys.executable, "-c", code, path, json.dumps(DASK_FITS), str(repeat)], check=True,
                            capture_output=True, text=True, env={**os.environ, "RAYON_NUM_THREADS": "1"})
-        one = json.loads(r.stdout.strip().splitlines()[-1])
+        one = json.loads(proc.stdout.strip().splitlines()[-1])
         for row in rows:
             row["local1_s"] = one[row["kind"]]
         for n in (1, 2):
@@ -1034,7 +1059,7 @@ def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int 
             shutil.rmtree(work, ignore_errors=True)
 
 
-def dask_table(res: dict) -> str:
+def dask_table(res: Dict[str, Any]) -> str:
     gb = res["data_bytes"] / 1e9
     lines = [f"knit {res['size']}^2 x 81 x 81, {gb:.2f} GB of values; zarr tiles {res['chunks']}^2 texels, "
              f"{res['zarr_bytes'] / 1e9:.2f} GB on disk, written by save_zarr in {res['save_zarr_s']:.1f} s "
@@ -1050,7 +1075,7 @@ def dask_table(res: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> int:
+def main(argv: Optional[Sequence[str]] = None) -> int:
     p = argparse.ArgumentParser(prog="python -m btfrs.tools.bench", description=__doc__)
     p.add_argument("--size", type=int, action="append", help="material sizes (default: 32 and 64; 32 with --accuracy)")
     p.add_argument("--repeat", type=int, default=3, help="runs per figure; the best is kept (default: 3)")
@@ -1090,6 +1115,7 @@ def main(argv=None) -> int:
     p.add_argument("--dask-chunks", type=int, default=32, help="the zarr tiles' side in texels (default: 32)")
     p.add_argument("--figures", metavar="DIR", help="also write paper 000 Figure 6 style images into DIR")
     a = p.parse_args(argv)
+    res: Any  # each mode's results
     if a.dask:
         res = dask_bench((a.size or [96])[0], a.dask_chunks, repeat=a.repeat)
         print(dask_table(res))
@@ -1145,7 +1171,7 @@ def main(argv=None) -> int:
         print(rti_summary(res))
         return _finish(a, {"machine": machine(), "rti": res})
     if a.accuracy:
-        out = {"machine": machine(), "accuracy_models": []}
+        out: Dict[str, Any] = {"machine": machine(), "accuracy_models": []}
         for size in a.size or [32]:
             rows = accuracy_models(size)
             print(f"accuracy of every model at {size}^2, 10% of the pairs held out (seed 0):")
@@ -1216,7 +1242,7 @@ def main(argv=None) -> int:
     return _finish(a, out)
 
 
-def _finish(a, out: dict) -> int:
+def _finish(a: argparse.Namespace, out: Dict[str, Any]) -> int:
     """Write the Figure 6 images (``--figures``) and the JSON."""
     if a.figures and not a.accuracy:
         os.makedirs(a.figures, exist_ok=True)
@@ -1227,7 +1253,7 @@ def _finish(a, out: dict) -> int:
     return 0
 
 
-def _write_json(path: str, obj) -> None:
+def _write_json(path: str, obj: Any) -> None:
     """Write ``obj`` as JSON to ``path`` atomically: a temporary file in the same directory (so the
     rename cannot cross file systems), synced, then ``os.replace`` over ``path``. An interrupted or
     failing run leaves the previous results whole and no temporary file behind."""
