@@ -54,7 +54,7 @@ if ! .venv/bin/python -c "import mkdocs, material, mkdocstrings, mkdocstrings_ha
   .venv/bin/python -m pip install -q --disable-pip-version-check "mkdocs>=1.6,<2" "mkdocs-material>=9.5" "mkdocstrings[python]>=0.26"
 fi
 
-# Mitsuba 3 for the ground-truth tests (btfrs.groundtruth path traces a heightfield). Pinned:
+# Mitsuba 3 for the ground-truth tests (btfrs.tools.groundtruth path traces a heightfield). Pinned:
 # Mitsuba 3.9 / Dr.Jit 1.5 emit llvm.minimum, which the LLVM 15 of Debian 12 (mesa's, also the
 # one lavapipe uses) cannot compile for x86 ("Cannot select: fminimum"); 3.5.2 / 0.4.6 work.
 # (The version from the package metadata: mitsuba refuses attribute access before set_variant.)

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Every test of btfrs: the Rust workspace (cargo test, without the PyO3 crate, so no Python is
-# linked), the stub check of the native module, the documentation build (mkdocs --strict) and
-# the Python suite (pytest, which also runs every python block of README.md and docs/).
+# linked), the stub check of the native module, the package's types (mypy --strict), the
+# documentation build (mkdocs --strict) and the Python suite (pytest, which also runs every
+# python block of README.md and docs/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # Mesa warns on every adapter query when XDG_RUNTIME_DIR is unset (headless machines, CI).
@@ -48,6 +49,10 @@ stage "mkdocs build --strict (the documentation site)"
 docs_site="$(mktemp -d)"
 NO_MKDOCS_2_WARNING=1 .venv/bin/mkdocs build --strict -d "$docs_site" 2>&1 | { grep -v "^INFO" || true; }
 rm -rf "$docs_site"
+
+# The package's types ([tool.mypy] in pyproject.toml: strict, with the overrides listed there).
+stage "mypy --strict"
+.venv/bin/python -m mypy
 
 stage "pytest"
 # Two workers (pytest-xdist), each test file on one of them, so a module's shared fixture is

@@ -11,7 +11,8 @@ import os
 import numpy as np
 import pytest
 
-from btfrs import baselines, bench, materials
+from btfrs import baselines, materials
+from btfrs.tools import bench
 
 
 def _ptm_numpy_relative(train, test) -> tuple[float, float]:

@@ -9,7 +9,7 @@ import pytest
 
 import btfrs
 from btfrs import _native
-from btfrs.bench import light_basis_steps
+from btfrs.tools.bench import light_basis_steps
 from btfrs.exceptions import ArgumentTypeError, ClusterError, FormatError, InvalidArgumentError
 
 dask = pytest.importorskip("dask")

@@ -167,7 +167,7 @@ def test_bad_input_errors(call, exc, words):
 def test_bench_maxflow_mode(tmp_path, capsys):
     import json
 
-    from btfrs import bench
+    from btfrs.tools import bench
 
     path = tmp_path / "mf.json"
     assert bench.main(["--maxflow-only", "--maxflow-size", "24", "--repeat", "1", "--json", str(path)]) == 0

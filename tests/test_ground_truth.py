@@ -1,4 +1,4 @@
-"""Ground truth by path tracing (btfrs.groundtruth, issue 14 part 5): a BTF measured with
+"""Ground truth by path tracing (btfrs.tools.groundtruth, issue 14 part 5): a BTF measured with
 Mitsuba 3 from a known heightfield, rendered by btfrs on a plane, against the path trace of the
 repeated heightfield under the same camera and light.
 
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import btfrs
-from btfrs import groundtruth as gt
+from btfrs.tools import groundtruth as gt
 from btfrs.exceptions import InvalidArgumentError
 
 if not gt.available():

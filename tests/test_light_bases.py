@@ -206,7 +206,7 @@ def test_bad_options_name_the_argument(capture, call, name):
 
 
 def test_rti_bench_section(tmp_path):
-    from btfrs import bench
+    from btfrs.tools import bench
     from btfrs.models import model_kinds
 
     lights = bench.rti_lights(150, 0)

@@ -45,8 +45,8 @@ def test_the_options_cover_every_model():
 @pytest.mark.parametrize("kind", sorted(OPTIONS))
 def test_every_fit_of_a_mapped_btf_stays_within_its_memory_limit(big, kind):
     opts = dict(OPTIONS[kind], memory_limit=LIMIT)
-    # A fresh interpreter per fit (btfrs._memprobe says what it measures and how).
-    r = subprocess.run([sys.executable, "-m", "btfrs._memprobe", str(big), kind, json.dumps(opts)],
+    # A fresh interpreter per fit (btfrs.tools.memprobe says what it measures and how).
+    r = subprocess.run([sys.executable, "-m", "btfrs.tools.memprobe", str(big), kind, json.dumps(opts)],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     m = json.loads(r.stdout.strip().splitlines()[-1])
@@ -58,7 +58,7 @@ def test_the_analysis_of_a_mapped_btf_stays_within_its_memory_limit(big):
     # Its result (1024 textons, their distance table, the candidate lists) is not added: the
     # growth must stay below the limit alone. Without a limit the range finder's sample alone
     # copies 2048 texels of 40 kB (82 MB).
-    r = subprocess.run([sys.executable, "-m", "btfrs._memprobe", str(big), "analyse",
+    r = subprocess.run([sys.executable, "-m", "btfrs.tools.memprobe", str(big), "analyse",
                         json.dumps({"textons": 1024, "memory_limit": LIMIT})],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr

@@ -9,8 +9,12 @@
 
 from __future__ import annotations
 
+import atexit
+import importlib
 import os
+import shutil
 import sys
+import tempfile
 
 from . import directions, evaluation, exceptions, fit, graphcut, hemimap, io, materials, stability, synth, tiles
 from ._native import __version__
@@ -51,10 +55,6 @@ def _ensure_runtime_dir() -> None:
     current = os.environ.get("XDG_RUNTIME_DIR")
     if current and os.path.isdir(current):
         return
-    import atexit
-    import shutil
-    import tempfile
-
     try:
         path = tempfile.mkdtemp(prefix="btfrs-runtime-")
     except OSError:
@@ -123,7 +123,5 @@ def __getattr__(name: str):
     # btfrs.dask needs the optional extra (dask, distributed, zarr): imported on first use, so
     # `import btfrs` works without it and `btfrs.dask.open(...)` works with it.
     if name == "dask":
-        import importlib
-
         return importlib.import_module(".dask", __name__)
     raise AttributeError(f"module 'btfrs' has no attribute {name!r}")

@@ -1,7 +1,7 @@
 """Type stubs of the PyO3 extension ``btfrs._native`` (checked by ``mypy.stubtest``)."""
 
 from os import PathLike
-from typing import Any, Callable, Literal, Optional, Sequence, Union, final
+from typing import Any, Callable, Literal, Optional, Sequence, Union, final, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -29,6 +29,7 @@ def split_pairs(
     n_views: int, n_lights: int, holdout: float, seed: int, mask: Optional[_Bool] = None
 ) -> tuple[_Bool, _Bool]: ...
 def material_names() -> list[str]: ...
+@overload
 def make_material(
     name: str,
     size: int,
@@ -37,9 +38,21 @@ def make_material(
     seed: int,
     relief: float = 1.0,
     subsurface: float = 0.0,
-    out: Optional[Union[str, PathLike[str]]] = None,
+    out: None = None,
     progress: _Progress = None,
-) -> Optional[_F32]: ...
+) -> _F32: ...
+@overload
+def make_material(
+    name: str,
+    size: int,
+    views: _F64,
+    lights: _F64,
+    seed: int,
+    relief: float,
+    subsurface: float,
+    out: Union[str, PathLike[str]],
+    progress: _Progress = None,
+) -> None: ...
 def square_to_disk(st: npt.NDArray[Any]) -> npt.NDArray[Any]: ...
 def disk_to_square(xy: npt.NDArray[Any]) -> npt.NDArray[Any]: ...
 def square_to_hemisphere(st: npt.NDArray[Any]) -> npt.NDArray[Any]: ...

@@ -72,7 +72,7 @@ def callback(progress: Progress, desc: str) -> Optional[Callable[[int, int], obj
         if not _stderr_is_terminal():
             return _Lines(desc)
         try:
-            from tqdm import tqdm  # type: ignore[import-not-found]
+            from tqdm import tqdm  # optional extra (progress), only for a bar
         except ImportError:
             return _Bar(desc)
         bar = tqdm(desc=desc, total=1, leave=True)

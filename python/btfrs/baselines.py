@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import time
 
+from typing import Any, Dict, List, Tuple
+
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from .btf import Btf
 
@@ -64,15 +67,16 @@ def crop(btf: Btf, rows: slice, cols: slice) -> Btf:
     return Btf(np.ascontiguousarray(btf.data[rows, cols]), btf.views, btf.lights, btf.mask)
 
 
-def _present(btf: Btf) -> tuple[np.ndarray, np.ndarray]:
+def _present(btf: Btf) -> Tuple[NDArray[np.intp], NDArray[np.intp]]:
     """(view index, light index) of every present pair."""
     if btf.mask is None:
         v, l = np.meshgrid(np.arange(btf.n_views), np.arange(btf.n_lights), indexing="ij")
         return v.ravel(), l.ravel()
-    return np.nonzero(btf.mask)
+    v_idx, l_idx = np.nonzero(btf.mask)
+    return v_idx, l_idx
 
 
-def lafortune_scipy(train: Btf, test: Btf, lobes: int = 2, jac: str = "2-point") -> dict:
+def lafortune_scipy(train: Btf, test: Btf, lobes: int = 2, jac: str = "2-point") -> Dict[str, Any]:
     """The Lafortune luminance model fitted per texel with ``scipy.optimize.least_squares(method="lm")``,
     the way a scipy user writes it: a vectorised numpy residual over the texel's present samples,
     ``value = l_z (kd + sum_i max(Cx lx vx + Cy ly vy + Cz lz vz, 0)^n_i)`` times a base colour
@@ -82,28 +86,29 @@ def lafortune_scipy(train: Btf, test: Btf, lobes: int = 2, jac: str = "2-point")
 
     Returns ``{"seconds_per_texel", "held_out", "reconstruction", "texels"}`` (relative errors
     over all texels of the window, RGB)."""
-    from scipy.optimize import least_squares
+    from scipy.optimize import least_squares  # optional (test/bench extras): only this baseline needs it
 
     vi, li = _present(train)
     tv, tl = _present(test)
 
-    def geom(v_idx, l_idx, b):
+    def geom(v_idx: NDArray[np.intp], l_idx: NDArray[np.intp], b: Btf) -> Tuple[NDArray[Any], NDArray[Any]]:
         vv, ll = b.views[v_idx], b.lights[l_idx]
         return vv * ll, ll[:, 2]
 
     p_tr, lz_tr = geom(vi, li, train)
     p_te, lz_te = geom(tv, tl, test)
 
-    def model(x, p, lz):
+    def model(x: NDArray[Any], p: NDArray[Any], lz: NDArray[Any]) -> NDArray[Any]:
         out = np.full(len(lz), x[0])
         for i in range(lobes):
             c = x[1 + 4 * i: 4 + 4 * i]
             n = np.clip(x[4 + 4 * i], 1.0, 200.0)
             s = np.maximum(p @ c, 0.0)
             out = out + s**n
-        return lz * out
+        value: NDArray[Any] = lz * out
+        return value
 
-    def jacobian(x, p, lz, _y):
+    def jacobian(x: NDArray[Any], p: NDArray[Any], lz: NDArray[Any], _y: NDArray[Any]) -> NDArray[Any]:
         j = np.zeros((len(lz), len(x)))
         j[:, 0] = lz
         for i in range(lobes):
@@ -148,7 +153,7 @@ def real_sh(n: int, dirs: np.ndarray) -> np.ndarray:
     complex ones (Condon-Shortley phase included, as btfrs's): ``sqrt(2) Re Y_L^M`` for M > 0,
     ``sqrt(2) Im Y_L^|M|`` for M < 0, index ``L(L+1)+M``. An independent construction of the
     basis btfrs computes by recurrences."""
-    from scipy import special
+    from scipy import special  # optional (test/bench extras): only this baseline needs it
 
     d = np.asarray(dirs, dtype=np.float64)
     theta = np.arccos(np.clip(d[:, 2], -1, 1))
@@ -168,7 +173,7 @@ def real_sh(n: int, dirs: np.ndarray) -> np.ndarray:
     return out
 
 
-def sh_numpy_lstsq(train: Btf, view_coeffs: int = 25, light_coeffs: int = 25) -> dict:
+def sh_numpy_lstsq(train: Btf, view_coeffs: int = 25, light_coeffs: int = 25) -> Dict[str, Any]:
     """Double SH by plain least squares the numpy way: the Kronecker design matrix over the
     present pairs and one ``numpy.linalg.lstsq`` for every texel and channel at once.
     Returns ``{"seconds", "coeffs" [H, W, 3, kv, kl], "predict": f(view_idx, light_idx) ...}``."""
@@ -197,7 +202,7 @@ def sh_error(coeffs: np.ndarray, btf: Btf) -> float:
     return float(np.linalg.norm(pred - gt) / np.linalg.norm(gt))
 
 
-def lpca_sklearn(btf: Btf, clusters: int = 32, components: int = 4, seed: int = 0) -> dict:
+def lpca_sklearn(btf: Btf, clusters: int = 32, components: int = 4, seed: int = 0) -> Dict[str, Any]:
     """Local PCA the scikit-learn way: ``KMeans(k-means++)`` over the texels' ABRDFs, then a
     ``PCA(components)`` per cluster, float32 throughout. Reconstruction error over all present
     samples (as paper 004 reports it); ``nbytes`` counts float32 Eigen-BRDFs and weights and a
@@ -206,14 +211,15 @@ def lpca_sklearn(btf: Btf, clusters: int = 32, components: int = 4, seed: int = 
     return {k: r[k] for k in ("seconds", "reconstruction", "nbytes")}
 
 
-def _angles(dirs: np.ndarray, q: np.ndarray) -> np.ndarray:
+def _angles(dirs: ArrayLike, q: NDArray[np.float64]) -> NDArray[np.float64]:
     """Angles between each of ``dirs`` [n, 3] and ``q`` [3] (atan2 of |cross| and dot: accurate
     near 0, unlike arccos of the dot)."""
     d = np.asarray(dirs, dtype=np.float64)
-    return np.arctan2(np.linalg.norm(np.cross(d, q), axis=1), d @ q)
+    angles: NDArray[np.float64] = np.arctan2(np.linalg.norm(np.cross(d, q), axis=1), d @ q)
+    return angles
 
 
-def interp_weights(dirs: np.ndarray, query, k: int = 3) -> list:
+def interp_weights(dirs: ArrayLike, query: ArrayLike, k: int = 3) -> List[Tuple[int, float]]:
     """Interpolation weights over the ``k`` nearest of ``dirs`` as ``[(index, weight)]``, in
     numpy: inverse angular distance minus that of the (k+1)-th nearest (continuous as the query
     moves), normalised; a query on a direction gets it alone. The same rule as
@@ -230,7 +236,7 @@ def interp_weights(dirs: np.ndarray, query, k: int = 3) -> list:
     return [(int(i), float(x)) for i, x in zip(order[:k], w) if x > 0]
 
 
-def present_pair_weights(train: Btf, view, light) -> list:
+def present_pair_weights(train: Btf, view: ArrayLike, light: ArrayLike) -> List[Tuple[int, int, float]]:
     """``[(view index, light index, weight)]`` interpolating ``train`` at (view, light) over its
     *present* pairs: the 3 x 3 product of :func:`interp_weights`, restricted to present pairs and
     renormalised; where none is present, inverse summed-angle weights over the 4 nearest present
@@ -284,13 +290,13 @@ def ptm_error(coeffs: np.ndarray, fitted: Btf, test: Btf) -> float:
     return float(np.sqrt(num / den))
 
 
-def lpca_sklearn_fit(btf: Btf, clusters: int = 32, components: int = 4, seed: int = 0) -> dict:
+def lpca_sklearn_fit(btf: Btf, clusters: int = 32, components: int = 4, seed: int = 0) -> Dict[str, Any]:
     """:func:`lpca_sklearn` on the present pairs of ``btf`` (masked or not), also returning the
     reconstruction as a Btf with ``btf``'s directions and mask (``"reconstructed"``), which
     :func:`raw_interpolation` fills in at held-out pairs (btfrs's LPCA fills its Eigen-BRDFs'
     held-out entries by the same interpolation)."""
-    from sklearn.cluster import KMeans
-    from sklearn.decomposition import PCA
+    from sklearn.cluster import KMeans  # optional (test/bench extras), heavy: only this baseline
+    from sklearn.decomposition import PCA  # optional (test/bench extras), heavy: only this baseline
 
     vi, li = _present(btf)
     x = btf.data[:, :, vi, li, :].reshape(btf.height * btf.width, -1)

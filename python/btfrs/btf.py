@@ -16,11 +16,13 @@ from __future__ import annotations
 import json
 import math
 import os
-from typing import Optional, Sequence, Union
+from typing import Any, Dict, List, Optional, Sequence, Set, Tuple, Union
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from . import _native
+from ._checks import PathLike
 from ._checks import index as check_index
 from ._checks import instance, real
 from ._checks import seed as check_seed
@@ -28,10 +30,10 @@ from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError, Ou
 
 __all__ = ["Btf", "ExpandedBtf"]
 
-Index = Union[None, int, slice, Sequence[int], np.ndarray]
+Index = Union[None, int, slice, Sequence[int], NDArray[Any]]
 
 
-def _directions(name: str, d) -> np.ndarray:
+def _directions(name: str, d: ArrayLike) -> NDArray[np.float64]:
     a = np.asarray(d)
     if not np.issubdtype(a.dtype, np.floating) and not np.issubdtype(a.dtype, np.integer):
         raise ArgumentTypeError(f"{name}: expected an array of numbers, got dtype {a.dtype}")
@@ -40,7 +42,7 @@ def _directions(name: str, d) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.float64)
 
 
-def _selection(name: str, sel, n: int):
+def _selection(name: str, sel: Index, n: int) -> Union[slice, NDArray[Any]]:
     """A view or light selection as a numpy index that keeps the axis: a slice, or an int array
     of indices in [0, n) (negative indices would wrap silently, so they are rejected)."""
     if sel is None:
@@ -83,7 +85,8 @@ class Btf:
 
     __slots__ = ("_data", "_views", "_lights", "_mask", "_source", "__weakref__")
 
-    def __init__(self, data, views, lights, mask=None, *, check: bool = True) -> None:
+    def __init__(self, data: ArrayLike, views: ArrayLike, lights: ArrayLike, mask: Optional[ArrayLike] = None, *,
+                 check: bool = True) -> None:
         a = data if isinstance(data, np.ndarray) else np.asarray(data)
         if not np.issubdtype(a.dtype, np.floating):
             raise ArgumentTypeError(f"data: expected a float array (float32 preferred), got dtype {a.dtype}")
@@ -91,19 +94,19 @@ class Btf:
             raise InvalidArgumentError(f"data: expected shape (H, W, V, L, 3), got {a.shape}")
         if a.dtype != np.float32 or not a.flags.c_contiguous:
             a = np.ascontiguousarray(a, dtype=np.float32)
-        self._data = a
+        self._data: NDArray[np.float32] = a
         # (path, size, mtime) of the file whose values are mapped (Btf.load with mmap=True).
-        self._source: Optional[tuple] = None
+        self._source: Optional[Tuple[str, int, int]] = None
         self._views = _directions("views", views)
         self._lights = _directions("lights", lights)
+        self._mask: Optional[NDArray[np.bool_]] = None
         if mask is not None:
             m = np.asarray(mask)
             if m.dtype != np.bool_:
                 raise ArgumentTypeError(f"mask: expected a bool array, got dtype {m.dtype}")
             # Normalise to bytes 0/1: a bool array viewed from other bytes may hold e.g. 2, which
             # numpy reads as True but Rust's bool may not.
-            mask = np.ascontiguousarray(m.view(np.uint8) != 0) if m.ndim else m
-        self._mask = mask
+            self._mask = np.ascontiguousarray(m.view(np.uint8) != 0) if m.ndim else m
         # Shapes, directions and the mask are always checked; `check` adds the value scan.
         _native.validate_btf(self._data, self._views, self._lights, self._mask, scan_values=check)
 
@@ -129,25 +132,25 @@ class Btf:
         return self._mask
 
     @property
-    def shape(self) -> tuple:
+    def shape(self) -> Tuple[int, ...]:
         """``(H, W, V, L, 3)``."""
-        return self._data.shape
+        return tuple(self._data.shape)
 
     @property
     def height(self) -> int:
-        return self._data.shape[0]
+        return int(self._data.shape[0])
 
     @property
     def width(self) -> int:
-        return self._data.shape[1]
+        return int(self._data.shape[1])
 
     @property
     def n_views(self) -> int:
-        return self._data.shape[2]
+        return int(self._data.shape[2])
 
     @property
     def n_lights(self) -> int:
-        return self._data.shape[3]
+        return int(self._data.shape[3])
 
     @property
     def pairs(self) -> int:
@@ -173,7 +176,9 @@ class Btf:
     def abrdf(self, row: int, col: int) -> np.ndarray:
         """The ``[V, L, 3]`` apparent BRDF of one texel (contiguous, no copy). Indices outside
         ``[0, height)`` / ``[0, width)`` raise :class:`~btfrs.exceptions.OutOfRangeError`."""
-        return self._data[check_index("row", row, self.height), check_index("col", col, self.width)]
+        texel: NDArray[np.float32] = self._data[check_index("row", row, self.height),
+                                                check_index("col", col, self.width)]
+        return texel
 
     # --- derived samples ---------------------------------------------------------------------
     def split(self, *, holdout: float = 0.1, seed: int = 0) -> tuple["Btf", "Btf"]:
@@ -206,7 +211,7 @@ class Btf:
         return Btf(data, vdirs, ldirs, mask, check=False)
 
     # --- files -------------------------------------------------------------------------------
-    def save(self, path: Union[str, os.PathLike]) -> None:
+    def save(self, path: PathLike) -> None:
         """Write to one ``.btfrs`` file (atomically: a temporary file, then a rename).
 
         The values are scanned first: NaN or infinite values raise
@@ -215,13 +220,13 @@ class Btf:
         per-array ``finite`` flag), which lets :meth:`load` with ``mmap=True`` skip its scan.
         """
         _native.validate_btf(self._data, self._views, self._lights, self._mask, scan_values=True)
-        arrays = [("data", self._data), ("views", self._views), ("lights", self._lights)]
+        arrays: List[Tuple[str, NDArray[Any]]] = [("data", self._data), ("views", self._views), ("lights", self._lights)]
         if self._mask is not None:
             arrays.append(("mask", self._mask))
         _native.save_container(os.fspath(path), "btf", json.dumps({"layout": "HWVL3"}), arrays)
 
     @classmethod
-    def load(cls, path: Union[str, os.PathLike], mmap: bool = False) -> "Btf":
+    def load(cls, path: PathLike, mmap: bool = False) -> "Btf":
         """Read a ``.btfrs`` BTF; ``mmap=True`` maps the values instead of reading them.
 
         Without ``mmap`` the values are read and scanned: NaN or infinite values are a
@@ -258,7 +263,7 @@ class Btf:
                               f"is not what it was when opened); open it again and rerun")
 
     @classmethod
-    def from_arrays(cls, path, arrays: dict, *, check: bool = True) -> "Btf":
+    def from_arrays(cls, path: PathLike, arrays: Dict[str, NDArray[Any]], *, check: bool = True) -> "Btf":
         """Build from the arrays of a ``.btfrs`` file. A missing array, or arrays that do not
         make a valid BTF (dtypes, shapes, non-unit directions, an empty mask, and non-finite
         values when ``check``), are a FormatError naming the file."""
@@ -270,7 +275,7 @@ class Btf:
         except (TypeError, ValueError) as e:  # InvalidArgumentError is a ValueError
             raise FormatError(f"{p}: not a valid BTF file ({e})") from None
 
-    def expand(self, coords) -> "ExpandedBtf":
+    def expand(self, coords: ArrayLike) -> "ExpandedBtf":
         """A large BTF made of this sample and a coordinate map (from :mod:`btfrs.synth`),
         without copying the data: see :class:`ExpandedBtf`."""
         return ExpandedBtf(self, coords)
@@ -289,7 +294,7 @@ class ExpandedBtf:
     request; :meth:`to_btf` materialises the whole thing (the full size, explicitly).
     """
 
-    def __init__(self, sample: Btf, coords) -> None:
+    def __init__(self, sample: Btf, coords: ArrayLike) -> None:
         instance("sample", sample, Btf, "a btfrs.Btf")
         c = np.asarray(coords)
         if c.dtype != np.uint16:
@@ -311,7 +316,7 @@ class ExpandedBtf:
     width = property(lambda self: int(self.coords.shape[1]), doc="Columns.")
 
     @property
-    def shape(self) -> tuple:
+    def shape(self) -> Tuple[int, ...]:
         """``(H, W, V, L, 3)`` of the expanded BTF."""
         _, _, v, l, c = self.sample.shape
         return (self.height, self.width, v, l, c)
@@ -328,7 +333,8 @@ class ExpandedBtf:
 
     def image(self, view: int, light: int) -> np.ndarray:
         """``[H, W, 3]`` image for one (view, light) pair (gathered from the sample)."""
-        return self.sample.image(view, light)[self.coords[..., 1], self.coords[..., 0]]
+        gathered: NDArray[np.float32] = self.sample.image(view, light)[self.coords[..., 1], self.coords[..., 0]]
+        return gathered
 
     def abrdf(self, row: int, col: int) -> np.ndarray:
         """``[V, L, 3]`` apparent BRDF of one texel (a view into the sample)."""
@@ -350,12 +356,12 @@ _DTYPES = {"f32": np.float32, "f64": np.float64, "u8": np.uint8, "u16": np.uint1
            "bool": np.bool_}
 
 
-def _stamp(path: str) -> tuple:
+def _stamp(path: str) -> Tuple[int, int]:
     st = os.stat(path)
     return (st.st_size, st.st_mtime_ns)
 
 
-def _read_container(path, mmap: bool = False) -> tuple[str, dict, dict, set]:
+def _read_container(path: PathLike, mmap: bool = False) -> Tuple[str, Dict[str, Any], Dict[str, NDArray[Any]], Set[str]]:
     """:func:`read_container` plus the names of the float arrays whose header entry says they
     were finite when written (see :meth:`Btf.load`)."""
     p = os.fspath(path)
@@ -363,28 +369,29 @@ def _read_container(path, mmap: bool = False) -> tuple[str, dict, dict, set]:
     # file, names are unique and meta is a JSON object, so nothing below allocates more than
     # the file holds.
     kind, meta, infos = _native.read_container_header(p)
-    arrays, finite = {}, set()
+    arrays: Dict[str, NDArray[Any]] = {}
+    finite: Set[str] = set()
     for name, dt, shape, offset, is_finite in infos:
         if dt not in _DTYPES:
             raise FormatError(f"{p}: array {name!r} has unknown dtype {dt!r}")
-        shape = tuple(shape)
-        count = math.prod(shape)
+        shp = tuple(shape)
+        count = math.prod(shp)
         if count == 0:
-            a = np.zeros(shape, dtype=_DTYPES[dt])  # numpy cannot map zero bytes
+            a: NDArray[Any] = np.zeros(shp, dtype=_DTYPES[dt])  # numpy cannot map zero bytes
         elif mmap:
-            a = np.asarray(np.memmap(p, dtype=_DTYPES[dt], mode="r", offset=offset, shape=shape))
+            a = np.asarray(np.memmap(p, dtype=_DTYPES[dt], mode="r", offset=offset, shape=shp))
         else:
             a = np.fromfile(p, dtype=_DTYPES[dt], count=count, offset=offset)
             if a.size != count:  # the file shrank since its header was read
                 raise FormatError(f"{p}: array {name!r} is truncated")
-            a = a.reshape(shape)
+            a = a.reshape(shp)
         arrays[name] = a
         if is_finite:
             finite.add(name)
     return kind, json.loads(meta), arrays, finite
 
 
-def read_container(path, mmap: bool = False) -> tuple[str, dict, dict]:
+def read_container(path: PathLike, mmap: bool = False) -> Tuple[str, Dict[str, Any], Dict[str, NDArray[Any]]]:
     """Read a ``.btfrs`` file: ``(kind, meta, {name: array})``. Arrays are read with one
     ``numpy.fromfile`` each (or memory-mapped), at the offsets the Rust writer recorded. A file
     that is not a valid container (bad magic, a header inconsistent with the file, truncated)

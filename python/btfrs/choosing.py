@@ -36,12 +36,14 @@ the tolerance; if none does, the most accurate one within the budgets, flagged `
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
+from numpy.typing import NDArray
 
 from . import _native
 from ._checks import choice as check_choice
@@ -51,7 +53,8 @@ from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import ArgumentTypeError, BtfrsError, DegenerateDataError, InvalidArgumentError
 from .models import Model, model_kinds
-from .rendering import Camera, DirectionalLight, PointLight, Scene, _uv_scale
+from .fit import fit as fit_model
+from .rendering import Camera, DirectionalLight, PointLight, Scene, _uv_scale, last_timings, render
 
 __all__ = ["SceneUse", "Choice", "choose", "default_candidates", "interp_weights", "SUBSETS"]
 
@@ -61,10 +64,10 @@ SUBSETS = ("scene", "views", "full")
 _Light = Union[PointLight, DirectionalLight]
 
 
-def _light_sets(lights) -> Tuple[Tuple[_Light, ...], ...]:
+def _light_sets(lights: Any) -> Tuple[Tuple[_Light, ...], ...]:
     """A light, a list of lights (one set, lit together), or a list of such lists (a light range
     or animation: one set per frame), as a tuple of non-empty tuples."""
-    def is_light(x) -> bool:
+    def is_light(x: object) -> bool:
         return isinstance(x, (PointLight, DirectionalLight))
 
     if is_light(lights):
@@ -148,7 +151,7 @@ class SceneUse:
         """Cameras x light sets."""
         return len(self._cameras) * len(self._sets)
 
-    def directions(self, dims: Tuple[int, int]) -> dict:
+    def directions(self, dims: Tuple[int, int]) -> Dict[str, Any]:
         """What the scene asks of a sample of ``dims`` = (height, width) texels, as flat arrays
         over every (frame, covered pixel, light): ``views [N, 3]``, ``lights [N, 3]`` (local
         tangent-frame directions), ``weights [N]`` (irradiance / frames; 0 for a light below the
@@ -256,7 +259,8 @@ def _box(img: np.ndarray, level: int) -> np.ndarray:
         return img
     b = 1 << level
     h, w = (img.shape[0] // b) * b, (img.shape[1] // b) * b
-    return img[:h, :w].reshape(h // b, b, w // b, b, 3).mean(axis=(1, 3))
+    boxed: NDArray[Any] = img[:h, :w].reshape(h // b, b, w // b, b, 3).mean(axis=(1, 3))
+    return boxed
 
 
 @dataclass
@@ -273,7 +277,7 @@ class Choice:
     model: Any
     kind: str
     label: str
-    options: dict
+    options: Dict[str, Any]
     subset: str
     error: float
     nbytes: int
@@ -282,7 +286,7 @@ class Choice:
     tolerance: float
     budget_bytes: Optional[int]
     budget_ms: Optional[float]
-    candidates: list
+    candidates: List[Dict[str, Any]]
     views_used: np.ndarray
     lights_used: np.ndarray
     mip_level: int
@@ -290,7 +294,7 @@ class Choice:
     n_views: int
     n_lights: int
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> Dict[str, Any]:
         """Everything but the model, as plain Python values (JSON-serialisable)."""
         return dict(kind=self.kind, label=self.label, options=dict(self.options), subset=self.subset,
                     error=self.error, nbytes=self.nbytes, render_ms=self.render_ms, met=self.met,
@@ -331,22 +335,20 @@ class Choice:
         return self.explain()
 
 
-def default_candidates() -> list:
+def default_candidates() -> List[Tuple[str, str, Dict[str, Any]]]:
     """``(kind, label, options)`` for every registered model at its registry examples, then the
     raw data of the used slots: the registry says which settings are worth trying, so a new
     model (``lafortune_view`` among them, once registered) takes part without an edit here."""
-    out = []
+    out: List[Tuple[str, str, Dict[str, Any]]] = []
     for kind, info in model_kinds().items():
         for label, options in info.get("examples", []):
             out.append((kind, label, dict(options)))
     return out + [("raw", "raw data", {})]
 
 
-def _render_ms(model, use: SceneUse) -> float:
+def _render_ms(model: Any, use: SceneUse) -> float:
     """Draw milliseconds of the scene's first frame on the GPU path: a warm-up frame (upload and
     pipeline compilation), then the best of two."""
-    from .rendering import last_timings, render
-
     def frame() -> None:
         render(model, use._scene, use.cameras[0], list(use.light_sets[0]), size=use._hw, uv_scale=list(use._uvs))
 
@@ -361,7 +363,7 @@ def _render_ms(model, use: SceneUse) -> float:
 
 
 def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: Optional[int] = None,
-           budget_ms: Optional[float] = None, candidates: Optional[Sequence] = None,
+           budget_ms: Optional[float] = None, candidates: Optional[Sequence[Tuple[str, str, Dict[str, Any]]]] = None,
            subsets: Sequence[str] = SUBSETS, samples: int = 256, measure_render: bool = True, seed: int = 0,
            progress: Progress = None) -> Choice:
     """The cheapest model, in bytes and then render ms, whose error on the scene's own direction
@@ -446,7 +448,7 @@ def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: 
     refs = [_box(_raw_image(btf, sv[k], sl[k]), mip) for k in range(len(uniq))]
     ref_energy = sum(sw[k] * float(np.sum(refs[k] ** 2)) for k in range(len(uniq)))
 
-    def score(evaluate) -> float:
+    def score(evaluate: Callable[[NDArray[Any], NDArray[Any]], Any]) -> float:
         err = 0.0
         for k in range(len(uniq)):
             pred = _box(np.asarray(evaluate(sv[k], sl[k]), dtype=np.float64), mip)
@@ -460,7 +462,7 @@ def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: 
     wanted = {"scene": (views_used, lights_used), "views": (views_used, all_l), "full": (all_v, all_l)}
     # A subset equal to a larger one carries the larger one's name (the scene using every view
     # and light is "full"), so a name always says what was fitted.
-    subsets_fit: list = []
+    subsets_fit: List[Tuple[str, NDArray[Any], NDArray[Any]]] = []
     for s in SUBSETS:
         if s not in subs:
             continue
@@ -479,11 +481,9 @@ def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: 
     cb = callback(progress, f"choose ({len(jobs)} candidates)")
     if cb is not None:
         cb(0, len(jobs))
-    rows: list = []
-    from .fit import fit as fit_model
-
+    rows: List[Dict[str, Any]] = []
     for j, ((kind, label, options), (sname, vv, ll)) in enumerate(jobs):
-        row: dict = dict(label=label, kind=kind, options=options, subset=sname, views=len(vv), lights=len(ll),
+        row: Dict[str, Any] = dict(label=label, kind=kind, options=options, subset=sname, views=len(vv), lights=len(ll),
                          error=None, nbytes=None, render_ms=None, fit_s=None, status="", model=None)
         try:
             part = btf if sname == "full" else btf.select(views=vv, lights=ll)
@@ -492,12 +492,12 @@ def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: 
                 model: Any = part
                 row["nbytes"] = int(part.data.nbytes)
                 row["fit_s"] = time.perf_counter() - t0
-                row["error"] = score(lambda v, l, p=part: _raw_image(p, v, l))
+                row["error"] = score(functools.partial(_raw_image, part))
             else:
                 model = fit_model(kind, part, **options)
                 row["nbytes"] = int(model.nbytes)
                 row["fit_s"] = time.perf_counter() - t0
-                row["error"] = score(lambda v, l, m=model: m.evaluate(v, l))
+                row["error"] = score(model.evaluate)
             row["model"] = model
         except BtfrsError as e:
             # A model that cannot fit this subset (too few lights for a PTM, ...) is a candidate
@@ -513,7 +513,7 @@ def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: 
         raise DegenerateDataError("candidates: no candidate could be fitted and scored on this scene's subsets: "
                                   + "; ".join(f"{r['label']} ({r['subset']}): {r['status']}" for r in rows))
 
-    def timed(r) -> float:
+    def timed(r: Dict[str, Any]) -> float:
         # Renders are timed only for candidates that can be chosen: on lavapipe a frame of a
         # slow model costs seconds, and a candidate that misses the tolerance or the byte
         # budget is out whatever its speed.
@@ -523,9 +523,9 @@ def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: 
             except BtfrsError as e:
                 # No adapter (or a device error): the choice still stands on bytes and error.
                 r["render_note"] = f"render not timed: {type(e).__name__}: {str(e).splitlines()[0][:60]}"
-        return r["render_ms"]
+        return float(r["render_ms"])
 
-    def over_time(r) -> bool:
+    def over_time(r: Dict[str, Any]) -> bool:
         return bm is not None and math.isfinite(r["render_ms"]) and r["render_ms"] > bm
 
     for r in fitted:
@@ -534,10 +534,11 @@ def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: 
         if r["meets"] and r["bytes_ok"]:
             timed(r)
 
-    def cost(r):
+    def cost(r: Dict[str, Any]) -> Tuple[int, float, float]:
         ms = r["render_ms"]
         return (r["nbytes"], ms if ms is not None and math.isfinite(ms) else math.inf, r["error"])
 
+    best: Optional[Dict[str, Any]]
     ok_rows = [r for r in fitted if r["meets"] and r["bytes_ok"] and not over_time(r)]
     met = bool(ok_rows)
     if met:
@@ -552,6 +553,7 @@ def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: 
                 break
         if best is None:
             best = min(fitted, key=lambda r: (r["error"], cost(r)))
+    assert best is not None
     for r in fitted:
         over = []
         if not r.pop("bytes_ok"):

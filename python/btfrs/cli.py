@@ -8,10 +8,24 @@ bars on a terminal, one line per phase otherwise.
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import sys
+import time
 from typing import Optional, Sequence
 
-from . import __version__
+import numpy as np
+
+from . import __version__, _native, io, materials, rendering, stability, synth, tiles
+from . import fit as fit_mod
+from . import fit as fitting
+from .btf import Btf
+from .choosing import SceneUse, choose, default_candidates
+from .evaluation import evaluate
+from .exceptions import BtfrsError, InvalidArgumentError
+from .models import Model, model_kinds
+from .rendering import Camera, DirectionalLight, PointLight, Scene, render
+from .tools import demo
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -90,12 +104,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     _data_commands(sub)
     args = p.parse_args(argv)
 
-    from .exceptions import BtfrsError
 
     try:
         if args.command == "demo":
-            from . import demo
-
             demo.run(args.out, material=args.material, size=args.size, seed=args.seed, progress=not args.quiet)
         else:
             commands = {"synth": synth_command, "evaluate": evaluate_command, "choose": choose_command,
@@ -113,8 +124,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
 def _facts() -> dict:
     """Every registered model's facts (the registry's)."""
-    from .models import model_kinds
-
     return model_kinds()
 
 
@@ -125,8 +134,6 @@ def _kinds() -> list:
 
 def _formats() -> list:
     """Other tools' model formats: ``(name, extension, doc)``."""
-    from . import _native
-
     return list(_native.model_formats())
 
 
@@ -159,11 +166,6 @@ def _sample_args(p: argparse.ArgumentParser, material: Optional[str] = None, siz
 
 def _load_sample(args, progress: bool):
     """The input of :func:`_sample_args`: ``(object, name)`` (a Btf for a material)."""
-    import os
-
-    from . import materials
-    from .exceptions import InvalidArgumentError
-
     given = [n for n, v in (("path", args.path), ("--material", getattr(args, "material", None)),
                             ("--texture", getattr(args, "texture", None))) if v]
     if len(given) > 1:
@@ -172,8 +174,6 @@ def _load_sample(args, progress: bool):
     if args.path:
         return _open(args), os.path.basename(os.path.normpath(args.path))
     if getattr(args, "texture", None):
-        from . import io
-
         return io.load_image(args.texture), os.path.basename(args.texture)
     name = args.material or args.default_material
     if name is None:
@@ -183,9 +183,6 @@ def _load_sample(args, progress: bool):
 
 def _load_btf(args, progress: bool):
     """:func:`_load_sample`, which must be measured data (a Btf)."""
-    from .btf import Btf
-    from .exceptions import InvalidArgumentError
-
     obj, name = _load_sample(args, progress)
     if not isinstance(obj, Btf):
         raise InvalidArgumentError(f"path: {args.path} holds a {type(obj).__name__}, not measured data (a BTF)")
@@ -203,17 +200,6 @@ def _option_args(p: argparse.ArgumentParser) -> None:
 def tiles_command(args) -> None:
     """``btfrs tiles``: fit (or read) the sample, synthesize a Wang tile set in its domain, write
     the set, a picture of the tiles with their edge colours, a tiling and its rendering."""
-    import json
-    import os
-
-    import numpy as np
-
-    from . import fit as fitting
-    from . import io, tiles
-    from .btf import Btf
-    from .models import model_kinds
-    from .rendering import Camera, PointLight, Scene, render
-
     progress = not args.quiet
     opts = None if args.model == "raw" else _fit_options(args, args.model)
     os.makedirs(args.out, exist_ok=True)
@@ -269,8 +255,6 @@ def tiles_command(args) -> None:
 def evaluate_command(args) -> None:
     """``btfrs evaluate``: :func:`btfrs.evaluate` on a material, the table on stdout, the report
     and charts in ``--out``."""
-    from .evaluation import evaluate
-
     progress = not args.quiet
     btf, name = _load_btf(args, progress)
     models = args.models if args.models == "all" else [m.strip() for m in args.models.split(",") if m.strip()]
@@ -286,14 +270,6 @@ def evaluate_command(args) -> None:
 
 def synth_command(args) -> None:
     """``btfrs synth``: analyse (or load the analysis), synthesize, save the map and pictures."""
-    import os
-
-    import numpy as np
-
-    from . import io, synth
-    from .btf import Btf
-    from .exceptions import InvalidArgumentError
-
     progress = not args.quiet
     os.makedirs(args.out, exist_ok=True)
     sample, _ = _load_sample(args, progress)
@@ -334,10 +310,6 @@ def synth_command(args) -> None:
 
 def choose_command(args) -> None:
     """``btfrs choose``: what a scene needs of a material, and the cheapest model that gives it."""
-    from .choosing import SceneUse, choose
-    from .exceptions import InvalidArgumentError
-    from .rendering import Camera, DirectionalLight, Scene
-
     progress = not args.quiet
     btf, _ = _load_btf(args, progress)
     cams = [Camera.look_at(eye, [0.0, 0.0, 0.0], args.fov) for eye in (args.camera or [[0.0, 0.0, 3.0]])]
@@ -346,8 +318,6 @@ def choose_command(args) -> None:
     use = SceneUse(camera=cams, lights=lights, size=tuple(args.image_size), scene=surface, uv_scale=args.uv_scale)
     cands = None
     if args.kinds:
-        from .choosing import default_candidates
-
         known = default_candidates()
         cands = [c for c in known if c[0] in args.kinds]
         unknown = sorted(set(args.kinds) - {c[0] for c in known})
@@ -361,8 +331,6 @@ def choose_command(args) -> None:
 def stability_command(args) -> None:
     """``btfrs stability``: run every model in every regime, write report.json, report.md and
     one chart per regime, print the table."""
-    from . import stability
-
     progress = not args.quiet
     btf, name = _load_btf(args, progress)
     if not args.path:
@@ -380,7 +348,6 @@ def stability_command(args) -> None:
 def _indices(name: str, text: Optional[str]):
     if text is None:
         return None
-    from .exceptions import InvalidArgumentError
 
     try:
         return [int(t) for t in text.split(",") if t.strip()]
@@ -389,8 +356,6 @@ def _indices(name: str, text: Optional[str]):
 
 
 def _open(args):
-    from . import io
-
     return io.load(args.path, directions=args.directions, crop=args.crop, views=_indices("views", args.views),
                    lights=_indices("lights", args.lights), linear=args.linear, progress=not args.quiet)
 
@@ -436,8 +401,6 @@ def _data_commands(sub) -> None:
 def _coverage(dirs) -> str:
     """Theta range and the largest angular gap: the biggest angle from any direction of the
     hemisphere to its nearest sample (a fine Fibonacci set of 4000 directions)."""
-    import numpy as np
-
     d = np.asarray(dirs, dtype=np.float64)
     theta = np.degrees(np.arccos(np.clip(d[:, 2], -1, 1)))
     n = 4000
@@ -452,11 +415,6 @@ def _coverage(dirs) -> str:
 
 def info_command(args) -> None:
     """``btfrs info``: print what the file holds and which models its sampling supports."""
-    import numpy as np
-
-    from .btf import Btf
-    from .models import Model, model_kinds
-
     obj, name = _load_sample(args, not args.quiet)
     print(f"{args.path or name}")
     if isinstance(obj, Model):
@@ -500,12 +458,6 @@ def info_command(args) -> None:
 def _fit_options(args, kind: str) -> dict:
     """The options of ``--options`` and ``--set`` for a ``kind`` fit, each ``--set`` value read
     as its schema's type says, all checked against the model's schema before any work."""
-    import json
-
-    from . import _native
-    from .exceptions import InvalidArgumentError
-    from .models import model_kinds
-
     try:
         opts = json.loads(args.options)
     except json.JSONDecodeError as e:
@@ -541,13 +493,6 @@ def _fit_options(args, kind: str) -> dict:
 
 def fit_command(args) -> None:
     """``btfrs fit``: load, fit, save; print time, size and errors."""
-    import time
-
-    import os
-
-    from . import fit as fit_mod
-    from .exceptions import InvalidArgumentError
-
     opts = _fit_options(args, args.model)
     out = os.path.abspath(args.out)
     if not os.path.isdir(os.path.dirname(out)):
@@ -569,11 +514,6 @@ def fit_command(args) -> None:
 
 def export_command(args) -> None:
     """``btfrs export``: the formats other tools read."""
-    from . import io
-    from .btf import Btf
-    from .exceptions import InvalidArgumentError
-    from .models import Model, model_kinds
-
     formats = [(name, getattr(args, name)) for name, _, _ in _formats()]
     if not any([path for _, path in formats] + [args.exr, args.stack]):
         flags = ", ".join(f"--{name}" for name, _ in formats)
@@ -601,13 +541,6 @@ def export_command(args) -> None:
 
 def render_command(args) -> None:
     """``btfrs render``: one image of a model, BTF or capture."""
-    import numpy as np
-
-    from . import io, rendering
-    from .btf import Btf
-    from .exceptions import InvalidArgumentError
-    from .models import Model
-
     obj, _ = _load_sample(args, not args.quiet)
     if not isinstance(obj, (Model, Btf)):
         raise InvalidArgumentError(f"path: {args.path} holds a {type(obj).__name__}, not a model or BTF")

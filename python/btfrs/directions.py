@@ -8,6 +8,7 @@ elevation from z, phi the azimuth from x towards y.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import _native
 from ._checks import boolean
@@ -25,7 +26,7 @@ def ubo81() -> np.ndarray:
     return _native.ubo81()
 
 
-def from_theta_phi(theta, phi, *, degrees: bool = False) -> np.ndarray:
+def from_theta_phi(theta: ArrayLike, phi: ArrayLike, *, degrees: bool = False) -> np.ndarray:
     """Unit vectors ``[..., 3]`` for elevations ``theta`` and azimuths ``phi`` (radians unless
     ``degrees``); the inputs broadcast against each other."""
     t = np.asarray(theta, dtype=np.float64)
@@ -37,7 +38,7 @@ def from_theta_phi(theta, phi, *, degrees: bool = False) -> np.ndarray:
     return np.stack([st * np.cos(p), st * np.sin(p), np.cos(t)], axis=-1)
 
 
-def to_theta_phi(d, *, degrees: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def to_theta_phi(d: ArrayLike, *, degrees: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(theta, phi) of directions ``[..., 3]``; phi in [0, 2 pi), 0 at the pole."""
     d = np.asarray(d, dtype=np.float64)
     if d.shape[-1:] != (3,):

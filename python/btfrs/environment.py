@@ -20,13 +20,15 @@ radiance 1 a white Lambertian surface reads pi.
 from __future__ import annotations
 
 import os
-from typing import Sequence, Tuple
+from typing import List, Sequence, Tuple
 
 import numpy as np
 
 from . import _native
-from ._checks import integer, real
+from ._checks import PathLike, integer, real
 from .exceptions import ArgumentTypeError, InvalidArgumentError
+from .io import load_image
+from .rendering import DirectionalLight
 
 __all__ = ["Environment"]
 
@@ -55,10 +57,8 @@ class Environment:
         return cls(data)
 
     @classmethod
-    def load(cls, path) -> "Environment":
+    def load(cls, path: PathLike) -> "Environment":
         """Read a lat-long image: OpenEXR (linear HDR) or PNG (sRGB-decoded to linear)."""
-        from .io import load_image
-
         p = os.fspath(path)
         try:
             img = load_image(p)
@@ -90,21 +90,17 @@ class Environment:
         """(height, width) in pixels."""
         return self.data.shape[0], self.data.shape[1]
 
-    def lights(self, samples: int = 64, *, seed: int = 0):
+    def lights(self, samples: int = 64, *, seed: int = 0) -> List[DirectionalLight]:
         """``samples`` importance-sampled :class:`~btfrs.DirectionalLight` s whose sum estimates
         the lighting integral (what ``method="sampled"`` renders with)."""
-        from .rendering import DirectionalLight
-
         n = integer("samples", samples, min=1, max=65536)
         sd = integer("seed", seed, min=0)
         d, i = _native.env_sample(self.data, n, sd)
         return [DirectionalLight(tuple(map(float, a)), tuple(map(float, b))) for a, b in zip(d, i)]
 
-    def quadrature(self):
+    def quadrature(self) -> List[DirectionalLight]:
         """Every lit pixel as one :class:`~btfrs.DirectionalLight` at its centre carrying
         radiance x solid angle: the brute-force integral the sampled renders converge to."""
-        from .rendering import DirectionalLight
-
         d, i = _native.env_quadrature(self.data)
         return [DirectionalLight(tuple(map(float, a)), tuple(map(float, b))) for a, b in zip(d, i)]
 

@@ -35,12 +35,15 @@ from typing import Any, Callable, Optional, Sequence, Union
 import numpy as np
 
 from . import baselines as _base
-from ._checks import boolean, choice, instance, integer, real
+from . import fit as fit_mod
+from . import io, rendering
+from ._checks import boolean, choice, instance, integer, real, size_hw
 from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import BtfrsError, InvalidArgumentError
 from .models import model_kinds
+from .rendering import Camera, PointLight, Scene
 
 __all__ = ["evaluate", "EvaluationReport", "split_directions", "sweeps", "METRICS", "reference_scene",
            "pareto_front"]
@@ -66,8 +69,6 @@ def reference_scene():
     ``(0, -3, 2)`` with a 40-degree field of view under one point light at ``(2, -2, 3)``
     (intensity 8), the sample repeated 4 times over the UV square (as ``python -m btfrs.bench``
     renders it)."""
-    from .rendering import Camera, PointLight, Scene
-
     return (Scene.sphere(), Camera.look_at([0, -3, 2], [0, 0, 0], 40), [PointLight([2.0, -2.0, 3.0], 8.0)], 4.0)
 
 
@@ -133,7 +134,6 @@ class EvaluationReport:
     """What :func:`evaluate` measured: ``rows`` (one dict per model and parameters, the keys of
     :data:`METRICS` plus ``label``, ``kind``, ``options``, ``way``, ``note``), and how
     (``info``: material shape, protocols, seed, adapter, seconds)."""
-
     rows: list
     info: dict = field(default_factory=dict)
 
@@ -177,8 +177,6 @@ class EvaluationReport:
         """Write ``report.json``, ``report.md`` and the three charts
         (``heldout_vs_bytes.png``, ``heldout_vs_render_ms.png``, ``heldout_vs_fit_s.png``) into
         the folder ``out`` (made if missing), each atomically. Returns the paths written."""
-        from . import io
-
         os.makedirs(out, exist_ok=True)
         paths = []
         p = os.path.join(out, "report.json")
@@ -241,7 +239,6 @@ def chart(report: EvaluationReport, x: str, path: Union[str, os.PathLike]) -> No
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    from . import io
 
     ys = [y for y in ("heldout_pairs", "heldout_directions") if any(_num(r.get(y)) is not None for r in report.rows)]
     if not ys:
@@ -354,8 +351,6 @@ def _psnr(img: np.ndarray, ref: np.ndarray) -> float:
 
 
 def _timed_render(model, scene, size) -> tuple:
-    from . import rendering
-
     sc, cam, lights, uvs = scene
     # The first frame uploads the model and compiles its pipeline: not counted. One timed frame
     # after it (the slowest shaders take seconds per frame on lavapipe; repeats would dominate).
@@ -389,8 +384,6 @@ def evaluate(btf: Btf, models: Union[str, Sequence[Any]] = "all", *, holdout: st
     material: a name for the report and the charts.
     progress: None, True or a callable ``(done, total)`` over the points.
     """
-    from . import fit as fit_mod
-
     b = instance("btf", btf, Btf, "a btfrs.Btf")
     holdout = choice("holdout", holdout, ("pairs", "directions", "both"))
     fraction = real("fraction", fraction, min=0.0, max=1.0, min_open=True, max_open=True)
@@ -409,14 +402,11 @@ def evaluate(btf: Btf, models: Union[str, Sequence[Any]] = "all", *, holdout: st
         splits["directions"] = split_directions(b, fraction, seed=seed)
     fit_split = splits["pairs" if "pairs" in splits else "directions"]
     scene = reference_scene() if render else None
-    from ._checks import size_hw
 
     size = size_hw("render_size", render_size, max=4096)
     ref_img = None
     adapter = None
     if render:
-        from . import rendering
-
         full = b if b.mask is None or b.mask.all() else None
         adapter = rendering.gpu_info()
         if full is not None:

@@ -19,9 +19,10 @@ the source side of the minimum cut (the smallest one, when several cuts are mini
 
 from __future__ import annotations
 
-from typing import Tuple, Union
+from typing import Any, Dict, Tuple, Union
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from . import _checks, _native
 from .exceptions import ArgumentTypeError, InvalidArgumentError
@@ -31,14 +32,14 @@ __all__ = ["min_cut", "grid_min_cut"]
 _INT64_MAX = np.iinfo(np.int64).max
 
 
-def _array(name: str, x) -> np.ndarray:
+def _array(name: str, x: ArrayLike) -> NDArray[Any]:
     a = np.asarray(x)
     if a.dtype.kind not in "iuf":
         raise ArgumentTypeError(f"{name}: expected a numeric array (integers or floats), got dtype {a.dtype}")
     return a
 
 
-def _common_dtype(arrays: dict) -> np.dtype:
+def _common_dtype(arrays: Dict[str, NDArray[Any]]) -> np.dtype[Any]:
     """int64 when every (non-empty) input is integer, else float32 when every float input is
     float32, else float64. Empty arrays do not vote (``[]`` is float64 in numpy)."""
     voting = [a for a in arrays.values() if a.size] or list(arrays.values())
@@ -48,17 +49,18 @@ def _common_dtype(arrays: dict) -> np.dtype:
     return np.dtype(np.float32) if all(d == np.float32 for d in floats) else np.dtype(np.float64)
 
 
-def _convert(name: str, a: np.ndarray, dtype: np.dtype) -> np.ndarray:
+def _convert(name: str, a: NDArray[Any], dtype: np.dtype[Any]) -> NDArray[Any]:
     if dtype.kind == "i" and a.dtype.kind == "u" and a.size and int(a.max()) > _INT64_MAX:
         raise InvalidArgumentError(f"{name}: capacity {int(a.max())} does not fit in int64")
     return np.ascontiguousarray(a, dtype=dtype)
 
 
-def _flow(f) -> Union[int, float]:
+def _flow(f: Union[int, float, np.number[Any]]) -> Union[int, float]:
     return int(f) if isinstance(f, (int, np.integer)) else float(f)
 
 
-def min_cut(n, edges, capacities, terminal_caps) -> Tuple[Union[int, float], np.ndarray]:
+def min_cut(n: int, edges: ArrayLike, capacities: ArrayLike,
+            terminal_caps: ArrayLike) -> Tuple[Union[int, float], NDArray[np.bool_]]:
     """Minimum s-t cut of a graph of ``n`` nodes.
 
     ``edges`` ``[E, 2]`` integer node ids ``(a, b)`` (``a != b``; parallel edges add up);
@@ -100,7 +102,8 @@ def min_cut(n, edges, capacities, terminal_caps) -> Tuple[Union[int, float], np.
     return _flow(flow), side
 
 
-def grid_min_cut(right, down, terminal_caps) -> Tuple[Union[int, float], np.ndarray]:
+def grid_min_cut(right: ArrayLike, down: ArrayLike,
+                 terminal_caps: ArrayLike) -> Tuple[Union[int, float], NDArray[np.bool_]]:
     """Minimum s-t cut of a 4-connected ``H x W`` grid.
 
     ``right`` ``[H, W - 1, 2]``: capacities between ``(y, x)`` and ``(y, x + 1)``, (towards

@@ -12,7 +12,10 @@ return the same dtype; the work runs in Rust with the GIL released.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from . import _native
 from .exceptions import ArgumentTypeError
@@ -20,7 +23,7 @@ from .exceptions import ArgumentTypeError
 __all__ = ["square_to_disk", "disk_to_square", "square_to_hemisphere", "hemisphere_to_square"]
 
 
-def _arr(name: str, x) -> np.ndarray:
+def _arr(name: str, x: ArrayLike) -> NDArray[Any]:
     a = np.asarray(x)
     if a.dtype.kind not in "fiu":
         raise ArgumentTypeError(f"{name}: expected real numbers, got dtype {a.dtype}")
@@ -30,21 +33,21 @@ def _arr(name: str, x) -> np.ndarray:
     return np.require(a, requirements="C")
 
 
-def square_to_disk(st) -> np.ndarray:
+def square_to_disk(st: ArrayLike) -> np.ndarray:
     """``[..., 2]`` points of the unit square to ``[..., 2]`` points of the unit disk."""
     return _native.square_to_disk(_arr("st", st))
 
 
-def disk_to_square(xy) -> np.ndarray:
+def disk_to_square(xy: ArrayLike) -> np.ndarray:
     """Inverse of :func:`square_to_disk`."""
     return _native.disk_to_square(_arr("xy", xy))
 
 
-def square_to_hemisphere(st) -> np.ndarray:
+def square_to_hemisphere(st: ArrayLike) -> np.ndarray:
     """The elevated concentric map: ``[..., 2]`` square points to ``[..., 3]`` unit directions."""
     return _native.square_to_hemisphere(_arr("st", st))
 
 
-def hemisphere_to_square(d) -> np.ndarray:
+def hemisphere_to_square(d: ArrayLike) -> np.ndarray:
     """Inverse of :func:`square_to_hemisphere`: ``[..., 3]`` directions (z >= 0) to the square."""
     return _native.hemisphere_to_square(_arr("directions", d))

@@ -19,12 +19,13 @@ synthesis is for, and what :func:`btfrs.synth.quality` must see.
 from __future__ import annotations
 
 import os
-
+from typing import Optional, Sequence, Union
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from . import _native
-from ._checks import integer, real, size_hw
+from ._checks import PathLike, integer, real, size_hw
 from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
@@ -39,8 +40,9 @@ def names() -> list[str]:
     return list(_native.material_names())
 
 
-def make(name: str = "knit", *, size: int = 64, seed: int = 0, views=None, lights=None,
-         relief: float = 1.0, subsurface: float = 0.0, out=None, progress: Progress = None) -> Btf:
+def make(name: str = "knit", *, size: int = 64, seed: int = 0, views: Optional[ArrayLike] = None,
+         lights: Optional[ArrayLike] = None, relief: float = 1.0, subsurface: float = 0.0,
+         out: Optional[PathLike] = None, progress: Progress = None) -> Btf:
     """Generate a built-in material.
 
     Parameters
@@ -83,7 +85,8 @@ def texture_names() -> list[str]:
     return list(_native.texture_names())
 
 
-def texture(name: str = "bricks", *, size=128, seed: int = 0, period=(4, 2)) -> np.ndarray:
+def texture(name: str = "bricks", *, size: Union[int, Sequence[int]] = 128, seed: int = 0,
+            period: Sequence[int] = (4, 2)) -> NDArray[np.float32]:
     """A photograph-like structured RGB texture, ``[H, W, 3]`` float32 in [0, 1].
 
     ``"bricks"``: running-bond brickwork, bricks of 38 x 17 pixels with 3-pixel light mortar

@@ -29,7 +29,7 @@ from ._checks import choice, instance, integer, real, size_hw
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import ArgumentTypeError, InvalidArgumentError
-from .models import Model
+from .models import Model, wrap
 
 __all__ = ["Scene", "Camera", "PointLight", "DirectionalLight", "render", "RenderResult", "gpu_info", "TileMap"]
 
@@ -161,8 +161,6 @@ def _filtered(model, filt: str, coords, tm):
             data = np.concatenate(rows).reshape((-1, dims[1]) + flat.shape[1:])
             drawn = Btf(data, model.views, model.lights, check=False)
         else:
-            from .models import wrap
-
             drawn = wrap(_native.mip_model(model._m, idx, wts))
         hit = (drawn, chain, "average" if is_raw else model.mip)
     else:

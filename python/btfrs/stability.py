@@ -42,9 +42,10 @@ import json
 import math
 import os
 import time
-from typing import Any, Callable, Optional, Sequence, Union
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
+from numpy.typing import NDArray
 
 from . import fit as _fit
 from ._checks import instance
@@ -52,6 +53,7 @@ from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import BtfrsError, InvalidArgumentError
+from .io import atomic_write
 from .models import model_kinds
 
 __all__ = ["REGIMES", "StabilityReport", "default_models", "run"]
@@ -73,18 +75,25 @@ _DESCRIPTION = {
     "outliers": "fraction of training values x 1000",
 }
 
-def default_models() -> list:
+#: (label, kind, options) of one model setting.
+_Setting = Tuple[str, str, Dict[str, Any]]
+#: (level, label, train, test) of one regime level.
+_Level = Tuple[float, str, Btf, Btf]
+#: (view, light) query directions.
+_Probe = Tuple[NDArray[np.float64], NDArray[np.float64]]
+
+def default_models() -> List[_Setting]:
     """One cheap ``(label, kind, options)`` per registered kind: the first setting of its quick
     sweep (its registry entry chooses it; Lafortune's has two lobes, since one lobe hides the
     extrapolation of sparse fits that paper 000 warns about)."""
-    out = []
+    out: List[_Setting] = []
     for kind, info in model_kinds().items():
         label, opts, _, _ = next(s for s in info["sweep"] if s[2])
         out.append((label, kind, dict(opts)))
     return out
 
 
-def _models(models) -> list:
+def _models(models: Union[str, Sequence[Any]]) -> List[_Setting]:
     kinds = model_kinds()
     if isinstance(models, str):
         if models == "all":
@@ -94,7 +103,7 @@ def _models(models) -> list:
         raise InvalidArgumentError(f"models: expected \"all\", a list of model kinds or of (label, kind, options), "
                                    f"got {models!r}")
     defaults = {k: (lab, k, o) for lab, k, o in default_models()}
-    out = []
+    out: List[_Setting] = []
     for m in models:
         if isinstance(m, str):
             if m not in kinds:
@@ -113,7 +122,7 @@ def _models(models) -> list:
     return out
 
 
-def _regimes(regimes) -> list:
+def _regimes(regimes: Union[str, Sequence[str]]) -> List[str]:
     if isinstance(regimes, str):
         regimes = list(REGIMES) if regimes == "all" else [regimes]
     if not isinstance(regimes, (list, tuple)) or not regimes:
@@ -129,31 +138,32 @@ def _regimes(regimes) -> list:
 # ------------------------------------------------------------------------------------------------
 
 
-def _with(btf: Btf, data: np.ndarray, mask) -> Btf:
+def _with(btf: Btf, data: NDArray[Any], mask: Optional[NDArray[np.bool_]]) -> Btf:
     return Btf(np.ascontiguousarray(data, dtype=np.float32), btf.views, btf.lights, mask, check=False)
 
 
-def _theta_deg(d: np.ndarray) -> np.ndarray:
-    return np.degrees(np.arccos(np.clip(d[:, 2], -1.0, 1.0)))
+def _theta_deg(d: NDArray[np.float64]) -> NDArray[np.float64]:
+    theta: NDArray[np.float64] = np.degrees(np.arccos(np.clip(d[:, 2], -1.0, 1.0)))
+    return theta
 
 
-def _split(btf: Btf, seed: int):
+def _split(btf: Btf, seed: int) -> Tuple[Btf, Btf]:
     return btf.split(holdout=0.1, seed=seed)
 
 
-def _decimation(btf: Btf, seed: int) -> list:
-    out = []
+def _decimation(btf: Btf, seed: int) -> List[_Level]:
+    out: List[_Level] = []
     for keep in (0.9, 0.5, 0.25, 0.10, 0.05):
         tr, te = btf.split(holdout=1.0 - keep, seed=seed)
         out.append((keep, f"{100 * keep:g}%", tr, te))
     return out
 
 
-def _subset(btf: Btf, train: Btf, keep: np.ndarray) -> Btf:
-    return _with(btf, btf.data, train.mask & keep)
+def _subset(btf: Btf, train: Btf, keep: NDArray[np.bool_]) -> Btf:
+    return _with(btf, btf.data, keep if train.mask is None else train.mask & keep)
 
 
-def _uneven(btf: Btf, seed: int) -> list:
+def _uneven(btf: Btf, seed: int) -> List[_Level]:
     tr, te = _split(btf, seed)
     V, L = btf.n_views, btf.n_lights
     phi_l = np.degrees(np.arctan2(btf.lights[:, 1], btf.lights[:, 0])) % 360
@@ -166,7 +176,7 @@ def _uneven(btf: Btf, seed: int) -> list:
             (3, "views theta<=30", _subset(btf, tr, low_v), te)]
 
 
-def _additive(btf: Btf, seed: int) -> list:
+def _additive(btf: Btf, seed: int) -> List[_Level]:
     tr, te = _split(btf, seed)
     mean = float(btf.data.mean())
     rng = np.random.default_rng(seed)
@@ -175,7 +185,7 @@ def _additive(btf: Btf, seed: int) -> list:
             for s in (0.0, 0.1, 0.3, 1.0)]
 
 
-def _multiplicative(btf: Btf, seed: int) -> list:
+def _multiplicative(btf: Btf, seed: int) -> List[_Level]:
     tr, te = _split(btf, seed)
     rng = np.random.default_rng(seed + 1)
     noise = rng.standard_normal(btf.data.shape, dtype=np.float32)
@@ -183,23 +193,24 @@ def _multiplicative(btf: Btf, seed: int) -> list:
             for s in (0.0, 0.1, 0.3, 0.6)]
 
 
-def _modified(btf: Btf, data: np.ndarray, seed: int):
+def _modified(btf: Btf, data: NDArray[Any], seed: int) -> Tuple[Btf, Btf]:
     """Train and test halves of a modified material (the modification is the truth)."""
     tr, te = _split(btf, seed)
     return _with(btf, data, tr.mask), _with(btf, data, te.mask)
 
 
-def _blocks(btf: Btf, size: int = 4) -> np.ndarray:
+def _blocks(btf: Btf, size: int = 4) -> NDArray[np.bool_]:
     """A checkerboard of ``size``-texel blocks: the texels a shadow falls on."""
     h, w = btf.height, btf.width
     r, c = np.meshgrid(np.arange(h) // size, np.arange(w) // size, indexing="ij")
-    return (r + c) % 2 == 1
+    blocks: NDArray[np.bool_] = (r + c) % 2 == 1
+    return blocks
 
 
-def _shadows(btf: Btf, seed: int) -> list:
+def _shadows(btf: Btf, seed: int) -> List[_Level]:
     tr, te = _split(btf, seed)
     blk = _blocks(btf)
-    out = [(0, "none", tr, te)]
+    out: List[_Level] = [(0, "none", tr, te)]
     theta_l = _theta_deg(btf.lights)
     for lvl, (label, dark) in enumerate([("lights theta>=60", theta_l >= 60 - 1e-6),
                                          ("lights theta>=45", theta_l >= 45 - 1e-6),
@@ -212,7 +223,7 @@ def _shadows(btf: Btf, seed: int) -> list:
     return out
 
 
-def _glossy(btf: Btf, seed: int) -> list:
+def _glossy(btf: Btf, seed: int) -> List[_Level]:
     tr, te = _split(btf, seed)
     rng = np.random.default_rng(seed + 2)
     texels = rng.random((btf.height, btf.width)) < 0.25
@@ -220,7 +231,7 @@ def _glossy(btf: Btf, seed: int) -> list:
     h /= np.linalg.norm(h, axis=-1, keepdims=True)
     spike = np.clip(h[..., 2], 0, 1) ** 300 * np.clip(btf.lights[None, :, 2], 0, 1)  # [V, L], peak 1
     mean = float(btf.data.mean())
-    out = [(0, "none", tr, te)]
+    out: List[_Level] = [(0, "none", tr, te)]
     for a in (1.0, 4.0, 16.0):
         d = btf.data.copy()
         d[texels] += (a * mean * spike)[None, :, :, None].astype(np.float32)
@@ -228,20 +239,20 @@ def _glossy(btf: Btf, seed: int) -> list:
     return out
 
 
-def _grazing(btf: Btf, seed: int) -> list:
+def _grazing(btf: Btf, seed: int) -> List[_Level]:
     tr, te = _split(btf, seed)
-    out = [(0, "all", tr, te)]
+    out: List[_Level] = [(0, "all", tr, te)]
     for t in (45.0, 60.0):
         keep = (_theta_deg(btf.views)[:, None] >= t - 1e-6) & (_theta_deg(btf.lights)[None, :] >= t - 1e-6)
         out.append((t, f">={t:g} deg", _subset(btf, tr, keep), te))
     return out
 
 
-def _black(btf: Btf, seed: int) -> list:
+def _black(btf: Btf, seed: int) -> List[_Level]:
     tr, te = _split(btf, seed)
     rng = np.random.default_rng(seed + 3)
     u = rng.random((btf.height, btf.width))
-    out = [(0.0, "0%", tr, te)]
+    out: List[_Level] = [(0.0, "0%", tr, te)]
     for f in (0.05, 0.25):
         d = btf.data.copy()
         d[u < f] = 0.0
@@ -249,14 +260,15 @@ def _black(btf: Btf, seed: int) -> list:
     return out
 
 
-def black_texels(train: Btf) -> np.ndarray:
+def black_texels(train: Btf) -> NDArray[np.bool_]:
     """``[H, W]`` bool: texels whose every value is zero."""
-    return ~np.any(train.data != 0, axis=(2, 3, 4))
+    black: NDArray[np.bool_] = ~np.any(train.data != 0, axis=(2, 3, 4))
+    return black
 
 
-def _saturated(btf: Btf, seed: int) -> list:
+def _saturated(btf: Btf, seed: int) -> List[_Level]:
     tr, te = _split(btf, seed)
-    out = [(0.0, "none", tr, te)]
+    out: List[_Level] = [(0.0, "none", tr, te)]
     for q in (99.0, 95.0, 80.0):
         c = float(np.percentile(btf.data, q))
         d = np.minimum(btf.data, c)
@@ -264,25 +276,25 @@ def _saturated(btf: Btf, seed: int) -> list:
     return out
 
 
-def _outliers(btf: Btf, seed: int) -> list:
+def _outliers(btf: Btf, seed: int) -> List[_Level]:
     tr, te = _split(btf, seed)
     rng = np.random.default_rng(seed + 4)
     u = rng.random(btf.data.shape)
-    out = [(0.0, "0%", tr, te)]
+    out: List[_Level] = [(0.0, "0%", tr, te)]
     for f in (0.0001, 0.001, 0.01):
         d = np.where(u < f, btf.data * 1000.0, btf.data)
         out.append((f, f"{100 * f:g}%", _with(btf, d, tr.mask), te))
     return out
 
 
-_BUILD: dict = {
+_BUILD: Dict[str, Callable[[Btf, int], List[_Level]]] = {
     "decimation": _decimation, "uneven": _uneven, "additive_noise": _additive, "multiplicative": _multiplicative,
     "shadows": _shadows, "glossy": _glossy, "grazing": _grazing, "black": _black, "saturated": _saturated,
     "outliers": _outliers,
 }
 
 
-def levels(btf: Btf, regime: str, seed: int = 0) -> list:
+def levels(btf: Btf, regime: str, seed: int = 0) -> List[_Level]:
     """The ``(level, label, train, test)`` of one regime (what :func:`run` fits)."""
     return _BUILD[_regimes(regime)[0]](instance("btf", btf, Btf, "a btfrs.Btf"), check_seed(seed))
 
@@ -292,11 +304,11 @@ def levels(btf: Btf, regime: str, seed: int = 0) -> list:
 # ------------------------------------------------------------------------------------------------
 
 
-def _probe_pairs(btf: Btf, seed: int, n: int = 24):
+def _probe_pairs(btf: Btf, seed: int, n: int = 24) -> List[_Probe]:
     """Query directions for the finiteness check: measured pairs and off-grid directions
     (between the measured ones, and near the horizon, where extrapolation shows first)."""
     rng = np.random.default_rng(seed + 99)
-    out = []
+    out: List[_Probe] = []
     for _ in range(n // 2):
         out.append((btf.views[rng.integers(btf.n_views)], btf.lights[rng.integers(btf.n_lights)]))
     for _ in range(n - n // 2):
@@ -312,17 +324,17 @@ def flagged(report: Any) -> bool:
     if not isinstance(report, dict):
         return False
     return bool(report.get("degenerate_slots")) or any(
-        isinstance(report.get(k), (int, float)) and report.get(k) > 0 for k in ("extrapolated", "failed"))
+        isinstance(report.get(k), (int, float)) and report[k] > 0 for k in ("extrapolated", "failed"))
 
 
-def fallbacks(kind: str, report: Any) -> list:
+def fallbacks(kind: str, report: Any) -> List[str]:
     """Short descriptions of the flags and fallbacks in a model's ``report``."""
-    out = []
+    out: List[str] = []
     if not isinstance(report, dict):
         return out
     slots = report.get("degenerate_slots")
     if slots:
-        acts: dict = {}
+        acts: Dict[str, int] = {}
         for s in slots:
             acts[s.get("action", "?")] = acts.get(s.get("action", "?"), 0) + 1
         out.append(f"{len(slots)} degenerate slots (" + ", ".join(f"{k} {v}" for k, v in sorted(acts.items())) + ")")
@@ -333,8 +345,9 @@ def fallbacks(kind: str, report: Any) -> list:
     return out
 
 
-def _one(label: str, kind: str, options: dict, train: Btf, test: Btf, probes) -> dict:
-    row: dict = dict(model=label, kind=kind, options=options)
+def _one(label: str, kind: str, options: Dict[str, Any], train: Btf, test: Btf,
+         probes: List[_Probe]) -> Dict[str, Any]:
+    row: Dict[str, Any] = dict(model=label, kind=kind, options=options)
     t0 = time.perf_counter()
     try:
         m = _fit.fit(kind, train, **options)
@@ -355,7 +368,7 @@ def _one(label: str, kind: str, options: dict, train: Btf, test: Btf, probes) ->
     return row
 
 
-def _jsonable(x):
+def _jsonable(x: Any) -> Any:
     if isinstance(x, dict):
         return {str(k): _jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
@@ -368,7 +381,7 @@ def _jsonable(x):
     return x
 
 
-def run(btf: Btf, *, models: Union[str, Sequence] = "all", regimes: Union[str, Sequence[str]] = "all",
+def run(btf: Btf, *, models: Union[str, Sequence[Any]] = "all", regimes: Union[str, Sequence[str]] = "all",
         seed: int = 0, progress: Progress = None, name: Optional[str] = None,
         keep_models: bool = False) -> "StabilityReport":
     """Fit every model in every regime at every level and collect the rows.
@@ -388,19 +401,19 @@ def run(btf: Btf, *, models: Union[str, Sequence] = "all", regimes: Union[str, S
     mods = _models(models)
     regs = _regimes(regimes)
     seed = check_seed(seed)
-    report_progress: Optional[Callable] = callback(progress, "stability fits")
+    report_progress: Optional[Callable[[int, int], object]] = callback(progress, "stability fits")
     probes = _probe_pairs(b, seed)
     built = [(r, _BUILD[r](b, seed)) for r in regs]
     total = sum(len(lv) for _, lv in built) * len(mods)
     done = 0
     if report_progress:
         report_progress(0, total)
-    rows = []
+    rows: List[Dict[str, Any]] = []
     # The clean level of most regimes is the same fit (the same data and split): fitted once.
-    cache: dict = {}
+    cache: Dict[Any, Dict[str, Any]] = {}
     for regime, lvls in built:
         for level, label, train, test in lvls:
-            key_data = (id(train.data), train.mask.tobytes(), id(test.data), test.mask.tobytes())
+            key_data = (id(train.data), _mask_bytes(train), id(test.data), _mask_bytes(test))
             for label_m, kind, options in mods:
                 key = (label_m, key_data)
                 if key not in cache:
@@ -420,6 +433,10 @@ def run(btf: Btf, *, models: Union[str, Sequence] = "all", regimes: Union[str, S
     return StabilityReport(rows, material=str(name), seed=seed, models=mods, regimes=regs)
 
 
+def _mask_bytes(btf: Btf) -> Optional[bytes]:
+    return None if btf.mask is None else btf.mask.tobytes()
+
+
 class StabilityReport:
     """The rows of :func:`run`: one dict per model x regime x level (``model``, ``kind``,
     ``regime``, ``level``, ``level_label``, ``held_out`` and ``reconstruction`` relative errors,
@@ -427,24 +444,25 @@ class StabilityReport:
     ``flagged`` (a fallback for bad data was taken), ``finite``, ``error`` (the message when the fit
     raised, else None))."""
 
-    def __init__(self, rows: list, *, material: str, seed: int, models: list, regimes: list) -> None:
+    def __init__(self, rows: List[Dict[str, Any]], *, material: str, seed: int, models: List[_Setting],
+                 regimes: List[str]) -> None:
         self.rows = rows
         self.material = material
         self.seed = seed
         self.models = models
         self.regimes = regimes
 
-    def curve(self, model: str, regime: str) -> list:
+    def curve(self, model: str, regime: str) -> List[Tuple[float, Optional[float]]]:
         """``[(level, held_out), ...]`` of one model in one regime (None where the fit raised)."""
         return [(r["level"], r["held_out"]) for r in self.rows if r["model"] == model and r["regime"] == regime]
 
-    def row(self, model: str, regime: str, level) -> dict:
+    def row(self, model: str, regime: str, level: float) -> Dict[str, Any]:
         for r in self.rows:
             if r["model"] == model and r["regime"] == regime and r["level"] == level:
                 return r
         raise InvalidArgumentError(f"no row for model {model!r}, regime {regime!r}, level {level!r}")
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> Dict[str, Any]:
         skip = ("model_object", "train", "test")
         return dict(material=self.material, seed=self.seed,
                     models=[dict(label=a, kind=k, options=o) for a, k, o in self.models],
@@ -457,37 +475,35 @@ class StabilityReport:
         labels = [m[0] for m in self.models]
         lines = ["| regime | level | " + " | ".join(labels) + " |", "|---|---|" + "---:|" * len(labels)]
         for regime in self.regimes:
-            seen = []
+            seen: List[str] = []
             for r in self.rows:
                 if r["regime"] == regime and r["level_label"] not in seen:
                     seen.append(r["level_label"])
             for lab in seen:
                 cells = []
                 for m in labels:
-                    r = next((x for x in self.rows if x["regime"] == regime and x["level_label"] == lab
+                    hit = next((x for x in self.rows if x["regime"] == regime and x["level_label"] == lab
                               and x["model"] == m), None)
-                    if r is None:
+                    if hit is None:
                         cells.append("")
-                    elif r["error"]:
+                    elif hit["error"]:
                         cells.append("raised!")
-                    elif not r["finite"]:
+                    elif not hit["finite"]:
                         cells.append("NaN!")
                     else:
-                        cells.append(f"{r['held_out']:.3g}" + ("*" if r["flagged"] else ""))
+                        cells.append(f"{hit['held_out']:.3g}" + ("*" if hit["flagged"] else ""))
                 lines.append(f"| {regime} | {lab} | " + " | ".join(cells) + " |")
         lines.append("")
         lines.append("Held-out relative error `||pred - gt|| / ||gt||`; `*` a fallback for bad data was taken (degenerate PTM slots, extrapolating or failed Lafortune fits: see report.json), "
                      "`raised!` the fit raised, `NaN!` a prediction was not finite.")
         return "\n".join(lines)
 
-    def save(self, directory: Union[str, os.PathLike]) -> list:
+    def save(self, directory: Union[str, "os.PathLike[str]"]) -> List[str]:
         """Write ``report.json``, ``report.md`` and one chart ``<regime>.png`` per regime into
         ``directory`` (created); returns the paths written."""
-        from .io import atomic_write
-
         d = os.fspath(directory)
         os.makedirs(d, exist_ok=True)
-        paths = []
+        paths: List[str] = []
         p = os.path.join(d, "report.json")
         with atomic_write(p, "w") as f:
             json.dump(self.to_dict(), f, indent=1)
@@ -503,15 +519,13 @@ class StabilityReport:
         return paths
 
     def _chart(self, regime: str, path: str) -> None:
-        import matplotlib
+        import matplotlib  # heavy (~0.5 s): only for the charts, so `import btfrs` stays light
 
         matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        from .io import atomic_write
+        import matplotlib.pyplot as plt  # after use("Agg"); heavy, charts only
 
         rows = [r for r in self.rows if r["regime"] == regime]
-        labels = []
+        labels: List[str] = []
         for r in rows:
             if r["level_label"] not in labels:
                 labels.append(r["level_label"])
@@ -529,7 +543,8 @@ class StabilityReport:
             line, = ax.plot(xs, ys, marker=markers[i % len(markers)], label=name)
             fb = [(x[r["level_label"]], r["held_out"]) for r in mr if r["held_out"] is not None and r["flagged"]]
             if fb:
-                ax.scatter(*zip(*fb), s=140, facecolors="none", edgecolors=line.get_color(), linewidths=1.5)
+                fx, fy = zip(*fb)
+                ax.scatter(fx, fy, s=140, facecolors="none", edgecolors=line.get_color(), linewidths=1.5)
             bad = [x[r["level_label"]] for r in mr if r["error"] or not r["finite"]]
             if bad:
                 ax.scatter(bad, [top] * len(bad), marker="x", s=80, color=line.get_color())

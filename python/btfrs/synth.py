@@ -28,9 +28,10 @@ import json
 import os
 import time
 from dataclasses import asdict, dataclass
-from typing import Optional, Sequence, Union
+from typing import Any, Dict, Optional, Sequence, Union
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from . import _native
 from ._checks import boolean, choice, index, instance, integer, memory_size, real, size_hw
@@ -38,6 +39,7 @@ from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
+from .models import load_as
 
 __all__ = [
     "Analysis",
@@ -51,7 +53,7 @@ __all__ = [
     "apply",
 ]
 
-PathLike = Union[str, os.PathLike]
+PathLike = Union[str, "os.PathLike[str]"]
 SizeLike = Union[int, Sequence[int]]
 
 
@@ -60,7 +62,7 @@ def _size(size: SizeLike) -> tuple[int, int]:
     return size_hw("size", size)
 
 
-def _shape2(name: str, shape) -> tuple[int, int]:
+def _shape2(name: str, shape: Sequence[int]) -> tuple[int, int]:
     """The ``(height, width)`` leading the shape of a sample or texture."""
     if isinstance(shape, (str, bytes)) or not hasattr(shape, "__len__") or len(shape) < 2:
         raise ArgumentTypeError(f"{name}: expected a shape (height, width, ...), got {shape!r}")
@@ -94,7 +96,7 @@ class Analysis:
                               doc="(radius, levels) of the similar-neighbourhood sets computed.")
 
     @property
-    def options(self) -> dict:
+    def options(self) -> Dict[str, Any]:
         """The options of the analysis (textons, levels, m, iterations, seed)."""
         return dict(self._a.options())
 
@@ -132,12 +134,11 @@ class Analysis:
     @classmethod
     def load(cls, path: PathLike) -> "Analysis":
         """Read an analysis written by :meth:`save`."""
-        from .models import load_as
-
-        return load_as(path, cls)
+        analysis: Analysis = load_as(path, cls)
+        return analysis
 
     @classmethod
-    def _from_container(cls, path: PathLike, meta: dict, arrays: dict) -> "Analysis":
+    def _from_container(cls, path: PathLike, meta: Dict[str, Any], arrays: Dict[str, NDArray[Any]]) -> "Analysis":
         try:
             native = _native.Analysis.from_arrays(arrays, meta["options"])
         except (KeyError, InvalidArgumentError, TypeError) as e:
@@ -149,7 +150,7 @@ class Analysis:
                 f"dim {self.dim}, textons {self.textons}, neighbourhoods {self.neighbourhoods})")
 
 
-def _texture(sample) -> np.ndarray:
+def _texture(sample: ArrayLike) -> NDArray[np.float32]:
     a = np.asarray(sample)
     if a.ndim == 2:
         a = a[:, :, None]
@@ -166,7 +167,8 @@ def _texture(sample) -> np.ndarray:
 
 def analyse(sample: Union[Btf, np.ndarray], *, textons: int = 1024, features: str = "pca", dims: int = 48,
             images: int = 150, levels: int = 3, m: int = 10, neighbourhoods: Sequence[int] = (2,),
-            iterations: int = 20, seed: int = 0, memory_limit=None, progress: Progress = None) -> Analysis:
+            iterations: int = 20, seed: int = 0, memory_limit: Union[None, int, str] = None,
+            progress: Progress = None) -> Analysis:
     """Analyse a sample for synthesis (paper 000, section 4.1).
 
     Parameters
@@ -228,7 +230,7 @@ def analyse(sample: Union[Btf, np.ndarray], *, textons: int = 1024, features: st
     return Analysis(native, "texture", f"{tex.shape[2]} channels", time.perf_counter() - t0)
 
 
-def _analysis(an) -> Analysis:
+def _analysis(an: object) -> Analysis:
     return instance("an", an, Analysis, "a btfrs.synth.Analysis (from btfrs.synth.analyse)")
 
 
@@ -324,7 +326,7 @@ class Quality:
     repetition: float
     samples: int
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> Dict[str, Any]:
         return asdict(self)
 
     def __str__(self) -> str:
@@ -335,7 +337,7 @@ class Quality:
                 f"{self.nn_distance:.4f}, pair seam {self.seam:.4f} (mean {self.seam_mean:.4f})")
 
 
-def _coords(name: str, coords, an: Optional[Analysis] = None) -> np.ndarray:
+def _coords(name: str, coords: ArrayLike, an: Optional[Analysis] = None) -> NDArray[np.uint16]:
     c = np.asarray(coords)
     if c.dtype != np.uint16:
         raise ArgumentTypeError(f"{name}: expected a uint16 array [H, W, 2], got dtype {c.dtype}")
@@ -344,7 +346,7 @@ def _coords(name: str, coords, an: Optional[Analysis] = None) -> np.ndarray:
     return np.ascontiguousarray(c)
 
 
-def quality(an: Analysis, coords, *, neighbourhood: int = 2, samples: int = 4096, window: int = 3,
+def quality(an: Analysis, coords: ArrayLike, *, neighbourhood: int = 2, samples: int = 4096, window: int = 3,
             scales: int = 3, windows: int = 1024, seed: int = 0, progress: Progress = None) -> Quality:
     """Measure a coordinate map against the analysed sample (see :class:`Quality` for each field).
 
@@ -390,7 +392,7 @@ def random_placement(sample_shape: Sequence[int], size: SizeLike, *, seed: int =
     return np.stack([g.integers(0, sw, (h, w)), g.integers(0, sh, (h, w))], axis=-1).astype(np.uint16)
 
 
-def apply(texture, coords) -> np.ndarray:
+def apply(texture: ArrayLike, coords: ArrayLike) -> NDArray[Any]:
     """Look a coordinate map up in a texture ``[h, w, ...]``: ``texture[y, x]`` per output pixel."""
     c = _coords("coords", coords)
     t = np.asarray(texture)
@@ -398,4 +400,5 @@ def apply(texture, coords) -> np.ndarray:
         raise InvalidArgumentError(f"texture: expected at least 2 dimensions, got shape {t.shape}")
     if c.size and (int(c[..., 0].max()) >= t.shape[1] or int(c[..., 1].max()) >= t.shape[0]):
         raise InvalidArgumentError(f"coords: point outside the {t.shape[0]} x {t.shape[1]} texture")
-    return t[c[..., 1], c[..., 0]]
+    looked_up: NDArray[Any] = t[c[..., 1], c[..., 0]]
+    return looked_up

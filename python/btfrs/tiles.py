@@ -19,14 +19,18 @@ from __future__ import annotations
 
 import json
 import os
-from typing import Optional, Sequence, Union
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from . import _native
 from ._checks import integer, real
 from ._progress import Progress, callback
+from .btf import Btf
 from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
+from .models import Model, load_as, wrap
+from .rendering import TileMap
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -37,15 +41,16 @@ RAW_PROBES = 40
 class TileSetReport:
     """Per step: seconds, work, seam costs; and the storage figures of Table III."""
 
-    def __init__(self, data: dict) -> None:
+    def __init__(self, data: Dict[str, Any]) -> None:
         self.data = data
 
-    def __getitem__(self, key):
+    def __getitem__(self, key: str) -> Any:
         return self.data[key]
 
     @property
-    def steps(self) -> list:
-        return self.data["steps"]
+    def steps(self) -> List[Dict[str, Any]]:
+        steps: List[Dict[str, Any]] = self.data["steps"]
+        return steps
 
     @property
     def seconds(self) -> float:
@@ -77,8 +82,10 @@ class TileSet:
     """A complete Wang tile set (see the module docs). Tile ids are canonical:
     ``((north * C + east) * C + south) * C + west``."""
 
-    def __init__(self, *, tile: int, edge_height: int, colors: int, codes, texels, btfels, indices, atlas,
-                 report: dict, source: dict, model=None, table_values=None, origin=None) -> None:
+    def __init__(self, *, tile: int, edge_height: int, colors: int, codes: ArrayLike, texels: ArrayLike,
+                 btfels: ArrayLike, indices: ArrayLike, atlas: ArrayLike, report: Dict[str, Any],
+                 source: Dict[str, Any], model: Optional[Model] = None, table_values: Optional[ArrayLike] = None,
+                 origin: Union[None, Model, Btf, ArrayLike] = None) -> None:
         self.tile = int(tile)
         self.edge_height = int(edge_height)
         self.colors = int(colors)
@@ -112,7 +119,7 @@ class TileSet:
 
     # --- tiling -------------------------------------------------------------------------
     def tiling(self, rows: int, cols: int, *, seed: int = 0, wrap: Union[bool, Sequence[bool]] = False,
-               tiles: Optional[Sequence[int]] = None) -> np.ndarray:
+               tiles: Optional[Sequence[int]] = None) -> NDArray[np.uint32]:
         """A valid stochastic Wang tiling: ``[rows, cols]`` uint32 tile ids, row 0 at the top.
 
         ``wrap``: True (or ``(columns, rows)``) makes the last column match the first (a
@@ -123,7 +130,7 @@ class TileSet:
         return _native.wang_tiling(self.colors, integer("rows", rows, min=1), integer("cols", cols, min=1),
                                    integer("seed", seed, min=0), wc, wr, allowed)
 
-    def check(self, layout, *, wrap: Union[bool, Sequence[bool]] = False) -> None:
+    def check(self, layout: ArrayLike, *, wrap: Union[bool, Sequence[bool]] = False) -> None:
         """Raise :class:`InvalidArgumentError` naming the first cell whose edge colours do not match."""
         wc, wr = _wrap(wrap)
         _native.wang_check(self.colors, _layout(layout), wc, wr)
@@ -132,11 +139,9 @@ class TileSet:
         """``[n, 2]`` (row, column) in tiles of each tile id in :attr:`atlas`."""
         return _native.wang_atlas_positions(self.colors)
 
-    def tile_map(self, model, layout):
+    def tile_map(self, model: Union[Model, Btf], layout: ArrayLike) -> TileMap:
         """The :class:`btfrs.rendering.TileMap` that draws ``layout`` with ``model``: the set's own
         BTFel model (:attr:`model`), or the model / Btf it was synthesized from (same size)."""
-        from .rendering import TileMap
-
         lay = _layout(layout)
         if lay.size and int(lay.max()) >= self.n_tiles:
             raise InvalidArgumentError(f"layout: tile {int(lay.max())} does not exist (the set has {self.n_tiles})")
@@ -153,7 +158,7 @@ class TileSet:
         pos = self.atlas_positions()[lay]
         return TileMap(np.ascontiguousarray(atlas, dtype=np.uint32), self.tile, np.ascontiguousarray(pos, dtype=np.uint32))
 
-    def layout_texels(self, layout) -> np.ndarray:
+    def layout_texels(self, layout: ArrayLike) -> NDArray[Any]:
         """The sample texels of a layout: ``[rows tile, cols tile]`` row-major sample indices."""
         lay = _layout(layout)
         r, c = lay.shape
@@ -161,7 +166,7 @@ class TileSet:
         return np.ascontiguousarray(t.transpose(0, 2, 1, 3).reshape(r * self.tile, c * self.tile))
 
     # --- pictures -------------------------------------------------------------------------
-    def table_colors(self, view=(0.0, 0.0, 1.0), light=(0.4, 0.3, 0.866)) -> np.ndarray:
+    def table_colors(self, view: Sequence[float] = (0.0, 0.0, 1.0), light: Sequence[float] = (0.4, 0.3, 0.866)) -> NDArray[np.float32]:
         """``[N, 3]`` the BTFel table's RGB at one (view, light) pair (images: their values)."""
         if self.table_values is not None:
             v = self.table_values
@@ -173,24 +178,27 @@ class TileSet:
         if src is None:
             raise InvalidArgumentError("tiles: a set made from a raw Btf keeps no BTFel values once saved; "
                                        "render it with the Btf (btfrs.render(btf, ..., tiles=, layout=))")
-        from .btf import Btf
         if isinstance(src, Btf):
             vi = int(np.argmax(src.views @ np.asarray(_unit(view))))
             li = int(np.argmax(src.lights @ np.asarray(_unit(light))))
             return np.asarray(src.data[:, :, vi, li, :], dtype=np.float32).reshape(-1, 3)[self.btfels]
         raise InvalidArgumentError("tiles: no BTFel values to show")
 
-    def image(self, layout=None, *, view=(0.0, 0.0, 1.0), light=(0.4, 0.3, 0.866)) -> np.ndarray:
+    def image(self, layout: Optional[ArrayLike] = None, *, view: Sequence[float] = (0.0, 0.0, 1.0),
+              light: Sequence[float] = (0.4, 0.3, 0.866)) -> NDArray[np.float32]:
         """RGB image ``[H, W, 3]`` of a layout (default: the atlas) at one (view, light) pair."""
         colors = self.table_colors(view, light)
         if layout is None:
-            return colors[self.atlas]
+            atlas_image: NDArray[np.float32] = colors[self.atlas]
+            return atlas_image
         lay = _layout(layout)
         r, c = lay.shape
         t = self.indices[lay].transpose(0, 2, 1, 3).reshape(r * self.tile, c * self.tile)
-        return colors[t]
+        layout_image: NDArray[np.float32] = colors[t]
+        return layout_image
 
-    def picture(self, *, view=(0.0, 0.0, 1.0), light=(0.4, 0.3, 0.866), gap: int = 6) -> np.ndarray:
+    def picture(self, *, view: Sequence[float] = (0.0, 0.0, 1.0), light: Sequence[float] = (0.4, 0.3, 0.866),
+                gap: int = 6) -> NDArray[np.float32]:
         """The tiles in their atlas arrangement, apart, each edge marked with its colour (a bar
         outside the tile), as an RGB image in [0, 1] (exposure normalised)."""
         img = self.image(view=view, light=light)
@@ -216,7 +224,7 @@ class TileSet:
         return out
 
     # --- seams ------------------------------------------------------------------------------
-    def seam_errors(self, layout, *, window: int = 5, windows: int = 600, seed: int = 0) -> dict:
+    def seam_errors(self, layout: ArrayLike, *, window: int = 5, windows: int = 600, seed: int = 0) -> Dict[str, float]:
         """Neighbourhood error of a tiled layout across tile edges and inside tiles (windows
         against their best match in the sample, relative units), beside plain tiling of random
         crops of the sample on the same grid."""
@@ -229,7 +237,7 @@ class TileSet:
         cedge, cinner = _native.wang_seam_errors(feats, crops, self.tile, window, windows, seed)
         return {"edge": edge, "interior": inner, "crops_edge": cedge, "crops_interior": cinner}
 
-    def _features(self) -> np.ndarray:
+    def _features(self) -> NDArray[np.float32]:
         if self._origin is None:
             raise InvalidArgumentError("tiles: seam errors need the sample the set was synthesized from "
                                        "(a loaded set does not keep it)")
@@ -241,8 +249,10 @@ class TileSet:
         meta = {"tile": self.tile, "edge_height": self.edge_height, "colors": self.colors,
                 "report": self.report.data, "source": self.source}
         # The container stores signed 32-bit integers; texel ids are far below 2^31.
-        i32 = lambda a: np.ascontiguousarray(a, dtype=np.int32)  # noqa: E731
-        arrays = [("codes", self.codes), ("texels", i32(self.texels)), ("btfels", i32(self.btfels)),
+        def i32(a: NDArray[Any]) -> NDArray[np.int32]:
+            return np.ascontiguousarray(a, dtype=np.int32)
+
+        arrays: List[Tuple[str, NDArray[Any]]] = [("codes", self.codes), ("texels", i32(self.texels)), ("btfels", i32(self.btfels)),
                   ("indices", i32(self.indices)), ("atlas", i32(self.atlas))]
         if self.model is not None:
             meta["model_kind"] = self.model.kind
@@ -254,14 +264,11 @@ class TileSet:
     @classmethod
     def load(cls, path: PathLike) -> "TileSet":
         """Read a set written by :meth:`save`."""
-        from .models import load_as
-
-        return load_as(path, cls)
+        tile_set: TileSet = load_as(path, cls)
+        return tile_set
 
     @classmethod
-    def _from_container(cls, path: PathLike, meta: dict, arrays: dict) -> "TileSet":
-        from .models import wrap
-
+    def _from_container(cls, path: PathLike, meta: Dict[str, Any], arrays: Dict[str, NDArray[Any]]) -> "TileSet":
         try:
             model = None
             if "model_kind" in meta:
@@ -286,8 +293,8 @@ class TileSet:
         return ts
 
 
-def wang(source, *, tile: int = 64, edge_height: int = 16, colors: int = 2, seed: int = 0,
-         domain: str = "auto", progress: Progress = True, **options) -> TileSet:
+def wang(source: Union[Model, Btf, ArrayLike], *, tile: int = 64, edge_height: int = 16, colors: int = 2, seed: int = 0,
+         domain: str = "auto", progress: Progress = True, **options: Any) -> TileSet:
     """Synthesize a complete Wang tile set (``colors**4`` tiles) over ``source``: a fitted
     :class:`~btfrs.Model`, a :class:`~btfrs.Btf` or an image ``[H, W, C]`` (float or uint8).
 
@@ -297,8 +304,6 @@ def wang(source, *, tile: int = 64, edge_height: int = 16, colors: int = 2, seed
     ``pixel_threshold`` (0.3) and ``total_threshold`` (0.02) in units of the sample's mean squared
     distance between random texel pairs, ``refine`` (refinement patches per fill, 24),
     ``corner_candidates`` (48), ``matching_dims`` (8)."""
-    from .models import wrap
-
     tile = integer("tile", tile, min=4)
     edge_height = integer("edge_height", edge_height, min=2)
     colors = integer("colors", colors, min=2, max=8)
@@ -315,15 +320,15 @@ def wang(source, *, tile: int = 64, edge_height: int = 16, colors: int = 2, seed
     model = None
     table_values = None
     src = {"kind": kind, "dims": [int(h), int(w)], "domain": dom, "domain_arg": domain}
-    if kind == "model":
+    if isinstance(source, Model):  # kind "model"
         src["model"] = source.kind
         model = wrap(source._m.select_texels(btfels.tolist()))
         table_bytes = int(model.nbytes)
-    elif kind == "image":
+    elif isinstance(source, Btf):  # kind "btf"
+        table_bytes = int(len(btfels) * source.data.shape[2] * source.data.shape[3] * 3 * 4)
+    else:  # kind "image"
         table_values = feats.reshape(h * w, -1)[btfels]
         table_bytes = int(table_values.shape[0] * table_values.shape[1])  # 8-bit per channel
-    else:
-        table_bytes = int(len(btfels) * source.data.shape[2] * source.data.shape[3] * 3 * 4)
     index_bytes = int(atlas.size * 4)
     report.update({"tiles": int(codes.shape[0]), "tile": tile, "edge_height": edge_height, "colors": colors,
                    "domain": dom, "btfels": int(len(btfels)), "sample_texels": int(h * w),
@@ -334,11 +339,8 @@ def wang(source, *, tile: int = 64, edge_height: int = 16, colors: int = 2, seed
                    table_values=table_values, origin=source)
 
 
-def _features_of(source, domain: str):
+def _features_of(source: Union[None, Model, Btf, ArrayLike], domain: str) -> Tuple[NDArray[np.float32], str, str]:
     """Features ``[H, W, D]`` float32, the domain's name, and the source kind."""
-    from .btf import Btf
-    from .models import Model
-
     if isinstance(source, Model):
         f, name = _native.wang_model_features(source._m, domain)
         return f, name, "model"
@@ -365,7 +367,7 @@ def _features_of(source, domain: str):
     raise ArgumentTypeError(f"source: expected a btfrs Model, a Btf or an image array, got {type(source).__name__}")
 
 
-def _wrap(wrap) -> tuple:
+def _wrap(wrap: Union[bool, Sequence[bool]]) -> Tuple[bool, bool]:
     if isinstance(wrap, (bool, np.bool_)):
         return bool(wrap), bool(wrap)
     try:
@@ -375,7 +377,7 @@ def _wrap(wrap) -> tuple:
     return bool(wc), bool(wr)
 
 
-def _layout(layout) -> np.ndarray:
+def _layout(layout: ArrayLike) -> NDArray[np.uint32]:
     a = np.asarray(layout)
     if a.ndim != 2 or a.size == 0:
         raise InvalidArgumentError(f"layout: expected a non-empty [rows, cols] array of tile ids, got shape {a.shape}")
@@ -386,18 +388,17 @@ def _layout(layout) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.uint32)
 
 
-def _dims_of(model) -> tuple:
-    from .btf import Btf
-
+def _dims_of(model: Union[Model, Btf]) -> Tuple[int, ...]:
     if isinstance(model, Btf):
         return tuple(model.data.shape[:2])
-    return (model.height, model.width)
+    return (int(model.height), int(model.width))
 
 
-def _kind_of(model) -> Optional[str]:
-    return getattr(model, "kind", None)
+def _kind_of(model: object) -> Optional[str]:
+    kind: Optional[str] = getattr(model, "kind", None)
+    return kind
 
 
-def _unit(v) -> list:
+def _unit(v: ArrayLike) -> List[float]:
     a = np.asarray(v, dtype=np.float64)
-    return list(a / np.linalg.norm(a))
+    return [float(x) for x in a / np.linalg.norm(a)]

@@ -1,8 +1,8 @@
-"""Measure one fit of a memory-mapped ``.btfrs`` in this process: ``python -m btfrs._memprobe
+"""Measure one fit of a memory-mapped ``.btfrs`` in this process: ``python -m btfrs.tools.memprobe
 PATH MODEL OPTIONS_JSON`` prints one JSON line (``MODEL`` a registered model, or ``analyse`` for
 :func:`btfrs.synth.analyse`).
 
-What the out-of-core tests and ``python -m btfrs.bench --out-of-core`` run in a fresh
+What the out-of-core tests and ``python -m btfrs.tools.bench --out-of-core`` run in a fresh
 interpreter per fit (memory an earlier fit freed stays with the allocator and would hide the next
 fit's growth). The figures are the operating system's own:
 
@@ -21,6 +21,7 @@ import json
 import sys
 import threading
 import time
+from typing import Any, Dict
 
 import btfrs
 
@@ -43,23 +44,23 @@ def read_bytes() -> int:
     raise RuntimeError("no read_bytes in /proc/self/io")
 
 
-def model_bytes(kind: str, model) -> int:
+def model_bytes(kind: str, model: Any) -> int:
     if kind == "analyse":
         return 0
     arrays = model.arrays
     n = sum(a.nbytes for a in arrays.values())
     if kind in ("ptm", "hsh"):
         n += 4 * sum(a.nbytes for name, a in arrays.items() if name.endswith("_q"))
-    return n
+    return int(n)
 
 
-def measure(path: str, kind: str, options: dict) -> dict:
+def measure(path: str, kind: str, options: Dict[str, Any]) -> Dict[str, Any]:
     btf = btfrs.Btf.load(path, mmap=True)
     base = rss_anon()
     peak = [base]
     stop = threading.Event()
 
-    def sample():
+    def sample() -> None:
         while not stop.is_set():
             peak[0] = max(peak[0], rss_anon())
             stop.wait(0.002)
@@ -69,7 +70,7 @@ def measure(path: str, kind: str, options: dict) -> dict:
     th.start()
     try:
         if kind == "analyse":
-            model = btfrs.synth.analyse(btf, **options)
+            model: Any = btfrs.synth.analyse(btf, **options)
         else:
             model = btfrs.fit.fit(kind, btf, **options)
     finally:

@@ -26,15 +26,18 @@ import math
 import os
 import tempfile
 import time
-from typing import Callable, Optional
+from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
-from ._checks import integer, real
-from ._checks import seed as check_seed
-from ._progress import Progress, callback
-from .btf import Btf
-from .exceptions import BtfrsError, InvalidArgumentError
+from .. import directions, io
+from .._checks import integer, real
+from .._checks import seed as check_seed
+from .._progress import Progress, callback
+from ..btf import Btf
+from ..exceptions import BtfrsError, InvalidArgumentError
+from ..rendering import Camera, DirectionalLight, Scene, render
 
 __all__ = ["Heightfield", "available", "measure_btf", "render_geometry", "compare", "check", "table", "figure"]
 
@@ -53,18 +56,18 @@ def available() -> bool:
     return True
 
 
-def _mitsuba():
+def _mitsuba() -> Any:
     try:
         import mitsuba as mi  # noqa: PLC0415  (optional dependency)
     except ImportError as e:
-        raise BtfrsError("btfrs.groundtruth needs Mitsuba 3: pip install mitsuba") from e
+        raise BtfrsError("btfrs.tools.groundtruth needs Mitsuba 3: pip install mitsuba") from e
     if mi.variant() is None:
         try:
             mi.set_variant("llvm_ad_rgb")
         except (ImportError, AttributeError) as e:
             raise BtfrsError(f"Mitsuba's llvm_ad_rgb variant is unavailable (it needs libLLVM): {e}") from e
     elif not mi.variant().startswith("llvm"):
-        raise BtfrsError(f"btfrs.groundtruth traces batches of rays and needs an llvm Mitsuba variant, "
+        raise BtfrsError(f"btfrs.tools.groundtruth traces batches of rays and needs an llvm Mitsuba variant, "
                          f"the process has {mi.variant()!r}")
     return mi
 
@@ -84,11 +87,11 @@ class Heightfield:
         self.resolution = integer("resolution", resolution, min=4, max=512)
         self._fn = fn or _woven
 
-    def __call__(self, x, y) -> np.ndarray:
+    def __call__(self, x: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
         return self.amplitude * np.asarray(self._fn(np.asarray(x, float), np.asarray(y, float)), float)
 
     def mesh(self, tiles_x: tuple[int, int], tiles_y: tuple[int, int], *, period: float = 1.0,
-             origin=(0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+             origin: Tuple[float, float] = (0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
         """Vertices ``[N, 3]`` and faces ``[F, 3]`` of the tiles ``tiles_x[0] .. tiles_x[1] - 1``
         (and the same in y), scaled by ``period`` and shifted by ``origin``."""
         n = self.resolution
@@ -110,8 +113,9 @@ def _woven(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return ridge + 0.6 * np.sin(2 * np.pi * x) * np.cos(2 * np.pi * y)
 
 
-def _scene(mi, hf: Heightfield, direction, *, tiles_x, tiles_y, period=1.0, origin=(0.0, 0.0),
-           sensor=None, max_depth: int = 4):
+def _scene(mi: Any, hf: Heightfield, direction: ArrayLike, *, tiles_x: Tuple[int, int], tiles_y: Tuple[int, int],
+           period: float = 1.0, origin: Tuple[float, float] = (0.0, 0.0), sensor: Optional[Dict[str, Any]] = None,
+           max_depth: int = 4) -> Any:
     v, f = hf.mesh(tiles_x, tiles_y, period=period, origin=origin)
     # Through a PLY file rather than mi.Mesh + traverse: that API differs between Mitsuba 3
     # releases, the PLY loader does not. The file is read by load_dict and can go at once.
@@ -146,7 +150,7 @@ def _write_ply(path: str, v: np.ndarray, f: np.ndarray) -> None:
         out.write(faces.tobytes())
 
 
-def measure_btf(hf: Heightfield, views, lights, *, texels: int = 16, spp: int = 32, seed: int = 0,
+def measure_btf(hf: Heightfield, views: ArrayLike, lights: ArrayLike, *, texels: int = 16, spp: int = 32, seed: int = 0,
                 max_depth: int = 4) -> Btf:
     """Measure the BTF of ``hf``: ``[texels, texels, V, L, 3]``, each value pi x the radiance
     towards each view direction at a texel of the reference plane (``spp`` rays jittered over
@@ -156,7 +160,7 @@ def measure_btf(hf: Heightfield, views, lights, *, texels: int = 16, spp: int = 
     measurement at a large distance sees the sample.
     """
     mi = _mitsuba()
-    import drjit as dr  # noqa: PLC0415
+    import drjit as dr  # noqa: PLC0415  (optional groundtruth extra, comes with Mitsuba)
 
     views = np.asarray(views, float)
     lights = np.asarray(lights, float)
@@ -193,7 +197,8 @@ def measure_btf(hf: Heightfield, views, lights, *, texels: int = 16, spp: int = 
     return Btf(out, views, lights)
 
 
-def render_geometry(hf: Heightfield, camera, light_direction, *, size=(256, 256), plane_size: float = 2.0,
+def render_geometry(hf: Heightfield, camera: Camera, light_direction: ArrayLike, *,
+                    size: Union[int, Tuple[int, int]] = (256, 256), plane_size: float = 2.0,
                     uv_scale: int = 8, spp: int = 64, seed: int = 0, max_depth: int = 4) -> np.ndarray:
     """Path trace the heightfield repeated ``uv_scale`` x ``uv_scale`` times over btfrs's
     ``Scene.plane(plane_size)`` (uv (0, 0) at (-plane_size/2, -plane_size/2)), with margins, seen
@@ -231,7 +236,7 @@ def _blur(img: np.ndarray, sigma: float) -> np.ndarray:
     return out
 
 
-def compare(rendered: np.ndarray, reference: np.ndarray, *, sigma: float = 1.5, border: int = 4) -> dict:
+def compare(rendered: np.ndarray, reference: np.ndarray, *, sigma: float = 1.5, border: int = 4) -> Dict[str, Any]:
     """Brightness ratio (mean of ``rendered`` over mean of ``reference``) and structural error
     (RMS of the difference of both images blurred with a Gaussian of ``sigma`` pixels, over the
     reference's RMS, so Monte Carlo noise and texel size matter little), over the pixels where
@@ -269,8 +274,8 @@ def compare(rendered: np.ndarray, reference: np.ndarray, *, sigma: float = 1.5, 
 
 
 def check(*, texels: int = 8, size: int = 160, measure_spp: int = 16, render_spp: int = 64,
-          lights=((40.0, 60.0), (55.0, 100.0)), uv_scale: int = 6, backend: str = "cpu", seed: int = 0,
-          progress: Progress = None) -> dict:
+          lights: Sequence[Tuple[float, float]] = ((40.0, 60.0), (55.0, 100.0)), uv_scale: int = 6, backend: str = "cpu", seed: int = 0,
+          progress: Progress = None) -> Dict[str, Any]:
     """The whole ground-truth check: measure the default :class:`Heightfield`'s BTF on the Bonn
     directions (81 x 81, :func:`btfrs.directions.ubo81`), render it on ``Scene.plane(2)`` with
     ``uv_scale`` repetitions under directional lights between the measured rings and azimuths
@@ -281,9 +286,6 @@ def check(*, texels: int = 8, size: int = 160, measure_spp: int = 16, render_spp
     Returns ``{"rows": [{"light", "case", "filter", "brightness", "structure", "pixels"}],
     "images": {name: image}, "seconds": {...}}`` and the settings.
     """
-    from . import directions  # noqa: PLC0415  (rendering imports are heavy; only here)
-    from .rendering import Camera, DirectionalLight, Scene, render  # noqa: PLC0415
-
     seed = check_seed(seed)
     size = integer("size", size, min=32, max=2048)
     pairs = [(real("lights", t, min=0.0, max=85.0), real("lights", p)) for t, p in lights]
@@ -315,7 +317,7 @@ def check(*, texels: int = 8, size: int = 160, measure_spp: int = 16, render_spp
         t = time.perf_counter()
         for case, b in (("measured", btf), ("mirrored y", mirrored)):
             for filt in ("nearest", "bilinear"):
-                img = render(b, scene, cam, [DirectionalLight(light)], size=(size, size), uv_scale=uv_scale,
+                img = render(b, scene, cam, [DirectionalLight([float(x) for x in light])], size=(size, size), uv_scale=uv_scale,
                              filter=filt, backend=backend)
                 rows.append(dict(light=label, case=case, filter=filt, **compare(img, ref)))
                 images[f"{label}: {case}, {filt}"] = img
@@ -327,7 +329,7 @@ def check(*, texels: int = 8, size: int = 160, measure_spp: int = 16, render_spp
             "seconds": seconds}
 
 
-def table(result: dict) -> str:
+def table(result: Dict[str, Any]) -> str:
     """The rows of :func:`check` as a Markdown table."""
     out = ["| light | sample | filter | brightness | structural error |", "|---|---|---|---|---|"]
     for r in result["rows"]:
@@ -335,17 +337,15 @@ def table(result: dict) -> str:
     return "\n".join(out)
 
 
-def figure(result: dict, path) -> str:
+def figure(result: Dict[str, Any], path: Union[str, "os.PathLike[str]"]) -> str:
     """A PNG of :func:`check`'s images: per light, the path trace, btfrs's bilinear render of the
     measured sample, the same of the mirrored one, and both differences to the path trace (the
     grey of zero difference at mid scale); the structural errors in the titles. Written
     atomically (matplotlib, ``Agg``)."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib  # noqa: PLC0415  (heavy: only for the figure)
 
     matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    from . import io  # noqa: PLC0415
+    import matplotlib.pyplot as plt  # noqa: PLC0415  (after use("Agg"); heavy)
 
     lights = list(dict.fromkeys(r["light"] for r in result["rows"]))
     err = {(r["light"], r["case"], r["filter"]): r for r in result["rows"]}

@@ -12,12 +12,17 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Optional
+from typing import Any, Callable, Dict, List, Optional, Tuple, Union
 
 import numpy as np
+from numpy.typing import NDArray
 
-from . import __version__, baselines, fit, io, materials
-from .btf import Btf
+from .. import __version__, baselines, fit, io, materials, rendering, synth, tiles
+from ..btf import Btf
+from ..directions import from_theta_phi
+from ..environment import Environment
+from ..evaluation import evaluate
+from ..models import Ptm, Sh, model_kinds
 
 __all__ = ["Context", "STEPS", "run"]
 
@@ -30,17 +35,18 @@ class Context:
     seed: int
     progress: bool
     log: Callable[[str], None]
-    btf: Optional[Btf] = None
-    train: Optional[Btf] = None
-    test: Optional[Btf] = None
-    models: dict = field(default_factory=dict)
-    rows: list = field(default_factory=list)
-    images: list = field(default_factory=list)
-    notes: list = field(default_factory=list)
+    # The sample and its halves: made by step_material, the first step.
+    btf: Btf = field(init=False, repr=False)
+    train: Btf = field(init=False, repr=False)
+    test: Btf = field(init=False, repr=False)
+    models: Dict[str, Any] = field(default_factory=dict)
+    rows: List[Dict[str, Any]] = field(default_factory=list)
+    images: List[Tuple[str, str]] = field(default_factory=list)
+    notes: List[str] = field(default_factory=list)
     gen_seconds: float = 0.0
 
 
-def _tile(images: list, scale: int = 4, gap: int = 4) -> np.ndarray:
+def _tile(images: List[NDArray[Any]], scale: int = 4, gap: int = 4) -> NDArray[Any]:
     """Images side by side, enlarged by pixel repetition, separated by white gaps."""
     big = [np.repeat(np.repeat(im, scale, 0), scale, 1) for im in images]
     h = big[0].shape[0]
@@ -55,6 +61,12 @@ def _tile(images: list, scale: int = 4, gap: int = 4) -> np.ndarray:
 
 def _pct(x: Optional[float]) -> str:
     return "exact" if x is None else f"{100 * x:.2f}%"
+
+
+def _draw_ms(timings: Optional[rendering.RenderResult]) -> float:
+    """The draw milliseconds of a render that ran (its timings are never None then)."""
+    assert timings is not None, "no render ran"
+    return float(timings.draw_ms)
 
 
 def step_material(ctx: Context) -> None:
@@ -77,8 +89,6 @@ def step_models(ctx: Context) -> None:
     """Every registered model (:func:`btfrs.model_kinds`) with each of its example option sets,
     fitted on the same train half: PTM (000), per-texel Lafortune (000), Phong + SRF (003),
     double SH with CLS (002), Local PCA (004), and whatever is registered next."""
-    from .models import Ptm, model_kinds
-
     for kind, info in model_kinds().items():
         for label, options in info["examples"]:
             m = fit.fit(kind, ctx.train, progress=ctx.progress, **options)
@@ -124,15 +134,14 @@ def step_compare_images(ctx: Context) -> None:
 
 def step_render(ctx: Context) -> None:
     """The material on a sphere and a plane: the raw BTF (the reference) next to each model."""
-    from . import rendering
-
     lights = [rendering.PointLight(position=[2.0, -2.0, 3.0], intensity=8.0)]
     shots = [("sphere", rendering.Scene.sphere(), rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40), 4.0),
              ("plane", rendering.Scene.plane(2.0), rendering.Camera.look_at([0, -2.2, 1.6], [0, 0, 0], 45), 3.0)]
     names = ["raw BTF"] + list(ctx.models)
-    renders, times = [], {}
+    renders: List[List[NDArray[Any]]] = []
+    times: Dict[Tuple[str, str], Optional[rendering.RenderResult]] = {}
     for scene_name, scene, cam, reps in shots:
-        row = []
+        row: List[NDArray[Any]] = []
         for name, model in [("raw BTF", ctx.btf)] + list(ctx.models.items()):
             row.append(rendering.render(model, scene, cam, lights, size=(320, 320), uv_scale=reps))
             times[(scene_name, name)] = rendering.last_timings()
@@ -144,7 +153,7 @@ def step_render(ctx: Context) -> None:
     io.save_image(ctx.out / "render.png", img, exposure=exposure)
     ctx.images.append(("render.png", f"rendered with wgpu on {rendering.gpu_info()}: rows sphere, plane; columns "
                        + " | ".join(names)))
-    draw = ", ".join(f"{n} {times[('sphere', n)].draw_ms:.0f} ms" for n in names)
+    draw = ", ".join(f"{n} {_draw_ms(times[('sphere', n)]):.0f} ms" for n in names)
     ctx.notes.append(f"Draw time per 320^2 sphere frame: {draw}.")
     ctx.log(f"rendered {len(shots) * len(names)} frames on {rendering.gpu_info()}")
 
@@ -153,10 +162,6 @@ def step_environment(ctx: Context) -> None:
     """Environment light (paper 002, section 4): the material on a sphere under the built-in
     sky, by the sampled method (64 importance-sampled lights, PTM-RGB) and by the SH method
     (the double-SH model); then a slanted plane with nearest and trilinear lookups."""
-    from . import rendering
-    from .environment import Environment
-    from .models import Sh
-
     env = Environment.sky(sun=[0.3, 0.2, 0.9], turbidity=3)
     sphere, cam = rendering.Scene.sphere(), rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
     ptm = next(m for n, m in ctx.models.items() if m.kind == "ptm" and getattr(m, "variant", "") == "rgb")
@@ -164,11 +169,11 @@ def step_environment(ctx: Context) -> None:
     shots, times = [], []
     img = rendering.render(ptm, sphere, cam, environment=env, samples=64, seed=ctx.seed, size=(320, 320), uv_scale=4)
     shots.append(img)
-    times.append(f"sampled (64 lights, PTM-RGB) {rendering.last_timings().draw_ms:.0f} ms")
+    times.append(f"sampled (64 lights, PTM-RGB) {_draw_ms(rendering.last_timings()):.0f} ms")
     if sh is not None:
         img = rendering.render(sh, sphere, cam, environment=env, method="sh", size=(320, 320), uv_scale=4)
         shots.append(img)
-        times.append(f"SH method (double SH) {rendering.last_timings().draw_ms:.0f} ms")
+        times.append(f"SH method (double SH) {_draw_ms(rendering.last_timings()):.0f} ms")
     exposure = 0.9 / max(float(np.percentile(shots[0][shots[0].sum(-1) > 0], 99)), 1e-6)
     io.save_image(ctx.out / "environment.png", _tile(shots, scale=1, gap=6), exposure=exposure)
     ctx.images.append(("environment.png", "the material on a sphere under the built-in Preetham sky (sun at "
@@ -188,8 +193,6 @@ def step_environment(ctx: Context) -> None:
 
 def step_materials_overview(ctx: Context) -> None:
     """Every built-in material under three lights (view from above), to see what they are."""
-    from .directions import from_theta_phi
-
     lights = from_theta_phi(np.radians([0.0, 60.0, 75.0]), np.radians([0.0, 45.0, 200.0]))
     top = np.array([[0.0, 0.0, 1.0]])
     rows = []
@@ -205,8 +208,6 @@ def step_synthesis(ctx: Context) -> None:
     """A large BTF synthesized from the sample (paper 000 section 4): texton analysis,
     hierarchical k-coherence into a 512^2 coordinate map, rendered with the sample's PTM next to
     the plainly tiled sample, with the quality measures of both."""
-    from . import rendering, synth
-
     # Three levels as in the paper when the sample allows 5 x 5 windows at its coarsest level.
     levels = next(L for L in (3, 2, 1) if ((ctx.size >> (L - 1)) - 4) ** 2 - 25 >= 10)
     an = synth.analyse(ctx.btf, textons=min(1024, ctx.size * ctx.size), levels=levels, seed=0, progress=ctx.progress)
@@ -246,8 +247,6 @@ def step_tiles(ctx: Context) -> None:
     """Graph-cut Wang tile sets (paper 002): one set of the demo material (SH domain) dressing a
     sphere and a cylinder, and a second material's set swapped in on the same layout, with no
     re-synthesis and no re-tiling; the sets' pictures with their edge colours."""
-    from . import rendering, tiles
-
     t0 = time.perf_counter()
     sh_a = fit.sh(ctx.btf, light_coeffs=16, view_coeffs=16)
     other = "bumps" if ctx.material != "bumps" else "weave"
@@ -264,10 +263,12 @@ def step_tiles(ctx: Context) -> None:
     io.save_array(ctx.out / "tiles_layout.npy", layout)
     lights = [rendering.PointLight(position=[2.0, -2.5, 3.0], intensity=9.0)]
     cam = rendering.Camera.look_at([0.0, -3.2, 1.6], [0.0, 0.0, 0.0], 40)
-    shots = [(set_a, rendering.Scene.sphere()), (set_a, rendering.Scene.cylinder()),
-             (set_b, rendering.Scene.cylinder())]
-    imgs = [rendering.render(ts.model, scene, cam, lights, size=(320, 320), tiles=ts, layout=layout)
-            for ts, scene in shots]
+    model_a, model_b = set_a.model, set_b.model
+    assert model_a is not None and model_b is not None  # a set made from a model keeps its BTFel model
+    shots = [(set_a, model_a, rendering.Scene.sphere()), (set_a, model_a, rendering.Scene.cylinder()),
+             (set_b, model_b, rendering.Scene.cylinder())]
+    imgs = [rendering.render(model, scene, cam, lights, size=(320, 320), tiles=ts, layout=layout)
+            for ts, model, scene in shots]
     ref = np.concatenate([im[im.sum(-1) > 0] for im in imgs])
     io.save_image(ctx.out / "tiles_render.png", _tile(imgs, scale=1, gap=6),
                   exposure=0.9 / max(float(np.percentile(ref, 99)), 1e-6))
@@ -289,8 +290,6 @@ def step_evaluate(ctx: Context) -> None:
     """Speed against accuracy (:func:`btfrs.evaluate`): one or two points per model (the quick
     sweep) and the numpy / scipy / scikit-learn ways, both held-out protocols, charts in
     ``evaluate/``. ``btfrs evaluate`` runs the full sweep."""
-    from .evaluation import evaluate
-
     t0 = time.perf_counter()
     rep = evaluate(ctx.btf, "all", holdout="both", sweep="quick", baselines=True, baseline_texels=8, seed=0,
                    material=ctx.material, progress=ctx.progress)
@@ -326,17 +325,17 @@ def step_summary(ctx: Context) -> None:
     ctx.log(f"wrote {ctx.out / 'summary.md'}")
 
 
-STEPS: list = [step_material, step_baseline, step_models, step_compare_images, step_render, step_environment,
+STEPS: List[Callable[[Context], None]] = [step_material, step_baseline, step_models, step_compare_images, step_render, step_environment,
                step_synthesis,
                step_tiles, step_materials_overview, step_evaluate, step_summary]
 
 
-def run(out, *, material: str = "knit", size: int = 64, seed: int = 1, progress: bool = True,
+def run(out: Union[str, "os.PathLike[str]"], *, material: str = "knit", size: int = 64, seed: int = 1, progress: bool = True,
         log: Callable[[str], None] = print) -> Context:
     """Run every step into folder ``out`` (created if missing); returns the context."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    ctx = Context(out=out, material=material, size=size, seed=seed, progress=progress, log=log)
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    ctx = Context(out=folder, material=material, size=size, seed=seed, progress=progress, log=log)
     for step in STEPS:
         step(ctx)
     return ctx

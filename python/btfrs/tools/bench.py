@@ -1,4 +1,4 @@
-"""End-to-end benchmarks: ``python -m btfrs.bench [--size 64] [--json PATH]``.
+"""End-to-end benchmarks: ``python -m btfrs.tools.bench [--size 64] [--json PATH]``.
 
 Every btfrs figure is measured in the same run as the plain numpy way of doing the same work,
 so the ratios do not depend on the machine's mood; the table goes to stdout and everything,
@@ -12,31 +12,59 @@ gives the command of each of its tables.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
+import logging
 import os
 import platform
+import shutil
+import subprocess
 import sys
 import tempfile
 import time
+import zipfile
 from datetime import datetime, timezone
-from typing import Callable
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, TypeVar
 
 import numpy as np
+from numpy.typing import NDArray
 
-from . import __version__, baselines, fit, materials
+from .. import __version__, baselines, evaluation, fit, graphcut, io, materials, rendering, synth
+from .. import dask as bd
+from .. import directions as dirs
+from .. import tiles as wang
+from .._checks import memory_size
+from ..btf import Btf
+from ..environment import Environment
+from ..models import model_kinds
+from ..rendering import Camera, PointLight, Scene, render
+from . import groundtruth
 
 
-def best_of(fn: Callable[[], object], repeat: int) -> tuple[float, object]:
-    """Minimum wall time of ``repeat`` calls (the least disturbed run) and the last result."""
-    best, out = float("inf"), None
-    for _ in range(repeat):
+T = TypeVar("T")
+
+
+def best_of(fn: Callable[[], T], repeat: int) -> Tuple[float, T]:
+    """Minimum wall time of ``repeat`` calls (at least one; the least disturbed run) and the last
+    result."""
+    best = float("inf")
+    for _ in range(max(repeat, 1) - 1):
         t0 = time.perf_counter()
-        out = fn()
+        fn()
         best = min(best, time.perf_counter() - t0)
-    return best, out
+    t0 = time.perf_counter()
+    out = fn()
+    return min(best, time.perf_counter() - t0), out
 
 
-def machine() -> dict:
+def _timings() -> rendering.RenderResult:
+    """The timings of the render that just ran."""
+    t = rendering.last_timings()
+    assert t is not None, "no render ran"
+    return t
+
+
+def machine() -> Dict[str, Any]:
     cpu = platform.processor() or platform.machine()
     try:
         with open("/proc/cpuinfo") as f:
@@ -50,8 +78,8 @@ def machine() -> dict:
             "btfrs": __version__, "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}
 
 
-def run(sizes: list, repeat: int) -> list:
-    rows = []
+def run(sizes: Sequence[int], repeat: int) -> List[Any]:
+    rows: List[Dict[str, Any]] = []
     for size in sizes:
         t_gen, btf = best_of(lambda: materials.make("knit", size=size, seed=1), repeat)
         rows.append(dict(task=f"material knit {size}^2 x 81 x 81", btfrs_s=t_gen, numpy_s=None,
@@ -70,12 +98,10 @@ def run(sizes: list, repeat: int) -> list:
     return rows
 
 
-def render_bench(repeat: int) -> list:
+def render_bench(repeat: int) -> List[Any]:
     """ms per frame on this machine's adapter: raw BTF and PTM-RGB, 512^2 and 1024^2, with and
     without a coordinate map; draw and read-back timed separately (the first, pipeline-compiling
     frame is not counted)."""
-    from . import rendering
-
     btf = materials.make("knit", size=64, seed=1)
     ptm = fit.ptm(btf, kind="rgb")
     scene = rendering.Scene.sphere()
@@ -83,32 +109,33 @@ def render_bench(repeat: int) -> list:
     lights = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
     rng = np.random.default_rng(0)
     cmap = rng.integers(0, 64, size=(256, 256, 2)).astype(np.uint16)
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for name, model in (("raw", btf), ("PTM-RGB", ptm)):
         for size in (512, 1024):
             for coords in (None, cmap):
                 rendering.render(model, scene, cam, lights, size=size, uv_scale=4, coords=coords)  # warm-up
-                best = None
-                for _ in range(repeat):
+                best: Optional[rendering.RenderResult] = None
+                for _ in range(max(repeat, 1)):
                     rendering.render(model, scene, cam, lights, size=size, uv_scale=4, coords=coords)
-                    t = rendering.last_timings()
+                    t = _timings()
                     best = t if best is None or t.draw_ms < best.draw_ms else best
+                assert best is not None
                 rows.append(dict(model=name, size=size, coords=coords is not None, draw_ms=best.draw_ms,
                                  readback_ms=best.readback_ms, adapter=rendering.gpu_info()))
     return rows
 
 
-def render_table(rows: list) -> str:
+def render_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'model':<8} {'size':>6} {'map':>4} {'draw ms':>9} {'read-back ms':>13}"]
     for r in rows:
         out.append(f"{r['model']:<8} {r['size']:>6} {'yes' if r['coords'] else 'no':>4} {r['draw_ms']:>9.1f} {r['readback_ms']:>13.1f}")
     return "\n".join(out)
 
 
-def accuracy(size: int) -> list:
+def accuracy(size: int) -> List[Any]:
     """Held-out and reconstruction error of every model on every built-in material, beside the
     raw-data baseline (3 nearest measured lights of the same view slot)."""
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for name in materials.names():
         btf = materials.make(name, size=size, seed=1)
         train, test = btf.split(holdout=0.1, seed=0)
@@ -121,7 +148,7 @@ def accuracy(size: int) -> list:
     return rows
 
 
-def accuracy_table(rows: list) -> str:
+def accuracy_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'material':<9} {'model':<22} {'MiB':>8} {'reconstruction':>15} {'held-out':>9}"]
     for r in rows:
         rec = "exact" if r["reconstruction"] is None else f"{100 * r['reconstruction']:.2f}%"
@@ -129,60 +156,53 @@ def accuracy_table(rows: list) -> str:
     return "\n".join(out)
 
 
-def _render_ms(model, method=None, size=512, repeat=2) -> float:
+def _render_ms(model: Any, method: Optional[str] = None, size: int = 512,
+               repeat: int = 2) -> Tuple[float, NDArray[np.float32]]:
     """Best draw time (ms) of a 512^2 sphere frame with one point light (the first frame, which
-    compiles the pipeline, is not counted)."""
-    from . import rendering
-
+    compiles the pipeline, is not counted), and the frame."""
     scene = rendering.Scene.sphere()
     cam = rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
     lights = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
-    kw = dict(size=size, uv_scale=4, method=method)
+    kw: Dict[str, Any] = dict(size=size, uv_scale=4, method=method)
     img = rendering.render(model, scene, cam, lights, **kw)
     best = float("inf")
     for _ in range(repeat):
         img = rendering.render(model, scene, cam, lights, **kw)
-        best = min(best, rendering.last_timings().draw_ms)
+        best = min(best, _timings().draw_ms)
     return best, img
 
 
 def rendering_info() -> str:
-    from . import rendering
-
     return rendering.gpu_info()
 
 
-def env_bench(size: int = 64, repeat: int = 2) -> list:
+def env_bench(size: int = 64, repeat: int = 2) -> List[Any]:
     """Frame times (ms) on this machine's adapter, one model per registered kind (its first
     example option set) on the knit at ``size``^2: a 512^2 sphere with one point light (nearest),
     the same with trilinear lookups, and a 640 x 480 sphere under the built-in sky with 64
     importance-sampled lights; double-SH models also by the SH method (paper 002, section 4:
     3.2 to 4.5 minutes per 640 x 480 frame). Best of ``repeat`` after a warm-up frame."""
-    from . import rendering
-    from .environment import Environment
-    from .models import model_kinds
-
     btf = materials.make("knit", size=size, seed=1)
     env = Environment.sky(sun=[0.3, 0.2, 0.9], turbidity=3)
     scene = rendering.Scene.sphere()
     cam = rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
     light = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
 
-    def best(**kw) -> float:
+    def best(**kw: Any) -> float:
         rendering.render(**kw)
         t = float("inf")
         for _ in range(repeat):
             rendering.render(**kw)
-            t = min(t, rendering.last_timings().draw_ms)
+            t = min(t, _timings().draw_ms)
         return t
 
-    models = [("raw BTF", btf)]
+    models: List[Tuple[str, Any]] = [("raw BTF", btf)]
     for kind, info in model_kinds().items():
         # PTM-RGB (the reference of the 3x target) and SH 25x25 (the slowest) where listed.
         pick = {"ptm": "PTM-RGB", "sh": "SH-CLS 25x25"}.get(kind)
         label, opts = next((e for e in info["examples"] if e[0] == pick), info["examples"][0])
         models.append((label, fit.fit(kind, btf, **opts)))
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for label, m in models:
         base = dict(model=m, scene=scene, camera=cam, uv_scale=4)
         r = dict(model=label, kind=getattr(m, "kind", "raw"), point_ms=best(lights=light, size=512, **base),
@@ -198,29 +218,26 @@ def env_bench(size: int = 64, repeat: int = 2) -> list:
     return rows
 
 
-def frames_bench(size: int = 32, repeat: int = 2) -> list:
+def frames_bench(size: int = 32, repeat: int = 2) -> List[Any]:
     """The "every model within 3x of PTM-RGB" check over every example option set of every
     registered model and each of its renderers (``env_bench`` takes one per model): a 512^2
     sphere under one point light on the knit at ``size``^2, best of ``repeat`` after a warm-up
     frame, as a ratio to PTM-RGB's frame in the same run."""
-    from . import rendering
-    from .models import model_kinds
-
     btf = materials.make("knit", size=size, seed=1)
     scene = rendering.Scene.sphere()
     cam = rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
     light = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
 
-    def best(m, method: str) -> float:
-        kw = dict(size=512, uv_scale=4, method=method)
+    def best(m: Any, method: str) -> float:
+        kw: Dict[str, Any] = dict(size=512, uv_scale=4, method=method)
         rendering.render(m, scene, cam, light, **kw)
         t = float("inf")
         for _ in range(repeat):
             rendering.render(m, scene, cam, light, **kw)
-            t = min(t, rendering.last_timings().draw_ms)
+            t = min(t, _timings().draw_ms)
         return t
 
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for kind, info in model_kinds().items():
         for label, opts in info["examples"]:
             m = fit.fit(kind, btf, **opts)
@@ -232,13 +249,13 @@ def frames_bench(size: int = 32, repeat: int = 2) -> list:
     return rows
 
 
-def frames_table(rows: list) -> str:
+def frames_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'model':<24} {'renderer':<9} {'512^2 point':>12} {'x PTM-RGB':>10}"]
     out += [f"{r['model']:<24} {r['method']:<9} {r['point_ms']:>10.1f}ms {r['vs_ptm']:>10.2f}" for r in rows]
     return "\n".join(out)
 
 
-def env_table(rows: list) -> str:
+def env_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'model':<22} {'512^2 point':>12} {'x PTM':>6} {'trilinear':>10} {'640x480 env 64':>15} {'SH method':>10}"]
     for r in rows:
         sh = f"{r['env_sh_ms'] / 1e3:>9.2f}s" if "env_sh_ms" in r else f"{'':>10}"
@@ -258,9 +275,7 @@ EXTRA_SETTINGS = [
 ]
 
 
-def _settings() -> list:
-    from .models import model_kinds
-
+def _settings() -> List[Any]:
     out = [(label, kind, opts) for kind, info in model_kinds().items() for label, opts in info["examples"]]
     return [(label, (lambda b, k=kind, o=opts: fit.fit(k, b, **o))) for label, kind, opts in out + EXTRA_SETTINGS]
 
@@ -268,13 +283,13 @@ def _settings() -> list:
 MODEL_SETTINGS = _settings()
 
 
-def models_bench(size: int, material: str = "knit", lm_texels: int = 64) -> list:
+def models_bench(size: int, material: str = "knit", lm_texels: int = 64) -> List[Any]:
     """Every model at several settings on one material: fit seconds, bytes, held-out RMSE and
     relative error, reconstruction error, render ms (512^2 sphere); then the numpy / scipy /
     scikit-learn way of the same fits as rows of the same table."""
     btf = materials.make(material, size=size, seed=1)
     train, test = btf.split(holdout=0.1, seed=0)
-    rows = []
+    rows: List[Dict[str, Any]] = []
     fitted = {}
     for name, make in MODEL_SETTINGS:
         t0 = time.perf_counter()
@@ -282,7 +297,7 @@ def models_bench(size: int, material: str = "knit", lm_texels: int = 64) -> list
         secs = time.perf_counter() - t0
         fitted[name] = m
         held, rec = m.error(test), m.error(train)
-        ms = {}
+        ms: Dict[str, float] = {}
         for method in (("9tap", "3d") if name.startswith("LPCA") else (None,)):
             ms[method or "default"], _ = _render_ms(m, method)
         rows.append(dict(model=name, way="btfrs", fit_s=secs, nbytes=m.nbytes, held_out_rmse=held.rmse,
@@ -317,7 +332,7 @@ def models_bench(size: int, material: str = "knit", lm_texels: int = 64) -> list
     return rows
 
 
-def models_table(rows: list) -> str:
+def models_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'model':<21} {'way':<44} {'fit s':>9} {'MiB':>7} {'held-out':>9} {'recon.':>8}  render ms (512^2)"]
     for r in rows:
         fs = f"{r['fit_s']:.4f}" + ("/tx" if r.get("per_texel") else "")
@@ -332,11 +347,11 @@ def models_table(rows: list) -> str:
     return "\n".join(out)
 
 
-def lpca_render_bench(size: int = 64, repeat: int = 2) -> list:
+def lpca_render_bench(size: int = 64, repeat: int = 2) -> List[Any]:
     """Paper 004, Table 1: the 9-tap and the 3D-texture LPCA renderers at 512^2 and 1024^2 for
     c = 2, 4, 8 (32 clusters), with the PSNR between the two images."""
     btf = materials.make("knit", size=size, seed=1)
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for c in (2, 4, 8):
         m = fit.lpca(btf, clusters=32, components=c, seed=0)
         for px in (512, 1024):
@@ -349,7 +364,7 @@ def lpca_render_bench(size: int = 64, repeat: int = 2) -> list:
     return rows
 
 
-def lpca_render_table(rows: list) -> str:
+def lpca_render_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'c':>2} {'size':>5} {'9-tap ms':>9} {'3D ms':>8} {'speed-up':>9} {'PSNR 9-tap vs 3D':>17}"]
     for r in rows:
         out.append(f"{r['components']:>2} {r['size']:>5} {r['ms_9tap']:>9.1f} {r['ms_3d']:>8.1f} {r['speedup']:>8.2f}x "
@@ -357,13 +372,13 @@ def lpca_render_table(rows: list) -> str:
     return "\n".join(out)
 
 
-def lpca_sweep(size: int) -> list:
+def lpca_sweep(size: int) -> List[Any]:
     """Which (clusters, components) reaches the paper's 2% reconstruction error on each built-in
     material, and at what compression (raw at one byte per value over the model's bytes)."""
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for name in materials.names():
         btf = materials.make(name, size=size, seed=1)
-        best = None
+        best: Optional[Dict[str, Any]] = None
         for k in (8, 16, 32, 64):
             for c in (2, 4, 8, 12, 16):
                 m = fit.lpca(btf, clusters=k, components=c, seed=0)
@@ -377,8 +392,8 @@ def lpca_sweep(size: int) -> list:
     return rows
 
 
-def lpca_sweep_table(rows: list) -> str:
-    out = []
+def lpca_sweep_table(rows: List[Dict[str, Any]]) -> str:
+    out: List[Any] = []
     for r in rows:
         if "best_2pct" in r:
             b = r["best_2pct"]
@@ -397,13 +412,13 @@ def lpca_sweep_table(rows: list) -> str:
 ACCURACY_MODELS = ("PTM-RGB", "PTM-LRGB", "Phong+SRF", "Lafortune-Lum 2", "SH-CLS 25x25", "LPCA 32x4")
 
 
-def accuracy_models(size: int) -> list:
+def accuracy_models(size: int) -> List[Any]:
     """Reconstruction and held-out relative error of every model (:data:`ACCURACY_MODELS`) on
     every built-in material at ``size``^2, beside the raw-data baseline (3 nearest measured lights
     of the same view slot), with each model's bytes, its size ratio to the float32 BTF, its fit
     seconds and its fit report (Phong alone for SRF, converged / fell back / failed for Lafortune)."""
     settings = dict(MODEL_SETTINGS)
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for name in materials.names():
         btf = materials.make(name, size=size, seed=1)
         train, test = btf.split(holdout=0.1, seed=0)
@@ -420,7 +435,7 @@ def accuracy_models(size: int) -> list:
     return rows
 
 
-def _report_note(r: dict) -> str:
+def _report_note(r: Dict[str, Any]) -> str:
     rep = r["report"]
     if "phong_relative" in rep:
         return f"Phong alone {100 * rep['phong_relative']:.2f}% (train)"
@@ -429,7 +444,7 @@ def _report_note(r: dict) -> str:
     return ""
 
 
-def accuracy_models_table(rows: list) -> str:
+def accuracy_models_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'material':<9} {'model':<22} {'MiB':>8} {'1:x':>7} {'fit s':>7} {'recon.':>8} {'held-out':>9}  note"]
     for r in rows:
         rec = "exact" if r["reconstruction"] is None else f"{100 * r['reconstruction']:.2f}%"
@@ -474,13 +489,11 @@ def rti_lights(n: int, seed: int = 0, max_theta_deg: float = 80.0) -> np.ndarray
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
-def rti_settings() -> list:
+def rti_settings() -> List[Any]:
     """``(label, kind, options)`` for the single-view comparison, iterating over the registry:
     the light bases (PTM, RBF, bilinear, HSH when registered) at several sizes, LPCA and
     single-view SH at a few, every other model at its examples."""
-    from .models import model_kinds
-
-    out = []
+    out: List[Any] = []
     for kind, info in model_kinds().items():
         if kind == "ptm":
             out += [("PTM-RGB", kind, {"kind": "rgb"}), ("PTM-LRGB", kind, {"kind": "lrgb"})]
@@ -504,13 +517,11 @@ def rti_settings() -> list:
     return out
 
 
-def rti_bench(captures=RTI_CAPTURES, size: int = RTI_SIZE, chart_dir: str = "docs/rti") -> list:
+def rti_bench(captures: Sequence[Tuple[str, int]] = RTI_CAPTURES, size: int = RTI_SIZE, chart_dir: str = "docs/rti") -> List[Any]:
     """Every setting of :func:`rti_settings` on each single-view capture: held-out relative
     error (``RTI_HOLDOUT`` of the lights, seed 0) against bytes, via
     :func:`btfrs.evaluation.evaluate`; one chart per capture in ``chart_dir``."""
-    from . import evaluation
-
-    out = []
+    out: List[Any] = []
     settings = rti_settings()
     for name, nl in captures:
         btf = materials.make(name, size=size, seed=1, views=np.array([[0.0, 0.0, 1.0]]), lights=rti_lights(nl, 1))
@@ -527,12 +538,16 @@ def rti_bench(captures=RTI_CAPTURES, size: int = RTI_SIZE, chart_dir: str = "doc
     return out
 
 
-def _best(rows, pred):
+def _best(rows: List[Dict[str, Any]], pred: Callable[[Dict[str, Any]], bool]) -> Optional[Dict[str, Any]]:
     ok = [r for r in rows if r.get("heldout_pairs") is not None and r.get("bytes") and pred(r)]
     return min(ok, key=lambda r: r["heldout_pairs"]) if ok else None
 
 
-def rti_summary(res: list) -> str:
+def _within(budget: int, row: Dict[str, Any]) -> bool:
+    return bool(row["bytes"] <= budget)
+
+
+def rti_summary(res: List[Dict[str, Any]]) -> str:
     """Per capture: the best model within relight's byte budgets (26, 50, 85 KB) and under
     100 KB (all models; the RTI bases alone; the others alone), PTM-RGB, RBF-18, Bilinear-18 and
     LPCA 8x4, each with its ratio to PTM-RGB's held-out error (relight's figures give RBF 0.70 and
@@ -541,7 +556,7 @@ def rti_summary(res: list) -> str:
     for c in res:
         rows = c["rows"]
         ptm = _best(rows, lambda r: r["label"] == "PTM-RGB")
-        picks = [(f"best <= {b // 1000} KB", _best(rows, lambda r, b=b: r["bytes"] <= b))
+        picks = [(f"best <= {b // 1000} KB", _best(rows, functools.partial(_within, b)))
                  for b in (26_000, 50_000, 85_000)]
         picks += [("best < 100 KB", _best(rows, lambda r: r["bytes"] < 100_000)),
                  ("best RTI basis < 100 KB", _best(rows, lambda r: r["bytes"] < 100_000
@@ -563,7 +578,7 @@ def rti_summary(res: list) -> str:
     return "\n".join(lines)
 
 
-def table(rows: list) -> str:
+def table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'task':<36} {'btfrs s':>9} {'numpy s':>9} {'speed-up':>9}  {'target':<24} note"]
     for r in rows:
         b = "" if r["btfrs_s"] is None else f"{r['btfrs_s']:.4f}"
@@ -583,15 +598,13 @@ ANALYSIS_TARGET_S = 0.5
 SH_BIG_TARGET_S = 1.0
 
 
-def synth_bench(repeat: int, material: str = "knit", size: int = 64) -> dict:
+def synth_bench(repeat: int, material: str = "knit", size: int = 64) -> Dict[str, Any]:
     """Paper 000 Table 1 settings, the jump map and the analysis of a size^2 x 81 x 81 sample,
     with the quality measures of every result beside plain tiling and random placement."""
-    from . import synth
-
     btf = materials.make(material, size=size, seed=1)
     t_an, an = best_of(lambda: synth.analyse(btf, textons=min(1024, size * size), seed=0), min(repeat, 2))
     an.prepare(3, 3)
-    rows = []
+    rows: List[Dict[str, Any]] = []
     settings = [(s, k, n, p) for (s, k, n, p) in TABLE1] + [(512, 1, 2, None), (512, 3, 2, None)]
     for (out, k, n, paper) in settings:
         t, cmap = best_of(lambda: synth.kcoherence(an, size=out, k=k, neighbourhood=n, levels=3, seed=7), repeat)
@@ -609,13 +622,15 @@ def synth_bench(repeat: int, material: str = "knit", size: int = 64) -> dict:
     return dict(material=material, sample=size, analysis_s=t_an, analysis=repr(an), rows=rows)
 
 
-def synth_table(res: dict) -> str:
+def synth_table(res: Dict[str, Any]) -> str:
     out = [f"analysis of {res['material']} {res['sample']}^2 x 81 x 81: {res['analysis_s']:.2f} s "
            f"(target <= {ANALYSIS_TARGET_S} s)",
            f"{'method':<16} {'size':>5} {'k':>2} {'n':>2} {'seconds':>8} {'paper':>7} {'target':>7} "
            f"{'nn_dist':>8} {'coher':>6} {'seam':>7} {'seam_m':>7} {'repet':>6}"]
     for r in res["rows"]:
-        f = lambda v, fmt: "-" if v is None else format(v, fmt)
+        def f(v: Any, fmt: str) -> str:
+            return "-" if v is None else format(v, fmt)
+
         out.append(f"{r['method']:<16} {r['size']:>5} {f(r['k'], 'd'):>2} {f(r['neighbourhood'], 'd'):>2} "
                    f"{r['seconds']:>8.3f} {f(r['paper_s'], '.1f'):>7} {f(r['target_s'], '.2f'):>7} "
                    f"{r['nn_distance']:>8.4f} {r['coherence']:>6.3f} {r['seam']:>7.4f} {r['seam_mean']:>7.4f} "
@@ -627,7 +642,7 @@ def synth_table(res: dict) -> str:
 MAXFLOW_SIZES = (256, 512)
 
 
-def maxflow_problems(n: int, seed: int = 1) -> dict:
+def maxflow_problems(n: int, seed: int = 1) -> Dict[str, Any]:
     """Integer-capacity ``n x n`` grids as ``(right, down, terminal_caps)``, the same shapes the
     criterion bench of btfrs-graphcut uses: ``kwatra``, a seam problem (cutting between p and q
     costs ``|A(p) - B(p)| + |A(q) - B(q)|`` for two noise images, scaled by 1000; the two left
@@ -648,9 +663,9 @@ def maxflow_problems(n: int, seed: int = 1) -> dict:
             "segmentation": (np.full((n, n - 1, 2), lam, np.int64), np.full((n - 1, n, 2), lam, np.int64), unary)}
 
 
-def _grid_csr(right, down, term):
+def _grid_csr(right: NDArray[Any], down: NDArray[Any], term: NDArray[Any]) -> Any:
     """The grid with a source node N and a sink node N + 1 as the int32 CSR matrix scipy takes."""
-    import scipy.sparse
+    import scipy.sparse  # optional (bench extra): only the max-flow comparison
 
     h, w = term.shape[:2]
     nn = h * w
@@ -667,15 +682,13 @@ def _grid_csr(right, down, term):
     return m
 
 
-def maxflow_bench(repeat: int, sizes=MAXFLOW_SIZES) -> list:
+def maxflow_bench(repeat: int, sizes: Sequence[int] = MAXFLOW_SIZES) -> List[Any]:
     """btfrs.graphcut (grid path and general path, argument conversion included) against
     scipy.sparse.csgraph.maximum_flow (its default method, on a CSR matrix built beforehand, so
     the building is not timed for scipy) on the same integer grids, in the same run."""
-    from scipy.sparse.csgraph import maximum_flow
+    from scipy.sparse.csgraph import maximum_flow  # optional (bench extra): only the max-flow comparison
 
-    from . import graphcut
-
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for n in sizes:
         for case, (right, down, term) in maxflow_problems(n).items():
             t_grid, (flow, side) = best_of(lambda: graphcut.grid_min_cut(right, down, term), repeat)
@@ -693,7 +706,7 @@ def maxflow_bench(repeat: int, sizes=MAXFLOW_SIZES) -> list:
     return rows
 
 
-def maxflow_table(rows: list) -> str:
+def maxflow_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'case':<13} {'size':>9} {'flow':>9} {'grid s':>8} {'graph s':>8} {'scipy s':>8} "
            f"{'scipy/grid':>10} {'scipy/graph':>11}"]
     for r in rows:
@@ -706,14 +719,12 @@ def figure6(out_dir: str, material: str = "bumps", size: int = 64, out: int = 19
     """Paper 000 Figure 6 for a built-in material: rows (neighbourhood 1, one level),
     (neighbourhood 2, one level), (neighbourhood 2, three levels); columns k = 1 and k = 5, plus
     the tiled sample on the right of each row. Seen from above under a light at 45 degrees."""
-    from . import io, synth
-
     btf = materials.make(material, size=size, seed=1)
     an = synth.analyse(btf, textons=min(1024, size * size), neighbourhoods=(1, 2), seed=0)
     light = int(np.argmin(np.abs(btf.lights[:, 2] - np.cos(np.radians(45.0)))))
     img = btf.image(0, light)
     gap = np.full((out, 6, 3), 10.0, np.float32)
-    rows = []
+    rows: List[NDArray[Any]] = []
     for n, levels in [(1, 1), (2, 1), (2, 3)]:
         cells = [synth.apply(img, synth.kcoherence(an, size=out, k=k, neighbourhood=n, levels=levels, seed=7))
                  for k in (1, 5)]
@@ -732,15 +743,11 @@ TABLE3 = [("FLOORTILE", 128, 33, 37.86, 186.10), ("IMPALLA", 256, 51, 49.92, 61.
 TILES_TARGET_S = 10.0
 
 
-def tiles_bench(repeat: int) -> dict:
+def tiles_bench(repeat: int) -> Dict[str, Any]:
     """Graph-cut Wang tile sets (issue 12): synthesis of 16 tiles of 64^2, 128^2 and 256^2 in the
     SH 16x16 domain (bumps; 81 x 81 directions at 128^2, 25 x 25 at 256^2 to fit in memory), the
     tiling of a 1024 x 1024 layout, render ms with a tile map and without."""
-    from . import directions as dirs
-    from . import tiles as wang
-    from .rendering import Camera, PointLight, Scene, render
-
-    rows = []
+    rows: List[Dict[str, Any]] = []
     b128 = materials.make("bumps", size=128, seed=3)
     sh128 = fit.sh(b128, light_coeffs=16, view_coeffs=16)
     del b128
@@ -765,8 +772,10 @@ def tiles_bench(repeat: int) -> dict:
     scene = Scene.cylinder(radius=1.0, height=2.0)
     render_rows = []
     try:
-        for label, kw in [("without (uv_scale 8)", dict(uv_scale=8.0)), ("tile map 8 x 8", dict(tiles=ts64, layout=lay))]:
-            m = ts64.model if "tiles" in kw else sh128
+        cases: List[Tuple[str, Dict[str, Any]]] = [("without (uv_scale 8)", dict(uv_scale=8.0)),
+                                                   ("tile map 8 x 8", dict(tiles=ts64, layout=lay))]
+        for label, kw in cases:
+            m: Any = ts64.model if "tiles" in kw else sh128
             render(m, scene, cam, lights, size=(512, 512), **kw)
             t, _ = best_of(lambda: render(m, scene, cam, lights, size=(512, 512), **kw), repeat)
             render_rows.append(dict(case=label, ms=1000 * t))
@@ -775,7 +784,7 @@ def tiles_bench(repeat: int) -> dict:
     return dict(rows=rows, tiling_1024_s=t_tiling, render=render_rows, table3=TABLE3)
 
 
-def tiles_table(res: dict) -> str:
+def tiles_table(res: Dict[str, Any]) -> str:
     out = [f"{'tile':>5} {'edge':>4} {'sample':<22} {'seconds':>8} {'target':>7} {'corner':>7} {'edges':>6} "
            f"{'interior':>8} {'referenced':>10} {'MiB':>7}"]
     for r in res["rows"]:
@@ -810,22 +819,16 @@ def _relief_images(size: int, lights: np.ndarray, seed: int = 1) -> np.ndarray:
     return out
 
 
-def load_bench(repeat: int) -> list:
+def load_bench(repeat: int) -> List[Any]:
     """Load throughput of the real-data readers: MB/s of decoded float32 data (and of files read)
     for a UBO2003-style archive (6561 JPEG / PNG images, folder and zip), an RTI capture (.lp +
     200 JPEG photographs of 512^2) and the same into a memory-mapped file (``mmap_to``)."""
-    import shutil
-    import zipfile
+    from PIL import Image  # optional (bench extra): only the RTI captures
 
-    from PIL import Image
-
-    from . import directions as dirs_mod
-    from . import io as bio
-
-    rows = []
+    rows: List[Dict[str, Any]] = []
     tmp = tempfile.mkdtemp(prefix="btfrs-load-")
     try:
-        ubo = dirs_mod.ubo81()
+        ubo = dirs.ubo81()
         ang = [(round(float(np.degrees(np.arccos(d[2])))), round(float(np.degrees(np.arctan2(d[1], d[0]))) % 360))
                for d in ubo]
         btf = materials.make("bumps", size=64, seed=1)
@@ -840,7 +843,7 @@ def load_bench(repeat: int) -> list:
                     img = np.round(255 * np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055))
                     Image.fromarray(img.astype(np.uint8)).save(
                         os.path.join(folder, f"Bumps64_{i:05d}_tl{tl:03d}_pl{pl:03d}_tv{tv:03d}_pv{pv:03d}.{ext}"),
-                        **({"quality": 95} if ext == "jpg" else {}))
+                        **({"quality": 95} if ext == "jpg" else {}))  # type: ignore[arg-type]
             zpath = folder + ".zip"
             with zipfile.ZipFile(zpath, "w", compression=zipfile.ZIP_STORED if ext == "jpg" else zipfile.ZIP_DEFLATED) as z:
                 for n in sorted(os.listdir(folder)):
@@ -848,7 +851,7 @@ def load_bench(repeat: int) -> list:
             for label, src in ((f"UBO2003 folder, 6561 {ext.upper()} 64^2", folder),
                                (f"UBO2003 zip, 6561 {ext.upper()} 64^2", zpath)):
                 files = (sum(os.path.getsize(os.path.join(folder, n)) for n in os.listdir(folder)))
-                t, b = best_of(lambda: bio.load(src), repeat)
+                t, b = best_of(lambda: io.load(src), repeat)
                 rows.append({"task": label, "seconds": t, "decoded_MB": b.nbytes / 1e6, "file_MB": files / 1e6,
                              "MB_per_s": b.nbytes / 1e6 / t, "file_MB_per_s": files / 1e6 / t})
         # RTI: 200 lights on a spiral over the hemisphere (theta 5 to 75 degrees), 512^2 JPEGs
@@ -867,7 +870,7 @@ def load_bench(repeat: int) -> list:
             f.write("\n".join(lines) + "\n")
         files = sum(os.path.getsize(os.path.join(cap, n)) for n in os.listdir(cap))
         lp = os.path.join(cap, "capture.lp")
-        t, b = best_of(lambda: bio.load(lp), repeat)
+        t, b = best_of(lambda: io.load(lp), repeat)
         rows.append({"task": "RTI .lp, 200 JPEG 512^2", "seconds": t, "decoded_MB": b.nbytes / 1e6,
                      "file_MB": files / 1e6, "MB_per_s": b.nbytes / 1e6 / t, "file_MB_per_s": files / 1e6 / t})
         # the same with Pillow + numpy, the way one would assemble it by hand: decode each photo,
@@ -875,7 +878,7 @@ def load_bench(repeat: int) -> list:
         lut = np.where(np.arange(256) / 255 <= 0.04045, np.arange(256) / 255 / 12.92,
                        ((np.arange(256) / 255 + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
-        def by_hand():
+        def by_hand() -> NDArray[np.float32]:
             st = np.stack([lut[np.asarray(Image.open(os.path.join(cap, f"img_{i:03d}.jpg")))] for i in range(len(L))])
             return np.ascontiguousarray(st.transpose(1, 2, 0, 3))[:, :, None]
 
@@ -884,7 +887,7 @@ def load_bench(repeat: int) -> list:
                      "decoded_MB": arr.nbytes / 1e6, "file_MB": files / 1e6, "MB_per_s": arr.nbytes / 1e6 / tp,
                      "file_MB_per_s": files / 1e6 / tp})
         out = os.path.join(tmp, "rti.btfrs")
-        t, b = best_of(lambda: bio.load(lp, mmap_to=out), repeat)
+        t, b = best_of(lambda: io.load(lp, mmap_to=out), repeat)
         rows.append({"task": "RTI .lp, 200 JPEG 512^2, mmap_to a .btfrs", "seconds": t,
                      "decoded_MB": b.nbytes / 1e6, "file_MB": files / 1e6, "MB_per_s": b.nbytes / 1e6 / t,
                      "file_MB_per_s": files / 1e6 / t})
@@ -893,7 +896,7 @@ def load_bench(repeat: int) -> list:
     return rows
 
 
-def load_table(rows: list) -> str:
+def load_table(rows: List[Dict[str, Any]]) -> str:
     lines = ["| capture | seconds | decoded MB | MB/s decoded | file MB/s |", "|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['task']} | {r['seconds']:.3f} | {r['decoded_MB']:.0f} | {r['MB_per_s']:.0f} | "
@@ -904,17 +907,13 @@ def load_table(rows: list) -> str:
 OOC_LPCA = {"clusters": 64, "components": 8}
 
 
-def out_of_core_bench(path: str, size: int, limit: str, kinds=("ptm", "lpca")) -> dict:
+def out_of_core_bench(path: str, size: int, limit: str, kinds: Sequence[str] = ("ptm", "lpca")) -> Dict[str, Any]:
     """Issue 15: fit a memory-mapped BTF larger than memory under ``memory_limit``.
 
     Makes ``knit`` at ``size``^2 x 81 x 81 straight into ``path`` (``materials.make(out=...)``,
     streamed; kept when a file of that size is already there), then fits each model in a fresh
-    interpreter (``btfrs._memprobe``): wall time, bytes read from storage, and the peak anonymous
+    interpreter (``btfrs.tools.memprobe``): wall time, bytes read from storage, and the peak anonymous
     memory above the start, against the limit plus the model."""
-    import subprocess
-
-    from .btf import Btf
-
     made = None
     want = size * size * 81 * 81 * 3 * 4
     have = Btf.load(path, mmap=True).data.nbytes if os.path.exists(path) else None
@@ -922,10 +921,10 @@ def out_of_core_bench(path: str, size: int, limit: str, kinds=("ptm", "lpca")) -
         t0 = time.perf_counter()
         materials.make("knit", size=size, seed=1, out=path, progress=True)
         made = time.perf_counter() - t0
-    rows = []
+    rows: List[Dict[str, Any]] = []
     for kind in kinds:
         opts = dict(OOC_LPCA if kind == "lpca" else {}, memory_limit=limit)
-        r = subprocess.run([sys.executable, "-m", "btfrs._memprobe", path, kind, json.dumps(opts)],
+        r = subprocess.run([sys.executable, "-m", "btfrs.tools.memprobe", path, kind, json.dumps(opts)],
                            capture_output=True, text=True, check=True)
         m = json.loads(r.stdout.strip().splitlines()[-1])
         m["options"] = opts
@@ -935,15 +934,13 @@ def out_of_core_bench(path: str, size: int, limit: str, kinds=("ptm", "lpca")) -
             "limit": limit, "rows": rows}
 
 
-def out_of_core_table(res: dict) -> str:
+def out_of_core_table(res: Dict[str, Any]) -> str:
     gb = 1e9
     lines = [f"{res['size']}^2 x 81 x 81 knit, {res['data_bytes'] / gb:.1f} GB on disk, "
              f"{res['memory_bytes'] / 2**30:.1f} GiB of memory, memory_limit={res['limit']}"
              + (f" (made in {res['made_seconds']:.0f} s)" if res.get("made_seconds") else ""),
              "| fit | seconds | read from storage | GB/s (storage) | GB/s (data) | peak anonymous | limit + model |",
              "|---|---|---|---|---|---|---|"]
-    from ._checks import memory_size
-
     for r in res["rows"]:
         bound = memory_size("limit", res["limit"]) + r["model"]
         lines.append(f"| {r['kind']} {json.dumps({k: v for k, v in r['options'].items() if k != 'memory_limit'})} | "
@@ -952,11 +949,11 @@ def out_of_core_table(res: dict) -> str:
     return "\n".join(lines)
 
 
-DASK_FITS = (("ptm", {"kind": "rgb"}), ("lpca", {"clusters": 32, "components": 4}), ("rbf", {"components": 9}),
+DASK_FITS: Tuple[Tuple[str, Dict[str, Any]], ...] = (("ptm", {"kind": "rgb"}), ("lpca", {"clusters": 32, "components": 4}), ("rbf", {"components": 9}),
              ("bilinear", {"components": 9}))
 
 
-def light_basis_steps(m, local) -> float:
+def light_basis_steps(m: Any, local: Any) -> float:
     """How far apart two light-basis fits (RBF, bilinear) are, in 8-bit quantisation steps.
 
     The principal functions of each view slot are compared up to sign (the table's columns, a
@@ -993,7 +990,7 @@ def light_basis_steps(m, local) -> float:
     return float((np.abs(cx - cy) / step).max())
 
 
-def _dask_agrees(kind: str, m, local) -> bool:
+def _dask_agrees(kind: str, m: Any, local: Any) -> bool:
     """The cluster fit against the local one: array for array, except the light bases, whose
     principal functions may have the other sign and whose coefficients, projected in another
     float order, may round to the neighbouring 8-bit code (:func:`light_basis_steps`)."""
@@ -1002,7 +999,7 @@ def _dask_agrees(kind: str, m, local) -> bool:
     return light_basis_steps(m, local) <= 1.01
 
 
-def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int = 1) -> dict:
+def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int = 1) -> Dict[str, Any]:
     """Issue 15 item 3: the same fits locally and on a Dask LocalCluster of 1 and 2 workers.
 
     knit ``size``^2 x 81 x 81 is made into a memory-mapped ``.btfrs`` (the local fits read it in
@@ -1011,13 +1008,7 @@ def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int 
     and one rayon thread (``RAYON_NUM_THREADS=1``: one core, as a cluster node's slot), so the 1-
     and 2-worker rows are 1 and 2 cores; the local fit uses every core of this machine. Every
     cluster fit is checked equal, array for array, to the local one."""
-    import logging
-    import shutil
-
-    from distributed import Client, LocalCluster
-
-    from . import dask as bd
-    from .btf import Btf
+    from distributed import Client, LocalCluster  # optional (dask extra): only --dask
 
     work = workdir or tempfile.mkdtemp(prefix="btfrs-dask-bench-")
     os.makedirs(work, exist_ok=True)
@@ -1029,7 +1020,7 @@ def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int 
         save_s = time.perf_counter() - t0
         zbytes = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(zpath) for f in fs)
         b = Btf.load(path, mmap=True)
-        rows = []
+        rows: List[Dict[str, Any]] = []
         local = {}
         for kind, o in DASK_FITS:
             fit.fit(kind, b, **o)  # warm the page cache
@@ -1038,8 +1029,6 @@ def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int 
             rows.append({"kind": kind, "options": o, "local_s": secs})
         # The same local fits on one core (a fresh interpreter with one rayon thread): the
         # cluster's overhead at equal cores is dask1_s / local1_s.
-        import subprocess
-
         code = ("import json, sys, time; import btfrs; from btfrs import fit; from btfrs.btf import Btf; "
                 "b = Btf.load(sys.argv[1], mmap=True); out = {}\n"
                 "for kind, o in json.loads(sys.argv[2]):\n"
@@ -1048,9 +1037,9 @@ def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int 
                 "        t0 = time.perf_counter(); fit.fit(kind, b, **o); best = min(best, time.perf_counter() - t0)\n"
                 "    out[kind] = best\n"
                 "print(json.dumps(out))")
-        r = subprocess.run([sys.executable, "-c", code, path, json.dumps(DASK_FITS), str(repeat)], check=True,
+        proc = subprocess.run([sys.executable, "-c", code, path, json.dumps(DASK_FITS), str(repeat)], check=True,
                            capture_output=True, text=True, env={**os.environ, "RAYON_NUM_THREADS": "1"})
-        one = json.loads(r.stdout.strip().splitlines()[-1])
+        one = json.loads(proc.stdout.strip().splitlines()[-1])
         for row in rows:
             row["local1_s"] = one[row["kind"]]
         for n in (1, 2):
@@ -1070,7 +1059,7 @@ def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int 
             shutil.rmtree(work, ignore_errors=True)
 
 
-def dask_table(res: dict) -> str:
+def dask_table(res: Dict[str, Any]) -> str:
     gb = res["data_bytes"] / 1e9
     lines = [f"knit {res['size']}^2 x 81 x 81, {gb:.2f} GB of values; zarr tiles {res['chunks']}^2 texels, "
              f"{res['zarr_bytes'] / 1e9:.2f} GB on disk, written by save_zarr in {res['save_zarr_s']:.1f} s "
@@ -1086,8 +1075,8 @@ def dask_table(res: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m btfrs.bench", description=__doc__)
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m btfrs.tools.bench", description=__doc__)
     p.add_argument("--size", type=int, action="append", help="material sizes (default: 32 and 64; 32 with --accuracy)")
     p.add_argument("--repeat", type=int, default=3, help="runs per figure; the best is kept (default: 3)")
     p.add_argument("--json", help="where to write the JSON (default: bench.json, or accuracy.json with --accuracy, "
@@ -1126,6 +1115,7 @@ def main(argv=None) -> int:
     p.add_argument("--dask-chunks", type=int, default=32, help="the zarr tiles' side in texels (default: 32)")
     p.add_argument("--figures", metavar="DIR", help="also write paper 000 Figure 6 style images into DIR")
     a = p.parse_args(argv)
+    res: Any  # each mode's results
     if a.dask:
         res = dask_bench((a.size or [96])[0], a.dask_chunks, repeat=a.repeat)
         print(dask_table(res))
@@ -1146,8 +1136,6 @@ def main(argv=None) -> int:
     if a.json is None:
         a.json = os.path.join(a.figures or "bench-results", "accuracy.json" if a.accuracy else "bench.json")
     if a.ground_truth:
-        from . import groundtruth
-
         res = groundtruth.check(progress=True)
         print(f"ground truth: woven heightfield measured by path tracing ({res['texels']}^2 texels, 81 x 81 "
               f"directions, {res['measure_spp']} spp) rendered by btfrs ({res['backend']}) on a plane at "
@@ -1183,7 +1171,7 @@ def main(argv=None) -> int:
         print(rti_summary(res))
         return _finish(a, {"machine": machine(), "rti": res})
     if a.accuracy:
-        out = {"machine": machine(), "accuracy_models": []}
+        out: Dict[str, Any] = {"machine": machine(), "accuracy_models": []}
         for size in a.size or [32]:
             rows = accuracy_models(size)
             print(f"accuracy of every model at {size}^2, 10% of the pairs held out (seed 0):")
@@ -1254,7 +1242,7 @@ def main(argv=None) -> int:
     return _finish(a, out)
 
 
-def _finish(a, out: dict) -> int:
+def _finish(a: argparse.Namespace, out: Dict[str, Any]) -> int:
     """Write the Figure 6 images (``--figures``) and the JSON."""
     if a.figures and not a.accuracy:
         os.makedirs(a.figures, exist_ok=True)
@@ -1265,7 +1253,7 @@ def _finish(a, out: dict) -> int:
     return 0
 
 
-def _write_json(path: str, obj) -> None:
+def _write_json(path: str, obj: Any) -> None:
     """Write ``obj`` as JSON to ``path`` atomically: a temporary file in the same directory (so the
     rename cannot cross file systems), synced, then ``os.replace`` over ``path``. An interrupted or
     failing run leaves the previous results whole and no temporary file behind."""
