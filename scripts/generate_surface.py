@@ -151,7 +151,7 @@ def fit_module(facts: list[dict]) -> str:
         lines += [("    " + d) if d else "" for d in doc[1:]]
         lines.append('    """')
         opts = ", ".join(f"{json.dumps(o['name'])}: {py_name(o['name'])}" for o in m["options"])
-        lines.append(f"    options = {{{opts}}}")
+        lines.append(f"    options: dict[str, object] = {{{opts}}}")
         lines.append(f"    model = fit_kind({json.dumps(m['kind'])}, btf, options, memory_limit, progress)")
         lines.append(f"    assert isinstance(model, {m['class']})")
         lines.append("    return model")

@@ -219,7 +219,7 @@ def test_checked_integers_accept_numpy_integers_and_name_the_range(tiny):
     with pytest.raises(InvalidArgumentError, match=r"^clusters: expected an integer >= 1, got -1$"):
         btfrs.fit.lpca(tiny, clusters=-1)
     # Above the texels: the fit's own check, which knows the count.
-    with pytest.raises(InvalidArgumentError, match=r"^clusters: expected 1 to 64, got 9223372036854775808$"):
+    with pytest.raises(InvalidArgumentError, match=r"^clusters: expected 1 to 65536, got 9223372036854775808$"):
         btfrs.fit.lpca(tiny, clusters=2**63)
     with pytest.raises(ArgumentTypeError, match=r"^clusters: expected an integer >= 1, got 1\.8"):
         btfrs.fit.lpca(tiny, clusters=2**64)

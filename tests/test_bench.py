@@ -11,7 +11,8 @@ import os
 import numpy as np
 import pytest
 
-from btfrs import baselines, materials
+from btfrs import materials
+from btfrs.tools import baselines
 from btfrs.tools import bench
 
 

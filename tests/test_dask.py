@@ -212,7 +212,7 @@ def test_bad_input_gets_clear_errors(client, tmp_path, stored, sample):
     arr = bd.open(stored)
     with pytest.raises(InvalidArgumentError, match="^resolution: the blockwise rbf fit sums a 867 x 867 covariance"):
         bd.fit("rbf", arr, resolution=17)
-    with pytest.raises(InvalidArgumentError, match="^width: expected a positive kernel width"):
+    with pytest.raises(InvalidArgumentError, match="^width: expected a number > 0"):
         bd.fit("rbf", arr, width=-1.0)
     with pytest.raises(InvalidArgumentError, match="^model: "):
         bd.fit("nope", arr)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import btfrs
-from btfrs import baselines
+from btfrs.tools import baselines
 from btfrs.evaluation import pareto_front, split_directions
 
 
@@ -95,7 +95,7 @@ def test_pareto_front_against_a_sweep():
 def report(weave):
     models = [("PTM-RGB", "ptm", {"kind": "rgb"}), ("Phong+SRF", "srf", {}),
               ("SH-CLS 9x9", "sh", {"light_coeffs": 9, "view_coeffs": 9})]
-    return btfrs.evaluate(weave, models, holdout="both", baselines=True, baseline_texels=4, render_size=128, seed=0,
+    return btfrs.evaluate(weave, models, holdout="both", baselines=baselines.evaluation_rows, baseline_texels=4, render_size=128, seed=0,
                           material="weave")
 
 
@@ -168,7 +168,7 @@ def test_evaluate_records_a_failed_fit_instead_of_raising(weave):
     few = weave.select(lights=[0, 10, 30, 50, 70])
     rep = btfrs.evaluate(few, [("PTM strict", "ptm", {"kind": "rgb", "on_degenerate": "raise"}),
                                ("Phong+SRF", "srf", {})], holdout="directions", render=False,
-                         baselines=False)
+                         baselines=None)
     bad, ok = rep.rows
     assert "DegenerateDataError" in bad["error"] and bad.get("heldout") is None
     assert np.isfinite(ok["heldout"]) and ok["heldout"] == ok["heldout_directions"]

@@ -93,18 +93,18 @@ def test_compare_sees_a_shift_and_a_scale():
         gt.compare(base[:8], base)
 
 
-def test_the_readme_snippet_and_its_table(result, monkeypatch, tmp_path):
-    # The README's ground-truth snippet runs (on this module's result: check() is what the
+def test_the_docs_snippet_and_its_table(result, monkeypatch, tmp_path):
+    # The docs' ground-truth snippet runs (on this module's result: check() is what the
     # fixture ran) and its table holds this run's figures.
     import re
     from pathlib import Path
 
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = text[text.index("### Ground truth"):]
-    block = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    text = (Path(__file__).resolve().parents[1] / "docs" / "rendering.md").read_text()
+    section = text[text.index("## Ground truth"):]
+    block = re.search(r"```python \{\.skip\}\n(.*?)```", section, re.S).group(1)
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(gt, "check", lambda **kw: result)
-    exec(compile(block, "README.md", "exec"), {})
+    exec(compile(block, "docs/rendering.md", "exec"), {})
     assert (tmp_path / "ground_truth.png").stat().st_size > 10_000
     rows = {(r["light"], r["case"]): r for r in result["rows"] if r["filter"] == "bilinear"}
     table = re.findall(r"^\| (theta [\d.]+, phi [\d.]+) \| (measured, bilinear|rows mirrored \(wrong y\)) \| "

@@ -115,7 +115,7 @@ def test_bad_input_is_a_clear_error(weave):
         btfrs.fit.lafortune_view(weave, lobes=2.5)
     with pytest.raises(InvalidArgumentError, match="kind"):
         btfrs.fit.lafortune_view(weave, kind="lrgb")
-    with pytest.raises(InvalidArgumentError, match="densify: unknown field"):
+    with pytest.raises(InvalidArgumentError, match="densify: unknown option"):
         btfrs.fit.fit("lafortune_view", weave, densify=4)
     few = weave.select(lights=[0, 1, 2, 3, 4, 5])
     with pytest.raises(DegenerateDataError, match="view slot"):

@@ -148,7 +148,7 @@ def test_a_file_changed_on_disk_during_a_fit_is_an_error(tmp_path):
     st = path.stat()
     # Another process rewriting the file moves its modification time (and maybe its size).
     os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
-    with pytest.raises(FormatError, match="the file changed on disk during the PTM-RGB fit"):
+    with pytest.raises(FormatError, match="the file changed on disk during the ptm fit"):
         btfrs.fit.ptm(btf)
     with pytest.raises(FormatError, match="changed on disk during the analysis"):
         btfrs.synth.analyse(btf, textons=16, levels=1)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import ast
 import inspect
+import keyword
 import re
 import subprocess
 import sys
@@ -157,9 +158,9 @@ def test_fit_functions_have_the_schemas_signatures():
         f = getattr(btfrs.fit, kind)
         sig = inspect.signature(f)
         names = [n for n in sig.parameters if n not in ("btf", "memory_limit", "progress")]
-        assert names == [o["name"] + ("_" if o["name"] == "lambda" else "") for o in info["options"]], kind
+        assert names == [o["name"] + ("_" if keyword.iskeyword(o["name"]) else "") for o in info["options"]], kind
         for o in info["options"]:
-            p = sig.parameters[o["name"] + ("_" if o["name"] == "lambda" else "")]
+            p = sig.parameters[o["name"] + ("_" if keyword.iskeyword(o["name"]) else "")]
             assert p.default == o["default"] and p.kind is inspect.Parameter.KEYWORD_ONLY, (kind, o["name"])
             assert o["doc"].split()[0].lower() in (f.__doc__ or "").lower(), (kind, o["name"])
         assert info["doc"] in (f.__doc__ or ""), kind
@@ -192,7 +193,8 @@ def test_every_option_out_of_its_range_is_refused_naming_it(kind, small):
             with pytest.raises(InvalidArgumentError) as e:
                 btfrs.fit.fit(kind, small, **{o["name"]: v})
             msg = str(e.value)
-            assert msg.startswith(o["name"] + ": expected ") and o["allowed"] in msg, msg
+            py = o["name"] + ("_" if keyword.iskeyword(o["name"]) else "")  # as Python spells it
+            assert msg.startswith(py + ": expected ") and o["allowed"] in msg, msg
     with pytest.raises(InvalidArgumentError, match="unknown option"):
         btfrs.fit.fit(kind, small, no_such_option=1)
     with pytest.raises(InvalidArgumentError, match="finite"):

@@ -7,7 +7,7 @@ import pytest
 
 import btfrs
 from btfrs import synth
-from btfrs.baselines import crop
+from btfrs.tools.baselines import crop
 from btfrs.exceptions import InvalidArgumentError
 
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import keyword
 import time
-from typing import Any, Mapping, Union
+from typing import Any, Mapping, Union, cast
 
 import numpy as np
 
@@ -63,9 +63,10 @@ def fit_kind(kind: str, btf: Btf, options: Mapping[str, Any], memory_limit: Memo
     if kind not in model_kinds():
         raise InvalidArgumentError(f"model: unknown model {kind!r}; expected one of {', '.join(model_kinds())}")
     o = options_json(kind, options, memory_limit)
+    known = cast("_native.ModelKind", kind)  # checked against the registry above
     t0 = time.perf_counter()
     try:
-        m = _native.fit_model(kind, b.data, b.views, b.lights, b.mask, o, callback(progress, f"{kind} fit"))
+        m = _native.fit_model(known, b.data, b.views, b.lights, b.mask, o, callback(progress, f"{kind} fit"))
     except InvalidArgumentError as e:
         # The schema spells an option that is a Python keyword without its "_" (lambda_).
         msg = str(e)

@@ -25,7 +25,7 @@ from .evaluation import evaluate
 from .exceptions import BtfrsError, InvalidArgumentError
 from .models import Model, model_kinds
 from .rendering import Camera, DirectionalLight, PointLight, Scene, render
-from .tools import demo
+from .tools import baselines, demo
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -259,7 +259,7 @@ def evaluate_command(args) -> None:
     btf, name = _load_btf(args, progress)
     models = args.models if args.models == "all" else [m.strip() for m in args.models.split(",") if m.strip()]
     rep = evaluate(btf, models, holdout=args.holdout, fraction=args.fraction, sweep=args.sweep,
-                   baselines=False if args.no_baselines else None, render=not args.no_render, seed=args.eval_seed,
+                   baselines=None if args.no_baselines or args.sweep == "quick" else baselines.evaluation_rows, render=not args.no_render, seed=args.eval_seed,
                    material=name, progress=progress)
     print(rep.summary())
     print()

@@ -5,11 +5,11 @@ row 0 is the zenith (+z, the scenes' up), the last row the nadir; columns run in
 towards +y; the image is twice as wide as high. :func:`btfrs.render` lights a model with it in two
 ways (``environment=``):
 
-* ``method="sampled"`` (every model): ``samples`` directional lights drawn with probability
+* ``lighting="sampled"`` (every model): ``samples`` directional lights drawn with probability
   proportional to luminance x solid angle (stratified, seeded), one pass through the model's
   ordinary light loop. The paper used a spherical Q^2-tree; here the distribution is piecewise
   constant over the pixels (see ``rust/btfrs-render/src/environment.rs``).
-* ``method="sh"`` (double-SH models, :func:`btfrs.fit.sh`): the environment's SH vector rotated
+* ``lighting="sh"`` (double-SH models, :func:`btfrs.fit.sh`): the environment's SH vector rotated
   into each pixel's tangent frame, converted by the hemispherical autocorrelation matrix, one
   inner product with the texel's light coefficients (``rust/btfrs-render/src/sh_env.rs``).
 
@@ -92,7 +92,7 @@ class Environment:
 
     def lights(self, samples: int = 64, *, seed: int = 0) -> List[DirectionalLight]:
         """``samples`` importance-sampled :class:`~btfrs.DirectionalLight` s whose sum estimates
-        the lighting integral (what ``method="sampled"`` renders with)."""
+        the lighting integral (what ``lighting="sampled"`` renders with)."""
         n = integer("samples", samples, min=1, max=65536)
         sd = integer("seed", seed, min=0)
         d, i = _native.env_sample(self.data, n, sd)

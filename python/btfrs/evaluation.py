@@ -34,14 +34,13 @@ from typing import Any, Callable, Optional, Sequence, Union
 
 import numpy as np
 
-from . import baselines as _base
 from . import fit as fit_mod
 from . import io, rendering
 from ._checks import boolean, choice, instance, integer, real, size_hw
 from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
-from .exceptions import BtfrsError, InvalidArgumentError
+from .exceptions import ArgumentTypeError, BtfrsError, InvalidArgumentError
 from .models import model_kinds
 from .rendering import Camera, PointLight, Scene
 
@@ -360,7 +359,7 @@ def _timed_render(model, scene, size) -> tuple:
 
 
 def evaluate(btf: Btf, models: Union[str, Sequence[Any]] = "all", *, holdout: str = "both", fraction: float = 0.1,
-             sweep: str = "full", baselines: Optional[bool] = None, render: bool = True,
+             sweep: str = "full", baselines: Optional[Callable[..., list]] = None, render: bool = True,
              render_size: Union[int, tuple] = 512, baseline_texels: int = 16, seed: int = 0,
              material: Optional[str] = None, progress: Progress = None) -> EvaluationReport:
     """Fit every model of ``models`` at every point of its sweep and measure speed against
@@ -376,9 +375,12 @@ def evaluate(btf: Btf, models: Union[str, Sequence[Any]] = "all", *, holdout: st
         means the first of them.
     fraction: the share held out (of the pairs; of the views and of the lights).
     sweep: ``"full"`` or ``"quick"`` (:func:`sweeps`: each model's registry sweep).
-    baselines: add the numpy / scipy / scikit-learn ways and raw interpolation as rows (default:
-        with the full sweep). The scipy Lafortune fit runs on ``baseline_texels`` texels only (its
-        time is per texel, times the texels; the table says so).
+    baselines: rows of other ways to do the same, on the same splits: a function
+        ``(btf, splits, protocols, fit_split, texels, seed, notes) -> rows``, such as
+        ``btfrs.tools.baselines.evaluation_rows`` (the numpy / scipy / scikit-learn ways and raw
+        interpolation, which ``btfrs evaluate`` adds unless ``--no-baselines``); ``None``: none.
+        ``baseline_texels`` bounds the texels a slow baseline fits (its time is per texel, times
+        the texels; the table says so).
     render: measure ``render_ms`` and ``psnr_scene`` (:func:`reference_scene` at ``render_size``).
     seed: every random choice (the splits, LPCA's k-means, the scikit-learn baseline).
     material: a name for the report and the charts.
@@ -388,7 +390,10 @@ def evaluate(btf: Btf, models: Union[str, Sequence[Any]] = "all", *, holdout: st
     holdout = choice("holdout", holdout, ("pairs", "directions", "both"))
     fraction = real("fraction", fraction, min=0.0, max=1.0, min_open=True, max_open=True)
     sweep = choice("sweep", sweep, ("full", "quick"))
-    use_baselines = (sweep == "full") if baselines is None else boolean("baselines", baselines)
+    if baselines is not None and not callable(baselines):
+        raise ArgumentTypeError("baselines: expected a function making baseline rows "
+                                f"(btfrs.tools.baselines.evaluation_rows) or None, got {baselines!r}")
+    use_baselines = baselines is not None
     render = boolean("render", render)
     baseline_texels = integer("baseline_texels", baseline_texels, min=1)
     seed = check_seed(seed)
@@ -455,7 +460,8 @@ def evaluate(btf: Btf, models: Union[str, Sequence[Any]] = "all", *, holdout: st
         if cb is not None:
             cb(done, total)
     if use_baselines:
-        for row in _baseline_rows(b, splits, protocols, fit_split, baseline_texels, seed, notes):
+        assert baselines is not None
+        for row in baselines(b, splits, protocols, fit_split, baseline_texels, seed, notes):
             if render and row["kind"] == "raw":
                 if ref_img is not None:
                     row["render_ms"] = raw_ms
@@ -490,82 +496,3 @@ def _report_note(rep: dict) -> str:
     return ""
 
 
-def _baseline_rows(b: Btf, splits: dict, protocols: list, fit_split, texels: int, seed: int, notes: list) -> list:
-    """The numpy / scipy / scikit-learn ways and raw interpolation, on the same splits."""
-    rows = []
-    h, w = b.height, b.width
-    tr, _ = fit_split
-
-    def held(fn):
-        return {f"heldout_{p}": fn(*splits[p]) for p in protocols}
-
-    # PTM-RGB by numpy pinv per view slot; between slots the same 3-nearest blend as btfrs.
-    t0 = time.perf_counter()
-    c = _base.ptm_rgb_numpy(tr)
-    row = dict(label="PTM-RGB", kind="ptm", options={"kind": "rgb"}, way="numpy pinv", fit_s=time.perf_counter() - t0,
-               bytes=4 * c.size, reconstruction=_base.ptm_error(c, tr, tr),
-               note="float64 pinv per view slot, coefficients counted as float32")
-    for p in protocols:
-        ptr, pte = splits[p]
-        cc = c if ptr is tr else _base.ptm_rgb_numpy(ptr)
-        row[f"heldout_{p}"] = _base.ptm_error(cc, ptr, pte)
-    rows.append(row)
-
-    # Lafortune-Lum 2 by scipy's LM (analytic Jacobian) on a window of texels.
-    rr, cc0 = h // 2, max(0, w // 2 - texels // 2)
-    n = min(texels, w - cc0)
-    win = (slice(rr, rr + 1), slice(cc0, cc0 + n))
-    row = dict(label="Lafortune-Lum 2", kind="lafortune", options={"kind": "lum", "lobes": 2},
-               way=f"scipy LM ({n} texels)", bytes=h * w * 12 * 4,
-               note=f"scipy least_squares(method='lm', analytic Jacobian) on {n} texels of row {rr}; "
-                    f"fit_s = seconds per texel x {h * w} texels; errors over those texels")
-    for p in protocols:
-        ptr, pte = splits[p]
-        r = _base.lafortune_scipy(_base.crop(ptr, *win), _base.crop(pte, *win), lobes=2, jac="analytic")
-        row[f"heldout_{p}"] = r["held_out"]
-        if ptr is tr:
-            row["fit_s"] = r["seconds_per_texel"] * h * w
-            row["reconstruction"] = r["reconstruction"]
-    rows.append(row)
-    notes.append(f"scipy Lafortune baseline: {n} texels fitted, its fit seconds scaled to all {h * w}")
-
-    # LPCA by scikit-learn KMeans + PCA; held-out pairs filled by interpolating the reconstruction.
-    row = dict(label="LPCA 32x4", kind="lpca", options={"clusters": 32, "components": 4},
-               way="scikit-learn KMeans + PCA", note="held-out pairs interpolated from the reconstruction")
-    k = min(32, h * w)
-    for p in protocols:
-        ptr, pte = splits[p]
-        r = _base.lpca_sklearn_fit(ptr, clusters=k, components=4, seed=seed)
-        row[f"heldout_{p}"] = _base.raw_interpolation(r["reconstructed"], pte)
-        if ptr is tr:
-            row.update(fit_s=r["seconds"], bytes=r["nbytes"], reconstruction=r["reconstruction"])
-    rows.append(row)
-
-    # Double SH 25x25 by numpy lstsq, on at most a 32 x 32 texel window (its time is linear in
-    # the texels: scaled to all of them; bytes counted for all).
-    sh_win = (slice(0, min(h, 32)), slice(0, min(w, 32)))
-    nsh = min(h, 32) * min(w, 32)
-    row = dict(label="SH-LS 25x25", kind="sh", options={"light_coeffs": 25, "view_coeffs": 25, "cls": False},
-               way="numpy lstsq" + ("" if nsh == h * w else f" ({nsh} texels)"), bytes=4 * h * w * 3 * 625,
-               note="float64 least squares, no CLS, coefficients counted as float32"
-                    + ("" if nsh == h * w else f"; fitted on the top-left {min(h, 32)} x {min(w, 32)} texels, "
-                                                f"fit_s scaled to all {h * w}"))
-    for p in protocols:
-        ptr, pte = splits[p]
-        ctr, cte = (ptr, pte) if nsh == h * w else (_base.crop(ptr, *sh_win), _base.crop(pte, *sh_win))
-        r = _base.sh_numpy_lstsq(ctr, 25, 25)
-        row[f"heldout_{p}"] = _base.sh_error(r["coeffs"], cte)
-        if ptr is tr:
-            row.update(fit_s=r["seconds"] * h * w / nsh, reconstruction=_base.sh_error(r["coeffs"], ctr))
-    rows.append(row)
-    if nsh < h * w:
-        notes.append(f"numpy lstsq SH baseline: {nsh} texels fitted, its fit seconds scaled to all {h * w}")
-
-    # Raw interpolation of the measured data (what the raw renderer does).
-    row = dict(label="raw interpolation", kind="raw", options={}, way="raw", fit_s=None, bytes=b.nbytes,
-               reconstruction=0.0, note="3 nearest views x 3 nearest lights of the measured data")
-    for p in protocols:
-        ptr, pte = splits[p]
-        row[f"heldout_{p}"] = _base.raw_interpolation(ptr, pte)
-    rows.append(row)
-    return rows

@@ -77,7 +77,7 @@ def ptm(
     Ptm
         The fitted model.
     """
-    options = {"kind": kind, "rcond": rcond, "on_degenerate": on_degenerate, "bits": bits}
+    options: dict[str, object] = {"kind": kind, "rcond": rcond, "on_degenerate": on_degenerate, "bits": bits}
     model = fit_kind("ptm", btf, options, memory_limit, progress)
     assert isinstance(model, Ptm)
     return model
@@ -134,7 +134,7 @@ def hsh(
     Hsh
         The fitted model.
     """
-    options = {"order": order, "lambda": lambda_, "rcond": rcond, "on_degenerate": on_degenerate, "bits": bits}
+    options: dict[str, object] = {"order": order, "lambda": lambda_, "rcond": rcond, "on_degenerate": on_degenerate, "bits": bits}
     model = fit_kind("hsh", btf, options, memory_limit, progress)
     assert isinstance(model, Hsh)
     return model
@@ -190,7 +190,7 @@ def lafortune(
     Lafortune
         The fitted model.
     """
-    options = {"kind": kind, "lobes": lobes, "diffuse": diffuse, "max_iter": max_iter, "densify": densify}
+    options: dict[str, object] = {"kind": kind, "lobes": lobes, "diffuse": diffuse, "max_iter": max_iter, "densify": densify}
     model = fit_kind("lafortune", btf, options, memory_limit, progress)
     assert isinstance(model, Lafortune)
     return model
@@ -242,7 +242,7 @@ def lafortune_view(
     LafortuneView
         The fitted model.
     """
-    options = {"kind": kind, "lobes": lobes, "diffuse": diffuse, "max_iter": max_iter}
+    options: dict[str, object] = {"kind": kind, "lobes": lobes, "diffuse": diffuse, "max_iter": max_iter}
     model = fit_kind("lafortune_view", btf, options, memory_limit, progress)
     assert isinstance(model, LafortuneView)
     return model
@@ -273,7 +273,7 @@ def srf(btf: Btf, *, memory_limit: MemoryLimit = None, progress: Progress = None
     Srf
         The fitted model.
     """
-    options = {}
+    options: dict[str, object] = {}
     model = fit_kind("srf", btf, options, memory_limit, progress)
     assert isinstance(model, Srf)
     return model
@@ -332,7 +332,7 @@ def sh(
     Sh
         The fitted model.
     """
-    options = {"light_coeffs": light_coeffs, "view_coeffs": view_coeffs, "cls": cls, "quantize": quantize, "chunk_texels": chunk_texels}
+    options: dict[str, object] = {"light_coeffs": light_coeffs, "view_coeffs": view_coeffs, "cls": cls, "quantize": quantize, "chunk_texels": chunk_texels}
     model = fit_kind("sh", btf, options, memory_limit, progress)
     assert isinstance(model, Sh)
     return model
@@ -394,7 +394,7 @@ def lpca(
     Lpca
         The fitted model.
     """
-    options = {"clusters": clusters, "components": components, "kmeans_iterations": kmeans_iterations, "refine_iterations": refine_iterations, "reduced_dims": reduced_dims, "seed": seed}
+    options: dict[str, object] = {"clusters": clusters, "components": components, "kmeans_iterations": kmeans_iterations, "refine_iterations": refine_iterations, "reduced_dims": reduced_dims, "seed": seed}
     model = fit_kind("lpca", btf, options, memory_limit, progress)
     assert isinstance(model, Lpca)
     return model
@@ -460,7 +460,7 @@ def rbf(
     Rbf
         The fitted model.
     """
-    options = {"components": components, "colour": colour, "chroma_components": chroma_components, "resolution": resolution, "width": width, "regularization": regularization, "seed": seed}
+    options: dict[str, object] = {"components": components, "colour": colour, "chroma_components": chroma_components, "resolution": resolution, "width": width, "regularization": regularization, "seed": seed}
     model = fit_kind("rbf", btf, options, memory_limit, progress)
     assert isinstance(model, Rbf)
     return model
@@ -521,7 +521,7 @@ def bilinear(
     Bilinear
         The fitted model.
     """
-    options = {"components": components, "colour": colour, "chroma_components": chroma_components, "resolution": resolution, "regularization": regularization, "seed": seed}
+    options: dict[str, object] = {"components": components, "colour": colour, "chroma_components": chroma_components, "resolution": resolution, "regularization": regularization, "seed": seed}
     model = fit_kind("bilinear", btf, options, memory_limit, progress)
     assert isinstance(model, Bilinear)
     return model

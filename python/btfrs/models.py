@@ -534,12 +534,18 @@ def load(path: PathLike):
     kind, meta, arrays = read_container(path)
     if kind == "btf":
         return Btf.from_arrays(path, arrays)
-    if kind == "analysis":
-        from .synth import Analysis
-
-        return Analysis._from_container(path, meta, arrays)
-    if kind == "tiles":
-        from .tiles import TileSet
-
-        return TileSet._from_container(path, meta, arrays)
+    loader = _CONTAINERS.get(kind)
+    if loader is not None:
+        return loader(path, meta, arrays)
     raise FormatError(f"{p}: unknown content {kind!r}")
+
+
+#: Readers of the other kinds a ``.btfrs`` container holds: ``kind -> reader(path, meta, arrays)``,
+#: filled in by the modules that define them (synthesis analyses, tile sets), so this layer needs
+#: not import them.
+_CONTAINERS: dict = {}
+
+
+def register_container(kind: str, reader: Any) -> None:
+    """Make :func:`load` read ``.btfrs`` files of content ``kind`` with ``reader(path, meta, arrays)``."""
+    _CONTAINERS[kind] = reader

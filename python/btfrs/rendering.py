@@ -282,9 +282,10 @@ def render(model: Union[Model, Btf], scene, camera, lights=None, *, size=(512, 5
     method = renderer
     lighting = choice("lighting", lighting, ("sampled", "sh"))
     if environment is not None:
-        from .environment import Environment
-
-        instance("environment", environment, Environment, "a btfrs.Environment")
+        # An Environment (btfrs.environment builds this module's lights, so it is known by what
+        # it does rather than imported here).
+        if not (hasattr(environment, "lights") and hasattr(environment, "data")):
+            raise ArgumentTypeError(f"environment: expected a btfrs.Environment, got {type(environment).__name__}")
         env_method = lighting
         if env_method == "sh":
             if lights is not None and (not hasattr(lights, "__len__") or len(lights)):
@@ -332,9 +333,9 @@ def render(model: Union[Model, Btf], scene, camera, lights=None, *, size=(512, 5
             raise InvalidArgumentError("tiles: give both tiles= (a tile set) and layout= (its tile ids)")
         if tile_map is not None:
             raise InvalidArgumentError("tile_map: give tiles= and layout=, or tile_map=, not both")
-        from .tiles import TileSet
-
-        instance("tiles", tiles, TileSet, "a btfrs.tiles.TileSet")
+        # A TileSet (btfrs.tiles sits above this module: known by what it does).
+        if not callable(getattr(tiles, "tile_map", None)):
+            raise ArgumentTypeError(f"tiles: expected a btfrs.tiles.TileSet, got {type(tiles).__name__}")
         tile_map = tiles.tile_map(model, layout)
     tm = None
     if tile_map is not None:

@@ -39,7 +39,7 @@ from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
-from .models import load_as
+from .models import load_as, register_container
 
 __all__ = [
     "Analysis",
@@ -402,3 +402,6 @@ def apply(texture: ArrayLike, coords: ArrayLike) -> NDArray[Any]:
         raise InvalidArgumentError(f"coords: point outside the {t.shape[0]} x {t.shape[1]} texture")
     looked_up: NDArray[Any] = t[c[..., 1], c[..., 0]]
     return looked_up
+
+
+register_container("analysis", Analysis._from_container)

@@ -29,7 +29,7 @@ from ._checks import integer, real
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
-from .models import Model, load_as, wrap
+from .models import Model, load_as, register_container, wrap
 from .rendering import TileMap
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -402,3 +402,6 @@ def _kind_of(model: object) -> Optional[str]:
 def _unit(v: ArrayLike) -> List[float]:
     a = np.asarray(v, dtype=np.float64)
     return [float(x) for x in a / np.linalg.norm(a)]
+
+
+register_container("tiles", TileSet._from_container)

@@ -29,10 +29,11 @@ from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import __version__, baselines, evaluation, fit, graphcut, io, materials, rendering, synth
+from .. import __version__, evaluation, fit, graphcut, io, materials, rendering, synth
 from .. import dask as bd
 from .. import directions as dirs
 from .. import tiles as wang
+from . import baselines
 from .._checks import memory_size
 from ..btf import Btf
 from ..environment import Environment
@@ -163,7 +164,7 @@ def _render_ms(model: Any, method: Optional[str] = None, size: int = 512,
     scene = rendering.Scene.sphere()
     cam = rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
     lights = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
-    kw: Dict[str, Any] = dict(size=size, uv_scale=4, method=method)
+    kw: Dict[str, Any] = dict(size=size, uv_scale=4, renderer=method)
     img = rendering.render(model, scene, cam, lights, **kw)
     best = float("inf")
     for _ in range(repeat):
@@ -209,7 +210,7 @@ def env_bench(size: int = 64, repeat: int = 2) -> List[Any]:
                  trilinear_ms=best(lights=light, size=512, filter="trilinear", **base),
                  env64_ms=best(environment=env, samples=64, size=(480, 640), **base))
         if getattr(m, "kind", "") == "sh":
-            r["env_sh_ms"] = best(environment=env, method="sh", size=(480, 640), **base)
+            r["env_sh_ms"] = best(environment=env, lighting="sh", size=(480, 640), **base)
         rows.append(r)
         print(f"  {label}: {r}", file=sys.stderr, flush=True)
     ptm = next(r["point_ms"] for r in rows if r["kind"] == "ptm")
@@ -229,7 +230,7 @@ def frames_bench(size: int = 32, repeat: int = 2) -> List[Any]:
     light = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
 
     def best(m: Any, method: str) -> float:
-        kw: Dict[str, Any] = dict(size=512, uv_scale=4, method=method)
+        kw: Dict[str, Any] = dict(size=512, uv_scale=4, renderer=method)
         rendering.render(m, scene, cam, light, **kw)
         t = float("inf")
         for _ in range(repeat):
@@ -526,7 +527,7 @@ def rti_bench(captures: Sequence[Tuple[str, int]] = RTI_CAPTURES, size: int = RT
     for name, nl in captures:
         btf = materials.make(name, size=size, seed=1, views=np.array([[0.0, 0.0, 1.0]]), lights=rti_lights(nl, 1))
         label = f"{name} 1 view x {nl} lights"
-        rep = evaluation.evaluate(btf, settings, holdout="pairs", fraction=RTI_HOLDOUT, baselines=False,
+        rep = evaluation.evaluate(btf, settings, holdout="pairs", fraction=RTI_HOLDOUT, baselines=None,
                                   render=False, material=label)
         path = os.path.join(chart_dir, f"rti_{name}.png")
         os.makedirs(chart_dir, exist_ok=True)

@@ -17,7 +17,8 @@ from typing import Any, Callable, Dict, List, Optional, Tuple, Union
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import __version__, baselines, fit, io, materials, rendering, synth, tiles
+from .. import __version__, fit, io, materials, rendering, synth, tiles
+from . import baselines
 from ..btf import Btf
 from ..directions import from_theta_phi
 from ..environment import Environment
@@ -171,7 +172,7 @@ def step_environment(ctx: Context) -> None:
     shots.append(img)
     times.append(f"sampled (64 lights, PTM-RGB) {_draw_ms(rendering.last_timings()):.0f} ms")
     if sh is not None:
-        img = rendering.render(sh, sphere, cam, environment=env, method="sh", size=(320, 320), uv_scale=4)
+        img = rendering.render(sh, sphere, cam, environment=env, lighting="sh", size=(320, 320), uv_scale=4)
         shots.append(img)
         times.append(f"SH method (double SH) {_draw_ms(rendering.last_timings()):.0f} ms")
     exposure = 0.9 / max(float(np.percentile(shots[0][shots[0].sum(-1) > 0], 99)), 1e-6)
@@ -291,7 +292,7 @@ def step_evaluate(ctx: Context) -> None:
     sweep) and the numpy / scipy / scikit-learn ways, both held-out protocols, charts in
     ``evaluate/``. ``btfrs evaluate`` runs the full sweep."""
     t0 = time.perf_counter()
-    rep = evaluate(ctx.btf, "all", holdout="both", sweep="quick", baselines=True, baseline_texels=8, seed=0,
+    rep = evaluate(ctx.btf, "all", holdout="both", sweep="quick", baselines=baselines.evaluation_rows, baseline_texels=8, seed=0,
                    material=ctx.material, progress=ctx.progress)
     paths = rep.save(ctx.out / "evaluate")
     front = ", ".join(r["label"] + ("" if r["way"] == "btfrs" else f" ({r['way']})") for r in rep.pareto("heldout", "bytes"))

@@ -196,7 +196,6 @@ pub fn model_facts() -> String {
     registry::describe().to_string()
 }
 
-
 /// Check fit options (a JSON object) for model `kind` as its fit would, without fitting.
 #[pyfunction]
 pub fn check_options(kind: &str, options_json: &str) -> PyResult<()> {

@@ -13,7 +13,7 @@ from typing import Any, Dict, List, Tuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .btf import Btf
+from ..btf import Btf
 
 __all__ = ["ptm_rgb_numpy", "ptm_error", "nearest_lights_interpolation", "interp_weights", "present_pair_weights",
            "raw_interpolation", "crop", "lafortune_scipy", "real_sh", "sh_numpy_lstsq", "sh_error", "lpca_sklearn",
@@ -319,3 +319,84 @@ def lpca_sklearn_fit(btf: Btf, clusters: int = 32, components: int = 4, seed: in
     nbytes = 4 * clusters * (components + 1) * x.shape[1] + btf.height * btf.width * (2 + 4 * components)
     return {"seconds": secs, "reconstruction": err, "nbytes": nbytes,
             "reconstructed": Btf(data, btf.views, btf.lights, btf.mask, check=False)}
+
+
+def evaluation_rows(b: Btf, splits: Dict[str, Tuple[Btf, Btf]], protocols: List[str], fit_split: Tuple[Btf, Btf],
+                    texels: int, seed: int, notes: List[str]) -> List[Dict[str, Any]]:
+    """The numpy / scipy / scikit-learn ways and raw interpolation as rows of
+    :func:`btfrs.evaluate` (its ``baselines=``), on the same splits."""
+    rows: List[Dict[str, Any]] = []
+    h, w = b.height, b.width
+    tr, _ = fit_split
+    row: Dict[str, Any]
+
+    # PTM-RGB by numpy pinv per view slot; between slots the same 3-nearest blend as btfrs.
+    t0 = time.perf_counter()
+    c = ptm_rgb_numpy(tr)
+    row = dict(label="PTM-RGB", kind="ptm", options={"kind": "rgb"}, way="numpy pinv", fit_s=time.perf_counter() - t0,
+               bytes=4 * c.size, reconstruction=ptm_error(c, tr, tr),
+               note="float64 pinv per view slot, coefficients counted as float32")
+    for p in protocols:
+        ptr, pte = splits[p]
+        cc = c if ptr is tr else ptm_rgb_numpy(ptr)
+        row[f"heldout_{p}"] = ptm_error(cc, ptr, pte)
+    rows.append(row)
+
+    # Lafortune-Lum 2 by scipy's LM (analytic Jacobian) on a window of texels.
+    rr, cc0 = h // 2, max(0, w // 2 - texels // 2)
+    n = min(texels, w - cc0)
+    win = (slice(rr, rr + 1), slice(cc0, cc0 + n))
+    row = dict(label="Lafortune-Lum 2", kind="lafortune", options={"kind": "lum", "lobes": 2},
+               way=f"scipy LM ({n} texels)", bytes=h * w * 12 * 4,
+               note=f"scipy least_squares(method='lm', analytic Jacobian) on {n} texels of row {rr}; "
+                    f"fit_s = seconds per texel x {h * w} texels; errors over those texels")
+    for p in protocols:
+        ptr, pte = splits[p]
+        r = lafortune_scipy(crop(ptr, *win), crop(pte, *win), lobes=2, jac="analytic")
+        row[f"heldout_{p}"] = r["held_out"]
+        if ptr is tr:
+            row["fit_s"] = r["seconds_per_texel"] * h * w
+            row["reconstruction"] = r["reconstruction"]
+    rows.append(row)
+    notes.append(f"scipy Lafortune baseline: {n} texels fitted, its fit seconds scaled to all {h * w}")
+
+    # LPCA by scikit-learn KMeans + PCA; held-out pairs filled by interpolating the reconstruction.
+    row = dict(label="LPCA 32x4", kind="lpca", options={"clusters": 32, "components": 4},
+               way="scikit-learn KMeans + PCA", note="held-out pairs interpolated from the reconstruction")
+    k = min(32, h * w)
+    for p in protocols:
+        ptr, pte = splits[p]
+        r = lpca_sklearn_fit(ptr, clusters=k, components=4, seed=seed)
+        row[f"heldout_{p}"] = raw_interpolation(r["reconstructed"], pte)
+        if ptr is tr:
+            row.update(fit_s=r["seconds"], bytes=r["nbytes"], reconstruction=r["reconstruction"])
+    rows.append(row)
+
+    # Double SH 25x25 by numpy lstsq, on at most a 32 x 32 texel window (its time is linear in
+    # the texels: scaled to all of them; bytes counted for all).
+    sh_win = (slice(0, min(h, 32)), slice(0, min(w, 32)))
+    nsh = min(h, 32) * min(w, 32)
+    row = dict(label="SH-LS 25x25", kind="sh", options={"light_coeffs": 25, "view_coeffs": 25, "cls": False},
+               way="numpy lstsq" + ("" if nsh == h * w else f" ({nsh} texels)"), bytes=4 * h * w * 3 * 625,
+               note="float64 least squares, no CLS, coefficients counted as float32"
+                    + ("" if nsh == h * w else f"; fitted on the top-left {min(h, 32)} x {min(w, 32)} texels, "
+                                                f"fit_s scaled to all {h * w}"))
+    for p in protocols:
+        ptr, pte = splits[p]
+        ctr, cte = (ptr, pte) if nsh == h * w else (crop(ptr, *sh_win), crop(pte, *sh_win))
+        r = sh_numpy_lstsq(ctr, 25, 25)
+        row[f"heldout_{p}"] = sh_error(r["coeffs"], cte)
+        if ptr is tr:
+            row.update(fit_s=r["seconds"] * h * w / nsh, reconstruction=sh_error(r["coeffs"], ctr))
+    rows.append(row)
+    if nsh < h * w:
+        notes.append(f"numpy lstsq SH baseline: {nsh} texels fitted, its fit seconds scaled to all {h * w}")
+
+    # Raw interpolation of the measured data (what the raw renderer does).
+    row = dict(label="raw interpolation", kind="raw", options={}, way="raw", fit_s=None, bytes=b.nbytes,
+               reconstruction=0.0, note="3 nearest views x 3 nearest lights of the measured data")
+    for p in protocols:
+        ptr, pte = splits[p]
+        row[f"heldout_{p}"] = raw_interpolation(ptr, pte)
+    rows.append(row)
+    return rows
