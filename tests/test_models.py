@@ -332,5 +332,5 @@ def test_fit_options_are_checked_by_the_model():
         btfrs.fit.fit("lafortune", btf, lobez=2)
     with pytest.raises(btfrs.InvalidArgumentError, match="clusters: expected an integer >= 1, got -1"):
         btfrs.fit.fit("lpca", btf, clusters=-1)
-    with pytest.raises(btfrs.InvalidArgumentError, match="model: expected one of"):
+    with pytest.raises(btfrs.InvalidArgumentError, match="model: unknown model .nope.; expected one of"):
         btfrs.fit.fit("nope", btf)

@@ -740,12 +740,12 @@ def figure6(out_dir: str, material: str = "bumps", size: int = 64, out: int = 19
 #: Paper 002 Table III: (set, tile side, total synthesis minutes, referenced BTFels %, GPU MB).
 TABLE3 = [("FLOORTILE", 128, 33, 37.86, 186.10), ("IMPALLA", 256, 51, 49.92, 61.36), ("WRINKLES", 64, 15, 76.92, 23.64),
           ("HOLES", 100, 25, 34.86, 10.72), ("REACTDIFFUSE", 64, 16, 55.01, 16.91)]
-#: Target for 16 tiles of 64^2 (issue 12).
+#: Target for 16 tiles of 64^2.
 TILES_TARGET_S = 10.0
 
 
 def tiles_bench(repeat: int) -> Dict[str, Any]:
-    """Graph-cut Wang tile sets (issue 12): synthesis of 16 tiles of 64^2, 128^2 and 256^2 in the
+    """Graph-cut Wang tile sets: synthesis of 16 tiles of 64^2, 128^2 and 256^2 in the
     SH 16x16 domain (bumps; 81 x 81 directions at 128^2, 25 x 25 at 256^2 to fit in memory), the
     tiling of a 1024 x 1024 layout, render ms with a tile map and without."""
     rows: List[Dict[str, Any]] = []
@@ -909,7 +909,7 @@ OOC_LPCA = {"clusters": 64, "components": 8}
 
 
 def out_of_core_bench(path: str, size: int, limit: str, kinds: Sequence[str] = ("ptm", "lpca")) -> Dict[str, Any]:
-    """Issue 15: fit a memory-mapped BTF larger than memory under ``memory_limit``.
+    """Fit a memory-mapped BTF larger than memory under ``memory_limit``.
 
     Makes ``knit`` at ``size``^2 x 81 x 81 straight into ``path`` (``materials.make(out=...)``,
     streamed; kept when a file of that size is already there), then fits each model in a fresh
@@ -1001,7 +1001,7 @@ def _dask_agrees(kind: str, m: Any, local: Any) -> bool:
 
 
 def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int = 1) -> Dict[str, Any]:
-    """Issue 15 item 3: the same fits locally and on a Dask LocalCluster of 1 and 2 workers.
+    """The same fits locally and on a Dask LocalCluster of 1 and 2 workers.
 
     knit ``size``^2 x 81 x 81 is made into a memory-mapped ``.btfrs`` (the local fits read it in
     place, the page cache warm) and converted to zarr by :func:`btfrs.dask.save_zarr` (tiles of
@@ -1084,12 +1084,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                                   "in the --figures directory or bench-results)")
     p.add_argument("--skip-models", action="store_true", help="only the foundation and renderer figures")
     p.add_argument("--sh-big", action="store_true", help="also time double SH 25x25 on a 128^2 x 81 x 81 sample")
-    p.add_argument("--synth-only", action="store_true", help="only the synthesis figures (issue 5)")
+    p.add_argument("--synth-only", action="store_true", help="only the synthesis figures")
     p.add_argument("--maxflow-only", action="store_true",
                    help="only btfrs.graphcut against scipy's maximum_flow on integer grids")
     p.add_argument("--maxflow-size", type=int, action="append",
                    help=f"grid sides of the max-flow figures (default: {' and '.join(map(str, MAXFLOW_SIZES))})")
-    p.add_argument("--tiles-only", action="store_true", help="only the Wang tile figures (issue 12)")
+    p.add_argument("--tiles-only", action="store_true", help="only the Wang tile figures")
     p.add_argument("--load-only", action="store_true",
                    help="only the load throughput of the real-data readers (UBO archives, RTI .lp sets)")
     p.add_argument("--accuracy", action="store_true",
@@ -1097,22 +1097,22 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     p.add_argument("--rti-only", action="store_true",
                    help="only the single-view RTI captures: every light basis against bytes (charts in docs/rti)")
     p.add_argument("--env-only", action="store_true",
-                   help="only the per-model frame times: point light, trilinear, environment (issue 14)")
+                   help="only the per-model frame times: point light, trilinear, environment")
     p.add_argument("--frames-only", action="store_true",
                    help="only the one-light frame of every example of every model and renderer, against "
-                        "PTM-RGB's (issue 14's 3x target)")
+                        "PTM-RGB's (the 3x target)")
     p.add_argument("--ground-truth", action="store_true",
                    help="only the path-traced ground truth (Mitsuba 3): a BTF measured from a heightfield, "
-                        "rendered on a plane, against the path trace of the heightfield (issue 14)")
+                        "rendered on a plane, against the path trace of the heightfield")
     p.add_argument("--out-of-core", metavar="PATH",
                    help="only the out-of-core fits: make knit at --size (default 640)^2 x 81 x 81 into PATH "
-                        "(32.2 GB at 640) unless it is there, fit PTM and LPCA under --memory-limit (issue 15)")
+                        "(32.2 GB at 640) unless it is there, fit PTM and LPCA under --memory-limit")
     p.add_argument("--memory-limit", default="2GB", help="the out-of-core fits' memory_limit (default: 2GB)")
     p.add_argument("--out-of-core-fits", default="ptm,lpca", metavar="KINDS",
                    help="the models --out-of-core fits, comma-separated (default: ptm,lpca)")
     p.add_argument("--dask", action="store_true",
                    help="only the Dask fits: PTM and LPCA locally and on a LocalCluster of 1 and 2 workers, "
-                        "knit at --size (default 96)^2 x 81 x 81 from zarr (issue 15; needs btfrs[dask])")
+                        "knit at --size (default 96)^2 x 81 x 81 from zarr (needs btfrs[dask])")
     p.add_argument("--dask-chunks", type=int, default=32, help="the zarr tiles' side in texels (default: 32)")
     p.add_argument("--figures", metavar="DIR", help="also write paper 000 Figure 6 style images into DIR")
     a = p.parse_args(argv)

@@ -8,7 +8,7 @@ would (orthographic view, one directional light, radiance at each texel of the r
 occlusion, masking, shadows and interreflections included), that BTF is rendered by btfrs on a
 plane with the sample repeated, and the result is compared with a path trace of the repeated
 heightfield itself under the same camera and light (:func:`compare`). A renderer that blends the
-measured values wrongly (the cosine of the light inside the blend, issue 14) lands a few percent
+measured values wrongly (the cosine of the light inside the blend) lands a few percent
 too dark; one that reads the sample with a wrong convention (rows mirrored) lands in the wrong
 place, which the structural error sees.
 
