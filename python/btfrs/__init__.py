@@ -15,6 +15,7 @@ import os
 import shutil
 import sys
 import tempfile
+import types
 
 from . import directions, evaluation, exceptions, fit, graphcut, hemimap, io, materials, stability, synth, tiles
 from ._native import __version__
@@ -61,7 +62,12 @@ def _ensure_runtime_dir() -> None:
         return  # only a warning on stderr is at stake
     owner = os.getpid()
     os.environ["XDG_RUNTIME_DIR"] = path
-    atexit.register(lambda: os.getpid() == owner and shutil.rmtree(path, ignore_errors=True))
+
+    def _remove() -> None:
+        if os.getpid() == owner:
+            shutil.rmtree(path, ignore_errors=True)
+
+    atexit.register(_remove)
 
 
 _ensure_runtime_dir()
@@ -119,7 +125,7 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> types.ModuleType:
     # btfrs.dask needs the optional extra (dask, distributed, zarr): imported on first use, so
     # `import btfrs` works without it and `btfrs.dask.open(...)` works with it.
     if name == "dask":

@@ -12,9 +12,10 @@ import json
 import os
 import sys
 import time
-from typing import Optional, Sequence
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import __version__, _native, io, materials, rendering, stability, synth, tiles
 from . import fit as fit_mod
@@ -122,17 +123,17 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     return 0
 
 
-def _facts() -> dict:
+def _facts() -> Dict[str, Dict[str, Any]]:
     """Every registered model's facts (the registry's)."""
     return model_kinds()
 
 
-def _kinds() -> list:
+def _kinds() -> List[str]:
     """The registered model kinds (the registry's list)."""
     return list(_facts())
 
 
-def _formats() -> list:
+def _formats() -> List[Tuple[str, str, str]]:
     """Other tools' model formats: ``(name, extension, doc)``."""
     return list(_native.model_formats())
 
@@ -164,7 +165,7 @@ def _sample_args(p: argparse.ArgumentParser, material: Optional[str] = None, siz
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
-def _load_sample(args, progress: bool):
+def _load_sample(args: argparse.Namespace, progress: bool) -> Tuple[Any, str]:
     """The input of :func:`_sample_args`: ``(object, name)`` (a Btf for a material)."""
     given = [n for n, v in (("path", args.path), ("--material", getattr(args, "material", None)),
                             ("--texture", getattr(args, "texture", None))) if v]
@@ -181,7 +182,7 @@ def _load_sample(args, progress: bool):
     return materials.make(name, size=args.size, seed=args.material_seed, progress=progress), name
 
 
-def _load_btf(args, progress: bool):
+def _load_btf(args: argparse.Namespace, progress: bool) -> Tuple[Btf, str]:
     """:func:`_load_sample`, which must be measured data (a Btf)."""
     obj, name = _load_sample(args, progress)
     if not isinstance(obj, Btf):
@@ -197,7 +198,7 @@ def _option_args(p: argparse.ArgumentParser) -> None:
                    help="one fit option, VALUE read as the option's type (see docs/cli.md); repeatable")
 
 
-def tiles_command(args) -> None:
+def tiles_command(args: argparse.Namespace) -> None:
     """``btfrs tiles``: fit (or read) the sample, synthesize a Wang tile set in its domain, write
     the set, a picture of the tiles with their edge colours, a tiling and its rendering."""
     progress = not args.quiet
@@ -205,6 +206,7 @@ def tiles_command(args) -> None:
     os.makedirs(args.out, exist_ok=True)
     written = []
     sample, name = _load_sample(args, progress)
+    model: Union[Model, Btf, None]
     if not isinstance(sample, Btf):
         model, source = None, sample
     elif args.model == "raw":
@@ -252,7 +254,7 @@ def tiles_command(args) -> None:
     print("wrote " + ", ".join(written))
 
 
-def evaluate_command(args) -> None:
+def evaluate_command(args: argparse.Namespace) -> None:
     """``btfrs evaluate``: :func:`btfrs.evaluate` on a material, the table on stdout, the report
     and charts in ``--out``."""
     progress = not args.quiet
@@ -268,7 +270,7 @@ def evaluate_command(args) -> None:
     print(f"\nwrote {', '.join(paths)}")
 
 
-def synth_command(args) -> None:
+def synth_command(args: argparse.Namespace) -> None:
     """``btfrs synth``: analyse (or load the analysis), synthesize, save the map and pictures."""
     progress = not args.quiet
     os.makedirs(args.out, exist_ok=True)
@@ -308,7 +310,7 @@ def synth_command(args) -> None:
     print(f"wrote {args.out}/coords.npy (uint16 [H, W, 2] (x, y)), synthesized.png, tiled.png")
 
 
-def choose_command(args) -> None:
+def choose_command(args: argparse.Namespace) -> None:
     """``btfrs choose``: what a scene needs of a material, and the cheapest model that gives it."""
     progress = not args.quiet
     btf, _ = _load_btf(args, progress)
@@ -328,7 +330,7 @@ def choose_command(args) -> None:
                   candidates=cands, samples=args.samples, measure_render=not args.no_render, seed=args.seed,
                   progress=progress)
     print(pick.explain())
-def stability_command(args) -> None:
+def stability_command(args: argparse.Namespace) -> None:
     """``btfrs stability``: run every model in every regime, write report.json, report.md and
     one chart per regime, print the table."""
     progress = not args.quiet
@@ -345,7 +347,7 @@ def stability_command(args) -> None:
 
 # --- a user's own data: info, fit, export, render -------------------------------------------------
 
-def _indices(name: str, text: Optional[str]):
+def _indices(name: str, text: Optional[str]) -> Optional[List[int]]:
     if text is None:
         return None
 
@@ -355,12 +357,12 @@ def _indices(name: str, text: Optional[str]):
         raise InvalidArgumentError(f"--{name}: expected comma-separated integers, got {text!r}") from None
 
 
-def _open(args):
+def _open(args: argparse.Namespace) -> Any:
     return io.load(args.path, directions=args.directions, crop=args.crop, views=_indices("views", args.views),
                    lights=_indices("lights", args.lights), linear=args.linear, progress=not args.quiet)
 
 
-def _data_commands(sub) -> None:
+def _data_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
     i = sub.add_parser("info", help="what a capture or btfrs file holds: sizes, directions, values, what fits")
     _sample_args(i)
     f = sub.add_parser("fit", help="fit any model to a capture or BTF file and save it")
@@ -398,7 +400,7 @@ def _data_commands(sub) -> None:
     r.add_argument("-o", "--out", required=True, help="the image (.png or .exr)")
 
 
-def _coverage(dirs) -> str:
+def _coverage(dirs: ArrayLike) -> str:
     """Theta range and the largest angular gap: the biggest angle from any direction of the
     hemisphere to its nearest sample (a fine Fibonacci set of 4000 directions)."""
     d = np.asarray(dirs, dtype=np.float64)
@@ -413,7 +415,7 @@ def _coverage(dirs) -> str:
     return f"{len(d)}, theta {theta.min():.1f} to {theta.max():.1f} deg, largest gap {gap:.1f} deg"
 
 
-def info_command(args) -> None:
+def info_command(args: argparse.Namespace) -> None:
     """``btfrs info``: print what the file holds and which models its sampling supports."""
     obj, name = _load_sample(args, not args.quiet)
     print(f"{args.path or name}")
@@ -455,7 +457,7 @@ def info_command(args) -> None:
         print(f"    {'yes' if ok else 'no ':3s} {kind:15s} {note}")
 
 
-def _fit_options(args, kind: str) -> dict:
+def _fit_options(args: argparse.Namespace, kind: str) -> Dict[str, Any]:
     """The options of ``--options`` and ``--set`` for a ``kind`` fit, each ``--set`` value read
     as its schema's type says, all checked against the model's schema before any work."""
     try:
@@ -491,7 +493,7 @@ def _fit_options(args, kind: str) -> dict:
     return opts
 
 
-def fit_command(args) -> None:
+def fit_command(args: argparse.Namespace) -> None:
     """``btfrs fit``: load, fit, save; print time, size and errors."""
     opts = _fit_options(args, args.model)
     out = os.path.abspath(args.out)
@@ -512,7 +514,7 @@ def fit_command(args) -> None:
           + ("" if test is None else f", held-out error {model.error(test).relative:.2%}") + f" -> {args.out}")
 
 
-def export_command(args) -> None:
+def export_command(args: argparse.Namespace) -> None:
     """``btfrs export``: the formats other tools read."""
     formats = [(name, getattr(args, name)) for name, _, _ in _formats()]
     if not any([path for _, path in formats] + [args.exr, args.stack]):
@@ -539,7 +541,7 @@ def export_command(args) -> None:
         print(f"wrote {args.exr}: {len(names)} channels ({names[0]} ... {names[-1]})")
 
 
-def render_command(args) -> None:
+def render_command(args: argparse.Namespace) -> None:
     """``btfrs render``: one image of a model, BTF or capture."""
     obj, _ = _load_sample(args, not args.quiet)
     if not isinstance(obj, (Model, Btf)):

@@ -56,9 +56,10 @@ import shutil
 import time
 import uuid
 from dataclasses import dataclass
-from typing import Any, Optional, Union
+from typing import Any, Callable, Dict, Iterator, List, Optional, Tuple, Union, overload
 
 import numpy as np
+from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 from . import _native
 from ._checks import choice, instance, integer
@@ -74,8 +75,13 @@ LAYOUT_VERSION = 1
 
 PathLike = Union[str, "os.PathLike[str]"]
 
+# What a progress callback is once :func:`~btfrs._progress.callback` has made it.
+_Callback = Optional[Callable[[int, int], object]]
+# A tile of a BtfArray: (delayed block, row offset, column offset, rows, columns).
+_Block = Tuple[Any, int, int, int, int]
 
-def _dask():
+
+def _dask() -> Tuple[Any, Any]:
     try:
         import dask
         import dask.array as da
@@ -84,7 +90,7 @@ def _dask():
     return dask, da
 
 
-def _zarr():
+def _zarr() -> Any:
     try:
         import zarr
     except ImportError as e:  # pragma: no cover
@@ -98,9 +104,9 @@ class BtfArray:
     chunk holds all views, lights and RGB of its texels), with its directions and mask (numpy)."""
 
     data: Any
-    views: np.ndarray
-    lights: np.ndarray
-    mask: Optional[np.ndarray] = None
+    views: NDArray[np.float64]
+    lights: NDArray[np.float64]
+    mask: Optional[NDArray[np.bool_]] = None
 
     def __post_init__(self) -> None:
         _, da = _dask()
@@ -130,7 +136,7 @@ class BtfArray:
                                            f"data.rechunk((t, t, -1, -1, -1))")
 
     @property
-    def shape(self) -> tuple:
+    def shape(self) -> Tuple[int, ...]:
         return tuple(self.data.shape)
 
     @property
@@ -142,7 +148,7 @@ class BtfArray:
         return int(self.data.shape[1])
 
     @property
-    def tiles(self) -> tuple:
+    def tiles(self) -> Tuple[Tuple[int, ...], ...]:
         """The texel tiles' rows and columns (``data.chunks[:2]``)."""
         return tuple(self.data.chunks[:2])
 
@@ -156,11 +162,11 @@ class BtfArray:
                 f"tiles {self.data.chunksize[0]} x {self.data.chunksize[1]})")
 
 
-def _tile(chunks) -> int:
+def _tile(chunks: object) -> int:
     return integer("chunks", chunks, min=1)
 
 
-def _read_tile(path: str, stamp: tuple, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+def _read_tile(path: str, stamp: Tuple[int, int], r0: int, r1: int, c0: int, c1: int) -> NDArray[np.float32]:
     """One tile of a memory-mapped ``.btfrs`` file, read on the worker (the file is mapped, not
     loaded, so opening it per tile costs nothing); an error if the file changed since."""
     b = Btf.load(path, mmap=True)
@@ -303,7 +309,7 @@ def open(path: PathLike) -> BtfArray:  # noqa: A001 - the module's verb, as btfr
 
 # --- fitting ---------------------------------------------------------------------------------
 
-def _client():
+def _client() -> Any:
     try:
         from distributed import get_client
     except ImportError:
@@ -321,7 +327,7 @@ def _is_cluster_failure(e: BaseException) -> bool:
 
 
 @contextlib.contextmanager
-def _cluster_errors(stage: str):
+def _cluster_errors(stage: str) -> Iterator[None]:
     """A failure of the cluster inside becomes :class:`ClusterError`; btfrs's own errors and
     Ctrl-C pass as they are."""
     try:
@@ -335,7 +341,7 @@ def _cluster_errors(stage: str):
         raise
 
 
-def _compute(tasks: list, cb, stage: str) -> list:
+def _compute(tasks: List[Any], cb: _Callback, stage: str) -> List[Any]:
     """Compute ``tasks`` on the current scheduler, reporting each one finished; a failure of the
     cluster becomes :class:`ClusterError`, btfrs's own errors pass as they are."""
     dask, _ = _dask()
@@ -354,13 +360,14 @@ def _compute(tasks: list, cb, stage: str) -> list:
             for done, _f in enumerate(as_completed(futures), 1):
                 if cb:
                     cb(done, total)
-            return client.gather(futures)
+            gathered: List[Any] = client.gather(futures)
+            return gathered
         except BaseException:
             client.cancel(futures)
             raise
 
 
-def _reduce(tasks: list, merge, cb, stage: str):
+def _reduce(tasks: List[Any], merge: Callable[[Any, Any], Any], cb: _Callback, stage: str) -> Any:
     """``merge`` of all ``tasks``' results, merged in pairs on the workers (a tree, so the client
     never holds more than one result), reporting each task finished. With a distributed client
     the results are paired as they finish, so merging overlaps the remaining tasks; ``merge``
@@ -402,17 +409,18 @@ def _reduce(tasks: list, merge, cb, stage: str):
                 live.add(m)
                 ac.add(m)
                 pending = None
+            assert pending is not None  # an odd count of results leaves the last merge pending
             return pending.result()
         except BaseException:
             client.cancel(list(live))
             raise
 
 
-def _present(mask: Optional[np.ndarray], v: int, l: int) -> Optional[np.ndarray]:
+def _present(mask: Optional[NDArray[np.bool_]], v: int, l: int) -> Optional[NDArray[np.intp]]:
     return None if mask is None else np.flatnonzero(mask.reshape(-1))
 
 
-def _abrdfs(block: np.ndarray, present: Optional[np.ndarray]) -> np.ndarray:
+def _abrdfs(block: NDArray[Any], present: Optional[NDArray[np.intp]]) -> NDArray[Any]:
     """The tile's texels' ABRDFs ``[n, d]`` (row-major texels), present pairs only."""
     h, w, v, l, _ = block.shape
     x = np.asarray(block, dtype=np.float32).reshape(h * w, v * l, 3)
@@ -421,61 +429,78 @@ def _abrdfs(block: np.ndarray, present: Optional[np.ndarray]) -> np.ndarray:
     return _own(x.reshape(h * w, -1))
 
 
-def _texel_index(r0: int, c0: int, h: int, w: int, width: int) -> np.ndarray:
+def _texel_index(r0: int, c0: int, h: int, w: int, width: int) -> NDArray[np.int_]:
     """The row-major indices in the whole BTF of a tile's texels (tile row-major)."""
     rr, cc = np.meshgrid(np.arange(r0, r0 + h), np.arange(c0, c0 + w), indexing="ij")
     return (rr * width + cc).reshape(-1)
 
 
-def _own(a, dtype=None):
+@overload
+def _own(a: None, dtype: Optional[DTypeLike] = None) -> None: ...
+@overload
+def _own(a: ArrayLike, dtype: Optional[DTypeLike] = None) -> NDArray[Any]: ...
+@overload
+def _own(a: Optional[ArrayLike], dtype: Optional[DTypeLike] = None) -> Optional[NDArray[Any]]: ...
+def _own(a: Optional[ArrayLike], dtype: Optional[DTypeLike] = None) -> Optional[NDArray[Any]]:
     """An aligned C-contiguous array: what arrives on a worker may be a view of a message buffer
     (not aligned), which the native functions refuse."""
     return None if a is None else np.require(a, dtype=dtype, requirements=["C", "A"])
 
 
-def _fit_block(block, views, lights, mask, kind, options_json):
+def _fit_block(block: NDArray[Any], views: NDArray[np.float64], lights: NDArray[np.float64],
+               mask: Optional[NDArray[np.bool_]], kind: _native.ModelKind,
+               options_json: str) -> Tuple[Dict[str, NDArray[Any]], Dict[str, Any], int]:
     m = _native.fit_model(kind, _own(block, np.float32), _own(views), _own(lights), _own(mask), options_json, None)
     return m.arrays(), m.report(), m.dims[0] * m.dims[1]
 
 
-def _srf_sums(block, views, lights, mask):
+def _srf_sums(block: NDArray[Any], views: NDArray[np.float64], lights: NDArray[np.float64],
+              mask: Optional[NDArray[np.bool_]]) -> NDArray[np.float64]:
     return _native.srf_sums(_own(block, np.float32), _own(views), _own(lights), _own(mask))
 
 
-def _srf_residual(block, views, lights, mask, phong):
+def _srf_residual(block: NDArray[Any], views: NDArray[np.float64], lights: NDArray[np.float64],
+                  mask: Optional[NDArray[np.bool_]], phong: List[float]) -> Tuple[NDArray[np.float32], List[float]]:
     return _native.srf_residual(_own(block, np.float32), _own(views), _own(lights), _own(mask), phong)
 
 
-def _gather_rows(block, present, local):
+def _gather_rows(block: NDArray[Any], present: Optional[NDArray[np.intp]], local: NDArray[np.intp]) -> NDArray[Any]:
     return _abrdfs(block, present)[local]
 
 
-def _project(block, present, mu, q):
+def _project(block: NDArray[Any], present: Optional[NDArray[np.intp]], mu: NDArray[np.float32],
+             q: NDArray[np.float32]) -> NDArray[np.float32]:
     return _native.lpca_project(_abrdfs(block, present), _own(mu), _own(q))
 
 
-def _split_clusters(block, present, ids, k):
+def _split_clusters(block: NDArray[Any], present: Optional[NDArray[np.intp]], ids: NDArray[np.uint32],
+                    k: int) -> Tuple[NDArray[Any], ...]:
     """The tile's ABRDFs split by cluster: ``k`` arrays (empty where no member is here)."""
     x = _abrdfs(block, present)
     return tuple(x[ids == c] for c in range(k))
 
 
-def _lp_moments(block, views, lights, mask, kind, options_json):
+def _lp_moments(block: NDArray[Any], views: NDArray[np.float64], lights: NDArray[np.float64],
+                mask: Optional[NDArray[np.bool_]], kind: str, options_json: str) -> _native._Moments:
     return _native.light_pca_moments(kind, _own(block, np.float32), _own(views), _own(lights), _own(mask),
                                      options_json)
 
 
-def _lp_merge(a, b):
-    own = (lambda m: (m[0], [_own(x) for x in m[1]], [_own(x) for x in m[2]]))
+def _lp_merge(a: _native._Moments, b: _native._Moments) -> _native._Moments:
+    own: Callable[[_native._Moments], _native._Moments] = (
+        lambda m: (m[0], [_own(x) for x in m[1]], [_own(x) for x in m[2]]))
     return _native.light_pca_merge(own(a), own(b))
 
 
-def _lp_project(block, views, lights, mask, kind, table, options_json):
+def _lp_project(block: NDArray[Any], views: NDArray[np.float64], lights: NDArray[np.float64],
+                mask: Optional[NDArray[np.bool_]], kind: str, table: NDArray[np.float32],
+                options_json: str) -> NDArray[np.float32]:
     return _native.light_pca_project(kind, _own(block, np.float32), _own(views), _own(lights), _own(mask),
                                      _own(table), options_json)
 
 
-def _fit_cluster(index, options_json, *pieces):
+def _fit_cluster(index: int, options_json: str,
+                 *pieces: NDArray[Any]) -> Tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
     # Pieces come in tile order; the members must be in texel order as the local fit has them.
     rows = [p for p in pieces[0::2] if len(p)]
     idx = np.concatenate([i for i in pieces[1::2] if len(i)])
@@ -483,16 +508,16 @@ def _fit_cluster(index, options_json, *pieces):
     return _native.lpca_fit_cluster(_own(x), index, options_json)
 
 
-def _merge_reports(reports: list, texels: list, counts: list) -> dict:
+def _merge_reports(reports: List[Dict[str, Any]], texels: List[int], counts: List[str]) -> Dict[str, Any]:
     """The blocks' reports as one (module doc): the model's ``counts`` summed, other entries
     equal in every block kept, differing numbers weighted by texels (``rms_*`` as root mean
     squares), differing lists concatenated."""
     if not reports:
         return {}
     total = float(sum(texels))
-    out: dict = {}
+    out: Dict[str, Any] = {}
     for key in reports[0]:
-        vals = [r.get(key) for r in reports]
+        vals: List[Any] = [r.get(key) for r in reports]
         if key in counts:
             out[key] = sum(vals)
         elif all(v == vals[0] for v in vals):
@@ -509,7 +534,7 @@ def _merge_reports(reports: list, texels: list, counts: list) -> dict:
     return out
 
 
-def fit(model: str, arr: Union[BtfArray, Btf], /, *, progress: Progress = None, chunks: int = 64, **options) -> Model:
+def fit(model: str, arr: Union[BtfArray, Btf], /, *, progress: Progress = None, chunks: int = 64, **options: Any) -> Model:
     """Fit the registered model ``model`` to ``arr`` (a :class:`BtfArray`; a
     :class:`~btfrs.Btf` is wrapped by :func:`from_btf` with ``chunks``) on the current Dask
     scheduler, texel tile by texel tile (module doc), with the options of the local fit
@@ -543,7 +568,7 @@ def fit(model: str, arr: Union[BtfArray, Btf], /, *, progress: Progress = None, 
     return m
 
 
-def _blocks(arr: BtfArray):
+def _blocks(arr: BtfArray) -> List[_Block]:
     """``(delayed block, row offset, column offset, rows, columns)`` of every tile, row-major."""
     dl = arr.data.to_delayed()
     rows, cols = arr.data.chunks[0], arr.data.chunks[1]
@@ -552,7 +577,8 @@ def _blocks(arr: BtfArray):
             for i in range(len(rows)) for j in range(len(cols))]
 
 
-def _fit_texels(kind: str, arr: BtfArray, options: dict, overrides: dict, counts: list, progress: Progress) -> Model:
+def _fit_texels(kind: str, arr: BtfArray, options: Dict[str, Any], overrides: Dict[str, Any], counts: List[str],
+                progress: Progress) -> Model:
     dask, _ = _dask()
     block_json = json.dumps({**options, **overrides})
     blocks = _blocks(arr)
@@ -561,7 +587,7 @@ def _fit_texels(kind: str, arr: BtfArray, options: dict, overrides: dict, counts
     results = _compute(tasks, callback(progress, f"{kind} blocks"), f"{kind} fit")
     texel_names = set(_native.texel_arrays(kind))
     h, w = arr.height, arr.width
-    stitched: dict = {}
+    stitched: Dict[str, NDArray[Any]] = {}
     first = results[0][0]
     for name, a in first.items():
         if name in texel_names:
@@ -579,7 +605,7 @@ def _fit_texels(kind: str, arr: BtfArray, options: dict, overrides: dict, counts
     return wrap(native, report=_merge_reports([r for _, r, _ in results], [n for _, _, n in results], counts))
 
 
-def _fit_mean_brdf(kind: str, arr: BtfArray, options: dict, options_json: str, progress: Progress) -> Model:
+def _fit_mean_brdf(kind: str, arr: BtfArray, options: Dict[str, Any], options_json: str, progress: Progress) -> Model:
     dask, _ = _dask()
     if options:
         raise InvalidArgumentError(f"{next(iter(options))}: unknown option; the srf fit takes none")
@@ -597,11 +623,11 @@ def _fit_mean_brdf(kind: str, arr: BtfArray, options: dict, options_json: str, p
         s[r0:r0 + nr, c0:c0 + nc] = sb
         e += np.asarray(eb)
     native = _native.Model.from_arrays(kind, {"phong": np.asarray(phong, dtype=np.float64), "s": s})
-    rel = (lambda x: float(np.sqrt(x / e[2])) if e[2] > 0 else 0.0)
+    rel: Callable[[float], float] = (lambda x: float(np.sqrt(x / e[2])) if e[2] > 0 else 0.0)
     return wrap(native, report={"iterations": int(iterations), "phong_relative": rel(e[0]), "srf_relative": rel(e[1])})
 
 
-def _fit_clustered_pca(kind: str, arr: BtfArray, options: dict, options_json: str, progress: Progress) -> Model:
+def _fit_clustered_pca(kind: str, arr: BtfArray, options: Dict[str, Any], options_json: str, progress: Progress) -> Model:
     dask, _ = _dask()
     h, w = arr.height, arr.width
     present = _present(arr.mask, len(arr.views), len(arr.lights))
@@ -651,7 +677,7 @@ def _fit_clustered_pca(kind: str, arr: BtfArray, options: dict, options_json: st
     return wrap(native)
 
 
-def _fit_light_pca(kind: str, arr: BtfArray, options: dict, options_json: str, progress: Progress) -> Model:
+def _fit_light_pca(kind: str, arr: BtfArray, options: Dict[str, Any], options_json: str, progress: Progress) -> Model:
     dask, _ = _dask()
     _native.light_pca_check(kind, options_json)
     blocks = _blocks(arr)

@@ -30,9 +30,10 @@ import math
 import os
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Optional, Sequence, Union
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
+from numpy.typing import NDArray
 
 from . import fit as fit_mod
 from . import io, rendering
@@ -41,13 +42,18 @@ from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import ArgumentTypeError, BtfrsError, InvalidArgumentError
-from .models import model_kinds
+from .models import Model, model_kinds
 from .rendering import Camera, PointLight, Scene
 
 __all__ = ["evaluate", "EvaluationReport", "split_directions", "sweeps", "METRICS", "reference_scene",
            "pareto_front"]
 
-def sweeps(sweep: str = "full") -> dict:
+#: A row of a report: the keys of :data:`METRICS` plus ``label``, ``kind``, ``options``, ``way``, ``note``...
+_Row = Dict[str, Any]
+#: The reference scene: (scene, camera, lights, uv_scale).
+_SceneSpec = Tuple[Scene, Camera, List[PointLight], float]
+
+def sweeps(sweep: str = "full") -> Dict[str, List[Tuple[str, Dict[str, Any]]]]:
     """The settings :func:`evaluate` fits per model kind: ``{kind: [(label, options), ...]}``,
     each model's registry sweep (``sweep="quick"``: the settings it marks quick, what the demo
     and the tests run)."""
@@ -63,7 +69,7 @@ METRICS = {"fit_s": True, "bytes": True, "render_ms": True, "reconstruction": Tr
 _BASELINES = ("numpy", "scipy", "sklearn", "raw")
 
 
-def reference_scene():
+def reference_scene() -> _SceneSpec:
     """The scene of the ``render_ms`` and ``psnr_scene`` columns: a unit sphere seen from
     ``(0, -3, 2)`` with a 40-degree field of view under one point light at ``(2, -2, 3)``
     (intensity 8), the sample repeated 4 times over the UV square (as ``python -m btfrs.bench``
@@ -99,7 +105,7 @@ def split_directions(btf: Btf, fraction: float = 0.1, *, seed: int = 0) -> tuple
     return train, Btf(btf.data, btf.views, btf.lights, test_mask, check=False)
 
 
-def pareto_front(rows: Sequence[dict], y: str = "heldout", x: str = "bytes") -> list:
+def pareto_front(rows: Sequence[_Row], y: str = "heldout", x: str = "bytes") -> List[_Row]:
     """The rows not dominated in (``x``, ``y``): no other row is at least as good in both and
     better in one (smaller is better, except ``psnr_scene``). Rows missing either number are left
     out. Sorted by ``x``."""
@@ -118,7 +124,7 @@ def pareto_front(rows: Sequence[dict], y: str = "heldout", x: str = "bytes") -> 
     return sorted(front, key=lambda r: sx * r[x])
 
 
-def _num(v) -> Optional[float]:
+def _num(v: Any) -> Optional[float]:
     if v is None:
         return None
     try:
@@ -133,15 +139,15 @@ class EvaluationReport:
     """What :func:`evaluate` measured: ``rows`` (one dict per model and parameters, the keys of
     :data:`METRICS` plus ``label``, ``kind``, ``options``, ``way``, ``note``), and how
     (``info``: material shape, protocols, seed, adapter, seconds)."""
-    rows: list
-    info: dict = field(default_factory=dict)
+    rows: List[_Row]
+    info: Dict[str, Any] = field(default_factory=dict)
 
     @property
     def primary(self) -> str:
         """The held-out column that ``"heldout"`` means: the first protocol asked for."""
         return "heldout_directions" if self.info.get("holdout") == "directions" else "heldout_pairs"
 
-    def pareto(self, y: str = "heldout", x: str = "bytes") -> list:
+    def pareto(self, y: str = "heldout", x: str = "bytes") -> List[_Row]:
         """The rows on the Pareto front of (``x``, ``y``) (see :func:`pareto_front`)."""
         return pareto_front(self.rows, y, x)
 
@@ -153,7 +159,7 @@ class EvaluationReport:
                 "scene PSNR dB", "note"]
         out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
 
-        def f(v, fmt, scale=1.0):
+        def f(v: Any, fmt: str, scale: float = 1.0) -> str:
             v = _num(v)
             return "" if v is None else format(v * scale, fmt)
 
@@ -165,14 +171,14 @@ class EvaluationReport:
                 f(r.get("heldout_directions"), ".2f", 100), f(r.get("psnr_scene"), ".1f"), r.get("note", "")]) + " |")
         return "\n".join(out)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> Dict[str, Any]:
         return {"info": self.info, "rows": [_jsonable(r) for r in self.rows]}
 
-    def chart(self, x: str, path: Union[str, os.PathLike]) -> None:
+    def chart(self, x: str, path: Union[str, "os.PathLike[str]"]) -> None:
         """One PNG: held-out error (each protocol measured: one panel each) against ``x``."""
         chart(self, x, path)
 
-    def save(self, out: Union[str, os.PathLike]) -> list:
+    def save(self, out: Union[str, "os.PathLike[str]"]) -> List[str]:
         """Write ``report.json``, ``report.md`` and the three charts
         (``heldout_vs_bytes.png``, ``heldout_vs_render_ms.png``, ``heldout_vs_fit_s.png``) into
         the folder ``out`` (made if missing), each atomically. Returns the paths written."""
@@ -203,7 +209,7 @@ class EvaluationReport:
         return "\n".join(lines)
 
 
-def _jsonable(v):
+def _jsonable(v: Any) -> Any:
     if isinstance(v, dict):
         return {str(k): _jsonable(x) for k, x in v.items()}
     if isinstance(v, (list, tuple)):
@@ -223,7 +229,7 @@ _AXIS = {"bytes": "bytes as stored for rendering", "render_ms": "render ms per 5
          "heldout_directions": "held-out relative error (whole directions)"}
 
 
-def chart(report: EvaluationReport, x: str, path: Union[str, os.PathLike]) -> None:
+def chart(report: EvaluationReport, x: str, path: Union[str, "os.PathLike[str]"]) -> None:
     """Draw held-out error against ``x`` (log-log), one panel per held-out protocol measured.
 
     Each model kind has its colour (baselines: squares with a black edge); every point carries
@@ -248,7 +254,7 @@ def chart(report: EvaluationReport, x: str, path: Union[str, os.PathLike]) -> No
     number = {id(r): i + 1 for i, r in enumerate(report.rows)}
     fig = plt.figure(figsize=(6.2 * len(ys) + 4.6, 6.4))
     grid = fig.add_gridspec(1, len(ys) + 1, width_ratios=[6.2] * len(ys) + [4.6])
-    off_scale: dict = {}
+    off_scale: Dict[int, List[str]] = {}
     for j, y in enumerate(ys):
         ax = fig.add_subplot(grid[0, j])
         pts = [r for r in report.rows if _num(r.get(x)) is not None and _num(r.get(y)) is not None
@@ -259,7 +265,7 @@ def chart(report: EvaluationReport, x: str, path: Union[str, os.PathLike]) -> No
         seen = set()
         for r in pts:
             base = r["way"] != "btfrs"
-            key = (r["kind"], base)
+            entry = (r["kind"], base)
             name = (f"{r['kind']} ({r['way'].split(' ')[0]})" if base else r["kind"])
             above = r[y] > cap
             yy = top / 1.25 if above else r[y]
@@ -267,8 +273,8 @@ def chart(report: EvaluationReport, x: str, path: Union[str, os.PathLike]) -> No
                 off_scale.setdefault(id(r), []).append(y)
             ax.scatter(r[x], yy, s=50, marker="^" if above else ("s" if base else "o"), color=colour[r["kind"]],
                        edgecolors="black" if base else "none", linewidths=0.8, zorder=3,
-                       label=None if key in seen else name)
-            seen.add(key)
+                       label=None if entry in seen else name)
+            seen.add(entry)
             ax.annotate(str(number[id(r)]), (r[x], yy), xytext=(4, 2), textcoords="offset points", fontsize=7.5,
                         zorder=4)
         front = pareto_front(pts, y, x)
@@ -287,8 +293,8 @@ def chart(report: EvaluationReport, x: str, path: Union[str, os.PathLike]) -> No
         ax.set_xlabel(_AXIS.get(x, x))
         ax.set_ylabel(_AXIS[y])
         ax.grid(True, which="both", alpha=0.25)
-        i = report.info
-        ax.set_title(f"{i.get('material', 'btf')} {i.get('shape', '')}: {_AXIS[y].split('(')[1][:-1]} held out",
+        info = report.info
+        ax.set_title(f"{info.get('material', 'btf')} {info.get('shape', '')}: {_AXIS[y].split('(')[1][:-1]} held out",
                      fontsize=10)
         handles, names = ax.get_legend_handles_labels()
     key = fig.add_subplot(grid[0, len(ys)])
@@ -315,7 +321,7 @@ def chart(report: EvaluationReport, x: str, path: Union[str, os.PathLike]) -> No
 
 # --- evaluation ------------------------------------------------------------------------------
 
-def _settings(models, sweep: str) -> list:
+def _settings(models: Union[str, Sequence[Any]], sweep: str) -> List[Tuple[str, str, Dict[str, Any]]]:
     """``(label, kind, options)`` for ``models``: "all", a kind, a list of kinds, or of
     ``(label, kind, options)`` triples."""
     kinds = model_kinds()
@@ -336,7 +342,7 @@ def _settings(models, sweep: str) -> list:
     return out
 
 
-def _psnr(img: np.ndarray, ref: np.ndarray) -> float:
+def _psnr(img: NDArray[np.float32], ref: NDArray[np.float32]) -> float:
     """PSNR over the pixels either image covers, the peak being the reference's largest value."""
     cover = (ref.max(axis=2) > 0) | (img.max(axis=2) > 0)
     if not cover.any():
@@ -349,18 +355,20 @@ def _psnr(img: np.ndarray, ref: np.ndarray) -> float:
     return float("inf") if mse == 0 else 10.0 * math.log10(peak * peak / mse)
 
 
-def _timed_render(model, scene, size) -> tuple:
+def _timed_render(model: Union[Model, Btf], scene: _SceneSpec, size: Tuple[int, int]) -> Tuple[float, NDArray[np.float32]]:
     sc, cam, lights, uvs = scene
     # The first frame uploads the model and compiles its pipeline: not counted. One timed frame
     # after it (the slowest shaders take seconds per frame on lavapipe; repeats would dominate).
     rendering.render(model, sc, cam, lights, size=size, uv_scale=uvs)
     img = rendering.render(model, sc, cam, lights, size=size, uv_scale=uvs)
-    return rendering.last_timings().draw_ms, img
+    timings = rendering.last_timings()
+    assert timings is not None  # set by every GPU render
+    return timings.draw_ms, img
 
 
 def evaluate(btf: Btf, models: Union[str, Sequence[Any]] = "all", *, holdout: str = "both", fraction: float = 0.1,
-             sweep: str = "full", baselines: Optional[Callable[..., list]] = None, render: bool = True,
-             render_size: Union[int, tuple] = 512, baseline_texels: int = 16, seed: int = 0,
+             sweep: str = "full", baselines: Optional[Callable[..., List[_Row]]] = None, render: bool = True,
+             render_size: Union[int, Tuple[int, int]] = 512, baseline_texels: int = 16, seed: int = 0,
              material: Optional[str] = None, progress: Progress = None) -> EvaluationReport:
     """Fit every model of ``models`` at every point of its sweep and measure speed against
     accuracy (the columns are described in :mod:`btfrs.evaluation`).
@@ -400,7 +408,7 @@ def evaluate(btf: Btf, models: Union[str, Sequence[Any]] = "all", *, holdout: st
     settings = _settings(models, sweep)
     t_start = time.perf_counter()
     protocols = ["pairs", "directions"] if holdout == "both" else [holdout]
-    splits = {}
+    splits: Dict[str, Tuple[Btf, Btf]] = {}
     if "pairs" in protocols:
         splits["pairs"] = b.split(holdout=fraction, seed=seed)
     if "directions" in protocols:
@@ -415,6 +423,7 @@ def evaluate(btf: Btf, models: Union[str, Sequence[Any]] = "all", *, holdout: st
         full = b if b.mask is None or b.mask.all() else None
         adapter = rendering.gpu_info()
         if full is not None:
+            assert scene is not None
             raw_ms, ref_img = _timed_render(full, scene, size)
     n_base = 5 if use_baselines else 0
     total = len(settings) + n_base
@@ -422,10 +431,10 @@ def evaluate(btf: Btf, models: Union[str, Sequence[Any]] = "all", *, holdout: st
     done = 0
     if cb is not None:
         cb(0, total)
-    rows = []
-    notes = []
+    rows: List[_Row] = []
+    notes: List[str] = []
     for label, kind, opts in settings:
-        row: dict = dict(label=label, kind=kind, options=opts, way="btfrs", note="")
+        row: _Row = dict(label=label, kind=kind, options=opts, way="btfrs", note="")
         try:
             tr, te = fit_split
             t0 = time.perf_counter()
@@ -444,12 +453,13 @@ def evaluate(btf: Btf, models: Union[str, Sequence[Any]] = "all", *, holdout: st
                 row["note"] = note
             row["report"] = rep
             if render:
+                assert scene is not None
                 ms, img = _timed_render(m, scene, size)
                 row["render_ms"] = ms
                 row["finite_render"] = bool(np.isfinite(img).all())
                 if not row["finite_render"]:
-                    bad = int((~np.isfinite(img)).any(axis=2).sum())
-                    row["note"] = (row["note"] + f"; {bad} non-finite pixels in the scene render").lstrip("; ")
+                    n_bad = int((~np.isfinite(img)).any(axis=2).sum())
+                    row["note"] = (row["note"] + f"; {n_bad} non-finite pixels in the scene render").lstrip("; ")
                 if ref_img is not None:
                     row["psnr_scene"] = _psnr(img, ref_img)
         except BtfrsError as e:
@@ -483,7 +493,7 @@ def evaluate(btf: Btf, models: Union[str, Sequence[Any]] = "all", *, holdout: st
     return EvaluationReport(rows, info)
 
 
-def _report_note(rep: dict) -> str:
+def _report_note(rep: Dict[str, Any]) -> str:
     if "converged" in rep:
         s = f"{rep['converged']}/{rep['fell_back']}/{rep['failed']} converged/fell back/failed"
         if rep.get("extrapolated"):

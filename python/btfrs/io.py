@@ -19,9 +19,10 @@ import itertools
 import json
 import os
 import warnings
-from typing import IO, Iterator, Optional, Sequence, Union
+from typing import IO, Any, Iterator, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from . import _native
 from ._checks import real
@@ -34,13 +35,13 @@ from .models import load as load_btfrs
 __all__ = ["load", "load_btfrs", "load_as_format", "save_image", "load_image", "save_stack", "save_coefficients",
            "capture_kind", "atomic_write", "save_array", "save_text"]
 
-PathLike = Union[str, os.PathLike]
+PathLike = Union[str, "os.PathLike[str]"]
 
 _counter = itertools.count()
 
 
 @contextlib.contextmanager
-def atomic_write(path: PathLike, mode: str = "wb") -> Iterator[IO]:
+def atomic_write(path: PathLike, mode: str = "wb") -> Iterator[IO[Any]]:
     """Open a temporary file next to ``path`` for writing; when the block ends without an error it
     is synced and renamed over ``path``, and on any exception (``KeyboardInterrupt`` included) it
     is removed and ``path`` is left as it was.
@@ -76,7 +77,7 @@ def atomic_write(path: PathLike, mode: str = "wb") -> Iterator[IO]:
         raise
 
 
-def save_array(path: PathLike, array) -> None:
+def save_array(path: PathLike, array: ArrayLike) -> None:
     """``numpy.save`` to ``path`` (a ``.npy`` file; the name is kept as given), atomically."""
     a = np.asanyarray(array)
     with atomic_write(path) as f:
@@ -99,7 +100,7 @@ def load_as_format(path: PathLike, cls: type = Model) -> Model:
     return m
 
 
-def save_image(path: PathLike, image, *, exposure: float = 1.0) -> None:
+def save_image(path: PathLike, image: ArrayLike, *, exposure: float = 1.0) -> None:
     """Write an ``[H, W, 3]`` linear image, chosen by the extension: ``.png`` (8-bit sRGB, times
     ``exposure``, clipped to [0, 1]) or ``.exr`` (32-bit float OpenEXR, HDR values kept exactly,
     times ``exposure``). Written atomically."""
@@ -115,7 +116,7 @@ def save_image(path: PathLike, image, *, exposure: float = 1.0) -> None:
         raise InvalidArgumentError(f"path: expected a .png or .exr file name, got {ext or 'no extension'!r}")
 
 
-def load_image(path: PathLike) -> np.ndarray:
+def load_image(path: PathLike) -> NDArray[np.float32]:
     """Read an ``[H, W, 3]`` float32 linear image from an 8-bit PNG or an OpenEXR file."""
     p = os.fspath(path)
     if os.path.splitext(p)[1].lower() == ".exr":
@@ -181,7 +182,7 @@ def _default_table(folder: str) -> Optional[str]:
     return None
 
 
-def _index_list(name: str, sel) -> Optional[list]:
+def _index_list(name: str, sel: object) -> Optional[List[int]]:
     if sel is None:
         return None
     if isinstance(sel, slice):
@@ -195,7 +196,7 @@ def _index_list(name: str, sel) -> Optional[list]:
     return out
 
 
-def _crop(crop) -> Optional[tuple]:
+def _crop(crop: Optional[Sequence[int]]) -> Optional[Tuple[int, int, int, int]]:
     if crop is None:
         return None
     try:
@@ -209,7 +210,7 @@ def _crop(crop) -> Optional[tuple]:
 
 def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optional[Sequence[int]] = None,
          views: Optional[Sequence[int]] = None, lights: Optional[Sequence[int]] = None,
-         mmap_to: Optional[PathLike] = None, linear: bool = False, mmap: bool = False, progress: Progress = None):
+         mmap_to: Optional[PathLike] = None, linear: bool = False, mmap: bool = False, progress: Progress = None) -> Any:
     """Load any file btfrs reads, chosen by its type (:func:`capture_kind`): a measured capture,
     a ``.btfrs`` file (a BTF, a fitted model, a synthesis analysis, a Wang tile set), or another
     tool's model file (``.ptm``, ``.rti``). This is ``btfrs.load``.
@@ -242,6 +243,7 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
     kind = capture_kind(p, directions)
     given = {k: v for k, v in dict(crop=crop, views=views, lights=lights, mmap_to=mmap_to).items() if v is not None}
     if kind in ("btfrs", "model_file"):
+        obj: Any
         if kind == "model_file":
             obj = load_as_format(p)
         elif mmap and _native.read_container_header(p)[0] == "btf":
@@ -254,7 +256,9 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
                                            f" (this file holds a {type(obj).__name__})")
             obj = obj.select(views=views, lights=lights)
             if crop is not None:
-                r, c, nr, nc = _crop(crop)
+                rect = _crop(crop)
+                assert rect is not None
+                r, c, nr, nc = rect
                 if r + nr > obj.height or c + nc > obj.width or nr == 0 or nc == 0:
                     raise InvalidArgumentError(f"crop: {crop!r} lies outside the {obj.height} x {obj.width} BTF")
                 obj = Btf(np.ascontiguousarray(obj.data[r:r + nr, c:c + nc]), obj.views, obj.lights, obj.mask,
@@ -277,6 +281,7 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
         return Btf.load(out, mmap=True)
     # The loaders check every value as they decode it, and the directions are unit by
     # construction: no second scan.
+    assert data is not None
     return Btf(data, vdirs, ldirs, mask, check=False)
 
 
@@ -309,7 +314,7 @@ def save_stack(btf: Btf, folder: PathLike, *, format: str = "exr", exposure: flo
     return table
 
 
-def coefficient_planes(model: Model) -> tuple[list[str], np.ndarray]:
+def coefficient_planes(model: Model) -> tuple[list[str], NDArray[np.float32]]:
     """Every per-texel array of ``model`` as named float32 planes ``[C, H, W]``: channel names
     ``{kind}.{array}.{index}`` with the trailing axes' indices joined by ``.``, the last axis of
     extent 3 taken for colour and named ``R``, ``G``, ``B`` (e.g. ``ptm.coeffs.0.R.5``: view

@@ -13,9 +13,10 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass
-from typing import Any, Optional, Union
+from typing import Any, Callable, Dict, Iterator, List, Optional, Tuple, Type, TypeVar, Union, cast
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from . import _native
 from .btf import Btf, read_container
@@ -25,7 +26,9 @@ from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
 __all__ = ["ErrorReport", "Model", "Ptm", "Hsh", "Lafortune", "LafortuneView", "Srf", "Sh", "Lpca", "Rbf", "Bilinear", "load",
            "model_kinds", "class_of", "wrap"]
 
-PathLike = Union[str, os.PathLike]
+PathLike = Union[str, "os.PathLike[str]"]
+
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True)
@@ -46,7 +49,7 @@ class ErrorReport:
         return f"rmse {self.rmse:.5f}, relative {100 * self.relative:.2f}%, psnr {self.psnr:.1f} dB"
 
 
-def _as_dir(name: str, d) -> list:
+def _as_dir(name: str, d: ArrayLike) -> List[float]:
     """A query direction as a unit 3-vector: any non-zero vector with z >= 0 is normalised."""
     a = np.asarray(d, dtype=np.float64).reshape(-1)
     if a.shape != (3,):
@@ -72,7 +75,7 @@ class Model:
     _kind = ""
 
     def __init__(self, native: "_native.Model", fit_seconds: Optional[float] = None,
-                 report: Optional[dict] = None) -> None:
+                 report: Optional[Dict[str, Any]] = None) -> None:
         if self._kind and native.kind != self._kind:
             raise ArgumentTypeError(f"native: expected a {self._kind} model, got {native.kind}")
         self._m = native
@@ -99,7 +102,7 @@ class Model:
         return self._m.nbytes
 
     @property
-    def renderers(self) -> list:
+    def renderers(self) -> List[str]:
         """The renderer names (``renderer=`` of :func:`btfrs.render`), the default first."""
         return list(self._m.renderers)
 
@@ -117,11 +120,11 @@ class Model:
         return self._m.sh_lighting
 
     @property
-    def exports(self) -> list:
+    def exports(self) -> List[str]:
         """The other tools' file formats it can be written as (:meth:`export`)."""
         return list(model_kinds()[self.kind]["exports"])
 
-    def export(self, path: PathLike, *, format: Optional[str] = None, view=0) -> dict:
+    def export(self, path: PathLike, *, format: Optional[str] = None, view: ArrayLike = 0) -> Dict[str, Any]:
         """Write view slot ``view`` (an index or a direction) as another tool's file format
         (:attr:`exports`; by default chosen by the extension of ``path``). Returns what the writer
         chose, e.g. the quantization's ``scale`` and ``bias``."""
@@ -131,9 +134,9 @@ class Model:
         if format not in self.exports:
             can = ", ".join(repr(e) for e in self.exports) or "none"
             raise InvalidArgumentError(f"format: the {self.kind} model cannot be written as {format!r} (its formats: {can})")
-        return json.loads(_native.export_model(p, self._m, format, _slot_index(self, view)))
+        return cast(Dict[str, Any], json.loads(_native.export_model(p, self._m, format, _slot_index(self, view))))
 
-    def evaluate(self, view, light) -> np.ndarray:
+    def evaluate(self, view: ArrayLike, light: ArrayLike) -> NDArray[np.float32]:
         """The ``[H, W, 3]`` float32 image for one view and one light direction (any non-zero
         vectors with z >= 0; they are normalised)."""
         return self._m.evaluate(_as_dir("view", view), _as_dir("light", light))
@@ -145,12 +148,12 @@ class Model:
         return ErrorReport(d["rmse"], d["relative"], d["psnr"], int(d["samples"]))
 
     @property
-    def arrays(self) -> dict:
+    def arrays(self) -> Dict[str, NDArray[Any]]:
         """Copies of the model's arrays, by name (what :meth:`save` writes)."""
         return self._m.arrays()
 
     @classmethod
-    def from_arrays(cls, arrays: dict, *, kind: Optional[str] = None) -> "Model":
+    def from_arrays(cls, arrays: Dict[str, NDArray[Any]], *, kind: Optional[str] = None) -> "Model":
         """Rebuild a model from :attr:`arrays` (validated: shapes, ranges, finite values).
         ``kind`` is needed only on the base class (``Model.from_arrays(a, kind="lpca")``)."""
         k = kind or cls._kind
@@ -174,7 +177,7 @@ class Model:
         return f"{type(self).__name__}({self.height} x {self.width} texels, {self.nbytes / 2**20:.2f} MiB)"
 
 
-def _slot_index(model: "Model", view) -> int:
+def _slot_index(model: "Model", view: ArrayLike) -> int:
     views = model.arrays["views"]
     n = len(views)
     if isinstance(view, bool):
@@ -189,7 +192,7 @@ def _slot_index(model: "Model", view) -> int:
     return i
 
 
-def _decoded(arrays: dict, name: str) -> Optional[np.ndarray]:
+def _decoded(arrays: Dict[str, NDArray[Any]], name: str) -> Optional[NDArray[Any]]:
     """Array ``name``: the floats, or the decoded 8-bit planes ``{name}_q`` with their per-plane
     ``{name}_scale`` and ``{name}_bias`` (``bias + scale * q``, float32 as the model computes)."""
     if name in arrays:
@@ -200,7 +203,7 @@ def _decoded(arrays: dict, name: str) -> Optional[np.ndarray]:
     tail = q.shape[2:]
     scale = arrays[f"{name}_scale"].reshape(tail)
     bias = arrays[f"{name}_bias"].reshape(tail)
-    return bias + scale * q.astype(np.float32)
+    return cast(NDArray[Any], bias + scale * q.astype(np.float32))
 
 
 class Ptm(Model):
@@ -246,12 +249,12 @@ class Ptm(Model):
         """``[V, 3]`` directions of the view slots."""
         return self.arrays["views"]
 
-    def slot(self, view) -> int:
+    def slot(self, view: ArrayLike) -> int:
         """The index of the view slot for ``view``: an int index, or a direction within 0.5
         degrees of a slot's."""
         return _slot_index(self, view)
 
-    def save_ptm(self, path: PathLike, *, view=0) -> tuple[list, list]:
+    def save_ptm(self, path: PathLike, *, view: ArrayLike = 0) -> Tuple[List[float], List[float]]:
         """Write one view slot as an uncompressed ``PTM_1.2`` file (``PTM_FORMAT_RGB`` or
         ``PTM_FORMAT_LRGB``) that RTIViewer and relight open; returns the per-coefficient
         ``(scale, bias)`` of the 8-bit quantisation. Our value 1.0 is the viewer's white (255);
@@ -302,12 +305,12 @@ class Hsh(Model):
         """``[V, 3]`` directions of the view slots."""
         return self.arrays["views"]
 
-    def slot(self, view) -> int:
+    def slot(self, view: ArrayLike) -> int:
         """The index of the view slot for ``view``: an int index, or a direction within 0.5
         degrees of a slot's."""
         return _slot_index(self, view)
 
-    def save_rti(self, path: PathLike, *, view=0) -> tuple[list, list]:
+    def save_rti(self, path: PathLike, *, view: ArrayLike = 0) -> Tuple[List[float], List[float]]:
         """Write one view slot as a ``.rti`` HSH file (``#HSH1.2``, type 3) and return the file's
         two float arrays ``(scale, bias)``: byte ``c`` of term ``j`` decodes to
         ``bias[j] + scale[j] * c / 255`` (relight's reading; RTIViewer's ``.rti`` loader reads the
@@ -320,8 +323,8 @@ class Hsh(Model):
                 f"{self.nbytes / 2**20:.2f} MiB)")
 
 
-def _jsonable(d: dict) -> dict:
-    out = {}
+def _jsonable(d: Dict[str, Any]) -> Dict[str, Any]:
+    out: Dict[str, Any] = {}
     for k, v in d.items():
         if isinstance(v, (np.integer,)):
             v = int(v)
@@ -419,7 +422,7 @@ class Lpca(Model):
         """Raw size at one byte per value (as the measured data is stored) over :attr:`nbytes`."""
         a = self.arrays
         k, c1, v, l, _ = a["basis"].shape
-        return self.height * self.width * v * l * 3 / self.nbytes
+        return cast(float, self.height * self.width * v * l * 3 / self.nbytes)
 
 
 class _LightPca(Model):
@@ -452,11 +455,12 @@ class _LightPca(Model):
         return "rgb" if int(self.arrays["layout"][0]) == 0 else "ycc"
 
     @property
-    def coeffs(self) -> np.ndarray:
+    def coeffs(self) -> NDArray[np.float32]:
         """``[H, W, V, K]`` float32: the decoded coefficients."""
         a = self.arrays
         v, k = a["coeffs_q"].shape[2:]
-        return (a["coeffs_bias"].reshape(v, k) + a["coeffs_scale"].reshape(v, k) * a["coeffs_q"]).astype(np.float32)
+        return cast(NDArray[np.float32],
+                    (a["coeffs_bias"].reshape(v, k) + a["coeffs_scale"].reshape(v, k) * a["coeffs_q"]).astype(np.float32))
 
 
 class Rbf(_LightPca):
@@ -475,7 +479,7 @@ class Bilinear(_LightPca):
     _kind = "bilinear"
 
 
-def model_kinds() -> dict:
+def model_kinds() -> Dict[str, Dict[str, Any]]:
     """Every registered model and its facts, from the Rust registry: ``{kind: facts}`` with
     ``doc`` (one line), ``about`` (a few paragraphs), ``options`` (the schema: ``name``,
     ``type``, ``default``, ``allowed``, ``doc``, and ``min``/``max``/``choices``), ``renderers``
@@ -493,28 +497,28 @@ def model_kinds() -> dict:
     return _REGISTRY
 
 
-def class_of(kind: str) -> type:
+def class_of(kind: str) -> Type[Model]:
     """The Python class of model ``kind``: its own class where one adds accessors, else
     :class:`Model`."""
     return next((c for c in _all_subclasses(Model) if c._kind == kind), Model)
 
 
-_REGISTRY: Optional[dict] = None
+_REGISTRY: Optional[Dict[str, Dict[str, Any]]] = None
 
 
-def wrap(native: "_native.Model", fit_seconds: Optional[float] = None, report: Optional[dict] = None) -> Model:
+def wrap(native: "_native.Model", fit_seconds: Optional[float] = None, report: Optional[Dict[str, Any]] = None) -> Model:
     """The Python object of a native model: the class documented for its kind, else
     :class:`Model` itself (a model registered in Rust needs no Python code)."""
     return class_of(native.kind)(native, fit_seconds=fit_seconds, report=report)
 
 
-def _all_subclasses(c):
+def _all_subclasses(c: Type[_T]) -> Iterator[Type[_T]]:
     for s in c.__subclasses__():
         yield s
         yield from _all_subclasses(s)
 
 
-def load_as(path: PathLike, cls):
+def load_as(path: PathLike, cls: Type[_T]) -> _T:
     """:func:`load`, checking that the file holds a ``cls`` (else :class:`FormatError`)."""
     obj = load(path)
     if not isinstance(obj, cls):
@@ -522,9 +526,10 @@ def load_as(path: PathLike, cls):
     return obj
 
 
-def load(path: PathLike):
+def load(path: PathLike) -> Any:
     """Load any ``.btfrs`` file: a :class:`~btfrs.Btf`, a fitted model, a synthesis analysis or a
     Wang tile set (:class:`btfrs.tiles.TileSet`)."""
+    meta: Any
     p = os.fspath(path)
     kind, _, _ = _native.read_container_header(p)
     if kind in model_kinds():
@@ -543,7 +548,7 @@ def load(path: PathLike):
 #: Readers of the other kinds a ``.btfrs`` container holds: ``kind -> reader(path, meta, arrays)``,
 #: filled in by the modules that define them (synthesis analyses, tile sets), so this layer needs
 #: not import them.
-_CONTAINERS: dict = {}
+_CONTAINERS: Dict[str, Callable[[PathLike, Dict[str, Any], Dict[str, NDArray[Any]]], Any]] = {}
 
 
 def register_container(kind: str, reader: Any) -> None:

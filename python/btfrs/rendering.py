@@ -20,9 +20,10 @@ import os
 import time
 import weakref
 from dataclasses import dataclass
-from typing import Optional, Sequence, Union
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union, cast
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from . import _native
 from ._checks import choice, instance, integer, real, size_hw
@@ -36,15 +37,20 @@ __all__ = ["Scene", "Camera", "PointLight", "DirectionalLight", "render", "Rende
 Scene = _native.Scene
 Camera = _native.Camera
 
+# A light as the native renderers take it: (kind, position or direction, RGB intensity).
+_NativeLight = Tuple[str, List[float], List[float]]
+# A tile map as the native renderers take it: (atlas, tile size, layout).
+_NativeTileMap = Tuple[NDArray[np.uint32], int, NDArray[np.uint32]]
 
-def _vec3(name: str, v) -> list:
+
+def _vec3(name: str, v: object) -> List[float]:
     a = np.asarray(v, dtype=np.float64).reshape(-1)
     if a.shape != (3,) or not np.all(np.isfinite(a)):
         raise InvalidArgumentError(f"{name}: expected three finite numbers, got {v!r}")
     return [float(x) for x in a]
 
 
-def _intensity(v) -> list:
+def _intensity(v: object) -> List[float]:
     a = np.asarray(v, dtype=np.float64).reshape(-1)
     if a.size == 1:
         a = np.repeat(a, 3)
@@ -60,7 +66,7 @@ class PointLight:
     position: Sequence[float]
     intensity: Union[float, Sequence[float]] = 1.0
 
-    def _native(self) -> tuple:
+    def _native(self) -> _NativeLight:
         return ("point", _vec3("position", self.position), _intensity(self.intensity))
 
 
@@ -71,7 +77,7 @@ class DirectionalLight:
     direction: Sequence[float]
     intensity: Union[float, Sequence[float]] = 1.0
 
-    def _native(self) -> tuple:
+    def _native(self) -> _NativeLight:
         d = np.asarray(_vec3("direction", self.direction))
         n = float(np.linalg.norm(d))
         if n == 0:
@@ -88,13 +94,13 @@ class RenderResult:
     upload_ms: float
 
 
-_uploads: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_uploads: "weakref.WeakKeyDictionary[Union[Model, Btf], Dict[str, _native.GpuModel]]" = weakref.WeakKeyDictionary()
 # Uploads live on the device of the process that made them: a forked child opens its own
 # device (see btfrs_core::process) and uploads again (the parent's uploads, dropped here, are
 # leaked rather than freed: see UploadedModel's Drop).
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_uploads.clear)
-_last: list = []
+_last: List[RenderResult] = []
 
 
 def gpu_info() -> str:
@@ -102,7 +108,7 @@ def gpu_info() -> str:
     return _native.gpu_info()
 
 
-def _upload(model, method: str):
+def _upload(model: Union[Model, Btf], method: str) -> Tuple[_native.GpuModel, float]:
     """The model's data on the device, uploaded once per model object and method."""
     t0 = time.perf_counter()
     per_model = _uploads.setdefault(model, {})
@@ -116,15 +122,18 @@ def _upload(model, method: str):
     return up, (time.perf_counter() - t0) * 1e3
 
 
+# What a filtered render draws, its mip chain, and how the chain was made (see _filtered).
+_Filtered = Tuple[Union[Model, Btf], _native.MipChain, str]
+
 # How a model's trilinear mip levels are made is the model's own fact (``model.mip``, from its
 # registry entry): exact averages of its parameters, projections of the mean appearance, or
 # appearance medoids. The raw BTF averages.
-_filters: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_filters: "weakref.WeakKeyDictionary[Union[Model, Btf], Dict[Tuple[Any, ...], _Filtered]]" = weakref.WeakKeyDictionary()
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_filters.clear)
 
 
-def _map_key(coords, tm) -> tuple:
+def _map_key(coords: Optional[NDArray[np.uint16]], tm: Optional[_NativeTileMap]) -> Tuple[Any, ...]:
     """A key for the texture a render shows (the map's bytes, hashed)."""
     if tm is not None:
         return ("tiles", hash(tm[0].tobytes()), tm[1], hash(tm[2].tobytes()))
@@ -133,15 +142,15 @@ def _map_key(coords, tm) -> tuple:
     return ("sample",)
 
 
-def _filtered(model, filt: str, coords, tm):
+def _filtered(model: Union[Model, Btf], filt: str, coords: Optional[NDArray[np.uint16]],
+              tm: Optional[_NativeTileMap]) -> _Filtered:
     """What a filtered render draws and with which mip chain: ``(drawn, chain, how)``, ``how``
     being ``"average"`` (a box-filtered pyramid: the model extended by averaged texels, for
     models linear in their texel arrays and the raw BTF) or ``"medoid"`` (levels of existing
     texels chosen by appearance, for the others; see rust/btfrs-render/src/filter.rs). Cached
     per model, filter and map."""
-    is_raw = isinstance(model, Btf)
     dims = (model.height, model.width)
-    avg = filt == "trilinear" and (is_raw or model.mip != "medoid")
+    avg = filt == "trilinear" and (isinstance(model, Btf) or model.mip != "medoid")
     key = (filt, avg, _map_key(coords, tm))
     per_model = _filters.setdefault(model, {})
     hit = per_model.get(key)
@@ -149,7 +158,7 @@ def _filtered(model, filt: str, coords, tm):
         return hit
     if avg:
         chain, idx, wts = _native.filter_build("average", dims, coords, tm)
-        if is_raw:
+        if isinstance(model, Btf):
             flat = model.data.reshape((dims[0] * dims[1],) + model.data.shape[2:])
             levels = np.empty((idx.shape[0],) + flat.shape[1:], dtype=np.float32)
             everything = np.concatenate([flat, levels])
@@ -159,21 +168,21 @@ def _filtered(model, filt: str, coords, tm):
             extra = -(-idx.shape[0] // dims[1]) * dims[1] - idx.shape[0]
             rows = [everything, np.repeat(flat[:1], extra, axis=0)]
             data = np.concatenate(rows).reshape((-1, dims[1]) + flat.shape[1:])
-            drawn = Btf(data, model.views, model.lights, check=False)
+            drawn: Union[Model, Btf] = Btf(data, model.views, model.lights, check=False)
         else:
             drawn = wrap(_native.mip_model(model._m, idx, wts))
-        hit = (drawn, chain, "average" if is_raw else model.mip)
+        hit = (drawn, chain, "average" if isinstance(model, Btf) else model.mip)
     else:
         sig = None
         if filt == "trilinear":
-            sig = _native.filter_signature(model._m) if not is_raw else _raw_signature(model)
+            sig = _raw_signature(model) if isinstance(model, Btf) else _native.filter_signature(model._m)
         chain, _, _ = _native.filter_build("medoid", dims, coords, tm, sig)
         hit = (model, chain, "medoid")
     per_model[key] = hit
     return hit
 
 
-def _raw_signature(btf: Btf) -> np.ndarray:
+def _raw_signature(btf: Btf) -> NDArray[np.float32]:
     """Per texel, the measured values at a few (view, light) pairs spread over the set."""
     v, l = btf.data.shape[2], btf.data.shape[3]
     pairs = [(0, 0), (v // 2, l // 3), (v - 1, (2 * l) // 3), (v // 3, l - 1), ((2 * v) // 3, l // 2), (v // 4, l // 5)]
@@ -181,7 +190,7 @@ def _raw_signature(btf: Btf) -> np.ndarray:
     return np.ascontiguousarray(sig.reshape(btf.data.shape[0] * btf.data.shape[1], -1), dtype=np.float32)
 
 
-def _method(model, method: Optional[str]) -> str:
+def _method(model: Union[Model, Btf], method: Optional[str]) -> str:
     """The renderer for ``model``: its first (``model.renderers[0]``) unless named. LPCA has two
     (paper 004): ``"9tap"`` (the original, the default) and ``"3d"`` (the 3D-texture method);
     the raw BTF has one, ``"default"``."""
@@ -191,14 +200,15 @@ def _method(model, method: Optional[str]) -> str:
     return choice("renderer", method, tuple(names))
 
 
-def _uv_scale(uv_scale) -> list:
+def _uv_scale(uv_scale: ArrayLike) -> List[float]:
     if np.ndim(uv_scale) == 0:
         s = real("uv_scale", uv_scale, min=0.0, min_open=True)
         return [s, s]
     if np.shape(uv_scale) != (2,):
         raise InvalidArgumentError(f"uv_scale: expected a number or a pair (su, sv), got {uv_scale!r}")
-    return [real("uv_scale[0]", uv_scale[0], min=0.0, min_open=True),
-            real("uv_scale[1]", uv_scale[1], min=0.0, min_open=True)]
+    pair = cast(Sequence[float], uv_scale)
+    return [real("uv_scale[0]", pair[0], min=0.0, min_open=True),
+            real("uv_scale[1]", pair[1], min=0.0, min_open=True)]
 
 
 @dataclass(frozen=True)
@@ -213,7 +223,7 @@ class TileMap:
     tile: int
     layout: np.ndarray
 
-    def _native(self) -> tuple:
+    def _native(self) -> _NativeTileMap:
         a = np.asarray(self.atlas)
         lay = np.asarray(self.layout)
         for name, x in (("atlas", a), ("layout", lay)):
@@ -225,10 +235,11 @@ class TileMap:
         return (np.ascontiguousarray(a, dtype=np.uint32), t, np.ascontiguousarray(lay, dtype=np.uint32))
 
 
-def render(model: Union[Model, Btf], scene, camera, lights=None, *, size=(512, 512), uv_scale=1.0,
+def render(model: Union[Model, Btf], scene: Scene, camera: Camera, lights: Any = None, *,
+           size: Union[int, Tuple[int, int]] = (512, 512), uv_scale: ArrayLike = 1.0,
            coords: Optional[np.ndarray] = None, backend: str = "gpu", renderer: Optional[str] = None,
-           tiles=None, layout=None, tile_map: Optional[TileMap] = None,
-           environment=None, lighting: str = "sampled", samples: int = 64, seed: int = 0,
+           tiles: Any = None, layout: Any = None, tile_map: Optional[TileMap] = None,
+           environment: Any = None, lighting: str = "sampled", samples: int = 64, seed: int = 0,
            filter: str = "nearest", progress: Progress = None) -> np.ndarray:
     """Render ``model`` (a fitted model, or a :class:`~btfrs.Btf` for the raw measured data)
     on ``scene`` seen by ``camera`` under ``lights`` and/or an ``environment``; returns
@@ -356,6 +367,7 @@ def render(model: Union[Model, Btf], scene, camera, lights=None, *, size=(512, 5
         cb = callback(progress, f"render {h}x{w} (SH environment, {backend})")
         if cb is not None:
             cb(0, 1)
+        assert isinstance(model, Model)  # checked above: lighting="sh" takes a double-SH model
         up, up_ms = _upload(model, meth) if backend == "gpu" else (None, 0.0)
         img, draw, rb = _native.render_env_sh(model._m, up, scene, camera, environment.data, w, h, uvs, coords, tm, fa)
         if backend == "gpu":
