@@ -4,6 +4,7 @@ hierarchy, bounds-checked accessors, progress on every long call, atomic writes.
 import inspect
 import os
 import re
+import subprocess
 import sys
 from pathlib import Path
 
@@ -409,7 +410,37 @@ def test_the_cli_logs_one_line_per_phase(tmp_path):
 
 
 def _leftovers(folder: Path) -> list:
-    return [p.name for p in folder.iterdir() if p.name.endswith(".tmp")]
+    return [p.name for p in folder.iterdir() if p.name.endswith((".tmp", ".btfrs-tmp"))]
+
+
+@pytest.mark.skipif(not Path("/proc/self").exists(), reason="which processes run is read from /proc")
+@pytest.mark.parametrize("next_writer", ["rust", "python"])
+def test_a_killed_writer_leaves_a_temporary_file_that_the_next_write_removes(tmp_path, next_writer):
+    # SIGKILL a process while it writes a large BTF straight into a file (btfrs-io's atomic
+    # writer): its temporary file stays, since nothing can run in a killed process. The next
+    # write into the folder, by Rust or by Python's atomic_write, sees that its writer is gone and
+    # removes it; the half-written target never appears.
+    import signal
+
+    code = ("import btfrs, sys\n"
+            "def tick(d, t):\n"
+            "    if d: print('writing', flush=True)\n"
+            "btfrs.materials.make('knit', size=256, out=sys.argv[1], progress=tick)\n")
+    target = tmp_path / "big.btfrs"
+    p = subprocess.Popen([sys.executable, "-c", code, str(target)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert p.stdout is not None and p.stdout.readline().strip() == "writing"
+        p.send_signal(signal.SIGKILL)
+        p.wait(timeout=60)
+    finally:
+        p.kill()
+    left = _leftovers(tmp_path)
+    assert len(left) == 1 and left[0].endswith(f".{p.pid}.0.btfrs-tmp") and not target.exists(), left
+    if next_writer == "rust":
+        btfrs.fit.ptm(btfrs.materials.make("knit", size=8, seed=1)).save(tmp_path / "small.btfrs")
+    else:
+        btfrs.io.save_text(tmp_path / "note.txt", "next\n")
+    assert _leftovers(tmp_path) == [] and not target.exists()
 
 
 def test_atomic_write_leaves_the_old_file_when_interrupted(tmp_path):

@@ -88,3 +88,33 @@ def test_missing_arguments_are_usage_errors(argv):
 def test_a_command_without_input_names_what_it_takes(capsys):
     assert main(["info"]) == 2
     assert "path: expected a capture or btfrs file, or --material NAME" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["fit", "--material", "knit", "--size", "8", "--model", "ptm", "-o", "{tmp}/missing/m.btfrs"], "-o"),
+    (["fit", "--material", "knit", "--size", "8", "--model", "ptm", "-o", "{tmp}"], "-o"),
+    (["fit", "--material", "knit", "--size", "8", "--model", "ptm", "-o", "{tmp}/m.png"], "-o"),
+    (["fit", "{tmp}/in.btfrs", "--model", "ptm", "-o", "{tmp}/in.btfrs"], "-o"),
+    (["render", "--material", "knit", "--size", "8", "-o", "{tmp}/x.jpg"], "-o"),
+    (["export", "{tmp}/in.btfrs", "--ptm", "{tmp}/x.rti"], "--ptm"),
+    (["evaluate", "--material", "knit", "--size", "8", "--out", "{tmp}/in.btfrs"], "--out"),
+    (["fit", "--material", "knit", "--size", "8", "--model", "lafortune", "--set", "lobes=NaN", "-o", "{tmp}/m.btfrs"],
+     "--set lobes"),
+    (["fit", "--material", "knit", "--size", "8", "--model", "ptm", "--set", "progress=1", "-o", "{tmp}/m.btfrs"],
+     "--set progress"),
+])
+def test_output_paths_and_options_are_refused_before_any_work(argv, flag, tmp_path, capsys, monkeypatch):
+    # Nothing is loaded, generated or fitted before the arguments are known to be usable: the
+    # material generator and the fit would fail the test if called.
+    btfrs.materials.make("knit", size=8, seed=1).save(tmp_path / "in.btfrs")
+    before = sorted(p.name for p in tmp_path.iterdir())
+
+    def no_work(*a, **k):
+        raise AssertionError("work started before the arguments were checked")
+
+    monkeypatch.setattr(btfrs.materials, "make", no_work)
+    monkeypatch.setattr(btfrs.fit, "fit", no_work)
+    assert main([a.replace("{tmp}", str(tmp_path)) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert f"btfrs: error: {flag}" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written, the input intact

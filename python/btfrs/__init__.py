@@ -29,6 +29,7 @@ from .exceptions import (
     FormatError,
     InternalError,
     InvalidArgumentError,
+    NumericalError,
     OutOfRangeError,
 )
 from .models import Bilinear, ErrorReport, Hsh, Lafortune, LafortuneView, Lpca, Model, Ptm, Rbf, Sh, Srf, model_kinds
@@ -120,6 +121,7 @@ __all__ = [
     "FormatError",
     "InternalError",
     "InvalidArgumentError",
+    "NumericalError",
     "ArgumentTypeError",
     "OutOfRangeError",
 ]

@@ -201,6 +201,7 @@ def _option_args(p: argparse.ArgumentParser) -> None:
 def tiles_command(args: argparse.Namespace) -> None:
     """``btfrs tiles``: fit (or read) the sample, synthesize a Wang tile set in its domain, write
     the set, a picture of the tiles with their edge colours, a tiling and its rendering."""
+    _check_output("--out", args.out, args, folder=True)
     progress = not args.quiet
     opts = None if args.model == "raw" else _fit_options(args, args.model)
     os.makedirs(args.out, exist_ok=True)
@@ -257,6 +258,7 @@ def tiles_command(args: argparse.Namespace) -> None:
 def evaluate_command(args: argparse.Namespace) -> None:
     """``btfrs evaluate``: :func:`btfrs.evaluate` on a material, the table on stdout, the report
     and charts in ``--out``."""
+    _check_output("--out", args.out, args, folder=True)
     progress = not args.quiet
     btf, name = _load_btf(args, progress)
     models = args.models if args.models == "all" else [m.strip() for m in args.models.split(",") if m.strip()]
@@ -272,6 +274,7 @@ def evaluate_command(args: argparse.Namespace) -> None:
 
 def synth_command(args: argparse.Namespace) -> None:
     """``btfrs synth``: analyse (or load the analysis), synthesize, save the map and pictures."""
+    _check_output("--out", args.out, args, folder=True)
     progress = not args.quiet
     os.makedirs(args.out, exist_ok=True)
     sample, _ = _load_sample(args, progress)
@@ -333,6 +336,7 @@ def choose_command(args: argparse.Namespace) -> None:
 def stability_command(args: argparse.Namespace) -> None:
     """``btfrs stability``: run every model in every regime, write report.json, report.md and
     one chart per regime, print the table."""
+    _check_output("--out", args.out, args, folder=True)
     progress = not args.quiet
     btf, name = _load_btf(args, progress)
     if not args.path:
@@ -493,15 +497,34 @@ def _fit_options(args: argparse.Namespace, kind: str) -> Dict[str, Any]:
     return opts
 
 
+def _check_output(flag: str, path: str, args: argparse.Namespace, extensions: Sequence[str] = (),
+                  folder: bool = False) -> None:
+    """Refuse an output path before any work: its folder must exist and be writable, it must not
+    be a folder (or, for ``folder``, a file), its extension must be one of ``extensions``, and
+    it must not be the command's input."""
+    out = os.path.abspath(path)
+    parent = os.path.dirname(out)
+    if not os.path.isdir(parent):
+        raise InvalidArgumentError(f"{flag}: {path}: the folder {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise InvalidArgumentError(f"{flag}: {path}: the folder {parent} is not writable")
+    if folder:
+        if os.path.exists(out) and not os.path.isdir(out):
+            raise InvalidArgumentError(f"{flag}: {path} is a file; expected a folder")
+        return
+    if os.path.isdir(out):
+        raise InvalidArgumentError(f"{flag}: {path} is a folder; expected a file name")
+    if extensions and not out.lower().endswith(tuple(extensions)):
+        raise InvalidArgumentError(f"{flag}: {path}: expected a file name ending in {' or '.join(extensions)}")
+    src = getattr(args, "path", None)
+    if src and os.path.exists(src) and (os.path.abspath(src) == out or (os.path.exists(out) and os.path.samefile(src, out))):
+        raise InvalidArgumentError(f"{flag}: {path} is the input; write to another file")
+
+
 def fit_command(args: argparse.Namespace) -> None:
     """``btfrs fit``: load, fit, save; print time, size and errors."""
     opts = _fit_options(args, args.model)
-    out = os.path.abspath(args.out)
-    if not os.path.isdir(os.path.dirname(out)):
-        raise InvalidArgumentError(f"-o: {args.out}: its folder does not exist")
-    if args.path and (os.path.abspath(args.path) == out
-                      or (os.path.exists(out) and os.path.exists(args.path) and os.path.samefile(args.path, out))):
-        raise InvalidArgumentError(f"-o: {args.out} is the input; write the model to another file")
+    _check_output("-o", args.out, args, (".btfrs",))
     btf, _ = _load_btf(args, not args.quiet)
     train, test = (btf, None) if args.holdout <= 0 else btf.split(holdout=args.holdout, seed=args.seed)
     t0 = time.perf_counter()
@@ -520,6 +543,13 @@ def export_command(args: argparse.Namespace) -> None:
     if not any([path for _, path in formats] + [args.exr, args.stack]):
         flags = ", ".join(f"--{name}" for name, _ in formats)
         raise InvalidArgumentError(f"export: give at least one of {flags}, --exr, --stack")
+    for fmt, path in formats:
+        if path:
+            _check_output(f"--{fmt}", path, args, (f".{fmt}",))
+    if args.exr:
+        _check_output("--exr", args.exr, args, (".exr",))
+    if args.stack:
+        _check_output("--stack", args.stack, args, folder=True)
     obj, _ = _load_sample(args, not args.quiet)
     if args.stack:
         if not isinstance(obj, Btf):
@@ -543,6 +573,7 @@ def export_command(args: argparse.Namespace) -> None:
 
 def render_command(args: argparse.Namespace) -> None:
     """``btfrs render``: one image of a model, BTF or capture."""
+    _check_output("-o", args.out, args, (".png", ".exr"))
     obj, _ = _load_sample(args, not args.quiet)
     if not isinstance(obj, (Model, Btf)):
         raise InvalidArgumentError(f"path: {args.path} holds a {type(obj).__name__}, not a model or BTF")

@@ -14,6 +14,8 @@ class                     also a                       raised when
                           ``IndexError``               do not wrap)
 ``DegenerateDataError``   ``ValueError``               the data cannot support the requested fit
 ``FormatError``           ``ValueError``               a file is not what it claims to be
+``NumericalError``        ``ArithmeticError``          a computation gave non-finite values (a model
+                                                       whose stored values overflow when evaluated)
 ``DeviceError``           ``RuntimeError``             no usable graphics adapter, or the GPU failed
 ``ClusterError``          ``RuntimeError``             the Dask cluster of a :mod:`btfrs.dask` fit failed
                                                        (a worker died, the scheduler went away)
@@ -34,6 +36,7 @@ __all__ = [
     "OutOfRangeError",
     "DegenerateDataError",
     "FormatError",
+    "NumericalError",
     "InternalError",
     "DeviceError",
     "ClusterError",
@@ -63,6 +66,12 @@ class DegenerateDataError(BtfrsError, ValueError):
 
 class FormatError(BtfrsError, ValueError):
     """A file is not what it claims to be (bad header, truncated, unsupported variant)."""
+
+
+class NumericalError(BtfrsError, ArithmeticError):
+    """A computation gave non-finite values: a model's stored values (finite, but huge: a file of
+    unknown origin) overflow when it is evaluated or rendered. The message names the model and its
+    array with the largest value."""
 
 
 class DeviceError(BtfrsError, RuntimeError):

@@ -39,6 +39,38 @@ PathLike = Union[str, "os.PathLike[str]"]
 
 _counter = itertools.count()
 
+#: The suffix of btfrs's temporary files (``.{target}.{pid}.{n}.btfrs-tmp``), as btfrs-io names them.
+TEMP_SUFFIX = ".btfrs-tmp"
+
+
+def _temp_owner(name: str) -> Optional[int]:
+    """The process id in a btfrs temporary file's name (or the ``.tmp`` of earlier versions)."""
+    if not name.startswith("."):
+        return None
+    for suffix in (TEMP_SUFFIX, ".tmp"):
+        if name.endswith(suffix):
+            parts = name[: -len(suffix)].rsplit(".", 2)
+            if len(parts) == 3 and len(parts[0]) >= 2 and parts[1].isdigit() and parts[2].isdigit():
+                return int(parts[1])
+    return None
+
+
+def sweep_stale(directory: str) -> None:
+    """Remove btfrs temporary files in ``directory`` left by writers that were killed (their
+    process no longer runs). Only where the system lists running processes (``/proc``); files of
+    running processes, this one included, are never touched; errors are ignored."""
+    if not os.path.exists("/proc/self"):
+        return
+    try:
+        names = os.listdir(directory or ".")
+    except OSError:
+        return
+    for n in names:
+        pid = _temp_owner(n)
+        if pid is not None and pid != os.getpid() and not os.path.exists(f"/proc/{pid}"):
+            with contextlib.suppress(OSError):
+                os.unlink(os.path.join(directory, n))
+
 
 @contextlib.contextmanager
 def atomic_write(path: PathLike, mode: str = "wb") -> Iterator[IO[Any]]:
@@ -55,9 +87,11 @@ def atomic_write(path: PathLike, mode: str = "wb") -> Iterator[IO[Any]]:
     directory, name = os.path.split(p)
     if not name:
         raise InvalidArgumentError(f"path: {p!r} does not name a file")
-    # The same naming as btfrs-io: hidden, per process and call, never truncating another file.
+    # The same naming as btfrs-io: hidden, per process and call, never truncating another file,
+    # and saying whose it is, so that the next write removes it if its writer was killed.
+    sweep_stale(directory)
     for _ in range(100):
-        tmp = os.path.join(directory, f".{name}.{os.getpid()}.{next(_counter)}.tmp")
+        tmp = os.path.join(directory, f".{name}.{os.getpid()}.{next(_counter)}{TEMP_SUFFIX}")
         try:
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
             break

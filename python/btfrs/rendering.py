@@ -29,7 +29,7 @@ from . import _native
 from ._checks import choice, instance, integer, real, size_hw
 from ._progress import Progress, callback
 from .btf import Btf
-from .exceptions import ArgumentTypeError, InvalidArgumentError
+from .exceptions import ArgumentTypeError, InvalidArgumentError, NumericalError
 from .models import Model, wrap
 
 __all__ = ["Scene", "Camera", "PointLight", "DirectionalLight", "render", "RenderResult", "gpu_info", "TileMap"]
@@ -198,6 +198,17 @@ def _method(model: Union[Model, Btf], method: Optional[str]) -> str:
     if method is None or method == "default":
         return names[0]
     return choice("renderer", method, tuple(names))
+
+
+def _culprit(model: Union[Model, Btf]) -> str:
+    """Where a non-finite GPU frame comes from: the model's array (or the BTF's data) holding its
+    largest stored value (the GPU knows the model only as uploaded words)."""
+    arrays = model.arrays if isinstance(model, Model) else {"data": model.data}
+    sizes = {n: float(np.max(np.abs(a))) for n, a in arrays.items() if a.dtype.kind == "f" and a.size}
+    if not sizes:
+        return ""
+    name = max(sizes, key=lambda n: sizes[n])
+    return f"; its largest stored value is {sizes[name]:.3e}, in array {name!r}"
 
 
 def _uv_scale(uv_scale: ArrayLike) -> List[float]:
@@ -382,7 +393,10 @@ def render(model: Union[Model, Btf], scene: Scene, camera: Camera, lights: Any =
         up, up_ms = _upload(model, meth)
         if cb is not None:
             cb(1, 2)
-        img, draw, rb = _native.gpu_render(up, scene, camera, items, w, h, uvs, coords, tm, fa)
+        try:
+            img, draw, rb = _native.gpu_render(up, scene, camera, items, w, h, uvs, coords, tm, fa)
+        except NumericalError as e:
+            raise NumericalError(f"{e}{_culprit(model)}") from None
         _last[:] = [RenderResult(draw, rb, up_ms)]
         if cb is not None:
             cb(2, 2)

@@ -19,6 +19,10 @@ pub enum Error {
     /// The data make the requested fit impossible (too few or degenerate directions, ...).
     #[error("{0}")]
     Degenerate(String),
+    /// A computation gave non-finite values (a model whose stored values overflow when
+    /// evaluated, say): names what and why.
+    #[error("{0}")]
+    Numerical(String),
     /// A file exists but is not what it claims to be.
     #[error("{path}: {msg}")]
     Format { path: String, msg: String },

@@ -408,10 +408,16 @@ impl<M: Model + std::fmt::Debug> DynModel for M {
         Model::renderer(self, method, max_3d)
     }
     fn evaluate_image(&self, view: [f64; 3], light: [f64; 3]) -> Result<Vec<f32>> {
-        evaluate_image(self, view, light)
+        let img = evaluate_image(self, view, light)?;
+        check_output(self, &img, "evaluate")?;
+        Ok(img)
     }
     fn error(&self, btf: &BtfRef<'_>) -> Result<ErrorSums> {
-        model_error(self, btf)
+        let sums = model_error(self, btf)?;
+        if !(sums.sse.is_finite() && sums.sgt.is_finite()) {
+            return Err(overflow(self, "error"));
+        }
+        Ok(sums)
     }
     fn mip(&self) -> Mip {
         Model::mip(self)
@@ -427,6 +433,46 @@ impl<M: Model + std::fmt::Debug> DynModel for M {
     }
     fn as_any(&self) -> &dyn Any {
         self
+    }
+}
+
+/// The array of `model` holding the largest magnitude, and that magnitude: where an overflow
+/// comes from (only computed for an error).
+pub fn largest_stored(model: &dyn DynModel) -> Option<(String, f64)> {
+    use btfrs_core::arrays::ArrayData as D;
+    let arrays = model.to_arrays();
+    let mut best: Option<(String, f64)> = None;
+    for (name, a) in arrays.iter() {
+        let m = match &a.data {
+            D::F32(x) => x.iter().fold(0.0f64, |m, &v| m.max((v as f64).abs())),
+            D::F64(x) => x.iter().fold(0.0f64, |m, &v| m.max(v.abs())),
+            _ => continue,
+        };
+        if best.as_ref().is_none_or(|(_, b)| m > *b) {
+            best = Some((name.to_string(), m));
+        }
+    }
+    best
+}
+
+/// The error for non-finite output of `model` in `what` (evaluate, error, render): its values
+/// are finite as stored (every file is checked) but too large to be evaluated.
+pub fn overflow(model: &dyn DynModel, what: &str) -> Error {
+    let culprit = largest_stored(model)
+        .map(|(name, m)| format!("; its largest stored value is {m:.3e}, in array {name:?}"))
+        .unwrap_or_default();
+    Error::Numerical(format!(
+        "{what}: the {} model gives non-finite values (its stored values overflow when evaluated){culprit}",
+        model.kind()
+    ))
+}
+
+/// [`overflow`] when `values` hold a non-finite value.
+pub fn check_output(model: &dyn DynModel, values: &[f32], what: &str) -> Result<()> {
+    if values.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(overflow(model, what))
     }
 }
 

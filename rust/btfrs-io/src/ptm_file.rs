@@ -814,6 +814,42 @@ fn show(t: &[u8]) -> String {
     format!("{:?}{}", s, if t.len() > 40 { "..." } else { "" })
 }
 
+/// The `.ptm` format (HP Labs' PTM 1.2, read by RTIViewer, relight and OpenLIME's converters).
+pub const FORMAT: crate::formats::Format = crate::formats::Format {
+    name: "ptm",
+    extension: "ptm",
+    doc: "Polynomial Texture Map 1.2 (RGB or LRGB, 8-bit), one view slot",
+    export: export_model,
+    import: import_model,
+};
+
+/// Write one view slot of a PTM as a `.ptm` file: `{"scale": [..], "bias": [..]}` per
+/// coefficient index (scale in our units, the quantization step). A model quantized by the fit
+/// (`bits` 8) is written byte for byte from its planes; a float model is quantized for the file.
+fn export_model(model: &dyn btfrs_fit::DynModel, view: usize, path: &Path) -> Result<serde_json::Value> {
+    let p: &btfrs_fit::Ptm = crate::formats::concrete(model, "a PTM")?;
+    let slot = p.slot(view)?;
+    if let Some(b) = PtmBytes::from_slot(&slot) {
+        write_ptm_bytes(path, &b)?;
+        let scale: Vec<f32> = b.scale.iter().map(|&s| (f64::from(s) / 255.0) as f32).collect();
+        let bias: Vec<i32> = b.bias.iter().map(|&x| x as i32).collect();
+        return Ok(serde_json::json!({"scale": scale, "bias": bias}));
+    }
+    let format = match slot.kind {
+        PtmKind::Rgb => PtmFormat::Rgb,
+        PtmKind::Lrgb => PtmFormat::Lrgb,
+    };
+    let img = PtmImage { width: slot.width, height: slot.height, format, coeffs: slot.coeffs, rgb: slot.rgb };
+    let q = write_ptm(path, &img)?;
+    Ok(serde_json::json!({"scale": q.scale.to_vec(), "bias": q.bias.to_vec()}))
+}
+
+/// Read a `.ptm` file as a one-slot PTM (view = the normal), its 8-bit planes the file's bytes.
+fn import_model(path: &Path) -> Result<Box<dyn btfrs_fit::DynModel>> {
+    let b = read_ptm_bytes(path)?;
+    Ok(Box::new(btfrs_fit::Ptm::from_slot(b.to_slot())?))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1292,40 +1328,4 @@ mod tests {
             assert!(PtmBytes::from_slot(&f.slot(0).unwrap()).is_none());
         }
     }
-}
-
-/// The `.ptm` format (HP Labs' PTM 1.2, read by RTIViewer, relight and OpenLIME's converters).
-pub const FORMAT: crate::formats::Format = crate::formats::Format {
-    name: "ptm",
-    extension: "ptm",
-    doc: "Polynomial Texture Map 1.2 (RGB or LRGB, 8-bit), one view slot",
-    export: export_model,
-    import: import_model,
-};
-
-/// Write one view slot of a PTM as a `.ptm` file: `{"scale": [..], "bias": [..]}` per
-/// coefficient index (scale in our units, the quantization step). A model quantized by the fit
-/// (`bits` 8) is written byte for byte from its planes; a float model is quantized for the file.
-fn export_model(model: &dyn btfrs_fit::DynModel, view: usize, path: &Path) -> Result<serde_json::Value> {
-    let p: &btfrs_fit::Ptm = crate::formats::concrete(model, "a PTM")?;
-    let slot = p.slot(view)?;
-    if let Some(b) = PtmBytes::from_slot(&slot) {
-        write_ptm_bytes(path, &b)?;
-        let scale: Vec<f32> = b.scale.iter().map(|&s| (f64::from(s) / 255.0) as f32).collect();
-        let bias: Vec<i32> = b.bias.iter().map(|&x| x as i32).collect();
-        return Ok(serde_json::json!({"scale": scale, "bias": bias}));
-    }
-    let format = match slot.kind {
-        PtmKind::Rgb => PtmFormat::Rgb,
-        PtmKind::Lrgb => PtmFormat::Lrgb,
-    };
-    let img = PtmImage { width: slot.width, height: slot.height, format, coeffs: slot.coeffs, rgb: slot.rgb };
-    let q = write_ptm(path, &img)?;
-    Ok(serde_json::json!({"scale": q.scale.to_vec(), "bias": q.bias.to_vec()}))
-}
-
-/// Read a `.ptm` file as a one-slot PTM (view = the normal), its 8-bit planes the file's bytes.
-fn import_model(path: &Path) -> Result<Box<dyn btfrs_fit::DynModel>> {
-    let b = read_ptm_bytes(path)?;
-    Ok(Box::new(btfrs_fit::Ptm::from_slot(b.to_slot())?))
 }

@@ -347,6 +347,31 @@ pub fn decode_rti(bytes: &[u8], path_for_errors: &str) -> Result<RtiHsh> {
     Ok(RtiHsh { width, height, terms, basis_type, scale, bias, data })
 }
 
+/// The `.rti` HSH format (RTIViewer's, relight's and OpenLIME's converters' hemispherical
+/// harmonics files).
+pub const FORMAT: crate::formats::Format = crate::formats::Format {
+    name: "rti",
+    extension: "rti",
+    doc: "RTI hemispherical harmonics (HSH, order 1 to 4, 8-bit), one view slot",
+    export: export_model,
+    import: import_model,
+};
+
+/// Write one view slot of an HSH model as a `.rti` HSH file (relight's scale/bias reading):
+/// `{"scale": [..], "bias": [..]}`, the file's arrays.
+fn export_model(model: &dyn btfrs_fit::DynModel, view: usize, path: &Path) -> Result<serde_json::Value> {
+    let h: &btfrs_fit::Hsh = crate::formats::concrete(model, "an HSH model")?;
+    let img = RtiHsh::from_slot(&h.slot(view)?)?;
+    write_rti(path, &img)?;
+    Ok(serde_json::json!({"scale": img.scale, "bias": img.bias}))
+}
+
+/// Read a `.rti` HSH file as a one-slot HSH model (view = the normal).
+fn import_model(path: &Path) -> Result<Box<dyn btfrs_fit::DynModel>> {
+    let img = read_rti(path)?;
+    Ok(Box::new(btfrs_fit::Hsh::from_slot(img.to_slot()?)?))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -486,29 +511,4 @@ mod tests {
         let bad = RtiHsh { terms: 3, ..image(1, 1, 4, 0) };
         assert!(encode_rti(&bad).unwrap_err().to_string().contains("terms"));
     }
-}
-
-/// The `.rti` HSH format (RTIViewer's, relight's and OpenLIME's converters' hemispherical
-/// harmonics files).
-pub const FORMAT: crate::formats::Format = crate::formats::Format {
-    name: "rti",
-    extension: "rti",
-    doc: "RTI hemispherical harmonics (HSH, order 1 to 4, 8-bit), one view slot",
-    export: export_model,
-    import: import_model,
-};
-
-/// Write one view slot of an HSH model as a `.rti` HSH file (relight's scale/bias reading):
-/// `{"scale": [..], "bias": [..]}`, the file's arrays.
-fn export_model(model: &dyn btfrs_fit::DynModel, view: usize, path: &Path) -> Result<serde_json::Value> {
-    let h: &btfrs_fit::Hsh = crate::formats::concrete(model, "an HSH model")?;
-    let img = RtiHsh::from_slot(&h.slot(view)?)?;
-    write_rti(path, &img)?;
-    Ok(serde_json::json!({"scale": img.scale, "bias": img.bias}))
-}
-
-/// Read a `.rti` HSH file as a one-slot HSH model (view = the normal).
-fn import_model(path: &Path) -> Result<Box<dyn btfrs_fit::DynModel>> {
-    let img = read_rti(path)?;
-    Ok(Box::new(btfrs_fit::Hsh::from_slot(img.to_slot()?)?))
 }

@@ -13,6 +13,7 @@ pyo3::import_exception!(btfrs.exceptions, DegenerateDataError);
 pyo3::import_exception!(btfrs.exceptions, FormatError);
 pyo3::import_exception!(btfrs.exceptions, InternalError);
 pyo3::import_exception!(btfrs.exceptions, DeviceError);
+pyo3::import_exception!(btfrs.exceptions, NumericalError);
 
 /// Convert a btfrs error into the Python exception a user should see.
 pub fn to_py(e: Error) -> PyErr {
@@ -21,6 +22,7 @@ pub fn to_py(e: Error) -> PyErr {
         Error::InvalidArgument { .. } => InvalidArgumentError::new_err(msg),
         Error::ArgumentType { .. } => ArgumentTypeError::new_err(msg),
         Error::Degenerate(_) => DegenerateDataError::new_err(msg),
+        Error::Numerical(_) => NumericalError::new_err(msg),
         Error::Format { .. } => FormatError::new_err(msg),
         Error::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound => PyFileNotFoundError::new_err(msg),
         Error::Io { .. } => PyOSError::new_err(msg),

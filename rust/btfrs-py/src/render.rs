@@ -287,7 +287,27 @@ impl ViewArgs {
     }
 }
 
-fn image(py: Python<'_>, v: Vec<f32>, w: usize, h: usize) -> PyResult<Image<'_>> {
+/// The frame as an array; a frame with a non-finite pixel is a `NumericalError` naming what was
+/// drawn (`culprit`: the model, which names its largest stored value), never returned.
+fn image<'py>(
+    py: Python<'py>,
+    v: Vec<f32>,
+    w: usize,
+    h: usize,
+    culprit: Option<&dyn btfrs_fit::DynModel>,
+    what: &str,
+) -> PyResult<Image<'py>> {
+    if let Some(bad) = v.chunks(3).position(|p| !p.iter().all(|x| x.is_finite())) {
+        let n = v.chunks(3).filter(|p| !p.iter().all(|x| x.is_finite())).count();
+        let e = match culprit {
+            Some(m) => btfrs_fit::model::overflow(m, "render"),
+            None => btfrs_core::Error::Numerical(format!(
+                "render: the {what} gives non-finite values (its stored values overflow when rendered)"
+            )),
+        };
+        let msg = format!("{e}: {n} of {} pixels, the first at row {}, column {}", w * h, bad / w, bad % w);
+        return Err(crate::errors::to_py(btfrs_core::Error::Numerical(msg)));
+    }
     v.into_pyarray(py).reshape(vec![h, w, 3])
 }
 
@@ -313,7 +333,8 @@ pub fn gpu_render<'py>(
     let view =
         View { filter: f.as_ref().map(|(m, c)| (*m, &c.chain)), ..args.view(scene, camera, (width, height), uv_scale) };
     let (img, t) = detach(py, || gpu::render(&model.gpu, &model.up, &view))?;
-    Ok((image(py, img, width, height)?, t.draw_ms, t.readback_ms))
+    let what = format!("{} model", model.up.shader.name);
+    Ok((image(py, img, width, height, None, &what)?, t.draw_ms, t.readback_ms))
 }
 
 /// Render a raw BTF with the CPU reference renderer.
@@ -345,7 +366,7 @@ pub fn cpu_render_raw<'py>(
         View { filter: f.as_ref().map(|(m, c)| (*m, &c.chain)), ..args.view(scene, camera, (width, height), uv_scale) };
     check_size(width, height)?;
     let img = detach(py, || render_cpu(&raw, &view))?;
-    image(py, img, width, height)
+    image(py, img, width, height, None, "raw BTF")
 }
 
 fn check_size(width: usize, height: usize) -> PyResult<()> {
@@ -402,7 +423,7 @@ pub fn cpu_render_model<'py>(
         let r: Box<dyn Renderable + '_> = model.inner.renderer(method, max_3d())?;
         render_cpu(r.as_ref(), &view)
     })?;
-    image(py, img, width, height)
+    image(py, img, width, height, Some(model.inner.as_ref()), "model")
 }
 
 /// What a scene asks of a sample of `dims` = (height, width) texels, per covered pixel
@@ -538,7 +559,7 @@ pub fn render_env_sh<'py>(
             None => Ok((render_cpu_env_sh(model.inner.as_ref(), &view, &she)?, Default::default())),
         }
     })?;
-    Ok((image(py, img, width, height)?, t.draw_ms, t.readback_ms))
+    Ok((image(py, img, width, height, Some(model.inner.as_ref()), "model")?, t.draw_ms, t.readback_ms))
 }
 
 /// A mip chain for filtered lookups (btfrs_render::filter), built once per model and map.

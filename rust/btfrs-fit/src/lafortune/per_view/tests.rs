@@ -328,8 +328,8 @@ fn options_are_checked() {
     assert!(fit(LafortuneViewOptions { max_iter: 0, ..Default::default() }).starts_with("max_iter:"));
     let reg =
         |o: &str| crate::registry::fit("lafortune_view", &btf, o, &Monitor::new()).map(|_| ()).unwrap_err().to_string();
-    assert!(reg(r#"{"densify": 4}"#).starts_with("densify: unknown field"));
-    assert!(reg(r#"{"lobes": 1.5}"#).starts_with("lobes: invalid type"));
+    assert!(reg(r#"{"densify": 4}"#).starts_with("densify: unknown option"));
+    assert!(reg(r#"{"lobes": 1.5}"#).starts_with("lobes: expected an integer from 1 to 7, got 1.5"));
     // The diffuse texel is fitted, and black texels are all zero, never NaN.
     let m =
         fit_lafortune_view(&btf, &LafortuneViewOptions { lobes: 1, ..Default::default() }, &Monitor::new()).unwrap();
