@@ -333,7 +333,7 @@ pub fn gpu_render<'py>(
     let view =
         View { filter: f.as_ref().map(|(m, c)| (*m, &c.chain)), ..args.view(scene, camera, (width, height), uv_scale) };
     let (img, t) = detach(py, || gpu::render(&model.gpu, &model.up, &view))?;
-    let what = format!("{} model", model.up.shader.name);
+    let what = format!("{} model", model.up.shader_name());
     Ok((image(py, img, width, height, None, &what)?, t.draw_ms, t.readback_ms))
 }
 

@@ -114,6 +114,13 @@ pub struct UploadedModel {
     pub device_bytes: u64,
 }
 
+impl UploadedModel {
+    /// The name of the shader that draws it (the model's, or "raw").
+    pub fn shader_name(&self) -> &'static str {
+        self.shader.name
+    }
+}
+
 impl Drop for UploadedModel {
     fn drop(&mut self) {
         // In a forked child the device is the parent's, reached through file descriptors the two
