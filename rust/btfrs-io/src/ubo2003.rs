@@ -92,6 +92,15 @@ pub fn open_limited(path: &Path, sel: &Selection, transfer: Transfer, limits: &L
     }
     let mut members = Vec::with_capacity(names.len());
     for n in names {
+        if let Store::Folder(d) = &store {
+            if !limits.allow_outside && !crate::stack::inside(d, &d.join(&n)) {
+                return Err(Error::format(
+                    store.shown(&n),
+                    "is a link to a file outside the capture's folder; expected the images inside it \
+                     (pass allow_outside=True to read it anyway)",
+                ));
+            }
+        }
         let [tl, pl, tv, pv] = parse_name(&n).ok_or_else(|| {
             Error::format(
                 store.shown(&n),

@@ -276,3 +276,25 @@ fn text_errors_name_the_file_and_line() {
     let (_, msg) = format_msg(stack::open_table(&t, None, &sel, Transfer::Srgb));
     assert!(msg.contains("light_theta") && msg.contains("lx, ly, lz") && msg.contains("line 2"), "{msg}");
 }
+
+#[cfg(unix)]
+#[test]
+fn ubo_folder_links_leading_out_are_refused() {
+    let root = tempfile::tempdir().unwrap();
+    let cap = root.path().join("cap");
+    std::fs::create_dir(&cap).unwrap();
+    gradient_png(&cap.join("m_tl000_pl000_tv000_pv000.png"), 4, 3);
+    gradient_png(&root.path().join("out.png"), 4, 3);
+    std::os::unix::fs::symlink(root.path().join("out.png"), cap.join("m_tl030_pl000_tv000_pv000.png")).unwrap();
+    let open = |allow_outside| {
+        ubo2003::open_limited(
+            &cap,
+            &Selection::default(),
+            Transfer::Srgb,
+            &Limits { allow_outside, ..Limits::default() },
+        )
+    };
+    let (path, msg) = format_msg(open(false));
+    assert!(path.ends_with("m_tl030_pl000_tv000_pv000.png") && msg.contains("outside"), "{msg}");
+    assert_eq!(open(true).unwrap().capture().lights.len(), 2);
+}
