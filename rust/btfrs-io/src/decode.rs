@@ -7,9 +7,11 @@
 //! kept as they are, but must be finite: a NaN or infinity is an error naming the file, as it
 //! would otherwise poison every fit.
 //!
-//! Untrusted files: the declared size is checked against what the file can hold before the
-//! pixel buffer is allocated (the `image` crate's allocation limit, set from the file length
-//! and the format's largest compression ratio, and [`crate::image`]'s EXR bound).
+//! Untrusted files: the declared size is checked before the pixel buffer is allocated, against
+//! the memory budget and a plausible ratio to the bytes on disk
+//! ([`crate::capture::check_image_budget`]), besides the `image` crate's allocation limit and
+//! [`crate::image`]'s EXR bound. A JPEG without its end-of-image marker or a PNG without its
+//! IEND chunk is refused as truncated (the decoders would pad a cut file silently).
 
 use btfrs_core::{Error, Result};
 use std::io::Cursor;
