@@ -24,10 +24,13 @@ import os
 import random
 import struct
 import time
+import warnings
 import zlib
 
 import numpy as np
 import pytest
+import zipfile
+from PIL import Image
 
 import btfrs
 from btfrs.btf import read_container
@@ -90,6 +93,20 @@ def valid(tmp_path_factory) -> dict:
     out["png"] = (d / "a.png").read_bytes()
     btfrs.io.save_image(d / "a.exr", img)
     out["exr"] = (d / "a.exr").read_bytes()
+    # Measured captures: a JPEG photograph (read through a one-image .lp set), an .lp file (its
+    # images beside it), a UBO2003 zip archive.
+    px = (np.random.default_rng(7).uniform(0, 1, (12, 16, 3)) * 255).astype(np.uint8)
+    io_bytes = __import__("io").BytesIO()
+    Image.fromarray(px).save(io_bytes, format="JPEG", quality=90)
+    out["jpeg"] = io_bytes.getvalue()
+    out["lp"] = ("3\n" + "".join(f"l{i}.png {x} {y} {z}\n" for i, (x, y, z) in enumerate(_directions(3, 4)))).encode()
+    zb = __import__("io").BytesIO()
+    with zipfile.ZipFile(zb, "w", zipfile.ZIP_DEFLATED) as z:
+        for i, (tl, pl) in enumerate([(0, 0), (30, 90), (60, 180)]):
+            b = __import__("io").BytesIO()
+            Image.fromarray(np.roll(px, i, axis=0)).save(b, format="PNG")
+            z.writestr(f"m_{i:05d}_tl{tl:03d}_pl{pl:03d}_tv000_pv000.png", b.getvalue())
+    out["zip"] = zb.getvalue()
     return out
 
 
@@ -200,7 +217,35 @@ def _inflate_exr(f: bytes, rng: random.Random):
     return bytes(g), f"{name} field {field} := {v}"
 
 
-INFLATE = {"btf": _inflate_container, **{f"model_{k}": _inflate_container for k in btfrs.model_kinds()},
+def _inflate_jpeg(f: bytes, rng: random.Random):
+    g = bytearray(f)
+    sof = g.index(b"\xff\xc0")
+    h, w = rng.choice(HUGE_U32) & 0xFFFF, rng.choice(HUGE_U32) & 0xFFFF
+    g[sof + 5:sof + 9] = struct.pack(">HH", h, w)
+    return bytes(g), f"SOF0 height, width := {h}, {w}"
+
+
+def _inflate_lp(f: bytes, rng: random.Random):
+    nums = _numbers(f)
+    k = rng.randrange(len(nums))
+    a, b = nums[k]
+    v = rng.choice(HUGE_DECIMAL + ["1e200", "-1e200", "nan", "inf", "1e-200"])
+    return f[:a] + v.encode() + f[b:], f"number {k} {f[a:b].decode()} := {v}"
+
+
+def _inflate_zip(f: bytes, rng: random.Random):
+    g = bytearray(f)
+    v = rng.choice(HUGE_U32)
+    # every local header's and central directory entry's uncompressed size
+    for sig, off in ((b"PK\x03\x04", 22), (b"PK\x01\x02", 24)):
+        i = g.find(sig)
+        while i >= 0:
+            g[i + off:i + off + 4] = struct.pack("<I", v)
+            i = g.find(sig, i + 4)
+    return bytes(g), f"declared uncompressed sizes := {v}"
+
+
+INFLATE = {"jpeg": _inflate_jpeg, "lp": _inflate_lp, "zip": _inflate_zip, "btf": _inflate_container, **{f"model_{k}": _inflate_container for k in btfrs.model_kinds()},
            "analysis": _inflate_container,
            "ptm_lrgb": _inflate_ptm, "ptm_rgb": _inflate_ptm, "png": _inflate_png, "exr": _inflate_exr}
 
@@ -272,7 +317,32 @@ def read_image(path) -> None:
     assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.float32
 
 
-READERS = {"btf": (read_btf, ".btfrs"), **{f"model_{k}": (read_model, ".btfrs") for k in btfrs.model_kinds()},
+def _beside(path) -> None:
+    """The PNG images an .lp case names, beside it."""
+    d = os.path.dirname(path)
+    for i in range(3):
+        q = os.path.join(d, f"l{i}.png")
+        if not os.path.exists(q):
+            Image.fromarray(np.full((4, 5, 3), 40 * i, np.uint8)).save(q)
+
+
+def read_capture(path) -> None:
+    p = os.fspath(path)
+    if p.endswith(".jpg"):
+        lp = p + ".lp"
+        with open(lp, "w") as f:
+            f.write(f"1\n{os.path.basename(p)} 0 0 1\n")
+        p = lp
+    elif p.endswith(".lp"):
+        _beside(p)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # non-unit light vectors, normalised
+        b = btfrs.load(p)
+    assert b.data.ndim == 5 and np.isfinite(b.data).all()
+
+
+READERS = {"jpeg": (read_capture, ".jpg"), "lp": (read_capture, ".lp"), "zip": (read_capture, ".zip"),
+           "btf": (read_btf, ".btfrs"), **{f"model_{k}": (read_model, ".btfrs") for k in btfrs.model_kinds()},
            "analysis": (read_analysis, ".btfrs"),
            "ptm_lrgb": (read_ptm, ".ptm"), "ptm_rgb": (read_ptm, ".ptm"), "png": (read_image, ".png"),
            "exr": (read_image, ".exr")}

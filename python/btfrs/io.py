@@ -244,7 +244,8 @@ def _crop(crop: Optional[Sequence[int]]) -> Optional[Tuple[int, int, int, int]]:
 
 def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optional[Sequence[int]] = None,
          views: Optional[Sequence[int]] = None, lights: Optional[Sequence[int]] = None,
-         mmap_to: Optional[PathLike] = None, linear: bool = False, mmap: bool = False, progress: Progress = None) -> Any:
+         mmap_to: Optional[PathLike] = None, linear: bool = False, mmap: bool = False, progress: Progress = None,
+         max_bytes: Optional[int] = None, allow_outside: bool = False) -> Any:
     """Load any file btfrs reads, chosen by its type (:func:`capture_kind`): a measured capture,
     a ``.btfrs`` file (a BTF, a fitted model, a synthesis analysis, a Wang tile set), or another
     tool's model file (``.ptm``, ``.rti``). This is ``btfrs.load``.
@@ -272,8 +273,19 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
     of sRGB. ``progress`` shows or reports decoding progress; Ctrl-C stops it and writes nothing.
     Light vectors of an ``.lp`` file or a table that are not unit length are normalised with a
     :class:`UserWarning`.
+
+    Files from strangers (docs/real-data.md): a capture needing more than ``max_bytes`` bytes
+    (the in-memory BTF, any decoded image, an archive entry; default: half the machine's
+    physical memory), or an image whose decoded size is implausible for its bytes on disk, is
+    refused with :class:`~btfrs.exceptions.FormatError` before anything is allocated. Image
+    paths in ``.lp`` files and direction tables must stay inside the capture's folder (symlinks
+    resolved) unless ``allow_outside=True``.
     """
     p = os.fspath(path)
+    if max_bytes is not None:
+        if isinstance(max_bytes, bool) or not isinstance(max_bytes, (int, np.integer)) or max_bytes <= 0:
+            raise InvalidArgumentError(f"max_bytes: expected a positive integer, got {max_bytes!r}")
+        max_bytes = int(max_bytes)
     kind = capture_kind(p, directions)
     given = {k: v for k, v in dict(crop=crop, views=views, lights=lights, mmap_to=mmap_to).items() if v is not None}
     if kind in ("btfrs", "model_file"):
@@ -308,7 +320,7 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
     data, vdirs, ldirs, mask, meta = _native.load_capture(
         kind, p, None if directions is None else os.fspath(directions), _crop(crop),
         _index_list("views", views), _index_list("lights", lights), bool(linear), out,
-        callback(progress, f"loading {os.path.basename(p.rstrip(os.sep)) or p}"))
+        callback(progress, f"loading {os.path.basename(p.rstrip(os.sep)) or p}"), max_bytes, bool(allow_outside))
     for w in json.loads(meta).get("warnings", []):
         warnings.warn(w, UserWarning, stacklevel=2)
     if out is not None:

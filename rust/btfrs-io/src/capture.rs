@@ -98,6 +98,81 @@ impl Selection {
     }
 }
 
+/// What the readers accept of files from strangers: how much memory a capture may take, and
+/// whether it may name files outside its folder.
+///
+/// * `max_bytes`: the most bytes the readers allocate for one capture: the in-memory BTF
+///   (texels x pairs x 3 x 4 bytes) and every decoded image (a zip entry's declared size too).
+///   Default [`default_max_bytes`]: half the machine's physical memory.
+/// * Independently of it, an image whose decoded float pixels (width x height x 3 x 4 bytes)
+///   exceed [`MAX_DECODE_RATIO`] times its bytes on disk (its compressed size in an archive) is
+///   refused as implausible (a decompression bomb), above a floor of [`RATIO_FLOOR`] bytes.
+/// * `allow_outside`: image paths of `.lp` files and direction tables must resolve inside the
+///   capture's folder (symlinks followed) unless this is true.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Limits {
+    /// Most bytes one capture may allocate.
+    pub max_bytes: u64,
+    /// Whether image paths may lead out of the capture's folder.
+    pub allow_outside: bool,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits { max_bytes: default_max_bytes(), allow_outside: false }
+    }
+}
+
+/// Largest ratio of an image's decoded float RGB bytes (12 per pixel) to its bytes on disk.
+/// 1024 is 256 to 1 on 8-bit RGB samples: photographs compress far less (JPEG at low quality
+/// about 50 to 1, PNG about 3 to 1), but deflate can reach 1032 to 1 on a constant image, so a
+/// few hundred bytes could otherwise declare gigabytes.
+pub const MAX_DECODE_RATIO: u64 = 1024;
+
+/// Decoded sizes up to this (64 MiB, a 2300 x 2300 image) are never refused by the ratio: a
+/// small synthetic image (a constant rendering) may compress better than any photograph, and
+/// allocating it is harmless.
+pub const RATIO_FLOOR: u64 = 64 << 20;
+
+/// Half the machine's physical memory (read once; 8 GiB when it cannot be read).
+pub fn default_max_bytes() -> u64 {
+    static M: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
+    *M.get_or_init(|| physical_memory().unwrap_or(16 << 30) / 2)
+}
+
+/// The machine's physical memory in bytes (Linux: `/proc/meminfo`; elsewhere `None`).
+pub fn physical_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemTotal:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    kb.checked_mul(1024)
+}
+
+/// Check an image of `width x height` about to be decoded to float RGB: within `max_bytes` and
+/// within [`MAX_DECODE_RATIO`] of its `disk` bytes. `shown` names it.
+pub fn check_image_budget(shown: &str, width: u64, height: u64, disk: u64, max_bytes: u64) -> Result<()> {
+    let need = width.checked_mul(height).and_then(|p| p.checked_mul(12));
+    let need_s = need.map_or_else(|| "more than 2^64".to_string(), |n| n.to_string());
+    if need.is_none_or(|n| n > max_bytes) {
+        return Err(Error::format(
+            shown,
+            format!("a {width} x {height} image needs {need_s} bytes decoded, more than max_bytes = {max_bytes}"),
+        ));
+    }
+    let most = disk.saturating_mul(MAX_DECODE_RATIO).max(RATIO_FLOOR);
+    if need.is_none_or(|n| n > most) {
+        return Err(Error::format(
+            shown,
+            format!(
+                "a {width} x {height} image would decode to {need_s} bytes from {disk} bytes on disk, more than \
+                 {MAX_DECODE_RATIO} times its size (at most {most}); refused as implausible (corrupted, or a \
+                 decompression bomb)"
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// What a loader will produce, after selection.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Capture {
@@ -150,7 +225,28 @@ pub trait Source: Sync {
 
 /// Decode a whole source into memory.
 pub fn load(source: &dyn Source, monitor: &Monitor) -> Result<Vec<f32>> {
-    let n = source.capture().len();
+    load_within(source, "capture", default_max_bytes(), monitor)
+}
+
+/// [`load`], refusing (an [`Error::Format`] naming `shown`, the capture's file) a BTF of more
+/// than `max_bytes` bytes before allocating it.
+pub fn load_within(source: &dyn Source, shown: &str, max_bytes: u64, monitor: &Monitor) -> Result<Vec<f32>> {
+    let cap = source.capture();
+    let n = cap.len();
+    let need = (n as u64).saturating_mul(4);
+    if need > max_bytes {
+        return Err(Error::format(
+            shown,
+            format!(
+                "the capture ({} x {} texels, {} views x {} lights) needs {need} bytes in memory, more than \
+                 max_bytes = {max_bytes}; load a crop or a subset, raise max_bytes, or decode to a file with mmap_to=",
+                cap.height,
+                cap.width,
+                cap.views.len(),
+                cap.lights.len()
+            ),
+        ));
+    }
     let mut out = Vec::new();
     out.try_reserve_exact(n).map_err(|_| {
         Error::arg("capture", format!("{n} float32 values do not fit in memory; load with mmap_to= a file"))

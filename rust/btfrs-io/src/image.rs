@@ -95,10 +95,14 @@ pub fn read_png(path: &Path) -> Result<(Vec<f32>, usize, usize)> {
     if need.is_none_or(|n| n > most) {
         return Err(too_large(shown, format!("{hw} x {hh} pixels"), need, len, DEFLATE_MAX_RATIO));
     }
+    // The float image it becomes: within the memory budget and a plausible ratio to the file.
+    crate::capture::check_image_budget(shown, u64::from(hw), u64::from(hh), len, crate::capture::default_max_bytes())?;
     let mut r = dec.read_info().map_err(|e| Error::format(shown, e))?;
     let size = r.output_buffer_size().ok_or_else(|| Error::format(shown, "image too large"))?;
     let mut buf = vec![0u8; size];
     let info = r.next_frame(&mut buf).map_err(|e| Error::format(shown, e))?;
+    // Up to the IEND chunk (CRCs checked on the way): a truncated file is an error.
+    r.finish().map_err(|e| Error::format(shown, format!("{e}; the PNG is truncated or corrupted")))?;
     let (w, h, ch) = (info.width as usize, info.height as usize, ch as usize);
     if w.checked_mul(h).and_then(|p| p.checked_mul(ch)).is_none_or(|n| n > buf.len()) {
         return Err(Error::format(shown, format!("the first frame ({w} x {h}) does not fit the image")));

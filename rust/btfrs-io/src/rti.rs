@@ -12,7 +12,7 @@
 //! relight's `.dome` files are not read: they hold the light geometry of a dome (positions,
 //! diameter, offsets) but no image names, so they do not describe a capture on their own.
 
-use crate::capture::Selection;
+use crate::capture::{Limits, Selection};
 use crate::decode::Transfer;
 use crate::stack::{ImageStack, Member, Store};
 use btfrs_core::{Error, Result};
@@ -25,10 +25,13 @@ pub struct LpEntry {
     pub name: String,
     /// The light vector as written.
     pub light: [f64; 3],
+    /// Its line in the file (from 1).
+    pub line: usize,
 }
 
 /// Parse the text of an `.lp` file (`shown` names it in errors).
 pub fn parse_lp(text: &str, shown: &str) -> Result<Vec<LpEntry>> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
     let (_, first) =
         lines.next().ok_or_else(|| Error::format(shown, "is empty; expected the image count on the first line"))?;
@@ -50,13 +53,22 @@ pub fn parse_lp(text: &str, shown: &str) -> Result<Vec<LpEntry>> {
             (Some(x), Some(y), Some(z)) => (x, y, z),
             _ => return Err(bad()),
         };
+        if !(x * x + y * y + z * z).is_finite() {
+            return Err(Error::format(
+                shown,
+                format!(
+                    "line {}: light ({x}, {y}, {z}) is too large (its length overflows); expected a direction",
+                    i + 1
+                ),
+            ));
+        }
         // The name is everything before the numbers, spaces kept as written.
         let name = line.trim_start();
         let mut rest = name;
         for t in toks[n - 3..].iter().rev() {
             rest = rest.trim_end().strip_suffix(t).unwrap_or(rest);
         }
-        out.push(LpEntry { name: rest.trim().to_string(), light: [x, y, z] });
+        out.push(LpEntry { name: rest.trim().to_string(), light: [x, y, z], line: i + 1 });
     }
     if out.len() != count {
         return Err(Error::format(shown, format!("declares {count} images on its first line but lists {}", out.len())));
@@ -64,53 +76,99 @@ pub fn parse_lp(text: &str, shown: &str) -> Result<Vec<LpEntry>> {
     Ok(out)
 }
 
-/// Find the file an `.lp` line names (see the module doc).
-fn resolve(dir: &Path, name: &str) -> Option<PathBuf> {
-    let as_written = PathBuf::from(name);
-    if as_written.is_absolute() && as_written.is_file() {
-        return Some(as_written);
+/// Where an `.lp` line's file is.
+enum Found {
+    /// The file.
+    At(PathBuf),
+    /// An existing file outside the folder (refused unless allowed).
+    Outside(PathBuf),
+    /// Nothing.
+    Missing,
+}
+
+/// Find the file an `.lp` line names (see the module doc): as written (absolute, or relative
+/// to the `.lp` file's folder) when it lies inside that folder (symlinks resolved) or
+/// `allow_outside`; else (a path written on another machine) its last component beside the
+/// `.lp` file.
+fn resolve(dir: &Path, name: &str, allow_outside: bool) -> Found {
+    let as_written = dir.join(name); // an absolute `name` replaces `dir`
+    let mut outside = None;
+    if as_written.is_file() {
+        if allow_outside || crate::stack::inside(dir, &as_written) {
+            return Found::At(as_written);
+        }
+        outside = Some(as_written);
     }
-    let rel = dir.join(name);
-    if rel.is_file() {
-        return Some(rel);
-    }
-    let base = name.rsplit(['/', '\\']).next()?;
+    let base = name.rsplit(['/', '\\']).next().unwrap_or(name);
     let beside = dir.join(base);
-    beside.is_file().then_some(beside)
+    if outside.is_none() && !base.is_empty() && beside.is_file() {
+        if allow_outside || crate::stack::inside(dir, &beside) {
+            return Found::At(beside);
+        }
+        outside = Some(beside);
+    }
+    outside.map_or(Found::Missing, Found::Outside)
 }
 
 /// Open an RTI capture set from its `.lp` file. The selection's `lights` index the `.lp` lines
 /// in order; there is one view (the normal).
 pub fn open_lp(path: &Path, sel: &Selection, transfer: Transfer) -> Result<ImageStack> {
+    open_lp_limited(path, sel, transfer, &Limits::default())
+}
+
+/// [`open_lp`] within `limits`: image paths must stay in the `.lp` file's folder unless
+/// `limits.allow_outside`, and every decode is bounded (see [`Limits`]).
+pub fn open_lp_limited(path: &Path, sel: &Selection, transfer: Transfer, limits: &Limits) -> Result<ImageStack> {
     let shown = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(&shown, e))?;
+    let text = crate::stack::read_text(path)?;
     let entries = parse_lp(&text, &shown)?;
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let dir = if dir.as_os_str().is_empty() { PathBuf::from(".") } else { dir };
     let mut warnings = Vec::new();
     let mut members = Vec::with_capacity(entries.len());
-    for (i, e) in entries.iter().enumerate() {
-        let file = resolve(&dir, &e.name).ok_or_else(|| {
-            Error::format(
-                &shown,
-                format!("line {} names {:?}, which is not found (looked beside the .lp file too)", i + 2, e.name),
-            )
-        })?;
+    for e in &entries {
+        let line = e.line;
+        let file = match resolve(&dir, &e.name, limits.allow_outside) {
+            Found::At(f) => f,
+            Found::Missing => {
+                return Err(Error::format(
+                    &shown,
+                    format!("line {line} names {:?}, which is not found (looked beside the .lp file too)", e.name),
+                ))
+            }
+            Found::Outside(f) => {
+                return Err(Error::format(
+                    &shown,
+                    format!(
+                        "line {line} names {:?} ({}), which lies outside the capture's folder {}; expected a path \
+                         inside it (pass allow_outside=True to read it anyway)",
+                        e.name,
+                        f.display(),
+                        dir.display()
+                    ),
+                ))
+            }
+        };
         let [x, y, z] = e.light;
         let n = (x * x + y * y + z * z).sqrt();
         if n.is_nan() || n <= 0.0 || z < 0.0 {
             return Err(Error::format(
                 &shown,
-                format!("line {}: light ({x}, {y}, {z}) is not a direction above the surface", i + 2),
+                format!("line {}: light ({x}, {y}, {z}) is not a direction above the surface", line),
             ));
         }
         if (n - 1.0).abs() > 1e-3 {
-            warnings.push(format!("{shown}: line {}: light vector of length {n:.4} normalised", i + 2));
+            warnings.push(format!("{shown}: line {}: light vector of length {n:.4} normalised", line));
         }
-        members.push(Member { name: file.display().to_string(), view: [0.0, 0.0, 1.0], light: [x / n, y / n, z / n] });
+        members.push(Member {
+            name: file.display().to_string(),
+            view: [0.0, 0.0, 1.0],
+            light: [x / n, y / n, z / n],
+            at: format!("line {line}"),
+        });
     }
     let meta = serde_json::json!({"format": "rti-lp", "source": shown, "warnings": warnings});
-    ImageStack::new(Store::Folder(PathBuf::new()), members, sel, transfer, None, meta)
+    ImageStack::new_limited(Store::Folder(PathBuf::new()), members, sel, transfer, None, meta, limits)
 }
 
 #[cfg(test)]

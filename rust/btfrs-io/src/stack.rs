@@ -9,8 +9,8 @@
 //! batches of images in parallel and scatters each batch into the buffer in parallel over
 //! texels, so only one batch of images (bounded to about 256 MB) is in memory beside the output.
 
-use crate::capture::{Capture, Crop, Selection, Source};
-use crate::decode::{self, Decoded, Transfer};
+use crate::capture::{Capture, Crop, Limits, Selection, Source};
+use crate::decode::{self, Raw, Transfer};
 use btfrs_core::{Error, Monitor, Result};
 use rayon::prelude::*;
 use std::io::Read;
@@ -80,6 +80,9 @@ pub struct Member {
     pub view: [f64; 3],
     /// Light direction.
     pub light: [f64; 3],
+    /// Where the list that names it says so (`"line 3"`), for errors; empty when the name itself
+    /// is the listing (UBO archives).
+    pub at: String,
 }
 
 /// Group directions that are equal within `1e-9` (as written by one tool they are equal bit
@@ -111,6 +114,7 @@ pub struct ImageStack {
     full: (usize, usize),
     crop: Crop,
     transfer: Transfer,
+    max_bytes: u64,
 }
 
 impl ImageStack {
@@ -124,8 +128,25 @@ impl ImageStack {
         sel: &Selection,
         transfer: Transfer,
         order: Option<DirOrder>,
-        mut meta: serde_json::Value,
+        meta: serde_json::Value,
     ) -> Result<ImageStack> {
+        ImageStack::new_limited(store, members, sel, transfer, order, meta, &Limits::default())
+    }
+
+    /// [`ImageStack::new`] within `limits` (every image's decode is checked against
+    /// `limits.max_bytes` and the ratio bound of [`Limits`]). Two images of the same pair are
+    /// an [`Error::Format`] naming the listing file (`meta.source`) and both lines.
+    #[allow(clippy::too_many_arguments)] // the parts of a stack, each once
+    pub fn new_limited(
+        store: Store,
+        members: Vec<Member>,
+        sel: &Selection,
+        transfer: Transfer,
+        order: Option<DirOrder>,
+        mut meta: serde_json::Value,
+        limits: &Limits,
+    ) -> Result<ImageStack> {
+        let max_bytes = limits.max_bytes;
         if members.is_empty() {
             return Err(Error::arg("path", "found no images (expected .jpg, .jpeg, .png, .tif, .tiff or .exr files)"));
         }
@@ -143,18 +164,27 @@ impl ImageStack {
         };
         let (views, vi) = sort(group(members.iter().map(|m| m.view)));
         let (lights, li) = sort(group(members.iter().map(|m| m.light)));
-        btfrs_core::directions::validate("views", &views)?;
-        btfrs_core::directions::validate("lights", &lights)?;
+        let source = meta.get("source").and_then(|v| v.as_str()).map(String::from).unwrap_or_else(|| store.shown(""));
+        for (what, d) in [("views", &views), ("lights", &lights)] {
+            btfrs_core::directions::validate(what, d).map_err(|e| Error::format(&source, e))?;
+        }
         let (nv, nl) = (views.len(), lights.len());
         let mut owner: Vec<Option<usize>> = vec![None; nv * nl];
         for (k, m) in members.iter().enumerate() {
             if let Some(o) = owner[vi[k] * nl + li[k]].replace(k) {
-                return Err(Error::arg(
-                    "path",
-                    format!(
-                        "{} and {} show the same (view, light) pair",
-                        store.shown(&members[o].name),
+                let label = |m: &Member| {
+                    if m.at.is_empty() {
                         store.shown(&m.name)
+                    } else {
+                        format!("{} ({})", m.at, m.name)
+                    }
+                };
+                return Err(Error::format(
+                    &source,
+                    format!(
+                        "{} and {} show the same (view, light) pair; expected one image per pair",
+                        label(&members[o]),
+                        label(m)
                     ),
                 ));
             }
@@ -183,7 +213,7 @@ impl ImageStack {
             return Err(Error::arg("views", "the selection keeps no image"));
         }
         // The first selected image fixes the size; every other one is checked as it is decoded.
-        let first = read_member(&store, &slots[0].0, transfer)?;
+        let first = read_member(&store, &slots[0].0, transfer, max_bytes)?;
         let full = (first.height, first.width);
         let crop = sel.rect(full.0, full.1)?;
         if let serde_json::Value::Object(o) = &mut meta {
@@ -199,7 +229,7 @@ impl ImageStack {
             mask: if mask.iter().all(|&m| m) { None } else { Some(mask) },
             meta,
         };
-        Ok(ImageStack { store, slots, capture, full, crop, transfer })
+        Ok(ImageStack { store, slots, capture, full, crop, transfer, max_bytes })
     }
 
     /// The store the images come from.
@@ -208,12 +238,12 @@ impl ImageStack {
     }
 }
 
-fn read_member(store: &Store, name: &str, transfer: Transfer) -> Result<Decoded> {
+fn read_member(store: &Store, name: &str, transfer: Transfer, max_bytes: u64) -> Result<Raw> {
     match store {
-        Store::Folder(d) => decode::read(&d.join(name), transfer),
+        Store::Folder(d) => decode::read_raw(&d.join(name), transfer, max_bytes),
         Store::Zip(_) => {
-            let bytes = ZipReader::open(store)?.read(name)?;
-            decode::decode(&bytes, &store.shown(name), transfer)
+            let (bytes, disk) = ZipReader::open(store)?.read(name, max_bytes)?;
+            decode::decode_raw(&bytes, &store.shown(name), transfer, disk, max_bytes)
         }
     }
 }
@@ -234,14 +264,37 @@ impl<'a> ZipReader<'a> {
         Ok(ZipReader { store, zip })
     }
 
-    fn read(&mut self, name: &str) -> Result<Vec<u8>> {
+    /// A member's bytes and its compressed size (its bytes on disk). Its declared size must fit
+    /// `max_bytes` and what deflate can expand its compressed bytes to (1032:1); it is read
+    /// no further than declared (the zip crate checks the CRC at the end).
+    fn read(&mut self, name: &str, max_bytes: u64) -> Result<(Vec<u8>, u64)> {
         let shown = self.store.shown(name);
-        let mut f = self.zip.by_name(name).map_err(|e| Error::format(&shown, e))?;
-        // Trust the declared size only as far as deflate can expand the compressed bytes.
-        let cap = f.size().min(f.compressed_size().saturating_mul(1032)).min(1 << 32) as usize;
-        let mut out = Vec::with_capacity(cap);
-        f.read_to_end(&mut out).map_err(|e| Error::format(&shown, e))?;
-        Ok(out)
+        let f = self.zip.by_name(name).map_err(|e| Error::format(&shown, e))?;
+        let (size, packed) = (f.size(), f.compressed_size());
+        if size > max_bytes {
+            return Err(Error::format(
+                &shown,
+                format!("the archive entry declares {size} bytes, more than max_bytes = {max_bytes}"),
+            ));
+        }
+        if size > packed.saturating_mul(1032).max(1 << 16) {
+            return Err(Error::format(
+                &shown,
+                format!(
+                    "the archive entry declares {size} bytes from {packed} compressed bytes, more than deflate \
+                     can expand (1032:1); the archive is corrupted"
+                ),
+            ));
+        }
+        let mut out = Vec::with_capacity(size as usize);
+        f.take(size + 1).read_to_end(&mut out).map_err(|e| Error::format(&shown, e))?;
+        if out.len() as u64 != size {
+            return Err(Error::format(
+                &shown,
+                format!("the archive entry holds {} bytes or more; it declares {size}", out.len()),
+            ));
+        }
+        Ok((out, packed))
     }
 }
 
@@ -267,17 +320,20 @@ impl Source for ImageStack {
         for chunk in self.slots.chunks(batch) {
             monitor.check()?;
             // Archive members are read in order (one reader), then decoded in parallel.
-            let bytes: Vec<Option<Vec<u8>>> = match &mut zip {
-                Some(z) => chunk.iter().map(|(n, _, _)| z.read(n).map(Some)).collect::<Result<_>>()?,
+            let max_bytes = self.max_bytes;
+            let bytes: Vec<Option<(Vec<u8>, u64)>> = match &mut zip {
+                Some(z) => chunk.iter().map(|(n, _, _)| z.read(n, max_bytes).map(Some)).collect::<Result<_>>()?,
                 None => vec![None; chunk.len()],
             };
-            let images: Vec<Decoded> = chunk
+            let images: Vec<Raw> = chunk
                 .par_iter()
                 .zip(bytes)
                 .map(|((name, _, _), b)| {
                     let img = match b {
-                        Some(b) => decode::decode(&b, &self.store.shown(name), self.transfer)?,
-                        None => read_member(&self.store, name, self.transfer)?,
+                        Some((b, disk)) => {
+                            decode::decode_raw(&b, &self.store.shown(name), self.transfer, disk, max_bytes)?
+                        }
+                        None => read_member(&self.store, name, self.transfer, max_bytes)?,
                     };
                     if (img.height, img.width) != (fh, fw) {
                         return Err(Error::format(
@@ -293,10 +349,10 @@ impl Source for ImageStack {
                 .collect::<Result<_>>()?;
             out.par_chunks_mut(abrdf).enumerate().for_each(|(t, texel)| {
                 let (r, c) = (crop.row + t / crop.cols, crop.col + t % crop.cols);
-                let src = (r * fw + c) * 3;
+                let src = r * fw + c;
                 for ((_, v, l), img) in chunk.iter().zip(&images) {
                     let dst = (v * nl + l) * 3;
-                    texel[dst..dst + 3].copy_from_slice(&img.rgb[src..src + 3]);
+                    texel[dst..dst + 3].copy_from_slice(&img.rgb(src));
                 }
             });
             monitor.advance(chunk.len() as u64);
@@ -322,9 +378,46 @@ pub fn from_angles(theta_deg: f64, phi_deg: f64) -> [f64; 3] {
 /// File names are relative to `folder` (default: the table's folder). Vectors are normalised
 /// (a length off by more than 1e-3 is reported in `meta.warnings`).
 pub fn open_table(table: &Path, folder: Option<&Path>, sel: &Selection, transfer: Transfer) -> Result<ImageStack> {
+    open_table_limited(table, folder, sel, transfer, &Limits::default())
+}
+
+/// A text file of a capture (`.lp`, CSV, JSON) as UTF-8, a leading byte-order mark dropped;
+/// invalid UTF-8 is an [`Error::Format`] naming the file and the line.
+pub fn read_text(path: &Path) -> Result<String> {
+    let shown = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|e| Error::io(&shown, e))?;
+    match String::from_utf8(bytes) {
+        Ok(t) => Ok(t.strip_prefix('\u{feff}').map(String::from).unwrap_or(t)),
+        Err(e) => {
+            let at = e.utf8_error().valid_up_to();
+            let line = e.as_bytes()[..at].iter().filter(|&&b| b == b'\n').count() + 1;
+            Err(Error::format(&shown, format!("line {line}: invalid UTF-8 (byte {at}); expected a UTF-8 text file")))
+        }
+    }
+}
+
+/// Whether the existing `file` lies inside `dir` (or its subfolders), symlinks resolved.
+pub fn inside(dir: &Path, file: &Path) -> bool {
+    match (dir.canonicalize(), file.canonicalize()) {
+        (Ok(d), Ok(f)) => f.starts_with(d),
+        _ => false,
+    }
+}
+
+/// [`open_table`] within `limits`: image names must stay in the folder unless
+/// `limits.allow_outside`, and every decode is bounded (see [`Limits`]).
+pub fn open_table_limited(
+    table: &Path,
+    folder: Option<&Path>,
+    sel: &Selection,
+    transfer: Transfer,
+    limits: &Limits,
+) -> Result<ImageStack> {
     let shown = table.display().to_string();
-    let text = std::fs::read_to_string(table).map_err(|e| Error::io(&shown, e))?;
-    let rows: Vec<serde_json::Map<String, serde_json::Value>> = if shown.to_ascii_lowercase().ends_with(".json") {
+    let text = read_text(table)?;
+    let is_json = shown.to_ascii_lowercase().ends_with(".json");
+    let mut lines: Vec<String> = Vec::new();
+    let rows: Vec<serde_json::Map<String, serde_json::Value>> = if is_json {
         let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| Error::format(&shown, e))?;
         let list = match v {
             serde_json::Value::Array(a) => a,
@@ -337,7 +430,10 @@ pub fn open_table(table: &Path, folder: Option<&Path>, sel: &Selection, transfer
         list.into_iter()
             .enumerate()
             .map(|(i, r)| match r {
-                serde_json::Value::Object(o) => Ok(o),
+                serde_json::Value::Object(o) => {
+                    lines.push(format!("entry {i}"));
+                    Ok(o)
+                }
                 _ => Err(Error::format(&shown, format!("entry {i} is not an object"))),
             })
             .collect::<Result<_>>()?
@@ -348,6 +444,24 @@ pub fn open_table(table: &Path, folder: Option<&Path>, sel: &Selection, transfer
         let mut rows = Vec::new();
         for rec in rdr.records() {
             let rec = rec.map_err(|e| Error::format(&shown, e))?;
+            // The line from the record's byte offset (the reader's own count skips blank lines).
+            // It may point at blank or comment lines the reader skipped before the record.
+            let line = rec.position().filter(|p| (p.byte() as usize) <= text.len()).map_or_else(
+                || format!("row {}", rows.len() + 1),
+                |p| {
+                    let start = p.byte() as usize;
+                    let mut n = text.as_bytes()[..start].iter().filter(|&&c| c == b'\n').count() + 1;
+                    for l in text[start..].split('\n') {
+                        let t = l.trim();
+                        if !(t.is_empty() || t.starts_with('#')) {
+                            break;
+                        }
+                        n += 1;
+                    }
+                    format!("line {n}")
+                },
+            );
+            lines.push(line);
             let mut o = serde_json::Map::new();
             for (h, v) in headers.iter().zip(rec.iter()) {
                 let val = v.parse::<f64>().map(serde_json::Value::from).unwrap_or_else(|_| serde_json::Value::from(v));
@@ -360,13 +474,26 @@ pub fn open_table(table: &Path, folder: Option<&Path>, sel: &Selection, transfer
     let mut warnings = Vec::new();
     let mut members = Vec::with_capacity(rows.len());
     for (i, r) in rows.iter().enumerate() {
-        let at = |what: &str| format!("row {} {what}", i + 1);
+        let line = &lines[i];
+        let at = |what: &str| format!("{line}: {what}");
         let file = ["file", "filename", "image"]
             .iter()
             .find_map(|k| r.get(*k).and_then(|v| v.as_str()))
             .ok_or_else(|| Error::format(&shown, at("has no file (expected a column file, filename or image)")))?;
         let num = |k: &str| r.get(k).and_then(|v| v.as_f64());
         let mut dir = |pre: &str, vec: [&str; 3]| -> Result<Option<[f64; 3]>> {
+            let angles = [format!("{pre}_theta"), format!("{pre}_phi")];
+            if angles.iter().any(|k| r.contains_key(k)) && vec.iter().any(|k| r.contains_key(*k)) {
+                return Err(Error::format(
+                    &shown,
+                    at(&format!(
+                        "both angle columns ({}, {}) and vector columns ({}) give the {pre} direction; expected one of them",
+                        angles[0],
+                        angles[1],
+                        vec.join(", ")
+                    )),
+                ));
+            }
             if let (Some(t), Some(p)) = (num(&format!("{pre}_theta")), num(&format!("{pre}_phi"))) {
                 if !(0.0..=90.0).contains(&t) {
                     return Err(Error::format(&shown, at(&format!("{pre}_theta = {t}: expected 0 to 90 degrees"))));
@@ -383,7 +510,7 @@ pub fn open_table(table: &Path, folder: Option<&Path>, sel: &Selection, transfer
                         ));
                     }
                     if (n - 1.0).abs() > 1e-3 {
-                        warnings.push(format!("{}: {pre} vector of length {n:.4} normalised", at("")));
+                        warnings.push(format!("{shown}: {}", at(&format!("{pre} vector of length {n:.4} normalised"))));
                     }
                     Ok(Some([x / n, y / n, z / n]))
                 }
@@ -394,17 +521,31 @@ pub fn open_table(table: &Path, folder: Option<&Path>, sel: &Selection, transfer
             Error::format(&shown, at("has no light direction (light_theta, light_phi or lx, ly, lz)"))
         })?;
         let view = dir("view", ["vx", "vy", "vz"])?.unwrap_or([0.0, 0.0, 1.0]);
-        members.push(Member { name: file.to_string(), view, light });
+        members.push(Member { name: file.to_string(), view, light, at: line.clone() });
     }
     let dir =
         folder.map(Path::to_path_buf).unwrap_or_else(|| table.parent().map(Path::to_path_buf).unwrap_or_default());
+    let dir = if dir.as_os_str().is_empty() { PathBuf::from(".") } else { dir };
     for m in &members {
-        if !dir.join(&m.name).is_file() {
-            return Err(Error::format(&shown, format!("names {}, which does not exist", dir.join(&m.name).display())));
+        let p = dir.join(&m.name);
+        if !p.is_file() {
+            return Err(Error::format(&shown, format!("{}: names {}, which does not exist", m.at, p.display())));
+        }
+        if !limits.allow_outside && !inside(&dir, &p) {
+            return Err(Error::format(
+                &shown,
+                format!(
+                    "{}: names {:?}, which lies outside the capture's folder {}; expected a path inside it \
+                     (pass allow_outside=True to read it anyway)",
+                    m.at,
+                    m.name,
+                    dir.display()
+                ),
+            ));
         }
     }
     let meta = serde_json::json!({"format": "stack", "source": shown, "warnings": warnings});
-    ImageStack::new(Store::Folder(dir), members, sel, transfer, None, meta)
+    ImageStack::new_limited(Store::Folder(dir), members, sel, transfer, None, meta, limits)
 }
 
 #[cfg(test)]
@@ -419,7 +560,7 @@ mod tests {
                 image::RgbImage::from_fn(4, 3, |x, y| image::Rgb([(x * 60) as u8, (y * 100) as u8, (i * 100) as u8]));
             let name = format!("i{i}.png");
             img.save(dir.join(&name)).unwrap();
-            members.push(Member { name, view: [0.0, 0.0, 1.0], light: l });
+            members.push(Member { name, view: [0.0, 0.0, 1.0], light: l, at: String::new() });
         }
         ImageStack::new(
             Store::Folder(dir.to_path_buf()),

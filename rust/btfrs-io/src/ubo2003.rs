@@ -16,7 +16,7 @@
 //! Views and lights are sorted by (theta, phi), which for a complete archive is the UBO 81
 //! order of `btfrs.directions.ubo81()`.
 
-use crate::capture::Selection;
+use crate::capture::{Limits, Selection};
 use crate::decode::Transfer;
 use crate::stack::{from_angles, ImageStack, Member, Store};
 use btfrs_core::{Error, Result};
@@ -70,6 +70,11 @@ fn by_theta_phi(a: &[f64; 3], b: &[f64; 3]) -> std::cmp::Ordering {
 /// indices refer to the views and lights sorted by (theta, phi). `transfer` applies to JPEG and
 /// PNG images (EXR is linear).
 pub fn open(path: &Path, sel: &Selection, transfer: Transfer) -> Result<ImageStack> {
+    open_limited(path, sel, transfer, &Limits::default())
+}
+
+/// [`open`] within `limits` (every image's decode, and a zip entry's declared size, bounded).
+pub fn open_limited(path: &Path, sel: &Selection, transfer: Transfer, limits: &Limits) -> Result<ImageStack> {
     let shown = path.display().to_string();
     let store = if path.is_dir() {
         Store::Folder(path.to_path_buf())
@@ -87,6 +92,15 @@ pub fn open(path: &Path, sel: &Selection, transfer: Transfer) -> Result<ImageSta
     }
     let mut members = Vec::with_capacity(names.len());
     for n in names {
+        if let Store::Folder(d) = &store {
+            if !limits.allow_outside && !crate::stack::inside(d, &d.join(&n)) {
+                return Err(Error::format(
+                    store.shown(&n),
+                    "is a link to a file outside the capture's folder; expected the images inside it \
+                     (pass allow_outside=True to read it anyway)",
+                ));
+            }
+        }
         let [tl, pl, tv, pv] = parse_name(&n).ok_or_else(|| {
             Error::format(
                 store.shown(&n),
@@ -99,10 +113,10 @@ pub fn open(path: &Path, sel: &Selection, transfer: Transfer) -> Result<ImageSta
                 return Err(Error::format(store.shown(&n), format!("{what}{t}: expected a theta of 0 to 90 degrees")));
             }
         }
-        members.push(Member { name: n, view: direction(tv, pv), light: direction(tl, pl) });
+        members.push(Member { name: n, view: direction(tv, pv), light: direction(tl, pl), at: String::new() });
     }
     let meta = serde_json::json!({"format": "ubo2003", "source": shown});
-    ImageStack::new(store, members, sel, transfer, Some(by_theta_phi), meta)
+    ImageStack::new_limited(store, members, sel, transfer, Some(by_theta_phi), meta, limits)
 }
 
 #[cfg(test)]

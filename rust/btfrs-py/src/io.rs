@@ -166,7 +166,7 @@ type Loaded<'py> = (
 /// Open a measured capture (`kind`: "ubo2003", "lp", "table", "ubo2014") and decode it into
 /// memory, or into the `.btfrs` file `mmap_to`. `crop` is (row, col, rows, cols).
 #[pyfunction]
-#[pyo3(signature = (kind, path, table=None, crop=None, views=None, lights=None, linear=false, mmap_to=None, progress=None))]
+#[pyo3(signature = (kind, path, table=None, crop=None, views=None, lights=None, linear=false, mmap_to=None, progress=None, max_bytes=None, allow_outside=false))]
 #[allow(clippy::too_many_arguments)]
 pub fn load_capture<'py>(
     py: Python<'py>,
@@ -179,22 +179,26 @@ pub fn load_capture<'py>(
     linear: bool,
     mmap_to: Option<PathBuf>,
     progress: Option<Bound<'py, PyAny>>,
+    max_bytes: Option<u64>,
+    allow_outside: bool,
 ) -> PyResult<Loaded<'py>> {
-    use btfrs_io::capture::{self, Crop, Selection, Source};
+    use btfrs_io::capture::{self, Crop, Limits, Selection, Source};
+    let limits = Limits { max_bytes: max_bytes.unwrap_or_else(capture::default_max_bytes), allow_outside };
+    let shown = path.display().to_string();
     use btfrs_io::decode::Transfer;
     let sel = Selection { crop: crop.map(|(row, col, rows, cols)| Crop { row, col, rows, cols }), views, lights };
     let transfer = if linear { Transfer::Linear } else { Transfer::Srgb };
     let kind = kind.to_string();
     let source: Box<dyn Source + Send> = detach(py, || -> btfrs_core::Result<Box<dyn Source + Send>> {
         Ok(match kind.as_str() {
-            "ubo2003" => Box::new(btfrs_io::ubo2003::open(&path, &sel, transfer)?),
-            "lp" => Box::new(btfrs_io::rti::open_lp(&path, &sel, transfer)?),
+            "ubo2003" => Box::new(btfrs_io::ubo2003::open_limited(&path, &sel, transfer, &limits)?),
+            "lp" => Box::new(btfrs_io::rti::open_lp_limited(&path, &sel, transfer, &limits)?),
             "ubo2014" => Box::new(btfrs_io::ubo2014::Ubo2014::open(&path, &sel)?),
             "table" => {
                 let t =
                     table.as_deref().ok_or_else(|| btfrs_core::Error::arg("directions", "expected a table file"))?;
                 let folder = if path.is_dir() { Some(path.as_path()) } else { None };
-                Box::new(btfrs_io::stack::open_table(t, folder, &sel, transfer)?)
+                Box::new(btfrs_io::stack::open_table_limited(t, folder, &sel, transfer, &limits)?)
             }
             other => return Err(btfrs_core::Error::arg("kind", format!("unknown capture kind {other:?}"))),
         })
@@ -206,7 +210,9 @@ pub fn load_capture<'py>(
             None
         }
         None => {
-            let v = crate::run::monitored(py, progress.as_ref(), |m| capture::load(source.as_ref(), m))?;
+            let v = crate::run::monitored(py, progress.as_ref(), |m| {
+                capture::load_within(source.as_ref(), &shown, limits.max_bytes, m)
+            })?;
             let shape = [cap.height, cap.width, cap.views.len(), cap.lights.len(), 3];
             Some(v.into_pyarray(py).reshape(shape.to_vec())?)
         }
