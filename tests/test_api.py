@@ -434,6 +434,8 @@ def test_a_killed_writer_leaves_a_temporary_file_that_the_next_write_removes(tmp
         p.wait(timeout=60)
     finally:
         p.kill()
+        if p.stdout is not None:
+            p.stdout.close()
     left = _leftovers(tmp_path)
     assert len(left) == 1 and left[0].endswith(f".{p.pid}.0.btfrs-tmp") and not target.exists(), left
     if next_writer == "rust":

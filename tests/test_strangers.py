@@ -100,6 +100,25 @@ def test_every_cut_after_the_image_data_starts_is_a_format_error(tmp_path, fmt, 
                 io.load_image(img)
 
 
+@pytest.mark.parametrize("ext", ["tif", "exr"])
+def test_every_cut_of_a_tiff_or_an_exr_is_a_format_error(tmp_path, ext):
+    # The other image formats the readers accept: their decoders find every cut themselves
+    # (TIFF's strips and directory, EXR's offset table and chunks), checked here at each byte.
+    rng = np.random.default_rng(0)
+    img = tmp_path / f"a.{ext}"
+    if ext == "tif":
+        Image.fromarray((rng.random((16, 16, 3)) * 255).astype(np.uint8)).save(img, format="TIFF")
+    else:
+        io.save_image(img, rng.random((16, 16, 3)).astype(np.float32))
+    data = img.read_bytes()
+    p = _lp(tmp_path, [img.name])
+    assert io.load(p).shape == (16, 16, 1, 1, 3)
+    for cut in range(8, len(data)):
+        img.write_bytes(data[:cut])
+        with pytest.raises(FormatError, match=rf"a\.{ext}"):
+            io.load(p)
+
+
 # --- folder confinement -------------------------------------------------------------------------
 
 def test_lp_and_table_paths_stay_in_the_capture_folder(tmp_path):

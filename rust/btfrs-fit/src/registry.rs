@@ -13,6 +13,8 @@ use serde_json::{json, Value};
 pub struct Entry {
     /// [`Model::KIND`].
     pub kind: &'static str,
+    /// The model's Rust type (`btfrs_fit::ptm::Ptm`): where its files are.
+    pub type_name: fn() -> &'static str,
     /// [`Model::DOC`].
     pub doc: &'static str,
     /// [`Model::ABOUT`].
@@ -117,6 +119,7 @@ fn finish_blocks_erased<M: Model + std::fmt::Debug>(a: &NamedArrays, options: &s
 pub const fn entry<M: Model + std::fmt::Debug>() -> Entry {
     Entry {
         kind: M::KIND,
+        type_name: std::any::type_name::<M>,
         doc: M::DOC,
         about: M::ABOUT,
         options: M::OPTIONS,
@@ -188,6 +191,7 @@ pub fn describe() -> Value {
                 };
                 json!({
                     "kind": e.kind,
+                    "type": (e.type_name)(),
                     "doc": e.doc,
                     "about": e.about,
                     "options": options::schema_json(e.options),
