@@ -173,3 +173,48 @@ def test_text_errors_are_format_errors_naming_file_and_line(tmp_path):
     t.write_text("file,lx,ly,lz,light_theta,light_phi\na.png,0,0,1,0,0\n")
     with pytest.raises(FormatError, match=r"directions\.csv.*light_theta.*lx, ly, lz"):
         io.load(tmp_path)
+
+
+# --- the memory a load needs ----------------------------------------------------------------------
+
+_PEAK_CHILD = """
+import json, sys, threading, time
+import btfrs
+from btfrs.tools.memprobe import rss_anon
+peak, base, stop = [0], rss_anon(), [False]
+def sample():
+    while not stop[0]:
+        peak[0] = max(peak[0], rss_anon())
+        time.sleep(0.002)
+t = threading.Thread(target=sample)
+t.start()
+btf = btfrs.load(sys.argv[1])
+stop[0] = True
+t.join()
+print(json.dumps({"growth": max(peak[0], rss_anon()) - base, "result": btf.data.nbytes}))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="RssAnon is read from /proc")
+@pytest.mark.parametrize("images, size, bound", [(16, 512, 1.2), (1, 1024, 1.6)])
+def test_a_stack_load_holds_its_data_once(tmp_path, images, size, bound):
+    # The anonymous memory a fresh interpreter gains while loading an 8-bit PNG stack, against the
+    # Btf it returns (sampled every 2 ms, as the out-of-core tests do). Each image's 8-bit samples
+    # are converted into place, so a stack of many images needs little more than its result; a
+    # one-image stack adds that image's samples, a quarter of its floats (a whole-image decoder:
+    # the PNG and JPEG decoders return the image at once), plus the decoder's buffers: 1.45x the
+    # result for one 1024² image here, 1.2x the bound where the images are many.
+    import json
+    import subprocess
+    import sys
+
+    lights = btfrs.directions.ubo81()[::5][:images]
+    src = btfrs.materials.make("knit", size=size, seed=1, views=[[0.0, 0.0, 1.0]], lights=lights)
+    folder = tmp_path / "stack"
+    io.save_stack(src, folder, format="png")
+    del src
+    r = subprocess.run([sys.executable, "-c", _PEAK_CHILD, str(folder)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    m = json.loads(r.stdout)
+    assert m["result"] == size * size * images * 12
+    assert m["growth"] <= bound * m["result"], f"peak {m['growth'] / m['result']:.2f}x the result ({m})"
