@@ -7,7 +7,7 @@ description, renderers, sweep, sampling and export formats. This script writes
 * ``python/btfrs/fit.py``: one function per model with a real signature and docstring, so that
   ``help(btfrs.fit.ptm)``, IDE completion and stubtest see them;
 * the block of ``python/btfrs/_native.pyi`` between ``# BEGIN GENERATED`` and
-  ``# END GENERATED``: the ``ModelKind`` literal the fit binding takes;
+  ``# END GENERATED``: the ``_ModelKind`` literal the fit binding takes;
 * ``docs/_generated/<kind>.md``: the options table each model's docs page includes.
 
 Run it after changing a model's registry entry: ``.venv/bin/python scripts/generate_surface.py``.
@@ -160,7 +160,7 @@ def fit_module(facts: list[dict]) -> str:
 
 def stub_block(facts: list[dict]) -> str:
     kinds = ", ".join(json.dumps(m["kind"]) for m in facts)
-    return f"ModelKind = Literal[{kinds}]\n"
+    return f"_ModelKind = Literal[{kinds}]\n"
 
 
 MIPS = {

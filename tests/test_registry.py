@@ -2,7 +2,7 @@
 
 * No file outside a model's own files names a model kind (its registered name as a string, its
   Rust type, its Python class) or downcasts to one: everything else asks the registry.
-* The generated Python surface (``btfrs.fit``, the stub's ``ModelKind``, the docs' option tables)
+* The generated Python surface (``btfrs.fit``, the stub's ``_ModelKind``, the docs' option tables)
   is what ``scripts/generate_surface.py`` makes from the registry today.
 * The signatures of ``btfrs.fit.<kind>`` are the schema's: names, defaults, and errors that name
   the option, the value and what is allowed.

@@ -63,7 +63,7 @@ def fit_kind(kind: str, btf: Btf, options: Mapping[str, Any], memory_limit: Memo
     if kind not in model_kinds():
         raise InvalidArgumentError(f"model: unknown model {kind!r}; expected one of {', '.join(model_kinds())}")
     o = options_json(kind, options, memory_limit)
-    known = cast("_native.ModelKind", kind)  # checked against the registry above
+    known = cast("_native._ModelKind", kind)  # checked against the registry above
     t0 = time.perf_counter()
     try:
         m = _native.fit_model(known, b.data, b.views, b.lights, b.mask, o, callback(progress, f"{kind} fit"))

@@ -14,7 +14,7 @@ _Bool = npt.NDArray[np.bool_]
 
 # The registered model kinds (scripts/generate_surface.py writes this block from the registry).
 # BEGIN GENERATED
-ModelKind = Literal["ptm", "hsh", "lafortune", "lafortune_view", "srf", "sh", "lpca", "rbf", "bilinear"]
+_ModelKind = Literal["ptm", "hsh", "lafortune", "lafortune_view", "srf", "sh", "lpca", "rbf", "bilinear"]
 # END GENERATED
 
 __all__ = ['__version__', '_panic_for_test', 'ubo81', 'validate_btf', 'split_pairs', 'material_names', 'make_material', 'Model', 'fit_model', 'load_model', 'model_facts', 'check_options', 'model_formats', 'export_model', 'import_model', 'square_to_disk', 'disk_to_square', 'square_to_hemisphere', 'hemisphere_to_square', 'save_container', 'read_container_header', 'write_png', 'read_png', 'write_exr', 'read_exr', 'write_exr_channels', 'load_capture', 'texel_arrays', 'blockwise_plan', 'finish_blocks', 'srf_sums', 'srf_phong', 'srf_residual', 'lpca_sample', 'lpca_subspace', 'lpca_project', 'lpca_cluster', 'lpca_fit_cluster', 'lpca_assemble', 'light_pca_check', 'light_pca_moments', 'light_pca_merge', 'light_pca_table', 'light_pca_project', 'light_pca_assemble', 'Scene', 'Camera', 'GpuModel', 'gpu_info', 'gpu_upload_raw', 'gpu_render', 'cpu_render_raw', 'gpu_upload_model', 'cpu_render_model', 'env_check', 'env_sky', 'env_sample', 'env_quadrature', 'env_sh', 'render_env_sh', 'MipChain', 'filter_signature', 'filter_build', 'mip_model', 'scene_directions', 'Analysis', 'analyse_btf_native', 'analyse_features_native', 'min_cut_native', 'grid_min_cut_native', 'wang_model_features', 'wang_synthesize', 'wang_tiling', 'wang_check', 'wang_atlas_positions', 'wang_seam_errors', 'wang_random_crops', 'texture_names', 'make_texture']
@@ -88,7 +88,7 @@ class Model:
     def save(self, path: _Path, meta_json: str) -> None: ...
 
 def fit_model(
-    kind: ModelKind,
+    kind: _ModelKind,
     data: _F32,
     views: _F64,
     lights: _F64,

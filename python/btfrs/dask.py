@@ -448,7 +448,7 @@ def _own(a: Optional[ArrayLike], dtype: Optional[DTypeLike] = None) -> Optional[
 
 
 def _fit_block(block: NDArray[Any], views: NDArray[np.float64], lights: NDArray[np.float64],
-               mask: Optional[NDArray[np.bool_]], kind: _native.ModelKind,
+               mask: Optional[NDArray[np.bool_]], kind: _native._ModelKind,
                options_json: str) -> Tuple[Dict[str, NDArray[Any]], Dict[str, Any], int]:
     m = _native.fit_model(kind, _own(block, np.float32), _own(views), _own(lights), _own(mask), options_json, None)
     return m.arrays(), m.report(), m.dims[0] * m.dims[1]
