@@ -188,33 +188,46 @@ def sample():
         time.sleep(0.002)
 t = threading.Thread(target=sample)
 t.start()
-btf = btfrs.load(sys.argv[1])
+x = btfrs.load(sys.argv[1]) if sys.argv[2] == "load" else btfrs.io.load_image(sys.argv[1])
 stop[0] = True
 t.join()
-print(json.dumps({"growth": max(peak[0], rss_anon()) - base, "result": btf.data.nbytes}))
+n = x.data.nbytes if sys.argv[2] == "load" else x.nbytes
+print(json.dumps({"growth": max(peak[0], rss_anon()) - base, "result": n}))
 """
 
 
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="RssAnon is read from /proc")
-@pytest.mark.parametrize("images, size, bound", [(16, 512, 1.2), (1, 1024, 1.6)])
-def test_a_stack_load_holds_its_data_once(tmp_path, images, size, bound):
-    # The anonymous memory a fresh interpreter gains while loading an 8-bit PNG stack, against the
-    # Btf it returns (sampled every 2 ms, as the out-of-core tests do). Each image's 8-bit samples
-    # are converted into place, so a stack of many images needs little more than its result; a
-    # one-image stack adds that image's samples, a quarter of its floats (a whole-image decoder:
-    # the PNG and JPEG decoders return the image at once), plus the decoder's buffers: 1.45x the
-    # result for one 1024² image here, 1.2x the bound where the images are many.
+@pytest.mark.parametrize(
+    "images, size, fmt, how",
+    [(16, 512, "png", "load"), (1, 1024, "png", "load"), (1, 1024, "jpg", "load"), (1, 1024, "png", "load_image")],
+)
+def test_a_load_holds_its_data_once(tmp_path, images, size, fmt, how):
+    # The anonymous memory a fresh interpreter gains while loading an 8-bit image stack (or one
+    # image with load_image), against the result (sampled every 2 ms, as the out-of-core tests
+    # do): at most 1.2x. Files are read as streams; a stack of many images converts each image's
+    # samples as it scatters them (a bounded batch of images at a time), and a single image is
+    # decoded into the tail of its own float buffer and widened in place, so neither holds a
+    # second copy. Measured here: 1.06x (PNG), 1.10x (JPEG), 1.02x (load_image).
     import json
     import subprocess
     import sys
+
+    from PIL import Image
 
     lights = btfrs.directions.ubo81()[::5][:images]
     src = btfrs.materials.make("knit", size=size, seed=1, views=[[0.0, 0.0, 1.0]], lights=lights)
     folder = tmp_path / "stack"
     io.save_stack(src, folder, format="png")
     del src
-    r = subprocess.run([sys.executable, "-c", _PEAK_CHILD, str(folder)], capture_output=True, text=True, timeout=300)
+    if fmt == "jpg":
+        for png in folder.glob("*.png"):
+            Image.open(png).save(png.with_suffix(".jpg"), quality=95)
+            png.unlink()
+        table = folder / "directions.csv"
+        table.write_text(table.read_text().replace(".png", ".jpg"))
+    target = folder if how == "load" else next(folder.glob("*.png"))
+    r = subprocess.run([sys.executable, "-c", _PEAK_CHILD, str(target), how], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     m = json.loads(r.stdout)
     assert m["result"] == size * size * images * 12
-    assert m["growth"] <= bound * m["result"], f"peak {m['growth'] / m['result']:.2f}x the result ({m})"
+    assert m["growth"] <= 1.2 * m["result"], f"peak {m['growth'] / m['result']:.2f}x the result ({m})"

@@ -14,7 +14,8 @@
 //! IEND chunk is refused as truncated (the decoders would pad a cut file silently).
 
 use btfrs_core::{Error, Result};
-use std::io::Cursor;
+use rayon::prelude::*;
+use std::io::{BufRead, Cursor, Read, Seek, SeekFrom};
 
 /// How integer pixel values map to linear light.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -93,8 +94,8 @@ pub fn is_image(name: &str) -> bool {
 
 /// An image decoded but not yet converted: the file's own samples (8 or 16-bit integers, or
 /// float), converted to linear float RGB pixel by pixel as it is scattered into a capture, so a
-/// batch of images never holds float copies (a one-image stack peaks at the output plus the
-/// file's samples, 1.25 times the output for 8-bit RGB).
+/// batch of images never holds float copies. (A single image is decoded in place instead,
+/// [`decode_place`].)
 #[derive(Debug, Clone, PartialEq)]
 pub struct Raw {
     /// Columns.
@@ -154,38 +155,81 @@ impl Raw {
 /// Decode an image file's bytes; `shown` names it in errors.
 pub fn decode(bytes: &[u8], shown: &str, transfer: Transfer) -> Result<Decoded> {
     let budget = crate::capture::default_max_bytes();
-    Ok(decode_raw(bytes, shown, transfer, bytes.len() as u64, budget)?.into_decoded())
+    let mut rgb = Vec::new();
+    let (width, height) =
+        decode_place(Cursor::new(bytes), shown, transfer, bytes.len() as u64, budget, Place::New(&mut rgb))?;
+    Ok(Decoded { width, height, rgb })
+}
+
+/// Where [`decode_place`] writes an image's linear float RGB.
+#[derive(Debug)]
+pub enum Place<'a> {
+    /// A new buffer, sized from the file's header.
+    New(&'a mut Vec<f32>),
+    /// An existing `[rows, cols, 3]` buffer; the image must be `rows x cols` pixels.
+    Fixed(&'a mut [f32], usize, usize),
+}
+
+fn io_err(shown: &str) -> impl Fn(std::io::Error) -> Error + '_ {
+    move |e| Error::io(shown, e)
+}
+
+/// Whether `pat` occurs in what `r` reads from where it stands, read in 64 KiB pieces.
+fn occurs<R: Read>(r: &mut R, pat: &[u8]) -> std::io::Result<bool> {
+    let mut buf = vec![0u8; 64 << 10];
+    let mut keep = 0;
+    loop {
+        let n = r.read(&mut buf[keep..])?;
+        if n == 0 {
+            return Ok(false);
+        }
+        let end = keep + n;
+        if buf[..end].windows(pat.len()).any(|w| w == pat) {
+            return Ok(true);
+        }
+        keep = (pat.len() - 1).min(end);
+        buf.copy_within(end - keep..end, 0);
+    }
 }
 
 /// That a JPEG's entropy-coded data is complete: the segments before the first scan are walked
 /// by their lengths, and an end-of-image marker (FF D9) must follow the scan data (byte
-/// stuffing keeps FF D9 out of entropy-coded data; bytes after it are allowed).
-pub fn check_jpeg_complete(bytes: &[u8], shown: &str) -> Result<()> {
+/// stuffing keeps FF D9 out of entropy-coded data; bytes after it are allowed). The file is
+/// read as a stream, never held.
+pub fn check_jpeg_complete<R: Read + Seek>(r: &mut R, shown: &str) -> Result<()> {
     let bad = |m: &str| Err(Error::format(shown, format!("{m}; the JPEG is truncated or corrupted")));
-    if !bytes.starts_with(&[0xFF, 0xD8]) {
+    let mut at = |pos: u64, n: usize| -> Result<Option<[u8; 4]>> {
+        let mut b = [0u8; 4];
+        r.seek(SeekFrom::Start(pos)).map_err(io_err(shown))?;
+        match r.read_exact(&mut b[..n]) {
+            Ok(()) => Ok(Some(b)),
+            Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => Ok(None),
+            Err(e) => Err(Error::io(shown, e)),
+        }
+    };
+    if at(0, 2)?.is_none_or(|b| b[..2] != [0xFF, 0xD8]) {
         return bad("no start-of-image marker (FF D8)");
     }
-    let mut pos = 2;
+    let mut pos = 2u64;
     loop {
-        while bytes.get(pos) == Some(&0xFF) && bytes.get(pos + 1) == Some(&0xFF) {
-            pos += 1;
-        }
-        let (Some(&0xFF), Some(&m)) = (bytes.get(pos), bytes.get(pos + 1)) else {
+        let Some(m) = at(pos, 2)? else {
             return bad(&format!("expected a marker at byte {pos} before the image data"));
         };
-        if m == 0xDA {
-            break;
+        match m {
+            [0xFF, 0xFF, ..] => pos += 1,
+            [0xFF, 0xDA, ..] => break,
+            [0xFF, m, ..] if m == 0x01 || (0xD0..=0xD7).contains(&m) => pos += 2,
+            [0xFF, ..] => {
+                let Some(l) = at(pos + 2, 2)? else {
+                    return bad(&format!("segment at byte {pos} is cut"));
+                };
+                pos += 2 + u64::from(u16::from_be_bytes([l[0], l[1]]));
+            }
+            _ => return bad(&format!("expected a marker at byte {pos} before the image data")),
         }
-        if m == 0x01 || (0xD0..=0xD7).contains(&m) {
-            pos += 2;
-            continue;
-        }
-        let Some(len) = bytes.get(pos + 2..pos + 4).map(|b| u16::from_be_bytes([b[0], b[1]]) as usize) else {
-            return bad(&format!("segment at byte {pos} is cut"));
-        };
-        pos += 2 + len;
     }
-    if !bytes[pos..].windows(2).any(|w| w == [0xFF, 0xD9]) {
+    r.seek(SeekFrom::Start(pos)).map_err(io_err(shown))?;
+    if !occurs(r, &[0xFF, 0xD9]).map_err(io_err(shown))? {
         return bad("no end-of-image marker (FF D9) after the image data");
     }
     Ok(())
@@ -194,59 +238,180 @@ pub fn check_jpeg_complete(bytes: &[u8], shown: &str) -> Result<()> {
 /// The IEND chunk with its CRC, which closes every complete PNG.
 const PNG_IEND: [u8; 12] = [0, 0, 0, 0, b'I', b'E', b'N', b'D', 0xAE, 0x42, 0x60, 0x82];
 
-/// That a PNG ends with its IEND chunk (bytes after it are allowed). Chunk CRCs and the zlib
-/// checksum are checked by the decoder.
-pub fn check_png_complete(bytes: &[u8], shown: &str) -> Result<()> {
-    if !bytes.windows(12).any(|w| w == PNG_IEND) {
+/// That a PNG ends with its IEND chunk (bytes after it are allowed), read as a stream. Chunk
+/// CRCs and the zlib checksum are checked by the decoder.
+pub fn check_png_complete<R: Read + Seek>(r: &mut R, shown: &str) -> Result<()> {
+    r.seek(SeekFrom::Start(0)).map_err(io_err(shown))?;
+    if !occurs(r, &PNG_IEND).map_err(io_err(shown))? {
         return Err(Error::format(shown, "no IEND chunk at the end; the PNG is truncated or corrupted"));
     }
     Ok(())
 }
 
-/// Decode an image file's bytes (`shown` names it in errors) without converting its samples,
-/// checking first that its decoded float size fits `max_bytes` and [`crate::capture::MAX_DECODE_RATIO`]
-/// times `disk`, its bytes on disk (an archive member's compressed size), and that the file is
-/// complete (JPEG: end marker; PNG: IEND chunk and CRCs).
-pub fn decode_raw(bytes: &[u8], shown: &str, transfer: Transfer, disk: u64, max_bytes: u64) -> Result<Raw> {
-    use crate::capture::check_image_budget;
-    if is_exr(shown) {
-        let meta =
-            exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false).map_err(|e| Error::format(shown, e))?;
-        for h in &meta.headers {
-            check_image_budget(shown, h.layer_size.0 as u64, h.layer_size.1 as u64, disk, max_bytes)?;
-        }
-        let (rgb, width, height) = crate::image::read_exr_bytes(bytes, shown)?;
-        if let Some(i) = rgb.iter().position(|x| !x.is_finite()) {
-            let (p, c) = (i / 3, i % 3);
-            return Err(Error::format(
-                shown,
-                format!(
-                    "pixel (row {}, column {}) channel {c} is {}; expected finite values",
-                    p / width,
-                    p % width,
-                    rgb[i]
-                ),
-            ));
-        }
-        return Ok(Raw { width, height, samples: Samples::F32(rgb, 3), transfer });
+/// An integer or float image's decoder, after the checks every file passes: a known format,
+/// complete (JPEG: end marker; PNG: IEND chunk), and a declared size within `max_bytes` and
+/// [`crate::capture::MAX_DECODE_RATIO`] times `disk`, its bytes on disk (an archive member's
+/// compressed size). Nothing is decoded yet.
+fn open_decoder<'a, R: 'a + BufRead + Seek>(
+    mut r: R,
+    shown: &str,
+    disk: u64,
+    max_bytes: u64,
+) -> Result<impl image::ImageDecoder + 'a> {
+    let len = r.seek(SeekFrom::End(0)).map_err(io_err(shown))?;
+    let mut head = [0u8; 64];
+    r.seek(SeekFrom::Start(0)).map_err(io_err(shown))?;
+    let got = r.by_ref().take(64).read(&mut head).map_err(io_err(shown))?;
+    let format = match image::guess_format(&head[..got]) {
+        Ok(f @ (image::ImageFormat::Jpeg | image::ImageFormat::Png | image::ImageFormat::Tiff)) => f,
+        _ => return Err(Error::format(shown, "not a JPEG, PNG, TIFF or OpenEXR image")),
+    };
+    match format {
+        image::ImageFormat::Jpeg => check_jpeg_complete(&mut r, shown)?,
+        image::ImageFormat::Png => check_png_complete(&mut r, shown)?,
+        _ => {}
     }
-    let mut reader =
-        image::ImageReader::new(Cursor::new(bytes)).with_guessed_format().map_err(|e| Error::format(shown, e))?;
-    match reader.format() {
-        None => return Err(Error::format(shown, "not a JPEG, PNG, TIFF or OpenEXR image")),
-        Some(image::ImageFormat::Jpeg) => check_jpeg_complete(bytes, shown)?,
-        Some(image::ImageFormat::Png) => check_png_complete(bytes, shown)?,
-        Some(_) => {}
-    }
+    r.seek(SeekFrom::Start(0)).map_err(io_err(shown))?;
+    let mut reader = image::ImageReader::with_format(r, format);
     // The decoder's own buffers: within what the file can justify (deflate at most ~1032:1)
     // and the budget. The float size is checked from the header before any pixel is decoded.
     let mut limits = image::Limits::default();
-    limits.max_alloc =
-        Some((bytes.len() as u64).saturating_mul(1032 * 4).clamp(1 << 20, 16 << 30).min(max_bytes.max(1 << 20)));
+    limits.max_alloc = Some(len.saturating_mul(1032 * 4).clamp(1 << 20, 16 << 30).min(max_bytes.max(1 << 20)));
     reader.limits(limits);
     let dec = reader.into_decoder().map_err(|e| Error::format(shown, e))?;
     let (w, h) = image::ImageDecoder::dimensions(&dec);
-    check_image_budget(shown, u64::from(w), u64::from(h), disk, max_bytes)?;
+    crate::capture::check_image_budget(shown, u64::from(w), u64::from(h), disk, max_bytes)?;
+    Ok(dec)
+}
+
+/// An OpenEXR file's float RGB, refused if any value is not finite.
+fn decode_exr<R: Read + Seek>(mut r: R, shown: &str, disk: u64, max_bytes: u64) -> Result<(Vec<f32>, usize, usize)> {
+    r.seek(SeekFrom::Start(0)).map_err(io_err(shown))?;
+    let mut bytes = Vec::new();
+    r.read_to_end(&mut bytes).map_err(io_err(shown))?;
+    let meta =
+        exr::meta::MetaData::read_from_buffered(Cursor::new(&bytes), false).map_err(|e| Error::format(shown, e))?;
+    for h in &meta.headers {
+        crate::capture::check_image_budget(shown, h.layer_size.0 as u64, h.layer_size.1 as u64, disk, max_bytes)?;
+    }
+    let (rgb, width, height) = crate::image::read_exr_bytes(&bytes, shown)?;
+    check_finite(&rgb, width, shown)?;
+    Ok((rgb, width, height))
+}
+
+fn check_finite(rgb: &[f32], width: usize, shown: &str) -> Result<()> {
+    if let Some(i) = rgb.iter().position(|x| !x.is_finite()) {
+        let (p, c) = (i / 3, i % 3);
+        return Err(Error::format(
+            shown,
+            format!(
+                "pixel (row {}, column {}) channel {c} is {}; expected finite values",
+                p / width.max(1),
+                p % width.max(1),
+                rgb[i]
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Decode an image (`shown` names it in errors) straight into linear float RGB at `place`,
+/// after [`decode_raw_from`]'s checks. The decoder writes the file's samples into the last
+/// bytes of the float buffer, and they are widened to floats in place from the first pixel on
+/// (pixel `p`'s floats end at byte `12(p+1)`, never past pixel `p+1`'s samples), so a single
+/// image needs no memory beyond its floats and the decoder's own. Returns (width, height).
+pub fn decode_place<R: BufRead + Seek>(
+    mut r: R,
+    shown: &str,
+    transfer: Transfer,
+    disk: u64,
+    max_bytes: u64,
+    place: Place<'_>,
+) -> Result<(usize, usize)> {
+    fn fit<'p>(w: usize, h: usize, place: Place<'p>, shown: &str) -> Result<&'p mut [f32]> {
+        match place {
+            Place::New(v) => {
+                v.clear();
+                v.resize(w * h * 3, 0.0);
+                Ok(&mut v[..])
+            }
+            Place::Fixed(s, rows, cols) => {
+                if (h, w) != (rows, cols) {
+                    return Err(Error::format(
+                        shown,
+                        format!("the image is {h} x {w} pixels; expected {rows} x {cols} like the first image"),
+                    ));
+                }
+                debug_assert_eq!(s.len(), w * h * 3);
+                Ok(s)
+            }
+        }
+    }
+    if is_exr(shown) {
+        let (rgb, w, h) = decode_exr(&mut r, shown, disk, max_bytes)?;
+        fit(w, h, place, shown)?.copy_from_slice(&rgb);
+        return Ok((w, h));
+    }
+    let dec = open_decoder(r, shown, disk, max_bytes)?;
+    let (w, h) = image::ImageDecoder::dimensions(&dec);
+    let (w, h) = (w as usize, h as usize);
+    let color = image::ImageDecoder::color_type(&dec);
+    let Some((ch, depth)) = layout(color) else {
+        return Err(Error::format(shown, format!("unsupported pixel layout {color:?}")));
+    };
+    let out = fit(w, h, place, shown)?;
+    let (n, b) = (w * h, ch * depth);
+    if b > 12 {
+        // Four float channels do not fit in three: decode beside, then convert.
+        let raw = raw_from(dec, shown, transfer)?;
+        out.par_chunks_mut(3).enumerate().for_each(|(p, px)| px.copy_from_slice(&raw.rgb(p)));
+    } else {
+        let bytes: &mut [u8] = bytemuck::cast_slice_mut(out);
+        let start = 12 * n - b * n;
+        image::ImageDecoder::read_image(dec, &mut bytes[start..]).map_err(|e| Error::format(shown, e))?;
+        let (l8, l16) = (lut8(transfer), lut16(transfer));
+        for p in 0..n {
+            let s = start + b * p;
+            let mut v = [0f32; 4];
+            for (c, v) in v.iter_mut().enumerate().take(ch) {
+                let at = s + c * depth;
+                *v = match depth {
+                    1 => l8[bytes[at] as usize],
+                    2 => l16[u16::from_ne_bytes([bytes[at], bytes[at + 1]]) as usize],
+                    _ => f32::from_ne_bytes([bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]]),
+                };
+            }
+            let rgb = if ch < 3 { [v[0]; 3] } else { [v[0], v[1], v[2]] };
+            for (c, x) in rgb.iter().enumerate() {
+                bytes[12 * p + 4 * c..12 * p + 4 * c + 4].copy_from_slice(&x.to_ne_bytes());
+            }
+        }
+        if depth == 4 {
+            check_finite(out, w, shown)?;
+        }
+    }
+    Ok((w, h))
+}
+
+/// Channels and bytes per channel of a pixel layout the readers accept.
+fn layout(c: image::ColorType) -> Option<(usize, usize)> {
+    use image::ColorType as C;
+    Some(match c {
+        C::L8 => (1, 1),
+        C::La8 => (2, 1),
+        C::Rgb8 => (3, 1),
+        C::Rgba8 => (4, 1),
+        C::L16 => (1, 2),
+        C::La16 => (2, 2),
+        C::Rgb16 => (3, 2),
+        C::Rgba16 => (4, 2),
+        C::Rgb32F => (3, 4),
+        C::Rgba32F => (4, 4),
+        _ => return None,
+    })
+}
+
+fn raw_from(dec: impl image::ImageDecoder, shown: &str, transfer: Transfer) -> Result<Raw> {
     let img = image::DynamicImage::from_decoder(dec).map_err(|e| Error::format(shown, e))?;
     let (width, height) = (img.width() as usize, img.height() as usize);
     use image::DynamicImage as D;
@@ -271,16 +436,60 @@ pub fn decode_raw(bytes: &[u8], shown: &str, transfer: Transfer, disk: u64, max_
     Ok(Raw { width, height, samples, transfer })
 }
 
+/// Decode an image file's bytes (`shown` names it in errors) without converting its samples,
+/// after checking that it is complete (JPEG: end marker; PNG: IEND chunk and CRCs) and that its
+/// decoded float size fits `max_bytes` and [`crate::capture::MAX_DECODE_RATIO`] times `disk`,
+/// its bytes on disk (an archive member's compressed size).
+pub fn decode_raw(bytes: &[u8], shown: &str, transfer: Transfer, disk: u64, max_bytes: u64) -> Result<Raw> {
+    decode_raw_from(Cursor::new(bytes), shown, transfer, disk, max_bytes)
+}
+
+/// [`decode_raw`] of a stream (a file is read as the decoder goes, not held).
+pub fn decode_raw_from<R: BufRead + Seek>(
+    mut r: R,
+    shown: &str,
+    transfer: Transfer,
+    disk: u64,
+    max_bytes: u64,
+) -> Result<Raw> {
+    if is_exr(shown) {
+        let (rgb, width, height) = decode_exr(&mut r, shown, disk, max_bytes)?;
+        return Ok(Raw { width, height, samples: Samples::F32(rgb, 3), transfer });
+    }
+    raw_from(open_decoder(r, shown, disk, max_bytes)?, shown, transfer)
+}
+
+fn open_file(path: &std::path::Path) -> Result<(std::io::BufReader<std::fs::File>, String, u64)> {
+    let shown = path.display().to_string();
+    let f = std::fs::File::open(path).map_err(|e| Error::io(&shown, e))?;
+    let disk = f.metadata().map_err(|e| Error::io(&shown, e))?.len();
+    Ok((std::io::BufReader::with_capacity(256 << 10, f), shown, disk))
+}
+
 /// Read and decode an image file.
 pub fn read(path: &std::path::Path, transfer: Transfer) -> Result<Decoded> {
-    Ok(read_raw(path, transfer, crate::capture::default_max_bytes())?.into_decoded())
+    let (f, shown, disk) = open_file(path)?;
+    let mut rgb = Vec::new();
+    let (width, height) =
+        decode_place(f, &shown, transfer, disk, crate::capture::default_max_bytes(), Place::New(&mut rgb))?;
+    Ok(Decoded { width, height, rgb })
 }
 
 /// Read an image file and decode it without converting ([`decode_raw`]).
 pub fn read_raw(path: &std::path::Path, transfer: Transfer, max_bytes: u64) -> Result<Raw> {
-    let shown = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|e| Error::io(&shown, e))?;
-    decode_raw(&bytes, &shown, transfer, bytes.len() as u64, max_bytes)
+    let (f, shown, disk) = open_file(path)?;
+    decode_raw_from(f, &shown, transfer, disk, max_bytes)
+}
+
+/// [`decode_place`] of a file.
+pub fn read_place(
+    path: &std::path::Path,
+    transfer: Transfer,
+    max_bytes: u64,
+    place: Place<'_>,
+) -> Result<(usize, usize)> {
+    let (f, shown, disk) = open_file(path)?;
+    decode_place(f, &shown, transfer, disk, max_bytes, place)
 }
 
 #[cfg(test)]
@@ -321,6 +530,57 @@ mod tests {
         );
         let d = decode(&jpg, "a.jpg", Transfer::Srgb).unwrap();
         assert!(d.rgb.iter().all(|&v| (v - srgb_to_linear(128.0 / 255.0)).abs() < 0.01));
+    }
+
+    #[test]
+    fn in_place_widening_matches_the_samples_for_every_layout() {
+        // Each layout's decode in place against the same file's samples converted one pixel at
+        // a time into a separate buffer (`Raw::rgb`), over odd sizes; 16-bit TIFF and 32-bit
+        // float TIFF included (four float channels take the decode-beside path).
+        use image::DynamicImage as D;
+        let (w, h) = (37u32, 23u32);
+        let v = |x: u32, y: u32, c: u32| ((x * 7 + y * 13 + c * 101) % 256) as u8;
+        let rgba8 =
+            image::RgbaImage::from_fn(w, h, |x, y| image::Rgba([v(x, y, 0), v(x, y, 1), v(x, y, 2), v(x, y, 3)]));
+        let base = D::ImageRgba8(rgba8);
+        let cases = [
+            (D::ImageLuma8(base.to_luma8()), image::ImageFormat::Png),
+            (D::ImageLumaA8(base.to_luma_alpha8()), image::ImageFormat::Png),
+            (D::ImageRgb8(base.to_rgb8()), image::ImageFormat::Png),
+            (base.clone(), image::ImageFormat::Png),
+            (D::ImageRgb8(base.to_rgb8()), image::ImageFormat::Jpeg),
+            (D::ImageLuma16(base.to_luma16()), image::ImageFormat::Png),
+            (D::ImageLumaA16(base.to_luma_alpha16()), image::ImageFormat::Png),
+            (D::ImageRgb16(base.to_rgb16()), image::ImageFormat::Tiff),
+            (D::ImageRgba16(base.to_rgba16()), image::ImageFormat::Png),
+            (D::ImageRgb32F(base.to_rgb32f()), image::ImageFormat::Tiff),
+            (D::ImageRgba32F(base.to_rgba32f()), image::ImageFormat::Tiff),
+        ];
+        for (img, fmt) in cases {
+            let bytes = encode(img.clone(), fmt);
+            for transfer in [Transfer::Srgb, Transfer::Linear] {
+                let raw = decode_raw(&bytes, "a", transfer, bytes.len() as u64, 1 << 30).unwrap();
+                let want: Vec<f32> = (0..(w * h) as usize).flat_map(|p| raw.rgb(p)).collect();
+                let got = decode(&bytes, "a", transfer).unwrap();
+                assert_eq!((got.width, got.height), (w as usize, h as usize));
+                assert_eq!(got.rgb, want, "{:?} {fmt:?} {transfer:?}", img.color());
+                let mut fixed = vec![f32::NAN; want.len()];
+                decode_place(Cursor::new(&bytes), "a", transfer, 1 << 20, 1 << 30, Place::Fixed(&mut fixed, 23, 37))
+                    .unwrap();
+                assert_eq!(fixed, want);
+                let e = decode_place(
+                    Cursor::new(&bytes),
+                    "a",
+                    transfer,
+                    1 << 20,
+                    1 << 30,
+                    Place::Fixed(&mut fixed, 37, 23),
+                )
+                .unwrap_err()
+                .to_string();
+                assert!(e.contains("23 x 37 pixels; expected 37 x 23"), "{e}");
+            }
+        }
     }
 
     #[test]

@@ -97,25 +97,14 @@ pub fn read_png(path: &Path) -> Result<(Vec<f32>, usize, usize)> {
     }
     // The float image it becomes: within the memory budget and a plausible ratio to the file.
     crate::capture::check_image_budget(shown, u64::from(hw), u64::from(hh), len, crate::capture::default_max_bytes())?;
-    let mut r = dec.read_info().map_err(|e| Error::format(shown, e))?;
-    let size = r.output_buffer_size().ok_or_else(|| Error::format(shown, "image too large"))?;
-    let mut buf = vec![0u8; size];
-    let info = r.next_frame(&mut buf).map_err(|e| Error::format(shown, e))?;
-    // Up to the IEND chunk (CRCs checked on the way): a truncated file is an error.
-    r.finish().map_err(|e| Error::format(shown, format!("{e}; the PNG is truncated or corrupted")))?;
-    let (w, h, ch) = (info.width as usize, info.height as usize, ch as usize);
-    if w.checked_mul(h).and_then(|p| p.checked_mul(ch)).is_none_or(|n| n > buf.len()) {
-        return Err(Error::format(shown, format!("the first frame ({w} x {h}) does not fit the image")));
-    }
-    let srgb_to_linear = |b: u8| {
-        let x = b as f32 / 255.0;
-        if x <= 0.04045 {
-            x / 12.92
-        } else {
-            ((x + 0.055) / 1.055).powf(2.4)
-        }
-    };
-    let out = buf[..w * h * ch].chunks(ch).flat_map(|p| [p[0], p[1], p[2]].map(srgb_to_linear)).collect();
+    // Decoded in place into its floats ([`crate::decode::decode_place`]): no 8-bit copy is held.
+    let mut out = Vec::new();
+    let (w, h) = crate::decode::read_place(
+        path,
+        crate::decode::Transfer::Srgb,
+        crate::capture::default_max_bytes(),
+        crate::decode::Place::New(&mut out),
+    )?;
     Ok((out, w, h))
 }
 

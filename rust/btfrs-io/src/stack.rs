@@ -310,13 +310,28 @@ impl Source for ImageStack {
         let image_bytes = fh * fw * 12;
         let threads = rayon::current_num_threads().max(1);
         let batch = ((256usize << 20) / image_bytes.max(1)).clamp(1, 4 * threads);
+        monitor.start(self.slots.len() as u64);
+        let (nl, abrdf) = (cap.lights.len(), cap.abrdf_len());
+        let crop = self.crop;
+        if let ([(name, _, _)], true) = (&self.slots[..], (crop.rows, crop.cols) == (fh, fw)) {
+            // One whole image is laid out in `out` as it is in the file: decoded in place.
+            let place = decode::Place::Fixed(out, fh, fw);
+            match &self.store {
+                Store::Folder(d) => decode::read_place(&d.join(name), self.transfer, self.max_bytes, place)?,
+                Store::Zip(_) => {
+                    let (b, disk) = ZipReader::open(&self.store)?.read(name, self.max_bytes)?;
+                    let shown = self.store.shown(name);
+                    decode::decode_place(std::io::Cursor::new(b), &shown, self.transfer, disk, self.max_bytes, place)?
+                }
+            };
+            monitor.advance(1);
+            return Ok(());
+        }
         let mut zip = match &self.store {
             Store::Zip(_) => Some(ZipReader::open(&self.store)?),
             Store::Folder(_) => None,
         };
-        monitor.start(self.slots.len() as u64);
-        let (nl, abrdf) = (cap.lights.len(), cap.abrdf_len());
-        let crop = self.crop;
+
         for chunk in self.slots.chunks(batch) {
             monitor.check()?;
             // Archive members are read in order (one reader), then decoded in parallel.
