@@ -83,6 +83,9 @@ def docstring(m: dict) -> list[str]:
     for o in m["options"]:
         out.append(f"{py_name(o['name'])}")
         out += wrap(f"{o['doc'][0].upper() + o['doc'][1:]}. Allowed: {o['allowed']}; default {py_default(o)}.", "    ")
+    for o in COMMON:
+        out.append(f"{py_name(o['name'])}")
+        out += wrap(f"{o['doc'][0].upper() + o['doc'][1:]}. Default {py_default(o)}.", "    ")
     out += [
         "memory_limit",
         "    The anonymous memory the fit may allocate besides the model: bytes, or a size such as",
@@ -136,6 +139,7 @@ def fit_module(facts: list[dict]) -> str:
         params = ["btf: Btf", "*"]
         for o in m["options"]:
             params.append(f"{py_name(o['name'])}: {py_type(o)} = {py_default(o)}")
+        params += [f"{py_name(o['name'])}: {py_type(o)} = {py_default(o)}" for o in COMMON]
         params += ["memory_limit: MemoryLimit = None", "progress: Progress = None"]
         lines += ["", ""]
         head = f"def {m['kind']}("
@@ -152,7 +156,8 @@ def fit_module(facts: list[dict]) -> str:
         lines.append('    """')
         opts = ", ".join(f"{json.dumps(o['name'])}: {py_name(o['name'])}" for o in m["options"])
         lines.append(f"    options: dict[str, object] = {{{opts}}}")
-        lines.append(f"    model = fit_kind({json.dumps(m['kind'])}, btf, options, memory_limit, progress)")
+        common = ", ".join(py_name(o["name"]) for o in COMMON)
+        lines.append(f"    model = fit_kind({json.dumps(m['kind'])}, btf, options, memory_limit, progress, {common})")
         lines.append(f"    assert isinstance(model, {m['class']})")
         lines.append("    return model")
     return "\n".join(lines) + "\n"
@@ -161,6 +166,10 @@ def fit_module(facts: list[dict]) -> str:
 def stub_block(facts: list[dict]) -> str:
     kinds = ", ".join(json.dumps(m["kind"]) for m in facts)
     return f"_ModelKind = Literal[{kinds}]\n"
+
+
+# The options every fit takes besides its own (robust fitting): btfrs_fit::robust::OPTIONS.
+COMMON: list[dict] = []
 
 
 MIPS = {
@@ -173,6 +182,8 @@ MIPS = {
 def doc_page(m: dict) -> str:
     rows = ["| option | type | default | allowed | what it does |", "|---|---|---|---|---|"]
     for o in m["options"]:
+        rows.append(f"| `{py_name(o['name'])}` | `{py_type(o)}` | `{py_default(o)}` | {o['allowed']} | {o['doc']} |")
+    for o in COMMON:
         rows.append(f"| `{py_name(o['name'])}` | `{py_type(o)}` | `{py_default(o)}` | {o['allowed']} | {o['doc']} |")
     rows.append("| `memory_limit` | `int \\| str \\| None` | `None` | bytes, or a size such as `\"2GB\"` | "
                 "the memory the fit may allocate besides the model |")
@@ -200,6 +211,7 @@ def read_facts() -> list[dict]:
     from btfrs.models import class_of
 
     facts = json.loads(btfrs._native.model_facts())
+    COMMON[:] = json.loads(btfrs._native.fit_options())
     for m in facts:
         m["class"] = class_of(m["kind"]).__name__
     return facts

@@ -57,8 +57,9 @@ def options_json(kind: str, options: Mapping[str, Any], memory_limit: MemoryLimi
 
 
 def fit_kind(kind: str, btf: Btf, options: Mapping[str, Any], memory_limit: MemoryLimit = None,
-             progress: Progress = None) -> Model:
-    """Fit the registered model ``kind`` to the present pairs of ``btf``."""
+             progress: Progress = None, robust: bool = True, exclude_bad_images: bool = False) -> Model:
+    """Fit the registered model ``kind`` to the present pairs of ``btf`` (``robust`` and
+    ``exclude_bad_images``: see :func:`btfrs.fit.fit`)."""
     b = instance("btf", btf, Btf, "a btfrs.Btf")
     if kind not in model_kinds():
         raise InvalidArgumentError(f"model: unknown model {kind!r}; expected one of {', '.join(model_kinds())}")
@@ -66,7 +67,8 @@ def fit_kind(kind: str, btf: Btf, options: Mapping[str, Any], memory_limit: Memo
     known = cast("_native._ModelKind", kind)  # checked against the registry above
     t0 = time.perf_counter()
     try:
-        m = _native.fit_model(known, b.data, b.views, b.lights, b.mask, o, callback(progress, f"{kind} fit"))
+        m = _native.fit_model(known, b.data, b.views, b.lights, b.mask, o, callback(progress, f"{kind} fit"),
+                              flag("robust", robust), flag("exclude_bad_images", exclude_bad_images))
     except InvalidArgumentError as e:
         # The schema spells an option that is a Python keyword without its "_" (lambda_).
         msg = str(e)
@@ -79,7 +81,20 @@ def fit_kind(kind: str, btf: Btf, options: Mapping[str, Any], memory_limit: Memo
 
 
 def fit(model: str, btf: Btf, /, *, progress: Progress = None, memory_limit: MemoryLimit = None,
-        **options: Any) -> Model:
+        robust: bool = True, exclude_bad_images: bool = False, **options: Any) -> Model:
     """Fit the registered model ``model`` (a name of :func:`btfrs.model_kinds`) to the present
-    pairs of ``btf`` with its own ``options`` (those of ``btfrs.fit.<model>``)."""
-    return fit_kind(model, btf, options, memory_limit, progress)
+    pairs of ``btf`` with its own ``options`` (those of ``btfrs.fit.<model>``).
+
+    ``robust`` (default) screens the values for outliers first: hot pixels, dust, glints, each
+    far above both its light neighbours' and its spatial neighbours' median, are replaced by the
+    light neighbours' median before the model's own fit runs; ``model.report["robust"]`` says how
+    many and where, and lists the whole images far from their neighbours (a misfired flash),
+    which ``exclude_bad_images=True`` leaves out of the fit."""
+    return fit_kind(model, btf, options, memory_limit, progress, robust, exclude_bad_images)
+
+
+def flag(name: str, value: object) -> bool:
+    """A boolean argument, checked."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise InvalidArgumentError(f"{name}: expected True or False, got {value!r}")
+    return bool(value)

@@ -35,6 +35,8 @@ def ptm(
     rcond: float = 1e-06,
     on_degenerate: Literal["reduce", "raise", "clamp"] = "reduce",
     bits: Literal[8, 32] = 8,
+    robust: bool = True,
+    exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
 ) -> Ptm:
@@ -65,6 +67,13 @@ def ptm(
     bits
         8: 8-bit planes with a scale and bias per plane (as .ptm files); 32: float32 coefficients.
         Allowed: 8 or 32; default 8.
+    robust
+        Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
+        above both their light and their spatial neighbours; false: fit every value as it is. Default
+        True.
+    exclude_bad_images
+        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
+        moved sample); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -78,7 +87,7 @@ def ptm(
         The fitted model.
     """
     options: dict[str, object] = {"kind": kind, "rcond": rcond, "on_degenerate": on_degenerate, "bits": bits}
-    model = fit_kind("ptm", btf, options, memory_limit, progress)
+    model = fit_kind("ptm", btf, options, memory_limit, progress, robust, exclude_bad_images)
     assert isinstance(model, Ptm)
     return model
 
@@ -91,6 +100,8 @@ def hsh(
     rcond: float = 1e-06,
     on_degenerate: Literal["reduce", "raise", "clamp"] = "reduce",
     bits: Literal[8, 32] = 8,
+    robust: bool = True,
+    exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
 ) -> Hsh:
@@ -122,6 +133,13 @@ def hsh(
     bits
         8: 8-bit planes with a scale and bias per slot and term (as .rti files); 32: float32
         coefficients. Allowed: 8 or 32; default 8.
+    robust
+        Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
+        above both their light and their spatial neighbours; false: fit every value as it is. Default
+        True.
+    exclude_bad_images
+        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
+        moved sample); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -135,7 +153,7 @@ def hsh(
         The fitted model.
     """
     options: dict[str, object] = {"order": order, "lambda": lambda_, "rcond": rcond, "on_degenerate": on_degenerate, "bits": bits}
-    model = fit_kind("hsh", btf, options, memory_limit, progress)
+    model = fit_kind("hsh", btf, options, memory_limit, progress, robust, exclude_bad_images)
     assert isinstance(model, Hsh)
     return model
 
@@ -148,6 +166,8 @@ def lafortune(
     diffuse: bool = True,
     max_iter: int = 60,
     densify: int = 0,
+    robust: bool = True,
+    exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
 ) -> Lafortune:
@@ -178,6 +198,13 @@ def lafortune(
     densify
         0: off; n: add an n x n equal-area grid of interpolated view and light directions. Allowed: an
         integer from 0 to 32; default 0.
+    robust
+        Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
+        above both their light and their spatial neighbours; false: fit every value as it is. Default
+        True.
+    exclude_bad_images
+        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
+        moved sample); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -191,7 +218,7 @@ def lafortune(
         The fitted model.
     """
     options: dict[str, object] = {"kind": kind, "lobes": lobes, "diffuse": diffuse, "max_iter": max_iter, "densify": densify}
-    model = fit_kind("lafortune", btf, options, memory_limit, progress)
+    model = fit_kind("lafortune", btf, options, memory_limit, progress, robust, exclude_bad_images)
     assert isinstance(model, Lafortune)
     return model
 
@@ -203,6 +230,8 @@ def lafortune_view(
     lobes: int = 2,
     diffuse: bool = True,
     max_iter: int = 60,
+    robust: bool = True,
+    exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
 ) -> LafortuneView:
@@ -230,6 +259,13 @@ def lafortune_view(
         Fit the diffuse term kd (false: kd = 0). Allowed: true or false; default True.
     max_iter
         Most Levenberg-Marquardt steps per run. Allowed: an integer >= 1; default 60.
+    robust
+        Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
+        above both their light and their spatial neighbours; false: fit every value as it is. Default
+        True.
+    exclude_bad_images
+        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
+        moved sample); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -243,12 +279,19 @@ def lafortune_view(
         The fitted model.
     """
     options: dict[str, object] = {"kind": kind, "lobes": lobes, "diffuse": diffuse, "max_iter": max_iter}
-    model = fit_kind("lafortune_view", btf, options, memory_limit, progress)
+    model = fit_kind("lafortune_view", btf, options, memory_limit, progress, robust, exclude_bad_images)
     assert isinstance(model, LafortuneView)
     return model
 
 
-def srf(btf: Btf, *, memory_limit: MemoryLimit = None, progress: Progress = None) -> Srf:
+def srf(
+    btf: Btf,
+    *,
+    robust: bool = True,
+    exclude_bad_images: bool = False,
+    memory_limit: MemoryLimit = None,
+    progress: Progress = None,
+) -> Srf:
     """Fit Phong + spatially-varying residual function (paper 003, sections 4 and 5).
 
     One Blinn-Phong lobe (kd, ks per channel, one shininess n) is fitted by Levenberg-Marquardt to the
@@ -261,6 +304,13 @@ def srf(btf: Btf, *, memory_limit: MemoryLimit = None, progress: Progress = None
     ----------
     btf
         The BTF (or capture) to fit: only its present pairs are used.
+    robust
+        Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
+        above both their light and their spatial neighbours; false: fit every value as it is. Default
+        True.
+    exclude_bad_images
+        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
+        moved sample); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -274,7 +324,7 @@ def srf(btf: Btf, *, memory_limit: MemoryLimit = None, progress: Progress = None
         The fitted model.
     """
     options: dict[str, object] = {}
-    model = fit_kind("srf", btf, options, memory_limit, progress)
+    model = fit_kind("srf", btf, options, memory_limit, progress, robust, exclude_bad_images)
     assert isinstance(model, Srf)
     return model
 
@@ -287,6 +337,8 @@ def sh(
     cls: bool = True,
     quantize: bool = True,
     chunk_texels: int = 1024,
+    robust: bool = True,
+    exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
 ) -> Sh:
@@ -320,6 +372,13 @@ def sh(
     chunk_texels
         Texels fitted per chunk: the working memory besides the model. Allowed: an integer >= 1; default
         1024.
+    robust
+        Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
+        above both their light and their spatial neighbours; false: fit every value as it is. Default
+        True.
+    exclude_bad_images
+        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
+        moved sample); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -333,7 +392,7 @@ def sh(
         The fitted model.
     """
     options: dict[str, object] = {"light_coeffs": light_coeffs, "view_coeffs": view_coeffs, "cls": cls, "quantize": quantize, "chunk_texels": chunk_texels}
-    model = fit_kind("sh", btf, options, memory_limit, progress)
+    model = fit_kind("sh", btf, options, memory_limit, progress, robust, exclude_bad_images)
     assert isinstance(model, Sh)
     return model
 
@@ -347,6 +406,8 @@ def lpca(
     refine_iterations: int = 2,
     reduced_dims: int = 64,
     seed: int = 0,
+    robust: bool = True,
+    exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
 ) -> Lpca:
@@ -382,6 +443,13 @@ def lpca(
     seed
         Seed of every random choice (k-means++ seeding, the randomized PCA). Allowed: a non-negative
         integer; default 0.
+    robust
+        Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
+        above both their light and their spatial neighbours; false: fit every value as it is. Default
+        True.
+    exclude_bad_images
+        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
+        moved sample); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -395,7 +463,7 @@ def lpca(
         The fitted model.
     """
     options: dict[str, object] = {"clusters": clusters, "components": components, "kmeans_iterations": kmeans_iterations, "refine_iterations": refine_iterations, "reduced_dims": reduced_dims, "seed": seed}
-    model = fit_kind("lpca", btf, options, memory_limit, progress)
+    model = fit_kind("lpca", btf, options, memory_limit, progress, robust, exclude_bad_images)
     assert isinstance(model, Lpca)
     return model
 
@@ -410,6 +478,8 @@ def rbf(
     width: float = 2.5,
     regularization: float = 0.1,
     seed: int = 0,
+    robust: bool = True,
+    exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
 ) -> Rbf:
@@ -448,6 +518,13 @@ def rbf(
     seed
         Seed of the randomized PCA (vectors longer than 768 values only). Allowed: a non-negative
         integer; default 0.
+    robust
+        Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
+        above both their light and their spatial neighbours; false: fit every value as it is. Default
+        True.
+    exclude_bad_images
+        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
+        moved sample); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -461,7 +538,7 @@ def rbf(
         The fitted model.
     """
     options: dict[str, object] = {"components": components, "colour": colour, "chroma_components": chroma_components, "resolution": resolution, "width": width, "regularization": regularization, "seed": seed}
-    model = fit_kind("rbf", btf, options, memory_limit, progress)
+    model = fit_kind("rbf", btf, options, memory_limit, progress, robust, exclude_bad_images)
     assert isinstance(model, Rbf)
     return model
 
@@ -475,6 +552,8 @@ def bilinear(
     resolution: int = 8,
     regularization: float = 0.3,
     seed: int = 0,
+    robust: bool = True,
+    exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
 ) -> Bilinear:
@@ -509,6 +588,13 @@ def bilinear(
     seed
         Seed of the randomized PCA (vectors longer than 768 values only). Allowed: a non-negative
         integer; default 0.
+    robust
+        Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
+        above both their light and their spatial neighbours; false: fit every value as it is. Default
+        True.
+    exclude_bad_images
+        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
+        moved sample); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -522,6 +608,6 @@ def bilinear(
         The fitted model.
     """
     options: dict[str, object] = {"components": components, "colour": colour, "chroma_components": chroma_components, "resolution": resolution, "regularization": regularization, "seed": seed}
-    model = fit_kind("bilinear", btf, options, memory_limit, progress)
+    model = fit_kind("bilinear", btf, options, memory_limit, progress, robust, exclude_bad_images)
     assert isinstance(model, Bilinear)
     return model

@@ -38,6 +38,7 @@ pub mod planes;
 pub mod ptm;
 pub mod rbf;
 pub mod registry;
+pub mod robust;
 pub mod sh;
 pub mod srf;
 

@@ -52,7 +52,7 @@ pub fn finish_blocks(py: Python<'_>, kind: &str, arrays: &Bound<'_, PyDict>, opt
     let entry = registry::lookup(kind).py()?;
     let a = named_arrays(arrays)?;
     let inner = detach(py, || (entry.finish_blocks)(&a, options_json))?;
-    Ok(PyModel { inner })
+    Ok(PyModel { inner, robust: serde_json::Value::Null })
 }
 
 /// SRF stage 1 on one block: the per-pair RGB sums of the present values, `[pairs, 3]` float64.
@@ -279,7 +279,7 @@ pub fn lpca_assemble<'py>(
         })
         .collect::<PyResult<_>>()?;
     let m = detach(py, || staged::assemble(height, width, v, l, mask, ids, &members, &fits, &o))?;
-    Ok(PyModel { inner: Box::new(m) })
+    Ok(PyModel { inner: Box::new(m), robust: serde_json::Value::Null })
 }
 
 /// Moments as they cross into Python: `(n, [mean [V, d] float64], [m2 [V, d, d] float64])`,
@@ -432,7 +432,7 @@ pub fn light_pca_assemble<'py>(
         let m = lp::assemble(h, w, v, plan, tab, c, &basis.options()?)?;
         Ok(basis.model(m))
     })?;
-    Ok(PyModel { inner })
+    Ok(PyModel { inner, robust: serde_json::Value::Null })
 }
 
 /// Check RBF / bilinear options for the blockwise fit (before any task is sent).

@@ -115,7 +115,7 @@ pub fn import_model(py: Python<'_>, path: PathBuf) -> PyResult<PyModel> {
         let list: Vec<String> = formats::FORMATS.iter().map(|f| format!(".{}", f.extension)).collect();
         arg("path", format!("{}: expected a file ending in {}", path.display(), list.join(" or ")))
     })?;
-    Ok(PyModel { inner: detach(py, || (f.import)(&path))? })
+    Ok(PyModel { inner: detach(py, || (f.import)(&path))?, robust: serde_json::Value::Null })
 }
 
 /// Write a `[H, W, 3]` float32 linear image as an 8-bit sRGB PNG.

@@ -40,6 +40,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(models::load_model, m)?)?;
     m.add_function(wrap_pyfunction!(models::check_options, m)?)?;
     m.add_function(wrap_pyfunction!(models::model_facts, m)?)?;
+    m.add_function(wrap_pyfunction!(models::fit_options, m)?)?;
     m.add_function(wrap_pyfunction!(models::texel_arrays, m)?)?;
     m.add_function(wrap_pyfunction!(blockwise::blockwise_plan, m)?)?;
     m.add_function(wrap_pyfunction!(blockwise::finish_blocks, m)?)?;

@@ -22,6 +22,8 @@ use std::path::PathBuf;
 #[pyclass(name = "Model", module = "btfrs._native", frozen)]
 pub struct PyModel {
     pub inner: Box<dyn DynModel>,
+    /// The robust fit's report (`Null`: not fitted here, or fitted with `robust=False`).
+    pub robust: serde_json::Value,
 }
 
 /// Error sums as a dict: rmse, relative, psnr, samples.
@@ -125,10 +127,14 @@ impl PyModel {
 
     /// The fit's statistics (a dict; empty for a model built from arrays).
     fn report<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        match self.inner.report() {
-            serde_json::Value::Null => Ok(PyDict::new(py).into_any()),
-            v => json_to_py(py, &v),
+        let mut r = match self.inner.report() {
+            serde_json::Value::Null => serde_json::json!({}),
+            v => v,
+        };
+        if !self.robust.is_null() {
+            r["robust"] = self.robust.clone();
         }
+        json_to_py(py, &r)
     }
 
     /// `[H, W, 3]` image for one view and one light (unit vectors, z >= 0).
@@ -163,7 +169,7 @@ impl PyModel {
     /// of the result is `texels[k]` of this model (a tile set's BTFel table).
     fn select_texels(&self, py: Python<'_>, texels: Vec<u32>) -> PyResult<Self> {
         let inner = detach(py, || registry::select_texels(self.inner.as_ref(), &texels))?;
-        Ok(PyModel { inner })
+        Ok(PyModel { inner, robust: serde_json::Value::Null })
     }
 
     /// Rebuild model `kind` from `arrays()` output, validating every array.
@@ -171,7 +177,7 @@ impl PyModel {
     fn from_arrays(py: Python<'_>, kind: &str, arrays: &Bound<'_, PyDict>) -> PyResult<Self> {
         let a = named_arrays(arrays)?;
         let inner = detach(py, || registry::from_arrays(kind, &a))?;
-        Ok(PyModel { inner })
+        Ok(PyModel { inner, robust: serde_json::Value::Null })
     }
 
     /// Write the model to a `.btfrs` file (atomically); `meta_json` is a JSON object stored with
@@ -186,7 +192,7 @@ impl PyModel {
 #[pyfunction]
 pub fn load_model(py: Python<'_>, path: PathBuf) -> PyResult<(PyModel, String)> {
     let (inner, meta) = detach(py, || btfrs_io::model_file::load_model(&path))?;
-    Ok((PyModel { inner }, meta.to_string()))
+    Ok((PyModel { inner, robust: serde_json::Value::Null }, meta.to_string()))
 }
 
 /// Every fact of every registered model, as JSON (`btfrs_fit::registry::describe`): what the
@@ -194,6 +200,12 @@ pub fn load_model(py: Python<'_>, path: PathBuf) -> PyResult<(PyModel, String)> 
 #[pyfunction]
 pub fn model_facts() -> String {
     registry::describe().to_string()
+}
+
+/// The options every fit takes besides its own (robust fitting), as the schema JSON.
+#[pyfunction]
+pub fn fit_options() -> String {
+    btfrs_fit::options::schema_json(btfrs_fit::robust::OPTIONS).to_string()
 }
 
 /// Check fit options (a JSON object) for model `kind` as its fit would, without fitting.
@@ -211,7 +223,7 @@ pub fn texel_arrays(kind: &str) -> PyResult<Vec<&'static str>> {
 /// Fit model `kind` to a BTF's present pairs with options given as a JSON object; the GIL is
 /// released, progress reported, Ctrl-C honoured.
 #[pyfunction]
-#[pyo3(signature = (kind, data, views, lights, mask=None, options_json="{}", progress=None))]
+#[pyo3(signature = (kind, data, views, lights, mask=None, options_json="{}", progress=None, robust=true, exclude_bad_images=false))]
 #[allow(clippy::too_many_arguments)]
 pub fn fit_model<'py>(
     py: Python<'py>,
@@ -222,17 +234,21 @@ pub fn fit_model<'py>(
     mask: Option<&Bound<'py, PyAny>>,
     options_json: &str,
     progress: Option<&Bound<'py, PyAny>>,
+    robust: bool,
+    exclude_bad_images: bool,
 ) -> PyResult<PyModel> {
     let entry = registry::lookup(kind).py()?;
+    let ro = btfrs_fit::robust::RobustOptions { robust, exclude_bad_images };
     let args = BtfArgs::new(data, views, lights, mask)?;
     let b = args.btf()?;
-    let inner = monitored(py, progress, |mon| {
+    let (inner, robust) = monitored(py, progress, |mon| {
         // Models that check each texel in their own pass skip the scan: on a memory-mapped
-        // file a scan is a second read of the whole data from storage.
+        // file a scan is a second read of the whole data from storage. (The robust screen
+        // ignores a NaN: no comparison with one flags it, and the fit then names it.)
         if !entry.scans_values {
             btfrs_core::btf::check_finite("data", b.data)?;
         }
-        (entry.fit)(&b, options_json, mon)
+        btfrs_fit::robust::fit(entry, &b, options_json, ro, mon)
     })?;
-    Ok(PyModel { inner })
+    Ok(PyModel { inner, robust })
 }

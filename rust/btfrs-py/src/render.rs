@@ -674,5 +674,5 @@ pub fn mip_model(
         .map(|(a, b)| a.iter().zip(b).filter(|(t, _)| **t >= 0).map(|(&t, &x)| (t as u32, x)).collect())
         .collect();
     let inner = detach(py, || btfrs_fit::registry::mip_texels(model.inner.as_ref(), &groups))?;
-    Ok(PyModel { inner })
+    Ok(PyModel { inner, robust: serde_json::Value::Null })
 }

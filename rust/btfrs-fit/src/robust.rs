@@ -1,0 +1,494 @@
+//! Robust fitting: hot and stuck sensor pixels, dust, a glint from a loose fibre or a blooming
+//! highlight must not wreck a model, and a whole bad image (a misfired flash, a moved sample)
+//! is found and named.
+//!
+//! **Why the values are screened before the fit, not by the fit's residuals.** Classic robust
+//! regression starts from a first fit and scales its residuals by a robust spread. Here the first
+//! fit is the problem: a least-squares fit spreads one value 1000 times too large over every value
+//! it shares coefficients with (a PTM's 81 lights of a view slot, an LPCA cluster's basis), so
+//! on the `grooves` material with 0.01% of the values hot, the clean values beside a hot one
+//! reach 905 robust standard deviations (MAD per texel and per slot) while the hot values start
+//! at 10: no threshold on the first fit's residuals separates them. The screen instead compares
+//! each value with two robust local models that an outlier cannot move:
+//!
+//! * the median of the same texel, view and channel under the `K = 8` nearest measured lights
+//!   (the light directions' neighbours: a BRDF is smooth between them at the sampling of a
+//!   capture), and
+//! * the median of the same pair and channel at the texel's 8 spatial neighbours (inside the
+//!   sample).
+//!
+//! A value above `FACTOR = 8` times the larger of the two (plus 5% of the data's mean, so that
+//! noise in the dark is not flagged) is inconsistent with both its light neighbours and its
+//! spatial neighbours: it is replaced by its light neighbours' median and the model is fitted
+//! to the repaired values (trimming with imputation: every model's own fit, with its fast paths,
+//! the shared pseudo-inverse of PTM and HSH, the randomized range finder of LPCA, the constrained
+//! solve of SH, runs unchanged, since the sampling stays complete). A real highlight is bright
+//! under neighbouring lights too, or at neighbouring texels, and is kept: on the clean built-in
+//! materials a handful of values are flagged and no model's error moves.
+//!
+//! **Bad images.** For every (view, light) pair the median over texels of
+//! `|ln((x + a) / (m + a))|`, the log ratio of the image to its light neighbours' median, is its
+//! *spread*; an image whose spread exceeds `ln 2` and 6 median spreads of all images (scaled by
+//! 1.4826, a robust standard deviation) is reported with its pair. A misfired flash changes every
+//! texel's ratio; a moved sample scrambles a textured image against its neighbours. With
+//! `exclude_bad_images` those pairs are left out of the fit (masked), as if not measured.
+
+use crate::options::Spec;
+use btfrs_core::{BtfRef, Error, Monitor, Result};
+use rayon::prelude::*;
+use serde_json::{json, Value};
+
+/// How far above both local models a value must lie to be an outlier.
+pub const FACTOR: f32 = 8.0;
+/// Light neighbours per value.
+pub const NEIGHBOURS: usize = 8;
+/// The additive floor, as a fraction of the data's mean.
+pub const FLOOR: f32 = 0.05;
+/// View neighbours an image is compared with (same light).
+const VIEW_NEIGHBOURS: usize = 4;
+/// With one view only the light neighbours judge an image, and images near the horizon differ
+/// from theirs by up to a factor of 3.4 on the built-in materials: a bad image must be 4 times
+/// off.
+const ONE_VIEW_LEAST: f32 = 1.386_294_4;
+/// Texels sampled (on a fixed stride) for the images' spreads and the data's mean.
+const SAMPLE_TEXELS: usize = 4096;
+
+/// The robust options every fit takes besides its own (one source: the Python signatures, the
+/// CLI and the docs are generated from them).
+pub const OPTIONS: &[Spec] = &[
+    Spec::bool(
+        "robust",
+        true,
+        "screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those \
+         far above both their light and their spatial neighbours; false: fit every value as it is",
+    ),
+    Spec::bool(
+        "exclude_bad_images",
+        false,
+        "leave out of the fit the whole images found far from their light neighbours (a misfired \
+         flash, a moved sample); they are reported either way",
+    ),
+];
+
+/// [`OPTIONS`] as a struct.
+#[derive(Debug, Clone, Copy, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RobustOptions {
+    /// Screen and repair outliers.
+    pub robust: bool,
+    /// Mask the bad images out of the fit.
+    pub exclude_bad_images: bool,
+}
+
+impl Default for RobustOptions {
+    fn default() -> Self {
+        crate::options::build(OPTIONS, serde_json::Map::new()).expect("the schema's defaults build")
+    }
+}
+
+/// Flat indices into the data, with replacement values.
+type Flags = Vec<(usize, f32)>;
+
+/// What the screen found.
+#[derive(Debug, Clone, Default)]
+pub struct Screen {
+    /// Flat indices into the data of the values flagged, with their replacements.
+    pub values: Vec<(usize, f32)>,
+    /// Values far above their light neighbours but not their spatial neighbours (whose median
+    /// another outlier may have raised), with their replacements: flagged too if the fitted
+    /// model agrees ([`confirm`]).
+    pub candidates: Vec<(usize, f32)>,
+    /// Per pair `v * L + l`: the image's spread against its light neighbours (NaN where the
+    /// pair is absent).
+    pub spread: Vec<f32>,
+    /// Pairs `(view, light)` whose images are far from their neighbours.
+    pub bad_images: Vec<(usize, usize)>,
+    /// The additive floor used.
+    pub floor: f32,
+    /// How many of the values were candidates confirmed by the first fit.
+    pub confirmed: usize,
+    /// How many candidates the first fit explained (restored for the final fit).
+    pub restored: usize,
+}
+
+fn median(v: &mut [f32]) -> f32 {
+    let n = v.len();
+    if n == 0 {
+        return f32::NAN;
+    }
+    let (lo, mid, _) = v.select_nth_unstable_by(n / 2, f32::total_cmp);
+    let hi = *mid;
+    if n % 2 == 1 {
+        hi
+    } else {
+        let lo_max = lo.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        0.5 * (lo_max + hi)
+    }
+}
+
+/// Screen `btf`'s present values (module docs).
+pub fn screen(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<Screen> {
+    let (h, w, nv, nl) = (btf.height, btf.width, btf.views.len(), btf.lights.len());
+    let texels = h * w;
+    let abrdf = nv * nl * 3;
+    let present = |v: usize, l: usize| btf.mask.is_none_or(|m| m[v * nl + l]);
+    // Per view: its present lights and each one's nearest present lights.
+    let mut nbrs: Vec<Vec<(usize, Vec<usize>)>> = Vec::with_capacity(nv);
+    for v in 0..nv {
+        let ls: Vec<usize> = (0..nl).filter(|&l| present(v, l)).collect();
+        let k = NEIGHBOURS.min(ls.len().saturating_sub(1));
+        let mut per = Vec::with_capacity(ls.len());
+        for &l in &ls {
+            let a = btf.lights[l];
+            let mut by: Vec<(f64, usize)> = ls
+                .iter()
+                .filter(|&&o| o != l)
+                .map(|&o| {
+                    let b = btf.lights[o];
+                    (-(a[0] * b[0] + a[1] * b[1] + a[2] * b[2]), o)
+                })
+                .collect();
+            by.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+            per.push((l, by.into_iter().take(k).map(|(_, o)| o).collect()));
+        }
+        nbrs.push(per);
+    }
+    let stride = texels.div_ceil(SAMPLE_TEXELS).max(1);
+    let sampled: Vec<usize> = (0..texels).step_by(stride).collect();
+    // The data's mean over the sampled texels' present values: the scale of the floor.
+    let (sum, count) = sampled
+        .par_iter()
+        .map(|&t| {
+            let mut s = 0.0f64;
+            let mut n = 0u64;
+            for (v, per) in nbrs.iter().enumerate() {
+                for (l, _) in per {
+                    let o = t * abrdf + (v * nl + l) * 3;
+                    s += btf.data[o..o + 3].iter().map(|&x| x as f64).sum::<f64>();
+                    n += 3;
+                }
+            }
+            (s, n)
+        })
+        .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let floor = (FLOOR as f64 * sum / (count.max(1) as f64)).max(1e-30) as f32;
+    monitor.check()?;
+    let at = |t: usize, v: usize, l: usize, c: usize| btf.data[t * abrdf + (v * nl + l) * 3 + c];
+    // The light neighbours' median of value (t, v, l, c).
+    let light_median = |t: usize, v: usize, nb: &[usize], c: usize, buf: &mut Vec<f32>| {
+        buf.clear();
+        buf.extend(nb.iter().map(|&o| at(t, v, o, c)));
+        median(buf)
+    };
+    let rows: Vec<(Flags, Flags)> = (0..h)
+        .into_par_iter()
+        .map(|r| {
+            let (mut found, mut maybe) = (Vec::new(), Vec::new());
+            let (mut b1, mut b2) = (Vec::with_capacity(NEIGHBOURS), Vec::with_capacity(8));
+            for c0 in 0..w {
+                let t = r * w + c0;
+                for (v, per) in nbrs.iter().enumerate() {
+                    for (l, nb) in per {
+                        for c in 0..3 {
+                            let x = at(t, v, *l, c);
+                            if nb.is_empty() {
+                                continue;
+                            }
+                            // Cheap first: the light neighbours (most values stop here).
+                            let md = light_median(t, v, nb, c, &mut b1);
+                            // (A NaN is never above: it is left for the fit to name.)
+                            if x.partial_cmp(&(FACTOR * md + floor)) != Some(std::cmp::Ordering::Greater) {
+                                continue;
+                            }
+                            b2.clear();
+                            for dr in [-1i64, 0, 1] {
+                                for dc in [-1i64, 0, 1] {
+                                    let (rr, cc) = (r as i64 + dr, c0 as i64 + dc);
+                                    if (dr, dc) != (0, 0)
+                                        && rr >= 0
+                                        && cc >= 0
+                                        && (rr as usize) < h
+                                        && (cc as usize) < w
+                                    {
+                                        b2.push(at(rr as usize * w + cc as usize, v, *l, c));
+                                    }
+                                }
+                            }
+                            let ms = if b2.is_empty() { 0.0 } else { median(&mut b2) };
+                            let i = t * abrdf + (v * nl + l) * 3 + c;
+                            if x > FACTOR * ms + floor {
+                                found.push((i, md));
+                            } else {
+                                maybe.push((i, md));
+                            }
+                        }
+                    }
+                }
+            }
+            (found, maybe)
+        })
+        .collect();
+    monitor.check()?;
+    let (mut values, mut candidates) = (Vec::new(), Vec::new());
+    for (f, m) in rows {
+        values.extend(f);
+        candidates.extend(m);
+    }
+    // Each image's spreads against its light neighbours (same view) and its view neighbours
+    // (same light), over the sampled texels (luminance). A bad image is far from both; an image
+    // near the horizon is far from its light neighbours (all on one side of it) but not from
+    // the same light seen from the views beside it.
+    let lum = |t: usize, v: usize, l: usize| (at(t, v, l, 0) + at(t, v, l, 1) + at(t, v, l, 2)) / 3.0;
+    let view_nbrs: Vec<Vec<usize>> = (0..nv)
+        .map(|v| {
+            let a = btf.views[v];
+            let mut by: Vec<(f64, usize)> = (0..nv)
+                .filter(|&o| o != v)
+                .map(|o| {
+                    let b = btf.views[o];
+                    (-(a[0] * b[0] + a[1] * b[1] + a[2] * b[2]), o)
+                })
+                .collect();
+            by.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+            by.into_iter().take(VIEW_NEIGHBOURS).map(|(_, o)| o).collect()
+        })
+        .collect();
+    let spread_of = |t_list: &[usize], v: usize, l: usize, nb: &mut dyn Iterator<Item = (usize, usize)>| -> f32 {
+        let nb: Vec<(usize, usize)> = nb.collect();
+        if nb.len() < 2 {
+            return f32::NAN;
+        }
+        let (mut d, mut buf) = (Vec::with_capacity(t_list.len()), Vec::with_capacity(nb.len()));
+        for &t in t_list {
+            buf.clear();
+            buf.extend(nb.iter().map(|&(vv, ll)| lum(t, vv, ll)));
+            let m = median(&mut buf);
+            d.push(((lum(t, v, l) + floor) / (m + floor)).ln().abs());
+        }
+        median(&mut d)
+    };
+    let per_pair: Vec<(usize, f32, f32)> = nbrs
+        .par_iter()
+        .enumerate()
+        .flat_map_iter(|(v, per)| {
+            let (sampled, spread_of, view_nbrs) = (&sampled, &spread_of, &view_nbrs);
+            per.iter().map(move |(l, nb)| {
+                let by_light = spread_of(sampled, v, *l, &mut nb.iter().map(|&o| (v, o)));
+                let by_view =
+                    spread_of(sampled, v, *l, &mut view_nbrs[v].iter().filter(|&&o| present(o, *l)).map(|&o| (o, *l)));
+                (v * nl + l, by_light, by_view)
+            })
+        })
+        .collect();
+    let mut spread = vec![f32::NAN; nv * nl];
+    let mut spread_view = vec![f32::NAN; nv * nl];
+    for (i, a, b) in per_pair {
+        spread[i] = a;
+        spread_view[i] = b;
+    }
+    // Far: above `least` and 6 robust standard deviations above the typical spread.
+    let far = |sp: &[f32], least: f32| -> Vec<bool> {
+        let mut all: Vec<f32> = sp.iter().copied().filter(|s| s.is_finite()).collect();
+        let typical = median(&mut all);
+        let mut dev: Vec<f32> = all.iter().map(|s| (s - typical).abs()).collect();
+        let mad = 1.4826 * median(&mut dev);
+        sp.iter().map(|&s| s.is_finite() && s > least && s > typical + 6.0 * mad).collect()
+    };
+    let several_views = spread_view.iter().any(|s| s.is_finite());
+    let by_light = far(&spread, if several_views { std::f32::consts::LN_2 } else { ONE_VIEW_LEAST });
+    let by_view = far(&spread_view, std::f32::consts::LN_2);
+    let bad_images = (0..nv * nl)
+        .filter(|&i| by_light[i] && (by_view[i] || !spread_view[i].is_finite() && !several_views))
+        .map(|i| (i / nl, i % nl))
+        .collect();
+    Ok(Screen { values, candidates, spread, bad_images, floor, confirmed: 0, restored: 0 })
+}
+
+/// Judge the candidates by `model`, fitted with them repaired (so that none of them moved it):
+/// those it predicts at least [`FACTOR`] times lower stay flagged, the others are restored.
+/// Returns how many were restored.
+pub fn confirm(sc: &mut Screen, btf: &BtfRef<'_>, model: &dyn crate::model::DynModel) -> usize {
+    let (nv, nl) = (btf.views.len(), btf.lights.len());
+    let abrdf = nv * nl * 3;
+    let floor = sc.floor;
+    let (yes, no): (Flags, Flags) = std::mem::take(&mut sc.candidates).into_par_iter().partition(|&(i, _)| {
+        let (t, pair, c) = (i / abrdf, (i % abrdf) / 3, i % 3);
+        let p = model.shade(t, btf.views[pair / nl], btf.lights[pair % nl])[c];
+        btf.data[i] > FACTOR * p.max(0.0) + floor
+    });
+    sc.confirmed = yes.len();
+    sc.values.extend(yes);
+    sc.restored = no.len();
+    sc.restored
+}
+
+impl Screen {
+    /// The report of a robust fit: how many values were replaced, the texels and pairs with the
+    /// most (so a bad image or a bad patch of the sensor can be found), and the bad images.
+    pub fn report(&self, btf: &BtfRef<'_>, replaced: bool, excluded: bool) -> Value {
+        let (w, nv, nl) = (btf.width, btf.views.len(), btf.lights.len());
+        let abrdf = nv * nl * 3;
+        let mut by_texel = std::collections::BTreeMap::<usize, u64>::new();
+        let mut by_pair = std::collections::BTreeMap::<usize, u64>::new();
+        for &(i, _) in &self.values {
+            *by_texel.entry(i / abrdf).or_default() += 1;
+            *by_pair.entry((i % abrdf) / 3).or_default() += 1;
+        }
+        let top = |m: std::collections::BTreeMap<usize, u64>| {
+            let mut v: Vec<(usize, u64)> = m.into_iter().collect();
+            v.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+            v.truncate(10);
+            v
+        };
+        let present = btf.mask.map_or(nv * nl, |m| m.iter().filter(|&&x| x).count()) * btf.height * w * 3;
+        json!({
+            "values_flagged": self.values.len(),
+            "fraction_flagged": self.values.len() as f64 / present.max(1) as f64,
+            "values_replaced": if replaced { self.values.len() } else { 0 },
+            "confirmed_by_fit": self.confirmed,
+            "restored_by_fit": self.restored,
+            "top_texels": top(by_texel).iter().map(|&(t, n)| json!({"row": t / w, "col": t % w, "values": n})).collect::<Vec<_>>(),
+            "top_pairs": top(by_pair).iter().map(|&(p, n)| json!({"view": p / nl, "light": p % nl, "values": n})).collect::<Vec<_>>(),
+            "bad_images": self.bad_images.iter().map(|&(v, l)| json!({"view": v, "light": l, "spread": self.spread[v * nl + l]})).collect::<Vec<_>>(),
+            "bad_images_excluded": excluded && !self.bad_images.is_empty(),
+        })
+    }
+}
+
+/// Fit model `kind` with its options (a JSON object) robustly: screen, repair the flagged
+/// values in a copy, optionally mask the bad images, fit. Returns the model and the robust
+/// report (`Null` with `robust = false`).
+pub fn fit(
+    entry: &crate::registry::Entry,
+    btf: &BtfRef<'_>,
+    options: &str,
+    robust: RobustOptions,
+    monitor: &Monitor,
+) -> Result<(Box<dyn crate::model::DynModel>, Value)> {
+    if !robust.robust && !robust.exclude_bad_images {
+        return Ok(((entry.fit)(btf, options, monitor)?, Value::Null));
+    }
+    let mut sc = screen(btf, monitor)?;
+    let mut mask_owned: Option<Vec<bool>> = None;
+    if robust.exclude_bad_images && !sc.bad_images.is_empty() {
+        let nl = btf.lights.len();
+        let mut m = btf.mask.map_or_else(|| vec![true; btf.views.len() * nl], <[bool]>::to_vec);
+        for &(v, l) in &sc.bad_images {
+            m[v * nl + l] = false;
+        }
+        if !m.iter().any(|&x| x) {
+            return Err(Error::arg("exclude_bad_images", "every image was found bad; nothing is left to fit"));
+        }
+        mask_owned = Some(m);
+    }
+    let repaired = |sc: &Screen| -> Result<Option<Vec<f32>>> {
+        if !robust.robust || (sc.values.is_empty() && sc.candidates.is_empty()) {
+            return Ok(None);
+        }
+        let need = std::mem::size_of_val(btf.data) as u64;
+        if let Some(limit) = monitor.memory_limit() {
+            if need > limit {
+                return Err(Error::arg(
+                    "memory_limit",
+                    format!(
+                        "the robust fit found {} outlying values and repairs them in a copy of the data ({:.1} MB), \
+                         more than memory_limit = {:.1} MB; raise the limit or pass robust=False",
+                        sc.values.len() + sc.candidates.len(),
+                        need as f64 / 1e6,
+                        limit as f64 / 1e6
+                    ),
+                ));
+            }
+        }
+        let mut d = btf.data.to_vec();
+        for &(i, x) in sc.values.iter().chain(&sc.candidates) {
+            d[i] = x;
+        }
+        Ok(Some(d))
+    };
+    let mask = mask_owned.as_deref().or(btf.mask);
+    let fit_on = |data: Option<&[f32]>| -> Result<Box<dyn crate::model::DynModel>> {
+        let b = BtfRef::new(btf.height, btf.width, btf.views, btf.lights, data.unwrap_or(btf.data), mask)?;
+        (entry.fit)(&b, options, monitor)
+    };
+    let mut data = repaired(&sc)?;
+    let mut model = fit_on(data.as_deref())?;
+    if robust.robust && !sc.candidates.is_empty() && confirm(&mut sc, btf, model.as_ref()) > 0 {
+        // The first fit explained some candidates: fit again with them as measured.
+        drop(data);
+        data = repaired(&sc)?;
+        model = fit_on(data.as_deref())?;
+    }
+    let replace = data.is_some();
+    let mut report = sc.report(btf, replace, robust.exclude_bad_images);
+    report["robust"] = json!(robust.robust);
+    Ok((model, report))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lambert(h: usize, w: usize, nv: usize, nl: usize) -> (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<f32>) {
+        let dirs = |n: usize, s: f64| -> Vec<[f64; 3]> {
+            (0..n)
+                .map(|i| {
+                    let th = 0.2 + 1.0 * ((i as f64 * 0.618 + s) % 1.0);
+                    let ph = i as f64 * 2.399;
+                    [th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()]
+                })
+                .collect()
+        };
+        let (views, lights) = (dirs(nv, 0.1), dirs(nl, 0.3));
+        let mut data = Vec::with_capacity(h * w * nv * nl * 3);
+        for t in 0..h * w {
+            let albedo = 0.3 + 0.5 * ((t * 37 % 11) as f32 / 11.0);
+            for _ in 0..nv {
+                for l in &lights {
+                    let x = albedo * l[2] as f32;
+                    data.extend([x, 0.8 * x, 0.6 * x]);
+                }
+            }
+        }
+        (views, lights, data)
+    }
+
+    #[test]
+    fn hot_values_are_found_and_clean_values_kept() {
+        let (h, w, nv, nl) = (8, 9, 2, 40);
+        let (views, lights, mut data) = lambert(h, w, nv, nl);
+        let clean = data.clone();
+        let b = BtfRef::new(h, w, &views, &lights, &data, None).unwrap();
+        let sc = screen(&b, &Monitor::new()).unwrap();
+        assert!(sc.values.is_empty() && sc.bad_images.is_empty(), "{:?}", sc.bad_images);
+        let hot = [5usize, 1000, 4321, data.len() - 1];
+        for &i in &hot {
+            data[i] *= 1000.0;
+        }
+        let b = BtfRef::new(h, w, &views, &lights, &data, None).unwrap();
+        let sc = screen(&b, &Monitor::new()).unwrap();
+        let mut got: Vec<usize> = sc.values.iter().map(|v| v.0).collect();
+        got.sort();
+        assert_eq!(got, hot);
+        // The replacement is the light neighbours' median: near the clean value on a smooth BRDF.
+        for &(i, x) in &sc.values {
+            assert!((x - clean[i]).abs() <= 0.25 * clean[i] + 1e-6, "{i}: {x} vs {}", clean[i]);
+        }
+    }
+
+    #[test]
+    fn a_misfired_flash_is_a_bad_image() {
+        let (h, w, nv, nl) = (6, 6, 1, 30);
+        let (views, lights, mut data) = lambert(h, w, nv, nl);
+        let abrdf = nv * nl * 3;
+        for t in 0..h * w {
+            for c in 0..3 {
+                data[t * abrdf + 7 * 3 + c] *= 0.2;
+            }
+        }
+        let b = BtfRef::new(h, w, &views, &lights, &data, None).unwrap();
+        let sc = screen(&b, &Monitor::new()).unwrap();
+        assert_eq!(sc.bad_images, vec![(0, 7)]);
+        assert!(sc.values.is_empty());
+    }
+}
