@@ -153,7 +153,7 @@ def test_fit_functions_have_the_schemas_signatures():
     for kind, info in KINDS.items():
         f = getattr(btfrs.fit, kind)
         sig = inspect.signature(f)
-        names = [n for n in sig.parameters if n not in ("btf", "memory_limit", "progress")]
+        names = [n for n in sig.parameters if n not in ("btf", "memory_limit", "progress", "robust", "exclude_bad_images")]
         assert names == [o["name"] + ("_" if keyword.iskeyword(o["name"]) else "") for o in info["options"]], kind
         for o in info["options"]:
             p = sig.parameters[o["name"] + ("_" if keyword.iskeyword(o["name"]) else "")]

@@ -205,7 +205,7 @@ def test_plain_least_squares_is_wrecked_by_the_same_outliers(btf):
     for kind, opts in (("ptm", {}), ("lpca", {"clusters": 8, "components": 4})):
         clean = btfrs.fit.fit(kind, clean_train, robust=False, **opts).error(test).relative
         plain = btfrs.fit.fit(kind, hot_train, robust=False, **opts).error(test).relative
-        robust = btfrs.fit.fit(kind, hot_train, **opts).error(test).relative
+        robust = btfrs.fit.fit(kind, hot_train, robust=True, **opts).error(test).relative
         assert plain > 3 * clean and robust < 1.02 * clean, (kind, clean, plain, robust)
 
 
@@ -214,7 +214,7 @@ def test_on_clean_data_robust_and_plain_fits_agree(report, btf):
     train, test = btf.split(holdout=0.1, seed=0)
     for label, kind, opts in S.default_models():
         plain = btfrs.fit.fit(kind, train, robust=False, **opts).error(test).relative
-        robust = btfrs.fit.fit(kind, train, **opts).error(test).relative
+        robust = btfrs.fit.fit(kind, train, robust=True, **opts).error(test).relative
         assert abs(robust - plain) <= 0.01 * plain, (label, plain, robust)
 
 
@@ -229,14 +229,14 @@ def test_the_report_finds_the_hot_values_and_the_bad_images():
     d[:, :, 10, 20] *= 0.2
     d[:, :, 40, 5] *= 3.0
     b = btfrs.Btf(d, knit.views, knit.lights)
-    m = btfrs.fit.ptm(b)
+    m = btfrs.fit.ptm(b, robust=True)
     r = m.report["robust"]
     assert r["values_replaced"] == r["values_flagged"] >= 3
     assert r["top_texels"][0] == {"row": 3, "col": 4, "values": 2}
     assert {(p["view"], p["light"]) for p in r["bad_images"]} == {(10, 20), (40, 5)}
     assert not r["bad_images_excluded"]
     plain = btfrs.fit.ptm(knit)
-    ex = btfrs.fit.ptm(b, exclude_bad_images=True)
+    ex = btfrs.fit.ptm(b, robust=True, exclude_bad_images=True)
     assert ex.report["robust"]["bad_images_excluded"]
     # Excluding the two images brings the fit back to the clean one's at those pairs.
     for v, l in ((10, 20), (40, 5)):
@@ -244,7 +244,7 @@ def test_the_report_finds_the_hot_values_and_the_bad_images():
         got = ex.evaluate(knit.views[v], knit.lights[l])
         kept = m.evaluate(knit.views[v], knit.lights[l])
         assert np.abs(got - want).mean() < 0.5 * np.abs(kept - want).mean()
-    assert "robust" not in btfrs.fit.ptm(b, robust=False, exclude_bad_images=False).report
+    assert "robust" not in btfrs.fit.ptm(b).report
     with pytest.raises(btfrs.InvalidArgumentError, match="robust: expected True or False"):
         btfrs.fit.ptm(b, robust="yes")
 

@@ -57,7 +57,7 @@ def options_json(kind: str, options: Mapping[str, Any], memory_limit: MemoryLimi
 
 
 def fit_kind(kind: str, btf: Btf, options: Mapping[str, Any], memory_limit: MemoryLimit = None,
-             progress: Progress = None, robust: bool = True, exclude_bad_images: bool = False) -> Model:
+             progress: Progress = None, robust: bool = False, exclude_bad_images: bool = False) -> Model:
     """Fit the registered model ``kind`` to the present pairs of ``btf`` (``robust`` and
     ``exclude_bad_images``: see :func:`btfrs.fit.fit`)."""
     b = instance("btf", btf, Btf, "a btfrs.Btf")
@@ -81,11 +81,11 @@ def fit_kind(kind: str, btf: Btf, options: Mapping[str, Any], memory_limit: Memo
 
 
 def fit(model: str, btf: Btf, /, *, progress: Progress = None, memory_limit: MemoryLimit = None,
-        robust: bool = True, exclude_bad_images: bool = False, **options: Any) -> Model:
+        robust: bool = False, exclude_bad_images: bool = False, **options: Any) -> Model:
     """Fit the registered model ``model`` (a name of :func:`btfrs.model_kinds`) to the present
     pairs of ``btf`` with its own ``options`` (those of ``btfrs.fit.<model>``).
 
-    ``robust`` (default) screens the values for outliers first: hot pixels, dust, glints, each
+    ``robust=True`` screens the values for outliers first: hot pixels, dust, glints, each
     far above both its light neighbours' and its spatial neighbours' median, are replaced by the
     light neighbours' median before the model's own fit runs; ``model.report["robust"]`` says how
     many and where, and lists the whole images far from their neighbours (a misfired flash),

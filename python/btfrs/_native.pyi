@@ -95,7 +95,7 @@ def fit_model(
     mask: Optional[_Bool] = None,
     options_json: str = "{}",
     progress: _Progress = None,
-    robust: bool = True,
+    robust: bool = False,
     exclude_bad_images: bool = False,
 ) -> Model: ...
 def load_model(path: _Path) -> tuple[Model, str]: ...

@@ -350,7 +350,7 @@ def _one(label: str, kind: str, options: Dict[str, Any], train: Btf, test: Btf,
     row: Dict[str, Any] = dict(model=label, kind=kind, options=options)
     t0 = time.perf_counter()
     try:
-        m = _fit.fit(kind, train, **options)
+        m = _fit.fit(kind, train, robust=True, **options)
     except BtfrsError as e:
         row.update(fit_seconds=time.perf_counter() - t0, error=f"{type(e).__name__}: {e}", held_out=None,
                    reconstruction=None, finite=True, report=None, fallbacks=[], flagged=False)

@@ -90,7 +90,7 @@ fn fit_erased<M: Model + std::fmt::Debug>(btf: &BtfRef<'_>, options: &str, mon: 
 /// The option every fit takes besides its own: `memory_limit`, the anonymous memory in bytes
 /// the fit may allocate besides the model it returns (out-of-core fitting of memory-mapped
 /// BTFs); taken out of the JSON object before the model's options are checked.
-fn take_memory_limit(options: &str) -> Result<(serde_json::Map<String, Value>, Option<u64>)> {
+pub(crate) fn take_memory_limit(options: &str) -> Result<(serde_json::Map<String, Value>, Option<u64>)> {
     let v: Value = serde_json::from_str(options).map_err(|e| Error::arg("options", format!("not valid JSON: {e}")))?;
     let Value::Object(mut map) = v else {
         return Err(Error::arg("options", "expected a JSON object of option names"));

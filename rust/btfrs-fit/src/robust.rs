@@ -58,7 +58,7 @@ const SAMPLE_TEXELS: usize = 4096;
 pub const OPTIONS: &[Spec] = &[
     Spec::bool(
         "robust",
-        true,
+        false,
         "screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those \
          far above both their light and their spatial neighbours; false: fit every value as it is",
     ),
@@ -381,47 +381,43 @@ pub fn fit(
         }
         mask_owned = Some(m);
     }
-    let repaired = |sc: &Screen| -> Result<Option<Vec<f32>>> {
-        if !robust.robust || (sc.values.is_empty() && sc.candidates.is_empty()) {
-            return Ok(None);
-        }
-        let need = std::mem::size_of_val(btf.data) as u64;
-        if let Some(limit) = monitor.memory_limit() {
-            if need > limit {
-                return Err(Error::arg(
-                    "memory_limit",
-                    format!(
-                        "the robust fit found {} outlying values and repairs them in a copy of the data ({:.1} MB), \
-                         more than memory_limit = {:.1} MB; raise the limit or pass robust=False",
-                        sc.values.len() + sc.candidates.len(),
-                        need as f64 / 1e6,
-                        limit as f64 / 1e6
-                    ),
-                ));
-            }
+    // Out of core: a repaired copy that does not fit the memory limit is not made; the values
+    // found are reported (`repaired: false`, with the reason) and the fit sees them as measured.
+    let too_big =
+        robust.robust && monitor.memory_limit().is_some_and(|limit| std::mem::size_of_val(btf.data) as u64 > limit);
+    let repaired = |sc: &Screen| -> Option<Vec<f32>> {
+        if !robust.robust || too_big || (sc.values.is_empty() && sc.candidates.is_empty()) {
+            return None;
         }
         let mut d = btf.data.to_vec();
         for &(i, x) in sc.values.iter().chain(&sc.candidates) {
             d[i] = x;
         }
-        Ok(Some(d))
+        Some(d)
     };
     let mask = mask_owned.as_deref().or(btf.mask);
     let fit_on = |data: Option<&[f32]>| -> Result<Box<dyn crate::model::DynModel>> {
         let b = BtfRef::new(btf.height, btf.width, btf.views, btf.lights, data.unwrap_or(btf.data), mask)?;
         (entry.fit)(&b, options, monitor)
     };
-    let mut data = repaired(&sc)?;
+    let mut data = repaired(&sc);
     let mut model = fit_on(data.as_deref())?;
-    if robust.robust && !sc.candidates.is_empty() && confirm(&mut sc, btf, model.as_ref()) > 0 {
+    if data.is_some() && !sc.candidates.is_empty() && confirm(&mut sc, btf, model.as_ref()) > 0 {
         // The first fit explained some candidates: fit again with them as measured.
         drop(data);
-        data = repaired(&sc)?;
+        data = repaired(&sc);
         model = fit_on(data.as_deref())?;
     }
     let replace = data.is_some();
     let mut report = sc.report(btf, replace, robust.exclude_bad_images);
     report["robust"] = json!(robust.robust);
+    if too_big && !sc.values.is_empty() {
+        report["not_repaired"] = json!(format!(
+            "a repaired copy of the values ({:.1} MB) would exceed memory_limit; pass robust=False to skip the screen \
+             or raise the limit",
+            std::mem::size_of_val(btf.data) as f64 / 1e6
+        ));
+    }
     Ok((model, report))
 }
 

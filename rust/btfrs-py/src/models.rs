@@ -223,7 +223,7 @@ pub fn texel_arrays(kind: &str) -> PyResult<Vec<&'static str>> {
 /// Fit model `kind` to a BTF's present pairs with options given as a JSON object; the GIL is
 /// released, progress reported, Ctrl-C honoured.
 #[pyfunction]
-#[pyo3(signature = (kind, data, views, lights, mask=None, options_json="{}", progress=None, robust=true, exclude_bad_images=false))]
+#[pyo3(signature = (kind, data, views, lights, mask=None, options_json="{}", progress=None, robust=false, exclude_bad_images=false))]
 #[allow(clippy::too_many_arguments)]
 pub fn fit_model<'py>(
     py: Python<'py>,
