@@ -85,9 +85,10 @@ def fit(model: str, btf: Btf, /, *, progress: Progress = None, memory_limit: Mem
     """Fit the registered model ``model`` (a name of :func:`btfrs.model_kinds`) to the present
     pairs of ``btf`` with its own ``options`` (those of ``btfrs.fit.<model>``).
 
-    ``robust=True`` screens the values for outliers first: hot pixels, dust, glints, each
-    far above both its light neighbours' and its spatial neighbours' median, are replaced by the
-    light neighbours' median before the model's own fit runs; ``model.report["robust"]`` says how
+    ``robust=True`` screens the values for outliers first: hot pixels, dust, glints, each far
+    above both its light neighbours' and its spatial neighbours' median, are replaced by the
+    light neighbours' median before the model's own fit runs (default: every value as
+    measured); ``model.report["robust"]`` says how
     many and where, and lists the whole images far from their neighbours (a misfired flash),
     which ``exclude_bad_images=True`` leaves out of the fit."""
     return fit_kind(model, btf, options, memory_limit, progress, robust, exclude_bad_images)

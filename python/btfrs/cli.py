@@ -89,6 +89,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     st.add_argument("--models", nargs="+", default=None, help="model kinds (default: one cheap setting of each)")
     st.add_argument("--regimes", nargs="+", default=None, help="regimes (default: all)")
     st.add_argument("--out", default="stability", help="output folder (default: stability)")
+    st.add_argument("--no-robust", action="store_true",
+                    help="fit every value as measured (default: robust fits, robust=True)")
     t = sub.add_parser("tiles", help="a graph-cut Wang tile set (paper 002): tiles, their picture, a rendered tiling")
     _sample_args(t, material="bumps", size=128, seed=3, texture=True)
     t.add_argument("--model", default="sh", choices=[*_kinds(), "raw"], metavar="MODEL",
@@ -342,6 +344,7 @@ def stability_command(args: argparse.Namespace) -> None:
     if not args.path:
         name = f"{name} {args.size}x{args.size}, seed {args.material_seed}"
     rep = stability.run(btf, models=args.models or "all", regimes=args.regimes or "all", seed=args.seed,
+                        robust=not args.no_robust,
                         progress=progress, name=name)
     paths = rep.save(args.out)
     print(rep.table())
@@ -377,6 +380,11 @@ def _data_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -
     f.add_argument("--holdout", type=float, default=0.0,
                    help="share of (view, light) pairs held out to report the prediction error (default: 0)")
     f.add_argument("--seed", type=int, default=0, help="seed of the held-out split (default: 0)")
+    f.add_argument("--robust", action="store_true",
+                   help="find and repair outliers (hot pixels, dust, glints) before fitting, and report bad "
+                        "images (default: every value as measured)")
+    f.add_argument("--exclude-bad-images", action="store_true",
+                   help="leave out of the fit the whole images found far from their neighbours (a misfired flash)")
     f.add_argument("-o", "--out", required=True, help="the model file (.btfrs)")
     x = sub.add_parser("export", help="write a model or BTF for other tools: .ptm, .rti, EXR maps, image stack")
     _sample_args(x)
@@ -528,9 +536,19 @@ def fit_command(args: argparse.Namespace) -> None:
     btf, _ = _load_btf(args, not args.quiet)
     train, test = (btf, None) if args.holdout <= 0 else btf.split(holdout=args.holdout, seed=args.seed)
     t0 = time.perf_counter()
-    model = fit_mod.fit(args.model, train, progress=not args.quiet, **opts)
+    model = fit_mod.fit(args.model, train, progress=not args.quiet, robust=args.robust,
+                        exclude_bad_images=args.exclude_bad_images, **opts)
     secs = time.perf_counter() - t0
     model.save(args.out)
+    rob = model.report.get("robust")
+    if rob:
+        where = ", ".join(f"view {p['view']} light {p['light']}" for p in rob["bad_images"][:5])
+        print(f"robust: {rob['values_flagged']} outlying values ({rob['fraction_flagged']:.4%}) "
+              f"{'replaced' if rob['values_replaced'] else 'found'}"
+              + (f"; {len(rob['bad_images'])} bad images ({where})"
+                 + (" excluded" if rob["bad_images_excluded"] else ", kept: --exclude-bad-images leaves them out")
+                 if rob["bad_images"] else "")
+              + (f"; {rob['not_repaired']}" if "not_repaired" in rob else ""))
     rec = model.error(train)
     print(f"{args.model} fitted to {btf} in {secs:.2f} s: {model.nbytes / 1024:.1f} KiB as stored "
           f"(1:{btf.nbytes / max(model.nbytes, 1):.0f}), reconstruction error {rec.relative:.2%}"

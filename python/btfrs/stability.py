@@ -346,11 +346,11 @@ def fallbacks(kind: str, report: Any) -> List[str]:
 
 
 def _one(label: str, kind: str, options: Dict[str, Any], train: Btf, test: Btf,
-         probes: List[_Probe]) -> Dict[str, Any]:
+         probes: List[_Probe], robust: bool = True) -> Dict[str, Any]:
     row: Dict[str, Any] = dict(model=label, kind=kind, options=options)
     t0 = time.perf_counter()
     try:
-        m = _fit.fit(kind, train, robust=True, **options)
+        m = _fit.fit(kind, train, robust=robust, **options)
     except BtfrsError as e:
         row.update(fit_seconds=time.perf_counter() - t0, error=f"{type(e).__name__}: {e}", held_out=None,
                    reconstruction=None, finite=True, report=None, fallbacks=[], flagged=False)
@@ -383,7 +383,7 @@ def _jsonable(x: Any) -> Any:
 
 def run(btf: Btf, *, models: Union[str, Sequence[Any]] = "all", regimes: Union[str, Sequence[str]] = "all",
         seed: int = 0, progress: Progress = None, name: Optional[str] = None,
-        keep_models: bool = False) -> "StabilityReport":
+        keep_models: bool = False, robust: bool = True) -> "StabilityReport":
     """Fit every model in every regime at every level and collect the rows.
 
     Parameters
@@ -396,6 +396,8 @@ def run(btf: Btf, *, models: Union[str, Sequence[Any]] = "all", regimes: Union[s
     progress: None, True for a progress bar over the fits, or a callable ``(done, total)``.
     name: what the charts and the report call the material (default: the BTF's shape).
     keep_models: keep each fitted model in its row under ``"model_object"`` (for tests).
+    robust: fit robustly (``robust=True`` of every fit; the suite's default); ``False`` shows
+        what plain least squares does in the same regimes.
     """
     b = instance("btf", btf, Btf, "a btfrs.Btf")
     mods = _models(models)
@@ -417,7 +419,7 @@ def run(btf: Btf, *, models: Union[str, Sequence[Any]] = "all", regimes: Union[s
             for label_m, kind, options in mods:
                 key = (label_m, key_data)
                 if key not in cache:
-                    cache[key] = _one(label_m, kind, options, train, test, probes)
+                    cache[key] = _one(label_m, kind, options, train, test, probes, robust)
                 row = dict(cache[key])
                 m = row.pop("_model", None)
                 if keep_models and m is not None:

@@ -29,7 +29,7 @@ from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import __version__, evaluation, fit, graphcut, io, materials, rendering, synth
+from .. import __version__, evaluation, fit, graphcut, io, materials, rendering, stability, synth
 from .. import dask as bd
 from .. import directions as dirs
 from .. import tiles as wang
@@ -643,6 +643,40 @@ def synth_table(res: Dict[str, Any]) -> str:
 MAXFLOW_SIZES = (256, 512)
 
 
+def robust_bench(size: int = 64, repeat: int = 2, material: str = "knit") -> List[Any]:
+    """Every model's default stability setting fitted plain (``robust=False``) and robust on the
+    same clean material, best of ``repeat`` each, interleaved; and the held-out error of both on
+    clean data and with 0.1% of the training values times 1000."""
+
+    btf = materials.make(material, size=size, seed=0)
+    train, test = btf.split(holdout=0.1, seed=0)
+    rng = np.random.default_rng(0)
+    hot = Btf(np.where(rng.random(train.data.shape) < 0.001, train.data * 1000.0, train.data).astype(np.float32),
+              train.views, train.lights, train.mask, check=False)
+    rows: List[Any] = []
+    for label, kind, opts in stability.default_models():
+        times: Dict[bool, float] = {False: float("inf"), True: float("inf")}
+        for _ in range(repeat):
+            for rb in (False, True):
+                t0 = time.perf_counter()
+                fit.fit(kind, btf, robust=rb, **opts)
+                times[rb] = min(times[rb], time.perf_counter() - t0)
+        err = {f"{'robust' if rb else 'plain'}_{name}": fit.fit(kind, d, robust=rb, **opts).error(test).relative
+               for rb in (False, True) for name, d in (("clean", train), ("hot", hot))}
+        rows.append(dict(model=label, plain_s=times[False], robust_s=times[True],
+                         ratio=times[True] / times[False], **err))
+    return rows
+
+
+def robust_table(rows: List[Dict[str, Any]]) -> str:
+    out = ["| model | plain fit | robust fit | ratio | clean: plain / robust error | 0.1% hot: plain / robust error |",
+           "|---|---:|---:|---:|---|---|"]
+    for r in rows:
+        out.append(f"| {r['model']} | {r['plain_s']:.3f} s | {r['robust_s']:.3f} s | {r['ratio']:.2f}x | "
+                   f"{r['plain_clean']:.4f} / {r['robust_clean']:.4f} | {r['plain_hot']:.3f} / {r['robust_hot']:.4f} |")
+    return "\n".join(out)
+
+
 def maxflow_problems(n: int, seed: int = 1) -> Dict[str, Any]:
     """Integer-capacity ``n x n`` grids as ``(right, down, terminal_caps)``, the same shapes the
     criterion bench of btfrs-graphcut uses: ``kwatra``, a seam problem (cutting between p and q
@@ -1085,6 +1119,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     p.add_argument("--skip-models", action="store_true", help="only the foundation and renderer figures")
     p.add_argument("--sh-big", action="store_true", help="also time double SH 25x25 on a 128^2 x 81 x 81 sample")
     p.add_argument("--synth-only", action="store_true", help="only the synthesis figures")
+    p.add_argument("--robust-only", action="store_true",
+                   help="only robust against plain fits of every model: time on clean data, error with 0.1%% hot values")
     p.add_argument("--maxflow-only", action="store_true",
                    help="only btfrs.graphcut against scipy's maximum_flow on integer grids")
     p.add_argument("--maxflow-size", type=int, action="append",
@@ -1152,6 +1188,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         _write_json(a.json, {"machine": machine(), "ground_truth": res})
         print(f"\nwrote {a.json}", file=sys.stderr)
         return 0
+    if a.robust_only:
+        size, rep = (a.size or [64])[0], max(1, a.repeat)
+        res = robust_bench(size=size, repeat=rep)
+        print(f"robust against plain fits (knit {size}^2 x 81 x 81, best of {rep}, interleaved; errors held out):")
+        print(robust_table(res))
+        return _finish(a, {"machine": machine(), "robust": res})
     if a.frames_only:
         res = frames_bench(size=(a.size or [32])[0], repeat=max(1, a.repeat))
         print(f"frame times on {rendering_info()} (knit {(a.size or [32])[0]}^2, uv_scale 4, best of {max(1, a.repeat)}):")
