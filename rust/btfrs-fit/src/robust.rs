@@ -109,6 +109,22 @@ pub struct Screen {
     pub floor: f32,
 }
 
+/// The `k` directions of `among` (indices into `dirs`) nearest to `dirs[of]`, itself left out;
+/// ties broken by index, so the choice is deterministic.
+fn nearest(dirs: &[[f64; 3]], of: usize, among: &[usize], k: usize) -> Vec<usize> {
+    let a = dirs[of];
+    let mut by: Vec<(f64, usize)> = among
+        .iter()
+        .filter(|&&o| o != of)
+        .map(|&o| {
+            let b = dirs[o];
+            (-(a[0] * b[0] + a[1] * b[1] + a[2] * b[2]), o)
+        })
+        .collect();
+    by.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+    by.into_iter().take(k).map(|(_, o)| o).collect()
+}
+
 fn median(v: &mut [f32]) -> f32 {
     let n = v.len();
     if n == 0 {
@@ -135,21 +151,7 @@ pub fn screen(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<Screen> {
     type Table = std::sync::Arc<Vec<(usize, Vec<usize>)>>;
     let table = |ls: &[usize]| -> Vec<(usize, Vec<usize>)> {
         let k = NEIGHBOURS.min(ls.len().saturating_sub(1));
-        ls.par_iter()
-            .map(|&l| {
-                let a = btf.lights[l];
-                let mut by: Vec<(f64, usize)> = ls
-                    .iter()
-                    .filter(|&&o| o != l)
-                    .map(|&o| {
-                        let b = btf.lights[o];
-                        (-(a[0] * b[0] + a[1] * b[1] + a[2] * b[2]), o)
-                    })
-                    .collect();
-                by.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
-                (l, by.into_iter().take(k).map(|(_, o)| o).collect())
-            })
-            .collect()
+        ls.par_iter().map(|&l| (l, nearest(btf.lights, l, ls, k))).collect()
     };
     let mut seen: std::collections::HashMap<Vec<usize>, Table> = std::collections::HashMap::new();
     let mut nbrs: Vec<Table> = Vec::with_capacity(nv);
@@ -279,20 +281,8 @@ pub fn screen(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<Screen> {
     // near the horizon is far from its light neighbours (all on one side of it) but not from
     // the same light seen from the views beside it.
     let lum = |t: usize, v: usize, l: usize| (at(t, v, l, 0) + at(t, v, l, 1) + at(t, v, l, 2)) / 3.0;
-    let view_nbrs: Vec<Vec<usize>> = (0..nv)
-        .map(|v| {
-            let a = btf.views[v];
-            let mut by: Vec<(f64, usize)> = (0..nv)
-                .filter(|&o| o != v)
-                .map(|o| {
-                    let b = btf.views[o];
-                    (-(a[0] * b[0] + a[1] * b[1] + a[2] * b[2]), o)
-                })
-                .collect();
-            by.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
-            by.into_iter().take(VIEW_NEIGHBOURS).map(|(_, o)| o).collect()
-        })
-        .collect();
+    let all_views: Vec<usize> = (0..nv).collect();
+    let view_nbrs: Vec<Vec<usize>> = (0..nv).map(|v| nearest(btf.views, v, &all_views, VIEW_NEIGHBOURS)).collect();
     let spread_of = |t_list: &[usize], v: usize, l: usize, nb: &mut dyn Iterator<Item = (usize, usize)>| -> f32 {
         let nb: Vec<(usize, usize)> = nb.collect();
         if nb.len() < 2 {
