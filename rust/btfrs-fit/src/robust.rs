@@ -32,10 +32,14 @@
 //! at neighbouring texels, and is kept: on the clean built-in materials a few values in ten
 //! thousand are flagged and no model's error moves by 1%.
 //!
-//! **Bad images.** For every (view, light) pair the median over texels of
-//! `|ln((x + a) / (m + a))|`, the log ratio of the image to its light neighbours' median, is its
-//! *spread*; an image whose spread exceeds `ln 2` and 6 median spreads of all images (scaled by
-//! 1.4826, a robust standard deviation) is reported with its pair. A misfired flash changes every
+//! **Bad images.** For every (view, light) pair the median over 64 texels (an 8 x 8 grid) of
+//! `|ln((x + a) / (m + a))|`, the log ratio of the image's luminance to its light neighbours'
+//! (`m`: their mean without the smallest and the largest, so one bad neighbour moves it little),
+//! is its *spread*; the same against the same light seen from the 4 nearest views is its view
+//! spread. An image whose spreads both exceed `ln 2` and 6 robust standard deviations (1.4826
+//! median absolute deviations) above the typical spread of all images is reported with its pair
+//! (an image near the horizon is far from its light neighbours, all on one side of it, but not
+//! from its view neighbours). A misfired flash changes every
 //! texel's ratio; a moved sample scrambles a textured image against its neighbours. With
 //! `exclude_bad_images` those pairs are left out of the fit (masked), as if not measured.
 
@@ -56,8 +60,8 @@ const VIEW_NEIGHBOURS: usize = 4;
 /// from theirs by up to a factor of 3.4 on the built-in materials: a bad image must be 4 times
 /// off.
 const ONE_VIEW_LEAST: f32 = 1.386_294_4;
-/// Texels sampled (on a fixed stride) for the images' spreads and the data's mean.
-const SAMPLE_TEXELS: usize = 128;
+/// Texels sampled (an 8 x 8 grid) for the images' spreads and the data's mean: the spreads are medians over them, and 64 keep that cost under a third of a one-pass fit.
+const SAMPLE_TEXELS: usize = 64;
 
 /// The robust options every fit takes besides its own (one source: the Python signatures, the
 /// CLI and the docs are generated from them).
@@ -130,6 +134,20 @@ fn median(v: &mut [f32]) -> f32 {
     if n == 0 {
         return f32::NAN;
     }
+    if n <= 16 {
+        // A neighbourhood: an insertion sort is several times faster than a selection here,
+        // and the screen takes a million of these medians per sampled image set.
+        for i in 1..n {
+            let x = v[i];
+            let mut j = i;
+            while j > 0 && v[j - 1].total_cmp(&x) == std::cmp::Ordering::Greater {
+                v[j] = v[j - 1];
+                j -= 1;
+            }
+            v[j] = x;
+        }
+        return if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) };
+    }
     let (lo, mid, _) = v.select_nth_unstable_by(n / 2, f32::total_cmp);
     let hi = *mid;
     if n % 2 == 1 {
@@ -143,7 +161,6 @@ fn median(v: &mut [f32]) -> f32 {
 /// Screen `btf`'s present values (module docs).
 pub fn screen(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<Screen> {
     let (h, w, nv, nl) = (btf.height, btf.width, btf.views.len(), btf.lights.len());
-    let texels = h * w;
     let abrdf = nv * nl * 3;
     let present = |v: usize, l: usize| btf.mask.is_none_or(|m| m[v * nl + l]);
     // Per view: its present lights and each one's nearest present lights (in parallel; views
@@ -167,8 +184,15 @@ pub fn screen(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<Screen> {
         };
         nbrs.push(t);
     }
-    let stride = texels.div_ceil(SAMPLE_TEXELS).max(1);
-    let sampled: Vec<usize> = (0..texels).step_by(stride).collect();
+    // The sampled texels: a grid of at most SAMPLE_TEXELS spread over the sample (every texel of
+    // a small one).
+    let (gr, gc) = {
+        let side = (SAMPLE_TEXELS as f64).sqrt() as usize;
+        (side.min(h), side.min(w))
+    };
+    let sampled: Vec<usize> = (0..gr)
+        .flat_map(|i| (0..gc).map(move |j| ((2 * i + 1) * h / (2 * gr)) * w + (2 * j + 1) * w / (2 * gc)))
+        .collect();
     // The data's mean over the sampled texels' present values: the scale of the floor.
     let (sum, count) = sampled
         .par_iter()
@@ -212,34 +236,46 @@ pub fn screen(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<Screen> {
             for c0 in 0..w {
                 let t = r * w + c0;
                 for (v, per) in nbrs.iter().enumerate() {
+                    if per.len() <= 2 {
+                        continue;
+                    }
+                    let row = &btf.data[t * abrdf + v * nl * 3..t * abrdf + (v + 1) * nl * 3];
                     // First the gate: 8 times the mean of the texel's row of lights per channel
                     // without its two largest values (so that two hot values in a row do not
                     // raise it). A value below the gate cannot wreck a fit; the few above it
                     // (highlights, mostly) are the only ones compared with their neighbours.
-                    let mut gate = [f32::INFINITY; 3];
-                    for (c, g) in gate.iter_mut().enumerate() {
-                        let (mut sum, mut top, mut second) = (0.0f64, f32::NEG_INFINITY, f32::NEG_INFINITY);
-                        for (l, _) in per.iter() {
-                            let x = at(t, v, *l, c);
-                            sum += x as f64;
-                            if x > top {
-                                second = top;
-                                top = x;
-                            } else if x > second {
-                                second = x;
-                            }
+                    // (All three channels in one pass over the row: this loop is the screen's
+                    // cost on clean data.)
+                    let (mut sum, mut top, mut second) = ([0.0f64; 3], [f32::NEG_INFINITY; 3], [f32::NEG_INFINITY; 3]);
+                    let mut add = |px: &[f32]| {
+                        for c in 0..3 {
+                            // (Branch-free: the two largest by max/min.)
+                            let x = px[c];
+                            sum[c] += x as f64;
+                            second[c] = second[c].max(top[c].min(x));
+                            top[c] = top[c].max(x);
                         }
-                        if per.len() > 2 {
-                            let trimmed = (sum - top as f64 - second as f64) / (per.len() - 2) as f64;
-                            *g = FACTOR * trimmed.max(0.0) as f32 + floor;
-                        }
+                    };
+                    if per.len() == nl {
+                        row.chunks_exact(3).for_each(&mut add);
+                    } else {
+                        per.iter().for_each(|(l, _)| add(&row[l * 3..l * 3 + 3]));
+                    }
+                    let gate: [f32; 3] = std::array::from_fn(|c| {
+                        let trimmed = (sum[c] - top[c] as f64 - second[c] as f64) / (per.len() - 2) as f64;
+                        FACTOR * trimmed.max(0.0) as f32 + floor
+                    });
+                    // Nothing in the row above its gate: the common case, one comparison per
+                    // channel.
+                    if (0..3).all(|c| top[c].partial_cmp(&gate[c]) != Some(std::cmp::Ordering::Greater)) {
+                        continue;
                     }
                     for (l, nb) in per.iter() {
                         if nb.is_empty() {
                             continue;
                         }
                         for (c, g) in gate.iter().enumerate() {
-                            let x = at(t, v, *l, c);
+                            let x = row[l * 3 + c];
                             if x.partial_cmp(g) != Some(std::cmp::Ordering::Greater) {
                                 continue;
                             }
@@ -280,34 +316,88 @@ pub fn screen(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<Screen> {
     // (same light), over the sampled texels (luminance). A bad image is far from both; an image
     // near the horizon is far from its light neighbours (all on one side of it) but not from
     // the same light seen from the views beside it.
-    let lum = |t: usize, v: usize, l: usize| (at(t, v, l, 0) + at(t, v, l, 1) + at(t, v, l, 2)) / 3.0;
+    // Texel-major: one sampled texel's luminances for every pair (its ABRDF, read once), then
+    // each pair's ratios to its neighbours from that small table.
     let all_views: Vec<usize> = (0..nv).collect();
     let view_nbrs: Vec<Vec<usize>> = (0..nv).map(|v| nearest(btf.views, v, &all_views, VIEW_NEIGHBOURS)).collect();
-    let spread_of = |t_list: &[usize], v: usize, l: usize, nb: &mut dyn Iterator<Item = (usize, usize)>| -> f32 {
-        let nb: Vec<(usize, usize)> = nb.collect();
-        if nb.len() < 2 {
-            return f32::NAN;
+    // Per present pair: its index, how many light and view neighbours it has, and their pair
+    // indices (flat: the inner loop below runs a million times; no pointer chasing in it).
+    const NB: usize = NEIGHBOURS + VIEW_NEIGHBOURS;
+    let mut flat: Vec<(u32, u8, u8, [u32; NB])> = Vec::with_capacity(nv * nl);
+    for (v, per) in nbrs.iter().enumerate() {
+        for (l, nb) in per.iter() {
+            let mut f = (0u32, 0u8, 0u8, [0u32; NB]);
+            f.0 = (v * nl + l) as u32;
+            let mut k = 0;
+            for &o in nb.iter().take(NEIGHBOURS) {
+                f.3[k] = (v * nl + o) as u32;
+                k += 1;
+            }
+            f.1 = k as u8;
+            for &o in view_nbrs[v].iter().filter(|&&o| present(o, *l)).take(VIEW_NEIGHBOURS) {
+                f.3[k] = (o * nl + l) as u32;
+                k += 1;
+            }
+            f.2 = (k - f.1 as usize) as u8;
+            flat.push(f);
         }
-        let (mut d, mut buf) = (Vec::with_capacity(t_list.len()), Vec::with_capacity(nb.len()));
-        for &t in t_list {
-            buf.clear();
-            buf.extend(nb.iter().map(|&(vv, ll)| lum(t, vv, ll)));
-            let m = median(&mut buf);
-            d.push(((lum(t, v, l) + floor) / (m + floor)).ln().abs());
-        }
-        median(&mut d)
-    };
-    let per_pair: Vec<(usize, f32, f32)> = nbrs
+    }
+    // The sampled texels' luminances, pair-major (`lum[p * ns + k]`: pair p, sampled texel k):
+    // each texel's ABRDF is read once, contiguously, then transposed in blocks, so that a pair's
+    // neighbours are a few contiguous rows of `ns` values.
+    let ns = sampled.len();
+    let npairs = nv * nl;
+    let by_texel: Vec<f32> = sampled
         .par_iter()
-        .enumerate()
-        .flat_map_iter(|(v, per)| {
-            let (sampled, spread_of, view_nbrs) = (&sampled, &spread_of, &view_nbrs);
-            per.iter().map(move |(l, nb)| {
-                let by_light = spread_of(sampled, v, *l, &mut nb.iter().map(|&o| (v, o)));
-                let by_view =
-                    spread_of(sampled, v, *l, &mut view_nbrs[v].iter().filter(|&&o| present(o, *l)).map(|&o| (o, *l)));
-                (v * nl + l, by_light, by_view)
-            })
+        .flat_map_iter(|&t| btf.data[t * abrdf..(t + 1) * abrdf].chunks_exact(3).map(|p| (p[0] + p[1] + p[2]) / 3.0))
+        .collect();
+    let mut lum = vec![0.0f32; npairs * ns];
+    lum.par_chunks_mut(64 * ns).enumerate().for_each(|(blk, out)| {
+        for (i, row) in out.chunks_exact_mut(ns).enumerate() {
+            let p = blk * 64 + i;
+            for (k, y) in row.iter_mut().enumerate() {
+                *y = by_texel[k * npairs + p];
+            }
+        }
+    });
+    drop(by_texel);
+    let per_pair: Vec<(usize, f32, f32)> = flat
+        .par_iter()
+        .map(|(p, nlt, nvw, nb)| {
+            let (p, nlt, nvw) = (*p as usize, *nlt as usize, *nvw as usize);
+            let x = &lum[p * ns..(p + 1) * ns];
+            let (mut sum, mut lo, mut hi, mut d) =
+                (vec![0.0f32; ns], vec![0.0f32; ns], vec![0.0f32; ns], vec![0.0f32; ns]);
+            let mut spread = |from: usize, n: usize| -> f32 {
+                if n < 2 {
+                    return f32::NAN;
+                }
+                // Per texel the neighbours' mean without their smallest and largest (one bad
+                // neighbour moves it little, and it runs across the texels in lockstep, where
+                // a median per texel would not), the ratio's magnitude, and its log once per
+                // pair, after the median over texels.
+                sum.fill(0.0);
+                lo.fill(f32::INFINITY);
+                hi.fill(f32::NEG_INFINITY);
+                for &o in &nb[from..from + n] {
+                    let row = &lum[o as usize * ns..(o as usize + 1) * ns];
+                    // (Comparisons rather than f32::min/max, whose NaN rules keep the loop
+                    // from vectorising; NaNs here only make this pair's spread NaN.)
+                    for (((s, l), h), &y) in sum.iter_mut().zip(lo.iter_mut()).zip(hi.iter_mut()).zip(row) {
+                        *s += y;
+                        *l = if y < *l { y } else { *l };
+                        *h = if y > *h { y } else { *h };
+                    }
+                }
+                let (drop2, keep) = if n > 2 { (1.0, (n - 2) as f32) } else { (0.0, n as f32) };
+                for ((((d, s), l), h), &y) in d.iter_mut().zip(&sum).zip(&lo).zip(&hi).zip(x) {
+                    let m = (s - drop2 * (l + h)) / keep + floor;
+                    let y = y + floor;
+                    *d = if y > m { y / m } else { m / y };
+                }
+                median(&mut d).ln()
+            };
+            (p, spread(0, nlt), spread(nlt, nvw))
         })
         .collect();
     let mut spread = vec![f32::NAN; nv * nl];
