@@ -125,6 +125,35 @@ def test_without_a_cluster_the_threaded_scheduler_fits_the_same_model(sample):
     _same_light_basis(bd.fit("rbf", arr, components=4), btfrs.fit.rbf(sample, components=4), sample)
 
 
+def test_hot_values_on_tile_edges_are_repaired_as_in_memory(sample):
+    # The robust screen's spatial neighbours cross tile edges: a tile is screened with a
+    # one-texel halo, so the blockwise fit repairs exactly the values the local fit repairs.
+    # Hot values on both sides of the tile edges at rows/columns 19|20 and 39|40, a pair of
+    # them side by side at one (view, light), and a misfired flash (a bad image, excluded).
+    d = sample.data.copy()
+    for r, c, v, l in [(19, 19, 3, 5), (20, 19, 3, 5), (20, 20, 7, 11), (39, 40, 1, 2), (0, 0, 0, 0), (47, 47, 13, 26)]:
+        d[r, c, v, l, 1] *= 1000.0
+    d[:, :, 4, 9] *= 0.15
+    # A bright patch (every light of view 6, blue) on the five texels across the corner of the
+    # tile edges beside texel (19, 19): that texel's bright value at one pair is in keeping
+    # with its spatial neighbours, so not flagged, and only a tile that sees across its edges
+    # knows.
+    for r, c in [(18, 20), (19, 20), (20, 18), (20, 19), (20, 20)]:
+        d[r, c, 6, :, 2] *= 1000.0
+    d[19, 19, 6, 8, 2] *= 1000.0
+    hot = btfrs.Btf(d, sample.views, sample.lights)
+    arr = bd.from_btf(hot, chunks=20)
+    for kw in ({}, {"exclude_bad_images": True}, {"robust": False}):
+        local, m = btfrs.fit.ptm(hot, **kw), bd.fit("ptm", arr, **kw)
+        _same_model(m, local)
+        assert m.report == local.report, kw
+    rep = btfrs.fit.ptm(hot).report["robust"]
+    assert rep["values_flagged"] == 6 and {(p["view"], p["light"]) for p in rep["bad_images"]} == {(4, 9)}
+    # The repairs matter: without them the tile fits differ from the robust ones.
+    plain, robust = bd.fit("ptm", arr, robust=False), bd.fit("ptm", arr)
+    assert not np.array_equal(plain.arrays["coeffs_q"], robust.arrays["coeffs_q"])
+
+
 @pytest.fixture(scope="module")
 def client():
     # Failed tasks are not retried, so the dying-worker test fails at once (the default retries
@@ -184,9 +213,10 @@ def test_light_bases_on_a_local_cluster_evaluate_as_the_local_fit(client, stored
     calls = []
     m = bd.fit(kind, bd.open(stored), progress=lambda d, t: calls.append((d, t)), **options)
     _same_light_basis(m, btfrs.fit.fit(kind, sample, **options), sample)
-    # Two stages on the cluster, the moments and the projection, each counting the 9 tiles.
+    # Three stages on the cluster, the robust screen, the moments and the projection, each
+    # counting the 9 tiles.
     ends = [c for c in calls if c[0] == c[1]]
-    assert ends == [(9, 9), (9, 9)] and all(0 < d <= t for d, t in calls), calls
+    assert ends == [(9, 9)] * 3 and all(0 < d <= t for d, t in calls), calls
     # With a mask (one view slot left with a single light: pooled from its neighbours).
     arr = bd.open(bd.save_zarr(masked, tmp_path / "masked.zarr", chunks=20))
     local = btfrs.fit.fit(kind, masked, **options)
@@ -296,10 +326,10 @@ def test_progress_reports_every_stage_to_its_end(client, stored, sample):
     calls = []
     m = bd.fit("lpca", bd.open(stored), clusters=4, components=2, progress=lambda d, t: calls.append((d, t)))
     _same_model(m, btfrs.fit.lpca(sample, clusters=4, components=2))
-    # One count per task in each of the three stages run on the cluster (the sample's and the
-    # projection's 9 tiles, the 4 clusters), each ending at its total.
+    # One count per task in each of the four stages run on the cluster (the robust screen's,
+    # the sample's and the projection's 9 tiles, the 4 clusters), each ending at its total.
     ends = [c for c in calls if c[0] == c[1]]
-    assert [t for _, t in ends][-1] == 4 and 9 in [t for _, t in ends] and len(ends) == 3, calls
+    assert [t for _, t in ends][-1] == 4 and 9 in [t for _, t in ends] and len(ends) == 4, calls
     assert all(0 < d <= t for d, t in calls)
 
 

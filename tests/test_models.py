@@ -58,7 +58,10 @@ def test_srf_evaluate_matches_numpy_and_round_trips(bumps, tmp_path):
     back = btfrs.load(tmp_path / "m.btfrs")
     assert isinstance(back, btfrs.Srf) and back.nbytes == m.nbytes == 4 * (16 * 16 * 9 + 7)
     np.testing.assert_array_equal(back.evaluate(v, l), m.evaluate(v, l))
-    assert back.report == pytest.approx(m.report)
+    # The fit's numbers to rounding, the robust screen's report (nested) as it was.
+    plain = {k: v for k, v in m.report.items() if k != "robust"}
+    assert {k: v for k, v in back.report.items() if k != "robust"} == pytest.approx(plain)
+    assert back.report["robust"] == m.report["robust"] and m.report["robust"]["robust"] is True
     with pytest.raises(FormatError):
         btfrs.Lpca.load(tmp_path / "m.btfrs")
 

@@ -218,9 +218,23 @@ def test_on_clean_data_robust_and_plain_fits_agree(report, btf):
         assert abs(robust - plain) <= 0.01 * plain, (label, plain, robust)
 
 
+@pytest.mark.parametrize("name", btfrs.materials.names())
+def test_no_clean_image_is_reported_bad(name):
+    # No built-in material, at the full 81 x 81 sampling or at a sparse one (grazing pairs
+    # far from every neighbour), has an image reported bad; and the values flagged on clean
+    # data are a few in ten thousand.
+    u = btfrs.directions.ubo81()
+    for b in (btfrs.materials.make(name, size=32, seed=1),
+              btfrs.materials.make(name, size=32, views=u[::6], lights=u[::3], seed=2)):
+        r = btfrs.fit.ptm(b).report["robust"]
+        assert r["bad_images"] == [], (name, r["bad_images"])
+        assert r["fraction_flagged"] < 5e-4, (name, r["fraction_flagged"])
+
+
 def test_the_report_finds_the_hot_values_and_the_bad_images():
     # Hot values planted at known places are the ones flagged and named; a misfired flash
-    # (x0.2) and a double flash (x3) are the images reported, and excluded on request.
+    # (x0.2), a double flash (x3) and a moved sample are the images reported, and excluded on
+    # request.
     knit = btfrs.materials.make("weave", size=16, seed=0)
     d = knit.data.copy()
     d[3, 4, 7, 11, 0] *= 1000.0
@@ -228,18 +242,21 @@ def test_the_report_finds_the_hot_values_and_the_bad_images():
     d[9, 1, 2, 30, 2] *= 1000.0
     d[:, :, 10, 20] *= 0.2
     d[:, :, 40, 5] *= 3.0
+    # A moved sample: image (25, 50) shifted 5 texels along the rows (columns + 5).
+    d[:, :, 25, 50] = np.roll(d[:, :, 25, 50], 5, axis=1)
     b = btfrs.Btf(d, knit.views, knit.lights)
     m = btfrs.fit.ptm(b, robust=True)
     r = m.report["robust"]
     assert r["values_replaced"] == r["values_flagged"] >= 3
     assert r["top_texels"][0] == {"row": 3, "col": 4, "values": 2}
-    assert {(p["view"], p["light"]) for p in r["bad_images"]} == {(10, 20), (40, 5)}
+    assert {(p["view"], p["light"]) for p in r["bad_images"]} == {(10, 20), (40, 5), (25, 50)}
+    assert [p.get("moved") for p in r["bad_images"] if "moved" in p] == [[0, 5]]
     assert not r["bad_images_excluded"]
     plain = btfrs.fit.ptm(knit)
     ex = btfrs.fit.ptm(b, robust=True, exclude_bad_images=True)
     assert ex.report["robust"]["bad_images_excluded"]
-    # Excluding the two images brings the fit back to the clean one's at those pairs.
-    for v, l in ((10, 20), (40, 5)):
+    # Excluding the three images brings the fit back to the clean one's at those pairs.
+    for v, l in ((10, 20), (40, 5), (25, 50)):
         want = plain.evaluate(knit.views[v], knit.lights[l])
         got = ex.evaluate(knit.views[v], knit.lights[l])
         kept = m.evaluate(knit.views[v], knit.lights[l])
@@ -288,3 +305,20 @@ def test_cli_writes_the_report(tmp_path, capsys):
                  "--models", "ptm", "--regimes", "decimation", "black"]) == 0
     assert (out / "report.json").exists() and (out / "decimation.png").exists()
     assert "decimation" in capsys.readouterr().out
+
+
+def test_cli_fit_reports_what_the_screen_found(tmp_path, capsys):
+    from btfrs.cli import main
+
+    weave = btfrs.materials.make("weave", size=16, seed=0)
+    d = weave.data.copy()
+    d[3, 4, 7, 11, 0] *= 1000.0
+    d[:, :, 25, 50] = np.roll(d[:, :, 25, 50], 5, axis=1)
+    src = tmp_path / "w.btfrs"
+    btfrs.Btf(d, weave.views, weave.lights).save(src)
+    assert main(["fit", str(src), "--model", "ptm", "-o", str(tmp_path / "m.btfrs"), "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "robust: 1 outlying values" in out and "replaced" in out
+    assert "1 bad images (view 25 light 50 moved 0, 5 texels), kept" in out
+    assert main(["fit", str(src), "--model", "ptm", "-o", str(tmp_path / "p.btfrs"), "--quiet", "--no-robust"]) == 0
+    assert "robust:" not in capsys.readouterr().out

@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import keyword
 import time
-from typing import Any, Mapping, Union, cast
+from typing import Any, Dict, Mapping, Union, cast
 
 import numpy as np
 
@@ -26,6 +26,9 @@ from .models import Model, model_kinds, wrap
 __all__ = ["MemoryLimit", "fit", "fit_kind", "options_json"]
 
 MemoryLimit = Union[None, int, str]
+
+# The options every fit takes besides its own, with their defaults, from their Rust schema.
+ROBUST_DEFAULTS: Dict[str, bool] = {o["name"]: bool(o["default"]) for o in json.loads(_native.fit_options())}
 
 
 def _plain(name: str, v: Any) -> Any:
@@ -57,7 +60,8 @@ def options_json(kind: str, options: Mapping[str, Any], memory_limit: MemoryLimi
 
 
 def fit_kind(kind: str, btf: Btf, options: Mapping[str, Any], memory_limit: MemoryLimit = None,
-             progress: Progress = None, robust: bool = False, exclude_bad_images: bool = False) -> Model:
+             progress: Progress = None, robust: bool = ROBUST_DEFAULTS["robust"],
+             exclude_bad_images: bool = ROBUST_DEFAULTS["exclude_bad_images"]) -> Model:
     """Fit the registered model ``kind`` to the present pairs of ``btf`` (``robust`` and
     ``exclude_bad_images``: see :func:`btfrs.fit.fit`)."""
     b = instance("btf", btf, Btf, "a btfrs.Btf")
@@ -81,16 +85,17 @@ def fit_kind(kind: str, btf: Btf, options: Mapping[str, Any], memory_limit: Memo
 
 
 def fit(model: str, btf: Btf, /, *, progress: Progress = None, memory_limit: MemoryLimit = None,
-        robust: bool = False, exclude_bad_images: bool = False, **options: Any) -> Model:
+        robust: bool = ROBUST_DEFAULTS["robust"], exclude_bad_images: bool = ROBUST_DEFAULTS["exclude_bad_images"],
+        **options: Any) -> Model:
     """Fit the registered model ``model`` (a name of :func:`btfrs.model_kinds`) to the present
     pairs of ``btf`` with its own ``options`` (those of ``btfrs.fit.<model>``).
 
-    ``robust=True`` screens the values for outliers first: hot pixels, dust, glints, each far
-    above both its light neighbours' and its spatial neighbours' median, are replaced by the
-    light neighbours' median before the model's own fit runs (default: every value as
-    measured); ``model.report["robust"]`` says how
-    many and where, and lists the whole images far from their neighbours (a misfired flash),
-    which ``exclude_bad_images=True`` leaves out of the fit."""
+    ``robust`` (the default) screens the values for outliers first: hot pixels, dust, glints,
+    each far above both its light neighbours' and its spatial neighbours' median, are replaced
+    by the light neighbours' median before the model's own fit runs (``robust=False``: every
+    value as measured); ``model.report["robust"]`` says how many and where, and lists the whole
+    images far from their neighbours (a misfired or doubled flash), which
+    ``exclude_bad_images=True`` leaves out of the fit."""
     return fit_kind(model, btf, options, memory_limit, progress, robust, exclude_bad_images)
 
 

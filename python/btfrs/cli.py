@@ -380,11 +380,12 @@ def _data_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -
     f.add_argument("--holdout", type=float, default=0.0,
                    help="share of (view, light) pairs held out to report the prediction error (default: 0)")
     f.add_argument("--seed", type=int, default=0, help="seed of the held-out split (default: 0)")
-    f.add_argument("--robust", action="store_true",
-                   help="find and repair outliers (hot pixels, dust, glints) before fitting, and report bad "
-                        "images (default: every value as measured)")
+    f.add_argument("--no-robust", action="store_true",
+                   help="fit every value as measured (default: outliers such as hot pixels, dust and glints are "
+                        "found and repaired before fitting, and bad images reported)")
     f.add_argument("--exclude-bad-images", action="store_true",
-                   help="leave out of the fit the whole images found far from their neighbours (a misfired flash)")
+                   help="leave out of the fit the whole images found far from their neighbours (a misfired or "
+                        "doubled flash, a moved sample)")
     f.add_argument("-o", "--out", required=True, help="the model file (.btfrs)")
     x = sub.add_parser("export", help="write a model or BTF for other tools: .ptm, .rti, EXR maps, image stack")
     _sample_args(x)
@@ -536,15 +537,19 @@ def fit_command(args: argparse.Namespace) -> None:
     btf, _ = _load_btf(args, not args.quiet)
     train, test = (btf, None) if args.holdout <= 0 else btf.split(holdout=args.holdout, seed=args.seed)
     t0 = time.perf_counter()
-    model = fit_mod.fit(args.model, train, progress=not args.quiet, robust=args.robust,
+    model = fit_mod.fit(args.model, train, progress=not args.quiet, robust=not args.no_robust,
                         exclude_bad_images=args.exclude_bad_images, **opts)
     secs = time.perf_counter() - t0
     model.save(args.out)
     rob = model.report.get("robust")
     if rob:
-        where = ", ".join(f"view {p['view']} light {p['light']}" for p in rob["bad_images"][:5])
-        print(f"robust: {rob['values_flagged']} outlying values ({rob['fraction_flagged']:.4%}) "
-              f"{'replaced' if rob['values_replaced'] else 'found'}"
+        where = ", ".join(f"view {p['view']} light {p['light']}"
+                          + (f" moved {p['moved'][0]}, {p['moved'][1]} texels" if "moved" in p else "")
+                          for p in rob["bad_images"][:5])
+        values = (f"{rob['values_flagged']} outlying values ({rob['fraction_flagged']:.4%}) "
+                  f"{'replaced' if rob['values_replaced'] else 'found'}" if rob["values_flagged"]
+                  else "no outlying values")
+        print(f"robust: {values}"
               + (f"; {len(rob['bad_images'])} bad images ({where})"
                  + (" excluded" if rob["bad_images_excluded"] else ", kept: --exclude-bad-images leaves them out")
                  if rob["bad_images"] else "")

@@ -63,6 +63,7 @@ from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 from . import _native
 from ._checks import choice, instance, integer
+from ._fitting import ROBUST_DEFAULTS, flag
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import (ArgumentTypeError, BtfrsError, ClusterError, FormatError, InternalError,
@@ -542,7 +543,12 @@ def fit(model: str, arr: Union[BtfArray, Btf], /, *, progress: Progress = None, 
 
     ``memory_limit`` is not taken: on a cluster each worker's own ``memory_limit`` bounds it (a
     tile, or for LPCA one cluster's member ABRDFs, is what a task holds). ``progress`` reports
-    the tasks finished per stage."""
+    the tasks finished per stage.
+
+    ``robust`` (default True) and ``exclude_bad_images`` are those of :func:`btfrs.fit.fit`: the
+    screen runs first, as a stage of its own (each tile with a one-texel halo, the images
+    judged from the same texels as in memory), and repairs exactly the values the local fit
+    repairs; ``model.report["robust"]`` is the local fit's."""
     kind = choice("model", model, tuple(model_kinds()))
     if isinstance(arr, Btf):
         arr = from_btf(arr, chunks=chunks)
@@ -555,8 +561,13 @@ def fit(model: str, arr: Union[BtfArray, Btf], /, *, progress: Progress = None, 
         raise InvalidArgumentError(f"model: the {kind} fit cannot run blockwise on a Dask cluster ({detail}); "
                                    f"fit it out of core with btfrs.fit.{kind}(btfrs.Btf.load(path, mmap=True), "
                                    f"memory_limit=...)")
+    robust = flag("robust", options.pop("robust", ROBUST_DEFAULTS["robust"]))
+    exclude = flag("exclude_bad_images", options.pop("exclude_bad_images", ROBUST_DEFAULTS["exclude_bad_images"]))
     options_json = json.dumps(options)
     t0 = time.perf_counter()
+    robust_report = None
+    if robust or exclude:
+        arr, robust_report = _screen(kind, arr, robust, exclude, progress)
     if strategy == "texels":
         m = _fit_texels(kind, arr, options, json.loads(detail), list(counts), progress)
     elif detail in _STAGES:
@@ -564,8 +575,96 @@ def fit(model: str, arr: Union[BtfArray, Btf], /, *, progress: Progress = None, 
         m = _STAGES[detail](kind, arr, options, options_json, progress)
     else:  # pragma: no cover - a model declared staged needs its protocol here
         raise InternalError(f"model: {kind} is declared staged by {detail!r}, a protocol btfrs.dask does not know")
+    if robust_report is not None:
+        m.report["robust"] = robust_report
     m.fit_seconds = time.perf_counter() - t0
     return m
+
+
+def _halo_block(data: Any, r0: int, r1: int, c0: int, c1: int) -> Tuple[Any, int, int]:
+    """The tile ``[r0:r1, c0:c1]`` with a one-texel halo (inside the sample): the dask slice and
+    the tile's offset in it."""
+    hr0, hc0 = max(r0 - 1, 0), max(c0 - 1, 0)
+    return data[hr0:min(r1 + 1, data.shape[0]), hc0:min(c1 + 1, data.shape[1])], r0 - hr0, c0 - hc0
+
+
+def _screen_block(block: NDArray[Any], views: NDArray[np.float64], lights: NDArray[np.float64],
+                  mask: Optional[NDArray[np.bool_]], floor: float, r0: int, r1: int, c0: int,
+                  c1: int) -> Tuple[NDArray[np.uint64], NDArray[np.float32], Tuple[int, ...]]:
+    idx, vals = _native.robust_screen_block(_own(block, np.float32), _own(views), _own(lights), _own(mask), floor,
+                                            r0, r1, c0, c1)
+    return idx, vals, tuple(block.shape)
+
+
+def _repair(block: NDArray[Any], flags: Dict[Tuple[int, int], Tuple[NDArray[np.intp], NDArray[np.float32]]],
+            block_id: Tuple[int, ...] = (0, 0)) -> NDArray[np.float32]:
+    idx, vals = flags.get((block_id[0], block_id[1]), (None, None))
+    if idx is None or not len(idx):
+        return block
+    out = np.array(block, dtype=np.float32, copy=True)
+    out.reshape(-1)[idx] = vals
+    return out
+
+
+def _screen(kind: str, arr: BtfArray, robust: bool, exclude: bool,
+            progress: Progress) -> Tuple[BtfArray, Dict[str, Any]]:
+    """The robust screen of the local fit (``btfrs_fit::robust``), blockwise: the images judged
+    and the floor set from the same sampled texels, then every tile's values screened with a
+    one-texel halo (the spatial neighbours across its edges), so the same values are repaired as
+    in memory. Returns the repaired array (lazily: each tile gets its few replacements as it is
+    read) and the report."""
+    dask, da = _dask()
+    h, w, nv, nl = arr.height, arr.width, len(arr.views), len(arr.lights)
+    pick = np.asarray(_native.robust_sample_texels(h, w), dtype=np.intp)
+    with _cluster_errors(f"{kind} fit's robust screen"):
+        samples = np.asarray(arr.data.vindex[pick // w, pick % w].compute(), dtype=np.float32)
+        pr, pc, ph, pw = _native.robust_patch_window(h, w)
+        patch = np.asarray(arr.data[pr:pr + ph, pc:pc + pw].compute(), dtype=np.float32)
+    moved = _native.robust_moved(_own(patch, np.float32), _own(arr.views), _own(arr.lights), _own(arr.mask))
+    del patch
+    floor, spread, bad = _native.robust_images(_own(samples[:, None], np.float32), _own(arr.views),
+                                               _own(arr.lights), _own(arr.mask))
+    flags: Dict[Tuple[int, int], Tuple[NDArray[np.intp], NDArray[np.float32]]] = {}
+    gidx: List[NDArray[np.uint64]] = []
+    gval: List[NDArray[np.float32]] = []
+    # The values are screened (and reported) either way; repaired only with robust.
+    rows, cols = arr.data.chunks[0], arr.data.chunks[1]
+    r0s, c0s = np.cumsum((0,) + rows[:-1]), np.cumsum((0,) + cols[:-1])
+    keys, tasks = [], []
+    for i, (r0, nr) in enumerate(zip(r0s, rows)):
+        for j, (c0, nc) in enumerate(zip(c0s, cols)):
+            halo, dr, dc = _halo_block(arr.data, int(r0), int(r0) + nr, int(c0), int(c0) + nc)
+            keys.append((i, j, int(r0), int(c0), nr, nc, dr, dc))
+            tasks.append(dask.delayed(_screen_block, pure=True)(halo, arr.views, arr.lights, arr.mask, floor,
+                                                                  dr, dr + nr, dc, dc + nc))
+    found = _compute(tasks, callback(progress, f"{kind} robust screen"), f"{kind} fit's robust screen")
+    abrdf = nv * nl * 3
+    for (i, j, r0, c0, nr, nc, dr, dc), (idx, vals, shape) in zip(keys, found):
+        if not len(idx):
+            continue
+        bw = shape[1]
+        t, k = idx.astype(np.intp) // abrdf, idx.astype(np.intp) % abrdf
+        tr, tc = t // bw - dr, t % bw - dc  # within the tile
+        if robust:
+            flags[(i, j)] = ((tr * nc + tc) * abrdf + k, vals)
+        gidx.append((((r0 + tr) * w + c0 + tc) * abrdf + k).astype(np.uint64))
+        gval.append(vals)
+    index = np.concatenate(gidx) if gidx else np.zeros(0, dtype=np.uint64)
+    values = np.concatenate(gval) if gval else np.zeros(0, dtype=np.float32)
+    mask = arr.mask
+    if exclude and (bad or moved):
+        mask = np.ones((nv, nl), dtype=bool) if mask is None else mask.copy()
+        for v, l in list(bad) + [(m[0], m[1]) for m in moved]:
+            mask[v, l] = False
+        if not mask.any():
+            raise InvalidArgumentError("exclude_bad_images: every image was found bad; nothing is left to fit")
+    report = json.loads(_native.robust_report(h, w, arr.views, arr.lights, arr.mask, index, values, spread, bad,
+                                              moved, floor, exclude))
+    report["robust"] = robust
+    if not robust:
+        report["values_replaced"] = 0
+    data = arr.data.map_blocks(_repair, flags, dtype=np.float32) if flags else arr.data
+    return BtfArray(data, arr.views, arr.lights, mask), report
 
 
 def _blocks(arr: BtfArray) -> List[_Block]:

@@ -35,7 +35,7 @@ def ptm(
     rcond: float = 1e-06,
     on_degenerate: Literal["reduce", "raise", "clamp"] = "reduce",
     bits: Literal[8, 32] = 8,
-    robust: bool = False,
+    robust: bool = True,
     exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
@@ -70,10 +70,10 @@ def ptm(
     robust
         Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
         above both their light and their spatial neighbours; false: fit every value as it is. Default
-        False.
+        True.
     exclude_bad_images
-        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
-        moved sample); they are reported either way. Default False.
+        Leave out of the fit the whole images found far from their light and view neighbours (a misfired
+        or doubled flash); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -100,7 +100,7 @@ def hsh(
     rcond: float = 1e-06,
     on_degenerate: Literal["reduce", "raise", "clamp"] = "reduce",
     bits: Literal[8, 32] = 8,
-    robust: bool = False,
+    robust: bool = True,
     exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
@@ -136,10 +136,10 @@ def hsh(
     robust
         Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
         above both their light and their spatial neighbours; false: fit every value as it is. Default
-        False.
+        True.
     exclude_bad_images
-        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
-        moved sample); they are reported either way. Default False.
+        Leave out of the fit the whole images found far from their light and view neighbours (a misfired
+        or doubled flash); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -166,7 +166,7 @@ def lafortune(
     diffuse: bool = True,
     max_iter: int = 60,
     densify: int = 0,
-    robust: bool = False,
+    robust: bool = True,
     exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
@@ -201,10 +201,10 @@ def lafortune(
     robust
         Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
         above both their light and their spatial neighbours; false: fit every value as it is. Default
-        False.
+        True.
     exclude_bad_images
-        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
-        moved sample); they are reported either way. Default False.
+        Leave out of the fit the whole images found far from their light and view neighbours (a misfired
+        or doubled flash); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -230,7 +230,7 @@ def lafortune_view(
     lobes: int = 2,
     diffuse: bool = True,
     max_iter: int = 60,
-    robust: bool = False,
+    robust: bool = True,
     exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
@@ -262,10 +262,10 @@ def lafortune_view(
     robust
         Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
         above both their light and their spatial neighbours; false: fit every value as it is. Default
-        False.
+        True.
     exclude_bad_images
-        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
-        moved sample); they are reported either way. Default False.
+        Leave out of the fit the whole images found far from their light and view neighbours (a misfired
+        or doubled flash); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -287,7 +287,7 @@ def lafortune_view(
 def srf(
     btf: Btf,
     *,
-    robust: bool = False,
+    robust: bool = True,
     exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
@@ -307,10 +307,10 @@ def srf(
     robust
         Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
         above both their light and their spatial neighbours; false: fit every value as it is. Default
-        False.
+        True.
     exclude_bad_images
-        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
-        moved sample); they are reported either way. Default False.
+        Leave out of the fit the whole images found far from their light and view neighbours (a misfired
+        or doubled flash); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -337,7 +337,7 @@ def sh(
     cls: bool = True,
     quantize: bool = True,
     chunk_texels: int = 1024,
-    robust: bool = False,
+    robust: bool = True,
     exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
@@ -375,10 +375,10 @@ def sh(
     robust
         Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
         above both their light and their spatial neighbours; false: fit every value as it is. Default
-        False.
+        True.
     exclude_bad_images
-        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
-        moved sample); they are reported either way. Default False.
+        Leave out of the fit the whole images found far from their light and view neighbours (a misfired
+        or doubled flash); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -406,7 +406,7 @@ def lpca(
     refine_iterations: int = 2,
     reduced_dims: int = 64,
     seed: int = 0,
-    robust: bool = False,
+    robust: bool = True,
     exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
@@ -446,10 +446,10 @@ def lpca(
     robust
         Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
         above both their light and their spatial neighbours; false: fit every value as it is. Default
-        False.
+        True.
     exclude_bad_images
-        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
-        moved sample); they are reported either way. Default False.
+        Leave out of the fit the whole images found far from their light and view neighbours (a misfired
+        or doubled flash); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -478,7 +478,7 @@ def rbf(
     width: float = 2.5,
     regularization: float = 0.1,
     seed: int = 0,
-    robust: bool = False,
+    robust: bool = True,
     exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
@@ -521,10 +521,10 @@ def rbf(
     robust
         Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
         above both their light and their spatial neighbours; false: fit every value as it is. Default
-        False.
+        True.
     exclude_bad_images
-        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
-        moved sample); they are reported either way. Default False.
+        Leave out of the fit the whole images found far from their light and view neighbours (a misfired
+        or doubled flash); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
@@ -552,7 +552,7 @@ def bilinear(
     resolution: int = 8,
     regularization: float = 0.3,
     seed: int = 0,
-    robust: bool = False,
+    robust: bool = True,
     exclude_bad_images: bool = False,
     memory_limit: MemoryLimit = None,
     progress: Progress = None,
@@ -591,10 +591,10 @@ def bilinear(
     robust
         Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
         above both their light and their spatial neighbours; false: fit every value as it is. Default
-        False.
+        True.
     exclude_bad_images
-        Leave out of the fit the whole images found far from their light neighbours (a misfired flash, a
-        moved sample); they are reported either way. Default False.
+        Leave out of the fit the whole images found far from their light and view neighbours (a misfired
+        or doubled flash); they are reported either way. Default False.
     memory_limit
         The anonymous memory the fit may allocate besides the model: bytes, or a size such as
         ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises

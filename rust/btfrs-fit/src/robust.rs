@@ -20,8 +20,11 @@
 //! Only values above a gate are compared with their neighbours: 8 times the mean of the texel's
 //! row of lights (same view and channel) without its two largest values. A value below it cannot
 //! wreck a fit, and the gate keeps the screen to one streaming pass over the data (most values
-//! are cleared by one comparison). A value above `FACTOR = 8` times the larger of the two medians
-//! (plus 5% of the data's mean, so that noise in the dark is not flagged) is inconsistent with
+//! are cleared by one comparison). The criteria are ratios, which mean something for radiance
+//! only: a row with a value below minus the floor (below) is not screened (signed data, made
+//! from a model's random coefficients or a difference of images). A value above `FACTOR = 8`
+//! times the larger of the two medians (plus 5% of the data's mean, so that noise in the dark is
+//! not flagged) is inconsistent with
 //! both its light neighbours and its spatial neighbours: it is replaced by its light neighbours'
 //! median and the model is fitted to the repaired values (trimming with imputation: every model's
 //! own fit, with its fast paths, the shared pseudo-inverse of PTM and HSH, the randomized range
@@ -32,16 +35,21 @@
 //! at neighbouring texels, and is kept: on the clean built-in materials a few values in ten
 //! thousand are flagged and no model's error moves by 1%.
 //!
-//! **Bad images.** For every (view, light) pair the median over 64 texels (an 8 x 8 grid) of
-//! `|ln((x + a) / (m + a))|`, the log ratio of the image's luminance to its light neighbours'
+//! **Bad images.** For every (view, light) pair the log of the median over 64 texels (an 8 x 8
+//! grid) of `(x + a) / (m + a)`, the ratio of the image's luminance to its light neighbours'
 //! (`m`: their mean without the smallest and the largest, so one bad neighbour moves it little),
-//! is its *spread*; the same against the same light seen from the 4 nearest views is its view
-//! spread. An image whose spreads both exceed `ln 2` and 6 robust standard deviations (1.4826
-//! median absolute deviations) above the typical spread of all images is reported with its pair
-//! (an image near the horizon is far from its light neighbours, all on one side of it, but not
-//! from its view neighbours). A misfired flash changes every
-//! texel's ratio; a moved sample scrambles a textured image against its neighbours. With
-//! `exclude_bad_images` those pairs are left out of the fit (masked), as if not measured.
+//! is its *spread* (signed: below 0, darker than its neighbours); the same against the same
+//! light seen from the 4 nearest views is its view spread. An image whose spreads both lie
+//! beyond `ln 2` on the same side and 6 robust standard deviations (1.4826 median absolute
+//! deviations) from the typical spread of all images is reported with its pair. A grazing light
+//! is far from its light neighbours (all on one side of it) but not from the same light seen
+//! from the views beside it; a grazing view's shadows scatter its ratios both ways, leaving
+//! their median near 1. A misfired or doubled flash changes every texel's ratio alike; a
+//! brighter image counts only alone, since pairs around it nearly as bright trace a sharp
+//! feature of the BRDF (a specular ridge). A moved sample leaves the ratios' median near 1 and
+//! is found by its registration instead ([`moved_images`]: a central 16 x 16 patch correlated
+//! with its neighbours', shifted by up to 6 texels). With `exclude_bad_images` those pairs are
+//! left out of the fit (masked), as if not measured.
 
 use crate::options::Spec;
 use btfrs_core::{BtfRef, Error, Monitor, Result};
@@ -60,7 +68,8 @@ const VIEW_NEIGHBOURS: usize = 4;
 /// from theirs by up to a factor of 3.4 on the built-in materials: a bad image must be 4 times
 /// off.
 const ONE_VIEW_LEAST: f32 = 1.386_294_4;
-/// Texels sampled (an 8 x 8 grid) for the images' spreads and the data's mean: the spreads are medians over them, and 64 keep that cost under a third of a one-pass fit.
+/// Texels sampled (an 8 x 8 grid) for the images' spreads and the data's mean: the spreads are
+/// medians over them, and 64 keep that cost under a third of a one-pass fit.
 const SAMPLE_TEXELS: usize = 64;
 
 /// The robust options every fit takes besides its own (one source: the Python signatures, the
@@ -68,15 +77,15 @@ const SAMPLE_TEXELS: usize = 64;
 pub const OPTIONS: &[Spec] = &[
     Spec::bool(
         "robust",
-        false,
+        true,
         "screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those \
          far above both their light and their spatial neighbours; false: fit every value as it is",
     ),
     Spec::bool(
         "exclude_bad_images",
         false,
-        "leave out of the fit the whole images found far from their light neighbours (a misfired \
-         flash, a moved sample); they are reported either way",
+        "leave out of the fit the whole images found far from their light and view neighbours (a \
+         misfired or doubled flash); they are reported either way",
     ),
 ];
 
@@ -111,6 +120,9 @@ pub struct Screen {
     pub bad_images: Vec<(usize, usize)>,
     /// The additive floor used.
     pub floor: f32,
+    /// Images moved against their neighbours, `(view, light, rows, columns)`: how far the
+    /// image's content lies from its neighbours' (these pairs are among `bad_images` too).
+    pub moved: Vec<(usize, usize, i32, i32)>,
 }
 
 /// The `k` directions of `among` (indices into `dirs`) nearest to `dirs[of]`, itself left out;
@@ -158,17 +170,16 @@ fn median(v: &mut [f32]) -> f32 {
     }
 }
 
-/// Screen `btf`'s present values (module docs).
-pub fn screen(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<Screen> {
-    let (h, w, nv, nl) = (btf.height, btf.width, btf.views.len(), btf.lights.len());
-    let abrdf = nv * nl * 3;
-    let present = |v: usize, l: usize| btf.mask.is_none_or(|m| m[v * nl + l]);
-    // Per view: its present lights and each one's nearest present lights (in parallel; views
-    // with the same present lights, all of them without a mask, share one table).
-    type Table = std::sync::Arc<Vec<(usize, Vec<usize>)>>;
+/// Per view: its present lights and each one's `NEIGHBOURS` nearest present lights (in
+/// parallel; views with the same present lights, all of them without a mask, share one table).
+type Table = std::sync::Arc<Vec<(usize, Vec<usize>)>>;
+
+fn light_tables(lights: &[[f64; 3]], mask: Option<&[bool]>, nv: usize) -> Vec<Table> {
+    let nl = lights.len();
+    let present = |v: usize, l: usize| mask.is_none_or(|m| m[v * nl + l]);
     let table = |ls: &[usize]| -> Vec<(usize, Vec<usize>)> {
         let k = NEIGHBOURS.min(ls.len().saturating_sub(1));
-        ls.par_iter().map(|&l| (l, nearest(btf.lights, l, ls, k))).collect()
+        ls.par_iter().map(|&l| (l, nearest(lights, l, ls, k))).collect()
     };
     let mut seen: std::collections::HashMap<Vec<usize>, Table> = std::collections::HashMap::new();
     let mut nbrs: Vec<Table> = Vec::with_capacity(nv);
@@ -184,25 +195,78 @@ pub fn screen(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<Screen> {
         };
         nbrs.push(t);
     }
-    // The sampled texels: a grid of at most SAMPLE_TEXELS spread over the sample (every texel of
-    // a small one).
-    let (gr, gc) = {
-        let side = (SAMPLE_TEXELS as f64).sqrt() as usize;
-        (side.min(h), side.min(w))
-    };
-    let sampled: Vec<usize> = (0..gr)
-        .flat_map(|i| (0..gc).map(move |j| ((2 * i + 1) * h / (2 * gr)) * w + (2 * j + 1) * w / (2 * gc)))
-        .collect();
+    nbrs
+}
+
+/// The texels (flat indices) that judge the images and set the floor: a grid of at most
+/// `SAMPLE_TEXELS` spread over an `h x w` sample (every texel of a small one). A blockwise fit
+/// gathers the same texels, so it screens as the fit in memory does.
+pub fn sample_texels(h: usize, w: usize) -> Vec<usize> {
+    let side = (SAMPLE_TEXELS as f64).sqrt() as usize;
+    let (gr, gc) = (side.min(h), side.min(w));
+    (0..gr).flat_map(|i| (0..gc).map(move |j| ((2 * i + 1) * h / (2 * gr)) * w + (2 * j + 1) * w / (2 * gc))).collect()
+}
+
+/// Luminance of every pair at the `texels` of `data` (whole ABRDFs of `npairs` RGB pairs,
+/// one after the other), pair-major: `out[p * n + k]` for pair p, texel k. Blocks of 64 pairs
+/// in parallel, each reading 64 pairs of every texel at once (contiguous), so that neither the
+/// reads nor the writes stride across the whole table.
+fn luminance_by_pair(data: &[f32], texels: &[usize], npairs: usize) -> Vec<f32> {
+    let n = texels.len();
+    let mut lum = vec![0.0f32; npairs * n];
+    lum.par_chunks_mut(64 * n).enumerate().for_each(|(blk, out)| {
+        let p0 = blk * 64;
+        let m = out.len() / n;
+        for (k, &t) in texels.iter().enumerate() {
+            let src = &data[(t * npairs + p0) * 3..(t * npairs + p0 + m) * 3];
+            for (i, px) in src.chunks_exact(3).enumerate() {
+                out[i * n + k] = (px[0] + px[1] + px[2]) / 3.0;
+            }
+        }
+    });
+    lum
+}
+
+/// What the sampled texels say about the whole: the floor and each image's spreads.
+#[derive(Debug, Clone, Default)]
+pub struct Images {
+    /// Per pair `v * L + l`: the image's spread against its light neighbours (NaN where the
+    /// pair is absent).
+    pub spread: Vec<f32>,
+    /// Pairs `(view, light)` whose images are far from their neighbours.
+    pub bad_images: Vec<(usize, usize)>,
+    /// The additive floor of the value screen.
+    pub floor: f32,
+}
+
+/// Judge the images and set the floor from the ABRDFs of the [`sample_texels`]: `texels` of
+/// `data` (whole ABRDFs, `views x lights x 3` values each, one after the other).
+pub fn screen_images(
+    views: &[[f64; 3]],
+    lights: &[[f64; 3]],
+    mask: Option<&[bool]>,
+    data: &[f32],
+    texels: &[usize],
+) -> Result<Images> {
+    let (nv, nl) = (views.len(), lights.len());
+    let abrdf = nv * nl * 3;
+    if abrdf == 0 || texels.is_empty() || texels.iter().any(|&t| (t + 1) * abrdf > data.len()) {
+        return Err(Error::arg("data", format!("expected ABRDFs of {abrdf} values at texels {texels:?}")));
+    }
+    let ns = texels.len();
+    let present = |v: usize, l: usize| mask.is_none_or(|m| m[v * nl + l]);
+    let nbrs = light_tables(lights, mask, nv);
     // The data's mean over the sampled texels' present values: the scale of the floor.
-    let (sum, count) = sampled
+    let (sum, count) = texels
         .par_iter()
         .map(|&t| {
+            let a = &data[t * abrdf..(t + 1) * abrdf];
             let mut s = 0.0f64;
             let mut n = 0u64;
             for (v, per) in nbrs.iter().enumerate() {
                 for (l, _) in per.iter() {
-                    let o = t * abrdf + (v * nl + l) * 3;
-                    s += btf.data[o..o + 3].iter().map(|&x| x as f64).sum::<f64>();
+                    let o = (v * nl + l) * 3;
+                    s += a[o..o + 3].iter().map(|&x| x as f64).sum::<f64>();
                     n += 3;
                 }
             }
@@ -210,7 +274,338 @@ pub fn screen(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<Screen> {
         })
         .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     let floor = (FLOOR as f64 * sum / (count.max(1) as f64)).max(1e-30) as f32;
-    monitor.check()?;
+    // Each image's spreads against its light neighbours (same view) and its view neighbours
+    // (same light), over the sampled texels (luminance). A bad image is far from both; an image
+    // near the horizon is far from its light neighbours (all on one side of it) but not from
+    // the same light seen from the views beside it.
+    // Texel-major: one sampled texel's luminances for every pair (its ABRDF, read once), then
+    // each pair's ratios to its neighbours from that small table.
+    let all_views: Vec<usize> = (0..nv).collect();
+    let view_nbrs: Vec<Vec<usize>> = (0..nv).map(|v| nearest(views, v, &all_views, VIEW_NEIGHBOURS)).collect();
+    // Per present pair: its index, how many light and view neighbours it has, and their pair
+    // indices (flat: the inner loop below runs a million times; no pointer chasing in it).
+    const NB: usize = NEIGHBOURS + VIEW_NEIGHBOURS;
+    let mut flat: Vec<(u32, u8, u8, [u32; NB])> = Vec::with_capacity(nv * nl);
+    for (v, per) in nbrs.iter().enumerate() {
+        for (l, nb) in per.iter() {
+            let mut f = (0u32, 0u8, 0u8, [0u32; NB]);
+            f.0 = (v * nl + l) as u32;
+            let mut k = 0;
+            for &o in nb.iter().take(NEIGHBOURS) {
+                f.3[k] = (v * nl + o) as u32;
+                k += 1;
+            }
+            f.1 = k as u8;
+            for &o in view_nbrs[v].iter().filter(|&&o| present(o, *l)).take(VIEW_NEIGHBOURS) {
+                f.3[k] = (o * nl + l) as u32;
+                k += 1;
+            }
+            f.2 = (k - f.1 as usize) as u8;
+            flat.push(f);
+        }
+    }
+    // The sampled texels' luminances, pair-major (`lum[p * ns + k]`: pair p, sampled texel k):
+    // each texel's ABRDF is read once, contiguously, then transposed in blocks, so that a pair's
+    // neighbours are a few contiguous rows of `ns` values.
+    let npairs = nv * nl;
+    let lum = luminance_by_pair(data, texels, npairs);
+    let per_pair: Vec<(usize, f32, f32)> = flat
+        .par_iter()
+        .map(|(p, nlt, nvw, nb)| {
+            let (p, nlt, nvw) = (*p as usize, *nlt as usize, *nvw as usize);
+            let x = &lum[p * ns..(p + 1) * ns];
+            let (mut sum, mut lo, mut hi, mut d) =
+                (vec![0.0f32; ns], vec![0.0f32; ns], vec![0.0f32; ns], vec![0.0f32; ns]);
+            let mut spread = |from: usize, n: usize| -> f32 {
+                if n < 2 {
+                    return f32::NAN;
+                }
+                // Per texel the neighbours' mean without their smallest and largest (one bad
+                // neighbour moves it little, and it runs across the texels in lockstep, where
+                // a median per texel would not), the ratio to it, and the log of the ratios'
+                // median over the texels: signed, so that a brightness change common to the
+                // texels (a misfired flash) is told from ratios scattered both ways (shadows
+                // at grazing angles, which differ from texel to texel).
+                sum.fill(0.0);
+                lo.fill(f32::INFINITY);
+                hi.fill(f32::NEG_INFINITY);
+                for &o in &nb[from..from + n] {
+                    let row = &lum[o as usize * ns..(o as usize + 1) * ns];
+                    // (Comparisons rather than f32::min/max, whose NaN rules keep the loop
+                    // from vectorising; NaNs here only make this pair's spread NaN.)
+                    for (((s, l), h), &y) in sum.iter_mut().zip(lo.iter_mut()).zip(hi.iter_mut()).zip(row) {
+                        *s += y;
+                        *l = if y < *l { y } else { *l };
+                        *h = if y > *h { y } else { *h };
+                    }
+                }
+                let (drop2, keep) = if n > 2 { (1.0, (n - 2) as f32) } else { (0.0, n as f32) };
+                for ((((d, s), l), h), &y) in d.iter_mut().zip(&sum).zip(&lo).zip(&hi).zip(x) {
+                    let m = (s - drop2 * (l + h)) / keep + floor;
+                    *d = (y + floor) / m;
+                }
+                median(&mut d).ln()
+            };
+            (p, spread(0, nlt), spread(nlt, nvw))
+        })
+        .collect();
+    let mut spread = vec![f32::NAN; nv * nl];
+    let mut spread_view = vec![f32::NAN; nv * nl];
+    for (i, a, b) in per_pair {
+        spread[i] = a;
+        spread_view[i] = b;
+    }
+    // Far: more than `least` from 0 and 6 robust standard deviations from the typical spread.
+    let far = |sp: &[f32], least: f32| -> Vec<bool> {
+        let mut all: Vec<f32> = sp.iter().copied().filter(|s| s.is_finite()).collect();
+        let typical = median(&mut all);
+        let mut dev: Vec<f32> = all.iter().map(|s| (s - typical).abs()).collect();
+        let mad = 1.4826 * median(&mut dev);
+        sp.iter().map(|&s| s.is_finite() && s.abs() > least && (s - typical).abs() > 6.0 * mad).collect()
+    };
+    let several_views = spread_view.iter().any(|s| s.is_finite());
+    let by_light = far(&spread, if several_views { std::f32::consts::LN_2 } else { ONE_VIEW_LEAST });
+    let by_view = far(&spread_view, std::f32::consts::LN_2);
+    let far_both = |i: usize| {
+        by_light[i]
+            && (by_view[i] && spread[i].signum() == spread_view[i].signum()
+                || !spread_view[i].is_finite() && !several_views)
+    };
+    // A brighter image is a bad one only alone: where a neighbouring pair is above its own
+    // light neighbours by half as much (in log), the pairs trace a sharp feature of the BRDF (grooves' facets seen at
+    // grazing angles light up a ridge of pairs 2.5 times above their neighbours, one light
+    // per view, moving with the view), while a second flash fires for one image. A darker
+    // image is bad either way.
+    // The neighbourhood is the pairs' own: the view and its nearest views, each with the light
+    // and its nearest lights (a feature that moves with the view, a specular ridge, is
+    // diagonal in it).
+    let bright = |i: usize, of: usize| spread[i] > 0.5 * spread[of];
+    let light_nbrs = |l: usize| -> &[usize] {
+        nbrs.iter().find_map(|per| per.iter().find(|(x, _)| *x == l)).map_or(&[], |(_, nb)| nb.as_slice())
+    };
+    let clustered = |i: usize| {
+        let (v, l) = (i / nl, i % nl);
+        std::iter::once(v).chain(view_nbrs[v].iter().copied()).any(|vv| {
+            std::iter::once(l)
+                .chain(light_nbrs(l).iter().copied())
+                .any(|ll| (vv, ll) != (v, l) && present(vv, ll) && bright(vv * nl + ll, i))
+        })
+    };
+    let bad_images = flat
+        .iter()
+        .map(|f| f.0 as usize)
+        .filter(|&i| far_both(i) && (spread[i] < 0.0 || !clustered(i)))
+        .map(|i| (i / nl, i % nl))
+        .collect();
+    Ok(Images { spread, bad_images, floor })
+}
+
+/// Side of the central patch of texels that judges the images' registration.
+pub const PATCH: usize = 16;
+/// The largest shift searched, in texels.
+const MAX_SHIFT: i32 = 6;
+/// A moved image matches its neighbours shifted at least this well (normalized cross
+/// correlation)...
+const MOVED_MATCH: f32 = 0.8;
+/// ...and this much better than unshifted. On the built-in materials at 32², a clean image
+/// gains at most 0.67 (grooves, at grazing light, whose shadows move with the light) and
+/// never reaches the match; one rolled by 5 texels gains 0.8 to 1.5.
+const MOVED_GAIN: f32 = 0.4;
+
+/// The central patch, at most `PATCH x PATCH` texels: `(first row, first column, rows,
+/// columns)`.
+pub fn patch_window(h: usize, w: usize) -> (usize, usize, usize, usize) {
+    let (ph, pw) = (PATCH.min(h), PATCH.min(w));
+    ((h - ph) / 2, (w - pw) / 2, ph, pw)
+}
+
+/// Normalized cross correlation of `a` and `b` (`ph x pw` images) over their overlap when `a`'s
+/// texel `(y + dy, x + dx)` is laid on `b`'s `(y, x)`; NaN without contrast.
+fn ncc(a: &[f32], b: &[f32], ph: usize, pw: usize, dy: i32, dx: i32) -> f32 {
+    if (dy, dx) == (0, 0) {
+        // Unshifted (every image once): one pass over both, in lanes of 8 with f64 totals.
+        let (mut sa, mut sb, mut saa, mut sbb, mut sab) = (0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        for (ca, cb) in a[..ph * pw].chunks(8).zip(b[..ph * pw].chunks(8)) {
+            let (mut la, mut lb, mut laa, mut lbb, mut lab) = (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
+            for (&p, &q) in ca.iter().zip(cb) {
+                la += p;
+                lb += q;
+                laa += p * p;
+                lbb += q * q;
+                lab += p * q;
+            }
+            sa += la as f64;
+            sb += lb as f64;
+            saa += laa as f64;
+            sbb += lbb as f64;
+            sab += lab as f64;
+        }
+        let n = (ph * pw) as f64;
+        let (va, vb) = (saa - sa * sa / n, sbb - sb * sb / n);
+        if va <= 1e-12 * saa.max(1e-30) || vb <= 1e-12 * sbb.max(1e-30) {
+            return f32::NAN;
+        }
+        return ((sab - sa * sb / n) / (va * vb).sqrt()) as f32;
+    }
+    let (ph_, pw_) = (ph as i32, pw as i32);
+    let (y0, y1) = (0.max(-dy), ph_.min(ph_ - dy));
+    let (x0, x1) = (0.max(-dx), pw_.min(pw_ - dx));
+    if y1 - y0 < 4 || x1 - x0 < 4 {
+        return f32::NAN;
+    }
+    let n = ((y1 - y0) * (x1 - x0)) as f64;
+    let (mut sa, mut sb, mut saa, mut sbb, mut sab) = (0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    for y in y0..y1 {
+        let ra = &a[((y + dy) * pw_) as usize..];
+        let rb = &b[(y * pw_) as usize..];
+        for x in x0..x1 {
+            let (p, q) = (ra[(x + dx) as usize] as f64, rb[x as usize] as f64);
+            sa += p;
+            sb += q;
+            saa += p * p;
+            sbb += q * q;
+            sab += p * q;
+        }
+    }
+    let (va, vb) = (saa - sa * sa / n, sbb - sb * sb / n);
+    if va <= 1e-12 * saa.max(1e-30) || vb <= 1e-12 * sbb.max(1e-30) {
+        return f32::NAN;
+    }
+    ((sab - sa * sb / n) / (va * vb).sqrt()) as f32
+}
+
+/// Images moved against their neighbours (a sample knocked between two shots, a misregistered
+/// image): `(view, light, rows, columns)` of the shift. `data` holds rows of `width` texels'
+/// ABRDFs, and the images are judged on its `window` (`(row, column, rows, columns)`, the
+/// [`patch_window`]). Each image's luminance is correlated with its light
+/// neighbours' (their mean per texel without the smallest and largest); the images far less
+/// correlated than is typical (6 robust standard deviations) are searched over shifts of up to
+/// 6 texels, and one is moved when a shift matches far better than none, against its light
+/// neighbours and, with several views, against the same light seen from the nearest views.
+/// A texture that repeats within the shift, or has none, cannot show a move.
+pub fn moved_images(
+    views: &[[f64; 3]],
+    lights: &[[f64; 3]],
+    mask: Option<&[bool]>,
+    data: &[f32],
+    width: usize,
+    window: (usize, usize, usize, usize),
+) -> Result<Vec<(usize, usize, i32, i32)>> {
+    let (nv, nl) = (views.len(), lights.len());
+    let abrdf = nv * nl * 3;
+    let (r0, c0, ph, pw) = window;
+    let np = ph * pw;
+    if c0 + pw > width || ((r0 + ph) * width) * abrdf > data.len() {
+        return Err(Error::arg("window", format!("{window:?} does not lie inside rows of {width} texels")));
+    }
+    let texels: Vec<usize> = (r0..r0 + ph).flat_map(|r| (c0..c0 + pw).map(move |c| r * width + c)).collect();
+    if ph < 8 || pw < 8 {
+        return Ok(Vec::new());
+    }
+    let present = |v: usize, l: usize| mask.is_none_or(|m| m[v * nl + l]);
+    let nbrs = light_tables(lights, mask, nv);
+    let all_views: Vec<usize> = (0..nv).collect();
+    let view_nbrs: Vec<Vec<usize>> = (0..nv).map(|v| nearest(views, v, &all_views, VIEW_NEIGHBOURS)).collect();
+    // Luminance per pair, each a ph x pw image.
+    let npairs = nv * nl;
+    let lum = luminance_by_pair(data, &texels, npairs);
+    // The reference image: the neighbours' mean per texel without their smallest and largest
+    // (neighbour by neighbour across the texels, so the loop vectorises).
+    let reference = |pairs: &[usize]| -> Option<Vec<f32>> {
+        if pairs.is_empty() {
+            return None;
+        }
+        let (mut s, mut lo, mut hi) = (vec![0.0f32; np], vec![f32::INFINITY; np], vec![f32::NEG_INFINITY; np]);
+        for &q in pairs {
+            for (((s, l), h), &y) in s.iter_mut().zip(lo.iter_mut()).zip(hi.iter_mut()).zip(&lum[q * np..(q + 1) * np])
+            {
+                *s += y;
+                *l = if y < *l { y } else { *l };
+                *h = if y > *h { y } else { *h };
+            }
+        }
+        let n = pairs.len();
+        Some(if n > 2 {
+            s.iter().zip(&lo).zip(&hi).map(|((s, l), h)| (s - l - h) / (n - 2) as f32).collect()
+        } else {
+            s.iter().map(|s| s / n as f32).collect()
+        })
+    };
+    let light_pairs = |v: usize, nb: &[usize]| -> Vec<usize> { nb.iter().map(|&o| v * nl + o).collect() };
+    let cases: Vec<(usize, usize, &[usize])> =
+        nbrs.iter().enumerate().flat_map(|(v, per)| per.iter().map(move |(l, nb)| (v, *l, nb.as_slice()))).collect();
+    let unshifted: Vec<f32> = cases
+        .par_iter()
+        .map(|&(v, l, nb)| match reference(&light_pairs(v, nb)) {
+            Some(r) => ncc(&lum[(v * nl + l) * np..(v * nl + l + 1) * np], &r, ph, pw, 0, 0),
+            None => f32::NAN,
+        })
+        .collect();
+    let mut finite: Vec<f32> = unshifted.iter().copied().filter(|x| x.is_finite()).collect();
+    if finite.is_empty() {
+        return Ok(Vec::new());
+    }
+    let typical = median(&mut finite);
+    let mut dev: Vec<f32> = finite.iter().map(|x| (x - typical).abs()).collect();
+    let mad = 1.4826 * median(&mut dev);
+    let mut shifts: Vec<(i32, i32)> =
+        (-MAX_SHIFT..=MAX_SHIFT).flat_map(|dy| (-MAX_SHIFT..=MAX_SHIFT).map(move |dx| (dy, dx))).collect();
+    shifts.sort_by_key(|&(dy, dx)| (dy * dy + dx * dx, dy, dx));
+    // The best shift of an image against a reference, and its gain over none.
+    let best_shift = |img: &[f32], r: &[f32]| -> (f32, f32, i32, i32) {
+        let at0 = ncc(img, r, ph, pw, 0, 0);
+        // Nearest shifts first, a farther one taken only when clearly better: a texture that
+        // repeats matches several shifts, and the smallest is the move.
+        let mut best = (f32::NEG_INFINITY, 0, 0);
+        for &(dy, dx) in &shifts {
+            let c = ncc(img, r, ph, pw, dy, dx);
+            if c > best.0 + 1e-4 {
+                best = (c, dy, dx);
+            }
+        }
+        (best.0, best.0 - at0.max(-1.0), best.1, best.2)
+    };
+    let several_views = nv > 1;
+    let moved: Vec<(usize, usize, i32, i32)> = cases
+        .par_iter()
+        .zip(&unshifted)
+        .filter(|(_, &u)| u.is_finite() && u < typical - 6.0 * mad)
+        .filter_map(|(&(v, l, nb), _)| {
+            let img = &lum[(v * nl + l) * np..(v * nl + l + 1) * np];
+            let (m, gain, dy, dx) = best_shift(img, &reference(&light_pairs(v, nb))?);
+            if m < MOVED_MATCH || gain < MOVED_GAIN || (dy, dx) == (0, 0) {
+                return None;
+            }
+            if several_views {
+                let vp: Vec<usize> = view_nbrs[v].iter().filter(|&&o| present(o, l)).map(|&o| o * nl + l).collect();
+                let (m2, gain2, dy2, dx2) = best_shift(img, &reference(&vp)?);
+                if m2 < MOVED_MATCH || gain2 < MOVED_GAIN || (dy2, dx2) != (dy, dx) {
+                    return None;
+                }
+            }
+            Some((v, l, dy, dx))
+        })
+        .collect();
+    Ok(moved)
+}
+
+/// The values of `btf` far above both their light and their spatial neighbours (module docs),
+/// among the texels of rows `rows` and columns `cols` (the others are only neighbours: a block
+/// with its one-texel halo), with `floor` from [`screen_images`]. Flat indices into `btf.data`
+/// with their replacements.
+pub fn screen_values(
+    btf: &BtfRef<'_>,
+    floor: f32,
+    rows: std::ops::Range<usize>,
+    cols: std::ops::Range<usize>,
+    monitor: &Monitor,
+) -> Result<Flags> {
+    let (h, w, nv, nl) = (btf.height, btf.width, btf.views.len(), btf.lights.len());
+    if rows.end > h || cols.end > w {
+        return Err(Error::arg("rows", format!("rows {rows:?} and columns {cols:?} must lie inside {h} x {w}")));
+    }
+    let abrdf = nv * nl * 3;
+    let nbrs = light_tables(btf.lights, btf.mask, nv);
     let at = |t: usize, v: usize, l: usize, c: usize| btf.data[t * abrdf + (v * nl + l) * 3 + c];
     // Whether value (t, v, l, c) = x is more than FACTOR times above its light neighbours'
     // median, and that median. The minimum bounds the median from below, so most values are
@@ -225,15 +620,17 @@ pub fn screen(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<Screen> {
         buf.clear();
         buf.extend(nb.iter().map(|&o| btf.data[base + o * 3]));
         let md = median(buf);
-        (x > FACTOR * md + floor).then_some(md)
+        // (Signed data, a PTM's or noise's negative values: a negative median is no scale.)
+        (x > FACTOR * md.max(0.0) + floor).then_some(md)
     };
-    let rows: Vec<Flags> = (0..h)
+    let found: Vec<Result<Flags>> = rows
         .into_par_iter()
         .map(|r| {
+            monitor.check()?;
             let mut found = Vec::new();
             let (mut b1, mut b2, mut b3) =
                 (Vec::with_capacity(NEIGHBOURS), Vec::with_capacity(8), Vec::with_capacity(NEIGHBOURS));
-            for c0 in 0..w {
+            for c0 in cols.clone() {
                 let t = r * w + c0;
                 for (v, per) in nbrs.iter().enumerate() {
                     if per.len() <= 2 {
@@ -247,6 +644,7 @@ pub fn screen(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<Screen> {
                     // (All three channels in one pass over the row: this loop is the screen's
                     // cost on clean data.)
                     let (mut sum, mut top, mut second) = ([0.0f64; 3], [f32::NEG_INFINITY; 3], [f32::NEG_INFINITY; 3]);
+                    let mut lowest = [f32::INFINITY; 3];
                     let mut add = |px: &[f32]| {
                         for c in 0..3 {
                             // (Branch-free: the two largest by max/min.)
@@ -254,6 +652,7 @@ pub fn screen(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<Screen> {
                             sum[c] += x as f64;
                             second[c] = second[c].max(top[c].min(x));
                             top[c] = top[c].max(x);
+                            lowest[c] = lowest[c].min(x);
                         }
                     };
                     if per.len() == nl {
@@ -261,9 +660,16 @@ pub fn screen(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<Screen> {
                     } else {
                         per.iter().for_each(|(l, _)| add(&row[l * 3..l * 3 + 3]));
                     }
+                    // A row with values below -floor is not radiance (data made from a model's
+                    // random coefficients, a difference of images): "8 times its neighbours"
+                    // means nothing there, and the row is not screened.
                     let gate: [f32; 3] = std::array::from_fn(|c| {
                         let trimmed = (sum[c] - top[c] as f64 - second[c] as f64) / (per.len() - 2) as f64;
-                        FACTOR * trimmed.max(0.0) as f32 + floor
+                        if lowest[c] < -floor {
+                            f32::INFINITY
+                        } else {
+                            FACTOR * trimmed.max(0.0) as f32 + floor
+                        }
                     });
                     // Nothing in the row above its gate: the common case, one comparison per
                     // channel.
@@ -300,135 +706,55 @@ pub fn screen(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<Screen> {
                                 }
                             }
                             let ms = if b2.is_empty() { 0.0 } else { median(&mut b2) };
-                            if x > FACTOR * ms + floor {
+                            if x > FACTOR * ms.max(0.0) + floor {
                                 found.push((t * abrdf + (v * nl + l) * 3 + c, md));
                             }
                         }
                     }
                 }
             }
-            found
+            Ok(found)
         })
         .collect();
     monitor.check()?;
-    let values: Flags = rows.into_iter().flatten().collect();
-    // Each image's spreads against its light neighbours (same view) and its view neighbours
-    // (same light), over the sampled texels (luminance). A bad image is far from both; an image
-    // near the horizon is far from its light neighbours (all on one side of it) but not from
-    // the same light seen from the views beside it.
-    // Texel-major: one sampled texel's luminances for every pair (its ABRDF, read once), then
-    // each pair's ratios to its neighbours from that small table.
-    let all_views: Vec<usize> = (0..nv).collect();
-    let view_nbrs: Vec<Vec<usize>> = (0..nv).map(|v| nearest(btf.views, v, &all_views, VIEW_NEIGHBOURS)).collect();
-    // Per present pair: its index, how many light and view neighbours it has, and their pair
-    // indices (flat: the inner loop below runs a million times; no pointer chasing in it).
-    const NB: usize = NEIGHBOURS + VIEW_NEIGHBOURS;
-    let mut flat: Vec<(u32, u8, u8, [u32; NB])> = Vec::with_capacity(nv * nl);
-    for (v, per) in nbrs.iter().enumerate() {
-        for (l, nb) in per.iter() {
-            let mut f = (0u32, 0u8, 0u8, [0u32; NB]);
-            f.0 = (v * nl + l) as u32;
-            let mut k = 0;
-            for &o in nb.iter().take(NEIGHBOURS) {
-                f.3[k] = (v * nl + o) as u32;
-                k += 1;
-            }
-            f.1 = k as u8;
-            for &o in view_nbrs[v].iter().filter(|&&o| present(o, *l)).take(VIEW_NEIGHBOURS) {
-                f.3[k] = (o * nl + l) as u32;
-                k += 1;
-            }
-            f.2 = (k - f.1 as usize) as u8;
-            flat.push(f);
-        }
+    let mut values = Flags::new();
+    for f in found {
+        values.extend(f?);
     }
-    // The sampled texels' luminances, pair-major (`lum[p * ns + k]`: pair p, sampled texel k):
-    // each texel's ABRDF is read once, contiguously, then transposed in blocks, so that a pair's
-    // neighbours are a few contiguous rows of `ns` values.
-    let ns = sampled.len();
-    let npairs = nv * nl;
-    let by_texel: Vec<f32> = sampled
-        .par_iter()
-        .flat_map_iter(|&t| btf.data[t * abrdf..(t + 1) * abrdf].chunks_exact(3).map(|p| (p[0] + p[1] + p[2]) / 3.0))
-        .collect();
-    let mut lum = vec![0.0f32; npairs * ns];
-    lum.par_chunks_mut(64 * ns).enumerate().for_each(|(blk, out)| {
-        for (i, row) in out.chunks_exact_mut(ns).enumerate() {
-            let p = blk * 64 + i;
-            for (k, y) in row.iter_mut().enumerate() {
-                *y = by_texel[k * npairs + p];
-            }
-        }
-    });
-    drop(by_texel);
-    let per_pair: Vec<(usize, f32, f32)> = flat
-        .par_iter()
-        .map(|(p, nlt, nvw, nb)| {
-            let (p, nlt, nvw) = (*p as usize, *nlt as usize, *nvw as usize);
-            let x = &lum[p * ns..(p + 1) * ns];
-            let (mut sum, mut lo, mut hi, mut d) =
-                (vec![0.0f32; ns], vec![0.0f32; ns], vec![0.0f32; ns], vec![0.0f32; ns]);
-            let mut spread = |from: usize, n: usize| -> f32 {
-                if n < 2 {
-                    return f32::NAN;
-                }
-                // Per texel the neighbours' mean without their smallest and largest (one bad
-                // neighbour moves it little, and it runs across the texels in lockstep, where
-                // a median per texel would not), the ratio's magnitude, and its log once per
-                // pair, after the median over texels.
-                sum.fill(0.0);
-                lo.fill(f32::INFINITY);
-                hi.fill(f32::NEG_INFINITY);
-                for &o in &nb[from..from + n] {
-                    let row = &lum[o as usize * ns..(o as usize + 1) * ns];
-                    // (Comparisons rather than f32::min/max, whose NaN rules keep the loop
-                    // from vectorising; NaNs here only make this pair's spread NaN.)
-                    for (((s, l), h), &y) in sum.iter_mut().zip(lo.iter_mut()).zip(hi.iter_mut()).zip(row) {
-                        *s += y;
-                        *l = if y < *l { y } else { *l };
-                        *h = if y > *h { y } else { *h };
-                    }
-                }
-                let (drop2, keep) = if n > 2 { (1.0, (n - 2) as f32) } else { (0.0, n as f32) };
-                for ((((d, s), l), h), &y) in d.iter_mut().zip(&sum).zip(&lo).zip(&hi).zip(x) {
-                    let m = (s - drop2 * (l + h)) / keep + floor;
-                    let y = y + floor;
-                    *d = if y > m { y / m } else { m / y };
-                }
-                median(&mut d).ln()
-            };
-            (p, spread(0, nlt), spread(nlt, nvw))
-        })
-        .collect();
-    let mut spread = vec![f32::NAN; nv * nl];
-    let mut spread_view = vec![f32::NAN; nv * nl];
-    for (i, a, b) in per_pair {
-        spread[i] = a;
-        spread_view[i] = b;
-    }
-    // Far: above `least` and 6 robust standard deviations above the typical spread.
-    let far = |sp: &[f32], least: f32| -> Vec<bool> {
-        let mut all: Vec<f32> = sp.iter().copied().filter(|s| s.is_finite()).collect();
-        let typical = median(&mut all);
-        let mut dev: Vec<f32> = all.iter().map(|s| (s - typical).abs()).collect();
-        let mad = 1.4826 * median(&mut dev);
-        sp.iter().map(|&s| s.is_finite() && s > least && s > typical + 6.0 * mad).collect()
-    };
-    let several_views = spread_view.iter().any(|s| s.is_finite());
-    let by_light = far(&spread, if several_views { std::f32::consts::LN_2 } else { ONE_VIEW_LEAST });
-    let by_view = far(&spread_view, std::f32::consts::LN_2);
-    let bad_images = (0..nv * nl)
-        .filter(|&i| by_light[i] && (by_view[i] || !spread_view[i].is_finite() && !several_views))
-        .map(|i| (i / nl, i % nl))
-        .collect();
-    Ok(Screen { values, spread, bad_images, floor })
+    Ok(values)
+}
+
+/// Screen `btf`'s present values (module docs).
+pub fn screen(btf: &BtfRef<'_>, monitor: &Monitor) -> Result<Screen> {
+    let sampled = sample_texels(btf.height, btf.width);
+    let im = screen_images(btf.views, btf.lights, btf.mask, btf.data, &sampled)?;
+    let window = patch_window(btf.height, btf.width);
+    let moved = moved_images(btf.views, btf.lights, btf.mask, btf.data, btf.width, window)?;
+    monitor.check()?;
+    let values = screen_values(btf, im.floor, 0..btf.height, 0..btf.width, monitor)?;
+    Ok(Screen::new(values, im, moved))
 }
 
 impl Screen {
+    /// The screen's parts as one: the moved images join the bad images.
+    pub fn new(values: Flags, images: Images, moved: Vec<(usize, usize, i32, i32)>) -> Screen {
+        let mut bad = images.bad_images;
+        bad.extend(moved.iter().map(|m| (m.0, m.1)));
+        bad.sort_unstable();
+        bad.dedup();
+        Screen { values, spread: images.spread, bad_images: bad, floor: images.floor, moved }
+    }
+
     /// The report of a robust fit: how many values were replaced, the texels and pairs with the
     /// most (so a bad image or a bad patch of the sensor can be found), and the bad images.
     pub fn report(&self, btf: &BtfRef<'_>, replaced: bool, excluded: bool) -> Value {
-        let (w, nv, nl) = (btf.width, btf.views.len(), btf.lights.len());
+        self.report_for([btf.height, btf.width, btf.views.len(), btf.lights.len()], btf.mask, replaced, excluded)
+    }
+
+    /// [`Screen::report`] for a BTF of `[height, width, views, lights]` with `mask` (a
+    /// blockwise fit, which holds no whole BTF).
+    pub fn report_for(&self, dims: [usize; 4], mask: Option<&[bool]>, replaced: bool, excluded: bool) -> Value {
+        let [height, w, nv, nl] = dims;
         let abrdf = nv * nl * 3;
         let mut by_texel = std::collections::BTreeMap::<usize, u64>::new();
         let mut by_pair = std::collections::BTreeMap::<usize, u64>::new();
@@ -442,14 +768,20 @@ impl Screen {
             v.truncate(10);
             v
         };
-        let present = btf.mask.map_or(nv * nl, |m| m.iter().filter(|&&x| x).count()) * btf.height * w * 3;
+        let present = mask.map_or(nv * nl, |m| m.iter().filter(|&&x| x).count()) * height * w * 3;
         json!({
             "values_flagged": self.values.len(),
             "fraction_flagged": self.values.len() as f64 / present.max(1) as f64,
             "values_replaced": if replaced { self.values.len() } else { 0 },
             "top_texels": top(by_texel).iter().map(|&(t, n)| json!({"row": t / w, "col": t % w, "values": n})).collect::<Vec<_>>(),
             "top_pairs": top(by_pair).iter().map(|&(p, n)| json!({"view": p / nl, "light": p % nl, "values": n})).collect::<Vec<_>>(),
-            "bad_images": self.bad_images.iter().map(|&(v, l)| json!({"view": v, "light": l, "spread": self.spread[v * nl + l]})).collect::<Vec<_>>(),
+            "bad_images": self.bad_images.iter().map(|&(v, l)| {
+                let mut e = json!({"view": v, "light": l, "spread": self.spread[v * nl + l]});
+                if let Some(m) = self.moved.iter().find(|m| (m.0, m.1) == (v, l)) {
+                    e["moved"] = json!([m.2, m.3]);
+                }
+                e
+            }).collect::<Vec<_>>(),
             "bad_images_excluded": excluded && !self.bad_images.is_empty(),
         })
     }
@@ -532,7 +864,11 @@ mod tests {
         let (views, lights) = (dirs(nv, 0.1), dirs(nl, 0.3));
         let mut data = Vec::with_capacity(h * w * nv * nl * 3);
         for t in 0..h * w {
-            let albedo = 0.3 + 0.5 * ((t * 37 % 11) as f32 / 11.0);
+            // (A texture that does not repeat: a moved image has one shift that fits.)
+            let mut x = t as u64 + 1;
+            x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            let albedo = 0.3 + 0.5 * ((x ^ (x >> 31)) % 1000) as f32 / 1000.0;
             for _ in 0..nv {
                 for l in &lights {
                     let x = albedo * l[2] as f32;
@@ -564,6 +900,68 @@ mod tests {
         for &(i, x) in &sc.values {
             assert!((x - clean[i]).abs() <= 0.25 * clean[i] + 1e-6, "{i}: {x} vs {}", clean[i]);
         }
+    }
+
+    #[test]
+    fn a_block_with_its_halo_flags_what_the_whole_flags() {
+        let (h, w, nv, nl) = (9, 10, 2, 30);
+        let (views, lights, mut data) = lambert(h, w, nv, nl);
+        let abrdf = nv * nl * 3;
+        // Hot values on a block's edge and beside it, where the halo decides.
+        for &(t, k) in &[(3 * w + 4, 7), (3 * w + 5, 7), (4 * w + 4, 100), (0, 3), (8 * w + 9, 50)] {
+            data[t * abrdf + k] *= 1000.0;
+        }
+        let b = BtfRef::new(h, w, &views, &lights, &data, None).unwrap();
+        let whole = screen(&b, &Monitor::new()).unwrap();
+        assert_eq!(whole.values.len(), 5);
+        let mut got = Vec::new();
+        for (r0, r1) in [(0, 4), (4, 9)] {
+            for (c0, c1) in [(0, 5), (5, 10)] {
+                // The block and its one-texel halo, as btfrs.dask's overlap hands it over.
+                let (hr0, hr1, hc0, hc1) = (r0.max(1) - 1, (r1 + 1).min(h), c0.max(1) - 1, (c1 + 1).min(w));
+                let (bh, bw) = (hr1 - hr0, hc1 - hc0);
+                let mut blk = Vec::with_capacity(bh * bw * abrdf);
+                for r in hr0..hr1 {
+                    blk.extend_from_slice(&data[(r * w + hc0) * abrdf..(r * w + hc1) * abrdf]);
+                }
+                let bb = BtfRef::new(bh, bw, &views, &lights, &blk, None).unwrap();
+                let f =
+                    screen_values(&bb, whole.floor, r0 - hr0..r1 - hr0, c0 - hc0..c1 - hc0, &Monitor::new()).unwrap();
+                for (i, x) in f {
+                    let (t, k) = (i / abrdf, i % abrdf);
+                    got.push((((hr0 + t / bw) * w + hc0 + t % bw) * abrdf + k, x));
+                }
+            }
+        }
+        got.sort_by_key(|v| v.0);
+        let mut want = whole.values.clone();
+        want.sort_by_key(|v| v.0);
+        assert_eq!(got, want);
+    }
+
+    #[test]
+    fn a_moved_image_is_found_with_its_shift() {
+        let (h, w, nv, nl) = (20, 20, 2, 30);
+        let (views, lights, mut data) = lambert(h, w, nv, nl);
+        let abrdf = nv * nl * 3;
+        let b = BtfRef::new(h, w, &views, &lights, &data, None).unwrap();
+        assert!(screen(&b, &Monitor::new()).unwrap().moved.is_empty());
+        // Image (1, 7) rolled 3 texels to the right and 2 up.
+        let pair = (nl + 7) * 3;
+        let before = data.clone();
+        for r in 0..h {
+            for c in 0..w {
+                let from = ((r + 2) % h) * w + (c + w - 3) % w;
+                for k in 0..3 {
+                    data[(r * w + c) * abrdf + pair + k] = before[from * abrdf + pair + k];
+                }
+            }
+        }
+        let b = BtfRef::new(h, w, &views, &lights, &data, None).unwrap();
+        let sc = screen(&b, &Monitor::new()).unwrap();
+        assert_eq!(sc.moved, vec![(1, 7, -2, 3)]);
+        assert_eq!(sc.bad_images, vec![(1, 7)]);
+        assert_eq!(sc.report(&b, true, false)["bad_images"][0]["moved"], json!([-2, 3]));
     }
 
     #[test]

@@ -18,7 +18,20 @@ pub fn save_model(path: &Path, model: &dyn DynModel, meta: serde_json::Value) ->
         serde_json::Value::Object(m) => m,
         o => return Err(Error::arg("meta", format!("expected a JSON object, got {o}"))),
     };
-    meta.insert("report".into(), model.report());
+    // The model's own report; what the caller's report adds beside it (a robust fit's screen,
+    // which no model holds) is kept.
+    let mut report = match model.report() {
+        serde_json::Value::Object(m) => m,
+        serde_json::Value::Null => serde_json::Map::new(),
+        o => return Err(Error::arg("model", format!("a report must be a JSON object, got {o}"))),
+    };
+    if let Some(serde_json::Value::Object(extra)) = meta.get("report") {
+        for (k, v) in extra {
+            report.entry(k.clone()).or_insert_with(|| v.clone());
+        }
+    }
+    let report = if report.is_empty() { serde_json::Value::Null } else { serde_json::Value::Object(report) };
+    meta.insert("report".into(), report);
     save_arrays(path, model.kind(), serde_json::Value::Object(meta), &model.to_arrays())
 }
 

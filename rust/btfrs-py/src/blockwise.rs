@@ -440,3 +440,132 @@ pub fn light_pca_assemble<'py>(
 pub fn light_pca_check(kind: &str, options_json: &str) -> PyResult<()> {
     basis_of(kind, options_json).map(|_| ())
 }
+
+/// `robust_images`' answer: the floor, the spreads, the bad images.
+type ImagesOut<'py> = (f32, Bound<'py, PyArrayDyn<f32>>, Vec<(usize, usize)>);
+/// `robust_screen_block`'s answer: flat indices and replacements.
+type FlagsOut<'py> = (Bound<'py, PyArrayDyn<u64>>, Bound<'py, PyArrayDyn<f32>>);
+
+/// Robust screen, the texels that judge the images and set the floor (flat indices).
+#[pyfunction]
+pub fn robust_sample_texels(height: usize, width: usize) -> Vec<usize> {
+    btfrs_fit::robust::sample_texels(height, width)
+}
+
+/// Robust screen on the client: `(floor, spread [V, L], bad images [(view, light)])` from the
+/// sampled texels' ABRDFs (`samples`: `[n, 1, V, L, 3]`).
+#[pyfunction]
+#[pyo3(signature = (samples, views, lights, mask=None))]
+pub fn robust_images<'py>(
+    py: Python<'py>,
+    samples: &Bound<'py, PyAny>,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+) -> PyResult<ImagesOut<'py>> {
+    let args = BtfArgs::new(samples, views, lights, mask)?;
+    let b = args.btf()?;
+    let (nv, nl) = (b.views.len(), b.lights.len());
+    let all: Vec<usize> = (0..b.height * b.width).collect();
+    let im = detach(py, || btfrs_fit::robust::screen_images(b.views, b.lights, b.mask, b.data, &all))?;
+    Ok((im.floor, im.spread.into_pyarray(py).reshape(vec![nv, nl])?, im.bad_images))
+}
+
+/// Robust screen on the client: the images moved against their neighbours, `(view, light,
+/// rows, columns)`, from the ABRDFs of the central patch (`patch`: `[rows, columns, V, L, 3]`,
+/// where `robust_patch_window` says).
+#[pyfunction]
+#[pyo3(signature = (patch, views, lights, mask=None))]
+pub fn robust_moved<'py>(
+    py: Python<'py>,
+    patch: &Bound<'py, PyAny>,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Vec<(usize, usize, i32, i32)>> {
+    let args = BtfArgs::new(patch, views, lights, mask)?;
+    let b = args.btf()?;
+    detach(py, || {
+        btfrs_fit::robust::moved_images(b.views, b.lights, b.mask, b.data, b.width, (0, 0, b.height, b.width))
+    })
+}
+
+/// Robust screen, the central patch that judges registration: `(row, column, rows, columns)`.
+#[pyfunction]
+pub fn robust_patch_window(height: usize, width: usize) -> (usize, usize, usize, usize) {
+    btfrs_fit::robust::patch_window(height, width)
+}
+
+/// Robust screen on a worker: the values of `block` (a texel tile with its one-texel halo)
+/// flagged among rows `r0..r1` and columns `c0..c1`, as `(flat indices into block, replacements)`.
+#[pyfunction]
+#[pyo3(signature = (block, views, lights, mask, floor, r0, r1, c0, c1))]
+#[allow(clippy::too_many_arguments)]
+pub fn robust_screen_block<'py>(
+    py: Python<'py>,
+    block: &Bound<'py, PyAny>,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+    floor: f32,
+    r0: usize,
+    r1: usize,
+    c0: usize,
+    c1: usize,
+) -> PyResult<FlagsOut<'py>> {
+    let args = BtfArgs::new(block, views, lights, mask)?;
+    let b = args.btf()?;
+    let flags =
+        detach(py, || btfrs_fit::robust::screen_values(&b, floor, r0..r1, c0..c1, &btfrs_core::Monitor::new()))?;
+    let (idx, vals): (Vec<u64>, Vec<f32>) = flags.into_iter().map(|(i, x)| (i as u64, x)).unzip();
+    Ok((vec1(py, idx)?, vec1(py, vals)?))
+}
+
+/// The robust report of a blockwise fit, as JSON: the flagged values (flat indices into the
+/// whole BTF, `[H, W, V, L, 3]`, and their replacements) and the images' judgement.
+#[pyfunction]
+#[pyo3(signature = (height, width, views, lights, mask, index, values, spread, bad_images, moved, floor, excluded))]
+#[allow(clippy::too_many_arguments)]
+pub fn robust_report(
+    height: usize,
+    width: usize,
+    views: &Bound<'_, PyAny>,
+    lights: &Bound<'_, PyAny>,
+    mask: Option<&Bound<'_, PyAny>>,
+    index: &Bound<'_, PyAny>,
+    values: &Bound<'_, PyAny>,
+    spread: &Bound<'_, PyAny>,
+    bad_images: Vec<(usize, usize)>,
+    moved: Vec<(usize, usize, i32, i32)>,
+    floor: f32,
+    excluded: bool,
+) -> PyResult<String> {
+    guarded(|| {
+        let (v, l): (numpy::PyReadonlyArrayDyn<'_, f64>, numpy::PyReadonlyArrayDyn<'_, f64>) =
+            (borrow("views", views)?, borrow("lights", lights)?);
+        let (nv, nl) = (dirs("views", &v)?.len(), dirs("lights", &l)?.len());
+        let m: Option<numpy::PyReadonlyArrayDyn<'_, bool>> = mask.map(|m| borrow("mask", m)).transpose()?;
+        let m = mask_of(&m, nv, nl)?;
+        let idx: numpy::PyReadonlyArrayDyn<'_, u64> = borrow("index", index)?;
+        let val: numpy::PyReadonlyArrayDyn<'_, f32> = borrow("values", values)?;
+        let sp: numpy::PyReadonlyArrayDyn<'_, f32> = borrow("spread", spread)?;
+        check_shape("spread", sp.shape(), &[Some(nv), Some(nl)])?;
+        let (idx, val) = (idx.as_slice().map_err(|e| arg("index", e))?, val.as_slice().map_err(|e| arg("values", e))?);
+        if idx.len() != val.len() {
+            return Err(arg("values", format!("expected one value per index ({}), got {}", idx.len(), val.len())));
+        }
+        let images = btfrs_fit::robust::Images {
+            spread: sp.as_slice().map_err(|e| arg("spread", e))?.to_vec(),
+            bad_images,
+            floor,
+        };
+        let sc = btfrs_fit::robust::Screen::new(
+            idx.iter().zip(val).map(|(&i, &x)| (i as usize, x)).collect(),
+            images,
+            moved,
+        );
+        let mut r = sc.report_for([height, width, nv, nl], m, true, excluded);
+        r["robust"] = serde_json::json!(true);
+        Ok(r.to_string())
+    })
+}

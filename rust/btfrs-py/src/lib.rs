@@ -44,6 +44,12 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(models::texel_arrays, m)?)?;
     m.add_function(wrap_pyfunction!(blockwise::blockwise_plan, m)?)?;
     m.add_function(wrap_pyfunction!(blockwise::finish_blocks, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::robust_sample_texels, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::robust_images, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::robust_screen_block, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::robust_report, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::robust_moved, m)?)?;
+    m.add_function(wrap_pyfunction!(blockwise::robust_patch_window, m)?)?;
     m.add_function(wrap_pyfunction!(blockwise::srf_sums, m)?)?;
     m.add_function(wrap_pyfunction!(blockwise::srf_phong, m)?)?;
     m.add_function(wrap_pyfunction!(blockwise::srf_residual, m)?)?;
