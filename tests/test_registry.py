@@ -40,6 +40,7 @@ EXTRA = {
     "ptm": ["rust/btfrs-fit/src/lightfit.rs", "rust/btfrs-io/src/ptm_file.rs"],
     "hsh": ["rust/btfrs-fit/src/lightfit.rs", "rust/btfrs-io/src/rti_file.rs"],
     "sh": ["rust/btfrs-render/src/sh_env.rs"],
+    "neural": ["rust/btfrs-io/src/neuralrti_file.rs"],
     "rbf": ["rust/btfrs-fit/src/light_pca.rs", "rust/btfrs-fit/src/light_pca/*", "shaders_wgsl/light_pca.wgsl"],
     "bilinear": ["rust/btfrs-fit/src/light_pca.rs", "rust/btfrs-fit/src/light_pca/*", "shaders_wgsl/light_pca.wgsl"],
 }

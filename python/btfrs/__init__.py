@@ -32,7 +32,7 @@ from .exceptions import (
     NumericalError,
     OutOfRangeError,
 )
-from .models import Bilinear, ErrorReport, Hsh, Lafortune, LafortuneView, Lpca, Model, Ptm, Rbf, Sh, Srf, model_kinds
+from .models import Bilinear, ErrorReport, Hsh, Lafortune, LafortuneView, Lpca, Model, Neural, Ptm, Rbf, Sh, Srf, model_kinds
 from .io import load
 from .evaluation import EvaluationReport, evaluate
 from .environment import Environment
@@ -89,6 +89,7 @@ __all__ = [
     "Lpca",
     "Rbf",
     "Bilinear",
+    "Neural",
     "ErrorReport",
     "load",
     "render",

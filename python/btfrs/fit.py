@@ -23,9 +23,9 @@ from typing import Literal, Optional
 from ._fitting import MemoryLimit, fit, fit_kind
 from ._progress import Progress
 from .btf import Btf
-from .models import Bilinear, Hsh, Lafortune, LafortuneView, Lpca, Ptm, Rbf, Sh, Srf
+from .models import Bilinear, Hsh, Lafortune, LafortuneView, Lpca, Neural, Ptm, Rbf, Sh, Srf
 
-__all__ = ["fit", "ptm", "hsh", "lafortune", "lafortune_view", "srf", "sh", "lpca", "rbf", "bilinear"]
+__all__ = ["fit", "ptm", "hsh", "lafortune", "lafortune_view", "srf", "sh", "lpca", "rbf", "bilinear", "neural"]
 
 
 def ptm(
@@ -610,4 +610,96 @@ def bilinear(
     options: dict[str, object] = {"components": components, "colour": colour, "chroma_components": chroma_components, "resolution": resolution, "regularization": regularization, "seed": seed}
     model = fit_kind("bilinear", btf, options, memory_limit, progress, robust, exclude_bad_images)
     assert isinstance(model, Bilinear)
+    return model
+
+
+def neural(
+    btf: Btf,
+    *,
+    latents: int = 8,
+    hidden: int = 32,
+    directions: Literal["auto", "light", "xy", "half"] = "auto",
+    activation: Literal["auto", "elu", "relu"] = "auto",
+    features: Optional[int] = None,
+    grid: int = 8,
+    steps: Optional[int] = None,
+    learning_rate: float = 0.005,
+    validation: float = 0.05,
+    seed: int = 0,
+    robust: bool = True,
+    exclude_bad_images: bool = False,
+    memory_limit: MemoryLimit = None,
+    progress: Progress = None,
+) -> Neural:
+    """Fit per-texel 8-bit latent codes and one small decoder MLP per material (Rainer 2019, NeuMIP 2021, NeuralRTI 2020).
+
+    A neural BTF. Every texel holds a code of `latents` values, stored as 8-bit planes with a scale and
+    a bias per plane; one decoder per material, a multilayer perceptron with two hidden layers of
+    `hidden` units, maps the code and the (view, light) pair to RGB. The pair enters as the (x, y) of
+    the view and light and of their half vector (`directions = "half"`), or, for a capture with one
+    view, as the light's (x, y) alone: NeuralRTI's exact form `(latents + 2) -> hidden -> hidden -> 3`
+    with ELU, which `model.export("neuralrti", ...)` writes in the web format OpenLIME reads.
+
+    It is trained on the CPU as an auto-decoder (no encoder): the codes start as the texels' principal
+    coordinates (randomized PCA), then codes and weights are optimized together by Adam on minibatches
+    of random texels, each under random present pairs. A fraction `validation` of the present pairs is
+    kept out; training stops when the error on them stops falling, and keeps the best step. The last
+    tenth of the steps trains the decoder on the 8-bit codes, so the stored model is the trained one.
+    `model.report` gives the steps, the validation errors (float and 8-bit codes) and whether training
+    stopped early. Filtered lookups average the codes (`mip = "latent"`).
+
+    Parameters
+    ----------
+    btf
+        The BTF (or capture) to fit: only its present pairs are used.
+    latents
+        Latent channels per texel (8-bit planes). Allowed: an integer from 1 to 32; default 8.
+    hidden
+        Units of each of the decoder's two hidden layers. Allowed: an integer from 4 to 64; default 32.
+    directions
+        Direction encoding: "half" (view, light and half vector x, y), "xy", "light" (the light only:
+        NeuralRTI, one view); "auto": "light" for one view, else "half". Allowed: "auto", "light", "xy"
+        or "half"; default "auto".
+    activation
+        Activation of the hidden layers; "auto": ELU for "light" (NeuralRTI's), else ReLU (as accurate,
+        twice as fast to train). Allowed: "auto", "elu" or "relu"; default "auto".
+    features
+        Channels of each learned direction table (view, light, half vector) fed to the decoder (null: 0
+        for "light", NeuralRTI's form; else 8). Allowed: null or an integer from 0 to 16; default None.
+    grid
+        Nodes per side of each direction table, over the concentric square. Allowed: an integer from 2
+        to 32; default 8.
+    steps
+        Training steps at most, of 256 texels x 16 pairs each (null: 300 visits per texel, 1000 to
+        100000). Allowed: null or an integer from 1 to 1000000; default None.
+    learning_rate
+        Adam's peak learning rate, at most 0.1 (cosine schedule). Allowed: a number > 0; default 0.005.
+    validation
+        Fraction of the present pairs kept out for early stopping, at most 0.5. Allowed: a number >= 0;
+        default 0.05.
+    seed
+        Seed of the PCA start, the initial weights, the minibatches and the validation pairs. Allowed: a
+        non-negative integer; default 0.
+    robust
+        Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
+        above both their light and their spatial neighbours; false: fit every value as it is. Default
+        True.
+    exclude_bad_images
+        Leave out of the fit the whole images found far from their light and view neighbours (a misfired
+        or doubled flash); they are reported either way. Default False.
+    memory_limit
+        The anonymous memory the fit may allocate besides the model: bytes, or a size such as
+        ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
+        :class:`~btfrs.exceptions.InvalidArgumentError` naming the least it needs, before any work.
+    progress
+        ``None``, ``True`` for a progress bar, or a callable ``(done, total)``.
+
+    Returns
+    -------
+    Neural
+        The fitted model.
+    """
+    options: dict[str, object] = {"latents": latents, "hidden": hidden, "directions": directions, "activation": activation, "features": features, "grid": grid, "steps": steps, "learning_rate": learning_rate, "validation": validation, "seed": seed}
+    model = fit_kind("neural", btf, options, memory_limit, progress, robust, exclude_bad_images)
+    assert isinstance(model, Neural)
     return model

@@ -23,7 +23,7 @@ from .btf import Btf, read_container
 from ._checks import choice, index, instance
 from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
 
-__all__ = ["ErrorReport", "Model", "Ptm", "Hsh", "Lafortune", "LafortuneView", "Srf", "Sh", "Lpca", "Rbf", "Bilinear", "load",
+__all__ = ["ErrorReport", "Model", "Ptm", "Hsh", "Lafortune", "LafortuneView", "Srf", "Sh", "Lpca", "Rbf", "Bilinear", "Neural", "load",
            "model_kinds", "class_of", "wrap"]
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -178,10 +178,14 @@ class Model:
 
 
 def _slot_index(model: "Model", view: ArrayLike) -> int:
-    views = model.arrays["views"]
-    n = len(views)
     if isinstance(view, bool):
         raise ArgumentTypeError("view: expected a slot index or a direction, got a bool")
+    arrays = model.arrays
+    if "views" not in arrays:
+        # A model without view slots (one decoder for every view): slot 0, or any direction.
+        return index("view", view, 1) if isinstance(view, (int, np.integer)) else 0
+    views = arrays["views"]
+    n = len(views)
     if isinstance(view, (int, np.integer)):
         return index("view", view, n)
     d = np.asarray(_as_dir("view", view))
@@ -477,6 +481,57 @@ class Bilinear(_LightPca):
     :func:`btfrs.fit.bilinear`)."""
 
     _kind = "bilinear"
+
+
+class Neural(Model):
+    """A neural BTF (see :func:`btfrs.fit.neural`): per texel a code of ``latents`` values
+    stored as 8-bit planes, and one decoder MLP, ``(code, direction encoding) -> hidden ->
+    hidden -> RGB``.
+
+    ``latents`` is the decoded ``[H, W, latents]`` codes; ``layers`` the decoder's
+    ``(weight [out, in], bias [out])`` pairs, the inputs ordered as the codes then the
+    encoding (``directions``: ``"light"`` = the light's x, y; ``"xy"`` = view x, y, light x, y;
+    ``"half"`` = those and the half vector's x, y); ``activation`` is ``"elu"`` or ``"relu"``.
+    A single-view model (``directions == "light"``) with at most 9 latents is written in
+    NeuralRTI's web format by ``model.export(folder, format="neuralrti")``.
+    """
+
+    _kind = "neural"
+    _DIRECTIONS = ("light", "xy", "half")
+    _ACTIVATIONS = ("elu", "relu")
+
+    @property
+    def latents(self) -> np.ndarray:
+        """``[H, W, latents]`` float32: the decoded codes (``bias + scale * q``)."""
+        out = _decoded(self.arrays, "latents")
+        assert out is not None
+        return out
+
+    @property
+    def directions(self) -> str:
+        """The direction encoding: ``"light"``, ``"xy"`` or ``"half"``."""
+        return self._DIRECTIONS[int(self.arrays["architecture"][2])]
+
+    @property
+    def activation(self) -> str:
+        """The hidden layers' activation: ``"elu"`` or ``"relu"``."""
+        return self._ACTIVATIONS[int(self.arrays["architecture"][3])]
+
+    @property
+    def layers(self) -> List[Tuple[np.ndarray, np.ndarray]]:
+        """The decoder's three ``(weight [out, in], bias [out])`` float32 pairs."""
+        a = self.arrays
+        k, h = int(a["architecture"][0]), int(a["architecture"][1])
+        n = k + {"light": 2, "xy": 4, "half": 6}[self.directions]
+        p = a["decoder"]
+        out = []
+        o = 0
+        for rows, cols in ((h, n), (h, h), (3, h)):
+            w = p[o:o + rows * cols].reshape(rows, cols)
+            o += rows * cols
+            out.append((w, p[o:o + rows]))
+            o += rows
+        return out
 
 
 def model_kinds() -> Dict[str, Dict[str, Any]]:

@@ -1110,6 +1110,95 @@ def dask_table(res: Dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+# --- the neural model against every classic model -------------------------------------------
+
+def _is_neural(row: Dict[str, Any]) -> bool:
+    return bool(row.get("kind") == NEURAL)
+
+
+#: The kind this section measures (the registry's name for it; every other kind is "classic").
+NEURAL = "neural"
+
+
+def neural_bench(size: int = 64, materials_: Optional[Sequence[str]] = None) -> Dict[str, Any]:
+    """The neural model's targets (BENCHMARKS.md, "Neural model"), in one run:
+
+    * per built-in material at ``size``^2 x 81 x 81, :func:`btfrs.evaluation.evaluate` of every
+      registered model over its full sweep, 10% held out, both protocols (random pairs, whole
+      directions): the best classic row per protocol, the neural rows, whether a neural row is
+      at most the best classic error in at most 1/20 of its bytes, and whether the default
+      neural model is on the (bytes, held-out error) Pareto front;
+    * single-view captures (each material seen from above under the 81 UBO lights, 20% of the
+      lights held out): the default neural model (NeuralRTI's form) against RBF-18;
+    * render: a 512^2 sphere, one light, the default neural model against PTM-RGB, and the
+      larger sweep settings."""
+    names = list(materials_ or materials.names())
+    info = model_kinds()[NEURAL]
+    default = next(label for label, _, quick, _ in info["sweep"] if quick)
+    out: Dict[str, Any] = {"size": size, "materials": [], "single_view": [], "render": []}
+    for name in names:
+        btf = materials.make(name, size=size, seed=1)
+        rep = evaluation.evaluate(btf, "all", holdout="both", fraction=0.1, sweep="full", render=False,
+                                  material=f"{name} {size}^2")
+        rows = [{k: r.get(k) for k in ("label", "kind", "bytes", "fit_s", "reconstruction", "heldout_pairs",
+                                        "heldout_directions")} for r in rep.rows]
+        res: Dict[str, Any] = {"material": name, "rows": rows}
+        for proto in ("heldout_pairs", "heldout_directions"):
+            ok = [r for r in rows if r.get(proto) is not None and r.get("bytes")]
+            classic = min((r for r in ok if not _is_neural(r)), key=lambda r: r[proto])
+            neural = [r for r in ok if _is_neural(r)]
+            within = [r for r in neural if r[proto] <= classic[proto] and r["bytes"] * 20 <= classic["bytes"]]
+            front = {r["label"] for r in evaluation.pareto_front(ok, proto, "bytes")}
+            res[proto] = {"best_classic": classic, "neural": neural, "met": [r["label"] for r in within],
+                          "default_on_front": default in front}
+        out["materials"].append(res)
+        print(f"  {name}: done", file=sys.stderr)
+    ubo = materials.make("knit", size=8, seed=1).lights
+    for name in names:
+        btf = materials.make(name, size=size, seed=1, views=np.array([[0.0, 0.0, 1.0]]), lights=ubo)
+        train, test = btf.split(holdout=0.2, seed=0)
+        row: Dict[str, Any] = {"material": name}
+        for label, kind, opts in ((default, NEURAL, {}), ("RBF-18", "rbf", {"components": 18})):
+            t0 = time.perf_counter()
+            m = fit.fit(kind, train, **opts)
+            row[label] = {"bytes": m.nbytes, "fit_s": time.perf_counter() - t0,
+                          "heldout": m.error(test).relative, "form": getattr(m, "directions", None)}
+        out["single_view"].append(row)
+    btf = materials.make("knit", size=size, seed=1)
+    ms, _ = _render_ms(fit.ptm(btf, kind="rgb"))
+    out["render"].append({"label": "PTM-RGB", "ms": ms, "ratio": 1.0})
+    for label, opts, _, _ in info["sweep"]:
+        m = fit.fit(NEURAL, btf, **opts)
+        t, _ = _render_ms(m)
+        out["render"].append({"label": label, "ms": t, "ratio": t / ms, "bytes": m.nbytes})
+    out["adapter"] = rendering_info()
+    return out
+
+
+def neural_table(res: Dict[str, Any]) -> str:
+    pct = lambda x: f"{100 * x:.2f}%"  # noqa: E731
+    lines = [f"accuracy per byte at {res['size']}^2 x 81 x 81, 10% held out (seed 0):",
+             "| material | protocol | best classic | its bytes | neural rows (error, bytes) | <= its error in <= 1/20 bytes | default on the front |",
+             "|---|---|---|---|---|---|---|"]
+    for m in res["materials"]:
+        for proto in ("heldout_pairs", "heldout_directions"):
+            r = m[proto]
+            c = r["best_classic"]
+            ns = "; ".join(f"{n['label']} {pct(n[proto])} {n['bytes'] / 1e3:.0f} KB" for n in r["neural"])
+            lines.append(f"| {m['material']} | {proto.split('_')[1]} | {c['label']} {pct(c[proto])} | {c['bytes'] / 1e6:.2f} MB | "
+                         f"{ns} | {', '.join(r['met']) or 'no'} | {'yes' if r['default_on_front'] else 'no'} |")
+    lines += ["", "single view (81 lights, 20% held out):", "| material | neural | RBF-18 |", "|---|---|---|"]
+    for r in res["single_view"]:
+        cells = []
+        for k, v in r.items():
+            if k != "material":
+                cells.append(f"{pct(v['heldout'])} in {v['bytes'] / 1e3:.1f} KB ({v['fit_s']:.1f} s)")
+        lines.append(f"| {r['material']} | " + " | ".join(cells) + " |")
+    lines += ["", f"render, 512^2 sphere, one light, {res.get('adapter', '')}:"]
+    lines += [f"  {r['label']:<10} {r['ms']:8.1f} ms  {r['ratio']:5.2f}x PTM-RGB" for r in res["render"]]
+    return "\n".join(lines)
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     p = argparse.ArgumentParser(prog="python -m btfrs.tools.bench", description=__doc__)
     p.add_argument("--size", type=int, action="append", help="material sizes (default: 32 and 64; 32 with --accuracy)")
@@ -1150,6 +1239,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                    help="only the Dask fits: PTM and LPCA locally and on a LocalCluster of 1 and 2 workers, "
                         "knit at --size (default 96)^2 x 81 x 81 from zarr (needs btfrs[dask])")
     p.add_argument("--dask-chunks", type=int, default=32, help="the zarr tiles' side in texels (default: 32)")
+    p.add_argument("--neural-only", action="store_true",
+                   help="only the neural model's figures: accuracy per byte against every model on every material "
+                        "(both protocols), single-view captures, render time")
     p.add_argument("--figures", metavar="DIR", help="also write paper 000 Figure 6 style images into DIR")
     a = p.parse_args(argv)
     res: Any  # each mode's results
@@ -1188,6 +1280,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         _write_json(a.json, {"machine": machine(), "ground_truth": res})
         print(f"\nwrote {a.json}", file=sys.stderr)
         return 0
+    if a.neural_only:
+        res = neural_bench(size=(a.size or [64])[0])
+        print(neural_table(res))
+        return _finish(a, {"machine": machine(), "neural": res})
     if a.robust_only:
         size, rep = (a.size or [64])[0], max(1, a.repeat)
         res = robust_bench(size=size, repeat=rep)

@@ -15,6 +15,8 @@
 //! * [`rbf`] and [`bilinear`]: relight's RTI light bases (Gaussian RBF interpolation, a
 //!   bilinear light grid) per view slot, resampled on a light grid and compressed by PCA into
 //!   8-bit planes ([`light_pca`]).
+//! * [`neural`]: per-texel latent codes and one decoder MLP, trained on the CPU as an
+//!   auto-decoder (Rainer et al. 2019, NeuMIP 2021; NeuralRTI 2020 for single-view captures).
 //! * [`planes`]: 8-bit coefficient planes with per-plane scale and bias (what RTI viewers hold).
 //! * [`model`]: the model contract ([`Model`], [`ReflectanceModel`]): fit, evaluation at any
 //!   (view, light), error against a BTF (parallel, f64 accumulation), named arrays, bytes.
@@ -33,6 +35,7 @@ pub mod light_pca;
 pub mod lightfit;
 pub mod lpca;
 pub mod model;
+pub mod neural;
 pub mod options;
 pub mod planes;
 pub mod ptm;

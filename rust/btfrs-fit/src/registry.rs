@@ -150,6 +150,7 @@ pub const MODELS: &[Entry] = &[
     entry::<crate::lpca::Lpca>(),
     entry::<crate::rbf::Rbf>(),
     entry::<crate::bilinear::Bilinear>(),
+    entry::<crate::neural::Neural>(),
 ];
 
 /// The entry of `kind`, or an error listing the registered models.

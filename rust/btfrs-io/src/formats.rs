@@ -24,7 +24,7 @@ pub struct Format {
 }
 
 /// Every format, in the order `btfrs.load` tries extensions.
-pub const FORMATS: &[Format] = &[crate::ptm_file::FORMAT, crate::rti_file::FORMAT];
+pub const FORMATS: &[Format] = &[crate::ptm_file::FORMAT, crate::rti_file::FORMAT, crate::neuralrti_file::FORMAT];
 
 /// The format named `name`.
 pub fn lookup(name: &str) -> Result<&'static Format> {

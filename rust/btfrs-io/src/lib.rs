@@ -3,6 +3,7 @@
 //! * [`container`]: the `.btfrs` file for BTFs and fitted models (JSON header + aligned raw arrays).
 //! * [`model_file`]: any registered model saved to and loaded from a container.
 //! * [`ptm_file`]: `PTM_1.2` files (Malzbender et al. 2001) as RTIViewer and relight read them.
+//! * [`neuralrti_file`]: NeuralRTI's web format (`info.json` + latent plane images), as OpenLIME reads it.
 //! * [`rti_file`]: `.rti` hemispherical-harmonics files (`#HSH1.2`, RTI type 3), relight's reading.
 //! * [`image`]: PNG and OpenEXR images (rendered or measured), multi-channel EXR coefficient maps.
 //! * [`decode`]: photographs (JPEG, PNG, TIFF; 8 or 16 bit) and EXR decoded to linear RGB.
@@ -20,6 +21,7 @@ pub mod decode;
 pub mod formats;
 pub mod image;
 pub mod model_file;
+pub mod neuralrti_file;
 pub mod ptm_file;
 pub mod rti;
 pub mod rti_file;

@@ -1,0 +1,433 @@
+//! A neural BTF: per texel a code of `latents` values (8-bit planes with a scale and bias per
+//! plane), and one small decoder MLP per material mapping (code, view, light) to RGB: Rainer et
+//! al. 2019 ("Neural BTF Compression and Interpolation", a per-material network continuous in the
+//! directions), NeuMIP (Kuznetsov et al. 2021: latents per texel, no encoder) and NeuralRTI
+//! (Dulecha et al. 2020: `(latents + 2) -> hidden -> hidden -> 3` with ELU for single-view
+//! captures, whose web format `btfrs-io` writes).
+//!
+//! * [`decoder`]: the MLP, its direction encodings and activations.
+//! * [`train`]: the auto-decoder training (PCA start, Adam, early stopping, quantization-aware end).
+//! * [`dense`]: the matrix products of a training step, crate and hand-written.
+//!
+//! Evaluation splits the first layer in two, as the training does: the latent columns times a
+//! texel's code (cached per texel, `hidden` floats) plus the direction columns times the pair's
+//! encoding (once per query); the rest is one `hidden x hidden` layer and the RGB output.
+
+pub mod decoder;
+pub mod dense;
+pub mod train;
+
+use crate::gpu::{words, GpuLayout, Shader};
+use crate::model::{Mip, Model, ReflectanceModel, Sampling, Setting};
+use crate::options::Spec;
+use crate::planes::Planes;
+use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
+use decoder::{query_bias, Activation, Decoder, Directions, Shape};
+use std::borrow::Cow;
+
+/// The widest hidden layer (the shader's private arrays are this long).
+pub const MAX_HIDDEN: usize = 64;
+/// The most latents per texel.
+pub const MAX_LATENTS: usize = 32;
+/// The most channels per direction table.
+pub const MAX_FEATURES: usize = 16;
+
+/// Fit options.
+#[derive(Debug, Clone, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NeuralOptions {
+    /// Latent channels per texel.
+    pub latents: usize,
+    /// Width of both hidden layers.
+    pub hidden: usize,
+    /// `"auto"`, `"light"`, `"xy"` or `"half"`.
+    pub directions: String,
+    /// `"auto"`, `"elu"` or `"relu"`.
+    pub activation: String,
+    /// Channels of each learned direction table (`None`: 0 for `"light"`, else 8).
+    pub features: Option<usize>,
+    /// Nodes per side of each direction table.
+    pub grid: usize,
+    /// Steps at most (`None`: from the texel count).
+    pub steps: Option<usize>,
+    /// Adam's peak learning rate.
+    pub learning_rate: f64,
+    /// Fraction of the present pairs kept out for early stopping.
+    pub validation: f64,
+    /// Seed of every random choice.
+    pub seed: u64,
+}
+
+impl Default for NeuralOptions {
+    /// The defaults of [`Neural`]'s option schema.
+    fn default() -> Self {
+        crate::options::defaults(<Neural as Model>::OPTIONS)
+    }
+}
+
+/// Visits per texel of the automatic step count.
+const VISITS: usize = 300;
+
+impl NeuralOptions {
+    /// The checked training setup for `btf`.
+    fn setup(&self, btf: &BtfRef<'_>) -> Result<train::Setup> {
+        ensure_arg!(
+            self.learning_rate.is_finite() && self.learning_rate > 0.0 && self.learning_rate <= 0.1,
+            "learning_rate",
+            "expected a learning rate in (0, 0.1], got {}",
+            self.learning_rate
+        );
+        ensure_arg!(
+            self.validation.is_finite() && (0.0..=0.5).contains(&self.validation),
+            "validation",
+            "expected a fraction in [0, 0.5], got {}",
+            self.validation
+        );
+        let one_view = btf.views.len() == 1;
+        let directions = match self.directions.as_str() {
+            "auto" if one_view => Directions::Light,
+            "auto" | "half" => Directions::Half,
+            "light" => Directions::Light,
+            "xy" => Directions::Xy,
+            other => return Err(Error::arg("directions", format!("unknown encoding {other:?}"))),
+        };
+        if directions == Directions::Light && !one_view {
+            let views = btf.views.len();
+            let distinct = btf.views.iter().any(|v| btf.views.iter().any(|w| v != w));
+            ensure_arg!(
+                !distinct,
+                "directions",
+                "expected \"auto\", \"xy\" or \"half\" for a BTF of {views} views: \"light\" ignores the view"
+            );
+        }
+        let activation = match self.activation.as_str() {
+            "auto" if directions == Directions::Light => Activation::Elu,
+            "auto" | "relu" => Activation::Relu,
+            "elu" => Activation::Elu,
+            other => return Err(Error::arg("activation", format!("unknown activation {other:?}"))),
+        };
+        let texels = btf.texels();
+        let steps = self.steps.unwrap_or((VISITS * texels / train::BATCH_TEXELS).clamp(1000, 100_000));
+        let features = self.features.unwrap_or(if directions == Directions::Light { 0 } else { 8 });
+        Ok(train::Setup {
+            shape: Shape {
+                latents: self.latents,
+                directions,
+                features,
+                grid: self.grid,
+                hidden: self.hidden,
+                activation,
+            },
+            steps,
+            learning_rate: self.learning_rate,
+            validation: self.validation,
+            seed: self.seed,
+        })
+    }
+}
+
+/// A fitted neural model.
+#[derive(Debug, Clone)]
+pub struct Neural {
+    height: usize,
+    width: usize,
+    latents: Planes,
+    decoder: Decoder,
+    report: serde_json::Value,
+    /// Per texel, the latent columns of layer 1 times its decoded code (`texels x hidden`).
+    cache: Vec<f32>,
+    /// Layer 2's weights transposed.
+    w2t: Vec<f32>,
+}
+
+impl PartialEq for Neural {
+    fn eq(&self, o: &Self) -> bool {
+        (self.height, self.width) == (o.height, o.width) && self.latents == o.latents && self.decoder == o.decoder
+    }
+}
+
+impl Neural {
+    /// Assemble and check (`what`: the array names for errors).
+    pub fn new(
+        height: usize,
+        width: usize,
+        latents: Planes,
+        decoder: Decoder,
+        report: serde_json::Value,
+    ) -> Result<Self> {
+        let sh = decoder.shape;
+        ensure_arg!(
+            latents.texels == height * width && latents.k == sh.latents,
+            "latents_q",
+            "expected {height} x {width} x {} latent bytes, got {} x {}",
+            sh.latents,
+            latents.texels,
+            latents.k
+        );
+        let h = sh.hidden;
+        let mut cache = vec![0.0f32; latents.texels * h];
+        let z = latents.dequantize();
+        use rayon::prelude::*;
+        cache.par_chunks_mut(h).zip(z.par_chunks(sh.latents)).for_each(|(c, z)| decoder.latent_part(z, c));
+        let w2t = decoder.w2t();
+        Ok(Neural { height, width, latents, decoder, report, cache, w2t })
+    }
+
+    /// The decoder.
+    pub fn decoder(&self) -> &Decoder {
+        &self.decoder
+    }
+
+    /// The 8-bit latent planes (`texels x latents`, texel-major).
+    pub fn latents(&self) -> &Planes {
+        &self.latents
+    }
+
+    /// (height, width) in texels.
+    pub fn size(&self) -> (usize, usize) {
+        (self.height, self.width)
+    }
+}
+
+/// Fit a neural model to the present pairs of `btf`; `monitor` counts training steps.
+pub fn fit_neural(btf: &BtfRef<'_>, o: &NeuralOptions, monitor: &Monitor) -> Result<Neural> {
+    let s = o.setup(btf)?;
+    let t = train::train(btf, &s, monitor)?;
+    let report = serde_json::to_value(&t.report).unwrap_or(serde_json::Value::Null);
+    let mut report = report;
+    if let serde_json::Value::Object(m) = &mut report {
+        m.insert("directions".into(), s.shape.directions.name().into());
+        m.insert("activation".into(), s.shape.activation.name().into());
+        m.insert("max_steps".into(), s.steps.into());
+    }
+    Neural::new(btf.height, btf.width, t.latents, t.decoder, report)
+}
+
+/// A prepared (view, light) pair: the direction part of layer 1 and the output gain.
+#[derive(Debug, Clone, Copy)]
+pub struct NeuralQuery {
+    bias: [f32; MAX_HIDDEN],
+    gain: f32,
+}
+
+impl ReflectanceModel for Neural {
+    type Query = NeuralQuery;
+
+    fn dims(&self) -> (usize, usize) {
+        (self.height, self.width)
+    }
+
+    fn query(&self, view: [f64; 3], light: [f64; 3]) -> NeuralQuery {
+        let mut bias = [0.0f32; MAX_HIDDEN];
+        query_bias(&self.decoder.shape, &self.decoder.params, view, light, &mut bias);
+        NeuralQuery { bias, gain: self.decoder.shape.directions.gain(light) }
+    }
+
+    #[inline]
+    fn eval(&self, t: usize, q: &NeuralQuery) -> [f32; 3] {
+        let h = self.decoder.shape.hidden;
+        let mut pre = [0.0f32; MAX_HIDDEN];
+        let mut scratch = [0.0f32; MAX_HIDDEN];
+        for ((p, a), b) in pre[..h].iter_mut().zip(&self.cache[t * h..(t + 1) * h]).zip(&q.bias[..h]) {
+            *p = a + b;
+        }
+        self.decoder.finish(&mut pre[..h], &self.w2t, &mut scratch).map(|x| x * q.gain)
+    }
+}
+
+crate::gpu_params! {
+    /// Parameters of `neural.wgsl`.
+    pub struct NeuralParams {
+        /// Latents per texel.
+        pub latents: u32,
+        /// Width of both hidden layers.
+        pub hidden: u32,
+        /// The direction encoding (0 light, 1 xy, 2 half).
+        pub directions: u32,
+        /// The activation (0 ELU, 1 ReLU).
+        pub activation: u32,
+        /// Store offset of the latent bytes, `[texel][latent]`, four to a word.
+        pub q: u32,
+        /// Store offset of the latents' scales then biases (`2 latents` f32).
+        pub scale: u32,
+        /// Store offset of the decoder's parameters (w1, b1, w2, b2, w3, b3, tables; f32).
+        pub weights: u32,
+        /// Channels of each direction table (0: none).
+        pub features: u32,
+        /// Nodes per side of each direction table.
+        pub grid: u32,
+    }
+}
+
+impl GpuLayout for Neural {
+    type Params = NeuralParams;
+    const SHADER: Shader = Shader::new::<NeuralParams>("neural", include_str!("../../../shaders_wgsl/neural.wgsl"));
+
+    fn parts(&self) -> Vec<Cow<'_, [u32]>> {
+        vec![Cow::Owned(self.latents.words()), Cow::Owned(self.latents.scale_bias_words()), words(&self.decoder.params)]
+    }
+
+    fn params(&self, offsets: &[u32], _tables: &[u32]) -> NeuralParams {
+        let sh = self.decoder.shape;
+        NeuralParams {
+            latents: sh.latents as u32,
+            hidden: sh.hidden as u32,
+            directions: sh.directions.code() as u32,
+            activation: sh.activation.code() as u32,
+            q: offsets[0],
+            scale: offsets[1],
+            weights: offsets[2],
+            features: sh.features as u32,
+            grid: sh.grid as u32,
+        }
+    }
+}
+
+impl Model for Neural {
+    const KIND: &'static str = "neural";
+    const DOC: &'static str =
+        "per-texel 8-bit latent codes and one small decoder MLP per material (Rainer 2019, NeuMIP 2021, NeuralRTI 2020)";
+    const ABOUT: &'static str = "\
+A neural BTF. Every texel holds a code of `latents` values, stored as 8-bit planes with a scale and
+a bias per plane; one decoder per material, a multilayer perceptron with two hidden layers of
+`hidden` units, maps the code and the (view, light) pair to RGB. The pair enters as the (x, y) of
+the view and light and of their half vector (`directions = \"half\"`), or, for a capture with one
+view, as the light's (x, y) alone: NeuralRTI's exact form `(latents + 2) -> hidden -> hidden -> 3`
+with ELU, which `model.export(\"neuralrti\", ...)` writes in the web format OpenLIME reads.
+
+It is trained on the CPU as an auto-decoder (no encoder): the codes start as the texels'
+principal coordinates (randomized PCA), then codes and weights are optimized together by Adam
+on minibatches of random texels, each under random present pairs. A fraction `validation` of the
+present pairs is kept out; training stops when the error on them stops falling, and keeps the
+best step. The last tenth of the steps trains the decoder on the 8-bit codes, so the stored model
+is the trained one. `model.report` gives the steps, the validation errors (float and 8-bit codes)
+and whether training stopped early. Filtered lookups average the codes (`mip = \"latent\"`).";
+    const OPTIONS: &'static [Spec] = &[
+        Spec::int("latents", 8, 1, Some(MAX_LATENTS as i64), "latent channels per texel (8-bit planes)"),
+        Spec::int("hidden", 32, 4, Some(MAX_HIDDEN as i64), "units of each of the decoder's two hidden layers"),
+        Spec::choice(
+            "directions",
+            "auto",
+            &["auto", "light", "xy", "half"],
+            "direction encoding: \"half\" (view, light and half vector x, y), \"xy\", \"light\" (the light only: NeuralRTI, one view); \"auto\": \"light\" for one view, else \"half\"",
+        ),
+        Spec::choice(
+            "activation",
+            "auto",
+            &["auto", "elu", "relu"],
+            "activation of the hidden layers; \"auto\": ELU for \"light\" (NeuralRTI's), else ReLU (as accurate, twice as fast to train)",
+        ),
+        Spec::opt_int(
+            "features",
+            0,
+            Some(MAX_FEATURES as i64),
+            "channels of each learned direction table (view, light, half vector) fed to the decoder (null: 0 for \"light\", NeuralRTI's form; else 8)",
+        ),
+        Spec::int("grid", 8, 2, Some(32), "nodes per side of each direction table, over the concentric square"),
+        Spec::opt_int(
+            "steps",
+            1,
+            Some(1_000_000),
+            "training steps at most, of 256 texels x 16 pairs each (null: 300 visits per texel, 1000 to 100000)",
+        ),
+        Spec::positive("learning_rate", 0.005, "Adam's peak learning rate, at most 0.1 (cosine schedule)"),
+        Spec::float("validation", 0.05, 0.0, "fraction of the present pairs kept out for early stopping, at most 0.5"),
+        Spec::seed("seed of the PCA start, the initial weights, the minibatches and the validation pairs"),
+    ];
+    const EXAMPLES: &'static [(&'static str, &'static str)] =
+        &[("Neural-8", r#"{"latents": 8}"#), ("Neural-16", r#"{"latents": 16, "hidden": 64, "features": 16}"#)];
+    const SWEEP: &'static [Setting] = &[
+        Setting::full("Neural-4", r#"{"latents": 4, "hidden": 16, "features": 4}"#),
+        Setting::quick("Neural-8", r#"{"latents": 8}"#),
+        Setting::full("Neural-16", r#"{"latents": 16, "hidden": 64, "features": 16}"#),
+    ];
+    const SAMPLING: Sampling = Sampling::Any {
+        note: "any sampling: trained on random present pairs, a few hundred per texel",
+        one_view: "one view: NeuralRTI's form, the light's (x, y) only",
+    };
+    const EXPORTS: &'static [&'static str] = &["neuralrti"];
+    const TEXEL_ARRAYS: &'static [&'static str] = &["latents_q"];
+    // Averaged latents were measured against supersampling (a plane at 40 repeats, bumps 16^2):
+    // RMSE 0.086 against nearest lookups' 0.069, worse (the decoder is not linear in its codes);
+    // appearance medoids keep every level a real texel's appearance.
+    const MIP: Mip = Mip::Medoid;
+    const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Unsupported(
+        "its decoder is shared by every texel and trained on all of them at once",
+    );
+    type Options = NeuralOptions;
+
+    fn fit(btf: &BtfRef<'_>, options: &NeuralOptions, monitor: &Monitor) -> Result<Self> {
+        fit_neural(btf, options, monitor)
+    }
+
+    /// The latents with Adam's moments, the PCA start's smallest sample, and scratch.
+    fn least_memory(btf: &BtfRef<'_>, options: &NeuralOptions) -> u64 {
+        let t = btf.texels() as u64;
+        t * options.latents as u64 * 16 + t * 12 * (options.latents as u64).div_ceil(3) + 16_000_000
+    }
+
+    fn to_arrays(&self) -> NamedArrays {
+        let sh = self.decoder.shape;
+        let mut a = NamedArrays::new();
+        self.latents.insert_into(&mut a, "latents_", vec![self.height, self.width, sh.latents]);
+        a.put(
+            "architecture",
+            &[6],
+            vec![
+                sh.latents as i32,
+                sh.hidden as i32,
+                sh.directions.code(),
+                sh.activation.code(),
+                sh.features as i32,
+                sh.grid as i32,
+            ],
+        );
+        a.put("decoder", &[self.decoder.params.len()], self.decoder.params.clone());
+        a
+    }
+
+    fn from_arrays(a: &NamedArrays) -> Result<Self> {
+        let (arch, _) = a.get::<i32>("architecture", &[Some(6)])?;
+        let bad = |msg: String| Error::format("architecture", msg);
+        let latents = arch[0];
+        let hidden = arch[1];
+        if !(1..=MAX_LATENTS as i32).contains(&latents) {
+            return Err(bad(format!("expected 1 to {MAX_LATENTS} latents, got {latents}")));
+        }
+        if !(4..=MAX_HIDDEN as i32).contains(&hidden) {
+            return Err(bad(format!("expected 4 to {MAX_HIDDEN} hidden units, got {hidden}")));
+        }
+        let directions =
+            Directions::from_code(arch[2]).ok_or_else(|| bad(format!("unknown direction encoding {}", arch[2])))?;
+        let activation =
+            Activation::from_code(arch[3]).ok_or_else(|| bad(format!("unknown activation {}", arch[3])))?;
+        let (features, grid) = (arch[4], arch[5]);
+        if !(0..=MAX_FEATURES as i32).contains(&features) {
+            return Err(bad(format!("expected 0 to {MAX_FEATURES} table features, got {features}")));
+        }
+        if !(2..=32).contains(&grid) {
+            return Err(bad(format!("expected 2 to 32 table nodes per side, got {grid}")));
+        }
+        let shape = Shape {
+            latents: latents as usize,
+            directions,
+            features: features as usize,
+            grid: grid as usize,
+            hidden: hidden as usize,
+            activation,
+        };
+        let (_, qshape) = a.get::<u8>("latents_q", &[None, None, Some(shape.latents)])?;
+        let (height, width) = (qshape[0], qshape[1]);
+        let planes = Planes::from_arrays(a, "latents_", height * width, shape.latents)?;
+        let (params, _) = a.get::<f32>("decoder", &[None])?;
+        let decoder = Decoder::new(shape, params.to_vec(), "decoder")?;
+        Neural::new(height, width, planes, decoder, serde_json::Value::Null)
+    }
+
+    fn report(&self) -> serde_json::Value {
+        self.report.clone()
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,368 @@
+//! The decoder MLP of the neural model: `(latent, direction encoding) -> hidden -> hidden -> RGB`,
+//! two hidden layers of one width, ELU or ReLU. Its parameters live in one flat vector (what Adam
+//! updates and the file stores, layer by layer), each weight matrix row-major `[out][in]`, the
+//! latent inputs first (NeuralRTI's order: latents, then the light's x and y).
+//!
+//! The direction encoding is the (x, y) of the directions ([`Directions`]) followed by learned
+//! features: per direction (view, light, half vector) a `grid x grid` table of `features`
+//! channels over the elevated concentric square (paper 004, section 6.1; `btfrs_hemimap`),
+//! looked up bilinearly. A small MLP fed raw coordinates cannot draw the sharp shadow and
+//! highlight boundaries of a BTF's directions (measured: worse than a linear PCA of as many
+//! components); the tables give it a learned basis over each hemisphere, continuous in the
+//! directions, for a few thousand floats.
+
+use btfrs_core::{Error, Result};
+
+/// How the (view, light) pair is fed to the decoder.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Directions {
+    /// The light's (x, y) only: NeuralRTI's form, for captures with one view.
+    Light,
+    /// The (x, y) of the view and of the light.
+    Xy,
+    /// The (x, y) of the view and of the light, and the (x, y) of their half vector.
+    Half,
+}
+
+impl Directions {
+    /// Inputs it adds to the latents.
+    pub fn dims(self) -> usize {
+        match self {
+            Directions::Light => 2,
+            Directions::Xy => 4,
+            Directions::Half => 6,
+        }
+    }
+    /// Its code in files and on the GPU.
+    pub fn code(self) -> i32 {
+        self as i32
+    }
+    /// The encoding of code `c`.
+    pub fn from_code(c: i32) -> Option<Directions> {
+        [Directions::Light, Directions::Xy, Directions::Half].into_iter().find(|d| d.code() == c)
+    }
+    /// How many directions it looks up in feature tables: the light; view and light; view,
+    /// light and half vector.
+    pub fn tables(self) -> usize {
+        match self {
+            Directions::Light => 1,
+            Directions::Xy => 2,
+            Directions::Half => 3,
+        }
+    }
+    /// Its option name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Directions::Light => "light",
+            Directions::Xy => "xy",
+            Directions::Half => "half",
+        }
+    }
+    /// The factor the decoder's output is multiplied by: the light's cosine (`l.z`) for the
+    /// BTF encodings, whose values include it (a smooth reflectance is then left to the MLP and
+    /// grazing lights darken by construction); 1 for NeuralRTI's form, kept exact.
+    pub fn gain(self, l: [f64; 3]) -> f32 {
+        match self {
+            Directions::Light => 1.0,
+            Directions::Xy | Directions::Half => l[2].max(0.0) as f32,
+        }
+    }
+    /// The inputs for unit directions `v` and `l` (z >= 0).
+    pub fn encode(self, v: [f64; 3], l: [f64; 3], out: &mut [f32]) {
+        match self {
+            Directions::Light => {
+                out[0] = l[0] as f32;
+                out[1] = l[1] as f32;
+            }
+            Directions::Xy | Directions::Half => {
+                out[..4].copy_from_slice(&[v[0] as f32, v[1] as f32, l[0] as f32, l[1] as f32]);
+                if self == Directions::Half {
+                    let h = [v[0] + l[0], v[1] + l[1], v[2] + l[2]];
+                    let n = (h[0] * h[0] + h[1] * h[1] + h[2] * h[2]).sqrt();
+                    // Opposite grazing directions have no half vector: take the normal's.
+                    let (hx, hy) = if n > 1e-9 { (h[0] / n, h[1] / n) } else { (0.0, 0.0) };
+                    out[4] = hx as f32;
+                    out[5] = hy as f32;
+                }
+            }
+        }
+    }
+}
+
+/// The hidden layers' activation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Activation {
+    /// `x` above 0, `exp(x) - 1` below (NeuralRTI's).
+    Elu,
+    /// `max(x, 0)`.
+    Relu,
+}
+
+impl Activation {
+    /// Its code in files and on the GPU.
+    pub fn code(self) -> i32 {
+        self as i32
+    }
+    /// The activation of code `c`.
+    pub fn from_code(c: i32) -> Option<Activation> {
+        [Activation::Elu, Activation::Relu].into_iter().find(|a| a.code() == c)
+    }
+    /// Its option name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Activation::Elu => "elu",
+            Activation::Relu => "relu",
+        }
+    }
+    /// Applied in place.
+    #[inline]
+    pub fn apply(self, x: &mut [f32]) {
+        match self {
+            Activation::Elu => x.iter_mut().for_each(|v| *v = if *v > 0.0 { *v } else { v.exp_m1() }),
+            Activation::Relu => x.iter_mut().for_each(|v| *v = v.max(0.0)),
+        }
+    }
+    /// `d act / d x` times `g`, in place in `g`, from the activation's output `y`.
+    #[inline]
+    pub fn backward(self, y: &[f32], g: &mut [f32]) {
+        match self {
+            Activation::Elu => g.iter_mut().zip(y).for_each(|(g, &y)| *g *= if y > 0.0 { 1.0 } else { y + 1.0 }),
+            Activation::Relu => g.iter_mut().zip(y).for_each(|(g, &y)| *g *= if y > 0.0 { 1.0 } else { 0.0 }),
+        }
+    }
+}
+
+/// The decoder's shape.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shape {
+    /// Latent channels per texel.
+    pub latents: usize,
+    /// The direction encoding.
+    pub directions: Directions,
+    /// Channels of each learned direction table (0: none, NeuralRTI's form).
+    pub features: usize,
+    /// Nodes per side of each table.
+    pub grid: usize,
+    /// Width of both hidden layers.
+    pub hidden: usize,
+    /// The activation of both hidden layers.
+    pub activation: Activation,
+}
+
+/// Offsets of each layer's parameters in the flat vector.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Offsets {
+    /// `w1 [hidden][latents + directions]`.
+    pub w1: usize,
+    /// `b1 [hidden]`.
+    pub b1: usize,
+    /// `w2 [hidden][hidden]`.
+    pub w2: usize,
+    /// `b2 [hidden]`.
+    pub b2: usize,
+    /// `w3 [3][hidden]`.
+    pub w3: usize,
+    /// `b3 [3]`.
+    pub b3: usize,
+    /// The direction tables, `[table][grid * grid][features]` (view, light, half; as many as
+    /// the encoding has).
+    pub tables: usize,
+    /// Total parameters.
+    pub len: usize,
+}
+
+impl Shape {
+    /// Learned direction tables (0 without features).
+    pub fn tables(&self) -> usize {
+        if self.features == 0 {
+            0
+        } else {
+            self.directions.tables()
+        }
+    }
+    /// Inputs besides the latents: coordinates, then table features.
+    pub fn encoding(&self) -> usize {
+        self.directions.dims() + self.tables() * self.features
+    }
+    /// Inputs of the first layer.
+    pub fn inputs(&self) -> usize {
+        self.latents + self.encoding()
+    }
+    /// Where each layer's parameters are.
+    pub fn offsets(&self) -> Offsets {
+        let (n, h) = (self.inputs(), self.hidden);
+        let w1 = 0;
+        let b1 = w1 + h * n;
+        let w2 = b1 + h;
+        let b2 = w2 + h * h;
+        let w3 = b2 + h;
+        let b3 = w3 + 3 * h;
+        let tables = b3 + 3;
+        Offsets { w1, b1, w2, b2, w3, b3, tables, len: tables + self.tables() * self.grid * self.grid * self.features }
+    }
+}
+
+/// A decoder: its shape and parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Decoder {
+    /// The shape.
+    pub shape: Shape,
+    /// Every parameter, laid out as [`Shape::offsets`] says.
+    pub params: Vec<f32>,
+}
+
+/// The most inputs besides the latents: 6 coordinates and 3 tables of at most 16 features.
+pub const MAX_ENCODING: usize = 6 + 3 * 16;
+
+/// Bilinear taps of one direction in a table: `(node, weight)` for the four nodes around its
+/// point of the concentric square.
+pub type Taps = [(u32, f32); 4];
+
+/// The taps of direction `d` in a `grid x grid` table (node `(i, j)` at square point
+/// `(i, j) / (grid - 1)`, node index `j * grid + i`).
+pub fn taps(d: [f64; 3], grid: usize) -> Taps {
+    let [s, t] = btfrs_hemimap::hemisphere_to_square(d);
+    let m = (grid - 1) as f64;
+    let (x, y) = ((s * m).clamp(0.0, m), (t * m).clamp(0.0, m));
+    let (i, j) = ((x.floor() as usize).min(grid - 2), (y.floor() as usize).min(grid - 2));
+    let (fx, fy) = ((x - i as f64) as f32, (y - j as f64) as f32);
+    let n = (j * grid + i) as u32;
+    let g = grid as u32;
+    [(n, (1.0 - fx) * (1.0 - fy)), (n + 1, fx * (1.0 - fy)), (n + g, (1.0 - fx) * fy), (n + g + 1, fx * fy)]
+}
+
+/// The half vector of unit `v` and `l` (the normal for opposite grazing directions).
+pub fn half(v: [f64; 3], l: [f64; 3]) -> [f64; 3] {
+    let h = [v[0] + l[0], v[1] + l[1], v[2] + l[2]];
+    let n = (h[0] * h[0] + h[1] * h[1] + h[2] * h[2]).sqrt();
+    if n > 1e-9 {
+        h.map(|x| x / n)
+    } else {
+        [0.0, 0.0, 1.0]
+    }
+}
+
+/// The taps of each table's direction: the light; view and light; view, light and half.
+pub fn table_taps(shape: &Shape, v: [f64; 3], l: [f64; 3]) -> [Taps; 3] {
+    let g = shape.grid.max(2);
+    match shape.directions {
+        Directions::Light => [taps(l, g), taps(l, g), taps(l, g)],
+        Directions::Xy => [taps(v, g), taps(l, g), taps(l, g)],
+        Directions::Half => [taps(v, g), taps(l, g), taps(half(v, l), g)],
+    }
+}
+
+/// The whole encoding (coordinates, then table features) from the taps, into `out`.
+pub fn encode_with(shape: &Shape, params: &[f32], v: [f64; 3], l: [f64; 3], tp: &[Taps; 3], out: &mut [f32]) {
+    let e = shape.directions.dims();
+    shape.directions.encode(v, l, &mut out[..e]);
+    let c = shape.features;
+    let base = shape.offsets().tables;
+    let nodes = shape.grid * shape.grid;
+    for (ti, taps) in tp.iter().enumerate().take(shape.tables()) {
+        let o = &mut out[e + ti * c..e + (ti + 1) * c];
+        o.fill(0.0);
+        for &(node, w) in taps {
+            let row = &params[base + (ti * nodes + node as usize) * c..][..c];
+            o.iter_mut().zip(row).for_each(|(x, f)| *x += w * f);
+        }
+    }
+}
+
+/// The per-query part of the first layer: `b1 + W1[:, latents..] e(v, l)`.
+pub fn query_bias(shape: &Shape, params: &[f32], v: [f64; 3], l: [f64; 3], out: &mut [f32]) {
+    let o = shape.offsets();
+    let (n, k, h) = (shape.inputs(), shape.latents, shape.hidden);
+    let mut e = [0.0f32; MAX_ENCODING];
+    encode_with(shape, params, v, l, &table_taps(shape, v, l), &mut e);
+    for j in 0..h {
+        let row = &params[o.w1 + j * n + k..o.w1 + (j + 1) * n];
+        out[j] = params[o.b1 + j] + row.iter().zip(&e).map(|(w, x)| w * x).sum::<f32>();
+    }
+}
+
+impl Decoder {
+    /// Check the parameters against the shape: the right count, every value finite.
+    pub fn new(shape: Shape, params: Vec<f32>, name: &str) -> Result<Decoder> {
+        let len = shape.offsets().len;
+        if params.len() != len {
+            return Err(Error::format(
+                name,
+                format!(
+                    "expected {len} decoder parameters for {} latents, {} directions, {} features on a {} grid \
+                     and {} hidden units, got {}",
+                    shape.latents,
+                    shape.directions.name(),
+                    shape.features,
+                    shape.grid,
+                    shape.hidden,
+                    params.len()
+                ),
+            ));
+        }
+        if let Some(i) = params.iter().position(|x| !x.is_finite()) {
+            return Err(Error::format(name, format!("decoder parameter {i} ({}) is not finite", params[i])));
+        }
+        Ok(Decoder { shape, params })
+    }
+
+    /// `W1[:, ..latents] z`: the per-texel part of the first layer.
+    pub fn latent_part(&self, z: &[f32], out: &mut [f32]) {
+        let (n, h) = (self.shape.inputs(), self.shape.hidden);
+        let w1 = &self.params[self.shape.offsets().w1..];
+        for j in 0..h {
+            out[j] = w1[j * n..j * n + z.len()].iter().zip(z).map(|(w, x)| w * x).sum();
+        }
+    }
+
+    /// The RGB output given the first layer's pre-activation `pre1` (latent part plus query
+    /// bias); `w2t` is `W2` transposed (`[in][out]`, so the second layer is a sum of rows).
+    #[inline]
+    pub fn finish(&self, pre1: &mut [f32], w2t: &[f32], scratch: &mut [f32]) -> [f32; 3] {
+        let o = self.shape.offsets();
+        let h = self.shape.hidden;
+        let act = self.shape.activation;
+        act.apply(pre1);
+        let h2 = &mut scratch[..h];
+        h2.copy_from_slice(&self.params[o.b2..o.b2 + h]);
+        for (i, &x) in pre1.iter().enumerate() {
+            for (a, &w) in h2.iter_mut().zip(&w2t[i * h..(i + 1) * h]) {
+                *a += w * x;
+            }
+        }
+        act.apply(h2);
+        let mut out = [0.0f32; 3];
+        for (c, o3) in out.iter_mut().enumerate() {
+            let row = &self.params[o.w3 + c * h..o.w3 + (c + 1) * h];
+            *o3 = self.params[o.b3 + c] + row.iter().zip(h2.iter()).map(|(w, x)| w * x).sum::<f32>();
+        }
+        out
+    }
+
+    /// `W2` transposed.
+    pub fn w2t(&self) -> Vec<f32> {
+        let h = self.shape.hidden;
+        let w2 = &self.params[self.shape.offsets().w2..];
+        let mut t = vec![0.0f32; h * h];
+        for j in 0..h {
+            for i in 0..h {
+                t[i * h + j] = w2[j * h + i];
+            }
+        }
+        t
+    }
+
+    /// The output for latent `z` at directions `v`, `l`, gain included (no cached parts: the
+    /// reference form).
+    pub fn eval(&self, z: &[f32], v: [f64; 3], l: [f64; 3]) -> [f32; 3] {
+        let h = self.shape.hidden;
+        let mut pre = vec![0.0f32; h];
+        let mut q = vec![0.0f32; h];
+        self.latent_part(z, &mut pre);
+        query_bias(&self.shape, &self.params, v, l, &mut q);
+        pre.iter_mut().zip(&q).for_each(|(a, b)| *a += b);
+        let mut scratch = vec![0.0f32; h];
+        let g = self.shape.directions.gain(l);
+        self.finish(&mut pre, &self.w2t(), &mut scratch).map(|x| x * g)
+    }
+}

@@ -1,0 +1,198 @@
+use super::decoder::{Activation, Decoder, Directions, Shape};
+use super::train::{chunk_grad, Pair, PAIRS};
+use super::*;
+use btfrs_core::directions::ubo81;
+use btfrs_core::rng::Rng;
+use btfrs_core::Btf;
+
+fn random_decoder(shape: Shape, seed: u64, gain: f64) -> Decoder {
+    let mut rng = Rng::new(seed);
+    let n = shape.offsets().len;
+    let params = (0..n).map(|_| ((2.0 * rng.next_f64() - 1.0) * gain) as f32).collect();
+    Decoder { shape, params }
+}
+
+/// A BTF made by a decoder from random codes: what a perfect fit recovers.
+fn decoded_btf(dec: &Decoder, size: usize, seed: u64) -> (Btf, Vec<f32>) {
+    let views: Vec<[f64; 3]> = ubo81().into_iter().step_by(4).collect();
+    let lights = ubo81();
+    let k = dec.shape.latents;
+    let mut rng = Rng::new(seed);
+    let z: Vec<f32> = (0..size * size * k).map(|_| (2.0 * rng.next_f64() - 1.0) as f32).collect();
+    let mut data = Vec::with_capacity(size * size * views.len() * lights.len() * 3);
+    for t in 0..size * size {
+        for &v in &views {
+            for &l in &lights {
+                // Positive values, as a BTF's: a constant reflectance lifts the decoder's output.
+                let y = dec.eval(&z[t * k..(t + 1) * k], v, l);
+                let g = dec.shape.directions.gain(l);
+                data.extend(y.iter().map(|x| x + g));
+            }
+        }
+    }
+    (Btf { height: size, width: size, views, lights, data }, z)
+}
+
+#[test]
+fn evaluation_with_cached_parts_equals_the_plain_decoder() {
+    for directions in [Directions::Light, Directions::Xy, Directions::Half] {
+        let shape = Shape { latents: 5, directions, features: 3, grid: 4, hidden: 12, activation: Activation::Elu };
+        let dec = random_decoder(shape, 3, 0.5);
+        let z: Vec<f32> = (0..4 * 5).map(|i| (i as f32 * 0.37).sin()).collect();
+        let planes = Planes::quantize(&z, 5).unwrap();
+        let zq = planes.dequantize();
+        let m = Neural::new(2, 2, planes, dec.clone(), serde_json::Value::Null).unwrap();
+        let (v, l) = ([0.3, -0.2, (1.0f64 - 0.13).sqrt()], [-0.5, 0.1, (1.0f64 - 0.26).sqrt()]);
+        let q = m.query(v, l);
+        for t in 0..4 {
+            let a = m.eval(t, &q);
+            let b = dec.eval(&zq[t * 5..(t + 1) * 5], v, l);
+            for c in 0..3 {
+                assert!((a[c] - b[c]).abs() < 1e-5 * (1.0 + b[c].abs()), "{directions:?} {t} {c}: {a:?} vs {b:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn gradients_match_central_differences() {
+    // The loss of chunk_grad (sum of squared errors / norm) differenced in each decoder
+    // parameter and each latent, against the backward pass; float64 differences of a float32
+    // forward, so a step of 1e-2 and a loose tolerance on the larger entries.
+    for activation in [Activation::Elu, Activation::Relu] {
+        let shape = Shape { latents: 3, directions: Directions::Half, features: 2, grid: 3, hidden: 6, activation };
+        let dec = random_decoder(shape, 11, 0.8);
+        let (btf, _) = decoded_btf(&random_decoder(shape, 12, 0.8), 2, 5);
+        let b = btf.as_ref();
+        let nl = b.lights.len();
+        let pairs: Vec<Pair> = (0..b.views.len())
+            .flat_map(|v| (0..nl).map(move |l| (v, l)))
+            .map(|(v, l)| Pair::new(&shape, b.views[v], b.lights[l], (v * nl + l) * 3))
+            .collect();
+        let texels = [0usize, 3];
+        let z = vec![0.3f32, -0.7, 0.5, -0.2, 0.9, 0.1];
+        let norm = (texels.len() * PAIRS * 3) as f32;
+        let g = chunk_grad(&b, &pairs, &dec, &texels, &z, 0.5, norm, 77, true);
+        let loss =
+            |d: &Decoder, z: &[f32]| chunk_grad(&b, &pairs, d, &texels, z, 0.5, norm, 77, false).sse / norm as f64;
+        let h = 1e-2f32;
+        let mut checked = 0;
+        let scale = g.dec.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+        for i in 0..dec.params.len() {
+            let (mut p, mut m) = (dec.clone(), dec.clone());
+            p.params[i] += h;
+            m.params[i] -= h;
+            let fd = (loss(&p, &z) - loss(&m, &z)) / (2.0 * h as f64);
+            // ReLU kinks make a few differences meaningless: skip where the two sides disagree
+            // with a linear model (second difference large).
+            let c = loss(&dec, &z);
+            if activation == Activation::Relu && (loss(&p, &z) + loss(&m, &z) - 2.0 * c).abs() > 1e-3 * c.abs() {
+                continue;
+            }
+            assert!(
+                (fd - g.dec[i] as f64).abs() < 0.02 * scale as f64 + 0.03 * fd.abs(),
+                "{activation:?} param {i}: backward {} vs difference {fd}",
+                g.dec[i]
+            );
+            checked += 1;
+        }
+        assert!(checked > dec.params.len() / 2, "{checked}");
+        for i in 0..z.len() {
+            let (mut zp, mut zm) = (z.clone(), z.clone());
+            zp[i] += h;
+            zm[i] -= h;
+            let fd = (loss(&dec, &zp) - loss(&dec, &zm)) / (2.0 * h as f64);
+            assert!(
+                (fd - g.dz[i] as f64).abs() < 0.02 * scale as f64 + 0.05 * fd.abs(),
+                "latent {i}: {} vs {fd}",
+                g.dz[i]
+            );
+        }
+    }
+}
+
+#[test]
+fn training_recovers_data_made_by_a_decoder() {
+    // A BTF made by a random decoder of the same shape from random codes: the fit must explain
+    // it far better than its mean does, with the 8-bit codes it stores, and on held-out pairs.
+    let shape = Shape {
+        latents: 4,
+        directions: Directions::Half,
+        features: 4,
+        grid: 6,
+        hidden: 16,
+        activation: Activation::Elu,
+    };
+    let (btf, _) = decoded_btf(&random_decoder(shape, 21, 0.6), 8, 9);
+    let b = btf.as_ref();
+    let o =
+        NeuralOptions { latents: 4, hidden: 16, features: Some(4), grid: 6, steps: Some(1500), ..Default::default() };
+    let m = fit_neural(&b, &o, &Monitor::new()).unwrap();
+    let e = crate::model::model_error(&m, &b).unwrap();
+    let rel = (e.sse / e.sgt).sqrt();
+    let mean = b.data.iter().map(|&x| x as f64).sum::<f64>() / b.data.len() as f64;
+    let spread = (b.data.iter().map(|&x| (x as f64 - mean).powi(2)).sum::<f64>() / e.sgt).sqrt();
+    assert!(rel < 0.1 * spread, "relative error {rel} vs the data's spread {spread}");
+    let r = m.report();
+    assert!(r["validation_error_8bit"].as_f64().unwrap() < 0.15 * spread, "{r}");
+    assert_eq!(r["directions"], "half");
+}
+
+#[test]
+fn a_seed_gives_one_model() {
+    let btf = btfrs_core::materials::generate(
+        &btfrs_core::materials::MaterialSpec::new(btfrs_core::materials::Preset::Bumps, 8, 1),
+        &Monitor::new(),
+    )
+    .unwrap();
+    let o = NeuralOptions { latents: 2, hidden: 8, steps: Some(60), ..Default::default() };
+    let a = fit_neural(&btf.as_ref(), &o, &Monitor::new()).unwrap();
+    let b = fit_neural(&btf.as_ref(), &o, &Monitor::new()).unwrap();
+    assert_eq!(a, b);
+    let c = fit_neural(&btf.as_ref(), &NeuralOptions { seed: 1, ..o }, &Monitor::new()).unwrap();
+    assert_ne!(a, c);
+}
+
+#[test]
+fn bad_arrays_and_options_are_named() {
+    let shape =
+        Shape { latents: 3, directions: Directions::Xy, features: 2, grid: 4, hidden: 8, activation: Activation::Relu };
+    let z: Vec<f32> = (0..4 * 3).map(|i| i as f32).collect();
+    let m = Neural::new(2, 2, Planes::quantize(&z, 3).unwrap(), random_decoder(shape, 1, 1.0), serde_json::Value::Null)
+        .unwrap();
+    let a = m.to_arrays();
+    assert_eq!(Neural::from_arrays(&a).unwrap(), m);
+    let mut short = a.clone();
+    short.put("decoder", &[10], vec![0.0f32; 10]);
+    let e = Neural::from_arrays(&short).unwrap_err().to_string();
+    assert!(e.contains("decoder") && e.contains("expected"), "{e}");
+    let mut nan = a.clone();
+    let mut p = m.decoder().params.clone();
+    p[4] = f32::NAN;
+    nan.put("decoder", &[p.len()], p);
+    assert!(Neural::from_arrays(&nan).unwrap_err().to_string().contains("not finite"));
+    let mut arch = a.clone();
+    arch.put("architecture", &[6], vec![3i32, 8, 7, 1, 2, 4]);
+    assert!(Neural::from_arrays(&arch).unwrap_err().to_string().contains("direction encoding"));
+    let mut wide = a;
+    wide.put("architecture", &[6], vec![3i32, 9, 1, 1, 2, 4]);
+    assert!(Neural::from_arrays(&wide).unwrap_err().to_string().contains("decoder"));
+
+    // Options: fewer pairs than latents; "light" on a multi-view BTF; learning rate.
+    let btf = btfrs_core::materials::generate(
+        &btfrs_core::materials::MaterialSpec::new(btfrs_core::materials::Preset::Bumps, 8, 1),
+        &Monitor::new(),
+    )
+    .unwrap();
+    let b = btf.as_ref();
+    let mut mask = vec![false; b.views.len() * b.lights.len()];
+    mask[..5].iter_mut().for_each(|x| *x = true);
+    let masked = BtfRef { mask: Some(&mask), ..b };
+    let e = fit_neural(&masked, &NeuralOptions { latents: 8, ..Default::default() }, &Monitor::new()).unwrap_err();
+    assert!(e.to_string().starts_with("latents: expected at most"), "{e}");
+    let e = fit_neural(&b, &NeuralOptions { directions: "light".into(), ..Default::default() }, &Monitor::new())
+        .unwrap_err();
+    assert!(e.to_string().starts_with("directions: expected"), "{e}");
+    let e = fit_neural(&b, &NeuralOptions { learning_rate: 0.5, ..Default::default() }, &Monitor::new()).unwrap_err();
+    assert!(e.to_string().starts_with("learning_rate: expected"), "{e}");
+}

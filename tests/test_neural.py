@@ -1,0 +1,163 @@
+"""The neural model: fits on every built-in material and on a single-view capture, NeuralRTI's
+web format checked by an independent decoder (tests/neuralrti_reference.py, written from the
+format's description), read back, and bad input named."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import numpy as np
+import pytest
+
+import btfrs
+from btfrs.cli import main
+from btfrs.exceptions import FormatError, InvalidArgumentError
+
+import neuralrti_reference as ref
+
+QUICK = dict(latents=4, hidden=16, features=4, steps=400)
+
+
+@pytest.mark.parametrize("name", btfrs.materials.names())
+def test_fits_every_material_and_beats_its_mean(name):
+    # 400 steps on 16^2: far from converged, but the fit must explain much of the texture's
+    # variation beyond the per-pair mean image (a model that ignored its latents would not).
+    btf = btfrs.materials.make(name, size=16, seed=2)
+    train, test = btf.split(holdout=0.1, seed=1)
+    m = btfrs.fit.neural(train, **QUICK)
+    assert isinstance(m, btfrs.Neural) and m.directions == "half" and m.activation == "relu"
+    err = m.error(test).relative
+    mean = btf.data.mean(axis=(0, 1), keepdims=True)
+    mask = ~train.mask if train.mask is not None else np.ones(btf.data.shape[2:4], bool)
+    gt = btf.data[:, :, mask]
+    base = np.linalg.norm(np.broadcast_to(mean, btf.data.shape)[:, :, mask] - gt) / np.linalg.norm(gt)
+    assert np.isfinite(err) and err < 0.9 * base, (name, err, base)
+    r = m.report
+    assert r["steps"] <= 400 and r["qat_steps"] >= 1 and r["validation_pairs"] > 0
+    assert m.latents.shape == (16, 16, 4)
+    # nbytes: the latent bytes, their scales and biases, and the decoder's floats.
+    assert m.nbytes == 16 * 16 * 4 + 8 * 4 + 4 * m.arrays["decoder"].size
+
+
+def _capture(size=16, seed=3):
+    """A built-in material seen from above under its 81 lights: a single-view RTI capture."""
+    return btfrs.materials.make("bumps", size=size, seed=seed, views=[[0.0, 0.0, 1.0]])
+
+
+@pytest.fixture(scope="module")
+def rti_model():
+    return btfrs.fit.neural(_capture(), latents=8, hidden=20, steps=600)
+
+
+def test_single_view_is_neuralrti_form(rti_model):
+    m = rti_model
+    assert m.directions == "light" and m.activation == "elu"
+    (w1, _), (w2, _), (w3, _) = m.layers
+    assert w1.shape == (20, 8 + 2) and w2.shape == (20, 20) and w3.shape == (3, 20)
+
+
+def test_neuralrti_export_decodes_to_evaluate_by_an_independent_decoder(rti_model, tmp_path):
+    m = rti_model
+    out = tmp_path / "web"
+    res = m.export(out, format="neuralrti")
+    info = json.loads((out / "info.json").read_text())
+    assert info["type"] == "neural" and info["planes"] == 9 and info["colorspace"] == "bgr"
+    assert len(info["weights"][0]) == 20 * 12 and info["samples"] == 20  # [out][in], padded to 4
+    assert {f"plane_{i}.jpg" for i in (1, 2, 3)} <= set(res["files"])
+    lossless = tmp_path / "png"
+    shutil.copytree(out, lossless)
+    for p in lossless.glob("*.jpg"):
+        p.unlink()
+    for light in ([0.0, 0.0, 1.0], [0.5, -0.3, 0.81], [-0.7, 0.2, 0.68]):
+        light = np.asarray(light) / np.linalg.norm(light)
+        want = m.evaluate([0, 0, 1], light).astype(np.float64)
+        got = ref.decode(str(lossless), (light[0], light[1]))
+        # The PNG planes are the model's bytes: equal to float32 rounding.
+        np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5 * np.abs(want).max())
+        assert np.abs(ref.to_bytes(got).astype(int) - ref.to_bytes(want).astype(int)).max() <= 1
+        # The JPEG planes OpenLIME loads: within a few 8-bit steps of the model's display bytes.
+        jpg = ref.to_bytes(ref.decode(str(out), (light[0], light[1]))).astype(int)
+        assert np.mean(np.abs(jpg - ref.to_bytes(want).astype(int))) < 3.0
+
+
+def test_neuralrti_folder_reads_back_as_the_same_model(rti_model, tmp_path):
+    m = rti_model
+    m.export(tmp_path / "web", format="neuralrti")
+    back = btfrs.io.load(tmp_path / "web" / "info.json")
+    assert isinstance(back, btfrs.Neural) and back.directions == "light"
+    for light in ([0.3, 0.3, 0.9], [-0.6, 0.0, 0.8]):
+        np.testing.assert_allclose(back.evaluate([0, 0, 1], light), m.evaluate([0, 0, 1], light), rtol=1e-5, atol=1e-6)
+
+
+def test_export_refuses_a_model_not_in_neuralrti_form(tmp_path):
+    m = btfrs.fit.neural(btfrs.materials.make("weave", size=8, seed=1), **QUICK)
+    with pytest.raises(InvalidArgumentError, match=r"^format: NeuralRTI's form .*directions=\"light\""):
+        m.export(tmp_path / "x", format="neuralrti")
+    assert not (tmp_path / "x").exists()
+
+
+def test_broken_neuralrti_files_are_named(rti_model, tmp_path):
+    rti_model.export(tmp_path / "w", format="neuralrti")
+    info = json.loads((tmp_path / "w" / "info.json").read_text())
+    info["weights"][1] = info["weights"][1][:-4]
+    (tmp_path / "w" / "info.json").write_text(json.dumps(info))
+    with pytest.raises(FormatError, match=r"info.json: weights: expected 20 x 12, 20 x 20 and 3 x 20 values"):
+        btfrs.io.load(tmp_path / "w" / "info.json")
+    info["weights"][1] = ["x"] * 400
+    (tmp_path / "w" / "info.json").write_text(json.dumps(info))
+    with pytest.raises(FormatError, match=r"weights\[1\]: \"x\" is not a finite number"):
+        btfrs.io.load(tmp_path / "w" / "info.json")
+
+
+def test_saved_model_with_mismatched_weights_is_refused(rti_model, tmp_path):
+    a = rti_model.arrays
+    a["decoder"] = a["decoder"][:-1]
+    with pytest.raises(FormatError, match="decoder.*expected .* decoder parameters"):
+        btfrs.Neural.from_arrays(a)
+    a = rti_model.arrays
+    a["decoder"][3] = np.inf
+    with pytest.raises(FormatError, match="decoder parameter 3 .* not finite"):
+        btfrs.Neural.from_arrays(a)
+
+
+def test_too_few_pairs_for_the_latents_is_named():
+    btf = btfrs.materials.make("bumps", size=8, seed=1)
+    mask = np.zeros((81, 81), bool)
+    mask[0, :6] = True
+    with pytest.raises(InvalidArgumentError, match=r"^latents: expected at most as many latents as training pairs"):
+        btfrs.fit.neural(btfrs.Btf(btf.data, btf.views, btf.lights, mask=mask), latents=8)
+
+
+def test_cli_fits_a_neural_model(tmp_path):
+    out = tmp_path / "n.btfrs"
+    assert main(["fit", "--material", "grooves", "--size", "8", "--model", "neural", "--quiet",
+                 "--set", "steps=200", "--set", "hidden=8", "-o", str(out)]) == 0
+    m = btfrs.load(out)
+    assert isinstance(m, btfrs.Neural) and m.report["steps"] <= 200
+
+
+def psnr(a, b):
+    mse = float(np.mean((a.astype(np.float64) - b) ** 2))
+    peak = float(max(a.max(), b.max()))
+    return np.inf if mse == 0 else 10 * np.log10(peak * peak / mse)
+
+
+def test_gpu_matches_the_cpu_reference_on_every_scene_and_with_a_coordinate_map():
+    btf = btfrs.materials.make("weave", size=16, seed=2)
+    m = btfrs.fit.neural(btf, **QUICK)
+    cam = btfrs.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
+    lights = [btfrs.PointLight([2, -2, 3], 8.0), btfrs.DirectionalLight([-1, -0.5, 1], [0.4, 0.3, 0.2])]
+    yy, xx = np.mgrid[0:48, 0:48]
+    cmap = np.stack([(xx * 5 + 1) % 16, (yy * 3) % 16], -1).astype(np.uint16)
+    for scene in (btfrs.Scene.plane(), btfrs.Scene.sphere(), btfrs.Scene.cylinder()):
+        for coords in (None, cmap):
+            kw = dict(size=(48, 64), uv_scale=2.0, coords=coords)
+            g = btfrs.render(m, scene, cam, lights, **kw)
+            c = btfrs.render(m, scene, cam, lights, backend="cpu", **kw)
+            assert (c.sum(-1) > 0).mean() > 0.2
+            assert psnr(g, c) >= 40, psnr(g, c)
+    # The single-view form (ELU, the light only) draws the same on both.
+    r = btfrs.fit.neural(_capture(size=8), latents=3, hidden=8, steps=100)
+    g = btfrs.render(r, btfrs.Scene.plane(), cam, lights, size=48)
+    c = btfrs.render(r, btfrs.Scene.plane(), cam, lights, size=48, backend="cpu")
+    assert psnr(g, c) >= 40
