@@ -617,7 +617,7 @@ def neural(
     btf: Btf,
     *,
     latents: int = 8,
-    hidden: int = 32,
+    hidden: int = 64,
     directions: Literal["auto", "light", "xy", "half"] = "auto",
     activation: Literal["auto", "elu", "relu"] = "auto",
     features: Optional[int] = None,
@@ -655,7 +655,8 @@ def neural(
     latents
         Latent channels per texel (8-bit planes). Allowed: an integer from 1 to 32; default 8.
     hidden
-        Units of each of the decoder's two hidden layers. Allowed: an integer from 4 to 64; default 32.
+        Units of each of the decoder's two hidden layers, a multiple of 4. Allowed: an integer from 4 to
+        64; default 64.
     directions
         Direction encoding: "half" (view, light and half vector x, y), "xy", "light" (the light only:
         NeuralRTI, one view); "auto": "light" for one view, else "half". Allowed: "auto", "light", "xy"
@@ -665,12 +666,12 @@ def neural(
         twice as fast to train). Allowed: "auto", "elu" or "relu"; default "auto".
     features
         Channels of each learned direction table (view, light, half vector) fed to the decoder (null: 0
-        for "light", NeuralRTI's form; else 8). Allowed: null or an integer from 0 to 16; default None.
+        for "light", NeuralRTI's form; else 16). Allowed: null or an integer from 0 to 16; default None.
     grid
         Nodes per side of each direction table, over the concentric square. Allowed: an integer from 2
         to 32; default 8.
     steps
-        Training steps at most, of 256 texels x 16 pairs each (null: 300 visits per texel, 1000 to
+        Training steps at most, of 256 texels x 16 pairs each (null: 500 visits per texel, 1000 to
         100000). Allowed: null or an integer from 1 to 1000000; default None.
     learning_rate
         Adam's peak learning rate, at most 0.1 (cosine schedule). Allowed: a number > 0; default 0.005.

@@ -44,7 +44,7 @@ pub struct NeuralOptions {
     pub directions: String,
     /// `"auto"`, `"elu"` or `"relu"`.
     pub activation: String,
-    /// Channels of each learned direction table (`None`: 0 for `"light"`, else 8).
+    /// Channels of each learned direction table (`None`: 0 for `"light"`, else 16).
     pub features: Option<usize>,
     /// Nodes per side of each direction table.
     pub grid: usize,
@@ -66,7 +66,7 @@ impl Default for NeuralOptions {
 }
 
 /// Visits per texel of the automatic step count.
-const VISITS: usize = 300;
+const VISITS: usize = 500;
 
 impl NeuralOptions {
     /// The checked training setup for `btf`.
@@ -106,9 +106,15 @@ impl NeuralOptions {
             "elu" => Activation::Elu,
             other => return Err(Error::arg("activation", format!("unknown activation {other:?}"))),
         };
+        ensure_arg!(
+            self.hidden.is_multiple_of(4),
+            "hidden",
+            "expected a multiple of 4 (the shader computes four units at a time), got {}",
+            self.hidden
+        );
         let texels = btf.texels();
         let steps = self.steps.unwrap_or((VISITS * texels / train::BATCH_TEXELS).clamp(1000, 100_000));
-        let features = self.features.unwrap_or(if directions == Directions::Light { 0 } else { 8 });
+        let features = self.features.unwrap_or(if directions == Directions::Light { 0 } else { 16 });
         Ok(train::Setup {
             shape: Shape {
                 latents: self.latents,
@@ -264,7 +270,9 @@ impl GpuLayout for Neural {
     const SHADER: Shader = Shader::new::<NeuralParams>("neural", include_str!("../../../shaders_wgsl/neural.wgsl"));
 
     fn parts(&self) -> Vec<Cow<'_, [u32]>> {
-        vec![Cow::Owned(self.latents.words()), Cow::Owned(self.latents.scale_bias_words()), words(&self.decoder.params)]
+        // The decoder first: at the start of the store, its few thousand words lie in the first
+        // storage binding, which the shader reads directly (no chunk lookup per weight).
+        vec![words(&self.decoder.params), Cow::Owned(self.latents.scale_bias_words()), Cow::Owned(self.latents.words())]
     }
 
     fn params(&self, offsets: &[u32], _tables: &[u32]) -> NeuralParams {
@@ -274,9 +282,9 @@ impl GpuLayout for Neural {
             hidden: sh.hidden as u32,
             directions: sh.directions.code() as u32,
             activation: sh.activation.code() as u32,
-            q: offsets[0],
+            q: offsets[2],
             scale: offsets[1],
-            weights: offsets[2],
+            weights: offsets[0],
             features: sh.features as u32,
             grid: sh.grid as u32,
         }
@@ -304,7 +312,7 @@ is the trained one. `model.report` gives the steps, the validation errors (float
 and whether training stopped early. Filtered lookups average the codes (`mip = \"latent\"`).";
     const OPTIONS: &'static [Spec] = &[
         Spec::int("latents", 8, 1, Some(MAX_LATENTS as i64), "latent channels per texel (8-bit planes)"),
-        Spec::int("hidden", 32, 4, Some(MAX_HIDDEN as i64), "units of each of the decoder's two hidden layers"),
+        Spec::int("hidden", 64, 4, Some(MAX_HIDDEN as i64), "units of each of the decoder's two hidden layers, a multiple of 4"),
         Spec::choice(
             "directions",
             "auto",
@@ -321,25 +329,25 @@ and whether training stopped early. Filtered lookups average the codes (`mip = \
             "features",
             0,
             Some(MAX_FEATURES as i64),
-            "channels of each learned direction table (view, light, half vector) fed to the decoder (null: 0 for \"light\", NeuralRTI's form; else 8)",
+            "channels of each learned direction table (view, light, half vector) fed to the decoder (null: 0 for \"light\", NeuralRTI's form; else 16)",
         ),
         Spec::int("grid", 8, 2, Some(32), "nodes per side of each direction table, over the concentric square"),
         Spec::opt_int(
             "steps",
             1,
             Some(1_000_000),
-            "training steps at most, of 256 texels x 16 pairs each (null: 300 visits per texel, 1000 to 100000)",
+            "training steps at most, of 256 texels x 16 pairs each (null: 500 visits per texel, 1000 to 100000)",
         ),
         Spec::positive("learning_rate", 0.005, "Adam's peak learning rate, at most 0.1 (cosine schedule)"),
         Spec::float("validation", 0.05, 0.0, "fraction of the present pairs kept out for early stopping, at most 0.5"),
         Spec::seed("seed of the PCA start, the initial weights, the minibatches and the validation pairs"),
     ];
     const EXAMPLES: &'static [(&'static str, &'static str)] =
-        &[("Neural-8", r#"{"latents": 8}"#), ("Neural-16", r#"{"latents": 16, "hidden": 64, "features": 16}"#)];
+        &[("Neural-8", r#"{"latents": 8}"#), ("Neural-16", r#"{"latents": 16}"#)];
     const SWEEP: &'static [Setting] = &[
-        Setting::full("Neural-4", r#"{"latents": 4, "hidden": 16, "features": 4}"#),
+        Setting::full("Neural-4", r#"{"latents": 4, "hidden": 32, "features": 8}"#),
         Setting::quick("Neural-8", r#"{"latents": 8}"#),
-        Setting::full("Neural-16", r#"{"latents": 16, "hidden": 64, "features": 16}"#),
+        Setting::full("Neural-16", r#"{"latents": 16}"#),
     ];
     const SAMPLING: Sampling = Sampling::Any {
         note: "any sampling: trained on random present pairs, a few hundred per texel",
@@ -394,8 +402,8 @@ and whether training stopped early. Filtered lookups average the codes (`mip = \
         if !(1..=MAX_LATENTS as i32).contains(&latents) {
             return Err(bad(format!("expected 1 to {MAX_LATENTS} latents, got {latents}")));
         }
-        if !(4..=MAX_HIDDEN as i32).contains(&hidden) {
-            return Err(bad(format!("expected 4 to {MAX_HIDDEN} hidden units, got {hidden}")));
+        if !(4..=MAX_HIDDEN as i32).contains(&hidden) || hidden % 4 != 0 {
+            return Err(bad(format!("expected a multiple of 4 from 4 to {MAX_HIDDEN} hidden units, got {hidden}")));
         }
         let directions =
             Directions::from_code(arch[2]).ok_or_else(|| bad(format!("unknown direction encoding {}", arch[2])))?;

@@ -54,6 +54,76 @@ fn sgemm(
     }
 }
 
+/// A matrix in a slice: its rows and columns and their strides (elements).
+#[derive(Debug, Clone, Copy)]
+pub struct View {
+    /// Rows.
+    pub rows: usize,
+    /// Columns.
+    pub cols: usize,
+    /// Row stride.
+    pub rs: usize,
+    /// Column stride.
+    pub cs: usize,
+}
+
+impl View {
+    /// A contiguous row-major `rows x cols` matrix.
+    pub fn rows(rows: usize, cols: usize) -> View {
+        View { rows, cols, rs: cols, cs: 1 }
+    }
+    /// The transpose of a contiguous row-major `cols x rows` matrix seen as `rows x cols`.
+    pub fn transposed(rows: usize, cols: usize) -> View {
+        View { rows, cols, rs: 1, cs: rows }
+    }
+    /// A `rows x cols` block of a row-major matrix of row stride `rs`.
+    pub fn block(rows: usize, cols: usize, rs: usize) -> View {
+        View { rows, cols, rs, cs: 1 }
+    }
+    /// A `rows x cols` view whose element (i, j) is element (j, i) of a row-major matrix of
+    /// row stride `rs`.
+    pub fn block_t(rows: usize, cols: usize, rs: usize) -> View {
+        View { rows, cols, rs: 1, cs: rs }
+    }
+    fn end(&self) -> usize {
+        if self.rows == 0 || self.cols == 0 {
+            0
+        } else {
+            (self.rows - 1) * self.rs + (self.cols - 1) * self.cs + 1
+        }
+    }
+}
+
+/// `c = a . b + beta c` for matrices given as strided views (the `matrixmultiply` crate): the
+/// first layer's products, whose direction columns are a block of the weight matrix.
+pub fn strided(a: &[f32], va: View, b: &[f32], vb: View, beta: f32, c: &mut [f32], vc: View) {
+    assert!(va.cols == vb.rows && vc.rows == va.rows && vc.cols == vb.cols);
+    assert!(va.end() <= a.len() && vb.end() <= b.len() && vc.end() <= c.len());
+    if va.rows == 0 || vb.cols == 0 {
+        return;
+    }
+    // SAFETY: the asserts bound the last element each view reaches within its slice; the views
+    // of `c` never alias `a` or `b` (distinct borrows).
+    unsafe {
+        matrixmultiply::sgemm(
+            va.rows,
+            va.cols,
+            vb.cols,
+            1.0,
+            a.as_ptr(),
+            va.rs as isize,
+            va.cs as isize,
+            b.as_ptr(),
+            vb.rs as isize,
+            vb.cs as isize,
+            beta,
+            c.as_mut_ptr(),
+            vc.rs as isize,
+            vc.cs as isize,
+        );
+    }
+}
+
 #[allow(clippy::too_many_arguments)]
 impl Gemm {
     /// `c [m][n] = a [m][k] . b [n][k]^T` (`accumulate`: `c +=`).

@@ -175,7 +175,7 @@ fn bad_arrays_and_options_are_named() {
     arch.put("architecture", &[6], vec![3i32, 8, 7, 1, 2, 4]);
     assert!(Neural::from_arrays(&arch).unwrap_err().to_string().contains("direction encoding"));
     let mut wide = a;
-    wide.put("architecture", &[6], vec![3i32, 9, 1, 1, 2, 4]);
+    wide.put("architecture", &[6], vec![3i32, 12, 1, 1, 2, 4]);
     assert!(Neural::from_arrays(&wide).unwrap_err().to_string().contains("decoder"));
 
     // Options: fewer pairs than latents; "light" on a multi-view BTF; learning rate.

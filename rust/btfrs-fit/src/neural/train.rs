@@ -20,7 +20,7 @@
 //!    stored and scored is the one trained.
 
 use super::decoder::{table_taps, Decoder, Shape, Taps, MAX_ENCODING};
-use super::dense::GEMM;
+use super::dense::{strided, View, GEMM};
 use crate::planes::Planes;
 use btfrs_core::rng::{mix, Rng};
 use btfrs_core::{BtfRef, Error, Monitor, Result};
@@ -377,14 +377,13 @@ pub(crate) fn chunk_grad(
             a[ci * h + j] = (0..k).map(|q| w1[j * ni + q] * z[ci * k + q]).sum::<f32>() + p[o.b1 + j];
         }
     }
+    // The direction part of every sample at once: enc [n][e] times the direction columns of
+    // W1 (a block of it, row stride ni) transposed; then each sample's texel part.
     let mut h1 = vec![0.0f32; n * h];
+    strided(&enc, View::rows(n, e), &w1[k..], View::block_t(e, h, ni), 0.0, &mut h1, View::rows(n, h));
     for r in 0..n {
         let ar = &a[(r / PAIRS) * h..(r / PAIRS + 1) * h];
-        let er = &enc[r * e..(r + 1) * e];
-        for j in 0..h {
-            let wr = &w1[j * ni + k..(j + 1) * ni];
-            h1[r * h + j] = ar[j] + wr.iter().zip(er).map(|(w, x)| w * x).sum::<f32>();
-        }
+        h1[r * h..(r + 1) * h].iter_mut().zip(ar).for_each(|(x, a)| *x += a);
     }
     sh.activation.apply(&mut h1);
     // Layer 2.
@@ -421,28 +420,22 @@ pub(crate) fn chunk_grad(
     GEMM.ab(n, h, h, &dh2, &p[o.w2..o.b2], &mut dh1, false);
     sh.activation.backward(&h1, &mut dh1);
     // Layer 1's gradients: direction columns per sample, latent columns per texel.
+    // Layer 1's gradients: the direction columns (a block of W1) and their inputs, for every
+    // sample at once; the bias and the latent columns per texel.
+    strided(&dh1, View::transposed(h, n), &enc, View::rows(n, e), 1.0, &mut g[o.w1 + k..], View::block(h, e, ni));
     let mut da = vec![0.0f32; c * h];
-    let tables = sh.tables() > 0;
-    let mut de = [0.0f32; MAX_ENCODING];
     for r in 0..n {
-        let dr = &dh1[r * h..(r + 1) * h];
-        let er = &enc[r * e..(r + 1) * e];
-        de[..e].fill(0.0);
-        for j in 0..h {
-            let d = dr[j];
-            g[o.b1 + j] += d;
-            let row = o.w1 + j * ni + k;
-            for q in 0..e {
-                g[row + q] += d * er[q];
-            }
-            if tables {
-                de[..e].iter_mut().zip(&w1[j * ni + k..(j + 1) * ni]).for_each(|(x, w)| *x += d * w);
-            }
+        da[(r / PAIRS) * h..(r / PAIRS + 1) * h].iter_mut().zip(&dh1[r * h..(r + 1) * h]).for_each(|(x, d)| *x += d);
+    }
+    for ci in 0..c {
+        g[o.b1..o.b1 + h].iter_mut().zip(&da[ci * h..(ci + 1) * h]).for_each(|(x, d)| *x += d);
+    }
+    if sh.tables() > 0 {
+        let mut de = vec![0.0f32; n * e];
+        strided(&dh1, View::rows(n, h), &w1[k..], View::block(h, e, ni), 0.0, &mut de, View::rows(n, e));
+        for (r, pair) in picked.iter().enumerate() {
+            pair.scatter(&sh, &de[r * e..(r + 1) * e], &mut g);
         }
-        if tables {
-            picked[r].scatter(&sh, &de[..e], &mut g);
-        }
-        da[(r / PAIRS) * h..(r / PAIRS + 1) * h].iter_mut().zip(dr).for_each(|(x, d)| *x += d);
     }
     let mut dz = vec![0.0f32; if want_dz { c * k } else { 0 }];
     for ci in 0..c {
