@@ -161,3 +161,55 @@ def test_gpu_matches_the_cpu_reference_on_every_scene_and_with_a_coordinate_map(
     g = btfrs.render(r, btfrs.Scene.plane(), cam, lights, size=48)
     c = btfrs.render(r, btfrs.Scene.plane(), cam, lights, size=48, backend="cpu")
     assert psnr(g, c) >= 40
+
+
+def test_cli_exports_neuralrti_into_a_folder(rti_model, tmp_path, capsys):
+    src = tmp_path / "m.btfrs"
+    rti_model.save(src)
+    assert main(["export", "--quiet", "--neuralrti", str(tmp_path / "web"), str(src)]) == 0
+    assert "wrote" in capsys.readouterr().out
+    back = btfrs.io.load(tmp_path / "web" / "info.json")
+    np.testing.assert_allclose(back.evaluate([0, 0, 1], [0.2, 0.1, 0.97]), rti_model.evaluate([0, 0, 1], [0.2, 0.1, 0.97]),
+                               rtol=1e-5, atol=1e-6)
+    # A file where the folder should be is refused before any work.
+    (tmp_path / "file").write_text("x")
+    assert main(["export", "--quiet", "--neuralrti", str(tmp_path / "file"), str(src)]) != 0
+    assert "is a file; expected a folder" in capsys.readouterr().err
+
+
+def test_environment_light_by_sampling_converges_to_the_quadrature():
+    # The sampled environment (importance sampling of the sky) against its quadrature, both
+    # through the neural shader on the GPU and the CPU reference.
+    btf = btfrs.materials.make("bumps", size=16, seed=2)
+    m = btfrs.fit.neural(btf, **QUICK)
+    sky = btfrs.Environment.sky(sun=[0.4, -0.5, 0.75], turbidity=3, height=16)
+    scene, cam = btfrs.Scene.sphere(), btfrs.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
+    ref = btfrs.render(m, scene, cam, sky.quadrature(), size=(32, 40), backend="cpu")
+    gpu_ref = btfrs.render(m, scene, cam, sky.quadrature(), size=(32, 40))
+    assert psnr(gpu_ref, ref) >= 40
+    errs = []
+    for n in (16, 256):
+        sampled = btfrs.render(m, scene, cam, environment=sky, samples=n, seed=1, size=(32, 40))
+        errs.append(float(np.sqrt(np.mean((sampled - ref) ** 2)) / np.sqrt(np.mean(ref ** 2))))
+    assert errs[1] < 0.03 and errs[0] > 2 * errs[1], errs
+
+
+def test_fits_a_capture_file_and_the_cli_fits_it_too(tmp_path):
+    # A single-view capture written as an image stack (8-bit PNG + directions table), loaded as
+    # a user's capture is: the fit takes NeuralRTI's form and explains it.
+    cap = _capture(size=16, seed=5)
+    table = btfrs.io.save_stack(cap, tmp_path / "stack", format="png")
+    btf = btfrs.io.load(tmp_path / "stack", directions=table)
+    assert btf.n_views == 1 and btf.n_lights == 81
+    train, test = btf.split(holdout=0.2, seed=0)
+    m = btfrs.fit.neural(train, latents=6, hidden=16, steps=800)
+    assert m.directions == "light" and m.activation == "elu"
+    # Far better than the texture's mean image under each held-out light.
+    held = ~train.mask
+    gt = btf.data[:, :, held]
+    base = np.linalg.norm(gt.mean(axis=(0, 1), keepdims=True) - gt) / np.linalg.norm(gt)
+    assert m.error(test).relative < 0.6 * base, (m.error(test), base)
+    out = tmp_path / "cap.btfrs"
+    assert main(["fit", str(tmp_path / "stack"), "--directions", table, "--model", "neural", "--quiet",
+                 "--set", "steps=200", "--set", "hidden=8", "-o", str(out)]) == 0
+    assert btfrs.load(out).directions == "light"

@@ -135,8 +135,9 @@ def _kinds() -> List[str]:
     return list(_facts())
 
 
-def _formats() -> List[Tuple[str, str, str]]:
-    """Other tools' model formats: ``(name, extension, doc)``."""
+def _formats() -> List[Tuple[str, str, str, bool]]:
+    """Other tools' model formats: ``(name, extension, doc, folder)`` (``folder``: written as a
+    folder holding an index file, e.g. NeuralRTI's ``info.json``)."""
     return list(_native.model_formats())
 
 
@@ -389,9 +390,10 @@ def _data_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -
     f.add_argument("-o", "--out", required=True, help="the model file (.btfrs)")
     x = sub.add_parser("export", help="write a model or BTF for other tools: .ptm, .rti, EXR maps, image stack")
     _sample_args(x)
-    for name, ext, doc in _formats():
+    for name, ext, doc, folder in _formats():
         able = [k for k, info in _facts().items() if name in info["exports"]]
-        x.add_argument(f"--{name}", metavar=f"FILE.{ext}", help=f"write {doc} ({', '.join(able)} models)")
+        x.add_argument(f"--{name}", metavar="FOLDER" if folder else f"FILE.{ext}",
+                       help=f"write {doc} ({', '.join(able)} models)" + (", into a folder" if folder else ""))
     x.add_argument("--exr", help="write the per-texel coefficient maps as one multi-channel EXR (models)")
     x.add_argument("--stack", help="write a BTF as an image stack + directions.csv into this folder")
     x.add_argument("--format", choices=["exr", "png"], default="exr", help="image format of --stack (default: exr)")
@@ -562,13 +564,14 @@ def fit_command(args: argparse.Namespace) -> None:
 
 def export_command(args: argparse.Namespace) -> None:
     """``btfrs export``: the formats other tools read."""
-    formats = [(name, getattr(args, name)) for name, _, _ in _formats()]
+    formats = [(name, getattr(args, name)) for name, _, _, _ in _formats()]
+    folders = {name for name, _, _, folder in _formats() if folder}
     if not any([path for _, path in formats] + [args.exr, args.stack]):
         flags = ", ".join(f"--{name}" for name, _ in formats)
         raise InvalidArgumentError(f"export: give at least one of {flags}, --exr, --stack")
     for fmt, path in formats:
         if path:
-            _check_output(f"--{fmt}", path, args, (f".{fmt}",))
+            _check_output(f"--{fmt}", path, args, (f".{fmt}",), folder=fmt in folders)
     if args.exr:
         _check_output("--exr", args.exr, args, (".exr",))
     if args.stack:

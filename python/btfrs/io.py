@@ -165,7 +165,7 @@ _IMAGE_EXT = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".exr")
 
 def _model_extensions() -> tuple[str, ...]:
     """The extensions of other tools' model files btfrs reads (``.ptm``, ``.rti``)."""
-    return tuple("." + ext for _, ext, _ in _native.model_formats())
+    return tuple("." + ext for _, ext, _, _ in _native.model_formats())
 
 
 def capture_kind(path: PathLike, directions: Optional[PathLike] = None) -> str:

@@ -78,8 +78,11 @@ def measure(path: str, kind: str, options: Dict[str, Any]) -> Dict[str, Any]:
         th.join()
     seconds = time.perf_counter() - t0
     peak[0] = max(peak[0], rss_anon())
+    report = getattr(model, "report", None) or {}
+    # The fit's own scalar figures (steps, flags), beside the measurements.
+    scalars = {k: v for k, v in report.items() if isinstance(v, (int, float, bool, str))} if isinstance(report, dict) else {}
     return {"kind": kind, "growth": peak[0] - base, "model": model_bytes(kind, model), "data": btf.data.nbytes,
-            "seconds": seconds, "read_bytes": read_bytes() - r0}
+            "seconds": seconds, "read_bytes": read_bytes() - r0, "report": scalars}
 
 
 if __name__ == "__main__":

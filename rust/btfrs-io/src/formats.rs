@@ -16,6 +16,9 @@ pub struct Format {
     pub extension: &'static str,
     /// One line: what the format is and which tools read it.
     pub doc: &'static str,
+    /// Whether a model is written as a folder (holding a `{name}.{extension}` index file, which
+    /// is what [`Format::import`] and `btfrs.load` are given), not as one file.
+    pub folder: bool,
     /// Write view slot `view` of a model as this format; returns what the writer chose (the
     /// quantization's scales and biases) as a JSON object.
     pub export: fn(&dyn DynModel, usize, &Path) -> Result<serde_json::Value>,

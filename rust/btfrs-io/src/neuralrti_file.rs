@@ -34,6 +34,7 @@ pub const FORMAT: Format = Format {
     name: "neuralrti",
     extension: "json",
     doc: "NeuralRTI's web format (info.json + latent plane images), read by OpenLIME's neural layer",
+    folder: true,
     export: export_model,
     import: import_model,
 };

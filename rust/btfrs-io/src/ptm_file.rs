@@ -819,6 +819,7 @@ pub const FORMAT: crate::formats::Format = crate::formats::Format {
     name: "ptm",
     extension: "ptm",
     doc: "Polynomial Texture Map 1.2 (RGB or LRGB, 8-bit), one view slot",
+    folder: false,
     export: export_model,
     import: import_model,
 };

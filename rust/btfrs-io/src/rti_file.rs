@@ -353,6 +353,7 @@ pub const FORMAT: crate::formats::Format = crate::formats::Format {
     name: "rti",
     extension: "rti",
     doc: "RTI hemispherical harmonics (HSH, order 1 to 4, 8-bit), one view slot",
+    folder: false,
     export: export_model,
     import: import_model,
 };

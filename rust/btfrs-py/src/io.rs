@@ -95,10 +95,10 @@ pub fn read_container_header(
     Ok((c.kind, c.meta.to_string(), arrays))
 }
 
-/// The file formats of other tools: `[(name, extension, doc)]` (btfrs_io::formats).
+/// The file formats of other tools: `[(name, extension, doc, folder)]` (btfrs_io::formats).
 #[pyfunction]
-pub fn model_formats() -> Vec<(&'static str, &'static str, &'static str)> {
-    formats::FORMATS.iter().map(|f| (f.name, f.extension, f.doc)).collect()
+pub fn model_formats() -> Vec<(&'static str, &'static str, &'static str, bool)> {
+    formats::FORMATS.iter().map(|f| (f.name, f.extension, f.doc, f.folder)).collect()
 }
 
 /// Write view slot `view` of a model as `format` (one of its registry exports); returns what

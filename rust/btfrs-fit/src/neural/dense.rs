@@ -13,7 +13,7 @@ pub enum Gemm {
     Hand,
 }
 
-/// What training uses: the crate, 1.6-2.4x faster than the hand-written updates on the step's
+/// What training uses: the crate, 3.5x faster than the hand-written updates on the step's
 /// shapes (BENCHMARKS.md, "Neural decoder products").
 pub const GEMM: Gemm = Gemm::Crate;
 
