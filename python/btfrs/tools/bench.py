@@ -1140,12 +1140,12 @@ def neural_bench(size: int = 64, materials_: Optional[Sequence[str]] = None) -> 
         btf = materials.make(name, size=size, seed=1)
         rep = evaluation.evaluate(btf, "all", holdout="both", fraction=0.1, sweep="full", render=False,
                                   material=f"{name} {size}^2")
-        rows = [{k: r.get(k) for k in ("label", "kind", "bytes", "fit_s", "reconstruction", "heldout_pairs",
-                                        "heldout_directions")} for r in rep.rows]
+        rows: List[Dict[str, Any]] = [{k: r.get(k) for k in ("label", "kind", "bytes", "fit_s", "reconstruction",
+                                                              "heldout_pairs", "heldout_directions")} for r in rep.rows]
         res: Dict[str, Any] = {"material": name, "rows": rows}
         for proto in ("heldout_pairs", "heldout_directions"):
             ok = [r for r in rows if r.get(proto) is not None and r.get("bytes")]
-            classic = min((r for r in ok if not _is_neural(r)), key=lambda r: r[proto])
+            classic = min((r for r in ok if not _is_neural(r)), key=lambda r: float(r[proto]))
             neural = [r for r in ok if _is_neural(r)]
             within = [r for r in neural if r[proto] <= classic[proto] and r["bytes"] * 20 <= classic["bytes"]]
             front = {r["label"] for r in evaluation.pareto_front(ok, proto, "bytes")}
@@ -1158,7 +1158,8 @@ def neural_bench(size: int = 64, materials_: Optional[Sequence[str]] = None) -> 
         btf = materials.make(name, size=size, seed=1, views=np.array([[0.0, 0.0, 1.0]]), lights=ubo)
         train, test = btf.split(holdout=0.2, seed=0)
         row: Dict[str, Any] = {"material": name}
-        for label, kind, opts in ((default, NEURAL, {}), ("RBF-18", "rbf", {"components": 18})):
+        pair: List[Tuple[str, str, Dict[str, Any]]] = [(default, NEURAL, {}), ("RBF-18", "rbf", {"components": 18})]
+        for label, kind, opts in pair:
             t0 = time.perf_counter()
             m = fit.fit(kind, train, **opts)
             row[label] = {"bytes": m.nbytes, "fit_s": time.perf_counter() - t0,
@@ -1175,8 +1176,12 @@ def neural_bench(size: int = 64, materials_: Optional[Sequence[str]] = None) -> 
     return out
 
 
+def _pct(x: float) -> str:
+    return f"{100 * x:.2f}%"
+
+
 def neural_table(res: Dict[str, Any]) -> str:
-    pct = lambda x: f"{100 * x:.2f}%"  # noqa: E731
+    pct = _pct
     lines = [f"accuracy per byte at {res['size']}^2 x 81 x 81, 10% held out (seed 0):",
              "| material | protocol | best classic | its bytes | neural rows (error, bytes) | <= its error in <= 1/20 bytes | default on the front |",
              "|---|---|---|---|---|---|---|"]

@@ -426,6 +426,9 @@ and whether training stopped early. Filtered lookups average the codes (`mip = \
         };
         let (_, qshape) = a.get::<u8>("latents_q", &[None, None, Some(shape.latents)])?;
         let (height, width) = (qshape[0], qshape[1]);
+        if height == 0 || width == 0 {
+            return Err(Error::format("latents_q", format!("expected at least one texel, got {height} x {width}")));
+        }
         let planes = Planes::from_arrays(a, "latents_", height * width, shape.latents)?;
         let (params, _) = a.get::<f32>("decoder", &[None])?;
         let decoder = Decoder::new(shape, params.to_vec(), "decoder")?;
