@@ -508,6 +508,54 @@ fn schedule(lr: f64, i: usize, n: usize) -> f32 {
     (lr * (0.05 + 0.95 * 0.5 * (1.0 + (std::f64::consts::PI * x).cos()))) as f32
 }
 
+/// The texels of each step: the next `batch` of a shuffled order, reshuffled when spent.
+struct Batches {
+    order: Vec<usize>,
+    cursor: usize,
+    batch: usize,
+}
+
+impl Batches {
+    fn next(&mut self, rng: &mut Rng) -> Vec<usize> {
+        let t = self.order.len();
+        if self.cursor + self.batch > t {
+            for i in (1..t).rev() {
+                self.order.swap(i, rng.below(i + 1));
+            }
+            self.cursor = 0;
+        }
+        let out = self.order[self.cursor..self.cursor + self.batch].to_vec();
+        self.cursor += self.batch;
+        out
+    }
+}
+
+/// The gradients of one step over `texels` (codes from `z`), chunk by chunk in parallel, in
+/// chunk order; chunk `ci` draws its pairs from `mix(seed + ci)`.
+#[allow(clippy::too_many_arguments)]
+fn batch_grads(
+    btf: &BtfRef<'_>,
+    pairs: &[Pair],
+    dec: &Decoder,
+    texels: &[usize],
+    z: &[f32],
+    inv_scale: f32,
+    norm: f32,
+    seed: u64,
+    want_dz: bool,
+) -> Vec<ChunkGrad> {
+    let k = dec.shape.latents;
+    let zb: Vec<f32> = texels.iter().flat_map(|&ti| z[ti * k..(ti + 1) * k].iter().copied()).collect();
+    texels
+        .par_chunks(CHUNK)
+        .zip(zb.par_chunks(CHUNK * k))
+        .enumerate()
+        .map(|(ci, (tx, zc))| {
+            chunk_grad(btf, pairs, dec, tx, zc, inv_scale, norm, mix(seed.wrapping_add(ci as u64)), want_dz)
+        })
+        .collect()
+}
+
 /// Train a neural model on the present pairs of `btf`; `monitor` counts steps.
 pub fn train(btf: &BtfRef<'_>, s: &Setup, monitor: &Monitor) -> Result<Trained> {
     let pairs = split_pairs(btf, s)?;
@@ -526,8 +574,7 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, monitor: &Monitor) -> Result<Trained> 
     let mut zadam = Adam::new(t * k);
     let mut ztime = vec![0u32; t];
     let batch = BATCH_TEXELS.min(t);
-    let mut order: Vec<usize> = (0..t).collect();
-    let mut cursor = t; // reshuffle on the first step
+    let mut batches = Batches { order: (0..t).collect(), cursor: t, batch };
     let mut rng = Rng::new(mix(s.seed ^ 0x0de7));
     let val_texels: Vec<usize> = {
         let mut idx: Vec<usize> = (0..t).collect();
@@ -547,33 +594,18 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, monitor: &Monitor) -> Result<Trained> 
     let mut step = 0;
     while step < s.steps {
         monitor.check()?;
-        if cursor + batch > t {
-            for i in (1..t).rev() {
-                order.swap(i, rng.below(i + 1));
-            }
-            cursor = 0;
-        }
-        let texels = &order[cursor..cursor + batch];
-        cursor += batch;
-        let zb: Vec<f32> = texels.iter().flat_map(|&ti| z[ti * k..(ti + 1) * k].iter().copied()).collect();
-        let grads: Vec<ChunkGrad> = texels
-            .par_chunks(CHUNK)
-            .zip(zb.par_chunks(CHUNK * k))
-            .enumerate()
-            .map(|(ci, (tx, zc))| {
-                chunk_grad(
-                    btf,
-                    &pairs.train,
-                    &dec,
-                    tx,
-                    zc,
-                    inv_scale,
-                    norm,
-                    mix(s.seed ^ mix((step * 4096 + ci) as u64)),
-                    true,
-                )
-            })
-            .collect();
+        let texels = batches.next(&mut rng);
+        let grads = batch_grads(
+            btf,
+            &pairs.train,
+            &dec,
+            &texels,
+            &z,
+            inv_scale,
+            norm,
+            mix(s.seed ^ mix((step * 4096) as u64)),
+            true,
+        );
         let mut g = vec![0.0f32; dec.params.len()];
         let mut sse = 0.0;
         for cg in &grads {
@@ -647,24 +679,9 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, monitor: &Monitor) -> Result<Trained> 
     let qat_lr = (0.2 * lr).min(s.learning_rate);
     for i in 0..qat {
         monitor.check()?;
-        if cursor + batch > t {
-            for i in (1..t).rev() {
-                order.swap(i, rng.below(i + 1));
-            }
-            cursor = 0;
-        }
-        let texels = &order[cursor..cursor + batch];
-        cursor += batch;
-        let zb: Vec<f32> = texels.iter().flat_map(|&ti| zq[ti * k..(ti + 1) * k].iter().copied()).collect();
-        let grads: Vec<ChunkGrad> = texels
-            .par_chunks(CHUNK)
-            .zip(zb.par_chunks(CHUNK * k))
-            .enumerate()
-            .map(|(ci, (tx, zc))| {
-                let seed = mix(s.seed ^ mix(((s.steps + i) * 4096 + ci) as u64));
-                chunk_grad(btf, &pairs.train, &dec, tx, zc, inv_scale, norm, seed, false)
-            })
-            .collect();
+        let texels = batches.next(&mut rng);
+        let seed = mix(s.seed ^ mix(((s.steps + i) * 4096) as u64));
+        let grads = batch_grads(btf, &pairs.train, &dec, &texels, &zq, inv_scale, norm, seed, false);
         let mut g = vec![0.0f32; dec.params.len()];
         for cg in &grads {
             g.iter_mut().zip(&cg.dec).for_each(|(a, b)| *a += b);
