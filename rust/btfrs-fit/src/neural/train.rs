@@ -530,29 +530,21 @@ impl Batches {
     }
 }
 
-/// The gradients of one step over `texels` (codes from `z`), chunk by chunk in parallel, in
-/// chunk order; chunk `ci` draws its pairs from `mix(seed + ci)`.
-#[allow(clippy::too_many_arguments)]
+/// The gradients of one step over `texels` (codes from `z`, `k` each), chunk by chunk in
+/// parallel and returned in chunk order; chunk `ci` gets seed `mix(seed + ci)` for its pairs.
 fn batch_grads(
-    btf: &BtfRef<'_>,
-    pairs: &[Pair],
-    dec: &Decoder,
     texels: &[usize],
     z: &[f32],
-    inv_scale: f32,
-    norm: f32,
+    k: usize,
     seed: u64,
-    want_dz: bool,
+    grad: impl Fn(&[usize], &[f32], u64) -> ChunkGrad + Sync,
 ) -> Vec<ChunkGrad> {
-    let k = dec.shape.latents;
     let zb: Vec<f32> = texels.iter().flat_map(|&ti| z[ti * k..(ti + 1) * k].iter().copied()).collect();
     texels
         .par_chunks(CHUNK)
         .zip(zb.par_chunks(CHUNK * k))
         .enumerate()
-        .map(|(ci, (tx, zc))| {
-            chunk_grad(btf, pairs, dec, tx, zc, inv_scale, norm, mix(seed.wrapping_add(ci as u64)), want_dz)
-        })
+        .map(|(ci, (tx, zc))| grad(tx, zc, mix(seed.wrapping_add(ci as u64))))
         .collect()
 }
 
@@ -595,17 +587,10 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, monitor: &Monitor) -> Result<Trained> 
     while step < s.steps {
         monitor.check()?;
         let texels = batches.next(&mut rng);
-        let grads = batch_grads(
-            btf,
-            &pairs.train,
-            &dec,
-            &texels,
-            &z,
-            inv_scale,
-            norm,
-            mix(s.seed ^ mix((step * 4096) as u64)),
-            true,
-        );
+        let seed = mix(s.seed ^ mix((step * 4096) as u64));
+        let grads = batch_grads(&texels, &z, k, seed, |tx, zc, sd| {
+            chunk_grad(btf, &pairs.train, &dec, tx, zc, inv_scale, norm, sd, true)
+        });
         let mut g = vec![0.0f32; dec.params.len()];
         let mut sse = 0.0;
         for cg in &grads {
@@ -681,7 +666,9 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, monitor: &Monitor) -> Result<Trained> 
         monitor.check()?;
         let texels = batches.next(&mut rng);
         let seed = mix(s.seed ^ mix(((s.steps + i) * 4096) as u64));
-        let grads = batch_grads(btf, &pairs.train, &dec, &texels, &zq, inv_scale, norm, seed, false);
+        let grads = batch_grads(&texels, &zq, k, seed, |tx, zc, sd| {
+            chunk_grad(btf, &pairs.train, &dec, tx, zc, inv_scale, norm, sd, false)
+        });
         let mut g = vec![0.0f32; dec.params.len()];
         for cg in &grads {
             g.iter_mut().zip(&cg.dec).for_each(|(a, b)| *a += b);
