@@ -6,15 +6,19 @@
 #
 # BTFLIB_DIR (or the BTFLIB_DIR environment variable) is a checkout of
 # https://github.com/cgbonn/btflib; without one, the pinned commit below is
-# cloned into a temporary directory. OUT_DIR (environment) overrides the
-# output directory. Installs octave and liboctave-dev (for mkoctfile, which
-# compiles btflib's halfprecision MEX) with apt-get when they are missing.
+# cloned (from BTFLIB_URL, default GitHub) into a temporary directory.
+# OUT_DIR (environment) overrides the output directory. Installs octave and
+# liboctave-dev (for mkoctfile, which compiles btflib's halfprecision MEX)
+# with apt-get when they are missing.
+#
+# Octave 7.3 may print "error: ignoring const execution_exception& while
+# preparing to exit" after a successful run; the exit status is still 0.
 #
 # Fixtures in the repository were made with GNU Octave 7.3.0 (Debian 12) and
 # btflib a9645d520417995603d7e16f38150f599d011e2e.
 set -euo pipefail
 
-BTFLIB_URL=https://github.com/cgbonn/btflib
+BTFLIB_URL=${BTFLIB_URL:-https://github.com/cgbonn/btflib}
 BTFLIB_COMMIT=a9645d520417995603d7e16f38150f599d011e2e
 
 repo=$(cd "$(dirname "$0")/../.." && pwd)
