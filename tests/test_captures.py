@@ -324,13 +324,17 @@ def test_mmap_to_writes_the_same_btf_and_nothing_on_interrupt(tmp_path):
 
 # --- UBO2014 .btf (DFMF), written here byte by byte from the published layout -------------------
 
-def write_dfmf(path, views, lights_deg, width, height, U, SV):
-    """A version-1 `!DFMF08FCR` file: RGB colour model, float32 scalars. ``U[c]`` is
-    [views * lights, k], ``SV[c]`` [width * height, k] (pixel = row * width + col, top row
-    first); angles in radians in the file."""
+def write_dfmf(path, views, lights_deg, width, height, U, SV, cosine_flag=None, scale=(1, 1, 1)):
+    """A `!DFMF08FCR` file: RGB colour model, float32 scalars; metadata version 1 without a
+    cosine flag, else version 2 with it. ``U[c]`` is [views * lights, k], ``SV[c]``
+    [width * height, k] (pixel = row * width + col, top row first); angles in radians in the
+    file."""
     b = bytearray(b"!DFMF08FCR")
-    meta = struct.pack("<I", 1) + b"setup".ljust(80, b"\0") + b"sensor".ljust(80, b"\0") \
-        + b"lamp".ljust(80, b"\0") + struct.pack("<f", 10.0) + struct.pack("<3f", 1, 1, 1)
+    version = 1 if cosine_flag is None else 2
+    meta = struct.pack("<I", version) + b"setup".ljust(80, b"\0") + b"sensor".ljust(80, b"\0") \
+        + b"lamp".ljust(80, b"\0") + struct.pack("<f", 10.0) + struct.pack("<3f", *scale)
+    if cosine_flag is not None:
+        meta += struct.pack("<I", cosine_flag)
     b += struct.pack("<I", 4 + len(meta)) + meta
     b += struct.pack("<I", len(views))
     for t, p in views:
@@ -355,15 +359,29 @@ def test_ubo2014_dfmf_decodes_to_the_low_rank_product(tmp_path):
     U = [rng.normal(size=(len(views) * len(lights), k)) for _ in range(3)]
     SV = [rng.normal(size=(w * h, k)) for _ in range(3)]
     p = tmp_path / "carpet_W5xH3_L4xV2.btf"
-    write_dfmf(p, views, lights, w, h, U, SV)
+    write_dfmf(p, views, lights, w, h, U, SV, cosine_flag=1)
     b = io.load(p)
     assert b.shape == (h, w, 2, 4, 3)
     np.testing.assert_allclose(b.views, [direction(*v) for v in views], atol=1e-6)
     np.testing.assert_allclose(b.lights, [direction(*l) for l in lights], atol=1e-6)
+    full = [(U[c].astype(np.float32).astype(np.float64) @ SV[c].astype(np.float32).astype(np.float64).T)
+            .reshape(2, 4, h, w).transpose(2, 3, 0, 1) for c in range(3)]
     for c in range(3):
-        full = (U[c].astype(np.float32).astype(np.float64) @ SV[c].astype(np.float32).astype(np.float64).T)
-        want = full.reshape(2, 4, h, w).transpose(2, 3, 0, 1)
-        np.testing.assert_allclose(b.data[..., c], want, atol=1e-5)
+        np.testing.assert_allclose(b.data[..., c], full[c], atol=1e-5)
+    assert b.meta["values"]["cosine"].startswith("in the file") and b.meta["cosine_flag"] == 1
+    # Without the cosine flag (version 1, or the flag 0) the values exclude the cosine: the
+    # reader multiplies it in; the RGB scale factors are applied per channel.
+    cos_l = np.cos(np.radians([t for t, _ in lights]))
+    for flag, scale in ((None, (1, 1, 1)), (0, (2.0, 0.5, 1.5))):
+        q = tmp_path / f"flag{flag}.btf"
+        write_dfmf(q, views, lights, w, h, U, SV, cosine_flag=flag, scale=scale)
+        d = io.load(q)
+        assert d.meta["values"]["cosine"].startswith("multiplied in") and d.meta["values"]["scale_applied"] == list(scale)
+        for c in range(3):
+            np.testing.assert_allclose(d.data[..., c], full[c] * cos_l[None, None, None, :] * scale[c], atol=1e-5)
+    write_dfmf(tmp_path / "zero.btf", views, lights, w, h, U, SV, cosine_flag=1, scale=(1, 0, 1))
+    with pytest.raises(FormatError, match=r"zero\.btf.*RGB scale factors"):
+        io.load(tmp_path / "zero.btf")
     part = io.load(p, crop=(1, 2, 2, 3), lights=[3, 0])
     np.testing.assert_allclose(part.data, b.data[1:3, 2:5][:, :, :, [3, 0]], atol=1e-6)
     # truncated: a clear error, no allocation

@@ -81,12 +81,15 @@ class Btf:
         Optional ``[V, L]`` bool, True where the pair is present.
     check:
         Scan the values for NaN/inf (a parallel pass over the data; on by default).
+    meta:
+        Optional JSON-serialisable dict describing where the values come from (see
+        :attr:`meta`).
     """
 
-    __slots__ = ("_data", "_views", "_lights", "_mask", "_source", "__weakref__")
+    __slots__ = ("_data", "_views", "_lights", "_mask", "_source", "_meta", "__weakref__")
 
     def __init__(self, data: ArrayLike, views: ArrayLike, lights: ArrayLike, mask: Optional[ArrayLike] = None, *,
-                 check: bool = True) -> None:
+                 check: bool = True, meta: Optional[Dict[str, Any]] = None) -> None:
         a = data if isinstance(data, np.ndarray) else np.asarray(data)
         if not np.issubdtype(a.dtype, np.floating):
             raise ArgumentTypeError(f"data: expected a float array (float32 preferred), got dtype {a.dtype}")
@@ -109,6 +112,15 @@ class Btf:
             self._mask = np.ascontiguousarray(m.view(np.uint8) != 0) if m.ndim else m
         # Shapes, directions and the mask are always checked; `check` adds the value scan.
         _native.validate_btf(self._data, self._views, self._lights, self._mask, scan_values=check)
+        if meta is None:
+            meta = {}
+        if not isinstance(meta, dict):
+            raise ArgumentTypeError(f"meta: expected a dict, got {type(meta).__name__}")
+        try:
+            # A deep copy through JSON: what is kept is exactly what a .btfrs file can store.
+            self._meta: Dict[str, Any] = json.loads(json.dumps(meta, allow_nan=False))
+        except (TypeError, ValueError) as e:
+            raise InvalidArgumentError(f"meta: expected a JSON-serialisable dict with finite numbers ({e})") from None
 
     # --- shape and access -------------------------------------------------------------------
     @property
@@ -130,6 +142,17 @@ class Btf:
     def mask(self) -> Optional[np.ndarray]:
         """``[V, L]`` bool mask of present pairs, or None when all are present."""
         return self._mask
+
+    @property
+    def meta(self) -> Dict[str, Any]:
+        """Where the values come from (a copy): for a loaded capture, the file's format and
+        header fields, and under ``"values"`` how its numbers were brought to btfrs's convention
+        (linear RGB, the cosine of the light's polar angle included, the file's colour scale
+        applied): ``cosine`` (in the data, or multiplied in by the reader), ``scale_applied``
+        (per channel) and ``transfer``. Kept by :meth:`select`, :meth:`split` and crops, saved
+        in ``.btfrs`` files and printed by ``btfrs info``."""
+        copied: Dict[str, Any] = json.loads(json.dumps(self._meta))
+        return copied
 
     @property
     def shape(self) -> Tuple[int, ...]:
@@ -189,8 +212,8 @@ class Btf:
         """
         h = real("holdout", holdout, min=0.0, max=1.0, min_open=True, max_open=True)
         tr, te = _native.split_pairs(self.n_views, self.n_lights, h, check_seed(seed), self._mask)
-        return (Btf(self._data, self._views, self._lights, tr, check=False),
-                Btf(self._data, self._views, self._lights, te, check=False))
+        return (Btf(self._data, self._views, self._lights, tr, check=False, meta=self._meta),
+                Btf(self._data, self._views, self._lights, te, check=False, meta=self._meta))
 
     def select(self, *, views: Index = None, lights: Index = None) -> "Btf":
         """A sample restricted to some views and/or lights: an index, a list of indices (in
@@ -208,7 +231,7 @@ class Btf:
             raise InvalidArgumentError("views/lights: the selection must keep at least one view and one light")
         data = np.ascontiguousarray(self._data[:, :, vi][:, :, :, li])
         mask = None if self._mask is None else self._mask[vi][:, li]
-        return Btf(data, vdirs, ldirs, mask, check=False)
+        return Btf(data, vdirs, ldirs, mask, check=False, meta=self._meta)
 
     # --- files -------------------------------------------------------------------------------
     def save(self, path: PathLike) -> None:
@@ -223,7 +246,8 @@ class Btf:
         arrays: List[Tuple[str, NDArray[Any]]] = [("data", self._data), ("views", self._views), ("lights", self._lights)]
         if self._mask is not None:
             arrays.append(("mask", self._mask))
-        _native.save_container(os.fspath(path), "btf", json.dumps({"layout": "HWVL3"}), arrays)
+        meta = json.dumps({"layout": "HWVL3", "source": self._meta})
+        _native.save_container(os.fspath(path), "btf", meta, arrays)
 
     @classmethod
     def load(cls, path: PathLike, mmap: bool = False) -> "Btf":
@@ -238,10 +262,12 @@ class Btf:
         (the fits and :func:`btfrs.synth.analyse` scan their input and raise then). Files
         written before the flag existed are scanned, as without ``mmap``.
         """
-        kind, _, arrays, finite = _read_container(path, mmap=mmap)
+        kind, meta, arrays, finite = _read_container(path, mmap=mmap)
         if kind != "btf":
             raise FormatError(f"{os.fspath(path)}: holds a {kind!r}, not a BTF (use btfrs.load)")
-        btf = cls.from_arrays(path, arrays, check=not (mmap and "data" in finite))
+        source = meta.get("source", {}) if isinstance(meta, dict) else {}
+        btf = cls.from_arrays(path, arrays, check=not (mmap and "data" in finite),
+                              meta=source if isinstance(source, dict) else {})
         if mmap:
             full = os.path.abspath(os.fspath(path))  # a later chdir must not look like a change
             btf._source = (full,) + _stamp(full)
@@ -263,13 +289,14 @@ class Btf:
                               f"is not what it was when opened); open it again and rerun")
 
     @classmethod
-    def from_arrays(cls, path: PathLike, arrays: Dict[str, NDArray[Any]], *, check: bool = True) -> "Btf":
+    def from_arrays(cls, path: PathLike, arrays: Dict[str, NDArray[Any]], *, check: bool = True,
+                    meta: Optional[Dict[str, Any]] = None) -> "Btf":
         """Build from the arrays of a ``.btfrs`` file. A missing array, or arrays that do not
         make a valid BTF (dtypes, shapes, non-unit directions, an empty mask, and non-finite
         values when ``check``), are a FormatError naming the file."""
         p = os.fspath(path)
         try:
-            return cls(arrays["data"], arrays["views"], arrays["lights"], arrays.get("mask"), check=check)
+            return cls(arrays["data"], arrays["views"], arrays["lights"], arrays.get("mask"), check=check, meta=meta)
         except KeyError as e:
             raise FormatError(f"{p}: the BTF file has no array {e}") from None
         except (TypeError, ValueError) as e:  # InvalidArgumentError is a ValueError
@@ -316,6 +343,11 @@ class ExpandedBtf:
     width = property(lambda self: int(self.coords.shape[1]), doc="Columns.")
 
     @property
+    def meta(self) -> Dict[str, Any]:
+        """The sample's :attr:`Btf.meta`."""
+        return self.sample.meta
+
+    @property
     def shape(self) -> Tuple[int, ...]:
         """``(H, W, V, L, 3)`` of the expanded BTF."""
         _, _, v, l, c = self.sample.shape
@@ -344,7 +376,7 @@ class ExpandedBtf:
     def to_btf(self) -> Btf:
         """Materialise the full ``[H, W, V, L, 3]`` BTF (``nbytes_expanded`` bytes)."""
         data = self.sample.data[self.coords[..., 1], self.coords[..., 0]]
-        return Btf(data, self.sample.views, self.sample.lights, self.sample.mask, check=False)
+        return Btf(data, self.sample.views, self.sample.lights, self.sample.mask, check=False, meta=self.sample.meta)
 
     def __repr__(self) -> str:
         return (f"ExpandedBtf({self.height} x {self.width} texels from a {self.sample.height} x "

@@ -455,6 +455,14 @@ def info_command(args: argparse.Namespace) -> None:
     data = np.asarray(b.data)
     print(f"  values: min {float(data.min()):.4g}, max {float(data.max()):.4g}, mean {float(data.mean()):.4g} "
           f"(linear RGB)")
+    meta = b.meta
+    made = meta.get("values")
+    if isinstance(made, dict):
+        print(f"  read as: cosine {made.get('cosine', '?')}; colour scale {made.get('scale_applied', '?')} applied; "
+              f"transfer {made.get('transfer', '?')}")
+    shown = {k: v for k, v in meta.items() if k not in ("values", "warnings", "xml") and v not in (None, "", [])}
+    if shown:
+        print("  file: " + "; ".join(f"{k} {v}" for k, v in shown.items()))
     fewest = min(per_view)
     # Each model's registry entry says what sampling it needs: per view slot models need enough
     # lights in every slot for their unknowns (the default options'); the others fit any

@@ -102,7 +102,7 @@ def split_directions(btf: Btf, fraction: float = 0.1, *, seed: int = 0) -> tuple
     if train.mask is not None and not train.mask.any(axis=1).all():
         raise InvalidArgumentError("btf: a kept view has no present light after holding out directions; "
                                    "use a smaller fraction")
-    return train, Btf(btf.data, btf.views, btf.lights, test_mask, check=False)
+    return train, Btf(btf.data, btf.views, btf.lights, test_mask, check=False, meta=btf.meta)
 
 
 def pareto_front(rows: Sequence[_Row], y: str = "heldout", x: str = "bytes") -> List[_Row]:

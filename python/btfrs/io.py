@@ -308,7 +308,7 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
                 if r + nr > obj.height or c + nc > obj.width or nr == 0 or nc == 0:
                     raise InvalidArgumentError(f"crop: {crop!r} lies outside the {obj.height} x {obj.width} BTF")
                 obj = Btf(np.ascontiguousarray(obj.data[r:r + nr, c:c + nc]), obj.views, obj.lights, obj.mask,
-                          check=False)
+                          check=False, meta=obj.meta)
         return obj
     if kind == "table" and directions is None:
         directions = _default_table(p)
@@ -321,14 +321,15 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
         kind, p, None if directions is None else os.fspath(directions), _crop(crop),
         _index_list("views", views), _index_list("lights", lights), bool(linear), out,
         callback(progress, f"loading {os.path.basename(p.rstrip(os.sep)) or p}"), max_bytes, bool(allow_outside))
-    for w in json.loads(meta).get("warnings", []):
+    info = json.loads(meta)
+    for w in info.get("warnings", []):
         warnings.warn(w, UserWarning, stacklevel=2)
     if out is not None:
         return Btf.load(out, mmap=True)
     # The loaders check every value as they decode it, and the directions are unit by
     # construction: no second scan.
     assert data is not None
-    return Btf(data, vdirs, ldirs, mask, check=False)
+    return Btf(data, vdirs, ldirs, mask, check=False, meta=info)
 
 
 # --- data out -----------------------------------------------------------------------------------

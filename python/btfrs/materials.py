@@ -19,7 +19,7 @@ synthesis is for, and what :func:`btfrs.synth.quality` must see.
 from __future__ import annotations
 
 import os
-from typing import Optional, Sequence, Union
+from typing import Any, Dict, Optional, Sequence, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -77,7 +77,17 @@ def make(name: str = "knit", *, size: int = 64, seed: int = 0, views: Optional[A
         return Btf.load(out, mmap=True)
     data = _native.make_material(name, size, v, l, seed, relief, subsurface, None,
                                  callback(progress, f"material {name}"))
-    return Btf(data, v, l, check=False)
+    return Btf(data, v, l, check=False, meta=_meta(name, size, seed, relief, subsurface))
+
+
+def _meta(name: str, size: int, seed: int, relief: float, subsurface: float) -> Dict[str, Any]:
+    """What a built-in material's :attr:`Btf.meta` says: how it was made, and that its values
+    follow btfrs's convention by construction."""
+    return {"format": "btfrs material", "material": name, "size": size, "seed": seed, "relief": relief,
+            "subsurface": subsurface,
+            "values": {"convention": "linear RGB, cosine of the light's polar angle included, colour scale applied",
+                       "cosine": "in the data (rendered with it)", "scale_applied": [1.0, 1.0, 1.0],
+                       "transfer": "linear, as rendered"}}
 
 
 def texture_names() -> list[str]:

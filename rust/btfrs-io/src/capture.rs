@@ -190,6 +190,19 @@ pub struct Capture {
     pub meta: serde_json::Value,
 }
 
+/// The record every reader puts under `"values"` in [`Capture::meta`]: how the file's numbers
+/// were brought to btfrs's convention (linear RGB, the light's cosine included, the file's
+/// colour scale applied). `cosine` says where the cosine comes from, `scale` is the per-channel
+/// factor applied, `transfer` how stored numbers became linear values.
+pub fn values_record(cosine: &str, scale: [f32; 3], transfer: &str) -> serde_json::Value {
+    serde_json::json!({
+        "convention": "linear RGB, cosine of the light's polar angle included, colour scale applied",
+        "cosine": cosine,
+        "scale_applied": scale,
+        "transfer": transfer,
+    })
+}
+
 impl Capture {
     /// Values of the texel-major `[H, W, V, L, 3]` buffer.
     pub fn len(&self) -> usize {

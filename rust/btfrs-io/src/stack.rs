@@ -220,6 +220,14 @@ impl ImageStack {
             o.insert("image_size".into(), serde_json::json!([full.0, full.1]));
             o.insert("crop".into(), serde_json::json!([crop.row, crop.col, crop.rows, crop.cols]));
             o.insert("images".into(), serde_json::json!(slots.len()));
+            // Photographs of a lit surface: the irradiance's cosine is in every pixel.
+            let transfer = match transfer {
+                Transfer::Srgb => "sRGB curve removed from 8- and 16-bit images (value / max); EXR as stored",
+                Transfer::Linear => "8- and 16-bit images read as linear (value / max); EXR as stored",
+            };
+            o.entry("values").or_insert_with(|| {
+                crate::capture::values_record("in the images (photographs of the lit surface)", [1.0; 3], transfer)
+            });
         }
         let capture = Capture {
             height: crop.rows,

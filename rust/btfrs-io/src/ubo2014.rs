@@ -77,8 +77,16 @@
 //!
 //!   LAB (2) and the spectral models (5, 6) are refused with an error naming the model, as is
 //!   any other number. Sums are accumulated in f32 (eight lanes), the colour models evaluated in
-//!   f64; double scalars are read as f32. No clamping is done, and neither the RGB scale factors nor the cosine
-//!   flag are applied: both go into [`Capture::meta`] as the file states them.
+//!   f64; double scalars are read as f32. No clamping is done.
+//! * **btfrs's convention** (values include the light's cosine, colour scale applied): every
+//!   value of channel `c` is multiplied by the file's RGB scale factor `c`, and, unless the
+//!   cosine flag is set, by cos(theta_light). `btflib` reads the flag the same way ("is the
+//!   cosine of the light source's polar angle already multiplied", `read_meta_data.m`) and
+//!   divides flagged values by the cosine, because its convention is the other one; it never
+//!   applies the scale factors. So a btfrs value is `btflib's value * cos(theta_light) * scale`
+//!   whatever the flag, which the fixtures made by `btflib` check. Scale factors that are not
+//!   finite and positive are refused. What was done is recorded under `"values"` in
+//!   [`Capture::meta`] (`Btf.meta` in Python).
 //! * **Directions**: the file's angles are radians (`btf.hh` feeds them to `tanf`, `btflib`'s
 //!   `sph2cart2` documents radians), theta from the normal and phi the azimuth, with
 //!   `(sin theta cos phi, sin theta sin phi, cos theta)` (`btf.hh` `SphereToCartesianCoordinates`,
@@ -755,6 +763,13 @@ impl Ubo2014 {
         if header.views.is_empty() {
             return Err(fmt("the file has no views".into()));
         }
+        if !header.rgb_scale.iter().all(|s| s.is_finite() && *s > 0.0) {
+            return Err(fmt(format!(
+                "the RGB scale factors are {:?}; expected three finite positive numbers (the values are multiplied by \
+                 them, so with these the file's colours cannot be known)",
+                header.rgb_scale
+            )));
+        }
 
         // The union of the views' lights, and each view's row per union light.
         let key = |l: &[f32; 2]| (l[0].to_bits(), l[1].to_bits());
@@ -818,6 +833,15 @@ impl Ubo2014 {
             "scalar_size": header.channels.iter().map(|c| c.scalar.size()).collect::<Vec<_>>(),
             "rotations": header.rotations.len(),
             "angles": "radians, theta from the normal, phi from x (image columns, right) towards y (up the image)",
+            "values": crate::capture::values_record(
+                if header.cosine_flag.is_some_and(|f| f != 0) {
+                    "in the file (cosine flag set): kept"
+                } else {
+                    "multiplied in by the reader (the file's values exclude it: cosine flag 0 or absent)"
+                },
+                header.rgb_scale,
+                "linear, as stored",
+            ),
         });
         let capture = Capture {
             height: crop.rows,
@@ -844,6 +868,21 @@ impl Ubo2014 {
     /// The kept file view indices and union light indices.
     pub fn selected(&self) -> (&[usize], &[usize]) {
         (&self.views, &self.lights)
+    }
+
+    /// Per kept pair, the factor each channel is multiplied by to reach btfrs's convention
+    /// (see the module doc): the file's RGB scale, times cos(theta_light) unless the cosine flag
+    /// says the values already hold it.
+    fn gains(&self) -> Vec<[f64; 3]> {
+        let s = self.header.rgb_scale.map(f64::from);
+        let with_cosine = self.header.cosine_flag.is_some_and(|f| f != 0);
+        let nl = self.lights.len();
+        (0..self.rows.len())
+            .map(|p| {
+                let c = if with_cosine { 1.0 } else { self.capture.lights[p % nl][2] };
+                s.map(|x| x * c)
+            })
+            .collect()
     }
 
     /// U of channel `c` for the kept pairs: `[pairs][k]` (absent pairs 0).
@@ -897,6 +936,7 @@ impl Source for Ubo2014 {
         let m = self.header.color_transform.map(f64::from);
         let npairs = self.rows.len();
         let nl = self.lights.len();
+        let gain = self.gains();
         let row_len = self.crop.cols * npairs * 3;
         let crop = self.crop;
         let width = self.header.width as u64;
@@ -932,7 +972,9 @@ impl Source for Ubo2014 {
                             let px = px0 + j;
                             let ch: [f32; 3] =
                                 std::array::from_fn(|c| dot(up[c], &sxv[c][px * ks[c]..(px + 1) * ks[c]]));
-                            let v = to_rgb(self.model, ch, &mean, &m).map(|x| x as f32);
+                            let g = &gain[p];
+                            let rgb = to_rgb(self.model, ch, &mean, &m);
+                            let v: [f32; 3] = std::array::from_fn(|c| (rgb[c] * g[c]) as f32);
                             if !v.iter().all(|x| x.is_finite()) {
                                 return Err(Error::format(
                                     &self.shown,

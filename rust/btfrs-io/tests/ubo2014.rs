@@ -161,9 +161,14 @@ fn reference(f: &DfmfFile) -> (Vec<[f32; 2]>, Vec<f64>, Vec<bool>, Vec<f64>) {
                 }
             }
             let rgb = reference_rgb(f, c);
+            // btfrs's convention: the RGB scale applied, the light's cosine multiplied in
+            // unless the cosine flag (metadata version >= 2) says the values hold it.
+            let flagged = f.version >= 2 && f.cosine_flag != 0;
+            let cos = if flagged { 1.0 } else { (union[pair % nl][0] as f64).cos() };
             for ci in 0..3 {
-                out[(p * nv * nl + pair) * 3 + ci] = rgb[ci];
-                scale[(p * nv * nl + pair) * 3 + ci] = s;
+                let g = f.rgb_scale[ci] as f64 * cos;
+                out[(p * nv * nl + pair) * 3 + ci] = rgb[ci] * g;
+                scale[(p * nv * nl + pair) * 3 + ci] = s * g;
             }
         }
     }
@@ -546,6 +551,7 @@ fn directions_follow_the_documented_frame() {
 fn image_rows_are_top_first() {
     // One component, U = 1: every image is S.V itself, pixel p = row * width + column.
     let mut f = sample(9, grid_views(1, 1), 3, 2, [1, 1, 1], [Scalar::F32; 3], 0);
+    f.rgb_scale = [1.0; 3];
     for ch in &mut f.channels {
         ch.u = vec![1.0];
         ch.sxv = (0..6).map(|p| p as f64).collect();
