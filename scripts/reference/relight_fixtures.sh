@@ -33,12 +33,16 @@
 #   CACHE_DIR defaults to ${XDG_CACHE_HOME:-$HOME/.cache}/btfrs-reference.
 #
 # Build (what the script runs):
-#   apt-get install cmake make g++ pkg-config qt6-base-dev qt6-svg-dev libexiv2-dev \
+#   apt-get install cmake make g++ pkg-config git qt6-base-dev qt6-svg-dev libexiv2-dev \
 #       liblcms2-dev libtiff-dev libpng-dev libjpeg-dev libeigen3-dev
 #   cmake -S <relight> -B <build> -DCMAKE_BUILD_TYPE=Release
 #   cmake --build <build> --target relight-cli -j<ncpu>
 # (qt6-svg-dev is only needed because the top-level CMakeLists also configures the
 # relightlab GUI; only the relight-cli target is compiled.)
+#
+# Reruns are reproducible: every file comes out byte-identical except the web
+# plane JPEGs of the fits, whose embedded ICC profile carries its creation time
+# (their pixels are identical).
 
 set -euo pipefail
 
