@@ -170,7 +170,7 @@ def _model_extensions() -> tuple[str, ...]:
 
 def capture_kind(path: PathLike, directions: Optional[PathLike] = None) -> str:
     """What :func:`load` takes ``path`` for: ``"btfrs"``, ``"model_file"`` (another tool's model
-    file: ``.ptm``, ``.rti``), ``"ubo2014"``,
+    file: ``.ptm``, ``.rti``, or a relight / NeuralRTI web folder or its ``info.json``), ``"ubo2014"``,
     ``"lp"`` (an RTI ``.lp`` file, or a folder holding exactly one), ``"table"`` (a folder with
     a ``directions=`` table, or holding ``directions.csv`` / ``.json``), ``"ubo2003"`` (a zip archive or a folder of images whose names carry
     the angles). Raises :class:`~btfrs.exceptions.FormatError` when it is none of these."""
@@ -187,6 +187,8 @@ def capture_kind(path: PathLike, directions: Optional[PathLike] = None) -> str:
             raise FormatError(f"{p}: holds several .lp files ({', '.join(lps)}); pass the one to load")
         if _default_table(p) is not None:
             return "table"
+        if "info.json" in names:
+            return "model_file"  # relight's web format (or NeuralRTI's): info.json + plane images
         if not any(n.lower().endswith(_IMAGE_EXT) for n in names):
             raise FormatError(f"{p}: the folder holds no images and no .lp file; expected an RTI capture "
                               f"(.lp + photos), a UBO-style image folder, or images with directions=")
@@ -291,7 +293,7 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
     if kind in ("btfrs", "model_file"):
         obj: Any
         if kind == "model_file":
-            obj = load_as_format(p)
+            obj = load_as_format(os.path.join(p, "info.json") if os.path.isdir(p) else p)
         elif mmap and _native.read_container_header(p)[0] == "btf":
             obj = Btf.load(p, mmap=True)
         else:

@@ -190,6 +190,7 @@ light_pca::light_pca_model!(Bilinear);
 
 impl Model for Bilinear {
     const KIND: &'static str = "bilinear";
+    const EXPORTS: &'static [&'static str] = &["relight"];
     const DOC: &'static str =
         "bilinear light grid per view slot by regularised least squares, PCA into 8-bit planes (relight's bilinear)";
     const ABOUT: &'static str = "\

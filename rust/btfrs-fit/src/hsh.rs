@@ -447,7 +447,7 @@ the three channels of a slot and term share a scale and bias, as in a `.rti` fil
     const EXAMPLES: &'static [(&'static str, &'static str)] =
         &[("HSH-2", r#"{"order": 2}"#), ("HSH-3", r#"{"order": 3}"#), ("HSH-4", r#"{"order": 4}"#)];
     const SAMPLING: Sampling = Sampling::PerView { min_lights: 9, why: "order 3; order 2 needs 4" };
-    const EXPORTS: &'static [&'static str] = &["rti"];
+    const EXPORTS: &'static [&'static str] = &["rti", "relight"];
     const MIP: Mip = Mip::Average;
     type Options = HshOptions;
     // Each texel's values are checked as the per-texel pass reads them (TexelScan).

@@ -558,7 +558,7 @@ a scale and a bias), so `nbytes` is what a viewer holds and `save_ptm` writes th
     const SWEEP: &'static [Setting] =
         &[Setting::quick("PTM-RGB", r#"{"kind": "rgb"}"#), Setting::full("PTM-LRGB", r#"{"kind": "lrgb"}"#)];
     const SAMPLING: Sampling = Sampling::PerView { min_lights: 6, why: "biquadratic" };
-    const EXPORTS: &'static [&'static str] = &["ptm"];
+    const EXPORTS: &'static [&'static str] = &["ptm", "relight"];
     type Options = PtmOptions;
     // Each texel's values are checked as the per-texel pass reads them (TexelScan).
     const SCANS_VALUES: bool = true;

@@ -150,6 +150,7 @@ light_pca::light_pca_model!(Rbf);
 
 impl Model for Rbf {
     const KIND: &'static str = "rbf";
+    const EXPORTS: &'static [&'static str] = &["relight"];
     const DOC: &'static str =
         "Gaussian RBF light interpolation per view slot, resampled on a light grid, PCA into 8-bit planes (relight's RBF)";
     const ABOUT: &'static str = "\

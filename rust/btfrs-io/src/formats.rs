@@ -27,7 +27,10 @@ pub struct Format {
 }
 
 /// Every format, in the order `btfrs.load` tries extensions.
-pub const FORMATS: &[Format] = &[crate::ptm_file::FORMAT, crate::rti_file::FORMAT, crate::neuralrti_file::FORMAT];
+/// relight's folder comes before NeuralRTI's: both are an `info.json`, and relight's reader
+/// hands a `"neural"` one to NeuralRTI's.
+pub const FORMATS: &[Format] =
+    &[crate::ptm_file::FORMAT, crate::rti_file::FORMAT, crate::relight_file::FORMAT, crate::neuralrti_file::FORMAT];
 
 /// The format named `name`.
 pub fn lookup(name: &str) -> Result<&'static Format> {

@@ -23,6 +23,7 @@ pub mod image;
 pub mod model_file;
 pub mod neuralrti_file;
 pub mod ptm_file;
+pub mod relight_file;
 pub mod rti;
 pub mod rti_file;
 pub mod stack;

@@ -638,18 +638,18 @@ pub fn decode_ptm_bytes(bytes: &[u8], path_for_errors: &str) -> Result<PtmBytes>
         }
     };
 
-    let format = match hdr.token("format string")? {
-        b"PTM_FORMAT_RGB" => PtmFormat::Rgb,
-        b"PTM_FORMAT_LRGB" => PtmFormat::Lrgb,
+    let (format, jpeg) = match hdr.token("format string")? {
+        b"PTM_FORMAT_RGB" => (PtmFormat::Rgb, false),
+        b"PTM_FORMAT_LRGB" => (PtmFormat::Lrgb, false),
+        b"PTM_FORMAT_JPEG_RGB" => (PtmFormat::Rgb, true),
+        b"PTM_FORMAT_JPEG_LRGB" => (PtmFormat::Lrgb, true),
         f @ (b"PTM_FORMAT_LUM"
         | b"PTM_FORMAT_PTM_LUT"
         | b"PTM_FORMAT_PTM_C_LUT"
-        | b"PTM_FORMAT_JPEG_RGB"
-        | b"PTM_FORMAT_JPEG_LRGB"
         | b"PTM_FORMAT_JPEGLS_RGB"
         | b"PTM_FORMAT_JPEGLS_LRGB") => {
             return Err(hdr.err(format!(
-                "PTM format {} is not supported (only uncompressed PTM_FORMAT_RGB and PTM_FORMAT_LRGB)",
+                "PTM format {} is not supported (RGB and LRGB, uncompressed or JPEG, are read)",
                 show(f)
             )));
         }
@@ -677,6 +677,17 @@ pub fn decode_ptm_bytes(bytes: &[u8], path_for_errors: &str) -> Result<PtmBytes>
             .and_then(|t| t.parse::<f64>().ok())
             .filter(|v| v.is_finite())
             .ok_or_else(|| hdr.err(format!("{what} is not a number: {}", show(t))))?;
+    }
+    if jpeg {
+        width
+            .checked_mul(height)
+            .and_then(|t| t.checked_mul(3 * NCOEF))
+            .ok_or_else(|| hdr.err(format!("{width} x {height} texels is too large")))?;
+        let planes = jpeg_planes(&mut hdr, format, width, height)?;
+        let probe =
+            PtmBytes { width: 1, height: 1, format: PtmFormat::Rgb, scale, bias, coeffs: vec![0; 18], rgb: None };
+        probe.decode(path_for_errors)?;
+        return Ok(from_planes(format, width, height, scale, bias, &planes));
     }
     hdr.end_of_header()?;
 
@@ -740,6 +751,148 @@ pub fn decode_ptm_bytes(bytes: &[u8], path_for_errors: &str) -> Result<PtmBytes>
         }
     };
     Ok(PtmBytes { width, height, format, scale, bias, coeffs, rgb })
+}
+
+/// The planes of a JPEG-compressed PTM (the PTM 1.2 format's `PTM_FORMAT_JPEG_RGB` and
+/// `_LRGB`, as relight writes and reads them): after the biases, the quality and seven lists of
+/// one integer per plane (transform, motion x, motion y, decoding order, reference plane,
+/// compressed size, side-information size), then per plane a greyscale JPEG and its side
+/// information (5-byte corrections: a big-endian texel index and the byte it holds). A plane
+/// with a reference plane `r` stores `value - reference + 128`. Transforms and motion vectors
+/// other than 0 are refused, as relight refuses them. Planes are in file order (rows bottom
+/// first); for RGB, plane `3 j + c` is coefficient `j` of channel `c`; for LRGB, planes 0-5
+/// are the coefficients and 6-8 the colour.
+fn jpeg_planes(hdr: &mut Header<'_>, format: PtmFormat, width: usize, height: usize) -> Result<Vec<Vec<u8>>> {
+    let n = match format {
+        PtmFormat::Rgb => 3 * NCOEF,
+        PtmFormat::Lrgb => NCOEF + 3,
+    };
+    let int = |hdr: &mut Header<'_>, what: &str| -> Result<i64> {
+        let t = hdr.token(what)?;
+        std::str::from_utf8(t)
+            .ok()
+            .and_then(|t| t.parse::<i64>().ok())
+            .ok_or_else(|| hdr.err(format!("the {what} is not an integer: {}", show(t))))
+    };
+    int(hdr, "JPEG quality")?;
+    let mut lists: Vec<Vec<i64>> = Vec::new();
+    for what in [
+        "transform",
+        "motion vector x",
+        "motion vector y",
+        "order",
+        "reference plane",
+        "compressed size",
+        "side information size",
+    ] {
+        let list = (0..n).map(|k| int(hdr, &format!("{what} of plane {k}"))).collect::<Result<Vec<_>>>()?;
+        lists.push(list);
+    }
+    hdr.end_of_header()?;
+    let (order, reference, sizes, side) = (&lists[3], &lists[4], &lists[5], &lists[6]);
+    for k in 0..n {
+        if lists[0][k] != 0 || lists[1][k] != 0 || lists[2][k] != 0 {
+            return Err(
+                hdr.err(format!("plane {k}: JPEG PTM transforms and motion vectors are not supported (only 0)"))
+            );
+        }
+        if sizes[k] <= 0 || side[k] < 0 || side[k] % 5 != 0 {
+            return Err(hdr.err(format!(
+                "plane {k}: compressed size {} and side information size {} (expected a positive size and a multiple of 5)",
+                sizes[k], side[k]
+            )));
+        }
+    }
+    // order[k] is the step at which plane k is decoded: a permutation of 0..n.
+    let mut sequence = vec![usize::MAX; n];
+    for (k, &o) in order.iter().enumerate() {
+        if o < 0 || o as usize >= n || sequence[o as usize] != usize::MAX {
+            return Err(hdr.err(format!("the decoding order {order:?} is not a permutation of 0..{n}")));
+        }
+        sequence[o as usize] = k;
+    }
+    let mut start = vec![hdr.pos; n + 1];
+    for k in 0..n {
+        start[k + 1] = start[k] + sizes[k] as usize + side[k] as usize;
+    }
+    if start[n] > hdr.bytes.len() {
+        return Err(hdr.err(format!(
+            "truncated: the planes need {} bytes after the header, the file has {}",
+            start[n] - hdr.pos,
+            hdr.bytes.len() - hdr.pos
+        )));
+    }
+    let texels = width * height;
+    let mut planes: Vec<Option<Vec<u8>>> = vec![None; n];
+    for &k in &sequence {
+        let jpeg = &hdr.bytes[start[k]..start[k] + sizes[k] as usize];
+        let mut reader = ::image::ImageReader::with_format(std::io::Cursor::new(jpeg), ::image::ImageFormat::Jpeg);
+        let mut limits = ::image::Limits::default();
+        limits.max_image_width = Some(width as u32);
+        limits.max_image_height = Some(height as u32);
+        reader.limits(limits);
+        let img = reader.decode().map_err(|e| hdr.err(format!("plane {k}: {e}")))?.to_luma8();
+        if (img.width() as usize, img.height() as usize) != (width, height) {
+            return Err(hdr.err(format!(
+                "plane {k}: the JPEG is {} x {}, the header says {width} x {height}",
+                img.width(),
+                img.height()
+            )));
+        }
+        let mut plane = img.into_raw();
+        let r = reference[k];
+        if r != -1 {
+            let base =
+                usize::try_from(r).ok().and_then(|r| planes.get(r)).and_then(|p| p.as_ref()).ok_or_else(|| {
+                    hdr.err(format!("plane {k}: reference plane {r} is not a plane decoded before it"))
+                })?;
+            for (v, &b) in plane.iter_mut().zip(base) {
+                *v = (i32::from(*v) - 128 + i32::from(b)).clamp(0, 255) as u8;
+            }
+        }
+        let corrections = &hdr.bytes[start[k] + sizes[k] as usize..start[k + 1]];
+        for c in corrections.chunks_exact(5) {
+            let at = u32::from_be_bytes([c[0], c[1], c[2], c[3]]) as usize;
+            if at >= texels {
+                return Err(hdr.err(format!("plane {k}: a correction at texel {at} of {texels}")));
+            }
+            plane[at] = c[4];
+        }
+        planes[k] = Some(plane);
+    }
+    Ok(planes.into_iter().map(|p| p.expect("every plane decoded")).collect())
+}
+
+/// The bytes of a PTM from its planes in file order (see [`jpeg_planes`]).
+fn from_planes(format: PtmFormat, w: usize, h: usize, scale: [f32; 6], bias: [f64; 6], planes: &[Vec<u8>]) -> PtmBytes {
+    let texels = w * h;
+    let mut coeffs = vec![0u8; texels * format.coeffs_per_texel()];
+    let mut rgb = (format == PtmFormat::Lrgb).then(|| vec![0u8; texels * 3]);
+    for file_row in 0..h {
+        let y = h - 1 - file_row; // the planes start with the bottom row
+        for x in 0..w {
+            let (src, t) = (file_row * w + x, y * w + x);
+            match format {
+                PtmFormat::Rgb => {
+                    for (p, plane) in planes.iter().enumerate() {
+                        let (j, c) = (p / 3, p % 3);
+                        coeffs[(t * 3 + c) * NCOEF + j] = plane[src];
+                    }
+                }
+                PtmFormat::Lrgb => {
+                    for j in 0..NCOEF {
+                        coeffs[t * NCOEF + j] = planes[j][src];
+                    }
+                    if let Some(rgb) = rgb.as_mut() {
+                        for c in 0..3 {
+                            rgb[t * 3 + c] = planes[NCOEF + c][src];
+                        }
+                    }
+                }
+            }
+        }
+    }
+    PtmBytes { width: w, height: h, format, scale, bias, coeffs, rgb }
 }
 
 /// A cursor over the text header.
@@ -1159,6 +1312,54 @@ mod tests {
     }
 
     #[test]
+    fn jpeg_lrgb_planes_with_a_reference_and_a_correction() {
+        // Nine constant greyscale planes (a constant 8x8 block is exact in JPEG), plane 1 stored
+        // relative to plane 0, one side-information correction in plane 7 (red).
+        let (w, h) = (16usize, 8usize);
+        let values: [u8; 9] = [10, 100, 30, 40, 50, 60, 70, 80, 90];
+        let encode = |v: u8| {
+            let mut out = Vec::new();
+            ::image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 90)
+                .encode(&vec![v; w * h], w as u32, h as u32, ::image::ExtendedColorType::L8)
+                .unwrap();
+            out
+        };
+        let stored: Vec<u8> =
+            values.iter().enumerate().map(|(k, &v)| if k == 1 { 100 - 10 + 128 } else { v }).collect();
+        let jpegs: Vec<Vec<u8>> = stored.iter().map(|&v| encode(v)).collect();
+        let side: Vec<usize> = (0..9).map(|k| if k == 6 { 5 } else { 0 }).collect();
+        let list = |f: &dyn Fn(usize) -> String| (0..9).map(f).collect::<Vec<_>>().join(" ");
+        let mut f = format!(
+            "PTM_1.2\nPTM_FORMAT_JPEG_LRGB\n{w}\n{h}\n1 1 1 1 1 1\n0 0 0 0 0 0\n90\n{z}\n{z}\n{z}\n{order}\n{refs}\n{sizes}\n{side}\n",
+            z = list(&|_| "0".into()),
+            order = list(&|k| k.to_string()),
+            refs = list(&|k| if k == 1 { "0".into() } else { "-1".into() }),
+            sizes = list(&|k| jpegs[k].len().to_string()),
+            side = list(&|k| side[k].to_string()),
+        )
+        .into_bytes();
+        for (k, j) in jpegs.iter().enumerate() {
+            f.extend_from_slice(j);
+            if k == 6 {
+                // texel 3 of the file (bottom row, column 3) gets red 255
+                f.extend_from_slice(&[0, 0, 0, 3, 255]);
+            }
+        }
+        let b = decode_ptm_bytes(&f, "j.ptm").unwrap();
+        assert_eq!((b.width, b.height, b.format), (w, h, PtmFormat::Lrgb));
+        for t in 0..w * h {
+            assert_eq!(b.coeffs[t * 6..t * 6 + 6], values[..6]);
+        }
+        let rgb = b.rgb.unwrap();
+        // file texel 3 is row h - 1 (the bottom), column 3
+        let t = (h - 1) * w + 3;
+        assert_eq!(rgb[t * 3..t * 3 + 3], [255, 80, 90]);
+        assert_eq!(rgb[0..3], [70, 80, 90]);
+        // A cut plane: truncated, named.
+        assert!(format_error(&f[..f.len() - 10]).contains("truncated"));
+    }
+
+    #[test]
     fn decode_errors() {
         let (good, _) = encode_ptm(&random_image(PtmFormat::Lrgb, 3, 2, 7)).unwrap();
         assert!(format_error(&good[..good.len() - 1]).contains("truncated"));
@@ -1169,7 +1370,9 @@ mod tests {
         assert!(format_error(unknown).contains("PTM_FORMAT_FOO"));
         let jpeg = b"PTM_1.2\nPTM_FORMAT_JPEG_LRGB\n1\n1\n1 1 1 1 1 1\n0 0 0 0 0 0\n";
         let msg = format_error(jpeg);
-        assert!(msg.contains("PTM_FORMAT_JPEG_LRGB") && msg.contains("not supported"), "{msg}");
+        assert!(msg.contains("truncated") && msg.contains("JPEG quality"), "{msg}");
+        let msg = format_error(b"PTM_1.2\nPTM_FORMAT_JPEGLS_RGB\n");
+        assert!(msg.contains("PTM_FORMAT_JPEGLS_RGB") && msg.contains("not supported"), "{msg}");
         assert!(format_error(b"PTM_1.2\nPTM_FORMAT_LUM\n").contains("PTM_FORMAT_LUM"));
         assert!(format_error(b"PTM_1.0\nPTM_FORMAT_LRGB\n").contains("PTM_1.0"));
         assert!(format_error(b"\x89PNG\r\n\x1a\n").contains("not a PTM file"));

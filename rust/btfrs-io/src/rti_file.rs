@@ -14,8 +14,11 @@
 //! ```
 //!
 //! The data hold, texel after texel, the `terms` bytes of red, then of green, then of blue; the
-//! rows run from the *bottom* of the image to the top (as in `.ptm`), left to right. The same
-//! two floats per term serve every texel and all three bands. The writer writes basis type 2
+//! rows run from the *top* of the image to the bottom, left to right (unlike `.ptm`, whose rows
+//! start at the bottom). That is how relight-cli reads and writes `.rti` files: its own `.rti`
+//! fits relight to its own images only this way (`tests/fixtures/relight`, within 1 to 5 8-bit
+//! steps; the other way round, 40 to 67 steps on average). RTIViewer could not be built here to
+//! check its reading. The same two floats per term serve every texel and all three bands. The writer writes basis type 2
 //! (the value RTIBuilder's HSH files carry, as far as we know); the reader accepts any value and
 //! keeps it.
 //!
@@ -24,9 +27,8 @@
 //! Readers disagree on what the two arrays mean. RTIViewer's `.rti` loader reads them as the
 //! minimum and maximum of each term (`value = min + (max - min) * c / 255`; seen in an excerpt of
 //! a copy of its `hsh.cpp`, GPL, not read further), while its loader of the compressed variant
-//! and relight read them as a scale and a bias. This module implements relight's reading, by
-//! name and order (we could not check it in a non-GPL source, so it is stated here rather than
-//! derived):
+//! and relight read them as a scale and a bias. This module implements relight's reading,
+//! checked against relight-cli's own files and relit images (`tests/test_reference_tools.py`):
 //!
 //! ```text
 //! value_j = bias_j + scale_j * c / 255      (first array scale, second bias)
@@ -196,11 +198,8 @@ pub fn encode_rti(img: &RtiHsh) -> Result<Vec<u8>> {
     for x in img.scale.iter().chain(&img.bias) {
         out.extend_from_slice(&x.to_le_bytes());
     }
-    let row = w * 3 * t;
-    for file_row in 0..h {
-        let y = h - 1 - file_row; // the file starts with the bottom row
-        out.extend_from_slice(&img.data[y * row..(y + 1) * row]);
-    }
+    // Rows top first, as relight reads and writes them (unlike `.ptm`).
+    out.extend_from_slice(&img.data);
     debug_assert_eq!(out.len(), header.len() + 8 * t + n);
     Ok(out)
 }
@@ -338,12 +337,8 @@ pub fn decode_rti(bytes: &[u8], path_for_errors: &str) -> Result<RtiHsh> {
         }
     }
     let start = r.pos + 8 * terms;
-    let row = width * 3 * terms;
-    let mut data = vec![0u8; data_len];
-    for file_row in 0..height {
-        let y = height - 1 - file_row;
-        data[y * row..(y + 1) * row].copy_from_slice(&bytes[start + file_row * row..start + (file_row + 1) * row]);
-    }
+    // Rows top first (see the module doc).
+    let data = bytes[start..start + data_len].to_vec();
     Ok(RtiHsh { width, height, terms, basis_type, scale, bias, data })
 }
 
@@ -394,12 +389,12 @@ mod tests {
 
     #[test]
     fn a_hand_made_file_is_parsed_field_by_field() {
-        // 2 x 2 texels, order 2 (4 terms); rows bottom to top; R then G then B per texel.
+        // 2 x 2 texels, order 2 (4 terms); rows top to bottom; R then G then B per texel.
         let mut f = b"#HSH1.2\r\n# made by hand\n3\n2 2 3\n4 2 1\n".to_vec();
         for x in [1.0f32, 2.0, 0.5, 0.25, 0.0, -1.0, 0.125, 3.0] {
             f.extend_from_slice(&x.to_le_bytes());
         }
-        // texel index in file order (bottom row first) * 12 + band * 4 + term
+        // texel index in file order (top row first) * 12 + band * 4 + term
         for i in 0..4 * 12u8 {
             f.push(i);
         }
@@ -408,18 +403,18 @@ mod tests {
         assert_eq!((img.width, img.height, img.terms, img.basis_type, img.order()), (2, 2, 4, 2, 2));
         assert_eq!(img.scale, [1.0, 2.0, 0.5, 0.25]);
         assert_eq!(img.bias, [0.0, -1.0, 0.125, 3.0]);
-        // The file's first texel is the bottom-left one: row 1 (of 2, from the top), column 0.
-        assert_eq!(img.data[(2 * 3) * 4..(2 * 3) * 4 + 12], (0..12).collect::<Vec<u8>>()[..]);
-        // top-right texel = file texel 3
-        assert_eq!(img.data[3 * 4], 36);
-        // green, term 1 of the bottom-right texel (file texel 1): byte 12 + 4 + 1 = 17
-        assert_eq!(img.data[((2 + 1) * 3 + 1) * 4 + 1], 17);
+        // The file's first texel is the top-left one.
+        assert_eq!(img.data[..12], (0..12).collect::<Vec<u8>>()[..]);
+        // bottom-right texel = file texel 3
+        assert_eq!(img.data[(3 * 3) * 4], 36);
+        // green, term 1 of the top-right texel (file texel 1): byte 12 + 4 + 1 = 17
+        assert_eq!(img.data[(3 + 1) * 4 + 1], 17);
         let want = -1.0 + 2.0 * 17.0 / 255.0;
-        assert!((img.coefficient(1, 1, 1, 1) - want).abs() < 1e-6);
+        assert!((img.coefficient(1, 0, 1, 1) - want).abs() < 1e-6);
         let slot = img.to_slot().unwrap();
         assert_eq!(slot.order, 2);
         let p = slot.coeffs.planes.as_ref().unwrap();
-        assert!((p.get(3, 4 + 1) - want).abs() < 1e-6);
+        assert!((p.get(1, 4 + 1) - want).abs() < 1e-6);
         // and written again it is the same file (without the comment and the trailing bytes)
         let again = encode_rti(&img).unwrap();
         let mut want_bytes = b"#HSH1.2\n3\n2 2 3\n4 2 1\n".to_vec();
