@@ -230,7 +230,8 @@ relight_exports() {
 	done
 	for f in "$src"/*/info.json; do
 		name=$(basename "$(dirname "$f")")
-		relight_all "$(dirname "$f")" "$dst/$name/relit" "${f%/info.json}" btfrs_export
+		f=${f%/info.json}
+		relight_all "$f" "$dst/$name/relit" "${f#"$OUT"/}" btfrs_export
 		found=$((found + 1))
 	done
 	shopt -u nullglob

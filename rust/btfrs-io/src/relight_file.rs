@@ -46,7 +46,7 @@
 //! planes with their scale and bias restated in relight's form (exact); a float model is
 //! quantized first. `rbf` and `bilinear` are written as relight's `bilinear` type with `mrgb`:
 //! btfrs's table of principal functions lives on the concentric square, relight's on the
-//! octahedral one, so the table is resampled at the nodes of a grid of twice the model's
+//! octahedral one, so the table is resampled at the nodes of a grid of four times the model's
 //! resolution, and both the mean and the functions are rounded to relight's integers (btfrs's
 //! `ycc` layout is restated in RGB, which is exact). Planes are written as JPEG (what relight and
 //! OpenLIME read; quality 100) and as lossless `plane_N.png` copies that btfrs reads back.
@@ -347,7 +347,7 @@ fn export_pca(m: &LightPca, view: usize, path: &Path, kind: &str) -> Result<Valu
     }
     m.validate()?;
     let k = m.k();
-    let res = (2 * m.resolution).min(64);
+    let res = (4 * m.resolution).clamp(16, 64);
     let g = res * res;
     // The functions at relight's nodes, in btfrs units.
     let rows: Vec<Vec<f64>> = (0..g)
