@@ -113,8 +113,8 @@ def test_rti_round_trip(tmp_path, single_view):
     np.testing.assert_array_equal(back.coeffs, m.coeffs)  # the planes come back bit for bit
     np.testing.assert_array_equal(back.arrays["coeffs_q"], m.arrays["coeffs_q"])
     np.testing.assert_array_equal(back.evaluate([0, 0, 1], D[20]), m.evaluate(D[0], D[20]))
-    # relight's reading of the bytes, in numpy: bias + scale * c / 255, rows bottom to top
-    q = np.frombuffer(body[72:], np.uint8).reshape(24, 24, 3, 9)[::-1]
+    # relight's reading of the bytes, in numpy: bias + scale * c / 255, rows top to bottom
+    q = np.frombuffer(body[72:], np.uint8).reshape(24, 24, 3, 9)
     dec = np.float32(bias) + np.float32(scale) * q / np.float32(255)
     np.testing.assert_allclose(dec, m.coeffs[:, :, 0], atol=1e-6)
     # written again: the same bytes

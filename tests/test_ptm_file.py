@@ -87,8 +87,11 @@ def test_bad_files(tmp_path):
     with pytest.raises(FileNotFoundError):
         btfrs.load(tmp_path / "nope.ptm")
     p = tmp_path / "jpeg.ptm"
-    p.write_bytes(b"PTM_1.2\nPTM_FORMAT_JPEG_LRGB\n2\n2\n")
-    with pytest.raises(FormatError, match="PTM_FORMAT_JPEG_LRGB"):
+    p.write_bytes(b"PTM_1.2\nPTM_FORMAT_JPEGLS_LRGB\n2\n2\n")
+    with pytest.raises(FormatError, match="PTM_FORMAT_JPEGLS_LRGB.*not supported"):
+        btfrs.load(p)
+    p.write_bytes(b"PTM_1.2\nPTM_FORMAT_JPEG_LRGB\n2\n2\n1 1 1 1 1 1\n0 0 0 0 0 0\n90\n" + b"0 " * 40)
+    with pytest.raises(FormatError, match="truncated.*reference plane of plane 4"):
         btfrs.load(p)
     p.write_bytes(b"PTM_1.2\nPTM_FORMAT_RGB\n2\n2\n1 1 1 1 1 1\n0 0 0 0 0 0\n" + bytes(10))
     with pytest.raises(FormatError):

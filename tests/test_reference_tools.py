@@ -215,3 +215,42 @@ def test_relight_captures_lights_lie_as_btfrs_reads_them():
         for other in (model.evaluate([0, 0, 1], l * [-1, 1, 1]), model.evaluate([0, 0, 1], l * [1, -1, 1]),
                       model.evaluate([0, 0, 1], l)[::-1]):
             assert as_read < 0.8 * err(other), (name, as_read, err(other))
+
+
+def test_relight_export_from_the_command_line_and_bad_folders(tmp_path):
+    from btfrs.cli import main
+    from btfrs.exceptions import FormatError, InvalidArgumentError
+
+    capture = btfrs.load(REL / "capture", linear=True)
+    btfrs.fit.hsh(capture, order=3).save(tmp_path / "h3.btfrs")
+    main(["export", str(tmp_path / "h3.btfrs"), "--relight", str(tmp_path / "h3_web")])
+    back, model = btfrs.load(tmp_path / "h3_web"), btfrs.load(tmp_path / "h3.btfrs")
+    light = _unit([0.3, -0.2, 0.9])
+    np.testing.assert_allclose(back.evaluate([0, 0, 1], light), model.evaluate([0, 0, 1], light), atol=1e-5)
+    with pytest.raises(InvalidArgumentError, match="order 3"):
+        btfrs.fit.hsh(capture, order=4).export(tmp_path / "h4", format="relight")
+    with pytest.raises(InvalidArgumentError, match="relight"):
+        btfrs.fit.lafortune(capture).export(tmp_path / "laf", format="relight")
+    # Broken folders: the field or file is named.
+    import shutil
+
+    def broken(edit, name):
+        d = tmp_path / name
+        shutil.copytree(REL / "web" / "ptm_rgb", d)
+        info = json.loads((d / "info.json").read_text())
+        edit(d, info)
+        (d / "info.json").write_text(json.dumps(info))
+        return d
+
+    cases = [
+        (lambda d, i: i.update(type="sh"), "type"),
+        (lambda d, i: i.update(nplanes=12), "expected 12 scales"),
+        (lambda d, i: i.update(nplanes=12, materials=[{k: v[:12] for k, v in i["materials"][0].items()}]), "nplanes"),
+        (lambda d, i: i["materials"][0]["scale"].pop(), "materials"),
+        (lambda d, i: i.update(width=0), "width"),
+        (lambda d, i: (d / "plane_5.jpg").unlink(), "plane_5"),
+        (lambda d, i: i.update(width=i["width"] + 1), r"plane_0\.jpg.*pixels"),
+    ]
+    for k, (edit, match) in enumerate(cases):
+        with pytest.raises(FormatError, match=match):
+            btfrs.load(broken(edit, f"b{k}"))

@@ -29,20 +29,23 @@ KINDS = btfrs.model_kinds()
 
 # Each kind's own files: by convention those named after its module in btfrs-fit (its fit file,
 # a folder of the same name, its shader), plus what the registry cannot say: the file of a format
-# only it is written as, the code of an ability only it has (the SH lighting method), a fit file
-# two models share (lightfit: PTM and HSH; light_pca: RBF and bilinear).
+# it is written as (relight's web folder holds four kinds and hands NeuralRTI's to its reader),
+# the code of an ability only it has (the SH lighting method), a fit file two models share
+# (lightfit: PTM and HSH; light_pca: RBF and bilinear).
 def _module(kind: str) -> str:
     """The model's module in btfrs-fit, from its Rust type (btfrs_fit::lafortune::per_view::...)."""
     return KINDS[kind]["type"].split("::")[1]
 
 
+RELIGHT = "rust/btfrs-io/src/relight_file.rs"
 EXTRA = {
-    "ptm": ["rust/btfrs-fit/src/lightfit.rs", "rust/btfrs-io/src/ptm_file.rs"],
-    "hsh": ["rust/btfrs-fit/src/lightfit.rs", "rust/btfrs-io/src/rti_file.rs"],
+    "ptm": ["rust/btfrs-fit/src/lightfit.rs", "rust/btfrs-io/src/ptm_file.rs", RELIGHT],
+    "hsh": ["rust/btfrs-fit/src/lightfit.rs", "rust/btfrs-io/src/rti_file.rs", RELIGHT],
     "sh": ["rust/btfrs-render/src/sh_env.rs"],
-    "neural": ["rust/btfrs-io/src/neuralrti_file.rs"],
-    "rbf": ["rust/btfrs-fit/src/light_pca.rs", "rust/btfrs-fit/src/light_pca/*", "shaders_wgsl/light_pca.wgsl"],
-    "bilinear": ["rust/btfrs-fit/src/light_pca.rs", "rust/btfrs-fit/src/light_pca/*", "shaders_wgsl/light_pca.wgsl"],
+    "neural": ["rust/btfrs-io/src/neuralrti_file.rs", RELIGHT],
+    "rbf": ["rust/btfrs-fit/src/light_pca.rs", "rust/btfrs-fit/src/light_pca/*", "shaders_wgsl/light_pca.wgsl", RELIGHT],
+    "bilinear": ["rust/btfrs-fit/src/light_pca.rs", "rust/btfrs-fit/src/light_pca/*", "shaders_wgsl/light_pca.wgsl",
+                 RELIGHT],
 }
 OWN = {k: [f"rust/btfrs-fit/src/{_module(k)}.rs", f"rust/btfrs-fit/src/{_module(k)}/*",
            f"shaders_wgsl/{_module(k)}*.wgsl"] + EXTRA.get(k, []) for k in KINDS}
