@@ -419,7 +419,7 @@ mod tests {
         }
         let ptm = &a[0];
         assert_eq!(ptm["options"][0]["choices"], json!(["rgb", "lrgb"]));
-        assert_eq!(ptm["exports"], json!(["ptm"]));
+        assert_eq!(ptm["exports"], json!(["ptm", "relight"]));
     }
 
     #[test]
