@@ -84,6 +84,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render::gpu_render, m)?)?;
     m.add_function(wrap_pyfunction!(render::cpu_render_raw, m)?)?;
     m.add_function(wrap_pyfunction!(render::gpu_upload_model, m)?)?;
+    m.add_function(wrap_pyfunction!(render::web_model, m)?)?;
+    m.add_function(wrap_pyfunction!(render::web_layout, m)?)?;
     m.add_function(wrap_pyfunction!(render::cpu_render_model, m)?)?;
     m.add_function(wrap_pyfunction!(render::env_check, m)?)?;
     m.add_function(wrap_pyfunction!(render::env_sky, m)?)?;

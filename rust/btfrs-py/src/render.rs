@@ -89,6 +89,15 @@ impl PyScene {
     fn vertices(&self) -> usize {
         self.mesh.positions.len()
     }
+
+    /// The mesh as the web viewer's buffers: (interleaved vertex bytes, u32 indices).
+    fn web_buffers<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> (Bound<'py, pyo3::types::PyBytes>, Bound<'py, numpy::PyArray1<u32>>) {
+        let (v, i) = btfrs_render::web::mesh_buffers(&self.mesh);
+        (pyo3::types::PyBytes::new(py, &v), i.into_pyarray(py))
+    }
 }
 
 /// A perspective camera.
@@ -393,6 +402,40 @@ pub fn gpu_upload_model(py: Python<'_>, model: &PyModel, method: &str) -> PyResu
         let up = gpu::upload(&gpu, r.as_ref())?;
         Ok(PyGpuModel { gpu, up })
     })
+}
+
+/// A model's GPU data for the web viewer (see `btfrs_render::web`): a dict of `shader` (str),
+/// `params`, `store`, `tables` (u32 arrays), `dirs` (f32 `[n, 4]`), `volume` (None or
+/// `((width, height, depth), u8 bytes)`) and `chunk_len`. `method` picks the renderer as for
+/// the upload.
+#[pyfunction]
+#[pyo3(signature = (model, method="default"))]
+pub fn web_model<'py>(py: Python<'py>, model: &PyModel, method: &str) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+    let w = detach(py, || {
+        // WebGPU's guaranteed 3D texture side (browsers' default limit).
+        let r = model.inner.renderer(method, 2048)?;
+        btfrs_render::web::web_model(r.as_ref())
+    })?;
+    let d = pyo3::types::PyDict::new(py);
+    d.set_item("shader", w.shader)?;
+    d.set_item("params", w.params.into_pyarray(py))?;
+    d.set_item("store", w.store.into_pyarray(py))?;
+    let n = w.dirs.len();
+    let flat: Vec<f32> = w.dirs.into_iter().flatten().collect();
+    d.set_item("dirs", flat.into_pyarray(py).reshape([n, 4])?)?;
+    d.set_item("tables", w.tables.into_pyarray(py))?;
+    match w.volume {
+        Some((size, bytes)) => d.set_item("volume", (size, pyo3::types::PyBytes::new(py, &bytes)))?,
+        None => d.set_item("volume", py.None())?,
+    }
+    d.set_item("chunk_len", w.chunk_len)?;
+    Ok(d)
+}
+
+/// The layouts the web viewer agrees on with the shaders, as JSON (see `btfrs_render::web`).
+#[pyfunction]
+pub fn web_layout() -> String {
+    btfrs_render::web::layout().to_string()
 }
 
 /// Render any fitted model with the CPU reference renderer (`method` as for the upload): the

@@ -20,7 +20,7 @@ use wgpu::util::DeviceExt;
 /// Storage buffers in a model's store (bindings 1..=8 of group 1 in `common.wgsl`).
 pub const MAX_CHUNKS: usize = 8;
 /// Binding of the optional 3D texture (its sampler is the next binding).
-const VOLUME_BINDING: u32 = 11;
+pub(crate) const VOLUME_BINDING: u32 = 11;
 
 const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
@@ -66,20 +66,33 @@ pub const GLOBALS_LAYOUT: (&[(&str, usize)], usize) = (
 /// `Light` of common.wgsl.
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable, Debug)]
-struct GpuLight {
-    pos: [f32; 4],
-    intensity: [f32; 4],
+pub(crate) struct GpuLight {
+    pub(crate) pos: [f32; 4],
+    pub(crate) intensity: [f32; 4],
 }
 
 /// Interleaved vertex: position, normal, tangent, bitangent, uv.
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable, Debug)]
-struct Vertex {
-    pos: [f32; 3],
-    nrm: [f32; 3],
-    tan: [f32; 3],
-    bit: [f32; 3],
-    uv: [f32; 2],
+pub(crate) struct Vertex {
+    pub(crate) pos: [f32; 3],
+    pub(crate) nrm: [f32; 3],
+    pub(crate) tan: [f32; 3],
+    pub(crate) bit: [f32; 3],
+    pub(crate) uv: [f32; 2],
+}
+
+/// The interleaved vertices of `mesh`.
+pub(crate) fn vertices(mesh: &Mesh) -> Vec<Vertex> {
+    (0..mesh.positions.len())
+        .map(|i| Vertex {
+            pos: mesh.positions[i],
+            nrm: mesh.normals[i],
+            tan: mesh.tangents[i],
+            bit: mesh.bitangents[i],
+            uv: mesh.uvs[i],
+        })
+        .collect()
 }
 
 /// The WGSL of a shader: `common.wgsl` followed by the model's file (WGSL has no includes).
@@ -282,9 +295,20 @@ fn pipeline(
     Ok(p)
 }
 
-/// Upload a model's store and parameters.
-pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
-    gpu.check_process()?;
+/// What a model puts on the device, before any device is involved (shared with the web viewer's
+/// [`crate::web`]): its store parts, the parameter words that address them, its measured
+/// direction sets with their candidate tables, and its optional 3D texture.
+pub(crate) struct Prepared<'a> {
+    pub(crate) parts: Vec<std::borrow::Cow<'a, [u32]>>,
+    pub(crate) total: usize,
+    pub(crate) params: Vec<u32>,
+    pub(crate) dirs: Vec<[f32; 4]>,
+    pub(crate) tables: Vec<u32>,
+    pub(crate) volume: Option<Volume<'a>>,
+}
+
+/// Gather [`Prepared`] for `model`.
+pub(crate) fn prepare(model: &dyn GpuModel) -> Result<Prepared<'_>> {
     let parts = model.gpu_parts();
     let mut offsets = Vec::with_capacity(parts.len());
     let mut total = 0usize;
@@ -301,8 +325,14 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
         table_at.push(tables.len() as u32);
         tables.extend(crate::model::candidate_table(set, crate::model::TABLE_GRID));
     }
-    let params = model.gpu_params(&offsets, &table_at);
-    let volume = model.gpu_volume();
+    let params = model.gpu_params(&offsets, &table_at).to_vec();
+    Ok(Prepared { parts, total, params, dirs, tables, volume: model.gpu_volume() })
+}
+
+/// Upload a model's store and parameters.
+pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
+    gpu.check_process()?;
+    let Prepared { parts, total, params, dirs, tables, volume } = prepare(model)?;
     if let Some(v) = &volume {
         v.validate(gpu.limits.max_texture_dimension_3d)?;
     }
@@ -634,15 +664,7 @@ fn draw(
                 wgpu::BindGroupEntry { binding: 3, resource: ebuf.as_entire_binding() },
             ],
         });
-        let verts: Vec<Vertex> = (0..view.mesh.positions.len())
-            .map(|i| Vertex {
-                pos: view.mesh.positions[i],
-                nrm: view.mesh.normals[i],
-                tan: view.mesh.tangents[i],
-                bit: view.mesh.bitangents[i],
-                uv: view.mesh.uvs[i],
-            })
-            .collect();
+        let verts = vertices(view.mesh);
         let vbuf = d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("vertices"),
             contents: bytemuck::cast_slice(&verts),

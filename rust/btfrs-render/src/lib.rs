@@ -33,6 +33,7 @@ pub mod sh_env;
 pub mod shaders;
 pub mod tilemap;
 pub mod usage;
+pub mod web;
 
 pub use device::{AdapterChoice, Gpu};
 pub use gpu::{render, upload, FrameTimes, UploadedModel, View};

@@ -1,0 +1,178 @@
+"""The browser viewer: a fitted model written as a folder any web server can host (or as one
+self-contained HTML file), drawn with WebGPU by the project's own WGSL.
+
+The folder holds the viewer (``index.html`` and its ES modules, no build step) and ``model/``:
+``manifest.json``, the shader assembled exactly as the native renderer assembles it
+(``common.wgsl``, the model's generated ``Params`` struct, the model's file), and the buffers
+the native renderer uploads, as little-endian binary files (parameters, store, measured
+directions and their candidate tables, the optional 3D texture), with the scenes' meshes. Every
+layout the page must agree on with the shader (uniform fields, bindings, vertex attributes) is
+in the manifest, generated from the Rust structs.
+
+:func:`save_web` writes it; ``btfrs export FILE --web OUT`` and ``btfrs view FILE`` use it.
+"""
+from __future__ import annotations
+
+import base64
+import json
+import os
+import shutil
+import tempfile
+from typing import Any, Dict, Optional, Tuple, Union
+
+import numpy as np
+
+from . import _native
+from ._checks import PathLike
+from .exceptions import InvalidArgumentError
+from .models import Model
+
+#: The viewer's own files, shipped in the package.
+VIEWER_DIR = os.path.join(os.path.dirname(__file__), "viewer")
+#: The scenes the viewer can show: name -> how the renderer builds it.
+SCENES = {"plane": ("plane", (2.0,)), "sphere": ("sphere", (1.0, 64, 32)), "cylinder": ("cylinder", (0.7, 2.0, 64))}
+#: Where the page's camera starts: above the plane, looking down at it obliquely.
+DEFAULT_CAMERA = {"eye": [0.0, -1.6, 2.4], "target": [0.0, 0.0, 0.0], "up": [0.0, 0.0, 1.0], "fov": 40.0,
+                  "near": 0.01, "far": 100.0}
+#: The light the page starts with (towards the light) and its irradiance.
+DEFAULT_LIGHT = {"direction": [0.35, 0.45, 0.82], "intensity": [1.0, 1.0, 1.0]}
+
+
+def _scene_buffers(name: str) -> Tuple[bytes, np.ndarray]:
+    from .rendering import Scene
+
+    make, args = SCENES[name]
+    scene = getattr(Scene, make)(*args)
+    vertices, indices = scene.web_buffers()
+    return bytes(vertices), np.ascontiguousarray(indices, dtype="<u4")
+
+
+def bundle(model: Model, *, renderer: Optional[str] = None, name: Optional[str] = None) -> Dict[str, Any]:
+    """The manifest and the binary files of ``model`` for the viewer: ``(manifest, {file name:
+    bytes})`` as one dict ``{"manifest": ..., "files": ...}``."""
+    if not isinstance(model, Model):
+        raise InvalidArgumentError(f"model: expected a fitted btfrs model, got {type(model).__name__}")
+    method = renderer or "default"
+    w = _native.web_model(model._m, method)
+    files: Dict[str, bytes] = {
+        "shader.wgsl": w["shader"].encode(),
+        "params.bin": np.ascontiguousarray(w["params"], dtype="<u4").tobytes(),
+        "store.bin": np.ascontiguousarray(w["store"], dtype="<u4").tobytes(),
+        "dirs.bin": np.ascontiguousarray(w["dirs"], dtype="<f4").tobytes(),
+        "tables.bin": np.ascontiguousarray(w["tables"], dtype="<u4").tobytes(),
+    }
+    volume = None
+    if w["volume"] is not None:
+        size, texels = w["volume"]
+        files["volume.bin"] = bytes(texels)
+        volume = {"file": "volume.bin", "size": list(size), "format": "rgba8unorm"}
+    scenes = {}
+    for scene in SCENES:
+        vertices, indices = _scene_buffers(scene)
+        files[f"{scene}.vertices.bin"] = vertices
+        files[f"{scene}.indices.bin"] = indices.tobytes()
+        scenes[scene] = {"vertices": f"{scene}.vertices.bin", "indices": f"{scene}.indices.bin",
+                         "index_count": int(indices.size)}
+    manifest = {
+        "format": "btfrs-web",
+        "version": 1,
+        "model": {"kind": model.kind, "name": name or model.kind, "height": model.height, "width": model.width,
+                  "views": int(len(model.views)) if getattr(model, "views", None) is not None else 1,
+                  "nbytes": int(model.nbytes), "renderer": method},
+        "layout": json.loads(_native.web_layout()),
+        "files": {"shader": "shader.wgsl", "params": "params.bin", "store": "store.bin", "dirs": "dirs.bin",
+                  "tables": "tables.bin"},
+        "volume": volume,
+        "chunk_len": int(w["chunk_len"]),
+        "scenes": scenes,
+        "camera": DEFAULT_CAMERA,
+        "light": DEFAULT_LIGHT,
+        "exposure": 1.0,
+        "display": "linear value x exposure, clamped to [0, 1], sRGB-encoded, 8 bits",
+    }
+    return {"manifest": manifest, "files": files}
+
+
+def _viewer_files() -> Dict[str, bytes]:
+    out = {}
+    for root, _, names in os.walk(VIEWER_DIR):
+        for n in names:
+            if n.endswith((".html", ".js", ".css")):
+                p = os.path.join(root, n)
+                out[os.path.relpath(p, VIEWER_DIR)] = open(p, "rb").read()
+    if "index.html" not in out:
+        raise InvalidArgumentError(f"the viewer's files are missing from {VIEWER_DIR} (a broken installation)")
+    return out
+
+
+def single_file_html(b: Dict[str, Any]) -> str:
+    """One HTML file holding the viewer and the model (base64 in a JSON script element), which
+    opens from disk (``file://``) with no server."""
+    viewer = _viewer_files()
+    data = {"manifest": b["manifest"], "files": {k: base64.b64encode(v).decode() for k, v in b["files"].items()}}
+    html = viewer["index.html"].decode()
+    # The modules, inlined in dependency order: each file's imports of the others are removed
+    # (they share one module scope once inlined).
+    order = [n for n in ("math.js", "gpu.js", "ui.js", "viewer.js") if n in viewer]
+    code = []
+    for n in order:
+        lines = [ln for ln in viewer[n].decode().splitlines() if not ln.lstrip().startswith("import ")]
+        code.append("\n".join(ln.replace("export ", "", 1) if ln.startswith("export ") else ln for ln in lines))
+    script = ('<script type="application/json" id="btfrs-data">' + json.dumps(data).replace("</", "<\\/")
+              + "</script>\n<script type=\"module\">\n" + "\n".join(code) + "\n</script>")
+    marker = '<script type="module" src="viewer.js"></script>'
+    if marker not in html:
+        raise InvalidArgumentError("the viewer's index.html has no module script to replace (a broken installation)")
+    return html.replace(marker, script)
+
+
+def save_web(model: Model, folder: PathLike, *, single_file: bool = False, force: bool = False,
+             renderer: Optional[str] = None, name: Optional[str] = None) -> str:
+    """Write the viewer with ``model`` to ``folder`` (static files any web server hosts: open
+    ``index.html`` through it), or with ``single_file=True`` to one self-contained HTML file at
+    ``folder`` that opens from disk. An existing target is refused unless ``force``. Written
+    into a temporary sibling and renamed, so an error leaves nothing half-written. Returns the
+    page's path."""
+    out = os.fspath(folder)
+    if os.path.exists(out) and not force:
+        raise InvalidArgumentError(f"folder: {out} exists; pass force=True (--force) to replace it")
+    b = bundle(model, renderer=renderer, name=name)
+    parent = os.path.dirname(os.path.abspath(out)) or "."
+    os.makedirs(parent, exist_ok=True)
+    if single_file:
+        fd, tmp = tempfile.mkstemp(dir=parent, prefix=".btfrs-web-", suffix=".html")
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(single_file_html(b))
+        if os.path.isdir(out):
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+        return out
+    tmp = tempfile.mkdtemp(dir=parent, prefix=".btfrs-web-")
+    try:
+        for rel, data in _viewer_files().items():
+            p = os.path.join(tmp, rel)
+            os.makedirs(os.path.dirname(p), exist_ok=True)
+            with open(p, "wb") as f:
+                f.write(data)
+        os.makedirs(os.path.join(tmp, "model"))
+        for n, data in b["files"].items():
+            with open(os.path.join(tmp, "model", n), "wb") as f:
+                f.write(data)
+        with open(os.path.join(tmp, "model", "manifest.json"), "w") as f:
+            json.dump(b["manifest"], f, indent=1)
+        if os.path.lexists(out):
+            if os.path.isdir(out) and not os.path.islink(out):
+                shutil.rmtree(out)
+            else:
+                os.remove(out)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return os.path.join(out, "index.html")
+
+
+def _as_model(obj: Union[Model, Any]) -> Model:
+    if isinstance(obj, Model):
+        return obj
+    raise InvalidArgumentError(f"model: expected a fitted btfrs model, got {type(obj).__name__}")
