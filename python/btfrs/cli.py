@@ -114,7 +114,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         else:
             commands = {"synth": synth_command, "evaluate": evaluate_command, "choose": choose_command,
                         "stability": stability_command, "tiles": tiles_command, "info": info_command,
-                        "fit": fit_command, "export": export_command, "render": render_command}
+                        "fit": fit_command, "export": export_command, "render": render_command,
+                        "view": view_command}
             commands[args.command](args)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
@@ -398,6 +399,20 @@ def _data_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -
     x.add_argument("--stack", help="write a BTF as an image stack + directions.csv into this folder")
     x.add_argument("--format", choices=["exr", "png"], default="exr", help="image format of --stack (default: exr)")
     x.add_argument("--view", type=int, default=0, help="view slot written to .ptm / .rti (default: 0)")
+    x.add_argument("--web", metavar="FOLDER",
+                   help="write the browser viewer with the model as a static folder (any web server hosts it); "
+                        "a BTF or capture gets a quick fit first (--model)")
+    x.add_argument("--single-file", action="store_true",
+                   help="with --web: one self-contained HTML file (data embedded) that opens from disk")
+    x.add_argument("--model", default="ptm", choices=_kinds(), metavar="MODEL",
+                   help="with --web on a BTF or capture: the model fitted first (default: ptm)")
+    x.add_argument("--force", action="store_true", help="with --web: replace an existing folder or file")
+    w = sub.add_parser("view", help="look at a model, BTF or capture in the browser (WebGPU, served on localhost)")
+    _sample_args(w)
+    w.add_argument("--model", default="ptm", choices=_kinds(), metavar="MODEL",
+                   help="for a BTF or capture: the model fitted first (default: ptm, quick)")
+    w.add_argument("--port", type=int, default=8000, help="localhost port (default: 8000; another if it is in use)")
+    w.add_argument("--no-browser", action="store_true", help="print the address instead of opening a browser")
     r = sub.add_parser("render", help="render a model, BTF or capture on a plane, sphere or cylinder")
     _sample_args(r)
     r.add_argument("--scene", choices=["plane", "sphere", "cylinder"], default="plane")
@@ -574,9 +589,18 @@ def export_command(args: argparse.Namespace) -> None:
     """``btfrs export``: the formats other tools read."""
     formats = [(name, getattr(args, name)) for name, _, _, _ in _formats()]
     folders = {name for name, _, _, folder in _formats() if folder}
-    if not any([path for _, path in formats] + [args.exr, args.stack]):
+    if not any([path for _, path in formats] + [args.exr, args.stack, args.web]):
         flags = ", ".join(f"--{name}" for name, _ in formats)
-        raise InvalidArgumentError(f"export: give at least one of {flags}, --exr, --stack")
+        raise InvalidArgumentError(f"export: give at least one of {flags}, --exr, --stack, --web")
+    if args.single_file and not args.web:
+        raise InvalidArgumentError("--single-file: only with --web")
+    if args.web:
+        if args.single_file:
+            _check_output("--web", args.web, args, (".html",))
+        else:
+            _check_output("--web", args.web, args, folder=True)
+        if os.path.exists(args.web) and not args.force:
+            raise InvalidArgumentError(f"--web: {args.web} exists; pass --force to replace it")
     for fmt, path in formats:
         if path:
             _check_output(f"--{fmt}", path, args, (f".{fmt}",), folder=fmt in folders)
@@ -589,6 +613,14 @@ def export_command(args: argparse.Namespace) -> None:
         if not isinstance(obj, Btf):
             raise InvalidArgumentError(f"--stack: {args.path} holds a {type(obj).__name__}, not a BTF")
         print(f"wrote {io.save_stack(obj, args.stack, format=args.format)}")
+    if args.web:
+        from . import web
+
+        model = _viewable(obj, args)
+        page = web.save_web(model, args.web, single_file=args.single_file, force=args.force,
+                            name=os.path.basename(os.path.normpath(args.path or "")) or model.kind)
+        print(f"wrote {page}" + ("" if args.single_file else " (serve the folder over HTTP, e.g. "
+                                 f"python -m http.server -d {args.web}, and open it)"))
     if args.exr or any(path for _, path in formats):
         if not isinstance(obj, Model):
             raise InvalidArgumentError(f"export: {args.path} holds a {type(obj).__name__}, not a model")
@@ -603,6 +635,57 @@ def export_command(args: argparse.Namespace) -> None:
     if args.exr:
         names = io.save_coefficients(obj, args.exr)
         print(f"wrote {args.exr}: {len(names)} channels ({names[0]} ... {names[-1]})")
+
+
+def _viewable(obj: Any, args: argparse.Namespace) -> Model:
+    """A model for the viewer: the model itself, or a quick ``--model`` fit of a BTF."""
+    if isinstance(obj, Model):
+        return obj
+    if isinstance(obj, Btf):
+        if not args.quiet:
+            print(f"fitting a {args.model} model for the viewer (--model to choose another) ...", flush=True)
+        return fit_mod.fit(args.model, obj)
+    raise InvalidArgumentError(f"path: {args.path} holds a {type(obj).__name__}; the viewer shows fitted models, "
+                               f"BTFs and captures")
+
+
+def view_command(args: argparse.Namespace) -> None:
+    """``btfrs view``: export the viewer to a temporary folder, serve it on localhost and open a
+    browser (or print the address), until Ctrl-C."""
+    import http.server
+    import tempfile
+    import webbrowser
+
+    from . import web
+
+    if not 0 <= args.port <= 65535:
+        raise InvalidArgumentError(f"--port: expected 0 to 65535, got {args.port}")
+    obj, name = _load_sample(args, not args.quiet)
+    model = _viewable(obj, args)
+    with tempfile.TemporaryDirectory(prefix="btfrs-view-") as tmp:
+        folder = os.path.join(tmp, "site")
+        web.save_web(model, folder, name=name)
+
+        class Handler(http.server.SimpleHTTPRequestHandler):
+            def __init__(self, *a: Any, **k: Any) -> None:
+                super().__init__(*a, directory=folder, **k)
+
+            def log_message(self, format: str, *a: Any) -> None:  # quiet: one line per request is noise
+                pass
+
+        try:
+            server = http.server.ThreadingHTTPServer(("127.0.0.1", args.port), Handler)
+        except OSError as e:
+            server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+            print(f"port {args.port} is not available ({e.strerror or e}); using port {server.server_address[1]}")
+        url = f"http://127.0.0.1:{server.server_address[1]}/"
+        print(f"serving the {model.kind} model of {name} at {url} (Ctrl-C to stop)", flush=True)
+        if not args.no_browser:
+            webbrowser.open(url)
+        try:
+            server.serve_forever()
+        finally:
+            server.server_close()
 
 
 def render_command(args: argparse.Namespace) -> None:

@@ -77,7 +77,7 @@ def bundle(model: Model, *, renderer: Optional[str] = None, name: Optional[str] 
         "format": "btfrs-web",
         "version": 1,
         "model": {"kind": model.kind, "name": name or model.kind, "height": model.height, "width": model.width,
-                  "views": int(len(model.views)) if getattr(model, "views", None) is not None else 1,
+                  "views": _views(model),
                   "nbytes": int(model.nbytes), "renderer": method},
         "layout": json.loads(_native.web_layout()),
         "files": {"shader": "shader.wgsl", "params": "params.bin", "store": "store.bin", "dirs": "dirs.bin",
@@ -91,6 +91,12 @@ def bundle(model: Model, *, renderer: Optional[str] = None, name: Optional[str] 
         "display": "linear value x exposure, clamped to [0, 1], sRGB-encoded, 8 bits",
     }
     return {"manifest": manifest, "files": files}
+
+
+def _views(model: Model) -> int:
+    """View slots of the model (1 for single-view models and models without slots)."""
+    views = getattr(model, "views", None)
+    return int(len(views)) if views is not None else 1
 
 
 def _viewer_files() -> Dict[str, bytes]:
