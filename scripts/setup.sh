@@ -63,6 +63,19 @@ if ! .venv/bin/python -c "import importlib.metadata as m, drjit; assert m.versio
   .venv/bin/python -m pip install -q --disable-pip-version-check "mitsuba==3.5.2" "drjit==0.4.6"
 fi
 
+# The browser viewer's tests (tests/test_viewer.py): Debian's chromium, driven by Playwright's
+# Python package, which must not download a browser of its own.
+if ! dpkg -s chromium >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; then
+  SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  log "installing chromium (browser tests)"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends chromium >/dev/null
+fi
+if ! .venv/bin/python -c "import playwright.sync_api" >/dev/null 2>&1; then
+  log "installing playwright (its Python package only: the tests drive Debian's chromium)"
+  PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 .venv/bin/python -m pip install -q --disable-pip-version-check "playwright>=1.40"
+fi
+
 # --- Build -----------------------------------------------------------------------------------
 log "building the extension (${BTFRS_PROFILE:-release})"
 # A failed build must fail this script: an older extension left in place would otherwise pass
