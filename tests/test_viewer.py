@@ -1,0 +1,335 @@
+"""The browser viewer (python/btfrs/viewer) in headless Chromium with WebGPU on SwiftShader: every
+model kind's frame against the CPU reference renderer, the light disc, the single-file export,
+and a console free of errors.
+
+Needs Debian's chromium at /usr/bin/chromium and the playwright package (Playwright never
+downloads a browser here); without them the tests are skipped, unless CI is set.
+"""
+from __future__ import annotations
+
+import base64
+import gc
+import json
+import warnings
+import functools
+import http.server
+import os
+import shutil
+import threading
+import zlib
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import btfrs
+import btfrs.web
+
+CHROMIUM = "/usr/bin/chromium"
+LAUNCH_ARGS = ["--no-sandbox", "--enable-unsafe-webgpu", "--use-webgpu-adapter=swiftshader"]
+SIZE = 96
+MIN_PSNR = 35.0
+KINDS = ["ptm", "hsh", "lafortune", "lafortune_view", "srf", "sh", "lpca", "rbf", "bilinear", "neural"]
+# This checkout's viewer (the one under test), wherever btfrs itself is imported from.
+VIEWER_SRC = Path(__file__).resolve().parents[1] / "python" / "btfrs" / "viewer"
+
+
+def _missing() -> str:
+    if not os.path.exists(CHROMIUM):
+        return f"{CHROMIUM} is not installed (Debian's chromium package)"
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "the playwright package is not installed (pip install playwright; no browser download needed)"
+    return ""
+
+
+_why = _missing()
+if _why:
+    if os.environ.get("CI"):
+        raise RuntimeError(f"the viewer tests cannot run: {_why}")
+    pytest.skip(_why, allow_module_level=True)
+
+from playwright.sync_api import sync_playwright  # noqa: E402
+
+
+# --- helpers --------------------------------------------------------------------------------
+
+
+def display(img: np.ndarray, exposure: float = 1.0) -> np.ndarray:
+    """The viewer's display transform of a linear [H, W, 3] image: exposure, clamp, the
+    piecewise sRGB curve, 8 bits."""
+    x = np.clip(img.astype(np.float64) * exposure, 0.0, 1.0)
+    s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return np.round(s * 255.0).astype(np.uint8)
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)
+    return float("inf") if mse == 0 else 10 * np.log10(255.0**2 / mse)
+
+
+def write_png(path: Path, rgb: np.ndarray) -> None:
+    h, w, _ = rgb.shape
+    raw = b"".join(b"\x00" + rgb[y].astype(np.uint8).tobytes() for y in range(h))
+
+    def chunk(tag: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
+
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+    png += chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
+    path.write_bytes(png)
+
+
+def save_web(model, path, **kw):
+    """btfrs.web.save_web, with the ResourceWarning of its unclosed viewer-file reads silenced (it
+    reads each file with open(p, "rb").read())."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ResourceWarning)
+        out = btfrs.web.save_web(model, path, **kw)
+        gc.collect()
+    return out
+
+
+def reference(model, camera: dict, light, intensity=1.0, scene="plane", size=SIZE, exposure=1.0) -> np.ndarray:
+    """The CPU reference of what the viewer should show, 8-bit RGB."""
+    make, args = btfrs.web.SCENES[scene]
+    cam = btfrs.Camera.look_at(camera["eye"], camera["target"], camera["fov"], up=camera["up"])
+    img = btfrs.render(model, getattr(btfrs.Scene, make)(*args), cam, [btfrs.DirectionalLight(light, intensity)],
+                       size=(size, size), backend="cpu", renderer=None)
+    return display(img, exposure)
+
+
+def frame(page) -> np.ndarray:
+    """The viewer's last frame as 8-bit RGB."""
+    p = page.evaluate("window.btfrsViewer.readPixels()")
+    data = np.frombuffer(base64.b64decode(p["data"]), dtype=np.uint8)
+    return data.reshape(p["height"], p["width"], 4)[..., :3].copy()
+
+
+class Server:
+    """A static file server on a free localhost port, in a thread."""
+
+    def __init__(self, root: Path):
+        handler = functools.partial(_QuietHandler, directory=str(root))
+        self.httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+        self.url = f"http://localhost:{self.httpd.server_address[1]}"
+        self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
+        self.thread.start()
+
+    def close(self) -> None:
+        self.httpd.shutdown()
+        self.httpd.server_close()
+
+
+class _QuietHandler(http.server.SimpleHTTPRequestHandler):
+    def log_message(self, *args) -> None:
+        pass
+
+
+class Page:
+    """A browser page collecting its console errors."""
+
+    def __init__(self, browser):
+        self.page = browser.new_page(viewport={"width": 1000, "height": 800})
+        self.errors = []
+        self.page.on("console", lambda m: self.errors.append(f"console: {m.text}") if m.type == "error" else None)
+        self.page.on("pageerror", lambda e: self.errors.append(f"pageerror: {e}"))
+
+    def open(self, url: str) -> None:
+        self.page.goto(url)
+        self.page.evaluate("window.btfrsViewer.ready.catch(() => {})")
+        self.page.wait_for_function("window.btfrsViewer && (window.btfrsViewer.frames > 0 || window.btfrsViewer.error)",
+                                    timeout=60000)
+        err = self.page.evaluate("window.btfrsViewer.error")
+        assert err is None, f"the viewer failed: {err}"
+
+    def close(self) -> None:
+        self.page.close()
+
+
+# --- fixtures -------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def viewer_files():
+    """Export with this checkout's viewer."""
+    old = btfrs.web.VIEWER_DIR
+    if VIEWER_SRC.is_dir():
+        btfrs.web.VIEWER_DIR = str(VIEWER_SRC)
+    yield
+    btfrs.web.VIEWER_DIR = old
+
+
+@pytest.fixture(scope="module")
+def browser():
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=LAUNCH_ARGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture(scope="module")
+def sample():
+    return btfrs.materials.make("bumps", size=16, seed=1)
+
+
+@pytest.fixture(scope="module")
+def models(sample):
+    """One small fitted model per kind (neural on a single view, few steps)."""
+    out = {}
+    for kind in KINDS:
+        if kind == "neural":
+            one = btfrs.materials.make("bumps", size=16, seed=1, views=[[0.0, 0.0, 1.0]])
+            out[kind] = btfrs.fit.neural(one, steps=200, hidden=16)
+        else:
+            out[kind] = getattr(btfrs.fit, kind)(sample)
+    return out
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory, viewer_files, models):
+    """Every kind exported under one server: /<kind>/index.html."""
+    root = tmp_path_factory.mktemp("web")
+    for kind, m in models.items():
+        save_web(m, root / kind, force=True)
+    save_web(models["lpca"], root / "lpca_3d", force=True, renderer="3d")
+    server = Server(root)
+    yield server
+    server.close()
+
+
+@pytest.fixture(scope="module")
+def pngs(tmp_path_factory):
+    d = Path(os.environ.get("BTFRS_VIEWER_PNGS") or tmp_path_factory.mktemp("frames"))
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def _camera() -> dict:
+    return dict(btfrs.web.DEFAULT_CAMERA)
+
+
+# --- tests ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("kind", KINDS + ["lpca_3d"])
+def test_every_kind_matches_the_cpu_reference(kind, browser, served, models, pngs):
+    page = Page(browser)
+    try:
+        page.open(f"{served.url}/{kind}/index.html")
+        light = [0.3, -0.4, 0.87]
+        page.page.evaluate("(s) => window.btfrsViewer.set(s)", {"light": light, "size": [SIZE, SIZE]})
+        got = frame(page.page)
+        model = models["lpca" if kind == "lpca_3d" else kind]
+        cam = _camera()
+        want = reference(model, cam, light) if kind != "lpca_3d" else None
+        if kind == "lpca_3d":
+            make, args = btfrs.web.SCENES["plane"]
+            c = btfrs.Camera.look_at(cam["eye"], cam["target"], cam["fov"], up=cam["up"])
+            want = display(btfrs.render(model, btfrs.Scene.plane(*args), c, [btfrs.DirectionalLight(light)],
+                                        size=(SIZE, SIZE), backend="cpu", renderer="3d"))
+        write_png(pngs / f"{kind}.viewer.png", got)
+        write_png(pngs / f"{kind}.cpu.png", want)
+        info = page.page.evaluate("window.btfrsViewer.info()")
+        assert info["kind"] == model.kind
+        value = psnr(got, want)
+        print(f"{kind}: {value:.2f} dB")
+        assert got.max() > 20, "the frame is black"
+        assert value >= MIN_PSNR, f"{kind}: PSNR {value:.2f} dB against the CPU reference"
+        assert page.errors == []
+    finally:
+        page.close()
+
+
+def test_light_disc_drag_moves_the_light(browser, served, models, pngs):
+    page = Page(browser)
+    try:
+        page.open(f"{served.url}/ptm/index.html")
+        page.page.evaluate("(s) => window.btfrsViewer.set(s)", {"size": [SIZE, SIZE]})
+        before = frame(page.page)
+        old = page.page.evaluate("window.btfrsViewer.state().light")
+        box = page.page.locator("#light-disc").bounding_box()
+        cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+        m = page.page.mouse
+        m.move(cx, cy)
+        m.down()
+        m.move(cx - 0.2 * box["width"], cy - 0.1 * box["height"], steps=5)
+        m.move(cx - 0.3 * box["width"], cy + 0.15 * box["height"], steps=5)
+        m.up()
+        page.page.evaluate("window.btfrsViewer.settled()")
+        light = page.page.evaluate("window.btfrsViewer.state().light")
+        assert light[0] < -0.3 and light[1] < -0.1, light  # left and down on the disc
+        assert abs(np.linalg.norm(light) - 1) < 1e-5 and not np.allclose(light, old)
+        after = frame(page.page)
+        want = reference(models["ptm"], _camera(), light)
+        write_png(pngs / "drag.viewer.png", after)
+        write_png(pngs / "drag.cpu.png", want)
+        assert psnr(after, want) >= MIN_PSNR, psnr(after, want)
+        assert psnr(after, before) < 30, "the frame did not change"
+        assert page.errors == []
+    finally:
+        page.close()
+
+
+def test_single_file_export_opens_from_disk(browser, viewer_files, models, tmp_path, pngs):
+    path = tmp_path / "x.html"
+    save_web(models["hsh"], path, single_file=True)
+    page = Page(browser)
+    try:
+        page.open(path.as_uri())
+        light = [-0.2, 0.5, 0.84]
+        page.page.evaluate("(s) => window.btfrsViewer.set(s)", {"light": light, "size": [SIZE, SIZE]})
+        got = frame(page.page)
+        want = reference(models["hsh"], _camera(), light)
+        write_png(pngs / "single.viewer.png", got)
+        assert psnr(got, want) >= MIN_PSNR, psnr(got, want)
+        assert page.errors == []
+    finally:
+        page.close()
+
+
+def test_scenes_and_exposure(browser, served, models, pngs):
+    page = Page(browser)
+    try:
+        page.open(f"{served.url}/lafortune/index.html")
+        light = [0.5, 0.2, 0.84]
+        for scene in ("sphere", "cylinder"):
+            cam = {"eye": [2.2, -2.6, 1.8], "target": [0.0, 0.0, 0.0], "up": [0.0, 0.0, 1.0], "fov": 45.0}
+            page.page.evaluate("(s) => window.btfrsViewer.set(s)",
+                               {"light": light, "size": [SIZE, SIZE], "scene": scene, "camera": cam, "exposure": 1.7})
+            got = frame(page.page)
+            want = reference(models["lafortune"], cam, light, scene=scene, exposure=1.7)
+            write_png(pngs / f"{scene}.viewer.png", got)
+            assert psnr(got, want) >= MIN_PSNR, (scene, psnr(got, want))
+        assert page.errors == []
+    finally:
+        page.close()
+
+
+def test_a_bad_manifest_says_so(browser, served, tmp_path_factory):
+    root = Path(served.httpd.server_address and tmp_path_factory.mktemp("bad"))
+    src = Path(served.httpd.RequestHandlerClass.keywords["directory"]) / "srf"
+    for what, change in (("version", {"version": 99}), ("kind", {"model": {"kind": "mystery"}})):
+        d = root / what
+        shutil.copytree(src, d)
+        import json
+
+        man = json.loads((d / "model" / "manifest.json").read_text())
+        for k, v in change.items():
+            man[k] = {**man[k], **v} if isinstance(v, dict) else v
+        (d / "model" / "manifest.json").write_text(json.dumps(man))
+    server = Server(root)
+    page = Page(server and browser)
+    try:
+        for what, text in (("version", "version 99"), ("kind", "mystery")):
+            page.page.goto(f"{server.url}/{what}/index.html")
+            page.page.wait_for_function("window.btfrsViewer && window.btfrsViewer.error", timeout=30000)
+            err = page.page.evaluate("window.btfrsViewer.error")
+            assert text in err
+            assert text in page.page.locator("#message").inner_text()
+        assert page.errors == []
+    finally:
+        page.close()
+        server.close()
