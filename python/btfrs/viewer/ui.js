@@ -19,36 +19,28 @@ function uiBytes(n) {
   return `${n} B`;
 }
 
-// The light disc: a 2D canvas showing the unit disc and the light's (x, y); a drag sets it.
+const SVG_NS = "http://www.w3.org/2000/svg";
+
+function uiSvg(tag, attrs, parent) {
+  const e = document.createElementNS(SVG_NS, tag);
+  for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, String(v));
+  parent.appendChild(e);
+  return e;
+}
+
+// The light disc (SVG): the unit disc seen from above, +x right, +y up, and the light's (x, y);
+// a drag sets it.
 function uiLightDisc(parent, onLight) {
-  const size = 120;
-  const disc = uiElement("canvas", { id: "light-disc", width: size, height: size, title: "Light direction: drag" }, parent);
-  const g = disc.getContext("2d");
-  let light = [0, 0, 1];
-  function draw() {
-    const r = size / 2 - 4;
-    g.clearRect(0, 0, size, size);
-    g.fillStyle = "#222";
-    g.beginPath();
-    g.arc(size / 2, size / 2, r, 0, 2 * Math.PI);
-    g.fill();
-    g.strokeStyle = "#555";
-    g.beginPath();
-    g.moveTo(size / 2 - r, size / 2);
-    g.lineTo(size / 2 + r, size / 2);
-    g.moveTo(size / 2, size / 2 - r);
-    g.lineTo(size / 2, size / 2 + r);
-    g.stroke();
-    g.fillStyle = "#fc3";
-    g.beginPath();
-    g.arc(size / 2 + light[0] * r, size / 2 - light[1] * r, 5, 0, 2 * Math.PI);
-    g.fill();
-  }
+  const disc = uiSvg("svg", { id: "light-disc", viewBox: "-1.1 -1.1 2.2 2.2", width: 140, height: 140,
+    role: "slider", "aria-label": "Light direction: drag" }, parent);
+  uiSvg("circle", { cx: 0, cy: 0, r: 1, fill: "#222", stroke: "#666", "stroke-width": 0.02 }, disc);
+  uiSvg("path", { d: "M -1 0 H 1 M 0 -1 V 1", stroke: "#555", "stroke-width": 0.015 }, disc);
+  uiSvg("circle", { cx: 0, cy: 0, r: 0.5, fill: "none", stroke: "#444", "stroke-width": 0.015 }, disc);
+  const dot = uiSvg("circle", { cx: 0, cy: 0, r: 0.08, fill: "#fc3", stroke: "#000", "stroke-width": 0.02 }, disc);
   function fromEvent(ev) {
     const rect = disc.getBoundingClientRect();
-    const r = (rect.width / 2 - 4 * (rect.width / size));
-    const x = (ev.clientX - rect.left - rect.width / 2) / r;
-    const y = -(ev.clientY - rect.top - rect.height / 2) / r;
+    const x = ((ev.clientX - rect.left) / rect.width) * 2.2 - 1.1;
+    const y = 1.1 - ((ev.clientY - rect.top) / rect.height) * 2.2;
     onLight(discToLight(x, y));
   }
   let dragging = false;
@@ -68,11 +60,10 @@ function uiLightDisc(parent, onLight) {
   };
   disc.addEventListener("pointerup", stop);
   disc.addEventListener("pointercancel", stop);
-  draw();
   return {
     set(l) {
-      light = l;
-      draw();
+      dot.setAttribute("cx", String(l[0]));
+      dot.setAttribute("cy", String(-l[1]));
     },
   };
 }
