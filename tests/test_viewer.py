@@ -16,8 +16,8 @@ import http.server
 import os
 import shutil
 import threading
-import zlib
 import struct
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -112,6 +112,7 @@ class Server:
     """A static file server on a free localhost port, in a thread."""
 
     def __init__(self, root: Path):
+        self.root = Path(root)
         handler = functools.partial(_QuietHandler, directory=str(root))
         self.httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
         self.url = f"http://localhost:{self.httpd.server_address[1]}"
@@ -308,28 +309,120 @@ def test_scenes_and_exposure(browser, served, models, pngs):
         page.close()
 
 
-def test_a_bad_manifest_says_so(browser, served, tmp_path_factory):
-    root = Path(served.httpd.server_address and tmp_path_factory.mktemp("bad"))
-    src = Path(served.httpd.RequestHandlerClass.keywords["directory"]) / "srf"
-    for what, change in (("version", {"version": 99}), ("kind", {"model": {"kind": "mystery"}})):
-        d = root / what
-        shutil.copytree(src, d)
-        import json
-
-        man = json.loads((d / "model" / "manifest.json").read_text())
-        for k, v in change.items():
-            man[k] = {**man[k], **v} if isinstance(v, dict) else v
-        (d / "model" / "manifest.json").write_text(json.dumps(man))
-    server = Server(root)
-    page = Page(server and browser)
+def test_drags_on_the_image_orbit_pan_zoom_and_move_the_light(browser, served, models):
+    page = Page(browser)
     try:
-        for what, text in (("version", "version 99"), ("kind", "mystery")):
-            page.page.goto(f"{server.url}/{what}/index.html")
+        # A model of many views orbits: the eye moves around the target at the same distance.
+        page.open(f"{served.url}/ptm/index.html")
+        pg = page.page
+        pg.evaluate("(s) => window.btfrsViewer.set(s)", {"size": [SIZE, SIZE]})
+        box = pg.locator("#view").bounding_box()
+        cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+        before = pg.evaluate("window.btfrsViewer.state().camera")
+        pg.mouse.move(cx, cy)
+        pg.mouse.down()
+        pg.mouse.move(cx + 60, cy - 20, steps=4)
+        pg.mouse.up()
+        pg.evaluate("window.btfrsViewer.settled()")
+        cam = pg.evaluate("window.btfrsViewer.state().camera")
+        dist = lambda c: np.linalg.norm(np.subtract(c["eye"], c["target"]))  # noqa: E731
+        assert not np.allclose(cam["eye"], before["eye"]) and np.allclose(cam["target"], before["target"])
+        assert dist(cam) == pytest.approx(dist(before), rel=1e-5)
+        light = pg.evaluate("window.btfrsViewer.state().light")
+        got = frame(pg)
+        assert psnr(got, reference(models["ptm"], cam, light)) >= MIN_PSNR
+        # The wheel zooms.
+        pg.mouse.move(cx, cy)
+        pg.mouse.wheel(0, 300)
+        pg.evaluate("window.btfrsViewer.settled()")
+        zoomed = pg.evaluate("window.btfrsViewer.state().camera")
+        assert dist(zoomed) > dist(cam) * 1.1
+        # L held: a drag on the image moves the light instead (image corner = disc edge).
+        pg.keyboard.down("l")
+        pg.mouse.move(cx, cy)
+        pg.mouse.down()
+        pg.mouse.move(box["x"] + 0.25 * box["width"], box["y"] + 0.5 * box["height"], steps=3)
+        pg.mouse.up()
+        pg.keyboard.up("l")
+        pg.evaluate("window.btfrsViewer.settled()")
+        moved = pg.evaluate("window.btfrsViewer.state()")
+        assert moved["camera"] == zoomed
+        assert moved["light"] == pytest.approx([-0.5, 0.0, np.sqrt(0.75)], abs=0.03)
+        assert page.errors == []
+    finally:
+        page.close()
+    page = Page(browser)
+    try:
+        # A single-view model pans: eye and target move together.
+        page.open(f"{served.url}/neural/index.html")
+        pg = page.page
+        assert pg.evaluate("window.btfrsViewer.info().views") == 1
+        before = pg.evaluate("window.btfrsViewer.state().camera")
+        box = pg.locator("#view").bounding_box()
+        cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+        pg.mouse.move(cx, cy)
+        pg.mouse.down()
+        pg.mouse.move(cx + 40, cy + 10, steps=3)
+        pg.mouse.up()
+        pg.evaluate("window.btfrsViewer.settled()")
+        cam = pg.evaluate("window.btfrsViewer.state().camera")
+        shift = np.subtract(cam["target"], before["target"])
+        assert np.linalg.norm(shift) > 0.01
+        assert np.allclose(np.subtract(cam["eye"], before["eye"]), shift, atol=1e-5)
+        assert page.errors == []
+    finally:
+        page.close()
+
+
+def _export_with_manifest(src: Path, dst: Path, change) -> None:
+    shutil.copytree(src, dst)
+    path = dst / "model" / "manifest.json"
+    manifest = json.loads(path.read_text())
+    change(manifest)
+    path.write_text(json.dumps(manifest))
+
+
+def test_an_unknown_format_version_or_kind_is_said_in_the_page(browser, served, tmp_path):
+    def version(m):
+        m["version"] = 99
+
+    def kind(m):
+        m["model"]["kind"] = "mystery"
+
+    def fmt(m):
+        m["format"] = "something-else"
+
+    cases = {"version": (version, "version 99"), "kind": (kind, "unknown model kind \"mystery\""),
+             "format": (fmt, "not a btfrs web export")}
+    for name, (change, _) in cases.items():
+        _export_with_manifest(served.root / "srf", tmp_path / name, change)
+    server = Server(tmp_path)
+    page = Page(browser)
+    try:
+        for name, (_, text) in cases.items():
+            page.page.goto(f"{server.url}/{name}/index.html")
             page.page.wait_for_function("window.btfrsViewer && window.btfrsViewer.error", timeout=30000)
-            err = page.page.evaluate("window.btfrsViewer.error")
-            assert text in err
+            assert text in page.page.evaluate("window.btfrsViewer.error")
             assert text in page.page.locator("#message").inner_text()
         assert page.errors == []
     finally:
         page.close()
         server.close()
+
+
+@pytest.mark.parametrize("how,text", [
+    ("delete Navigator.prototype.gpu;", "WebGPU is not available"),
+    ("Object.defineProperty(GPU.prototype, 'requestAdapter', {value: async () => null});", "no GPU adapter"),
+])
+def test_without_webgpu_the_page_says_so(browser, served, how, text):
+    page = Page(browser)
+    try:
+        page.page.add_init_script(how)
+        page.page.goto(f"{served.url}/ptm/index.html")
+        page.page.wait_for_function("window.btfrsViewer && window.btfrsViewer.error", timeout=30000)
+        assert text in page.page.evaluate("window.btfrsViewer.error")
+        assert page.page.locator("#message").is_visible()
+        assert text in page.page.locator("#message").inner_text()
+        assert page.errors == []
+    finally:
+        page.close()

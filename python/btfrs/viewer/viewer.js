@@ -327,6 +327,7 @@ async function startGpu(manifest, files) {
       viewerRenderer = renderer;
       api.frameMs = ms;
       api.frames += 1;
+      if (frameDirty && !frameLoop) frameLoop = drawFrames(); // the controls moved meanwhile
       return { gpu, present };
     } catch (e) {
       lastError = e;
