@@ -3,7 +3,9 @@ model kind's frame against the CPU reference renderer, the light disc, the singl
 and a console free of errors.
 
 Needs Debian's chromium at /usr/bin/chromium and the playwright package (Playwright never
-downloads a browser here); without them the tests are skipped, unless CI is set.
+downloads a browser here); without them the tests are skipped, unless CI is set. The frames read
+back and their CPU references are written as PNGs under a temporary folder, or under
+$BTFRS_VIEWER_PNGS when set, to look at.
 """
 from __future__ import annotations
 
@@ -92,12 +94,13 @@ def save_web(model, path, **kw):
     return out
 
 
-def reference(model, camera: dict, light, intensity=1.0, scene="plane", size=SIZE, exposure=1.0) -> np.ndarray:
+def reference(model, camera: dict, light, intensity=1.0, scene="plane", size=SIZE, exposure=1.0,
+              renderer=None) -> np.ndarray:
     """The CPU reference of what the viewer should show, 8-bit RGB."""
     make, args = btfrs.web.SCENES[scene]
     cam = btfrs.Camera.look_at(camera["eye"], camera["target"], camera["fov"], up=camera["up"])
     img = btfrs.render(model, getattr(btfrs.Scene, make)(*args), cam, [btfrs.DirectionalLight(light, intensity)],
-                       size=(size, size), backend="cpu", renderer=None)
+                       size=(size, size), backend="cpu", renderer=renderer)
     return display(img, exposure)
 
 
@@ -132,8 +135,8 @@ class _QuietHandler(http.server.SimpleHTTPRequestHandler):
 class Page:
     """A browser page collecting its console errors."""
 
-    def __init__(self, browser):
-        self.page = browser.new_page(viewport={"width": 1000, "height": 800})
+    def __init__(self, browser, **options):
+        self.page = browser.new_page(viewport={"width": 1000, "height": 800}, **options)
         self.errors = []
         self.page.on("console", lambda m: self.errors.append(f"console: {m.text}") if m.type == "error" else None)
         self.page.on("pageerror", lambda e: self.errors.append(f"pageerror: {e}"))
@@ -215,6 +218,7 @@ def _camera() -> dict:
 # --- tests ----------------------------------------------------------------------------------
 
 
+# lpca_3d: LPCA's "3d" renderer, the one with the 3D texture.
 @pytest.mark.parametrize("kind", KINDS + ["lpca_3d"])
 def test_every_kind_matches_the_cpu_reference(kind, browser, served, models, pngs):
     page = Page(browser)
@@ -224,13 +228,7 @@ def test_every_kind_matches_the_cpu_reference(kind, browser, served, models, png
         page.page.evaluate("(s) => window.btfrsViewer.set(s)", {"light": light, "size": [SIZE, SIZE]})
         got = frame(page.page)
         model = models["lpca" if kind == "lpca_3d" else kind]
-        cam = _camera()
-        want = reference(model, cam, light) if kind != "lpca_3d" else None
-        if kind == "lpca_3d":
-            make, args = btfrs.web.SCENES["plane"]
-            c = btfrs.Camera.look_at(cam["eye"], cam["target"], cam["fov"], up=cam["up"])
-            want = display(btfrs.render(model, btfrs.Scene.plane(*args), c, [btfrs.DirectionalLight(light)],
-                                        size=(SIZE, SIZE), backend="cpu", renderer="3d"))
+        want = reference(model, _camera(), light, renderer="3d" if kind == "lpca_3d" else None)
         write_png(pngs / f"{kind}.viewer.png", got)
         write_png(pngs / f"{kind}.cpu.png", want)
         info = page.page.evaluate("window.btfrsViewer.info()")
@@ -426,3 +424,21 @@ def test_without_webgpu_the_page_says_so(browser, served, how, text):
         assert page.errors == []
     finally:
         page.close()
+
+
+def test_a_canvas_that_cannot_be_presented_falls_back_to_read_back(browser, served, models):
+    """Told it is not headless, the viewer presents on the WebGPU canvas, which headless Chromium
+    cannot do (it loses the device): the viewer starts again, reading frames back into a 2D
+    canvas. In a browser of its own, as Chromium refuses WebGPU after a few lost devices."""
+    b = browser.browser_type.launch(executable_path=CHROMIUM, headless=True, args=LAUNCH_ARGS)
+    try:
+        ua = b.new_page().evaluate("navigator.userAgent").replace("HeadlessChrome", "Chrome")
+        page = Page(b, user_agent=ua)
+        page.open(f"{served.url}/ptm/index.html")
+        assert page.page.evaluate("window.btfrsViewer.info().presentation") == "2d"
+        light = [0.1, 0.6, 0.79]
+        page.page.evaluate("(s) => window.btfrsViewer.set(s)", {"light": light, "size": [SIZE, SIZE]})
+        assert psnr(frame(page.page), reference(models["ptm"], _camera(), light)) >= MIN_PSNR
+        assert page.errors == []
+    finally:
+        b.close()
