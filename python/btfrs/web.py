@@ -32,10 +32,10 @@ VIEWER_DIR = os.path.join(os.path.dirname(__file__), "viewer")
 #: The scenes the viewer can show: name -> how the renderer builds it.
 SCENES = {"plane": ("plane", (2.0,)), "sphere": ("sphere", (1.0, 64, 32)), "cylinder": ("cylinder", (0.7, 2.0, 64))}
 #: Where the page's camera starts: above the plane, looking down at it obliquely.
-DEFAULT_CAMERA = {"eye": [0.0, -1.6, 2.4], "target": [0.0, 0.0, 0.0], "up": [0.0, 0.0, 1.0], "fov": 40.0,
+DEFAULT_CAMERA: Dict[str, Any] = {"eye": [0.0, -1.6, 2.4], "target": [0.0, 0.0, 0.0], "up": [0.0, 0.0, 1.0], "fov": 40.0,
                   "near": 0.01, "far": 100.0}
 #: The light the page starts with (towards the light) and its irradiance.
-DEFAULT_LIGHT = {"direction": [0.35, 0.45, 0.82], "intensity": [1.0, 1.0, 1.0]}
+DEFAULT_LIGHT: Dict[str, Any] = {"direction": [0.35, 0.45, 0.82], "intensity": [1.0, 1.0, 1.0]}
 
 
 def _scene_buffers(name: str) -> Tuple[bytes, np.ndarray]:
@@ -94,9 +94,16 @@ def bundle(model: Model, *, renderer: Optional[str] = None, name: Optional[str] 
 
 
 def _views(model: Model) -> int:
-    """View slots of the model (1 for single-view models and models without slots)."""
+    """How the page moves the camera: the model's view slots where it has them, else 1 for a
+    model whose appearance does not change with the view (a single-view capture's: the page pans
+    over it) and 2 for one that does (the page orbits), found by evaluating it from two views."""
     views = getattr(model, "views", None)
-    return int(len(views)) if views is not None else 1
+    if views is not None:
+        return int(len(views))
+    light = [0.3, -0.2, 0.93]
+    a = model.evaluate([0.0, 0.0, 1.0], light)
+    b = model.evaluate([0.5, 0.3, 0.81], light)
+    return 2 if float(np.abs(a - b).max()) > 1e-6 * max(float(np.abs(a).max()), 1e-12) else 1
 
 
 def _viewer_files() -> Dict[str, bytes]:
@@ -105,7 +112,8 @@ def _viewer_files() -> Dict[str, bytes]:
         for n in names:
             if n.endswith((".html", ".js", ".css")):
                 p = os.path.join(root, n)
-                out[os.path.relpath(p, VIEWER_DIR)] = open(p, "rb").read()
+                with open(p, "rb") as f:
+                    out[os.path.relpath(p, VIEWER_DIR)] = f.read()
     if "index.html" not in out:
         raise InvalidArgumentError(f"the viewer's files are missing from {VIEWER_DIR} (a broken installation)")
     return out
@@ -119,7 +127,7 @@ def single_file_html(b: Dict[str, Any]) -> str:
     html = viewer["index.html"].decode()
     # The modules, inlined in dependency order: each file's imports of the others are removed
     # (they share one module scope once inlined).
-    order = [n for n in ("math.js", "gpu.js", "ui.js", "viewer.js") if n in viewer]
+    order = [n for n in ("kinds.js", "math.js", "gpu.js", "ui.js", "viewer.js") if n in viewer]
     code = []
     for n in order:
         lines = [ln for ln in viewer[n].decode().splitlines() if not ln.lstrip().startswith("import ")]

@@ -250,6 +250,92 @@ def frames_bench(size: int = 32, repeat: int = 2) -> List[Any]:
     return rows
 
 
+def viewer_bench(size: int = 64, repeat: int = 3, figures: Optional[str] = None) -> Dict[str, Any]:
+    """The browser viewer against the native renderer, in one run on this machine's software
+    adapters (Chromium's WebGPU on SwiftShader, wgpu on lavapipe): per model kind (its default
+    options, knit ``size``^2 x 81 x 81), a 512^2 frame of the viewer's default plane, camera and
+    light, best of ``repeat`` after a warm-up frame, from the frame's start to the GPU's
+    completion in the page and the draw in native; and the time from navigation to the first
+    frame for the PTM's folder served from localhost. With ``figures``, a screenshot of the
+    page (``viewer_knit.png``)."""
+    import functools
+    import http.server
+    import tempfile
+    import threading
+
+    from playwright.sync_api import sync_playwright
+
+    from .. import web
+
+    class Quiet(http.server.SimpleHTTPRequestHandler):
+        def log_message(self, format: str, *args: Any) -> None:
+            pass
+
+    btf = materials.make("knit", size=size, seed=1)
+    cam_d = web.DEFAULT_CAMERA
+    cam = rendering.Camera.look_at(cam_d["eye"], cam_d["target"], cam_d["fov"], up=cam_d["up"])
+    light = [rendering.DirectionalLight(web.DEFAULT_LIGHT["direction"], web.DEFAULT_LIGHT["intensity"])]
+    plane = rendering.Scene.plane(2.0)
+    rows: List[Dict[str, Any]] = []
+    with tempfile.TemporaryDirectory(prefix="btfrs-viewer-bench-") as root, sync_playwright() as p:
+        browser = p.chromium.launch(executable_path="/usr/bin/chromium", headless=True,
+                                    args=["--no-sandbox", "--enable-unsafe-webgpu", "--use-webgpu-adapter=swiftshader"])
+        handler = functools.partial(Quiet, directory=root)
+        httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+        threading.Thread(target=httpd.serve_forever, daemon=True).start()
+        url = f"http://localhost:{httpd.server_address[1]}"
+        try:
+            for kind in model_kinds():
+                m = fit.fit(kind, btf)
+                rendering.render(m, plane, cam, light, size=512)
+                native = float("inf")
+                for _ in range(repeat):
+                    rendering.render(m, plane, cam, light, size=512)
+                    native = min(native, _timings().draw_ms)
+                web.save_web(m, os.path.join(root, kind), force=True, name=f"knit {size}")
+                page = browser.new_page(viewport={"width": 1100, "height": 760})
+                page.goto(f"{url}/{kind}/index.html")
+                first = float(page.evaluate("window.btfrsViewer.ready.then(() => window.btfrsViewer.firstFrameMs)"))
+                loaded = float(page.evaluate("window.btfrsViewer.loadedMs"))
+                err = page.evaluate("window.btfrsViewer.error")
+                if err:
+                    raise RuntimeError(f"the viewer failed on {kind}: {err}")
+                page.evaluate("window.btfrsViewer.set({size: [512, 512]})")
+                ms = float("inf")
+                for _ in range(repeat):
+                    page.evaluate("window.btfrsViewer.set({exposure: 1.0})")
+                    ms = min(ms, float(page.evaluate("window.btfrsViewer.frameMs")))
+                if figures and kind == "ptm":
+                    os.makedirs(figures, exist_ok=True)
+                    page.screenshot(path=os.path.join(figures, "viewer_knit.png"))
+                page.close()
+                rows.append(dict(kind=kind, native_ms=native, browser_ms=ms, ratio=ms / native, load_ms=loaded,
+                                 first_frame_ms=first, model_bytes=int(m.nbytes)))
+        finally:
+            httpd.shutdown()
+            httpd.server_close()
+            browser.close()
+    return {"size": size, "rows": rows}
+
+
+def _chromium_version() -> str:
+    import subprocess
+
+    try:
+        out = subprocess.run(["/usr/bin/chromium", "--version"], capture_output=True, text=True, timeout=30).stdout
+    except OSError:
+        return "?"
+    return out.split()[1] if len(out.split()) > 1 else out.strip()
+
+
+def viewer_table(res: Dict[str, Any]) -> str:
+    out = [f"{'model':<16} {'native 512^2':>13} {'browser 512^2':>14} {'x native':>9} {'files loaded':>13} "
+           f"{'first frame':>12} {'bytes':>10}"]
+    out += [f"{r['kind']:<16} {r['native_ms']:>11.1f}ms {r['browser_ms']:>12.1f}ms {r['ratio']:>9.2f} "
+            f"{r['load_ms']:>11.0f}ms {r['first_frame_ms']:>10.0f}ms {r['model_bytes']:>10}" for r in res["rows"]]
+    return "\n".join(out)
+
+
 def frames_table(rows: List[Dict[str, Any]]) -> str:
     out = [f"{'model':<24} {'renderer':<9} {'512^2 point':>12} {'x PTM-RGB':>10}"]
     out += [f"{r['model']:<24} {r['method']:<9} {r['point_ms']:>10.1f}ms {r['vs_ptm']:>10.2f}" for r in rows]
@@ -1244,6 +1330,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                    help="only the Dask fits: PTM and LPCA locally and on a LocalCluster of 1 and 2 workers, "
                         "knit at --size (default 96)^2 x 81 x 81 from zarr (needs btfrs[dask])")
     p.add_argument("--dask-chunks", type=int, default=32, help="the zarr tiles' side in texels (default: 32)")
+    p.add_argument("--viewer-only", action="store_true",
+                   help="only the browser viewer's frame and load times against the native renderer (needs "
+                        "/usr/bin/chromium and playwright); --figures DIR also saves a screenshot")
     p.add_argument("--neural-only", action="store_true",
                    help="only the neural model's figures: accuracy per byte against every model on every material "
                         "(both protocols), single-view captures, render time")
@@ -1295,6 +1384,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print(f"robust against plain fits (knit {size}^2 x 81 x 81, best of {rep}, interleaved; errors held out):")
         print(robust_table(res))
         return _finish(a, {"machine": machine(), "robust": res})
+    if a.viewer_only:
+        res = viewer_bench(size=(a.size or [64])[0], repeat=max(1, a.repeat), figures=a.figures)
+        print(f"the browser viewer (Chromium {_chromium_version()}, WebGPU on SwiftShader) against the native "
+              f"renderer ({rendering_info()}), knit {(a.size or [64])[0]}^2 x 81 x 81, best of {max(1, a.repeat)}:")
+        print(viewer_table(res))
+        return _finish(a, {"machine": machine(), "viewer": res})
     if a.frames_only:
         res = frames_bench(size=(a.size or [32])[0], repeat=max(1, a.repeat))
         print(f"frame times on {rendering_info()} (knit {(a.size or [32])[0]}^2, uv_scale 4, best of {max(1, a.repeat)}):")

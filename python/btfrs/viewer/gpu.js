@@ -56,7 +56,7 @@ function bindingLayoutEntry(b) {
     case "storage":
       return { binding: b.binding, visibility, buffer: { type: "storage" } };
     case "texture-3d":
-      return { binding: b.binding, visibility, texture: { sampleType: "float", viewDimension: "3d" } };
+      return { binding: b.binding, visibility, texture: { sampleType: b.sample_type, viewDimension: b.view_dimension } };
     case "texture-2d":
       return { binding: b.binding, visibility, texture: { sampleType: "float", viewDimension: "2d" } };
     case "sampler":

@@ -5,10 +5,10 @@
 import { discToLight, orbitCamera, panCamera, vec3Normalize, vec3Length } from "./math.js";
 import { openGpu, createRenderer } from "./gpu.js";
 import { buildUi } from "./ui.js";
+import { KNOWN_KINDS } from "./kinds.js";
 
 const WEB_FORMAT = "btfrs-web";
 const WEB_VERSION = 1;
-const KNOWN_KINDS = ["ptm", "hsh", "lafortune", "lafortune_view", "srf", "sh", "lpca", "rbf", "bilinear", "neural"];
 
 function base64ToBytes(text) {
   const bin = atob(text);
@@ -228,6 +228,9 @@ const api = {
   // Milliseconds of the last frame (from its encoding to the GPU's completion), frames drawn.
   frameMs: null,
   frames: 0,
+  // Milliseconds from the navigation's start: the model's files loaded, the first frame drawn.
+  loadedMs: null,
+  firstFrameMs: null,
   // Change any of light [x, y, z] (towards the light), intensity (number or RGB), camera
   // {eye, target, up, fov}, scene, exposure, size [width, height]; resolves after the new frame.
   async set(settings) {
@@ -345,6 +348,7 @@ async function startGpu(manifest, files) {
 async function start() {
   viewerUi = buildUi(document.getElementById("app") || document.body, controls);
   const { manifest, files } = await loadData();
+  api.loadedMs = performance.now();
   viewerManifest = manifest;
   const cam = manifest.camera;
   viewerState.camera = { eye: cam.eye.slice(), target: cam.target.slice(), up: cam.up.slice(), fov: cam.fov,
@@ -371,7 +375,10 @@ async function start() {
 }
 
 start().then(
-  () => resolveReady(),
+  () => {
+    api.firstFrameMs = performance.now();
+    resolveReady();
+  },
   (e) => {
     fail(e);
     rejectReady(e instanceof Error ? e : new Error(String(e)));
