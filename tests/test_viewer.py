@@ -239,6 +239,35 @@ def test_every_kind_matches_the_cpu_reference(kind, browser, served, models, png
         page.close()
 
 
+def test_the_sky_lights_the_model_as_the_sampled_environment_does(browser, served, models, pngs):
+    # The "Sky light" switch: the built-in sky's importance-sampled lights plus the disc's light,
+    # what btfrs.render(environment=sky, lighting="sampled", samples=64, seed=0) draws.
+    page = Page(browser)
+    try:
+        page.open(f"{served.url}/hsh/index.html")
+        light = [0.2, 0.3, 0.93]
+        page.page.click("#sky")
+        page.page.evaluate("(s) => window.btfrsViewer.set(s)", {"light": light, "size": [SIZE, SIZE]})
+        assert page.page.evaluate("window.btfrsViewer.state().sky") is True
+        got = frame(page.page)
+        make, args = btfrs.web.SCENES["plane"]
+        cam = _camera()
+        img = btfrs.render(models["hsh"], getattr(btfrs.Scene, make)(*args),
+                           btfrs.Camera.look_at(cam["eye"], cam["target"], cam["fov"], up=cam["up"]),
+                           [btfrs.DirectionalLight(light, 1.0)], size=(SIZE, SIZE), backend="cpu",
+                           environment=btfrs.Environment.sky(), lighting="sampled",
+                           samples=btfrs.web.SKY_SAMPLES, seed=0)
+        want = display(img)
+        write_png(pngs / "hsh.sky.viewer.png", got)
+        value = psnr(got, want)
+        assert value >= MIN_PSNR, f"sky: PSNR {value:.2f} dB against the CPU reference"
+        # and it is not the disc's light alone
+        assert psnr(got, reference(models["hsh"], cam, light)) < value - 3
+        assert page.errors == []
+    finally:
+        page.close()
+
+
 def test_light_disc_drag_moves_the_light(browser, served, models, pngs):
     page = Page(browser)
     try:

@@ -34,6 +34,10 @@ SCENES = {"plane": ("plane", (2.0,)), "sphere": ("sphere", (1.0, 64, 32)), "cyli
 #: Where the page's camera starts: above the plane, looking down at it obliquely.
 DEFAULT_CAMERA: Dict[str, Any] = {"eye": [0.0, -1.6, 2.4], "target": [0.0, 0.0, 0.0], "up": [0.0, 0.0, 1.0], "fov": 40.0,
                   "near": 0.01, "far": 100.0}
+#: The environment the page offers (its "Sky light" switch): btfrs's built-in sky, as the
+#: importance-sampled directional lights ``btfrs.render(..., environment=sky,
+#: lighting="sampled", samples=SKY_SAMPLES, seed=0)`` draws.
+SKY_SAMPLES = 64
 #: The light the page starts with (towards the light) and its irradiance.
 DEFAULT_LIGHT: Dict[str, Any] = {"direction": [0.35, 0.45, 0.82], "intensity": [1.0, 1.0, 1.0]}
 
@@ -87,10 +91,20 @@ def bundle(model: Model, *, renderer: Optional[str] = None, name: Optional[str] 
         "scenes": scenes,
         "camera": DEFAULT_CAMERA,
         "light": DEFAULT_LIGHT,
+        "environment": _sky(),
         "exposure": 1.0,
         "display": "linear value x exposure, clamped to [0, 1], sRGB-encoded, 8 bits",
     }
     return {"manifest": manifest, "files": files}
+
+
+def _sky() -> Dict[str, Any]:
+    """The built-in sky as the page's light list (see :data:`SKY_SAMPLES`)."""
+    from .environment import Environment
+
+    lights = [light._native() for light in Environment.sky().lights(SKY_SAMPLES, seed=0)]
+    return {"name": "sky", "samples": SKY_SAMPLES, "seed": 0,
+            "lights": [{"direction": d, "intensity": i} for _, d, i in lights]}
 
 
 def _views(model: Model) -> int:

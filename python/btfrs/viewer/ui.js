@@ -91,6 +91,10 @@ export function buildUi(root, on) {
   const expValue = uiElement("output", { id: "exposure-value", text: "1.00" }, expLabel);
   exposure.addEventListener("input", () => on.exposure(Math.pow(2, Number(exposure.value))));
 
+  const skyLabel = uiElement("label", { text: "Sky light " }, panel);
+  const sky = uiElement("input", { id: "sky", type: "checkbox" }, skyLabel);
+  sky.addEventListener("change", () => on.sky(sky.checked));
+
   uiElement("div", { class: "caption", text: "Light direction" }, panel);
   const disc = uiLightDisc(panel, (l) => on.light(l));
   const lightText = uiElement("div", { id: "light-value", class: "caption" }, panel);
@@ -162,6 +166,10 @@ export function buildUi(root, on) {
     },
     setScene(name) {
       sceneSelect.value = name;
+    },
+    setSky(on, available) {
+      sky.checked = on;
+      skyLabel.hidden = !available;
     },
     setExposure(value) {
       exposure.value = String(Math.log2(value));

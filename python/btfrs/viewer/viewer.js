@@ -89,6 +89,7 @@ function asVec3(name, v) {
 const viewerState = {
   light: [0, 0, 1],
   intensity: [1, 1, 1],
+  sky: false,
   camera: null,
   scene: "plane",
   exposure: 1,
@@ -116,7 +117,10 @@ function fail(e) {
 function currentView() {
   return {
     camera: viewerState.camera,
-    lights: [{ direction: viewerState.light, intensity: viewerState.intensity }],
+    // The sky: its importance-sampled directional lights (what btfrs.render's
+    // lighting="sampled" draws) plus the light of the disc, as the native renderer adds them.
+    lights: (viewerState.sky && viewerManifest.environment ? viewerManifest.environment.lights : [])
+      .concat(viewerState.intensity.some((x) => x > 0) ? [{ direction: viewerState.light, intensity: viewerState.intensity }] : []),
     scene: viewerState.scene,
     exposure: viewerState.exposure,
     width: viewerState.size[0],
@@ -161,6 +165,7 @@ function showState() {
   viewerUi.setLight(viewerState.light);
   viewerUi.setExposure(viewerState.exposure);
   viewerUi.setScene(viewerState.scene);
+  viewerUi.setSky(viewerState.sky, Boolean(viewerManifest && viewerManifest.environment));
 }
 
 // Check and apply `set`'s settings all together (nothing changes when one is wrong).
@@ -191,6 +196,10 @@ function applySettings(s) {
     if (vec3Length(d) === 0) throw new Error("camera: eye and target must differ");
     if (vec3Length(next.camera.up) === 0) throw new Error("camera.up: expected a non-zero vector");
     if (!(next.camera.near > 0 && next.camera.far > next.camera.near)) throw new Error("camera: expected 0 < near < far");
+  }
+  if (s.sky !== undefined) {
+    if (s.sky && !viewerManifest.environment) throw new Error("sky: this export has no environment light");
+    next.sky = Boolean(s.sky);
   }
   if (s.scene !== undefined) {
     if (!(s.scene in viewerManifest.scenes)) {
@@ -263,6 +272,10 @@ api.ready.catch(() => {});
 window.btfrsViewer = api;
 
 const controls = {
+  sky(on) {
+    applySettings({ sky: on });
+    redraw();
+  },
   light(l) {
     applySettings({ light: l });
     redraw();
@@ -358,6 +371,7 @@ async function start() {
   viewerState.exposure = manifest.exposure;
   viewerState.scene = "plane" in manifest.scenes ? "plane" : Object.keys(manifest.scenes)[0];
   viewerUi.setScenes(Object.keys(manifest.scenes), viewerState.scene);
+  viewerUi.setSky(false, Boolean(manifest.environment));
   viewerUi.setHelp(manifest.model.views === 1);
   showState();
   const { gpu, present } = await startGpu(manifest, files);
