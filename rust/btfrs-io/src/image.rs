@@ -56,6 +56,32 @@ const DEFLATE_MAX_RATIO: u64 = 1032;
 const EXR_MAX_RATIO: u64 = 2048;
 
 /// The error for a header that declares more pixel bytes than the file can hold.
+/// Encode 8-bit RGB bytes (`width x height`, rows top first) as PNG (`ext` "png") or JPEG at
+/// `quality`: the plane images of the web formats (relight's, NeuralRTI's), which hold data,
+/// not pictures.
+pub fn encode_rgb8(
+    w: &mut dyn std::io::Write,
+    rgb: &[u8],
+    width: usize,
+    height: usize,
+    ext: &str,
+    quality: u8,
+) -> std::io::Result<()> {
+    use image::ImageEncoder;
+    let (wd, ht) = (width as u32, height as u32);
+    let r = if ext == "png" {
+        image::codecs::png::PngEncoder::new(w).write_image(rgb, wd, ht, image::ExtendedColorType::Rgb8)
+    } else {
+        image::codecs::jpeg::JpegEncoder::new_with_quality(w, quality).write_image(
+            rgb,
+            wd,
+            ht,
+            image::ExtendedColorType::Rgb8,
+        )
+    };
+    r.map_err(std::io::Error::other)
+}
+
 fn too_large(shown: &str, what: String, need: Option<u64>, len: u64, ratio: u64) -> Error {
     let need = need.map_or_else(|| "more than 2^64".into(), |n| n.to_string());
     Error::format(

@@ -152,7 +152,7 @@ pub fn export(m: &Neural, path: &Path) -> Result<Value> {
         for ext in ["png", "jpg"] {
             let name = format!("plane_{}.{ext}", img + 1);
             let target = dir.join(&name);
-            write_atomic(&target, |w| encode(w, &rgb, width, height, ext))?;
+            write_atomic(&target, |w| crate::image::encode_rgb8(w, &rgb, width, height, ext, QUALITY))?;
             files.push(name);
         }
     }
@@ -180,22 +180,6 @@ pub fn export(m: &Neural, path: &Path) -> Result<Value> {
     write_atomic(&dir.join("info.json"), |w| w.write_all(text.as_bytes()))?;
     files.push("info.json".into());
     Ok(json!({"min": min, "max": max, "files": files}))
-}
-
-fn encode(w: &mut dyn std::io::Write, rgb: &[u8], width: usize, height: usize, ext: &str) -> std::io::Result<()> {
-    use image::ImageEncoder;
-    let (wd, ht) = (width as u32, height as u32);
-    let r = if ext == "png" {
-        image::codecs::png::PngEncoder::new(w).write_image(rgb, wd, ht, image::ExtendedColorType::Rgb8)
-    } else {
-        image::codecs::jpeg::JpegEncoder::new_with_quality(w, QUALITY).write_image(
-            rgb,
-            wd,
-            ht,
-            image::ExtendedColorType::Rgb8,
-        )
-    };
-    r.map_err(std::io::Error::other)
 }
 
 fn import_model(path: &Path) -> Result<Box<dyn DynModel>> {

@@ -180,7 +180,9 @@ impl Web {
             }
             for ext in ["jpg", "png"] {
                 let name = format!("plane_{i}.{ext}");
-                write_atomic(&dir.join(&name), |w| encode(w, &rgb, self.width, self.height, ext))?;
+                write_atomic(&dir.join(&name), |w| {
+                    crate::image::encode_rgb8(w, &rgb, self.width, self.height, ext, QUALITY)
+                })?;
                 files.push(name);
             }
         }
@@ -208,22 +210,6 @@ impl Web {
         files.push("info.json".into());
         Ok(json!({"files": files}))
     }
-}
-
-fn encode(w: &mut dyn std::io::Write, rgb: &[u8], width: usize, height: usize, ext: &str) -> std::io::Result<()> {
-    use image::ImageEncoder;
-    let (wd, ht) = (width as u32, height as u32);
-    let r = if ext == "png" {
-        image::codecs::png::PngEncoder::new(w).write_image(rgb, wd, ht, image::ExtendedColorType::Rgb8)
-    } else {
-        image::codecs::jpeg::JpegEncoder::new_with_quality(w, QUALITY).write_image(
-            rgb,
-            wd,
-            ht,
-            image::ExtendedColorType::Rgb8,
-        )
-    };
-    r.map_err(std::io::Error::other)
 }
 
 fn export_model(model: &dyn DynModel, view: usize, path: &Path) -> Result<Value> {
