@@ -22,7 +22,7 @@ LAYERS: Dict[str, int] = {
     **{f"btfrs.{m}": 1 for m in ("exceptions", "_checks", "_progress", "_native", "directions", "hemimap", "btf",
                                  "io", "materials", "models", "_fitting", "fit", "dask")},
     **{f"btfrs.{m}": 2 for m in ("environment", "rendering")},
-    **{f"btfrs.{m}": 3 for m in ("synth", "graphcut", "tiles")},
+    **{f"btfrs.{m}": 3 for m in ("synth", "graphcut", "tiles", "web")},
     **{f"btfrs.{m}": 4 for m in ("evaluation", "stability", "choosing")},
     "btfrs": 4,
     "btfrs.cli": 5,
@@ -36,7 +36,8 @@ PENDING: Set[Tuple[str, str]] = set()
 
 #: Third-party packages a function may import: optional extras, or heavy ones that would slow
 #: ``import btfrs`` down (matplotlib).
-OPTIONAL = {"matplotlib", "dask", "distributed", "zarr", "tqdm", "mitsuba", "drjit", "scipy", "sklearn", "PIL"}
+OPTIONAL = {"matplotlib", "dask", "distributed", "zarr", "tqdm", "mitsuba", "drjit", "scipy", "sklearn", "PIL",
+            "playwright"}
 
 
 def modules() -> Iterator[Tuple[str, Path]]:

@@ -30,7 +30,7 @@ def hsh(tmp_path_factory):
 
 def test_the_bundle_is_what_the_native_renderer_uploads(hsh, tmp_path):
     model, _ = hsh
-    page = model.save_web(tmp_path / "site")
+    page = btfrs.web.save_web(model, tmp_path / "site")
     assert page == str(tmp_path / "site" / "index.html")
     man = json.loads((tmp_path / "site" / "model" / "manifest.json").read_text())
     assert man["model"]["kind"] == "hsh" and man["model"]["nbytes"] == model.nbytes
@@ -63,10 +63,10 @@ def test_the_bundle_is_what_the_native_renderer_uploads(hsh, tmp_path):
 def test_an_existing_target_is_refused_unless_forced(hsh, tmp_path):
     model, path = hsh
     out = tmp_path / "site"
-    model.save_web(out)
+    btfrs.web.save_web(model, out)
     with pytest.raises(InvalidArgumentError, match="exists"):
-        model.save_web(out)
-    model.save_web(out, force=True)
+        btfrs.web.save_web(model, out)
+    btfrs.web.save_web(model, out, force=True)
     assert main(["export", str(path), "--web", str(out)]) == 2
     assert main(["export", str(path), "--web", str(out), "--force"]) == 0
     single = tmp_path / "one.html"

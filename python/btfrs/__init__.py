@@ -17,7 +17,7 @@ import sys
 import tempfile
 import types
 
-from . import directions, evaluation, exceptions, fit, graphcut, hemimap, io, materials, stability, synth, tiles
+from . import directions, evaluation, exceptions, fit, graphcut, hemimap, io, materials, stability, synth, tiles, web
 from ._native import __version__
 from .btf import Btf, ExpandedBtf
 from .exceptions import (
@@ -105,6 +105,7 @@ __all__ = [
     "directions",
     "evaluate",
     "tiles",
+    "web",
     "evaluation",
     "EvaluationReport",
     "exceptions",

@@ -8,16 +8,19 @@ bars on a terminal, one line per phase otherwise.
 from __future__ import annotations
 
 import argparse
+import http.server
 import json
 import os
 import sys
+import tempfile
 import time
+import webbrowser
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from . import __version__, _native, io, materials, rendering, stability, synth, tiles
+from . import __version__, _native, io, materials, rendering, stability, synth, tiles, web
 from . import fit as fit_mod
 from . import fit as fitting
 from .btf import Btf
@@ -404,13 +407,13 @@ def _data_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -
                         "a BTF or capture gets a quick fit first (--model)")
     x.add_argument("--single-file", action="store_true",
                    help="with --web: one self-contained HTML file (data embedded) that opens from disk")
-    x.add_argument("--model", default="ptm", choices=_kinds(), metavar="MODEL",
-                   help="with --web on a BTF or capture: the model fitted first (default: ptm)")
+    x.add_argument("--model", default=_kinds()[0], choices=_kinds(), metavar="MODEL",
+                   help=f"with --web on a BTF or capture: the model fitted first (default: {_kinds()[0]})")
     x.add_argument("--force", action="store_true", help="with --web: replace an existing folder or file")
     w = sub.add_parser("view", help="look at a model, BTF or capture in the browser (WebGPU, served on localhost)")
     _sample_args(w)
-    w.add_argument("--model", default="ptm", choices=_kinds(), metavar="MODEL",
-                   help="for a BTF or capture: the model fitted first (default: ptm, quick)")
+    w.add_argument("--model", default=_kinds()[0], choices=_kinds(), metavar="MODEL",
+                   help=f"for a BTF or capture: the model fitted first (default: {_kinds()[0]}, the first registered)")
     w.add_argument("--port", type=int, default=8000, help="localhost port (default: 8000; another if it is in use)")
     w.add_argument("--no-browser", action="store_true", help="print the address instead of opening a browser")
     r = sub.add_parser("render", help="render a model, BTF or capture on a plane, sphere or cylinder")
@@ -614,8 +617,6 @@ def export_command(args: argparse.Namespace) -> None:
             raise InvalidArgumentError(f"--stack: {args.path} holds a {type(obj).__name__}, not a BTF")
         print(f"wrote {io.save_stack(obj, args.stack, format=args.format)}")
     if args.web:
-        from . import web
-
         model = _viewable(obj, args)
         page = web.save_web(model, args.web, single_file=args.single_file, force=args.force,
                             name=os.path.basename(os.path.normpath(args.path or "")) or model.kind)
@@ -652,12 +653,6 @@ def _viewable(obj: Any, args: argparse.Namespace) -> Model:
 def view_command(args: argparse.Namespace) -> None:
     """``btfrs view``: export the viewer to a temporary folder, serve it on localhost and open a
     browser (or print the address), until Ctrl-C."""
-    import http.server
-    import tempfile
-    import webbrowser
-
-    from . import web
-
     if not 0 <= args.port <= 65535:
         raise InvalidArgumentError(f"--port: expected 0 to 65535, got {args.port}")
     obj, name = _load_sample(args, not args.quiet)
@@ -681,7 +676,7 @@ def view_command(args: argparse.Namespace) -> None:
         url = f"http://127.0.0.1:{server.server_address[1]}/"
         print(f"serving the {model.kind} model of {name} at {url} (Ctrl-C to stop)", flush=True)
         if not args.no_browser:
-            webbrowser.open(url)
+            webbrowser.open_new_tab(url)
         try:
             server.serve_forever()
         finally:

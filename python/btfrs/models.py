@@ -136,15 +136,6 @@ class Model:
             raise InvalidArgumentError(f"format: the {self.kind} model cannot be written as {format!r} (its formats: {can})")
         return cast(Dict[str, Any], json.loads(_native.export_model(p, self._m, format, _slot_index(self, view))))
 
-    def save_web(self, folder: PathLike, *, single_file: bool = False, force: bool = False,
-                 renderer: Optional[str] = None) -> str:
-        """Write the browser viewer with this model: a static folder any web server hosts, or
-        with ``single_file=True`` one HTML file that opens from disk (:func:`btfrs.web.save_web`).
-        Returns the page's path."""
-        from .web import save_web
-
-        return save_web(self, folder, single_file=single_file, force=force, renderer=renderer)
-
     def evaluate(self, view: ArrayLike, light: ArrayLike) -> NDArray[np.float32]:
         """The ``[H, W, 3]`` float32 image for one view and one light direction (any non-zero
         vectors with z >= 0; they are normalised)."""

@@ -24,8 +24,10 @@ import numpy as np
 
 from . import _native
 from ._checks import PathLike
+from .environment import Environment
 from .exceptions import InvalidArgumentError
 from .models import Model
+from .rendering import Scene
 
 #: The viewer's own files, shipped in the package.
 VIEWER_DIR = os.path.join(os.path.dirname(__file__), "viewer")
@@ -43,8 +45,6 @@ DEFAULT_LIGHT: Dict[str, Any] = {"direction": [0.35, 0.45, 0.82], "intensity": [
 
 
 def _scene_buffers(name: str) -> Tuple[bytes, np.ndarray]:
-    from .rendering import Scene
-
     make, args = SCENES[name]
     scene = getattr(Scene, make)(*args)
     vertices, indices = scene.web_buffers()
@@ -100,8 +100,6 @@ def bundle(model: Model, *, renderer: Optional[str] = None, name: Optional[str] 
 
 def _sky() -> Dict[str, Any]:
     """The built-in sky as the page's light list (see :data:`SKY_SAMPLES`)."""
-    from .environment import Environment
-
     lights = [light._native() for light in Environment.sky().lights(SKY_SAMPLES, seed=0)]
     return {"name": "sky", "samples": SKY_SAMPLES, "seed": 0,
             "lights": [{"direction": d, "intensity": i} for _, d, i in lights]}

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import http.server
 import json
 import logging
 import os
@@ -21,6 +22,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import zipfile
 from datetime import datetime, timezone
@@ -29,7 +31,7 @@ from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import __version__, evaluation, fit, graphcut, io, materials, rendering, stability, synth
+from .. import __version__, evaluation, fit, graphcut, io, materials, rendering, stability, synth, web
 from .. import dask as bd
 from .. import directions as dirs
 from .. import tiles as wang
@@ -258,14 +260,7 @@ def viewer_bench(size: int = 64, repeat: int = 3, figures: Optional[str] = None)
     completion in the page and the draw in native; and the time from navigation to the first
     frame for the PTM's folder served from localhost. With ``figures``, a screenshot of the
     page (``viewer_knit.png``)."""
-    import functools
-    import http.server
-    import tempfile
-    import threading
-
     from playwright.sync_api import sync_playwright
-
-    from .. import web
 
     class Quiet(http.server.SimpleHTTPRequestHandler):
         def log_message(self, format: str, *args: Any) -> None:
@@ -319,8 +314,6 @@ def viewer_bench(size: int = 64, repeat: int = 3, figures: Optional[str] = None)
 
 
 def _chromium_version() -> str:
-    import subprocess
-
     try:
         out = subprocess.run(["/usr/bin/chromium", "--version"], capture_output=True, text=True, timeout=30).stdout
     except OSError:
