@@ -22,7 +22,13 @@ def btf():
 
 @pytest.fixture(scope="module")
 def report(btf):
-    return S.run(btf, seed=0, name="grooves 16")
+    # The suite's own settings, except the neural model's training: 500 steps instead of the
+    # 1000 its default gives this sample. Its 39 fits were more than half the suite's time, and
+    # the regimes' behaviour is under test here, not the model's best error (with 500 steps it
+    # still beats LPCA at 10% of the pairs: 0.346 against 0.443).
+    models = [(label, kind, dict(opts, steps=500) if kind == "neural" else opts)
+              for label, kind, opts in S.default_models()]
+    return S.run(btf, models=models, seed=0, name="grooves 16")
 
 
 def rows(report, regime, model=None):
