@@ -92,12 +92,13 @@ def save_web(model, path, **kw):
 
 
 def reference(model, camera: dict, light, intensity=1.0, scene="plane", size=SIZE, exposure=1.0,
-              renderer=None) -> np.ndarray:
-    """The CPU reference of what the viewer should show, 8-bit RGB."""
+              renderer=None, **surface) -> np.ndarray:
+    """The CPU reference of what the viewer should show, 8-bit RGB (``surface``: coords=,
+    tiles= and layout=, uv_scale= as btfrs.render takes them)."""
     make, args = btfrs.web.SCENES[scene]
     cam = btfrs.Camera.look_at(camera["eye"], camera["target"], camera["fov"], up=camera["up"])
     img = btfrs.render(model, getattr(btfrs.Scene, make)(*args), cam, [btfrs.DirectionalLight(light, intensity)],
-                       size=(size, size), backend="cpu", renderer=renderer)
+                       size=(size, size), backend="cpu", renderer=renderer, **surface)
     return display(img, exposure)
 
 
@@ -148,6 +149,12 @@ class Page:
 
     def close(self) -> None:
         self.page.close()
+
+    def __enter__(self) -> "Page":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 # --- fixtures -------------------------------------------------------------------------------
@@ -218,8 +225,7 @@ def _camera() -> dict:
 # lpca_3d: LPCA's "3d" renderer, the one with the 3D texture.
 @pytest.mark.parametrize("kind", KINDS + ["lpca_3d"])
 def test_every_kind_matches_the_cpu_reference(kind, browser, served, models, pngs):
-    page = Page(browser)
-    try:
+    with Page(browser) as page:
         page.open(f"{served.url}/{kind}/index.html")
         light = [0.3, -0.4, 0.87]
         page.page.evaluate("(s) => window.btfrsViewer.set(s)", {"light": light, "size": [SIZE, SIZE]})
@@ -235,15 +241,67 @@ def test_every_kind_matches_the_cpu_reference(kind, browser, served, models, png
         assert got.max() > 20, "the frame is black"
         assert value >= MIN_PSNR, f"{kind}: PSNR {value:.2f} dB against the CPU reference"
         assert page.errors == []
+
+
+def _surface_frame(browser, url: str, light) -> tuple:
+    with Page(browser) as page:
+        page.open(url)
+        page.page.evaluate("(s) => window.btfrsViewer.set(s)", {"light": light, "size": [SIZE, SIZE]})
+        got = frame(page.page)
+        facts = page.page.locator("#facts").inner_text()
+        assert page.errors == []
+    return got, facts
+
+
+def test_a_synthesized_coordinate_map_is_drawn_as_the_cpu_reference_draws_it(browser, viewer_files, models,
+                                                                           tmp_path, pngs):
+    # A coordinate map ([H, W, 2] uint16 (x, y) into the sample) of a size other than the
+    # sample's, made as k-coherence makes them: patches of the sample, each copied from a
+    # random place; repeated 1.5 times across. (Nearest lookups: a texel edge that falls on a
+    # pixel centre may go either way in f32, so the map's texels span several pixels.)
+    rng = np.random.default_rng(11)
+    yy, xx = np.mgrid[0:18, 0:26]
+    patch = (yy // 6) * 5 + xx // 6
+    offset = rng.integers(0, 16, (patch.max() + 1, 2))
+    coords = np.stack([(xx + offset[patch, 0]) % 16, (yy + offset[patch, 1]) % 16], axis=-1).astype(np.uint16)
+    model = models["hsh"]
+    save_web(model, tmp_path / "c", coords=coords, uv_scale=(1.5, 1.0))
+    server = Server(tmp_path)
+    try:
+        light = [0.25, -0.35, 0.9]
+        got, facts = _surface_frame(browser, f"{server.url}/c/index.html", light)
     finally:
-        page.close()
+        server.close()
+    want = reference(model, _camera(), light, coords=coords, uv_scale=(1.5, 1.0))
+    plain = reference(model, _camera(), light, uv_scale=(1.5, 1.0))
+    write_png(pngs / "coords.viewer.png", got)
+    write_png(pngs / "coords.cpu.png", want)
+    assert "synthesized texture of 26 x 18 texels" in facts
+    assert psnr(got, want) >= MIN_PSNR, psnr(got, want)
+    assert psnr(got, plain) < psnr(got, want) - 6, "the map made no difference"
+
+
+def test_a_wang_tiling_is_drawn_as_the_cpu_reference_draws_it(browser, viewer_files, tmp_path, pngs):
+    # A tile set of the PTM of a 32^2 sample, drawn through its BTFel model with a 4 x 3 layout.
+    ptm = btfrs.fit.ptm(btfrs.materials.make("bumps", size=32, seed=2))
+    ts = btfrs.tiles.wang(ptm, tile=16, edge_height=4, colors=2, seed=3, progress=False)
+    layout = ts.tiling(4, 3, seed=4)
+    save_web(ts.model, tmp_path / "t.html", single_file=True, tiles=ts, layout=layout)
+    light = [-0.3, 0.2, 0.93]
+    got, facts = _surface_frame(browser, (tmp_path / "t.html").as_uri(), light)
+    want = reference(ts.model, _camera(), light, tiles=ts, layout=layout)
+    other = reference(ts.model, _camera(), light, tiles=ts, layout=ts.tiling(4, 3, seed=5))
+    write_png(pngs / "tiles.viewer.png", got)
+    write_png(pngs / "tiles.cpu.png", want)
+    assert "Wang tiling of 4 x 3 tiles of 16^2" in facts
+    assert psnr(got, want) >= MIN_PSNR, psnr(got, want)
+    assert psnr(got, other) < psnr(got, want) - 6, "another layout looks the same"
 
 
 def test_the_sky_lights_the_model_as_the_sampled_environment_does(browser, served, models, pngs):
     # The "Sky light" switch: the built-in sky's importance-sampled lights plus the disc's light,
     # what btfrs.render(environment=sky, lighting="sampled", samples=64, seed=0) draws.
-    page = Page(browser)
-    try:
+    with Page(browser) as page:
         page.open(f"{served.url}/hsh/index.html")
         light = [0.2, 0.3, 0.93]
         page.page.click("#sky")
@@ -264,13 +322,10 @@ def test_the_sky_lights_the_model_as_the_sampled_environment_does(browser, serve
         # and it is not the disc's light alone
         assert psnr(got, reference(models["hsh"], cam, light)) < value - 3
         assert page.errors == []
-    finally:
-        page.close()
 
 
 def test_light_disc_drag_moves_the_light(browser, served, models, pngs):
-    page = Page(browser)
-    try:
+    with Page(browser) as page:
         page.open(f"{served.url}/ptm/index.html")
         page.page.evaluate("(s) => window.btfrsViewer.set(s)", {"size": [SIZE, SIZE]})
         before = frame(page.page)
@@ -294,15 +349,12 @@ def test_light_disc_drag_moves_the_light(browser, served, models, pngs):
         assert psnr(after, want) >= MIN_PSNR, psnr(after, want)
         assert psnr(after, before) < 30, "the frame did not change"
         assert page.errors == []
-    finally:
-        page.close()
 
 
 def test_single_file_export_opens_from_disk(browser, viewer_files, models, tmp_path, pngs):
     path = tmp_path / "x.html"
     save_web(models["hsh"], path, single_file=True)
-    page = Page(browser)
-    try:
+    with Page(browser) as page:
         page.open(path.as_uri())
         light = [-0.2, 0.5, 0.84]
         page.page.evaluate("(s) => window.btfrsViewer.set(s)", {"light": light, "size": [SIZE, SIZE]})
@@ -311,13 +363,10 @@ def test_single_file_export_opens_from_disk(browser, viewer_files, models, tmp_p
         write_png(pngs / "single.viewer.png", got)
         assert psnr(got, want) >= MIN_PSNR, psnr(got, want)
         assert page.errors == []
-    finally:
-        page.close()
 
 
 def test_scenes_and_exposure(browser, served, models, pngs):
-    page = Page(browser)
-    try:
+    with Page(browser) as page:
         page.open(f"{served.url}/lafortune/index.html")
         light = [0.5, 0.2, 0.84]
         for scene in ("sphere", "cylinder"):
@@ -329,13 +378,10 @@ def test_scenes_and_exposure(browser, served, models, pngs):
             write_png(pngs / f"{scene}.viewer.png", got)
             assert psnr(got, want) >= MIN_PSNR, (scene, psnr(got, want))
         assert page.errors == []
-    finally:
-        page.close()
 
 
 def test_drags_on_the_image_orbit_pan_zoom_and_move_the_light(browser, served, models):
-    page = Page(browser)
-    try:
+    with Page(browser) as page:
         # A model of many views orbits: the eye moves around the target at the same distance.
         page.open(f"{served.url}/ptm/index.html")
         pg = page.page
@@ -373,10 +419,7 @@ def test_drags_on_the_image_orbit_pan_zoom_and_move_the_light(browser, served, m
         assert moved["camera"] == zoomed
         assert moved["light"] == pytest.approx([-0.5, 0.0, np.sqrt(0.75)], abs=0.03)
         assert page.errors == []
-    finally:
-        page.close()
-    page = Page(browser)
-    try:
+    with Page(browser) as page:
         # A single-view model pans: eye and target move together.
         page.open(f"{served.url}/neural/index.html")
         pg = page.page
@@ -394,8 +437,6 @@ def test_drags_on_the_image_orbit_pan_zoom_and_move_the_light(browser, served, m
         assert np.linalg.norm(shift) > 0.01
         assert np.allclose(np.subtract(cam["eye"], before["eye"]), shift, atol=1e-5)
         assert page.errors == []
-    finally:
-        page.close()
 
 
 def _export_with_manifest(src: Path, dst: Path, change) -> None:
@@ -421,16 +462,13 @@ def test_an_unknown_format_version_or_kind_is_said_in_the_page(browser, served, 
     for name, (change, _) in cases.items():
         _export_with_manifest(served.root / "srf", tmp_path / name, change)
     server = Server(tmp_path)
-    page = Page(browser)
-    try:
+    with Page(browser) as page:
         for name, (_, text) in cases.items():
             page.page.goto(f"{server.url}/{name}/index.html")
             page.page.wait_for_function("window.btfrsViewer && window.btfrsViewer.error", timeout=30000)
             assert text in page.page.evaluate("window.btfrsViewer.error")
             assert text in page.page.locator("#message").inner_text()
         assert page.errors == []
-    finally:
-        page.close()
         server.close()
 
 
@@ -439,8 +477,7 @@ def test_an_unknown_format_version_or_kind_is_said_in_the_page(browser, served, 
     ("Object.defineProperty(GPU.prototype, 'requestAdapter', {value: async () => null});", "no GPU adapter"),
 ])
 def test_without_webgpu_the_page_says_so(browser, served, how, text):
-    page = Page(browser)
-    try:
+    with Page(browser) as page:
         page.page.add_init_script(how)
         page.page.goto(f"{served.url}/ptm/index.html")
         page.page.wait_for_function("window.btfrsViewer && window.btfrsViewer.error", timeout=30000)
@@ -448,8 +485,6 @@ def test_without_webgpu_the_page_says_so(browser, served, how, text):
         assert page.page.locator("#message").is_visible()
         assert text in page.page.locator("#message").inner_text()
         assert page.errors == []
-    finally:
-        page.close()
 
 
 def test_a_canvas_that_cannot_be_presented_falls_back_to_read_back(browser, served, models):

@@ -60,6 +60,16 @@ def test_the_bundle_is_what_the_native_renderer_uploads(hsh, tmp_path):
     assert all(json.dumps(k) in kinds for k in btfrs.model_kinds())
 
 
+def test_the_model_method_writes_the_same_viewer(hsh, tmp_path):
+    model, _ = hsh
+    page = model.save_web(tmp_path / "m", uv_scale=3)
+    assert page == str(tmp_path / "m" / "index.html")
+    btfrs.web.save_web(model, tmp_path / "w", uv_scale=3)
+    for name in ("manifest.json", "store.bin", "shader.wgsl"):
+        assert (tmp_path / "m" / "model" / name).read_bytes() == (tmp_path / "w" / "model" / name).read_bytes()
+    assert json.loads((tmp_path / "m" / "model" / "manifest.json").read_text())["uv_scale"] == [3.0, 3.0]
+
+
 def test_an_existing_target_is_refused_unless_forced(hsh, tmp_path):
     model, path = hsh
     out = tmp_path / "site"
@@ -106,3 +116,38 @@ def test_btfrs_view_of_something_that_is_not_a_model_fails_with_a_message(tmp_pa
     r = subprocess.run([sys.executable, "-m", "btfrs.cli", "view", str(tmp_path / "x.foo"), "--no-browser"],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "unknown file type" in r.stderr
+
+
+def test_a_coordinate_map_or_a_tile_set_goes_into_the_manifest_with_its_globals(hsh, tmp_path, capsys):
+    model, path = hsh
+    # A coordinate map: its words are the map's (x | y << 16), row-major; map_size is (W, H).
+    rng = np.random.default_rng(2)
+    coords = rng.integers(0, 8, (5, 7, 2)).astype(np.uint16)
+    np.save(tmp_path / "c.npy", coords)
+    assert main(["export", str(path), "--web", str(tmp_path / "c"), "--coords", str(tmp_path / "c.npy"),
+                 "--uv-scale", "2"]) == 0
+    man = json.loads((tmp_path / "c" / "model" / "manifest.json").read_text())
+    assert man["map"]["kind"] == "coords" and man["map"]["map_size"] == [7, 5] and man["uv_scale"] == [2.0, 2.0]
+    words = np.fromfile(tmp_path / "c" / "model" / man["map"]["file"], dtype="<u4")
+    want = coords[..., 0].astype(np.uint32) | coords[..., 1].astype(np.uint32) << 16
+    assert np.array_equal(words, want.ravel())
+    # A tile set of the model's texels: the layout's cells then the atlas; tiles = (side,
+    # columns, rows, atlas width in texels), tile_atlas = (where the atlas starts, ...).
+    ts = btfrs.tiles.wang(model, tile=4, edge_height=2, colors=2, seed=1, progress=False)
+    ts.save(tmp_path / "t.btfrs")
+    assert main(["export", str(tmp_path / "t.btfrs"), "--web", str(tmp_path / "t"), "--layout", "3", "5"]) == 0
+    man = json.loads((tmp_path / "t" / "model" / "manifest.json").read_text())
+    assert man["map"]["kind"] == "tiles" and man["map"]["tiles"] == [4, 5, 3, 16] and man["map"]["tile_atlas"][0] == 15
+    words = np.fromfile(tmp_path / "t" / "model" / man["map"]["file"], dtype="<u4")
+    pos = ts.atlas_positions()[ts.tiling(3, 5, seed=0)]
+    assert np.array_equal(words[:15], (pos[..., 0] << 16 | pos[..., 1]).ravel())
+    assert np.array_equal(words[15:], ts.atlas.ravel()) and man["model"]["width"] == len(ts.btfels)
+    # Refusals: a map pointing outside the sample, a tile set with a coordinate map.
+    bad = coords.copy()
+    bad[4, 6] = (8, 0)
+    with pytest.raises(InvalidArgumentError, match=r"coords: entry \(8, 0\) at map row 4, column 6"):
+        btfrs.web.save_web(model, tmp_path / "bad", coords=bad)
+    assert not (tmp_path / "bad").exists()
+    assert main(["export", str(tmp_path / "t.btfrs"), "--web", str(tmp_path / "t2"), "--coords",
+                 str(tmp_path / "c.npy")]) == 2
+    assert "--coords: a tile set draws its own tiling" in capsys.readouterr().err

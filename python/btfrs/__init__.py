@@ -17,7 +17,8 @@ import sys
 import tempfile
 import types
 
-from . import directions, evaluation, exceptions, fit, graphcut, hemimap, io, materials, stability, synth, tiles, web
+from . import (directions, evaluation, exceptions, fit, graphcut, hemimap, io, materials, photometric, stability, synth,
+               tiles, web)
 from ._native import __version__
 from .btf import Btf, ExpandedBtf
 from .exceptions import (
@@ -34,6 +35,7 @@ from .exceptions import (
 )
 from .models import Bilinear, ErrorReport, Hsh, Lafortune, LafortuneView, Lpca, Model, Neural, Ptm, Rbf, Sh, Srf, model_kinds
 from .io import load
+from .photometric import NormalMaps, height, normals
 from .evaluation import EvaluationReport, evaluate
 from .environment import Environment
 from .rendering import Camera, DirectionalLight, PointLight, Scene, gpu_info, last_timings, render
@@ -114,6 +116,10 @@ __all__ = [
     "hemimap",
     "io",
     "materials",
+    "photometric",
+    "normals",
+    "height",
+    "NormalMaps",
     "stability",
     "synth",
     "BtfrsError",

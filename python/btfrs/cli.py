@@ -20,7 +20,7 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 import numpy as np
 from numpy.typing import ArrayLike
 
-from . import __version__, _native, io, materials, rendering, stability, synth, tiles, web
+from . import __version__, _native, io, materials, photometric, rendering, stability, synth, tiles, web
 from . import fit as fit_mod
 from . import fit as fitting
 from .btf import Btf
@@ -118,7 +118,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             commands = {"synth": synth_command, "evaluate": evaluate_command, "choose": choose_command,
                         "stability": stability_command, "tiles": tiles_command, "info": info_command,
                         "fit": fit_command, "export": export_command, "render": render_command,
-                        "view": view_command}
+                        "view": view_command, "normals": normals_command}
             commands[args.command](args)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
@@ -410,10 +410,25 @@ def _data_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -
     x.add_argument("--model", default=_kinds()[0], choices=_kinds(), metavar="MODEL",
                    help=f"with --web on a BTF or capture: the model fitted first (default: {_kinds()[0]})")
     x.add_argument("--force", action="store_true", help="with --web: replace an existing folder or file")
-    w = sub.add_parser("view", help="look at a model, BTF or capture in the browser (WebGPU, served on localhost)")
+    _surface_args(x, "with --web: ")
+    nm = sub.add_parser("normals", help="photometric stereo on one view slot: normals, albedo and height maps "
+                                        "(EXR and 16-bit PNG)")
+    _sample_args(nm)
+    nm.add_argument("--view", type=int, default=0, help="the view slot (default: 0)")
+    nm.add_argument("--method", choices=["robust", "l2"], default="robust",
+                    help="robust: shadows and highlights down-weighted (IRLS); l2: least squares over every "
+                         "light (default: robust)")
+    nm.add_argument("--height", choices=["fft", "mirror", "none"], default="fft",
+                    help="integrate the normals into a height: fft for a sample that tiles, mirror for a capture "
+                         "that does not, none to skip (default: fft)")
+    nm.add_argument("--out", default="normals", help="output folder (default: normals)")
+    nm.add_argument("--force", action="store_true", help="write into an existing folder")
+    w = sub.add_parser("view", help="look at a model, BTF, capture or tile set in the browser (WebGPU, served on "
+                                    "localhost)")
     _sample_args(w)
     w.add_argument("--model", default=_kinds()[0], choices=_kinds(), metavar="MODEL",
                    help=f"for a BTF or capture: the model fitted first (default: {_kinds()[0]}, the first registered)")
+    _surface_args(w, "")
     w.add_argument("--port", type=int, default=8000, help="localhost port (default: 8000; another if it is in use)")
     w.add_argument("--no-browser", action="store_true", help="print the address instead of opening a browser")
     r = sub.add_parser("render", help="render a model, BTF or capture on a plane, sphere or cylinder")
@@ -617,9 +632,9 @@ def export_command(args: argparse.Namespace) -> None:
             raise InvalidArgumentError(f"--stack: {args.path} holds a {type(obj).__name__}, not a BTF")
         print(f"wrote {io.save_stack(obj, args.stack, format=args.format)}")
     if args.web:
-        model = _viewable(obj, args)
+        model, surface = _viewable(obj, args)
         page = web.save_web(model, args.web, single_file=args.single_file, force=args.force,
-                            name=os.path.basename(os.path.normpath(args.path or "")) or model.kind)
+                            name=os.path.basename(os.path.normpath(args.path or "")) or model.kind, **surface)
         print(f"wrote {page}" + ("" if args.single_file else " (serve the folder over HTTP, e.g. "
                                  f"python -m http.server -d {args.web}, and open it)"))
     if args.exr or any(path for _, path in formats):
@@ -638,16 +653,73 @@ def export_command(args: argparse.Namespace) -> None:
         print(f"wrote {args.exr}: {len(names)} channels ({names[0]} ... {names[-1]})")
 
 
-def _viewable(obj: Any, args: argparse.Namespace) -> Model:
-    """A model for the viewer: the model itself, or a quick ``--model`` fit of a BTF."""
+def _surface_args(p: argparse.ArgumentParser, prefix: str) -> None:
+    """What the viewer's surface shows besides the sample: a synthesized coordinate map, the
+    layout of a tile set, the repetitions."""
+    p.add_argument("--coords", metavar="FILE.npy",
+                   help=prefix + "draw a synthesized texture: a [H, W, 2] uint16 coordinate map into the sample "
+                   "(btfrs synth writes coords.npy)")
+    p.add_argument("--layout", type=int, nargs=2, default=[8, 8], metavar=("ROWS", "COLS"),
+                   help=prefix + "for a tile set (btfrs tiles writes tiles.btfrs): the Wang tiling's size "
+                   "(default: 8 8)")
+    p.add_argument("--layout-seed", type=int, default=0, help=prefix + "the tiling's seed (default: 0)")
+    p.add_argument("--uv-scale", type=float, default=1.0,
+                   help=prefix + "repetitions of the texture across the surface (default: 1)")
+
+
+def _viewable(obj: Any, args: argparse.Namespace) -> Tuple[Model, Dict[str, Any]]:
+    """A model for the viewer and what its surface shows (``btfrs.web.save_web``'s keywords):
+    the model itself, a quick ``--model`` fit of a BTF, or a tile set's model with a tiling."""
+    surface: Dict[str, Any] = {"uv_scale": args.uv_scale}
+    if args.coords:
+        if isinstance(obj, tiles.TileSet):
+            raise InvalidArgumentError("--coords: a tile set draws its own tiling (--layout), not a coordinate map")
+        surface["coords"] = io.load_array(args.coords)
+    if isinstance(obj, tiles.TileSet):
+        if obj.model is None:
+            raise InvalidArgumentError(f"path: {args.path} is a tile set of an image or a raw BTF; the viewer draws "
+                                       "tile sets made in a model's domain (btfrs tiles --model KIND)")
+        rows, cols = args.layout
+        surface.update(tiles=obj, layout=obj.tiling(rows, cols, seed=args.layout_seed))
+        return obj.model, surface
     if isinstance(obj, Model):
-        return obj
+        return obj, surface
     if isinstance(obj, Btf):
         if not args.quiet:
             print(f"fitting a {args.model} model for the viewer (--model to choose another) ...", flush=True)
-        return fit_mod.fit(args.model, obj)
+        return fit_mod.fit(args.model, obj), surface
     raise InvalidArgumentError(f"path: {args.path} holds a {type(obj).__name__}; the viewer shows fitted models, "
-                               f"BTFs and captures")
+                               f"BTFs, captures and tile sets")
+
+
+def normals_command(args: argparse.Namespace) -> None:
+    """``btfrs normals``: photometric stereo, its maps and the integrated height; for a built-in
+    material, the angular error against its true normals."""
+    _check_output("--out", args.out, args, folder=True)
+    if os.path.exists(args.out) and os.listdir(args.out) and not args.force:
+        raise InvalidArgumentError(f"--out: {args.out} exists and is not empty; pass --force to write into it")
+    btf, name = _load_btf(args, not args.quiet)
+    maps = photometric.normals(btf, args.view, method=args.method, progress=not args.quiet)
+    written = list(maps.save(args.out).values())
+    line = (f"{args.method} photometric stereo of {name}, view slot {args.view} ({btf.n_lights} lights): "
+            f"{btf.height} x {btf.width} normals")
+    if maps.dark_texels:
+        line += f", {maps.dark_texels} texels black under every light (normal (0, 0, 1))"
+    if args.height != "none":
+        z = photometric.height(maps, method=args.height)
+        for ext in (".exr", ".png"):
+            path = os.path.join(args.out, "height" + ext)
+            step = photometric.save_height(path, z)
+            written.append(path)
+        line += f"; height ({args.height}) from {float(z.min()):.3g} to {float(z.max()):.3g} texels (PNG step {step:.3g})"
+    print(line)
+    if not args.path and args.material:
+        # A built-in material: its true surface is known.
+        truth = materials.heightfield(args.material, size=args.size, seed=args.material_seed)
+        err = maps.angular_error(truth.normals)
+        print(f"against the true normals of {args.material}: mean {err.mean():.2f} degrees, "
+              f"median {np.median(err):.2f}, 95th percentile {np.percentile(err, 95):.2f}")
+    print("wrote " + ", ".join(written))
 
 
 def view_command(args: argparse.Namespace) -> None:
@@ -656,10 +728,10 @@ def view_command(args: argparse.Namespace) -> None:
     if not 0 <= args.port <= 65535:
         raise InvalidArgumentError(f"--port: expected 0 to 65535, got {args.port}")
     obj, name = _load_sample(args, not args.quiet)
-    model = _viewable(obj, args)
+    model, surface = _viewable(obj, args)
     with tempfile.TemporaryDirectory(prefix="btfrs-view-") as tmp:
         folder = os.path.join(tmp, "site")
-        web.save_web(model, folder, name=name)
+        web.save_web(model, folder, name=name, **surface)
 
         class Handler(http.server.SimpleHTTPRequestHandler):
             def __init__(self, *a: Any, **k: Any) -> None:

@@ -118,6 +118,19 @@ def save_array(path: PathLike, array: ArrayLike) -> None:
         np.save(f, a, allow_pickle=False)
 
 
+def load_array(path: PathLike) -> NDArray[Any]:
+    """A ``.npy`` file written by :func:`save_array` (or ``numpy.save``), read without pickles:
+    a file that is not one raises :class:`FormatError` naming it."""
+    p = os.fspath(path)
+    try:
+        a = np.load(p, allow_pickle=False)
+    except (ValueError, EOFError) as e:
+        raise FormatError(f"{p}: not a .npy array ({e})") from None
+    if not isinstance(a, np.ndarray):
+        raise FormatError(f"{p}: a .npz archive, not one .npy array")
+    return a
+
+
 def save_text(path: PathLike, text: str) -> None:
     """Write ``text`` (UTF-8) to ``path``, atomically."""
     with atomic_write(path, "w") as f:

@@ -19,7 +19,7 @@ synthesis is for, and what :func:`btfrs.synth.quality` must see.
 from __future__ import annotations
 
 import os
-from typing import Any, Dict, Optional, Sequence, Union
+from typing import Any, Dict, NamedTuple, Optional, Sequence, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -32,7 +32,7 @@ from .btf import Btf
 from .directions import ubo81
 from .exceptions import ArgumentTypeError
 
-__all__ = ["make", "names", "texture", "texture_names"]
+__all__ = ["Heightfield", "heightfield", "make", "names", "texture", "texture_names"]
 
 
 def names() -> list[str]:
@@ -78,6 +78,30 @@ def make(name: str = "knit", *, size: int = 64, seed: int = 0, views: Optional[A
     data = _native.make_material(name, size, v, l, seed, relief, subsurface, None,
                                  callback(progress, f"material {name}"))
     return Btf(data, v, l, check=False, meta=_meta(name, size, seed, relief, subsurface))
+
+
+class Heightfield(NamedTuple):
+    """A built-in material's surface (see :func:`heightfield`), row 0 at the top of the image."""
+
+    #: ``[size, size]`` float32 heights, in texel widths.
+    height: NDArray[np.float32]
+    #: ``[size, size, 3]`` float32 unit normals (x right, y up the image, z out of the surface).
+    normals: NDArray[np.float32]
+    #: ``[size, size, 3]`` float32 diffuse albedo.
+    albedo: NDArray[np.float32]
+
+
+def heightfield(name: str = "knit", *, size: int = 64, seed: int = 0, relief: float = 1.0) -> Heightfield:
+    """The true surface of the material :func:`make` generates with the same ``name``, ``size``,
+    ``seed`` and ``relief``: the heights, the normals its shading uses at texel centres (central
+    differences of the periodic heights) and the diffuse albedo. The ground truth for
+    :func:`btfrs.normals` and :func:`btfrs.height`."""
+    if not isinstance(name, str):
+        raise ArgumentTypeError(f"name: expected a material name (one of {', '.join(names())}), got {type(name).__name__}")
+    size = integer("size", size, min=8, max=1024)
+    seed = check_seed(seed)
+    relief = real("relief", relief, min=0.0, max=4.0)
+    return Heightfield(*_native.material_heightfield(name, size, seed, relief))
 
 
 def _meta(name: str, size: int, seed: int, relief: float, subsurface: float) -> Dict[str, Any]:

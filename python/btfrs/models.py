@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from . import _native
 from .btf import Btf, read_container
 from ._checks import choice, index, instance
-from .exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
+from .exceptions import ArgumentTypeError, FormatError, InternalError, InvalidArgumentError
 
 __all__ = ["ErrorReport", "Model", "Ptm", "Hsh", "Lafortune", "LafortuneView", "Srf", "Sh", "Lpca", "Rbf", "Bilinear", "Neural", "load",
            "model_kinds", "class_of", "wrap"]
@@ -172,6 +172,15 @@ class Model:
     def load(cls, path: PathLike) -> "Model":
         """Read a model written by :meth:`save`."""
         return load_as(path, cls)
+
+    def save_web(self, folder: PathLike, **options: Any) -> str:
+        """Write the browser viewer with this model to ``folder``: :func:`btfrs.web.save_web`
+        (``single_file=True`` for one HTML file, ``force``, ``coords``, ``tiles`` and ``layout``,
+        ``uv_scale``). Returns the page's path."""
+        if _WEB_WRITER is None:
+            raise InternalError("the browser viewer's writer is not registered (import btfrs.web)")
+        page: str = _WEB_WRITER(self, folder, **options)
+        return page
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.height} x {self.width} texels, {self.nbytes / 2**20:.2f} MiB)"
@@ -604,6 +613,17 @@ def load(path: PathLike) -> Any:
 #: filled in by the modules that define them (synthesis analyses, tile sets), so this layer needs
 #: not import them.
 _CONTAINERS: Dict[str, Callable[[PathLike, Dict[str, Any], Dict[str, NDArray[Any]]], Any]] = {}
+
+
+#: What :meth:`Model.save_web` calls: :func:`btfrs.web.save_web`, registered by that module
+#: (a higher layer, which this one cannot import).
+_WEB_WRITER: Optional[Callable[..., str]] = None
+
+
+def register_web_writer(writer: Callable[..., str]) -> None:
+    """Make :meth:`Model.save_web` write with ``writer(model, folder, **options)``."""
+    global _WEB_WRITER
+    _WEB_WRITER = writer
 
 
 def register_container(kind: str, reader: Any) -> None:

@@ -222,6 +222,33 @@ def _uv_scale(uv_scale: ArrayLike) -> List[float]:
             real("uv_scale[1]", pair[1], min=0.0, min_open=True)]
 
 
+def _surface(model: Union[Model, Btf], coords: Any, tiles: Any, layout: Any,
+             tile_map: Optional["TileMap"]) -> Tuple[Optional[NDArray[np.uint16]], Optional[_NativeTileMap]]:
+    """What the surface shows, as the native renderer takes it: ``(coords, tile map)``, at most
+    one of them, from a coordinate map, a Wang tile set with its layout, or a tile map."""
+    if coords is not None:
+        c = np.asarray(coords)
+        if c.dtype != np.uint16:
+            raise ArgumentTypeError(f"coords: expected a uint16 array [H, W, 2], got dtype {c.dtype}")
+        coords = np.ascontiguousarray(c)
+    if tiles is not None or layout is not None:
+        if tiles is None or layout is None:
+            raise InvalidArgumentError("tiles: give both tiles= (a tile set) and layout= (its tile ids)")
+        if tile_map is not None:
+            raise InvalidArgumentError("tile_map: give tiles= and layout=, or tile_map=, not both")
+        # A TileSet (btfrs.tiles sits above this module: known by what it does).
+        if not callable(getattr(tiles, "tile_map", None)):
+            raise ArgumentTypeError(f"tiles: expected a btfrs.tiles.TileSet, got {type(tiles).__name__}")
+        tile_map = tiles.tile_map(model, layout)
+    tm = None
+    if tile_map is not None:
+        instance("tile_map", tile_map, TileMap, "a btfrs.rendering.TileMap")
+        if coords is not None:
+            raise InvalidArgumentError("tiles: give a coordinate map or a tile map, not both")
+        tm = tile_map._native()
+    return coords, tm
+
+
 @dataclass(frozen=True)
 class TileMap:
     """A tile map for :func:`render`: ``atlas`` uint32 ``[AH, AW]`` (AH, AW multiples of
@@ -344,27 +371,8 @@ def render(model: Union[Model, Btf], scene: Scene, camera: Camera, lights: Any =
     # 16384 is the CPU renderer's limit and wgpu's usual one; a device with a lower one says so.
     h, w = size_hw("size", size, max=16384)
     uvs = _uv_scale(uv_scale)
-    if coords is not None:
-        c = np.asarray(coords)
-        if c.dtype != np.uint16:
-            raise ArgumentTypeError(f"coords: expected a uint16 array [H, W, 2], got dtype {c.dtype}")
-        coords = np.ascontiguousarray(c)
     instance("model", model, (Model, Btf), "a btfrs model or Btf")
-    if tiles is not None or layout is not None:
-        if tiles is None or layout is None:
-            raise InvalidArgumentError("tiles: give both tiles= (a tile set) and layout= (its tile ids)")
-        if tile_map is not None:
-            raise InvalidArgumentError("tile_map: give tiles= and layout=, or tile_map=, not both")
-        # A TileSet (btfrs.tiles sits above this module: known by what it does).
-        if not callable(getattr(tiles, "tile_map", None)):
-            raise ArgumentTypeError(f"tiles: expected a btfrs.tiles.TileSet, got {type(tiles).__name__}")
-        tile_map = tiles.tile_map(model, layout)
-    tm = None
-    if tile_map is not None:
-        instance("tile_map", tile_map, TileMap, "a btfrs.rendering.TileMap")
-        if coords is not None:
-            raise InvalidArgumentError("tiles: give a coordinate map or a tile map, not both")
-        tm = tile_map._native()
+    coords, tm = _surface(model, coords, tiles, layout, tile_map)
     meth = _method(model, method)
     backend = choice("backend", backend, ("gpu", "cpu"))
     filt = choice("filter", filter, ("nearest", "bilinear", "trilinear"))

@@ -9,7 +9,8 @@ directions and their candidate tables, the optional 3D texture), with the scenes
 layout the page must agree on with the shader (uniform fields, bindings, vertex attributes) is
 in the manifest, generated from the Rust structs.
 
-:func:`save_web` writes it; ``btfrs export FILE --web OUT`` and ``btfrs view FILE`` use it.
+:func:`save_web` writes it (``model.save_web(folder)`` is the same); ``btfrs export FILE --web OUT``
+and ``btfrs view FILE`` use it.
 """
 from __future__ import annotations
 
@@ -18,16 +19,17 @@ import json
 import os
 import shutil
 import tempfile
-from typing import Any, Dict, Optional, Tuple, Union
+from typing import Any, Dict, Optional, Tuple
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import _native
 from ._checks import PathLike
 from .environment import Environment
 from .exceptions import InvalidArgumentError
-from .models import Model
-from .rendering import Scene
+from .models import Model, register_web_writer
+from .rendering import Scene, TileMap, _surface as _rendering_surface, _uv_scale
 
 #: The viewer's own files, shipped in the package.
 VIEWER_DIR = os.path.join(os.path.dirname(__file__), "viewer")
@@ -51,12 +53,17 @@ def _scene_buffers(name: str) -> Tuple[bytes, np.ndarray]:
     return bytes(vertices), np.ascontiguousarray(indices, dtype="<u4")
 
 
-def bundle(model: Model, *, renderer: Optional[str] = None, name: Optional[str] = None) -> Dict[str, Any]:
+def bundle(model: Model, *, renderer: Optional[str] = None, name: Optional[str] = None,
+           coords: Optional[ArrayLike] = None, tiles: Any = None, layout: Optional[ArrayLike] = None,
+           tile_map: Optional[TileMap] = None, uv_scale: Any = 1.0) -> Dict[str, Any]:
     """The manifest and the binary files of ``model`` for the viewer: ``(manifest, {file name:
-    bytes})`` as one dict ``{"manifest": ..., "files": ...}``."""
+    bytes})`` as one dict ``{"manifest": ..., "files": ...}``. ``coords``, ``tiles`` with
+    ``layout``, ``tile_map`` and ``uv_scale`` as for :func:`btfrs.render`."""
     if not isinstance(model, Model):
         raise InvalidArgumentError(f"model: expected a fitted btfrs model, got {type(model).__name__}")
     method = renderer or "default"
+    uvs = list(_uv_scale(uv_scale))
+    surface = _surface(model, coords, tiles, layout, tile_map)
     w = _native.web_model(model._m, method)
     files: Dict[str, bytes] = {
         "shader.wgsl": w["shader"].encode(),
@@ -70,6 +77,10 @@ def bundle(model: Model, *, renderer: Optional[str] = None, name: Optional[str] 
         size, texels = w["volume"]
         files["volume.bin"] = bytes(texels)
         volume = {"file": "volume.bin", "size": list(size), "format": "rgba8unorm"}
+    if surface is not None:
+        files["map.bin"] = np.ascontiguousarray(surface["words"], dtype="<u4").tobytes()
+        surface = {"file": "map.bin", "kind": surface["kind"], "map_size": list(surface["map_size"]),
+                   "tiles": list(surface["tiles"]), "tile_atlas": list(surface["tile_atlas"])}
     scenes = {}
     for scene in SCENES:
         vertices, indices = _scene_buffers(scene)
@@ -87,6 +98,8 @@ def bundle(model: Model, *, renderer: Optional[str] = None, name: Optional[str] 
         "files": {"shader": "shader.wgsl", "params": "params.bin", "store": "store.bin", "dirs": "dirs.bin",
                   "tables": "tables.bin"},
         "volume": volume,
+        "map": surface,
+        "uv_scale": uvs,
         "chunk_len": int(w["chunk_len"]),
         "scenes": scenes,
         "camera": DEFAULT_CAMERA,
@@ -96,6 +109,17 @@ def bundle(model: Model, *, renderer: Optional[str] = None, name: Optional[str] 
         "display": "linear value x exposure, clamped to [0, 1], sRGB-encoded, 8 bits",
     }
     return {"manifest": manifest, "files": files}
+
+
+def _surface(model: Model, coords: Any, tiles: Any, layout: Any, tile_map: Optional[TileMap]) -> Optional[Dict[str, Any]]:
+    """The map buffer and ``Globals`` fields of the texture over the surface (as
+    :func:`btfrs.render` takes it); None for the sample itself."""
+    c, tm = _rendering_surface(model, coords, tiles, layout, tile_map)
+    if c is None and tm is None:
+        return None
+    out = _native.web_map(model._m, c, tm)
+    out["kind"] = "coords" if c is not None else "tiles"
+    return out
 
 
 def _sky() -> Dict[str, Any]:
@@ -153,16 +177,25 @@ def single_file_html(b: Dict[str, Any]) -> str:
 
 
 def save_web(model: Model, folder: PathLike, *, single_file: bool = False, force: bool = False,
-             renderer: Optional[str] = None, name: Optional[str] = None) -> str:
+             renderer: Optional[str] = None, name: Optional[str] = None, coords: Optional[ArrayLike] = None,
+             tiles: Any = None, layout: Optional[ArrayLike] = None, tile_map: Optional[TileMap] = None,
+             uv_scale: Any = 1.0) -> str:
     """Write the viewer with ``model`` to ``folder`` (static files any web server hosts: open
     ``index.html`` through it), or with ``single_file=True`` to one self-contained HTML file at
     ``folder`` that opens from disk. An existing target is refused unless ``force``. Written
     into a temporary sibling and renamed, so an error leaves nothing half-written. Returns the
-    page's path."""
+    page's path.
+
+    The surface shows the sample repeated ``uv_scale`` times, or a synthesized texture: a
+    coordinate map ``coords`` (``[H, W, 2]`` uint16 (x, y) into the sample, as
+    :func:`btfrs.synth.kcoherence` makes), or a Wang tile set ``tiles`` with its ``layout`` (the
+    model is then the set's BTFel model ``tiles.model`` or the model it was made from), or a
+    general ``tile_map``, exactly as :func:`btfrs.render` draws them."""
     out = os.fspath(folder)
     if os.path.exists(out) and not force:
         raise InvalidArgumentError(f"folder: {out} exists; pass force=True (--force) to replace it")
-    b = bundle(model, renderer=renderer, name=name)
+    b = bundle(model, renderer=renderer, name=name, coords=coords, tiles=tiles, layout=layout,
+               tile_map=tile_map, uv_scale=uv_scale)
     parent = os.path.dirname(os.path.abspath(out)) or "."
     os.makedirs(parent, exist_ok=True)
     if single_file:
@@ -198,7 +231,4 @@ def save_web(model: Model, folder: PathLike, *, single_file: bool = False, force
     return os.path.join(out, "index.html")
 
 
-def _as_model(obj: Union[Model, Any]) -> Model:
-    if isinstance(obj, Model):
-        return obj
-    raise InvalidArgumentError(f"model: expected a fitted btfrs model, got {type(obj).__name__}")
+register_web_writer(save_web)

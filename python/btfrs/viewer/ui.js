@@ -158,7 +158,7 @@ export function buildUi(root, on) {
     },
     setFacts(info) {
       facts.textContent = `${info.kind} model "${info.name}", ${info.size[0]} x ${info.size[1]} texels, ` +
-        `${uiBytes(info.bytes)} (${info.adapter})`;
+        `${uiBytes(info.bytes)}${info.surface ? `, ${info.surface}` : ""} (${info.adapter})`;
     },
     setScenes(names, current) {
       sceneSelect.replaceChildren(...names.map((n) => uiElement("option", { value: n, text: n })));

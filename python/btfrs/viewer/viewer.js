@@ -28,6 +28,7 @@ function bytesToBase64(bytes) {
 function neededFiles(manifest) {
   const names = new Set(Object.values(manifest.files));
   if (manifest.volume) names.add(manifest.volume.file);
+  if (manifest.map) names.add(manifest.map.file);
   for (const s of Object.values(manifest.scenes)) {
     names.add(s.vertices);
     names.add(s.indices);
@@ -75,6 +76,14 @@ async function loadData() {
     files[n] = new Uint8Array(await r.arrayBuffer());
   }));
   return { manifest, files };
+}
+
+// What the surface shows besides the sample: a synthesized coordinate map or a Wang tiling.
+function surfaceText(manifest) {
+  const m = manifest.map;
+  if (!m) return "";
+  if (m.kind === "tiles") return `Wang tiling of ${m.tiles[2]} x ${m.tiles[1]} tiles of ${m.tiles[0]}^2`;
+  return `synthesized texture of ${m.map_size[0]} x ${m.map_size[1]} texels`;
 }
 
 function asVec3(name, v) {
@@ -135,7 +144,7 @@ async function drawFrames() {
     frameWaiters = [];
     try {
       if (api.error) throw new Error(api.error);
-      api.frameMs = await viewerRenderer.render(currentView());
+      ({ ms: api.frameMs, drawMs: api.drawMs } = await viewerRenderer.render(currentView()));
       api.frames += 1;
       waiters.forEach((w) => w.resolve());
     } catch (e) {
@@ -234,8 +243,10 @@ const api = {
   }),
   // The error shown in the page, or null.
   error: null,
-  // Milliseconds of the last frame (from its encoding to the GPU's completion), frames drawn.
+  // Milliseconds of the last frame (from its encoding to the GPU's completion), of its model
+  // pass alone (what the native renderer's draw time measures), frames drawn.
   frameMs: null,
+  drawMs: null,
   frames: 0,
   // Milliseconds from the navigation's start: the model's files loaded, the first frame drawn.
   loadedMs: null,
@@ -338,13 +349,14 @@ async function startGpu(manifest, files) {
     });
     const renderer = await createRenderer(gpu, manifest, files, shaderCode, canvas, present);
     try {
-      const ms = await renderer.render(currentView());
+      const { ms, drawMs } = await renderer.render(currentView());
       // A lost device may only say so after the frame.
       await new Promise((r) => setTimeout(r, 0));
       if (lost) throw new Error(`the GPU device was lost: ${lost.message}`);
       current = true;
       viewerRenderer = renderer;
       api.frameMs = ms;
+      api.drawMs = drawMs;
       api.frames += 1;
       if (frameDirty && !frameLoop) frameLoop = drawFrames(); // the controls moved meanwhile
       return { gpu, present };
@@ -382,6 +394,7 @@ async function start() {
     views: manifest.model.views,
     bytes: manifest.model.nbytes,
     renderer: manifest.model.renderer,
+    surface: surfaceText(manifest),
     adapter: gpu.adapterName,
     presentation: present,
   };

@@ -17,6 +17,8 @@
 //!   8-bit planes ([`light_pca`]).
 //! * [`neural`]: per-texel latent codes and one decoder MLP, trained on the CPU as an
 //!   auto-decoder (Rainer et al. 2019, NeuMIP 2021; NeuralRTI 2020 for single-view captures).
+//! * [`photometric`]: photometric stereo (Woodham 1980), L2 and robust (IRLS): per-texel normals
+//!   and Lambertian albedo of one view slot.
 //! * [`planes`]: 8-bit coefficient planes with per-plane scale and bias (what RTI viewers hold).
 //! * [`model`]: the model contract ([`Model`], [`ReflectanceModel`]): fit, evaluation at any
 //!   (view, light), error against a BTF (parallel, f64 accumulation), named arrays, bytes.
@@ -37,6 +39,7 @@ pub mod lpca;
 pub mod model;
 pub mod neural;
 pub mod options;
+pub mod photometric;
 pub mod planes;
 pub mod ptm;
 pub mod rbf;

@@ -46,6 +46,34 @@ pub fn write_png(path: &Path, rgb: &[f32], width: usize, height: usize, exposure
     })
 }
 
+/// Write `[height][width][channels]` values in [0, 1] as a 16-bit PNG (grey for 1 channel, RGB
+/// for 3), stored as they are: data maps (normals, heights, roughness), not colours, so no sRGB
+/// curve and no sRGB chunk. Values outside [0, 1] or not finite are refused, naming the first.
+pub fn write_png16(path: &Path, values: &[f32], width: usize, height: usize, channels: usize) -> Result<()> {
+    if !matches!(channels, 1 | 3) || width == 0 || height == 0 || values.len() != width * height * channels {
+        return Err(Error::arg(
+            "image",
+            format!("expected {height} x {width} x 1 or 3 values, got {} with {channels} channels", values.len()),
+        ));
+    }
+    if let Some(i) = values.iter().position(|x| !(x.is_finite() && (0.0..=1.0).contains(x))) {
+        return Err(Error::arg(
+            "image",
+            format!("value {} at flat index {i} is outside [0, 1] (a 16-bit PNG stores [0, 1])", values[i]),
+        ));
+    }
+    // PNG stores 16-bit samples big-endian.
+    let bytes: Vec<u8> = values.iter().flat_map(|&x| ((x * 65535.0 + 0.5) as u16).to_be_bytes()).collect();
+    write_atomic(path, |w| {
+        let mut enc = png::Encoder::new(w, width as u32, height as u32);
+        enc.set_color(if channels == 1 { png::ColorType::Grayscale } else { png::ColorType::Rgb });
+        enc.set_depth(png::BitDepth::Sixteen);
+        let mut wr = enc.write_header().map_err(std::io::Error::other)?;
+        wr.write_image_data(&bytes).map_err(std::io::Error::other)?;
+        wr.finish().map_err(std::io::Error::other)
+    })
+}
+
 /// Largest ratio of decompressed to compressed bytes of deflate (RFC 1951): a 258-byte match
 /// costs at least 2 bits, so 1032 output bytes per input byte at most.
 const DEFLATE_MAX_RATIO: u64 = 1032;

@@ -227,6 +227,20 @@ pub fn load_capture<'py>(
     Ok((data, d(&cap.views)?, d(&cap.lights)?, mask, cap.meta.to_string()))
 }
 
+/// Write `[H, W]` or `[H, W, 3]` float32 values in [0, 1] as a 16-bit PNG (no sRGB curve).
+#[pyfunction]
+pub fn write_png16(py: Python<'_>, path: PathBuf, values: &Bound<'_, PyAny>) -> PyResult<()> {
+    let a = borrow::<f32>("values", values)?;
+    let sh = a.shape().to_vec();
+    let channels = match sh.len() {
+        2 => 1,
+        3 if sh[2] == 3 => 3,
+        _ => return Err(arg("values", format!("expected [H, W] or [H, W, 3], got shape {sh:?}"))),
+    };
+    let s = a.as_slice().map_err(|e| arg("values", e))?;
+    detach(py, || btfrs_io::image::write_png16(&path, s, sh[1], sh[0], channels))
+}
+
 /// Write `[C, H, W]` float32 planes as one OpenEXR layer with channel names `names`.
 #[pyfunction]
 pub fn write_exr_channels(

@@ -12,6 +12,7 @@ mod graphcut;
 mod hemimap;
 mod io;
 mod models;
+mod photometric;
 mod render;
 mod run;
 mod synth;
@@ -31,6 +32,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(core::split_pairs, m)?)?;
     m.add_function(wrap_pyfunction!(core::material_names, m)?)?;
     m.add_function(wrap_pyfunction!(core::make_material, m)?)?;
+    m.add_function(wrap_pyfunction!(photometric::material_heightfield, m)?)?;
+    m.add_function(wrap_pyfunction!(photometric::photometric_normals, m)?)?;
     m.add_function(wrap_pyfunction!(hemimap::square_to_disk, m)?)?;
     m.add_function(wrap_pyfunction!(hemimap::disk_to_square, m)?)?;
     m.add_function(wrap_pyfunction!(hemimap::square_to_hemisphere, m)?)?;
@@ -76,6 +79,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(io::read_exr, m)?)?;
     m.add_function(wrap_pyfunction!(io::load_capture, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_exr_channels, m)?)?;
+    m.add_function(wrap_pyfunction!(io::write_png16, m)?)?;
     m.add_class::<render::PyScene>()?;
     m.add_class::<render::PyCamera>()?;
     m.add_class::<render::PyGpuModel>()?;
@@ -86,6 +90,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render::gpu_upload_model, m)?)?;
     m.add_function(wrap_pyfunction!(render::web_model, m)?)?;
     m.add_function(wrap_pyfunction!(render::web_layout, m)?)?;
+    m.add_function(wrap_pyfunction!(render::web_map, m)?)?;
     m.add_function(wrap_pyfunction!(render::cpu_render_model, m)?)?;
     m.add_function(wrap_pyfunction!(render::env_check, m)?)?;
     m.add_function(wrap_pyfunction!(render::env_sky, m)?)?;

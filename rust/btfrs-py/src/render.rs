@@ -251,6 +251,20 @@ fn tiles_of(tile_map: Option<&Bound<'_, PyAny>>) -> PyResult<Option<TileArgs>> {
     }))
 }
 
+impl TileArgs {
+    fn map(&self) -> TileMap<'_> {
+        TileMap {
+            tile: self.tile,
+            atlas_cols: self.atlas_cols,
+            atlas_rows: self.atlas_rows,
+            atlas: &self.atlas,
+            layout_cols: self.layout_cols,
+            layout_rows: self.layout_rows,
+            layout: &self.layout,
+        }
+    }
+}
+
 /// The owned parts of a [`View`] converted from Python arguments.
 struct ViewArgs {
     lights: Vec<Light>,
@@ -282,15 +296,7 @@ impl ViewArgs {
             height: size.1,
             uv_scale,
             coords: self.coords.as_ref().map(|(w, h, m)| (*w, *h, &m[..])),
-            tiles: self.tiles.as_ref().map(|t| TileMap {
-                tile: t.tile,
-                atlas_cols: t.atlas_cols,
-                atlas_rows: t.atlas_rows,
-                atlas: &t.atlas,
-                layout_cols: t.layout_cols,
-                layout_rows: t.layout_rows,
-                layout: &t.layout,
-            }),
+            tiles: self.tiles.as_ref().map(TileArgs::map),
             filter: None,
         }
     }
@@ -429,6 +435,30 @@ pub fn web_model<'py>(py: Python<'py>, model: &PyModel, method: &str) -> PyResul
         None => d.set_item("volume", py.None())?,
     }
     d.set_item("chunk_len", w.chunk_len)?;
+    Ok(d)
+}
+
+/// A coordinate map or a tile map laid out for the web viewer, checked against `model`:
+/// `{"words": uint32 map buffer, "map_size": [w, h], "tiles": [4], "tile_atlas": [4]}`.
+#[pyfunction]
+#[pyo3(signature = (model, coords=None, tile_map=None))]
+pub fn web_map<'py>(
+    py: Python<'py>,
+    model: &PyModel,
+    coords: Option<&Bound<'py, PyAny>>,
+    tile_map: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+    let args = ViewArgs::new(Vec::new(), coords, tile_map)?;
+    let dims = model.inner.dims();
+    let w = detach(py, || {
+        let tiles = args.tiles.as_ref().map(TileArgs::map);
+        btfrs_render::web::web_map(args.coords.as_ref().map(|(w, h, m)| (*w, *h, &m[..])), tiles, dims)
+    })?;
+    let d = pyo3::types::PyDict::new(py);
+    d.set_item("words", w.words.into_pyarray(py))?;
+    d.set_item("map_size", w.fields.map_size)?;
+    d.set_item("tiles", w.fields.tiles)?;
+    d.set_item("tile_atlas", w.fields.tile_atlas)?;
     Ok(d)
 }
 

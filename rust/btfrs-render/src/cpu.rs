@@ -26,12 +26,7 @@ pub fn validate_common(view: &View<'_>, dims: (usize, usize)) -> Result<()> {
     if !view.uv_scale.iter().all(|s| s.is_finite() && *s > 0.0) {
         return Err(Error::arg("uv_scale", format!("expected positive finite repetitions, got {:?}", view.uv_scale)));
     }
-    if let Some(t) = view.tiles {
-        if view.coords.is_some() {
-            return Err(Error::arg("tiles", "give a coordinate map or a tile map, not both"));
-        }
-        t.validate(dims.0 * dims.1)?;
-    }
+    validate_map(view.coords, view.tiles, dims)?;
     if let Some((_, chain)) = view.filter {
         let want = match (view.tiles, view.coords) {
             (Some(t), _) => ((t.layout_cols * t.tile) as u32, (t.layout_rows * t.tile) as u32, t.tile as u32),
@@ -53,7 +48,23 @@ pub fn validate_common(view: &View<'_>, dims: (usize, usize)) -> Result<()> {
             ));
         }
     }
-    if let Some((mw, mh, map)) = view.coords {
+    Ok(())
+}
+
+/// Check a coordinate map or a tile map (at most one) against a sample of `dims` (height,
+/// width) texels: sizes, and every entry inside the sample.
+pub fn validate_map(
+    coords: Option<(usize, usize, &[u32])>,
+    tiles: Option<crate::tilemap::TileMap<'_>>,
+    dims: (usize, usize),
+) -> Result<()> {
+    if let Some(t) = tiles {
+        if coords.is_some() {
+            return Err(Error::arg("tiles", "give a coordinate map or a tile map, not both"));
+        }
+        t.validate(dims.0 * dims.1)?;
+    }
+    if let Some((mw, mh, map)) = coords {
         if mw == 0 || mh == 0 || map.len() != mw * mh {
             return Err(Error::arg(
                 "coords",

@@ -535,6 +535,43 @@ pub fn validate_view(gpu: &Gpu, view: &View<'_>, dims: (usize, usize)) -> Result
     Ok(())
 }
 
+/// The `Globals` fields that describe a coordinate map or a tile map (zeros for neither).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct MapFields {
+    /// `map_size`: the coordinate map's (width, height).
+    pub map_size: [u32; 2],
+    /// `tiles`: (tile side, layout columns, layout rows, atlas width in texels).
+    pub tiles: [u32; 4],
+    /// `tile_atlas`: (the atlas's offset in the map buffer, 0, 0, 0).
+    pub tile_atlas: [u32; 4],
+}
+
+impl MapFields {
+    /// The fields for a view's map.
+    pub fn of(coords: Option<(usize, usize, &[u32])>, tiles: Option<crate::tilemap::TileMap<'_>>) -> Self {
+        MapFields {
+            map_size: coords.map_or([0, 0], |(mw, mh, _)| [mw as u32, mh as u32]),
+            tiles: tiles.map_or([0; 4], |t| {
+                [t.tile as u32, t.layout_cols as u32, t.layout_rows as u32, (t.atlas_cols * t.tile) as u32]
+            }),
+            tile_atlas: [tiles.map_or(0, |t| t.layout.len() as u32), 0, 0, 0],
+        }
+    }
+}
+
+/// The words of the map buffer (group 0, `coord_map`) for a view's map: the tile layout then its
+/// atlas, or the coordinate map, or one placeholder word (a storage binding cannot be empty).
+pub fn map_words<'a>(
+    coords: Option<(usize, usize, &'a [u32])>,
+    tiles: Option<crate::tilemap::TileMap<'a>>,
+) -> std::borrow::Cow<'a, [u32]> {
+    match (tiles, coords) {
+        (Some(t), _) => std::borrow::Cow::Owned(t.packed().0),
+        (None, Some((_, _, m))) => std::borrow::Cow::Borrowed(m),
+        (None, None) => std::borrow::Cow::Owned(vec![0]),
+    }
+}
+
 /// Render `model` (uploaded with [`upload`]) into a `[height][width][3]` image.
 pub fn render(gpu: &Gpu, model: &UploadedModel, view: &View<'_>) -> Result<(Vec<f32>, FrameTimes)> {
     validate_view(gpu, view, model.dims)?;
@@ -586,19 +623,17 @@ fn draw(
         + (view.tiles.is_none() && view.coords.is_none()) as u32;
     let out = gpu.checked("rendering", || {
         let vp = view.camera.view_proj(view.width as f32 / view.height as f32);
-        let (mw, mh) = view.coords.map_or((0, 0), |(mw, mh, _)| (mw as u32, mh as u32));
+        let m = MapFields::of(view.coords, view.tiles);
         let globals = Globals {
             view_proj: vp.to_cols_array_2d(),
             eye: [view.camera.eye[0], view.camera.eye[1], view.camera.eye[2], 1.0],
             uv_scale: view.uv_scale,
             sample_size: [model.dims.1 as u32, model.dims.0 as u32],
-            map_size: [mw, mh],
+            map_size: m.map_size,
             n_lights: view.lights.len() as u32,
             chunk_len: model.chunk_len,
-            tiles: view.tiles.map_or([0; 4], |t| {
-                [t.tile as u32, t.layout_cols as u32, t.layout_rows as u32, (t.atlas_cols * t.tile) as u32]
-            }),
-            tile_atlas: [view.tiles.map_or(0, |t| t.layout.len() as u32), 0, 0, 0],
+            tiles: m.tiles,
+            tile_atlas: m.tile_atlas,
             lookup: filter.map_or([0; 4], |(f, c)| [f.mode(), c.levels.len() as u32, base_map_len, 0]),
         };
         let mut lights: Vec<GpuLight> = view
@@ -618,13 +653,8 @@ fn draw(
         if lights.is_empty() {
             lights.push(GpuLight::zeroed()); // a storage binding cannot be empty
         }
-        let empty = [0u32];
-        let packed = view.tiles.map(|t| t.packed().0);
-        let base_map: &[u32] = match (&packed, view.coords) {
-            (Some(p), _) => p,
-            (None, Some((_, _, m))) => m,
-            (None, None) => &empty[..],
-        };
+        let base_map = map_words(view.coords, view.tiles);
+        let base_map: &[u32] = &base_map;
         // The mip chain of a filtered view follows the map in the same buffer.
         let with_mips: Vec<u32>;
         let map: &[u32] = match filter {

@@ -59,6 +59,38 @@ pub fn web_model(model: &dyn GpuModel) -> Result<WebModel> {
     })
 }
 
+/// A coordinate map or a Wang tile map for the page: the map buffer's words (group 0,
+/// `coord_map`) and the `Globals` fields that describe it, as the native renderer fills them.
+#[derive(Debug, Clone)]
+pub struct WebMap {
+    /// The map buffer (the tile layout then its atlas, or the coordinate map).
+    pub words: Vec<u32>,
+    /// The `Globals` fields `map_size`, `tiles` and `tile_atlas`.
+    pub fields: crate::gpu::MapFields,
+}
+
+/// Check a map against a model of `dims` (height, width) texels and lay it out for the page.
+pub fn web_map(
+    coords: Option<(usize, usize, &[u32])>,
+    tiles: Option<crate::tilemap::TileMap<'_>>,
+    dims: (usize, usize),
+) -> Result<WebMap> {
+    if coords.is_none() && tiles.is_none() {
+        return Err(Error::arg("coords", "expected a coordinate map or a tile map"));
+    }
+    crate::cpu::validate_map(coords, tiles, dims)?;
+    let words = crate::gpu::map_words(coords, tiles).into_owned();
+    if words.len() as u64 * 4 > 1 << 27 {
+        // WebGPU's guaranteed storage binding size (128 MiB).
+        let what = if tiles.is_some() { "tiles" } else { "coords" };
+        return Err(Error::arg(
+            what,
+            format!("the map takes {} MiB; the viewer binds at most 128 MiB", words.len() / 262144),
+        ));
+    }
+    Ok(WebMap { words, fields: crate::gpu::MapFields::of(coords, tiles) })
+}
+
 /// A mesh as the page's vertex buffer (the interleaved layout of [`layout`]) and its indices.
 pub fn mesh_buffers(mesh: &Mesh) -> (Vec<u8>, Vec<u32>) {
     let v = crate::gpu::vertices(mesh);

@@ -90,6 +90,37 @@ pub fn generate(spec: &MaterialSpec, monitor: &Monitor) -> Result<Btf> {
     Ok(Btf { height: spec.size, width: spec.size, views: spec.views.clone(), lights: spec.lights.clone(), data })
 }
 
+/// The surface a material is generated from, in the BTF's texel order (row 0 at the top, x
+/// right, y up the image): heights in texel units, unit normals (central differences of the
+/// periodic heights, the normals the shading uses at texel centres) and albedo.
+#[derive(Debug, Clone)]
+pub struct Heightfield {
+    /// Texels per side.
+    pub size: usize,
+    /// `[size * size]` heights, in texel widths.
+    pub height: Vec<f32>,
+    /// `[size * size]` unit normals (x right, y up the image, z out of the surface).
+    pub normals: Vec<[f32; 3]>,
+    /// `[size * size]` diffuse albedo (RGB).
+    pub albedo: Vec<[f32; 3]>,
+}
+
+/// The heightfield, normals and albedo of a preset, as [`generate`] uses them for the same
+/// `preset`, `size`, `seed` and `relief` (checked like [`MaterialSpec`]'s).
+pub fn heightfield(preset: Preset, size: usize, seed: u64, relief: f64) -> Result<Heightfield> {
+    let spec = MaterialSpec { relief, ..MaterialSpec::new(preset, size, seed) };
+    spec.validate()?;
+    let s = presets::surface(preset, size, seed, relief);
+    // The surface's grid has row 0 at the bottom; the BTF's row 0 is the top.
+    let flip = |g: usize| (size - 1 - g / size) * size + g % size;
+    Ok(Heightfield {
+        size,
+        height: (0..size * size).map(|g| s.height[flip(g)]).collect(),
+        normals: (0..size * size).map(|g| s.normal[flip(g)]).collect(),
+        albedo: (0..size * size).map(|g| s.albedo[flip(g)]).collect(),
+    })
+}
+
 /// Generate the values of the BTF described by `spec` into `out` (`[size, size, V, L, 3]`, all
 /// [`MaterialSpec::values`] of them), e.g. a memory-mapped file, with no size limit: besides
 /// `out` the generation holds the surface, the visibility maps (`V + L` values per texel) and
