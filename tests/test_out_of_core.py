@@ -26,7 +26,7 @@ OPTIONS = {
     "ptm": {}, "hsh": {"order": 3}, "srf": {}, "lafortune": {"lobes": 1, "max_iter": 10},
     "lafortune_view": {"lobes": 1, "max_iter": 10}, "sh": {"light_coeffs": 16, "view_coeffs": 16},
     "lpca": {"clusters": 4, "components": 4}, "rbf": {"components": 8}, "bilinear": {"components": 8},
-    "neural": {"latents": 4, "hidden": 16, "steps": 300},
+    "neural": {"latents": 4, "hidden": 16, "steps": 300}, "svbrdf": {"max_pairs": 256},
 }
 
 

@@ -33,7 +33,8 @@ from .exceptions import (
     NumericalError,
     OutOfRangeError,
 )
-from .models import Bilinear, ErrorReport, Hsh, Lafortune, LafortuneView, Lpca, Model, Neural, Ptm, Rbf, Sh, Srf, model_kinds
+from .models import (Bilinear, ErrorReport, Hsh, Lafortune, LafortuneView, Lpca, Model, Neural, Ptm, Rbf, Sh, Srf,
+                     Svbrdf, model_kinds)
 from .io import load
 from .photometric import NormalMaps, height, normals
 from .evaluation import EvaluationReport, evaluate
@@ -92,6 +93,7 @@ __all__ = [
     "Rbf",
     "Bilinear",
     "Neural",
+    "Svbrdf",
     "ErrorReport",
     "load",
     "render",

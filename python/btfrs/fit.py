@@ -23,9 +23,9 @@ from typing import Literal, Optional
 from ._fitting import MemoryLimit, fit, fit_kind
 from ._progress import Progress
 from .btf import Btf
-from .models import Bilinear, Hsh, Lafortune, LafortuneView, Lpca, Neural, Ptm, Rbf, Sh, Srf
+from .models import Bilinear, Hsh, Lafortune, LafortuneView, Lpca, Neural, Ptm, Rbf, Sh, Srf, Svbrdf
 
-__all__ = ["fit", "ptm", "hsh", "lafortune", "lafortune_view", "srf", "sh", "lpca", "rbf", "bilinear", "neural"]
+__all__ = ["fit", "ptm", "hsh", "lafortune", "lafortune_view", "srf", "sh", "lpca", "rbf", "bilinear", "neural", "svbrdf"]
 
 
 def ptm(
@@ -703,4 +703,62 @@ def neural(
     options: dict[str, object] = {"latents": latents, "hidden": hidden, "directions": directions, "activation": activation, "features": features, "grid": grid, "steps": steps, "learning_rate": learning_rate, "validation": validation, "seed": seed}
     model = fit_kind("neural", btf, options, memory_limit, progress, robust, exclude_bad_images)
     assert isinstance(model, Neural)
+    return model
+
+
+def svbrdf(
+    btf: Btf,
+    *,
+    max_pairs: int = 1024,
+    seed: int = 0,
+    normals: Literal["photometric", "fit"] = "photometric",
+    robust: bool = True,
+    exclude_bad_images: bool = False,
+    memory_limit: MemoryLimit = None,
+    progress: Progress = None,
+) -> Svbrdf:
+    """Fit per-texel microfacet SVBRDF: diffuse and specular colours, GGX roughness, normal.
+
+    Per texel a Lambertian diffuse colour, a specular colour, an isotropic GGX roughness and a shading
+    normal (Walter et al. 2007; Smith's separable masking), fitted texel by texel by Levenberg-Marquardt
+    over the normal and the roughness with the colours solved exactly for each trial (variable
+    projection), started from robust photometric stereo on the view slot nearest the normal. The form
+    Mitsuba's `diffuse` + `roughconductor` and glTF's metallic-roughness materials take: the model other
+    renderers can draw.
+
+    Parameters
+    ----------
+    btf
+        The BTF (or capture) to fit: only its present pairs are used.
+    max_pairs
+        The most (view, light) pairs each texel is fitted to (spread evenly; seed shifts them). Allowed:
+        an integer >= 8; default 1024.
+    seed
+        Shifts the pairs chosen when the sample has more than max_pairs. Allowed: a non-negative
+        integer; default 0.
+    normals
+        "photometric": robust photometric stereo's normals, kept; "fit": refined by the lobe's fit over
+        every pair. Allowed: "photometric" or "fit"; default "photometric".
+    robust
+        Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
+        above both their light and their spatial neighbours; false: fit every value as it is. Default
+        True.
+    exclude_bad_images
+        Leave out of the fit the whole images found far from their light and view neighbours (a misfired
+        or doubled flash); they are reported either way. Default False.
+    memory_limit
+        The anonymous memory the fit may allocate besides the model: bytes, or a size such as
+        ``"2GB"`` (``None``: no limit). A limit below what the fit needs raises
+        :class:`~btfrs.exceptions.InvalidArgumentError` naming the least it needs, before any work.
+    progress
+        ``None``, ``True`` for a progress bar, or a callable ``(done, total)``.
+
+    Returns
+    -------
+    Svbrdf
+        The fitted model.
+    """
+    options: dict[str, object] = {"max_pairs": max_pairs, "seed": seed, "normals": normals}
+    model = fit_kind("svbrdf", btf, options, memory_limit, progress, robust, exclude_bad_images)
+    assert isinstance(model, Svbrdf)
     return model

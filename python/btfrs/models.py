@@ -23,7 +23,7 @@ from .btf import Btf, read_container
 from ._checks import choice, index, instance
 from .exceptions import ArgumentTypeError, FormatError, InternalError, InvalidArgumentError
 
-__all__ = ["ErrorReport", "Model", "Ptm", "Hsh", "Lafortune", "LafortuneView", "Srf", "Sh", "Lpca", "Rbf", "Bilinear", "Neural", "load",
+__all__ = ["ErrorReport", "Model", "Ptm", "Hsh", "Lafortune", "LafortuneView", "Srf", "Sh", "Lpca", "Rbf", "Bilinear", "Neural", "Svbrdf", "load",
            "model_kinds", "class_of", "wrap"]
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -541,6 +541,36 @@ class Neural(Model):
             out.append((w, p[o:o + rows]))
             o += rows
         return out
+
+
+class Svbrdf(Model):
+    """A per-texel microfacet SVBRDF: per texel a diffuse colour, a specular colour, a GGX
+    roughness and a shading normal (tangent space: x right, y up the image, z out of the
+    surface). ``value = diffuse (n.l) + specular pi D(n.h) G1(n.l) G1(n.v) / (4 n.v)``, GGX's
+    ``D`` and Smith's ``G1``: Mitsuba's ``diffuse`` plus its ``roughconductor`` (GGX, no
+    Fresnel) times the specular colour."""
+
+    _kind = "svbrdf"
+
+    @property
+    def diffuse(self) -> np.ndarray:
+        """``[H, W, 3]`` diffuse colour (``value = diffuse (n.l)`` for a matte texel)."""
+        return self.arrays["diffuse"]
+
+    @property
+    def specular(self) -> np.ndarray:
+        """``[H, W, 3]`` specular colour."""
+        return self.arrays["specular"]
+
+    @property
+    def roughness(self) -> np.ndarray:
+        """``[H, W]`` GGX alpha (glTF's roughness is its square root)."""
+        return self.arrays["roughness"]
+
+    @property
+    def normals(self) -> np.ndarray:
+        """``[H, W, 3]`` unit shading normals."""
+        return self.arrays["normal"]
 
 
 def model_kinds() -> Dict[str, Dict[str, Any]]:

@@ -47,6 +47,7 @@ pub mod registry;
 pub mod robust;
 pub mod sh;
 pub mod srf;
+pub mod svbrdf;
 
 pub use bilinear::{fit_bilinear, Bilinear, BilinearOptions};
 pub use gpu::{GpuLayout, GpuModel, Renderable};

@@ -151,6 +151,7 @@ pub const MODELS: &[Entry] = &[
     entry::<crate::rbf::Rbf>(),
     entry::<crate::bilinear::Bilinear>(),
     entry::<crate::neural::Neural>(),
+    entry::<crate::svbrdf::Svbrdf>(),
 ];
 
 /// The entry of `kind`, or an error listing the registered models.
