@@ -88,3 +88,35 @@ def test_too_few_pairs_are_refused():
     btf = btfrs.Btf(np.full((2, 2, 1, 5, 3), 0.5, np.float32), [[0.0, 0.0, 1.0]], spiral(5, 30, 80))
     with pytest.raises(DegenerateDataError, match="at least 8 measured pairs"):
         btfrs.fit.svbrdf(btf)
+
+
+def test_the_lobe_is_mitsubas_diffuse_plus_roughconductor():
+    # The form the Mitsuba export relies on: Mitsuba 3's own BSDFs evaluate to the same values
+    # (its eval is the BRDF times the cosine; a BTF value is pi times that).
+    try:
+        import mitsuba as mi
+    except ImportError:
+        if __import__("os").environ.get("CI"):
+            raise
+        pytest.skip("mitsuba is not installed")
+    mi.set_variant("scalar_rgb")
+    m = truth_model()
+    r, c = 1, 2
+    n = m.normals[r, c].astype(np.float64)
+    alpha = float(m.roughness[r, c])
+    spec = mi.load_dict({"type": "roughconductor", "material": "none", "distribution": "ggx", "alpha": alpha})
+    diff = mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}})
+    si = mi.SurfaceInteraction3f()
+    si.n = mi.Normal3f(*n)
+    si.sh_frame = mi.Frame3f(si.n)
+    for view, light in [([0.2, -0.3, 0.93], [-0.4, 0.1, 0.91]), ([0.6, 0.1, 0.79], [-0.5, -0.2, 0.84]),
+                        ([0.0, 0.5, 0.87], [0.1, 0.45, 0.89])]:
+        v, l = np.array(view) / np.linalg.norm(view), np.array(light) / np.linalg.norm(light)
+        # Mitsuba's directions are in the shading frame.
+        si.wi = si.sh_frame.to_local(mi.Vector3f(*v))
+        wo = si.sh_frame.to_local(mi.Vector3f(*l))
+        f_s = np.array(spec.eval(mi.BSDFContext(), si, wo))[0]
+        f_d = np.array(diff.eval(mi.BSDFContext(), si, wo))[0]
+        want = np.pi * (m.diffuse[r, c].astype(np.float64) * f_d + m.specular[r, c].astype(np.float64) * f_s)
+        got = m.evaluate(v, l)[r, c]
+        np.testing.assert_allclose(got, want, rtol=2e-5)
