@@ -253,6 +253,16 @@ def _surface_frame(browser, url: str, light) -> tuple:
     return got, facts
 
 
+def _check_surface(pngs: Path, name: str, got, facts: str, want, other, says: str) -> None:
+    """The frame matches the CPU reference of its surface, not that of another surface (the
+    sample alone, another layout), and the page names what it draws."""
+    write_png(pngs / f"{name}.viewer.png", got)
+    write_png(pngs / f"{name}.cpu.png", want)
+    assert says in facts, facts
+    assert psnr(got, want) >= MIN_PSNR, psnr(got, want)
+    assert psnr(got, other) < psnr(got, want) - 6, f"{name}: another surface looks the same"
+
+
 def test_a_synthesized_coordinate_map_is_drawn_as_the_cpu_reference_draws_it(browser, viewer_files, models,
                                                                            tmp_path, pngs):
     # A coordinate map ([H, W, 2] uint16 (x, y) into the sample) of a size other than the
@@ -274,11 +284,7 @@ def test_a_synthesized_coordinate_map_is_drawn_as_the_cpu_reference_draws_it(bro
         server.close()
     want = reference(model, _camera(), light, coords=coords, uv_scale=(1.5, 1.0))
     plain = reference(model, _camera(), light, uv_scale=(1.5, 1.0))
-    write_png(pngs / "coords.viewer.png", got)
-    write_png(pngs / "coords.cpu.png", want)
-    assert "synthesized texture of 26 x 18 texels" in facts
-    assert psnr(got, want) >= MIN_PSNR, psnr(got, want)
-    assert psnr(got, plain) < psnr(got, want) - 6, "the map made no difference"
+    _check_surface(pngs, "coords", got, facts, want, plain, "synthesized texture of 26 x 18 texels")
 
 
 def test_a_wang_tiling_is_drawn_as_the_cpu_reference_draws_it(browser, viewer_files, tmp_path, pngs):
@@ -291,11 +297,7 @@ def test_a_wang_tiling_is_drawn_as_the_cpu_reference_draws_it(browser, viewer_fi
     got, facts = _surface_frame(browser, (tmp_path / "t.html").as_uri(), light)
     want = reference(ts.model, _camera(), light, tiles=ts, layout=layout)
     other = reference(ts.model, _camera(), light, tiles=ts, layout=ts.tiling(4, 3, seed=5))
-    write_png(pngs / "tiles.viewer.png", got)
-    write_png(pngs / "tiles.cpu.png", want)
-    assert "Wang tiling of 4 x 3 tiles of 16^2" in facts
-    assert psnr(got, want) >= MIN_PSNR, psnr(got, want)
-    assert psnr(got, other) < psnr(got, want) - 6, "another layout looks the same"
+    _check_surface(pngs, "tiles", got, facts, want, other, "Wang tiling of 4 x 3 tiles of 16^2")
 
 
 def test_the_sky_lights_the_model_as_the_sampled_environment_does(browser, served, models, pngs):

@@ -1,6 +1,8 @@
 use super::*;
 
-fn spiral(n: usize, lo: f64, hi: f64, turn: f64) -> Vec<[f64; 3]> {
+/// `n` directions on a golden-angle spiral, elevations `lo` to `hi` degrees (the texel tests'
+/// too).
+pub(super) fn spiral(n: usize, lo: f64, hi: f64, turn: f64) -> Vec<[f64; 3]> {
     (0..n)
         .map(|i| {
             let el = (lo + (hi - lo) * i as f64 / n as f64).to_radians();

@@ -340,16 +340,7 @@ fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
 mod tests {
     use super::*;
     use crate::svbrdf::lobe::basis;
-
-    fn dirs(n: usize, lo: f64, hi: f64, turn: f64) -> Vec<[f64; 3]> {
-        (0..n)
-            .map(|i| {
-                let el = (lo + (hi - lo) * i as f64 / n as f64).to_radians();
-                let az = 2.399963 * i as f64 + turn;
-                [el.cos() * az.cos(), el.cos() * az.sin(), el.sin()]
-            })
-            .collect()
-    }
+    use crate::svbrdf::tests::spiral as dirs;
 
     fn observations(truth: &TexelLobe) -> Vec<Obs> {
         let n = normal_of(truth.slopes[0], truth.slopes[1]);
