@@ -62,6 +62,11 @@ if ! .venv/bin/python -c "import importlib.metadata as m, drjit; assert m.versio
   log "installing Mitsuba 3 (ground-truth tests)"
   .venv/bin/python -m pip install -q --disable-pip-version-check "mitsuba==3.5.2" "drjit==0.4.6"
 fi
+# glTF's reader for the tests of the glTF export (pygltflib: MIT, pure Python).
+if ! .venv/bin/python -c "import pygltflib" >/dev/null 2>&1; then
+  log "installing pygltflib into .venv"
+  .venv/bin/python -m pip install -q --disable-pip-version-check "pygltflib>=1.16"
+fi
 
 # The browser viewer's tests (tests/test_viewer.py): Debian's chromium, driven by Playwright's
 # Python package, which must not download a browser of its own.

@@ -11,7 +11,8 @@ file, and a clean analysis is used for a small synthesis, which must not fail ei
 The formats: ``.btfrs`` BTFs (``Btf.load`` with and without ``mmap``, ``btfrs.load``), fitted
 models at the container level (``read_container``), synthesis analyses end to end
 (``btfrs.synth.Analysis.load``, then k-coherence and the jump map), ``.ptm`` (LRGB and RGB), PNG
-and EXR (``btfrs.io.load_image``). Every case derives from ``SEED``; a failure names the format,
+and EXR (``btfrs.io.load_image``), and the index files of glTF assets and Mitsuba scenes (their
+valid maps beside them). Every case derives from ``SEED``; a failure names the format,
 the case, its seed and the mutation. The allocation bound is measured in the Rust suite
 (``rust/btfrs-io/tests/mutation.rs``, a counting allocator); here every array a clean read
 returns must fit in the file.
@@ -71,6 +72,15 @@ def _ptm_bytes(fmt: str) -> bytes:
     return head + rng.integers(0, 256, w * h * per, dtype=np.uint8).tobytes()
 
 
+def _svbrdf_arrays() -> dict:
+    rng = np.random.default_rng(7)
+    n = np.concatenate([rng.uniform(-0.4, 0.4, (4, 5, 2)), np.ones((4, 5, 1))], -1)
+    return {"diffuse": rng.uniform(0.0, 1.0, (4, 5, 3)).astype(np.float32),
+            "specular": rng.uniform(0.0, 0.5, (4, 5, 3)).astype(np.float32),
+            "roughness": rng.uniform(0.05, 0.9, (4, 5)).astype(np.float32),
+            "normal": (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)}
+
+
 @pytest.fixture(scope="module")
 def valid(tmp_path_factory) -> dict:
     """The valid file of every format, as bytes."""
@@ -92,6 +102,12 @@ def valid(tmp_path_factory) -> dict:
     out["analysis"] = (d / "analysis.btfrs").read_bytes()
     out["ptm_lrgb"] = _ptm_bytes("LRGB")
     out["ptm_rgb"] = _ptm_bytes("RGB")
+    # The renderers' scene formats (folders): the index file is mutated, the maps stay beside it.
+    sv = btfrs.Model.from_arrays(_svbrdf_arrays(), kind="svbrdf")
+    for fmt, index in (("gltf", "material.gltf"), ("mitsuba", "scene.xml")):
+        sv.export(d / fmt, format=fmt)
+        out[fmt] = (d / fmt / index).read_bytes()
+        out[f"{fmt}_maps"] = {n: (d / fmt / n).read_bytes() for n in os.listdir(d / fmt) if n != index}
     img = np.random.default_rng(6).uniform(0.0, 1.0, (5, 7, 3)).astype(np.float32)
     btfrs.io.save_image(d / "a.png", img)
     out["png"] = (d / "a.png").read_bytes()
@@ -251,7 +267,8 @@ def _inflate_zip(f: bytes, rng: random.Random):
 
 INFLATE = {"jpeg": _inflate_jpeg, "lp": _inflate_lp, "zip": _inflate_zip, "btf": _inflate_container, **{f"model_{k}": _inflate_container for k in btfrs.model_kinds()},
            "analysis": _inflate_container,
-           "ptm_lrgb": _inflate_ptm, "ptm_rgb": _inflate_ptm, "png": _inflate_png, "exr": _inflate_exr}
+           "ptm_lrgb": _inflate_ptm, "ptm_rgb": _inflate_ptm, "png": _inflate_png, "exr": _inflate_exr,
+           "gltf": _inflate_lp, "mitsuba": _inflate_lp}
 
 
 def mutate(fmt: str, f: bytes, seed: int):
@@ -351,16 +368,33 @@ def read_capture(path) -> None:
     assert b.data.ndim == 5 and np.isfinite(b.data).all()
 
 
+def read_scene(path) -> None:
+    """A glTF asset or Mitsuba scene: the mutated index file, the valid maps beside it."""
+    fmt = "gltf" if os.fspath(path).endswith(".gltf") else "mitsuba"
+    for name, data in _MAPS[fmt].items():
+        q = os.path.join(os.path.dirname(path), name)
+        if not os.path.exists(q):
+            with open(q, "wb") as f:
+                f.write(data)
+    m = btfrs.load(path)
+    assert m.kind == "svbrdf"
+    img = m.evaluate([0.1, 0.2, 0.97], [0.3, -0.2, 0.93])
+    assert np.isfinite(img).all()
+
+
+_MAPS: dict = {}
+
 READERS = {"jpeg": (read_capture, ".jpg"), "lp": (read_capture, ".lp"), "zip": (read_capture, ".zip"),
            "btf": (read_btf, ".btfrs"), **{f"model_{k}": (read_model, ".btfrs") for k in btfrs.model_kinds()},
            "analysis": (read_analysis, ".btfrs"),
            "ptm_lrgb": (read_ptm, ".ptm"), "ptm_rgb": (read_ptm, ".ptm"), "png": (read_image, ".png"),
-           "exr": (read_image, ".exr")}
+           "exr": (read_image, ".exr"), "gltf": (read_scene, ".gltf"), "mitsuba": (read_scene, ".xml")}
 
 
 @pytest.mark.parametrize("fmt", list(READERS))
 def test_corrupted_files_read_cleanly_or_raise_format_error(fmt, valid, tmp_path):
     read, ext = READERS[fmt]
+    _MAPS.update({k: valid[f"{k}_maps"] for k in ("gltf", "mitsuba")})
     ok = tmp_path / f"valid{ext}"
     ok.write_bytes(valid[fmt])
     read(ok)  # the valid file reads

@@ -142,7 +142,7 @@ def _kinds() -> List[str]:
 def _formats() -> List[Tuple[str, str, str, bool]]:
     """Other tools' model formats: ``(name, extension, doc, folder)`` (``folder``: written as a
     folder holding an index file, e.g. NeuralRTI's ``info.json``)."""
-    return list(_native.model_formats())
+    return [(name, ext, doc, folder) for name, ext, doc, folder, _ in _native.model_formats()]
 
 
 def _sample_args(p: argparse.ArgumentParser, material: Optional[str] = None, size: int = 32, seed: int = 1,
@@ -409,7 +409,9 @@ def _data_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -
                    help="with --web: one self-contained HTML file (data embedded) that opens from disk")
     x.add_argument("--model", default=_kinds()[0], choices=_kinds(), metavar="MODEL",
                    help=f"with --web on a BTF or capture: the model fitted first (default: {_kinds()[0]})")
-    x.add_argument("--force", action="store_true", help="with --web: replace an existing folder or file")
+    x.add_argument("--force", action="store_true",
+                   help="with --web: replace an existing folder or file; with a folder format: write into a folder "
+                   "that holds files")
     _surface_args(x, "with --web: ")
     nm = sub.add_parser("normals", help="photometric stereo on one view slot: normals, albedo and height maps "
                                         "(EXR and 16-bit PNG)")
@@ -646,7 +648,7 @@ def export_command(args: argparse.Namespace) -> None:
                 able = [k for k, info in model_kinds().items() if fmt in info["exports"]]
                 raise InvalidArgumentError(f"--{fmt}: a {obj.kind} model cannot be written as .{fmt} "
                                            f"(fit --model {' or '.join(able)})")
-            obj.export(path, format=fmt, view=args.view)
+            obj.export(path, format=fmt, view=args.view, force=args.force)
             print(f"wrote {path}")
     if args.exr:
         names = io.save_coefficients(obj, args.exr)

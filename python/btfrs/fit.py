@@ -720,11 +720,11 @@ def svbrdf(
     """Fit per-texel microfacet SVBRDF: diffuse and specular colours, GGX roughness, normal.
 
     Per texel a Lambertian diffuse colour, a specular colour, an isotropic GGX roughness and a shading
-    normal (Walter et al. 2007; Smith's separable masking), fitted texel by texel by Levenberg-Marquardt
-    over the normal and the roughness with the colours solved exactly for each trial (variable
-    projection), started from robust photometric stereo on the view slot nearest the normal. The form
-    Mitsuba's `diffuse` + `roughconductor` and glTF's metallic-roughness materials take: the model other
-    renderers can draw.
+    normal (Walter et al. 2007; Smith's separable masking). The normals come from robust photometric
+    stereo; the roughness from a 1-D search per texel with the colours solved exactly (non-negative
+    least squares) for each trial; `normals="fit"` refines the normal by Levenberg-Marquardt over every
+    pair. Exactly Mitsuba's `diffuse` + `roughconductor`, close to glTF's metallic-roughness materials:
+    the model other renderers draw (`export --mitsuba`, `--gltf`).
 
     Parameters
     ----------

@@ -178,12 +178,26 @@ _IMAGE_EXT = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".exr")
 
 def _model_extensions() -> tuple[str, ...]:
     """The extensions of other tools' model files btfrs reads (``.ptm``, ``.rti``)."""
-    return tuple("." + ext for _, ext, _, _ in _native.model_formats())
+    return tuple("." + ext for _, ext, _, _, _ in _native.model_formats())
+
+
+def _model_indexes() -> tuple[str, ...]:
+    """The index files of other tools' model formats written as folders (``info.json``,
+    ``material.gltf``, ``scene.xml``)."""
+    return tuple(dict.fromkeys(index for _, _, _, folder, index in _native.model_formats() if folder))
+
+
+def _model_index(folder: str) -> str:
+    """The index file of the model format folder ``folder``."""
+    names = [n for n in _model_indexes() if os.path.isfile(os.path.join(folder, n))]
+    if len(names) > 1:
+        raise FormatError(f"{folder}: holds {' and '.join(names)}; pass the one to load")
+    return os.path.join(folder, names[0])
 
 
 def capture_kind(path: PathLike, directions: Optional[PathLike] = None) -> str:
     """What :func:`load` takes ``path`` for: ``"btfrs"``, ``"model_file"`` (another tool's model
-    file: ``.ptm``, ``.rti``, or a relight / NeuralRTI web folder or its ``info.json``), ``"ubo2014"``,
+    file: ``.ptm``, ``.rti``, a relight / NeuralRTI web folder or its ``info.json``, a glTF asset or a Mitsuba scene written by btfrs), ``"ubo2014"``,
     ``"lp"`` (an RTI ``.lp`` file, or a folder holding exactly one), ``"table"`` (a folder with
     a ``directions=`` table, or holding ``directions.csv`` / ``.json``), ``"ubo2003"`` (a zip archive or a folder of images whose names carry
     the angles). Raises :class:`~btfrs.exceptions.FormatError` when it is none of these."""
@@ -200,8 +214,8 @@ def capture_kind(path: PathLike, directions: Optional[PathLike] = None) -> str:
             raise FormatError(f"{p}: holds several .lp files ({', '.join(lps)}); pass the one to load")
         if _default_table(p) is not None:
             return "table"
-        if "info.json" in names:
-            return "model_file"  # relight's web format (or NeuralRTI's): info.json + plane images
+        if any(index in names for index in _model_indexes()):
+            return "model_file"  # relight's or NeuralRTI's web format, a glTF asset, a Mitsuba scene
         if not any(n.lower().endswith(_IMAGE_EXT) for n in names):
             raise FormatError(f"{p}: the folder holds no images and no .lp file; expected an RTI capture "
                               f"(.lp + photos), a UBO-style image folder, or images with directions=")
@@ -306,7 +320,7 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
     if kind in ("btfrs", "model_file"):
         obj: Any
         if kind == "model_file":
-            obj = load_as_format(os.path.join(p, "info.json") if os.path.isdir(p) else p)
+            obj = load_as_format(_model_index(p) if os.path.isdir(p) else p)
         elif mmap and _native.read_container_header(p)[0] == "btf":
             obj = Btf.load(p, mmap=True)
         else:

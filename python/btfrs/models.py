@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import _native
 from .btf import Btf, read_container
-from ._checks import choice, index, instance
+from ._checks import boolean, choice, index, instance
 from .exceptions import ArgumentTypeError, FormatError, InternalError, InvalidArgumentError
 
 __all__ = ["ErrorReport", "Model", "Ptm", "Hsh", "Lafortune", "LafortuneView", "Srf", "Sh", "Lpca", "Rbf", "Bilinear", "Neural", "Svbrdf", "load",
@@ -124,17 +124,24 @@ class Model:
         """The other tools' file formats it can be written as (:meth:`export`)."""
         return list(model_kinds()[self.kind]["exports"])
 
-    def export(self, path: PathLike, *, format: Optional[str] = None, view: ArrayLike = 0) -> Dict[str, Any]:
+    def export(self, path: PathLike, *, format: Optional[str] = None, view: ArrayLike = 0,
+               force: bool = False) -> Dict[str, Any]:
         """Write view slot ``view`` (an index or a direction) as another tool's file format
-        (:attr:`exports`; by default chosen by the extension of ``path``). Returns what the writer
-        chose, e.g. the quantization's ``scale`` and ``bias``."""
+        (:attr:`exports`; by default chosen by the extension of ``path``: ``.ptm``, ``.rti``,
+        ``.gltf``, ``.xml`` for Mitsuba). A format written as a folder (relight's, NeuralRTI's,
+        glTF's, Mitsuba's) refuses a folder that exists and holds files unless ``force``.
+        Returns what the writer chose, e.g. the quantization's ``scale`` and ``bias``, or the
+        files written."""
         p = os.fspath(path)
         if format is None:
-            format = os.path.splitext(p)[1].lstrip(".").lower()
+            ext = os.path.splitext(p)[1].lstrip(".").lower()
+            named = [name for name, e, _, _, _ in _native.model_formats() if e == ext and name in self.exports]
+            format = named[0] if named else ext
         if format not in self.exports:
             can = ", ".join(repr(e) for e in self.exports) or "none"
             raise InvalidArgumentError(f"format: the {self.kind} model cannot be written as {format!r} (its formats: {can})")
-        return cast(Dict[str, Any], json.loads(_native.export_model(p, self._m, format, _slot_index(self, view))))
+        return cast(Dict[str, Any], json.loads(_native.export_model(p, self._m, format, _slot_index(self, view),
+                                                                    force=boolean("force", force))))
 
     def evaluate(self, view: ArrayLike, light: ArrayLike) -> NDArray[np.float32]:
         """The ``[H, W, 3]`` float32 image for one view and one light direction (any non-zero

@@ -12,6 +12,10 @@ measured values wrongly (the cosine of the light inside the blend) lands a few p
 too dark; one that reads the sample with a wrong convention (rows mirrored) lands in the wrong
 place, which the structural error sees.
 
+The same module renders the Mitsuba scenes btfrs exports (``model.export(folder,
+format="mitsuba")``, :func:`render_scene`) and checks them against btfrs's own render of the
+model (:func:`check_export`): the export's claim that Mitsuba draws what btfrs draws.
+
 Units are btfrs's: a BTF value is pi x radiance under a light of irradiance 1 (a white
 Lambertian plane reads cos(theta_l)); the geometry render is multiplied by pi to match.
 
@@ -32,14 +36,16 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .. import directions, io
-from .._checks import integer, real
+from .._checks import choice, integer, real
 from .._checks import seed as check_seed
 from .._progress import Progress, callback
 from ..btf import Btf
 from ..exceptions import BtfrsError, InvalidArgumentError
+from ..models import Model
 from ..rendering import Camera, DirectionalLight, Scene, render
 
-__all__ = ["Heightfield", "available", "measure_btf", "render_geometry", "compare", "check", "table", "figure"]
+__all__ = ["Heightfield", "available", "measure_btf", "render_geometry", "compare", "check", "table", "figure",
+           "render_scene", "check_export", "export_figure"]
 
 # Periods of the heightfield repeated around the measured tile: enough that the view ray through a
 # reference-plane texel and the shadow ray of a light at 75 degrees (tan = 3.7, times the
@@ -61,14 +67,14 @@ def _mitsuba() -> Any:
         import mitsuba as mi  # noqa: PLC0415  (optional dependency)
     except ImportError as e:
         raise BtfrsError("btfrs.tools.groundtruth needs Mitsuba 3: pip install mitsuba") from e
-    if mi.variant() is None:
+    # Batches of rays need a vectorised (llvm) variant. Another one set earlier in the process
+    # (a user's scalar_rgb) is switched, as Mitsuba allows: objects made under it keep working
+    # with it, new ones are llvm's.
+    if mi.variant() is None or not mi.variant().startswith("llvm"):
         try:
             mi.set_variant("llvm_ad_rgb")
         except (ImportError, AttributeError) as e:
             raise BtfrsError(f"Mitsuba's llvm_ad_rgb variant is unavailable (it needs libLLVM): {e}") from e
-    elif not mi.variant().startswith("llvm"):
-        raise BtfrsError(f"btfrs.tools.groundtruth traces batches of rays and needs an llvm Mitsuba variant, "
-                         f"the process has {mi.variant()!r}")
     return mi
 
 
@@ -368,6 +374,140 @@ def figure(result: Dict[str, Any], path: Union[str, "os.PathLike[str]"]) -> str:
             ax.imshow(np.clip(img, 0.0, 1.0), interpolation="nearest")
             ax.set_title(title, fontsize=9)
             ax.axis("off")
+    fig.tight_layout()
+    with io.atomic_write(path, "wb") as f:
+        fig.savefig(f, format="png", dpi=90)
+    plt.close(fig)
+    return str(path)
+
+
+# --- exported scenes ---------------------------------------------------------------------------
+
+
+def _vec(v: ArrayLike) -> str:
+    return ", ".join(repr(float(x)) for x in np.asarray(v, float).reshape(3))
+
+
+def render_scene(path: Union[str, "os.PathLike[str]"], camera: Camera, light_direction: ArrayLike, *,
+                 size: Union[int, Tuple[int, int]] = (256, 256), spp: int = 256, seed: int = 0,
+                 filter: str = "bilinear", uv_scale: float = 1.0) -> np.ndarray:
+    """Render the Mitsuba scene btfrs wrote at ``path`` (its folder or ``scene.xml``) with
+    Mitsuba 3, through ``camera`` (a :class:`btfrs.Camera`) under a directional light of
+    irradiance 1 from ``light_direction`` (towards the light, as btfrs's lights); ``filter`` is
+    the maps' lookup (``"nearest"`` or ``"bilinear"``). ``[height, width, 3]`` float32 in
+    btfrs's unit (pi x radiance)."""
+    mi = _mitsuba()
+    p = os.fspath(path)
+    if os.path.isdir(p):
+        p = os.path.join(p, "scene.xml")
+    if not os.path.isfile(p):
+        raise InvalidArgumentError(f"path: {p} does not exist; expected a scene written by model.export(..., format=\"mitsuba\")")
+    h, w = (size, size) if isinstance(size, int) else size
+    d = np.asarray(light_direction, float).reshape(3)
+    if not (np.isfinite(d).all() and d[2] > 0):
+        raise InvalidArgumentError(f"light_direction: expected a direction above the surface (z > 0), got {d.tolist()}")
+    d = d / np.linalg.norm(d)
+    scene = mi.load_file(p, spp=integer("spp", spp, min=1, max=65536), width=integer("width", w, min=1, max=8192),
+                         height=integer("height", h, min=1, max=8192), fov=repr(float(camera.fov_deg)),
+                         origin=_vec(camera.eye), target=_vec(camera.target), up=_vec(camera.up),
+                         light_direction=_vec(-d), filter=choice("filter", filter, ("nearest", "bilinear")),
+                         uv_scale=repr(real("uv_scale", uv_scale, min=1e-6)))
+    img = np.asarray(mi.render(scene, seed=check_seed(seed)), dtype=np.float32)[..., :3]
+    return img * np.float32(math.pi)
+
+
+def _psnr(a: np.ndarray, b: np.ndarray) -> Dict[str, Any]:
+    """Brightness ratio and PSNR (peak: the reference's largest value) of ``a`` against ``b``
+    over the pixels where both see the surface."""
+    x, y = np.asarray(a, np.float64).mean(-1), np.asarray(b, np.float64).mean(-1)
+    seen = (x > 0) & (y > 0)
+    if seen.sum() < 16:
+        raise InvalidArgumentError("rendered: the images share almost no surface pixels")
+    mse = float(np.mean((x[seen] - y[seen]) ** 2))
+    return {"brightness": float(x[seen].mean() / y[seen].mean()),
+            "psnr": float(10 * np.log10(float(y[seen].max()) ** 2 / max(mse, 1e-30))),
+            "pixels": int(seen.sum())}
+
+
+def check_export(model: Any, *, lights: Sequence[Tuple[float, float]] = ((40.0, 60.0), (65.0, 200.0)),
+                 size: int = 96, supersample: int = 4, spp: int = 512, seed: int = 0,
+                 backend: str = "cpu") -> Dict[str, Any]:
+    """Export ``model`` (an ``svbrdf``) as a Mitsuba scene, render it with Mitsuba 3 and render
+    the model with btfrs on ``Scene.plane(2)`` under the same camera and directional lights
+    (``lights``: (theta, phi) in degrees), and compare them: brightness ratio and PSNR per
+    light, and the same for the control, the model with its rows mirrored (a wrong texture
+    orientation), which must score far worse.
+
+    Both look the maps up by nearest texel. Mitsuba averages ``spp`` samples over each pixel
+    (a box filter); btfrs renders ``supersample`` x ``supersample`` pixel centres per pixel and
+    averages them, so both estimate the same pixel integral and the comparison does not hinge
+    on which texel a pixel's centre falls in.
+    """
+    if not isinstance(model, Model) or model.kind != "svbrdf":
+        raise InvalidArgumentError(f"model: expected an svbrdf model, got {getattr(model, 'kind', type(model).__name__)!r}")
+    size = integer("size", size, min=16, max=2048)
+    k = integer("supersample", supersample, min=1, max=16)
+    seed = check_seed(seed)
+    cam = Camera.look_at([0.0, -2.0, 2.4], [0.0, 0.0, 0.0], 40.0, up=[0.0, 0.0, 1.0])
+    plane = Scene.plane(2.0)
+    mirrored = Model.from_arrays({n: np.ascontiguousarray(a[::-1]) for n, a in model.arrays.items()}, kind="svbrdf")
+    rows, images = [], {}
+    t = {"mitsuba": 0.0, "btfrs": 0.0}
+    with tempfile.TemporaryDirectory(prefix="btfrs-mitsuba-") as tmp:
+        model.export(tmp, format="mitsuba", force=True)
+        for n, (th, ph) in enumerate(lights):
+            light = directions.from_theta_phi(real("lights", th, min=0.0, max=85.0), real("lights", ph),
+                                              degrees=True).reshape(3)
+            label = f"theta {th:g}, phi {ph:g}"
+            t0 = time.perf_counter()
+            ref = render_scene(tmp, cam, light, size=size, spp=spp, seed=seed + n, filter="nearest")
+            t1 = time.perf_counter()
+            ours = []
+            for m in (model, mirrored):
+                big = render(m, plane, cam, [DirectionalLight([float(x) for x in light])], size=(size * k, size * k),
+                             filter="nearest", backend=backend)
+                ours.append(big.reshape(size, k, size, k, 3).mean(axis=(1, 3)))
+            t["mitsuba"] += t1 - t0
+            t["btfrs"] += time.perf_counter() - t1
+            rows.append(dict(light=label, case="exported", **_psnr(ours[0], ref)))
+            rows.append(dict(light=label, case="rows mirrored", **_psnr(ours[1], ref)))
+            images[f"{label}: mitsuba"], images[f"{label}: btfrs"] = ref, ours[0]
+    return {"rows": rows, "images": images, "size": size, "supersample": k, "spp": spp, "seconds": t,
+            "backend": backend, "seed": seed}
+
+
+def export_figure(result: Dict[str, Any], maps: Dict[str, np.ndarray], path: Union[str, "os.PathLike[str]"],
+                  capture: Optional[np.ndarray] = None) -> str:
+    """A PNG of :func:`check_export`: the capture's image under the first light (if given), the
+    model's maps (``model.arrays``: diffuse, specular, roughness, normal), and per light btfrs's
+    render, Mitsuba's render of the exported scene and their difference. Written atomically."""
+    import matplotlib  # noqa: PLC0415  (heavy: only for the figure)
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt  # noqa: PLC0415  (after use("Agg"); heavy)
+
+    lights = list(dict.fromkeys(r["light"] for r in result["rows"]))
+    score = {(r["light"], r["case"]): r for r in result["rows"]}
+    top = ([(capture, "the capture (one of its images)")] if capture is not None else []) + [
+        (maps["diffuse"], "diffuse colour"), (maps["specular"], "specular colour"),
+        (np.repeat(maps["roughness"][..., None], 3, -1), "GGX roughness (alpha)"),
+        (0.5 * maps["normal"] + 0.5, "normal (x, y, z as RGB)")]
+    cols = max(len(top), 3)
+    fig, axes = plt.subplots(1 + len(lights), cols, figsize=(3 * cols, 3.2 * (1 + len(lights))), squeeze=False)
+    for ax in axes.ravel():
+        ax.axis("off")
+    for ax, (img, title) in zip(axes[0], top):
+        ax.imshow(np.clip(img, 0.0, 1.0), interpolation="nearest")
+        ax.set_title(title, fontsize=9)
+    for i, light in enumerate(lights, 1):
+        ours, ref = result["images"][f"{light}: btfrs"], result["images"][f"{light}: mitsuba"]
+        r = score[(light, "exported")]
+        panels = [(ours, f"btfrs render, {light}"),
+                  (ref, f"Mitsuba 3, exported scene\nbrightness {r['brightness']:.4f}, {r['psnr']:.1f} dB"),
+                  (0.5 + 4.0 * (ours - ref), "btfrs - Mitsuba (x4)")]
+        for ax, (img, title) in zip(axes[i], panels):
+            ax.imshow(np.clip(img, 0.0, 1.0), interpolation="nearest")
+            ax.set_title(title, fontsize=9)
     fig.tight_layout()
     with io.atomic_write(path, "wb") as f:
         fig.savefig(f, format="png", dpi=90)

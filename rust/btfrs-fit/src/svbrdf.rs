@@ -301,11 +301,12 @@ impl Model for Svbrdf {
     const DOC: &'static str = "per-texel microfacet SVBRDF: diffuse and specular colours, GGX roughness, normal";
     const ABOUT: &'static str = "\
 Per texel a Lambertian diffuse colour, a specular colour, an isotropic GGX roughness and a
-shading normal (Walter et al. 2007; Smith's separable masking), fitted texel by texel by
-Levenberg-Marquardt over the normal and the roughness with the colours solved exactly for each
-trial (variable projection), started from robust photometric stereo on the view slot nearest
-the normal. The form Mitsuba's `diffuse` + `roughconductor` and glTF's metallic-roughness
-materials take: the model other renderers can draw.";
+shading normal (Walter et al. 2007; Smith's separable masking). The normals come from robust
+photometric stereo; the roughness from a 1-D search per texel with the colours solved exactly
+(non-negative least squares) for each trial; `normals=\"fit\"` refines the normal by
+Levenberg-Marquardt over every pair. Exactly Mitsuba's `diffuse` + `roughconductor`, close to
+glTF's metallic-roughness materials: the model other renderers draw (`export --mitsuba`,
+`--gltf`).";
     const OPTIONS: &'static [Spec] = &[
         Spec::int("max_pairs", 1024, 8, None, "the most (view, light) pairs each texel is fitted to (spread evenly; seed shifts them)"),
         Spec::int("seed", 0, 0, None, "shifts the pairs chosen when the sample has more than max_pairs"),
@@ -322,6 +323,7 @@ materials take: the model other renderers can draw.";
         one_view: "one view: the lobe's view dependence is the model's, not measured",
     };
     const MIP: Mip = Mip::Projected;
+    const EXPORTS: &'static [&'static str] = &["mitsuba", "gltf"];
     type Options = SvbrdfOptions;
     // Each texel's lobe depends on its own values only (the pairs chosen are the sample's).
     const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Texels { overrides: "{}", counts: &[] };

@@ -16,9 +16,11 @@ pub struct Format {
     pub extension: &'static str,
     /// One line: what the format is and which tools read it.
     pub doc: &'static str,
-    /// Whether a model is written as a folder (holding a `{name}.{extension}` index file, which
-    /// is what [`Format::import`] and `btfrs.load` are given), not as one file.
+    /// Whether a model is written as a folder (holding the [`Format::index`] file, which is
+    /// what [`Format::import`] and `btfrs.load` are given), not as one file.
     pub folder: bool,
+    /// The index file of a folder format (`info.json`, `scene.xml`); empty for one-file formats.
+    pub index: &'static str,
     /// Write view slot `view` of a model as this format; returns what the writer chose (the
     /// quantization's scales and biases) as a JSON object.
     pub export: fn(&dyn DynModel, usize, &Path) -> Result<serde_json::Value>,
@@ -29,8 +31,14 @@ pub struct Format {
 /// Every format, in the order `btfrs.load` tries extensions.
 /// relight's folder comes before NeuralRTI's: both are an `info.json`, and relight's reader
 /// hands a `"neural"` one to NeuralRTI's.
-pub const FORMATS: &[Format] =
-    &[crate::ptm_file::FORMAT, crate::rti_file::FORMAT, crate::relight_file::FORMAT, crate::neuralrti_file::FORMAT];
+pub const FORMATS: &[Format] = &[
+    crate::ptm_file::FORMAT,
+    crate::rti_file::FORMAT,
+    crate::relight_file::FORMAT,
+    crate::neuralrti_file::FORMAT,
+    crate::gltf_file::FORMAT,
+    crate::mitsuba_file::FORMAT,
+];
 
 /// The format named `name`.
 pub fn lookup(name: &str) -> Result<&'static Format> {
@@ -47,8 +55,9 @@ pub fn of_path(path: &Path) -> Option<&'static Format> {
 }
 
 /// Write view slot `view` of `model` as `format`: an error naming `format` when the model does
-/// not export it.
-pub fn export(model: &dyn DynModel, format: &str, view: usize, path: &Path) -> Result<serde_json::Value> {
+/// not export it, and for a folder format, an error naming `path` when its folder exists and
+/// holds anything, unless `force` (then the folder's files are replaced, each atomically).
+pub fn export(model: &dyn DynModel, format: &str, view: usize, path: &Path, force: bool) -> Result<serde_json::Value> {
     let f = lookup(format)?;
     let exports = btfrs_fit::registry::lookup(model.kind())?.exports;
     if !exports.contains(&f.name) {
@@ -59,7 +68,33 @@ pub fn export(model: &dyn DynModel, format: &str, view: usize, path: &Path) -> R
             format!("the {} model cannot be written as {format:?} (its formats: {can})", model.kind()),
         ));
     }
+    if f.folder && !force {
+        let dir = f.folder_of(path);
+        if dir.is_file() {
+            return Err(Error::arg("path", format!("{} is a file; expected a folder", dir.display())));
+        }
+        if std::fs::read_dir(&dir).is_ok_and(|mut d| d.next().is_some()) {
+            return Err(Error::arg(
+                "path",
+                format!(
+                    "{} exists and is not empty; pass force=True (--force on the command line) to write into it",
+                    dir.display()
+                ),
+            ));
+        }
+    }
     (f.export)(model, view, path)
+}
+
+impl Format {
+    /// The folder of a folder format's `path`: itself, or its parent when it names the index file.
+    pub fn folder_of(&self, path: &Path) -> std::path::PathBuf {
+        if !self.index.is_empty() && path.file_name().is_some_and(|n| n == self.index) {
+            path.parent().map(Path::to_path_buf).unwrap_or_default()
+        } else {
+            path.to_path_buf()
+        }
+    }
 }
 
 /// The concrete model inside `model`, for a format's own writer; an error naming `model` when

@@ -4,6 +4,8 @@
 //! * [`model_file`]: any registered model saved to and loaded from a container.
 //! * [`ptm_file`]: `PTM_1.2` files (Malzbender et al. 2001) as RTIViewer and relight read them.
 //! * [`neuralrti_file`]: NeuralRTI's web format (`info.json` + latent plane images), as OpenLIME reads it.
+//! * [`gltf_file`]: glTF 2.0 assets (a textured plane, metallic-roughness + `KHR_materials_specular`) of `svbrdf` models.
+//! * [`mitsuba_file`]: Mitsuba 3 scenes (XML + EXR maps) of `svbrdf` models, its BSDFs matching the model's lobe exactly.
 //! * [`rti_file`]: `.rti` hemispherical-harmonics files (`#HSH1.2`, RTI type 3), relight's reading.
 //! * [`image`]: PNG and OpenEXR images (rendered or measured), multi-channel EXR coefficient maps.
 //! * [`decode`]: photographs (JPEG, PNG, TIFF; 8 or 16 bit) and EXR decoded to linear RGB.
@@ -19,7 +21,9 @@ pub mod capture;
 pub mod container;
 pub mod decode;
 pub mod formats;
+pub mod gltf_file;
 pub mod image;
+pub mod mitsuba_file;
 pub mod model_file;
 pub mod neuralrti_file;
 pub mod ptm_file;

@@ -35,6 +35,7 @@ pub const FORMAT: Format = Format {
     extension: "json",
     doc: "NeuralRTI's web format (info.json + latent plane images), read by OpenLIME's neural layer",
     folder: true,
+    index: "info.json",
     export: export_model,
     import: import_model,
 };

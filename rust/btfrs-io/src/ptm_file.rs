@@ -973,6 +973,7 @@ pub const FORMAT: crate::formats::Format = crate::formats::Format {
     extension: "ptm",
     doc: "Polynomial Texture Map 1.2 (RGB or LRGB, 8-bit), one view slot",
     folder: false,
+    index: "",
     export: export_model,
     import: import_model,
 };

@@ -78,6 +78,7 @@ pub const FORMAT: crate::formats::Format = crate::formats::Format {
     extension: "json",
     doc: "relight's web format (info.json + plane images) read by relight-cli and OpenLIME: PTM, HSH, PCA bases",
     folder: true,
+    index: "info.json",
     export: export_model,
     import: import_model,
 };

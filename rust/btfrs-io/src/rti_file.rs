@@ -349,6 +349,7 @@ pub const FORMAT: crate::formats::Format = crate::formats::Format {
     extension: "rti",
     doc: "RTI hemispherical harmonics (HSH, order 1 to 4, 8-bit), one view slot",
     folder: false,
+    index: "",
     export: export_model,
     import: import_model,
 };

@@ -95,17 +95,25 @@ pub fn read_container_header(
     Ok((c.kind, c.meta.to_string(), arrays))
 }
 
-/// The file formats of other tools: `[(name, extension, doc, folder)]` (btfrs_io::formats).
+/// The file formats of other tools: `[(name, extension, doc, folder, index)]` (btfrs_io::formats).
 #[pyfunction]
-pub fn model_formats() -> Vec<(&'static str, &'static str, &'static str, bool)> {
-    formats::FORMATS.iter().map(|f| (f.name, f.extension, f.doc, f.folder)).collect()
+pub fn model_formats() -> Vec<(&'static str, &'static str, &'static str, bool, &'static str)> {
+    formats::FORMATS.iter().map(|f| (f.name, f.extension, f.doc, f.folder, f.index)).collect()
 }
 
 /// Write view slot `view` of a model as `format` (one of its registry exports); returns what
 /// the writer chose (scales and biases) as JSON.
 #[pyfunction]
-pub fn export_model(py: Python<'_>, path: PathBuf, model: &PyModel, format: &str, view: usize) -> PyResult<String> {
-    Ok(detach(py, || formats::export(model.inner.as_ref(), format, view, &path))?.to_string())
+#[pyo3(signature = (path, model, format, view, force=false))]
+pub fn export_model(
+    py: Python<'_>,
+    path: PathBuf,
+    model: &PyModel,
+    format: &str,
+    view: usize,
+    force: bool,
+) -> PyResult<String> {
+    Ok(detach(py, || formats::export(model.inner.as_ref(), format, view, &path, force))?.to_string())
 }
 
 /// Read a file of another tool's format (by its extension) as a one-slot model.

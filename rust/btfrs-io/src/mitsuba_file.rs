@@ -1,0 +1,354 @@
+//! Mitsuba 3 scenes of `svbrdf` models: `scene.xml` and four float OpenEXR maps, the model on
+//! a square under a camera and a directional light, with the BSDFs whose sum is the model's lobe
+//! exactly ([`btfrs_fit::svbrdf::lobe`]):
+//!
+//! ```text
+//! normalmap(normal.exr)
+//!   blendbsdf(weight 0.5,
+//!     diffuse(reflectance = diffuse.exr = 2 rho_d),
+//!     roughconductor(ggx, material "none", alpha = roughness.exr, specular_reflectance = specular.exr = 2 rho_s))
+//! ```
+//!
+//! Mitsuba has no sum of BSDFs; the blend's weight 0.5 halves each lobe and the maps store twice
+//! the colours (exact in floating point). `roughconductor` with `material="none"` is GGX with
+//! Smith's separable masking and a Fresnel factor of 1, which is the model's specular lobe; its
+//! `alpha` is the model's roughness. The normal map holds `(n + 1) / 2` in the square's
+//! tangent frame (+X along the texture's columns, +Y up its rows). Values are Mitsuba's
+//! radiance; btfrs's units are pi times it (a white Lambertian sample reads cos(theta) in btfrs
+//! under a light of irradiance 1).
+//!
+//! # The scene
+//!
+//! A `rectangle` (the square [-1, 1]^2 at z = 0, facing +z: btfrs's `Scene.plane(2)`), the maps
+//! repeated `uv_scale` times with texture row 0 at +y (the `to_uv` transform flips Mitsuba's
+//! texture v), a perspective camera and a `directional` emitter, all as `<default>` parameters
+//! a user overrides when loading: `mi.load_file("scene.xml", spp=256, light_direction="0, 0, -1")`.
+//! `light_direction` is the direction the light travels (Mitsuba's convention), so the light
+//! itself is at minus it. The integrator is `direct`: a flat sample has no interreflection.
+//!
+//! # Reading
+//!
+//! [`import`] reads such a scene back as an `svbrdf` model: the bitmaps of the normal map, the
+//! blend's two BSDFs and its weight. Files must be plain names in the scene's folder.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use btfrs_core::{Error, NamedArrays, Result};
+use btfrs_fit::svbrdf::lobe::{ALPHA_MAX, ALPHA_MIN};
+use btfrs_fit::svbrdf::Svbrdf;
+use btfrs_fit::{DynModel, Model};
+use serde_json::{json, Value};
+
+use crate::atomic::write_atomic;
+use crate::formats::{concrete, Format};
+use crate::image::{read_exr, write_exr, write_exr_channels};
+
+/// The format's entry in [`crate::formats::FORMATS`].
+pub const FORMAT: Format = Format {
+    name: "mitsuba",
+    extension: "xml",
+    doc: "a Mitsuba 3 scene (XML + EXR maps) whose BSDFs are the model's lobe exactly",
+    folder: true,
+    index: INDEX,
+    export: export_model,
+    import: import_model,
+};
+
+/// The index file.
+pub const INDEX: &str = "scene.xml";
+/// The largest `scene.xml` read.
+const MAX_XML: u64 = 4 << 20;
+/// The scene's defaults: a camera above and in front of the square, a light from 40 degrees
+/// off the normal at azimuth 60 degrees (the direction it travels is minus the light's).
+const DEFAULTS: &[(&str, &str)] = &[
+    ("spp", "64"),
+    ("width", "512"),
+    ("height", "512"),
+    ("fov", "40"),
+    ("origin", "0, -2, 2.4"),
+    ("target", "0, 0, 0"),
+    ("up", "0, 0, 1"),
+    ("light_direction", "-0.321394, -0.556670, -0.766044"),
+    ("irradiance", "1"),
+    ("uv_scale", "1"),
+    ("filter", "bilinear"),
+];
+
+fn export_model(model: &dyn DynModel, _view: usize, path: &Path) -> Result<Value> {
+    export(concrete::<Svbrdf>(model, "an svbrdf model")?, path)
+}
+
+fn import_model(path: &Path) -> Result<Box<dyn DynModel>> {
+    Ok(Box::new(import(path)?))
+}
+
+/// A `bitmap` texture element named `name` reading `file`.
+fn bitmap(name: &str, file: &str, raw: bool, indent: &str) -> String {
+    format!(
+        "{indent}<texture type=\"bitmap\" name=\"{name}\">\n\
+         {indent}    <string name=\"filename\" value=\"{file}\"/>\n\
+         {indent}    <boolean name=\"raw\" value=\"{raw}\"/>\n\
+         {indent}    <string name=\"filter_type\" value=\"$filter\"/>\n\
+         {indent}    <string name=\"wrap_mode\" value=\"repeat\"/>\n\
+         {indent}    <transform name=\"to_uv\">\n\
+         {indent}        <scale x=\"1\" y=\"-1\"/>\n\
+         {indent}        <translate x=\"0\" y=\"1\"/>\n\
+         {indent}        <scale value=\"$uv_scale\"/>\n\
+         {indent}    </transform>\n\
+         {indent}</texture>\n"
+    )
+}
+
+/// The scene's XML.
+fn scene_xml(m: &Svbrdf) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "<?xml version=\"1.0\" encoding=\"utf-8\"?>");
+    let _ = writeln!(
+        s,
+        "<!-- A btfrs svbrdf model ({} x {} texels) on the square [-1, 1]^2 at z = 0. Render with Mitsuba 3:\n     \
+         mitsuba scene.xml, or mi.render(mi.load_file(\"scene.xml\", spp=256)). Every <default> can be\n     \
+         overridden at load time. Values are radiance; btfrs's images are pi times them. -->",
+        m.height, m.width
+    );
+    let _ = writeln!(s, "<scene version=\"3.0.0\">");
+    for (k, v) in DEFAULTS {
+        let _ = writeln!(s, "    <default name=\"{k}\" value=\"{v}\"/>");
+    }
+    s.push_str(
+        "    <integrator type=\"direct\"/>\n\
+         \x20   <sensor type=\"perspective\">\n\
+         \x20       <string name=\"fov_axis\" value=\"y\"/>\n\
+         \x20       <float name=\"fov\" value=\"$fov\"/>\n\
+         \x20       <float name=\"near_clip\" value=\"0.01\"/>\n\
+         \x20       <transform name=\"to_world\">\n\
+         \x20           <lookat origin=\"$origin\" target=\"$target\" up=\"$up\"/>\n\
+         \x20       </transform>\n\
+         \x20       <sampler type=\"independent\">\n\
+         \x20           <integer name=\"sample_count\" value=\"$spp\"/>\n\
+         \x20       </sampler>\n\
+         \x20       <film type=\"hdrfilm\">\n\
+         \x20           <integer name=\"width\" value=\"$width\"/>\n\
+         \x20           <integer name=\"height\" value=\"$height\"/>\n\
+         \x20           <string name=\"pixel_format\" value=\"rgb\"/>\n\
+         \x20           <rfilter type=\"box\"/>\n\
+         \x20       </film>\n\
+         \x20   </sensor>\n\
+         \x20   <emitter type=\"directional\">\n\
+         \x20       <vector name=\"direction\" value=\"$light_direction\"/>\n\
+         \x20       <rgb name=\"irradiance\" value=\"$irradiance\"/>\n\
+         \x20   </emitter>\n\
+         \x20   <shape type=\"rectangle\">\n\
+         \x20       <bsdf type=\"normalmap\">\n",
+    );
+    s.push_str(&bitmap("normalmap", "normal.exr", true, "            "));
+    s.push_str(
+        "            <bsdf type=\"blendbsdf\">\n\
+         \x20               <float name=\"weight\" value=\"0.5\"/>\n\
+         \x20               <bsdf type=\"diffuse\">\n",
+    );
+    s.push_str(&bitmap("reflectance", "diffuse.exr", false, "                    "));
+    s.push_str(
+        "                </bsdf>\n\
+         \x20               <bsdf type=\"roughconductor\">\n\
+         \x20                   <string name=\"distribution\" value=\"ggx\"/>\n\
+         \x20                   <string name=\"material\" value=\"none\"/>\n",
+    );
+    s.push_str(&bitmap("alpha", "roughness.exr", true, "                    "));
+    s.push_str(&bitmap("specular_reflectance", "specular.exr", false, "                    "));
+    s.push_str(
+        "                </bsdf>\n\
+         \x20           </bsdf>\n\
+         \x20       </bsdf>\n\
+         \x20   </shape>\n\
+         </scene>\n",
+    );
+    s
+}
+
+/// Write `m` as a Mitsuba scene folder at `path` (the folder, or its `scene.xml`). Returns the
+/// files written.
+pub fn export(m: &Svbrdf, path: &Path) -> Result<Value> {
+    m.validate()?;
+    let dir = FORMAT.folder_of(path);
+    std::fs::create_dir_all(&dir).map_err(|e| Error::io(dir.display().to_string(), e))?;
+    let (w, h) = (m.width, m.height);
+    let twice = |v: &[f32]| v.iter().map(|&x| 2.0 * x).collect::<Vec<f32>>();
+    write_exr(&dir.join("diffuse.exr"), &twice(&m.diffuse), w, h)?;
+    write_exr(&dir.join("specular.exr"), &twice(&m.specular), w, h)?;
+    write_exr_channels(&dir.join("roughness.exr"), w, h, &[("Y".to_string(), m.roughness.clone())])?;
+    let normal: Vec<f32> = m.normal.iter().map(|&x| 0.5 * x + 0.5).collect();
+    write_exr(&dir.join("normal.exr"), &normal, w, h)?;
+    let xml = scene_xml(m);
+    // The scene last: a reader that finds it finds every map it names.
+    write_atomic(&dir.join(INDEX), |f| f.write_all(xml.as_bytes()))?;
+    Ok(json!({
+        "folder": dir.display().to_string(),
+        "files": ["diffuse.exr", "specular.exr", "roughness.exr", "normal.exr", INDEX],
+        "defaults": DEFAULTS.iter().map(|(k, v)| (k.to_string(), json!(v))).collect::<serde_json::Map<_, _>>(),
+    }))
+}
+
+fn bad(shown: &str, what: &str, msg: impl std::fmt::Display) -> Error {
+    Error::format(shown, format!("{what}: {msg}"))
+}
+
+/// The one child element of `node` with tag `tag` and attribute `name` (if given).
+fn child<'a, 'i>(
+    node: roxmltree::Node<'a, 'i>,
+    tag: &str,
+    name: Option<&str>,
+    shown: &str,
+) -> Result<roxmltree::Node<'a, 'i>> {
+    let mut it = node.children().filter(|c| {
+        c.is_element() && c.tag_name().name() == tag && name.is_none_or(|n| c.attribute("name") == Some(n))
+    });
+    let found = it.next();
+    let what = match name {
+        Some(n) => format!("<{tag} name=\"{n}\">"),
+        None => format!("<{tag}>"),
+    };
+    let line = |n: roxmltree::Node<'_, '_>| n.document().text_pos_at(n.range().start).row;
+    match (found, it.next()) {
+        (Some(c), None) => Ok(c),
+        (Some(_), Some(other)) => Err(bad(shown, &format!("line {}", line(other)), format!("a second {what}"))),
+        (None, _) => Err(bad(
+            shown,
+            &format!("line {}", line(node)),
+            format!("<{}> has no {what}; expected the scene btfrs writes", node.tag_name().name()),
+        )),
+    }
+}
+
+/// The `value` of a child `<tag name="name">`, with `$default` parameters substituted.
+fn value(
+    node: roxmltree::Node<'_, '_>,
+    tag: &str,
+    name: &str,
+    defaults: &[(String, String)],
+    shown: &str,
+) -> Result<String> {
+    let c = child(node, tag, Some(name), shown)?;
+    let v = c.attribute("value").ok_or_else(|| bad(shown, name, "no value attribute"))?;
+    Ok(match v.strip_prefix('$') {
+        Some(k) => defaults
+            .iter()
+            .find(|(d, _)| d == k)
+            .map(|(_, v)| v.clone())
+            .ok_or_else(|| bad(shown, name, format!("${k} has no <default>")))?,
+        None => v.to_string(),
+    })
+}
+
+/// The `<bsdf type="kind">` child of `node`.
+fn bsdf<'a, 'i>(node: roxmltree::Node<'a, 'i>, kind: &str, shown: &str) -> Result<roxmltree::Node<'a, 'i>> {
+    let b = child(node, "bsdf", None, shown)?;
+    if b.attribute("type") != Some(kind) {
+        return Err(bad(
+            shown,
+            &format!("line {}", b.document().text_pos_at(b.range().start).row),
+            format!("expected a {kind} BSDF, got {:?}", b.attribute("type").unwrap_or("")),
+        ));
+    }
+    Ok(b)
+}
+
+/// The EXR map of bitmap texture `name` under `node`: `(rgb, width, height)`.
+fn map(
+    node: roxmltree::Node<'_, '_>,
+    name: &str,
+    dir: &Path,
+    defaults: &[(String, String)],
+    shown: &str,
+) -> Result<(Vec<f32>, usize, usize)> {
+    let tex = child(node, "texture", Some(name), shown)?;
+    let file = value(tex, "string", "filename", defaults, shown)?;
+    let p = Path::new(&file);
+    let plain = p.components().count() == 1 && matches!(p.components().next(), Some(std::path::Component::Normal(_)));
+    if !plain || !file.to_ascii_lowercase().ends_with(".exr") {
+        return Err(bad(shown, name, format!("{file:?}: expected an .exr file name in the scene's folder")));
+    }
+    let file = dir.join(p);
+    if !file.is_file() {
+        return Err(bad(shown, name, format!("{file:?} does not exist beside the scene")));
+    }
+    read_exr(&file)
+}
+
+/// Read a Mitsuba scene written by btfrs (its folder or `scene.xml`) as an `svbrdf` model.
+pub fn import(path: &Path) -> Result<Svbrdf> {
+    let (dir, index): (PathBuf, PathBuf) = if path.is_dir() {
+        (path.to_path_buf(), path.join(INDEX))
+    } else {
+        (path.parent().map(Path::to_path_buf).unwrap_or_default(), path.to_path_buf())
+    };
+    let shown = index.display().to_string();
+    let shown = shown.as_str();
+    let len = std::fs::metadata(&index).map_err(|e| Error::io(shown, e))?.len();
+    if len > MAX_XML {
+        return Err(bad(shown, "file", format!("{len} bytes; a scene of at most {MAX_XML} bytes is read")));
+    }
+    let bytes = std::fs::read(&index).map_err(|e| Error::io(shown, e))?;
+    let text = String::from_utf8(bytes).map_err(|e| bad(shown, "text", format!("not UTF-8: {e}")))?;
+    let doc = roxmltree::Document::parse(&text).map_err(|e| bad(shown, "XML", e))?;
+    let scene = doc.root_element();
+    if scene.tag_name().name() != "scene" {
+        return Err(bad(shown, "XML", "the root element is not <scene>"));
+    }
+    let defaults: Vec<(String, String)> = scene
+        .children()
+        .filter(|c| c.is_element() && c.tag_name().name() == "default")
+        .filter_map(|c| Some((c.attribute("name")?.to_string(), c.attribute("value")?.to_string())))
+        .collect();
+    let shape = child(scene, "shape", None, shown)?;
+    let nm = bsdf(shape, "normalmap", shown)?;
+    let blend = bsdf(nm, "blendbsdf", shown)?;
+    let weight: f64 =
+        value(blend, "float", "weight", &defaults, shown)?.trim().parse().map_err(|e| bad(shown, "weight", e))?;
+    if !(weight > 0.0 && weight < 1.0) {
+        return Err(bad(shown, "weight", format!("{weight}: expected a blend weight in (0, 1)")));
+    }
+    let mut parts = blend.children().filter(|c| c.is_element() && c.tag_name().name() == "bsdf");
+    let (diffuse_node, conductor) = match (parts.next(), parts.next(), parts.next()) {
+        (Some(a), Some(b), None)
+            if a.attribute("type") == Some("diffuse") && b.attribute("type") == Some("roughconductor") =>
+        {
+            (a, b)
+        }
+        _ => return Err(bad(shown, "blendbsdf", "expected a diffuse and a roughconductor BSDF, in that order")),
+    };
+    for (key, want) in [("distribution", "ggx"), ("material", "none")] {
+        let v = value(conductor, "string", key, &defaults, shown)?;
+        if v != want {
+            return Err(bad(shown, key, format!("{v:?}: the svbrdf lobe is roughconductor with {key} {want:?}")));
+        }
+    }
+    let (nrm, w, h) = map(nm, "normalmap", &dir, &defaults, shown)?;
+    let same = |(v, mw, mh): (Vec<f32>, usize, usize), what: &str| -> Result<Vec<f32>> {
+        if (mw, mh) != (w, h) {
+            return Err(bad(shown, what, format!("{mw} x {mh} pixels; the normal map has {w} x {h}")));
+        }
+        Ok(v)
+    };
+    let d = same(map(diffuse_node, "reflectance", &dir, &defaults, shown)?, "reflectance")?;
+    let s = same(map(conductor, "specular_reflectance", &dir, &defaults, shown)?, "specular_reflectance")?;
+    let r = same(map(conductor, "alpha", &dir, &defaults, shown)?, "alpha")?;
+    let t = w * h;
+    let mut normal = vec![0.0f32; 3 * t];
+    for i in 0..t {
+        let v = [0, 1, 2].map(|c| 2.0 * nrm[3 * i + c] as f64 - 1.0);
+        let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        if !(l > 1e-6 && v[2] > 0.0) {
+            return Err(bad(shown, "normalmap", format!("the normal at pixel {i} is {v:?}, not facing out")));
+        }
+        for c in 0..3 {
+            normal[3 * i + c] = (v[c] / l) as f32;
+        }
+    }
+    let mut a = NamedArrays::new();
+    a.put("diffuse", &[h, w, 3], d.iter().map(|&x| (x as f64 * (1.0 - weight)) as f32).collect());
+    a.put("specular", &[h, w, 3], s.iter().map(|&x| (x as f64 * weight) as f32).collect());
+    a.put("roughness", &[h, w], (0..t).map(|i| r[3 * i].clamp(ALPHA_MIN as f32, ALPHA_MAX as f32)).collect());
+    a.put("normal", &[h, w, 3], normal);
+    <Svbrdf as Model>::from_arrays(&a).map_err(|e| bad(shown, "maps", e))
+}
