@@ -145,6 +145,47 @@ impl Raw {
         }
     }
 
+    /// Linear RGB of the `dst.len() / 3` consecutive pixels from pixel `p` (row-major) into
+    /// `dst`: [`Raw::rgb`] for a run, the sample type and lookup table chosen once per run
+    /// instead of once per pixel (the scatter into a capture converts every pixel of every
+    /// image this way).
+    pub fn rgb_run(&self, p: usize, dst: &mut [f32]) {
+        fn run<T: Copy>(v: &[T], ch: usize, p: usize, dst: &mut [f32], f: impl Fn(T) -> f32) {
+            let src = &v[p * ch..];
+            if ch >= 3 {
+                for (d, s) in dst.chunks_exact_mut(3).zip(src.chunks_exact(ch)) {
+                    d[0] = f(s[0]);
+                    d[1] = f(s[1]);
+                    d[2] = f(s[2]);
+                }
+            } else {
+                for (d, s) in dst.chunks_exact_mut(3).zip(src.chunks_exact(ch)) {
+                    d.fill(f(s[0]));
+                }
+            }
+        }
+        match &self.samples {
+            Samples::U8(v, ch) => {
+                let l = lut8(self.transfer);
+                run(v, *ch, p, dst, |x| l[x as usize]);
+            }
+            Samples::U16(v, ch) => {
+                let l = lut16(self.transfer);
+                run(v, *ch, p, dst, |x| l[x as usize]);
+            }
+            Samples::F32(v, ch) => run(v, *ch, p, dst, |x| x),
+        }
+    }
+
+    /// Bytes the samples hold.
+    pub fn sample_bytes(&self) -> usize {
+        match &self.samples {
+            Samples::U8(v, _) => v.len(),
+            Samples::U16(v, _) => 2 * v.len(),
+            Samples::F32(v, _) => 4 * v.len(),
+        }
+    }
+
     /// Convert to float RGB.
     pub fn into_decoded(self) -> Decoded {
         let rgb = (0..self.width * self.height).flat_map(|p| self.rgb(p)).collect();

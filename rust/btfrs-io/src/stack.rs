@@ -370,18 +370,47 @@ impl Source for ImageStack {
                     Ok(img)
                 })
                 .collect::<Result<_>>()?;
-            out.par_chunks_mut(abrdf).enumerate().for_each(|(t, texel)| {
-                let (r, c) = (crop.row + t / crop.cols, crop.col + t % crop.cols);
-                let src = r * fw + c;
-                for ((_, v, l), img) in chunk.iter().zip(&images) {
-                    let dst = (v * nl + l) * 3;
-                    texel[dst..dst + 3].copy_from_slice(&img.rgb(src));
-                }
-            });
+            scatter(out, abrdf, nl, crop, fw, chunk.iter().map(|&(_, v, l)| (v, l)).zip(&images));
             monitor.advance(chunk.len() as u64);
         }
         Ok(())
     }
+}
+
+/// Texels per block of the scatter: a block's slices of the output (`SCATTER_BLOCK` texels of
+/// `abrdf` values) stay in cache while every image of the batch writes its run of pixels into
+/// them, each image's run converted in one loop ([`Raw::rgb_run`]).
+const SCATTER_BLOCK: usize = 64;
+
+/// Write the images of a batch, each with its `(view, light)` slot, into the texel-major
+/// output (`abrdf` values per texel, `nl` lights), texel `t` being pixel `(crop.row + t /
+/// crop.cols, crop.col + t % crop.cols)` of images `fw` pixels wide. Blocks of texels in
+/// parallel; within a block, image by image, run by run (a run ends at the crop's row end).
+fn scatter<'a>(
+    out: &mut [f32],
+    abrdf: usize,
+    nl: usize,
+    crop: Crop,
+    fw: usize,
+    images: impl Iterator<Item = ((usize, usize), &'a Raw)> + Clone + Send + Sync,
+) {
+    out.par_chunks_mut(abrdf * SCATTER_BLOCK).enumerate().for_each(|(b, block)| {
+        let (t0, n) = (b * SCATTER_BLOCK, block.len() / abrdf);
+        let mut buf = [0.0f32; 3 * SCATTER_BLOCK];
+        for ((v, l), img) in images.clone() {
+            let dst = (v * nl + l) * 3;
+            let mut i = 0;
+            while i < n {
+                let t = t0 + i;
+                let run = (n - i).min(crop.cols - t % crop.cols);
+                img.rgb_run((crop.row + t / crop.cols) * fw + crop.col + t % crop.cols, &mut buf[..3 * run]);
+                for (k, px) in buf[..3 * run].chunks_exact(3).enumerate() {
+                    block[(i + k) * abrdf + dst..][..3].copy_from_slice(px);
+                }
+                i += run;
+            }
+        }
+    });
 }
 
 /// A direction from theta and phi in degrees: `(sin t cos p, sin t sin p, cos t)`.
