@@ -43,6 +43,8 @@ EXTRA = {
     "hsh": ["rust/btfrs-fit/src/lightfit.rs", "rust/btfrs-io/src/rti_file.rs", RELIGHT],
     "sh": ["rust/btfrs-render/src/sh_env.rs"],
     "neural": ["rust/btfrs-io/src/neuralrti_file.rs", RELIGHT],
+    # The renderers' formats hold the svbrdf model's maps and nothing else.
+    "svbrdf": ["rust/btfrs-io/src/gltf_file.rs", "rust/btfrs-io/src/mitsuba_file.rs"],
     "rbf": ["rust/btfrs-fit/src/light_pca.rs", "rust/btfrs-fit/src/light_pca/*", "shaders_wgsl/light_pca.wgsl", RELIGHT],
     "bilinear": ["rust/btfrs-fit/src/light_pca.rs", "rust/btfrs-fit/src/light_pca/*", "shaders_wgsl/light_pca.wgsl",
                  RELIGHT],
@@ -51,7 +53,8 @@ OWN = {k: [f"rust/btfrs-fit/src/{_module(k)}.rs", f"rust/btfrs-fit/src/{_module(
            f"shaders_wgsl/{_module(k)}*.wgsl"] + EXTRA.get(k, []) for k in KINDS}
 EVERY = ["rust/btfrs-fit/src/registry.rs", "rust/btfrs-fit/src/lib.rs"]
 # Rust files where a kind's name is another thing's name: (file, kind) -> what it is.
-NOT_KINDS_RUST = {("rust/btfrs-render/src/filter.rs", "bilinear"): "the bilinear texture filter (Filter::Bilinear)"}
+NOT_KINDS_RUST = {("rust/btfrs-render/src/filter.rs", "bilinear"): "the bilinear texture filter (Filter::Bilinear)",
+                  ("rust/btfrs-io/src/mitsuba_file.rs", "bilinear"): "Mitsuba's bilinear bitmap filter"}
 # The Rust type of each kind, from the registry.
 TYPES = {k: KINDS[k]["type"].split("::")[-1] for k in KINDS}
 

@@ -392,7 +392,8 @@ def _data_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -
                    help="leave out of the fit the whole images found far from their neighbours (a misfired or "
                         "doubled flash, a moved sample)")
     f.add_argument("-o", "--out", required=True, help="the model file (.btfrs)")
-    x = sub.add_parser("export", help="write a model or BTF for other tools: .ptm, .rti, EXR maps, image stack")
+    x = sub.add_parser("export", help="write a model or BTF for other tools: .ptm, .rti, relight, Mitsuba 3, glTF, "
+                       "EXR maps, image stack")
     _sample_args(x)
     for name, ext, doc, folder in _formats():
         able = [k for k, info in _facts().items() if name in info["exports"]]

@@ -249,8 +249,10 @@ def chart(report: EvaluationReport, x: str, path: Union[str, "os.PathLike[str]"]
     if not ys:
         raise InvalidArgumentError("report: no row has a held-out error to chart")
     kinds = list(dict.fromkeys(r["kind"] for r in report.rows))
-    cmap = plt.get_cmap("tab10")
-    colour = {k: cmap(i % 10) for i, k in enumerate(kinds)}
+    # One colour per kind: tab10 while there are at most 10 kinds, tab20 beyond (with the
+    # registry's 11 kinds, tab10 gave the 11th the first one's colour).
+    cmap = plt.get_cmap("tab10" if len(kinds) <= 10 else "tab20")
+    colour = {k: cmap(i % cmap.N) for i, k in enumerate(kinds)}
     number = {id(r): i + 1 for i, r in enumerate(report.rows)}
     fig = plt.figure(figsize=(6.2 * len(ys) + 4.6, 6.4))
     grid = fig.add_gridspec(1, len(ys) + 1, width_ratios=[6.2] * len(ys) + [4.6])

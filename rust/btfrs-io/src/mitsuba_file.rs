@@ -352,3 +352,53 @@ pub fn import(path: &Path) -> Result<Svbrdf> {
     a.put("normal", &[h, w, 3], normal);
     <Svbrdf as Model>::from_arrays(&a).map_err(|e| bad(shown, "maps", e))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn model() -> Svbrdf {
+        let (h, w) = (3usize, 4usize);
+        let t = h * w;
+        let mut a = NamedArrays::new();
+        let f = |i: usize, s: f32| ((i * 7 + 3) % 11) as f32 / 11.0 * s;
+        a.put("diffuse", &[h, w, 3], (0..3 * t).map(|i| f(i, 0.9)).collect());
+        a.put("specular", &[h, w, 3], (0..3 * t).map(|i| f(i, 0.4)).collect());
+        a.put("roughness", &[h, w], (0..t).map(|i| 0.05 + f(i, 0.9)).collect());
+        let normal: Vec<f32> = (0..t)
+            .flat_map(|i| {
+                let (p, q) = (f(i, 0.6) - 0.3, 0.2 - f(i + 1, 0.4));
+                let l = (p * p + q * q + 1.0).sqrt();
+                [-p / l, -q / l, 1.0 / l]
+            })
+            .collect();
+        a.put("normal", &[h, w, 3], normal);
+        <Svbrdf as Model>::from_arrays(&a).unwrap()
+    }
+
+    #[test]
+    fn a_scene_reads_back_as_the_model_it_was_written_from() {
+        let dir = tempfile::tempdir().unwrap();
+        let m = model();
+        export(&m, &dir.path().join("s")).unwrap();
+        let back = import(&dir.path().join("s").join(INDEX)).unwrap();
+        // Doubling and halving are exact; the normal goes through (n + 1) / 2 and back.
+        assert_eq!(back.diffuse, m.diffuse);
+        assert_eq!(back.specular, m.specular);
+        assert_eq!(back.roughness, m.roughness);
+        for (a, b) in back.normal.iter().zip(&m.normal) {
+            assert!((a - b).abs() < 2e-7, "{a} {b}");
+        }
+    }
+
+    #[test]
+    fn maps_outside_the_scene_folder_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        export(&model(), dir.path()).unwrap();
+        let p = dir.path().join(INDEX);
+        let xml = std::fs::read_to_string(&p).unwrap().replace("\"diffuse.exr\"", "\"/etc/diffuse.exr\"");
+        std::fs::write(&p, xml).unwrap();
+        let e = import(&p).unwrap_err().to_string();
+        assert!(e.contains("expected an .exr file name in the scene's folder"), "{e}");
+    }
+}
