@@ -1428,12 +1428,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print("seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in res["seconds"].items()))
         if a.figures:
             os.makedirs(a.figures, exist_ok=True)
-            path = os.path.join(a.figures, "ground_truth.png")
-            print(f"wrote {groundtruth.figure(res, path)}")
-        res.pop("images")
-        _write_json(a.json, {"machine": machine(), "ground_truth": res})
-        print(f"\nwrote {a.json}", file=sys.stderr)
-        return 0
+            print(f"wrote {groundtruth.figure(res, os.path.join(a.figures, 'ground_truth.png'))}")
+        return _write_check(a.json, "ground_truth", res)
     if a.export_check:
         mat, size = "bumps", (a.size or [64])[0]
         btf = materials.make(mat, size=size, seed=0)
@@ -1455,10 +1451,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             capture = btf.data[:, :, top, int(np.argmax(btf.lights @ first))]
             path = os.path.join(a.figures, "mitsuba_export.png")
             print(f"wrote {groundtruth.export_figure(res, model.arrays, path, capture=capture)}")
-        res.pop("images")
-        _write_json(a.json, {"machine": machine(), "export_check": res})
-        print(f"\nwrote {a.json}", file=sys.stderr)
-        return 0
+        return _write_check(a.json, "export_check", res)
     if a.neural_only:
         res = neural_bench(size=(a.size or [64])[0])
         print(neural_table(res))
@@ -1580,6 +1573,14 @@ def _finish(a: argparse.Namespace, out: Dict[str, Any]) -> int:
             print(f"wrote {figure6(a.figures, mat)}")  # io.save_image writes atomically
     _write_json(a.json, out)
     print(f"\nwrote {a.json}", file=sys.stderr)
+    return 0
+
+
+def _write_check(path: str, key: str, res: Dict[str, Any]) -> int:
+    """Write a Mitsuba check's result (its images left out) as ``path``'s JSON under ``key``."""
+    res.pop("images")
+    _write_json(path, {"machine": machine(), key: res})
+    print(f"\nwrote {path}", file=sys.stderr)
     return 0
 
 

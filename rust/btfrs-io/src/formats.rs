@@ -105,3 +105,49 @@ pub(crate) fn concrete<'a, M: 'static>(model: &'a dyn DynModel, what: &str) -> R
         .downcast_ref::<M>()
         .ok_or_else(|| Error::arg("model", format!("expected {what}, got a {} model", model.kind())))
 }
+
+/// The index file of a folder format's `path` (the folder, or the index file itself) and its
+/// folder, read as UTF-8 text of at most `max` bytes (a file from a stranger): `(folder, shown
+/// name, text)`. A larger file or invalid UTF-8 is an [`Error::Format`] naming the file.
+pub(crate) fn read_index(path: &Path, index: &str, max: u64) -> Result<(std::path::PathBuf, String, String)> {
+    let (dir, file) = if path.is_dir() {
+        (path.to_path_buf(), path.join(index))
+    } else {
+        (path.parent().map(Path::to_path_buf).unwrap_or_default(), path.to_path_buf())
+    };
+    let shown = file.display().to_string();
+    let len = std::fs::metadata(&file).map_err(|e| Error::io(&shown, e))?.len();
+    if len > max {
+        return Err(Error::format(&shown, format!("{len} bytes; at most {max} are read")));
+    }
+    let bytes = std::fs::read(&file).map_err(|e| Error::io(&shown, e))?;
+    let text = String::from_utf8(bytes).map_err(|e| Error::format(&shown, format!("not UTF-8: {e}")))?;
+    Ok((dir, shown, text))
+}
+
+/// Whether `name` (a map's file name from an index file) is a plain name in its folder: one
+/// normal path component, no URI scheme or escapes, so a reader never leaves the folder.
+pub(crate) fn plain_name(name: &str) -> bool {
+    let p = Path::new(name);
+    p.components().count() == 1
+        && matches!(p.components().next(), Some(std::path::Component::Normal(_)))
+        && !name.contains(':')
+        && !name.contains('%')
+}
+
+/// Unit normals from a normal map's `(n + 1) / 2` encoding (`[t][3]`, x and y times `scale`),
+/// an [`Error::Format`] naming `shown` and `what` for a texel whose normal does not face out.
+pub(crate) fn decode_normals(encoded: &[f32], scale: f64, shown: &str, what: &str) -> Result<Vec<f32>> {
+    let mut out = vec![0.0f32; encoded.len()];
+    for (i, (e, o)) in encoded.chunks_exact(3).zip(out.chunks_exact_mut(3)).enumerate() {
+        let v = [scale * (2.0 * e[0] as f64 - 1.0), scale * (2.0 * e[1] as f64 - 1.0), 2.0 * e[2] as f64 - 1.0];
+        let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        if !(l > 1e-6 && v[2] > 0.0) {
+            return Err(Error::format(shown, format!("{what}: the normal at pixel {i} is {v:?}, not facing out")));
+        }
+        for c in 0..3 {
+            o[c] = (v[c] / l) as f32;
+        }
+    }
+    Ok(out)
+}

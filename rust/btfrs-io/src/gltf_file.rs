@@ -47,7 +47,7 @@ use serde_json::{json, Value};
 
 use crate::atomic::write_atomic;
 use crate::decode::{self, Transfer};
-use crate::formats::{concrete, Format};
+use crate::formats::{concrete, decode_normals, plain_name, read_index, Format};
 use crate::image::{linear_to_srgb, write_png16};
 
 /// The format's entry in [`crate::formats::FORMATS`].
@@ -241,19 +241,14 @@ fn texture_path(doc: &Value, info: &Value, dir: &Path, shown: &str, what: &str) 
     let uri = image["uri"]
         .as_str()
         .ok_or_else(|| bad(shown, &format!("images[{s}]"), "expected a uri (buffer views are not read)"))?;
-    let name = Path::new(uri);
-    let plain = name.components().count() == 1
-        && matches!(name.components().next(), Some(std::path::Component::Normal(_)))
-        && !uri.contains(':')
-        && !uri.contains('%');
-    if !plain {
+    if !plain_name(uri) {
         return Err(bad(
             shown,
             &format!("images[{s}].uri"),
             format!("{uri:?}: expected a file name in the asset's folder (no folders, no data: or other URIs)"),
         ));
     }
-    let file = dir.join(name);
+    let file = dir.join(uri);
     if !file.is_file() {
         return Err(bad(shown, &format!("images[{s}].uri"), format!("{uri:?} does not exist beside the asset")));
     }
@@ -278,19 +273,8 @@ fn read_map(path: &Path, transfer: Transfer, size: &mut Option<(usize, usize)>) 
 /// Read a glTF asset (its folder or `.gltf` file) as an `svbrdf` model: the first material's
 /// base colour, metallic-roughness, normal and specular colour textures with their factors.
 pub fn import(path: &Path) -> Result<Svbrdf> {
-    let (dir, index) = if path.is_dir() {
-        (path.to_path_buf(), path.join(INDEX))
-    } else {
-        (path.parent().map(Path::to_path_buf).unwrap_or_default(), path.to_path_buf())
-    };
-    let shown = index.display().to_string();
+    let (dir, shown, text) = read_index(path, INDEX, MAX_JSON)?;
     let shown = shown.as_str();
-    let len = std::fs::metadata(&index).map_err(|e| Error::io(shown, e))?.len();
-    if len > MAX_JSON {
-        return Err(bad(shown, "file", format!("{len} bytes; a glTF JSON of at most {MAX_JSON} bytes is read")));
-    }
-    let bytes = std::fs::read(&index).map_err(|e| Error::io(shown, e))?;
-    let text = String::from_utf8(bytes).map_err(|e| bad(shown, "text", format!("not UTF-8: {e}")))?;
     let doc: Value = serde_json::from_str(&text).map_err(|e| bad(shown, "JSON", e))?;
     if doc["asset"]["version"].as_str() != Some("2.0") {
         return Err(bad(shown, "asset.version", format!("expected \"2.0\", got {}", doc["asset"]["version"])));
@@ -329,18 +313,7 @@ pub fn import(path: &Path) -> Result<Svbrdf> {
     let specular: Vec<f32> = (0..3 * t).map(|i| ((f0 * sc_f[i % 3] * sc[i] as f64).min(1.0) * s_f) as f32).collect();
     let roughness: Vec<f32> =
         (0..t).map(|i| (rough_f * mr[3 * i + 1] as f64).powi(2).clamp(ALPHA_MIN, ALPHA_MAX) as f32).collect();
-    let mut normal = vec![0.0f32; 3 * t];
-    for i in 0..t {
-        let v = [0, 1, 2].map(|c| 2.0 * nrm[3 * i + c] as f64 - 1.0);
-        let v = [v[0] * scale, v[1] * scale, v[2]];
-        let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        if !(l > 1e-6 && v[2] > 0.0) {
-            return Err(bad(shown, "normalTexture", format!("the normal at pixel {i} is {v:?}, not facing out")));
-        }
-        for c in 0..3 {
-            normal[3 * i + c] = (v[c] / l) as f32;
-        }
-    }
+    let normal = decode_normals(&nrm, scale, shown, "normalTexture")?;
     a.put("diffuse", &[h, w, 3], diffuse);
     a.put("specular", &[h, w, 3], specular);
     a.put("roughness", &[h, w], roughness);

@@ -32,7 +32,7 @@
 //! blend's two BSDFs and its weight. Files must be plain names in the scene's folder.
 
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use btfrs_core::{Error, NamedArrays, Result};
 use btfrs_fit::svbrdf::lobe::{ALPHA_MAX, ALPHA_MIN};
@@ -41,7 +41,7 @@ use btfrs_fit::{DynModel, Model};
 use serde_json::{json, Value};
 
 use crate::atomic::write_atomic;
-use crate::formats::{concrete, Format};
+use crate::formats::{concrete, decode_normals, plain_name, read_index, Format};
 use crate::image::{read_exr, write_exr, write_exr_channels};
 
 /// The format's entry in [`crate::formats::FORMATS`].
@@ -263,12 +263,10 @@ fn map(
 ) -> Result<(Vec<f32>, usize, usize)> {
     let tex = child(node, "texture", Some(name), shown)?;
     let file = value(tex, "string", "filename", defaults, shown)?;
-    let p = Path::new(&file);
-    let plain = p.components().count() == 1 && matches!(p.components().next(), Some(std::path::Component::Normal(_)));
-    if !plain || !file.to_ascii_lowercase().ends_with(".exr") {
+    if !plain_name(&file) || !file.to_ascii_lowercase().ends_with(".exr") {
         return Err(bad(shown, name, format!("{file:?}: expected an .exr file name in the scene's folder")));
     }
-    let file = dir.join(p);
+    let file = dir.join(&file);
     if !file.is_file() {
         return Err(bad(shown, name, format!("{file:?} does not exist beside the scene")));
     }
@@ -277,19 +275,8 @@ fn map(
 
 /// Read a Mitsuba scene written by btfrs (its folder or `scene.xml`) as an `svbrdf` model.
 pub fn import(path: &Path) -> Result<Svbrdf> {
-    let (dir, index): (PathBuf, PathBuf) = if path.is_dir() {
-        (path.to_path_buf(), path.join(INDEX))
-    } else {
-        (path.parent().map(Path::to_path_buf).unwrap_or_default(), path.to_path_buf())
-    };
-    let shown = index.display().to_string();
+    let (dir, shown, text) = read_index(path, INDEX, MAX_XML)?;
     let shown = shown.as_str();
-    let len = std::fs::metadata(&index).map_err(|e| Error::io(shown, e))?.len();
-    if len > MAX_XML {
-        return Err(bad(shown, "file", format!("{len} bytes; a scene of at most {MAX_XML} bytes is read")));
-    }
-    let bytes = std::fs::read(&index).map_err(|e| Error::io(shown, e))?;
-    let text = String::from_utf8(bytes).map_err(|e| bad(shown, "text", format!("not UTF-8: {e}")))?;
     let doc = roxmltree::Document::parse(&text).map_err(|e| bad(shown, "XML", e))?;
     let scene = doc.root_element();
     if scene.tag_name().name() != "scene" {
@@ -334,17 +321,7 @@ pub fn import(path: &Path) -> Result<Svbrdf> {
     let s = same(map(conductor, "specular_reflectance", &dir, &defaults, shown)?, "specular_reflectance")?;
     let r = same(map(conductor, "alpha", &dir, &defaults, shown)?, "alpha")?;
     let t = w * h;
-    let mut normal = vec![0.0f32; 3 * t];
-    for i in 0..t {
-        let v = [0, 1, 2].map(|c| 2.0 * nrm[3 * i + c] as f64 - 1.0);
-        let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        if !(l > 1e-6 && v[2] > 0.0) {
-            return Err(bad(shown, "normalmap", format!("the normal at pixel {i} is {v:?}, not facing out")));
-        }
-        for c in 0..3 {
-            normal[3 * i + c] = (v[c] / l) as f32;
-        }
-    }
+    let normal = decode_normals(&nrm, 1.0, shown, "normalmap")?;
     let mut a = NamedArrays::new();
     a.put("diffuse", &[h, w, 3], d.iter().map(|&x| (x as f64 * (1.0 - weight)) as f32).collect());
     a.put("specular", &[h, w, 3], s.iter().map(|&x| (x as f64 * weight) as f32).collect());
