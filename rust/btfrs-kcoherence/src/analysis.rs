@@ -375,6 +375,14 @@ fn units(h: usize, opts: &AnalysisOptions, radii: &[usize]) -> u64 {
 type RowsMut<'a> = (usize, (&'a mut [u32], &'a mut [f32]));
 
 /// Brute-force `m` most similar interior neighbourhoods of every interior pixel of a level.
+///
+/// The result is the `m` smallest `(distance, index)` pairs, ties going to the lower index, as a
+/// scan in index order with a running top `m` finds them. The scan prunes a window as soon as its
+/// partial sum loses to the current `m`-th entry, so it is cheap once that bound is tight: every
+/// pixel therefore first scores the shifted matches of its left neighbour (`q + 1` for each of
+/// its `q`: in a coherent sample they are near the final answer), then scans the rest. The order
+/// only changes how much is pruned, never the result: the distances are the same sums in the
+/// same order, and the pairs are compared as a whole.
 fn similar_neighbourhoods(lv: &Level, r: usize, m: usize, monitor: &Monitor) -> Result<Neighbours> {
     let (h, w) = (lv.height, lv.width);
     let tex = &lv.textons;
@@ -389,40 +397,58 @@ fn similar_neighbourhoods(lv: &Level, r: usize, m: usize, monitor: &Monitor) -> 
         monitor.check()?;
         let mut base = vec![0usize; deltas.len()];
         let mut best: Vec<(f32, u32)> = Vec::with_capacity(m + 1);
+        let mut seeds: Vec<u32> = Vec::with_capacity(m);
         for x in r..w - r {
             let p = (y * w + x) as isize;
             for (b, &d) in base.iter_mut().zip(&deltas) {
                 *b = tex.assign[(p + d) as usize] as usize * t;
             }
+            // The left neighbour's matches, shifted one column right.
+            seeds.clear();
+            if x > r {
+                seeds.extend(irow[(x - 1) * m..x * m].iter().filter(|&&q| q != u32::MAX).map(|&q| q + 1).filter(
+                    |&q| {
+                        let (qx, qy) = (q as usize % w, q as usize / w);
+                        qx < w - r && !(qy.abs_diff(y) <= r && qx.abs_diff(x) <= r)
+                    },
+                ));
+            }
             best.clear();
-            let mut worst = f32::INFINITY;
+            // The current m-th entry (infinite until there are m).
+            let mut worst = (f32::INFINITY, u32::MAX);
+            let consider = |q: usize, best: &mut Vec<(f32, u32)>, worst: &mut (f32, u32)| {
+                let qu = q as u32;
+                let q = q as isize;
+                let mut s = 0.0f32;
+                for (rb, rd) in base.chunks_exact(side).zip(deltas.chunks_exact(side)) {
+                    for (&b, &d) in rb.iter().zip(rd) {
+                        s += tex.dist[b + tex.assign[(q + d) as usize] as usize];
+                    }
+                    // A partial sum only grows: once it loses to the m-th pair, so does the whole.
+                    if s > worst.0 || (s == worst.0 && qu > worst.1) {
+                        return;
+                    }
+                }
+                let pos = best.partition_point(|e| e.0 < s || (e.0 == s && e.1 < qu));
+                best.insert(pos, (s, qu));
+                if best.len() > m {
+                    best.pop();
+                }
+                if best.len() == m {
+                    *worst = best[m - 1];
+                }
+            };
+            for &q in &seeds {
+                consider(q as usize, &mut best, &mut worst);
+            }
             for qy in r..h - r {
                 for qx in r..w - r {
                     if qy.abs_diff(y) <= r && qx.abs_diff(x) <= r {
                         continue;
                     }
-                    let q = (qy * w + qx) as isize;
-                    let mut s = 0.0f32;
-                    let mut pruned = false;
-                    for (rb, rd) in base.chunks_exact(side).zip(deltas.chunks_exact(side)) {
-                        for (&b, &d) in rb.iter().zip(rd) {
-                            s += tex.dist[b + tex.assign[(q + d) as usize] as usize];
-                        }
-                        if s >= worst {
-                            pruned = true;
-                            break;
-                        }
-                    }
-                    if pruned {
-                        continue;
-                    }
-                    let pos = best.partition_point(|e| e.0 <= s);
-                    best.insert(pos, (s, q as u32));
-                    if best.len() > m {
-                        best.pop();
-                    }
-                    if best.len() == m {
-                        worst = best[m - 1].0;
+                    let q = qy * w + qx;
+                    if !seeds.contains(&(q as u32)) {
+                        consider(q, &mut best, &mut worst);
                     }
                 }
             }
