@@ -214,6 +214,8 @@ struct Scratch {
     cands: Vec<u32>,
     /// `stamp[c] == tick` when candidate `c` is already in `cands`.
     stamp: Vec<u32>,
+    /// `expanded[c] == tick` when the similar pixels of candidate `c` are already in `cands`.
+    expanded: Vec<u32>,
     tick: u32,
 }
 
@@ -235,7 +237,11 @@ impl<'a> LevelSynth<'a> {
             ot: vec![0; oh * ow],
             pass_of: vec![1; oh * ow],
             offsets,
-            scratch: Scratch { stamp: vec![0; lv.height * lv.width], ..Default::default() },
+            scratch: Scratch {
+                stamp: vec![0; lv.height * lv.width],
+                expanded: vec![0; lv.height * lv.width],
+                ..Default::default()
+            },
         }
     }
 
@@ -333,6 +339,7 @@ impl<'a> LevelSynth<'a> {
         sc.tick = sc.tick.wrapping_add(1);
         if sc.tick == 0 {
             sc.stamp.fill(0);
+            sc.expanded.fill(0);
             sc.tick = 1;
         }
         let (ow, oh) = (self.ow as isize, self.oh as isize);
@@ -355,6 +362,12 @@ impl<'a> LevelSynth<'a> {
                 continue;
             }
             let c = (cy * sw as isize + cx) as u32;
+            // In a coherent patch most known pixels propose the same `c`: its similar pixels
+            // are in the list already after the first time.
+            if sc.expanded[c as usize] == sc.tick {
+                continue;
+            }
+            sc.expanded[c as usize] = sc.tick;
             let mut add = |c: u32| {
                 if c != u32::MAX && sc.stamp[c as usize] != sc.tick {
                     sc.stamp[c as usize] = sc.tick;
