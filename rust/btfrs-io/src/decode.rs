@@ -215,6 +215,22 @@ fn io_err(shown: &str) -> impl Fn(std::io::Error) -> Error + '_ {
     move |e| Error::io(shown, e)
 }
 
+/// Whether `pat` (not empty) occurs in `hay`: a scan for its first byte, the rest compared only
+/// there. (Comparing every window as a slice called `memcmp` once per byte: a tenth of the time
+/// of loading 200 JPEGs went to finding their end markers.)
+fn contains(hay: &[u8], pat: &[u8]) -> bool {
+    let (first, rest) = (pat[0], &pat[1..]);
+    let mut from = 0;
+    while let Some(k) = hay[from..].iter().position(|&b| b == first) {
+        let at = from + k;
+        if hay[at + 1..].starts_with(rest) {
+            return true;
+        }
+        from = at + 1;
+    }
+    false
+}
+
 /// Whether `pat` occurs in what `r` reads from where it stands, read in 64 KiB pieces.
 fn occurs<R: Read>(r: &mut R, pat: &[u8]) -> std::io::Result<bool> {
     let mut buf = vec![0u8; 64 << 10];
@@ -225,7 +241,7 @@ fn occurs<R: Read>(r: &mut R, pat: &[u8]) -> std::io::Result<bool> {
             return Ok(false);
         }
         let end = keep + n;
-        if buf[..end].windows(pat.len()).any(|w| w == pat) {
+        if contains(&buf[..end], pat) {
             return Ok(true);
         }
         keep = (pat.len() - 1).min(end);
@@ -536,6 +552,17 @@ pub fn read_place(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn contains_finds_a_pattern_where_a_window_scan_does() {
+        let hay: Vec<u8> = (0..5000u32).map(|i| (i.wrapping_mul(2654435761) >> 24) as u8).collect();
+        for pat in [&[0xFFu8, 0xD9][..], &[7], &hay[4998..], &hay[100..104], &[0xFF, 0xFF, 0xFF], &[0, 0xD9]] {
+            for end in [0, 1, 2, 3, 100, 4999, 5000] {
+                let want = hay[..end].windows(pat.len()).any(|w| w == pat);
+                assert_eq!(contains(&hay[..end], pat), want, "{pat:?} in the first {end}");
+            }
+        }
+    }
 
     fn encode(img: image::DynamicImage, fmt: image::ImageFormat) -> Vec<u8> {
         let mut c = Cursor::new(Vec::new());
