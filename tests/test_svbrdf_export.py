@@ -252,5 +252,5 @@ def test_the_cli_writes_both_and_refuses_to_overwrite(tmp_path, capsys):
     assert f"wrote {tmp_path / 'g'}" in out and f"wrote {tmp_path / 's'}" in out
     assert (tmp_path / "g" / "material.gltf").exists() and (tmp_path / "s" / "scene.xml").exists()
     assert main(args) == 2
-    assert "exists and is not empty" in capsys.readouterr().err
+    assert "--gltf: " in (err := capsys.readouterr().err) and "exists and is not empty; pass --force" in err
     assert main(args + ["--force"]) == 0

@@ -625,6 +625,8 @@ def export_command(args: argparse.Namespace) -> None:
     for fmt, path in formats:
         if path:
             _check_output(f"--{fmt}", path, args, (f".{fmt}",), folder=fmt in folders)
+            if fmt in folders and os.path.isdir(path) and os.listdir(path) and not args.force:
+                raise InvalidArgumentError(f"--{fmt}: {path} exists and is not empty; pass --force to write into it")
     if args.exr:
         _check_output("--exr", args.exr, args, (".exr",))
     if args.stack:
