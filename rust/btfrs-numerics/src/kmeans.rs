@@ -127,20 +127,20 @@ fn seed_plus_plus(points: &[f32], dim: usize, norms: &[f64], k: usize, seed: u64
     let mut rng = Rng::new(seed);
     let first = rng.below(n);
     let mut centers: Vec<f32> = points[first * dim..(first + 1) * dim].to_vec();
-    let mut closest = distances(points, dim, norms, &centers);
+    let mut closest: Vec<f64> = points.par_chunks(dim).map(|x| direct(x, &centers)).collect();
     let trials = 2 + (k as f64).ln() as usize;
+    let mut cdf = vec![0.0f64; n];
+    let mut d = vec![0.0f64; n * trials];
     while centers.len() / dim < k {
-        let total: f64 = closest.iter().sum();
-        if total <= 0.0 {
+        // Draw candidates proportionally to the squared distance (inverse CDF over a prefix sum).
+        let mut acc = 0.0;
+        for (c, &x) in cdf.iter_mut().zip(&closest) {
+            acc += x;
+            *c = acc;
+        }
+        if acc <= 0.0 {
             // Every point sits on a centre already: there are no more distinct points to seed.
             break;
-        }
-        // Draw candidates proportionally to the squared distance (inverse CDF over a prefix sum).
-        let mut cdf = Vec::with_capacity(n);
-        let mut acc = 0.0;
-        for &d in &closest {
-            acc += d;
-            cdf.push(acc);
         }
         let picks: Vec<usize> = (0..trials)
             .map(|_| {
@@ -149,17 +149,59 @@ fn seed_plus_plus(points: &[f32], dim: usize, norms: &[f64], k: usize, seed: u64
             })
             .collect();
         let cand: Vec<f32> = picks.iter().flat_map(|&p| points[p * dim..(p + 1) * dim].iter().copied()).collect();
-        let d = distances(points, dim, norms, &cand);
+        // Each point's distance to each candidate and, per block of points, the potential each
+        // candidate would leave; blocks are fixed and summed in order, so the result does not
+        // depend on the threads. The distances are direct (x - c)^2 sums, exactly 0 between
+        // equal points, which is what the seeding must see.
+        let pots: Vec<Vec<f64>> = d
+            .par_chunks_mut(SEED_BLOCK * trials)
+            .zip(closest.par_chunks(SEED_BLOCK))
+            .zip(points.par_chunks(SEED_BLOCK * dim))
+            .map(|((dd, cl), xs)| {
+                let mut pot = vec![0.0f64; trials];
+                for ((o, &best), x) in dd.chunks_mut(trials).zip(cl).zip(xs.chunks(dim)) {
+                    for (c, (o, p)) in o.iter_mut().zip(pot.iter_mut()).enumerate() {
+                        *o = direct(x, &cand[c * dim..(c + 1) * dim]);
+                        *p += best.min(*o);
+                    }
+                }
+                pot
+            })
+            .collect();
+        let pots: Vec<f64> = (0..trials).map(|c| pots.iter().map(|p| p[c]).sum()).collect();
         // The candidate that leaves the smallest potential wins (first on ties: deterministic).
-        let pots: Vec<f64> =
-            (0..trials).map(|c| (0..n).map(|i| closest[i].min(d[i * trials + c])).sum::<f64>()).collect();
         let best = (0..trials).fold(0, |b, c| if pots[c] < pots[b] { c } else { b });
-        for i in 0..n {
-            closest[i] = closest[i].min(d[i * trials + best]);
-        }
+        closest.par_iter_mut().zip(d.par_chunks(trials)).for_each(|(c, dd)| *c = c.min(dd[best]));
         centers.extend_from_slice(&cand[best * dim..(best + 1) * dim]);
     }
     centers
+}
+
+/// Points per block of the seeding's parallel passes.
+const SEED_BLOCK: usize = 256;
+
+/// `|x - c|^2`, the differences in `f32` (exact for equal points), summed in `f64`.
+#[inline]
+fn direct(x: &[f32], c: &[f32]) -> f64 {
+    // Eight partial sums in f32 per run of 64 values vectorise; runs are added in f64.
+    let mut total = 0.0f64;
+    for (xs, cs) in x.chunks(64).zip(c.chunks(64)) {
+        let mut acc = [0.0f32; 8];
+        let mut xi = xs.chunks_exact(8);
+        let mut ci = cs.chunks_exact(8);
+        for (a, b) in (&mut xi).zip(&mut ci) {
+            for l in 0..8 {
+                let e = a[l] - b[l];
+                acc[l] += e * e;
+            }
+        }
+        let mut run: f32 = acc.iter().sum();
+        for (&a, &b) in xi.remainder().iter().zip(ci.remainder()) {
+            run += (a - b) * (a - b);
+        }
+        total += run as f64;
+    }
+    total
 }
 
 /// Assign every point to its nearest centre; returns how many changed. `dist` gets the squared
