@@ -43,6 +43,7 @@
 use crate::gpu::{words, Shader};
 use crate::planes::Planes;
 use btfrs_core::arrays::{check_finite, ArrayData};
+use btfrs_core::btf::TexelScan;
 use btfrs_core::{directions, ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
 use btfrs_numerics::dense::{gemm, sym_eigen_desc, view, view_t};
 use nalgebra::DMatrix;
@@ -527,12 +528,22 @@ impl Plan {
     /// texel `t`'s channel `c`, so the `3 G x T` matrix over the same storage is the joint RGB
     /// data (channel-major per texel).
     pub(crate) fn resample(&self, btf: &BtfRef<'_>, v: usize) -> DMatrix<f32> {
+        self.resample_checked(btf, v, None)
+    }
+
+    /// [`Plan::resample`], checking every value of view `v` (all its lights, present or not) on
+    /// the way when `scan` is given: over all views, each value of the BTF once, as the fit reads
+    /// it (`SCANS_VALUES`).
+    pub(crate) fn resample_checked(&self, btf: &BtfRef<'_>, v: usize, scan: Option<&TexelScan>) -> DMatrix<f32> {
         let SlotPlan { pairs, w } = &self.slots[v];
         let (m, nl, t) = (pairs.len(), btf.lights.len(), btf.texels());
         // Samples: column 3 t + c is texel t's channel c over the slot's lights.
         let mut s = vec![0.0f32; m * 3 * t];
         s.par_chunks_mut(3 * m).enumerate().for_each(|(tx, out)| {
             let a = btf.texel(tx);
+            if let Some(scan) = scan {
+                scan.check(&a[v * nl * 3..(v + 1) * nl * 3]);
+            }
             for (j, &(u, l)) in pairs.iter().enumerate() {
                 for c in 0..3 {
                     out[c * m + j] = a[(u * nl + l) * 3 + c];
@@ -649,8 +660,10 @@ pub fn fit(btf: &BtfRef<'_>, opts: &PcaOptions, op: &Operator<'_>, what: &str, m
     let plan = Plan::new(btf.views, btf.lights, btf.mask, n, op, what)?;
     let mut coeffs = vec![0.0f32; t * nv * k];
     let mut table = vec![0.0f32; nv * g * stride];
+    let scan = TexelScan::new();
     for v in 0..nv {
-        let r = plan.resample(btf, v);
+        let r = plan.resample_checked(btf, v, Some(&scan));
+        scan.finish("data", btf.data)?;
         monitor.check()?;
         let slot_table = &mut table[v * g * stride..(v + 1) * g * stride];
         let seed = opts.seed.wrapping_add(v as u64);

@@ -200,6 +200,8 @@ of a multi-view BTF with fewer than 6 present lights borrows the nearest views' 
     const TEXEL_ARRAYS: &'static [&'static str] = &["coeffs_q"];
     const MIP: Mip = Mip::Average;
     type Options = RbfOptions;
+    // Each value checked as the fit reads it (per block of texels; per view slot for the light bases).
+    const SCANS_VALUES: bool = true;
     const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Staged("light_pca");
 
     fn mip_texels(&self, groups: &[Vec<(u32, f32)>]) -> Result<Self> {

@@ -58,6 +58,7 @@ pub mod wgsl;
 use crate::gpu::{GpuLayout, Shader};
 use crate::model::{average_texels, CoefficientFeatures, Mip, Model, ReflectanceModel, Sampling, Setting, ShExpansion};
 use crate::options::Spec;
+use btfrs_core::btf::TexelScan;
 
 /// The coefficient counts the fit accepts: perfect squares up to [`MAX_COEFFS`].
 const SQUARES: &[i64] = &[1, 4, 9, 16, 25, 36, 49, 64];
@@ -464,10 +465,13 @@ pub(crate) fn fit_sh_with(
     let (mut constrained, mut lambda_sum) = (0usize, 0.0f64);
     monitor.start(texels as u64);
     let chunk = opts.chunk_texels;
+    // Every value is checked as the pass reads it, absent pairs too (`SCANS_VALUES`).
+    let scan = TexelScan::new();
     for start in (0..texels).step_by(chunk) {
         monitor.check()?;
         let end = (start + chunk).min(texels);
         let data = &btf.data[start * abrdf..end * abrdf];
+
         let mut lambda = vec![0.0f64; (end - start) * 3];
         let mut energy = vec![0.0f64; (end - start) * 3];
         coeffs[start * 3 * n..end * 3 * n]
@@ -475,7 +479,13 @@ pub(crate) fn fit_sh_with(
             .zip(lambda.par_chunks_mut(BLOCK_TEXELS * 3))
             .zip(energy.par_chunks_mut(BLOCK_TEXELS * 3))
             .zip(data.par_chunks(BLOCK_TEXELS * abrdf))
-            .for_each(|(((out, lam), en), d)| plan.block(d, d.len() / abrdf, out, lam, en));
+            .for_each(|(((out, lam), en), d)| {
+                // Checked while the block is in cache, just before its fit reads it.
+                if scan.check(d) {
+                    plan.block(d, d.len() / abrdf, out, lam, en);
+                }
+            });
+        scan.finish("data", btf.data)?;
         // The energy sums every present value squared: it is not finite exactly when one of
         // the texel's present values is not (absent pairs are never read).
         if let Some(i) = energy.iter().position(|e| !e.is_finite()) {
@@ -753,6 +763,8 @@ section 4: `btfrs.render(..., environment=env, lighting=\"sh\")`).";
         v
     }
     // The CLS solves each texel alone; only the quantization's scale and bias span all texels.
+    // Each value checked as the fit reads it (per block of texels; per view slot for the light bases).
+    const SCANS_VALUES: bool = true;
     const BLOCKWISE: crate::blockwise::Blockwise =
         crate::blockwise::Blockwise::Texels { overrides: r#"{"quantize": false}"#, counts: &[] };
 
