@@ -500,13 +500,15 @@ def _lp_project(block: NDArray[Any], views: NDArray[np.float64], lights: NDArray
                                      _own(table), options_json)
 
 
-def _fit_cluster(index: int, options_json: str,
+def _fit_cluster(index: int, height: int, width: int, options_json: str,
                  *pieces: NDArray[Any]) -> Tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
     # Pieces come in tile order; the members must be in texel order as the local fit has them.
     rows = [p for p in pieces[0::2] if len(p)]
     idx = np.concatenate([i for i in pieces[1::2] if len(i)])
-    x = np.concatenate(rows)[np.argsort(idx, kind="stable")]
-    return _native.lpca_fit_cluster(_own(x), index, options_json)
+    order = np.argsort(idx, kind="stable")
+    x = np.concatenate(rows)[order]
+    texels = np.ascontiguousarray(idx[order], dtype=np.uint32)
+    return _native.lpca_fit_cluster(_own(x), texels, height, width, index, options_json)
 
 
 def _merge_reports(reports: List[Dict[str, Any]], texels: List[int], counts: List[str]) -> Dict[str, Any]:
@@ -756,7 +758,8 @@ def _fit_clustered_pca(kind: str, arr: BtfArray, options: Dict[str, Any], option
     for zb, idx in zip(zs, index):
         z[idx] = zb
     del zs
-    # 3. k-means and refinement on the client.
+    # 3. k-means and refinement on the client (on the texel sample's rows when the BTF has more
+    #    texels than the `sample` option: the others go to their best cluster).
     ids, members = _native.lpca_cluster(z, h, w, options_json)
     del z
     k = len(members)
@@ -769,7 +772,7 @@ def _fit_clustered_pca(kind: str, arr: BtfArray, options: Dict[str, Any], option
             mine = idx[ids[idx] == c]
             if len(mine):
                 pieces += [s[c], mine]
-        tasks.append(dask.delayed(_fit_cluster, pure=True)(c, options_json, *pieces))
+        tasks.append(dask.delayed(_fit_cluster, pure=True)(c, h, w, options_json, *pieces))
     fits = _compute(tasks, callback(progress, "LPCA clusters"), "LPCA cluster fits")
     # 5. The model.
     native = _native.lpca_assemble(h, w, arr.views, arr.lights, arr.mask, ids, members, fits, options_json)

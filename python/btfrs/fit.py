@@ -405,6 +405,7 @@ def lpca(
     kmeans_iterations: int = 25,
     refine_iterations: int = 2,
     reduced_dims: int = 64,
+    sample: int = 16384,
     seed: int = 0,
     robust: bool = True,
     exclude_bad_images: bool = False,
@@ -417,11 +418,15 @@ def lpca(
     the mean, then 8-bit Eigen-BRDFs with their scales folded into the per-texel weights (section 6.3).
     The k-means runs in a `reduced_dims`-dimensional randomized PCA projection of the ABRDFs (0: the
     full space) and is refined by `refine_iterations` passes that reassign each texel to the cluster
-    whose subspace reconstructs it best (the LPCA objective itself). Under a `memory_limit` the range
-    finder's texel sample and every cluster too large for the limit are streamed through chunks sized by
-    it, so a memory-mapped BTF larger than memory fits (within a tolerance of the unlimited fit). Two
-    renderers: `"9tap"` (three nearest views x three nearest lights, section 5) and `"3d"` (Eigen-BRDFs
-    resampled on the elevated concentric map in one 3D texture, section 6).
+    whose subspace reconstructs it best (the LPCA objective itself). A BTF of more than `sample` texels
+    is fitted in two reads: the clusters and their Eigen-BRDFs are found on a seeded sample of `sample`
+    texels, then one streaming pass assigns every other texel to the cluster whose subspace (in the
+    principal coordinates) reconstructs it best and solves its weights, and reports the reconstruction
+    error it measured on the way. Under a `memory_limit` the sample is held whole (the limit must hold
+    it: a smaller `sample` needs less) and each cluster too large for what is left is streamed through
+    chunks sized by the limit, so a memory-mapped BTF larger than memory fits, equal to the unlimited
+    fit up to rounding. Two renderers: `"9tap"` (three nearest views x three nearest lights, section 5)
+    and `"3d"` (Eigen-BRDFs resampled on the elevated concentric map in one 3D texture, section 6).
 
     Parameters
     ----------
@@ -440,9 +445,13 @@ def lpca(
     reduced_dims
         Principal coordinates the clustering works in (0: the full ABRDFs, slow). Allowed: a
         non-negative integer; default 64.
+    sample
+        Texels the clusters and Eigen-BRDFs are found on when the BTF has more (drawn with the seed; the
+        others are assigned and projected in one streaming pass); 0: every texel. Allowed: a
+        non-negative integer; default 16384.
     seed
-        Seed of every random choice (k-means++ seeding, the randomized PCA). Allowed: a non-negative
-        integer; default 0.
+        Seed of every random choice (k-means++ seeding, the randomized PCA, the texel sample). Allowed:
+        a non-negative integer; default 0.
     robust
         Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
         above both their light and their spatial neighbours; false: fit every value as it is. Default
@@ -462,7 +471,7 @@ def lpca(
     Lpca
         The fitted model.
     """
-    options: dict[str, object] = {"clusters": clusters, "components": components, "kmeans_iterations": kmeans_iterations, "refine_iterations": refine_iterations, "reduced_dims": reduced_dims, "seed": seed}
+    options: dict[str, object] = {"clusters": clusters, "components": components, "kmeans_iterations": kmeans_iterations, "refine_iterations": refine_iterations, "reduced_dims": reduced_dims, "sample": sample, "seed": seed}
     model = fit_kind("lpca", btf, options, memory_limit, progress, robust, exclude_bad_images)
     assert isinstance(model, Lpca)
     return model

@@ -162,6 +162,53 @@ impl TexelScan {
     }
 }
 
+/// How a fit will read a (memory-mapped) array next: advice to the operating system
+/// (`madvise` on Linux; nothing elsewhere). Advice only: nothing changes if it is ignored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Access {
+    /// The default read-ahead.
+    Normal,
+    /// Scattered reads (a sample of texels): no read-around, so a page fault reads that page
+    /// and not the megabyte around it.
+    Random,
+    /// These values soon: the storage reads them in the background (a streaming fit advises its
+    /// next block while it computes on the current one).
+    WillNeed,
+    /// Read and not needed again soon: the first pages to give back when memory runs short (a
+    /// streaming pass over a file larger than memory), kept while it does not.
+    Done,
+}
+
+/// Advise the operating system how `values` will be read ([`Access`]).
+pub fn advise(values: &[f32], access: Access) {
+    #[cfg(target_os = "linux")]
+    {
+        extern "C" {
+            fn madvise(addr: *mut std::ffi::c_void, len: usize, advice: i32) -> i32;
+        }
+        const PAGE: usize = 4096;
+        if values.is_empty() {
+            return;
+        }
+        let advice = match access {
+            Access::Normal => 0,
+            Access::Random => 1,
+            Access::WillNeed => 3,
+            Access::Done => 20, // MADV_COLD (Linux 5.4); older kernels ignore it
+        };
+        let start = values.as_ptr() as usize;
+        let aligned = start & !(PAGE - 1);
+        let len = start + std::mem::size_of_val(values) - aligned;
+        // SAFETY: advice on pages that hold (part of) a live slice; none of these advices
+        // changes their contents, and an error (e.g. for some anonymous memory) is ignored.
+        unsafe {
+            madvise(aligned as *mut std::ffi::c_void, len, advice);
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = (values, access);
+}
+
 /// An owned BTF (what the material generator and the file loader produce).
 #[derive(Debug, Clone)]
 pub struct Btf {

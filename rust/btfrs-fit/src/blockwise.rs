@@ -147,38 +147,43 @@ mod tests {
         let worst = s.iter().zip(&local.s).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
         assert!(worst <= 1e-5, "s differs by {worst}");
 
-        // LPCA, more texels than the range finder's sample is not needed here: the stages are
-        // the fit's own functions, so equality shows they are wired as the fit wires them.
-        let opts = LpcaOptions { clusters: 6, components: 3, reduced_dims: 16, ..LpcaOptions::default() };
+        // LPCA on every texel, and on a sample of 48 of the 144 (the others assigned to the
+        // clusters found on it and projected): the stages are the fit's own functions, so
+        // equality shows they are wired as the fit wires them.
         let d = b.abrdf_len();
         let t = b.texels();
-        let pick = staged::sample(b.height, b.width, &opts).unwrap();
-        let sample: Vec<f32> = match &pick {
-            Some(p) => p.iter().flat_map(|&i| b.texel(i as usize).to_vec()).collect(),
-            None => b.data.to_vec(),
-        };
-        let (mu, q) = staged::subspace(&sample, d, b.height, b.width, &opts, &Monitor::new()).unwrap();
-        let zs: Vec<_> = blocks.iter().map(|x| staged::project(x.data, d, &mu, &q).unwrap()).collect();
-        let z = nalgebra::DMatrix::from_fn(t, q.ncols(), |i, j| {
-            if i < zs[0].nrows() {
-                zs[0][(i, j)]
-            } else {
-                zs[1][(i - zs[0].nrows(), j)]
-            }
-        });
-        let (ids, members) = staged::cluster(&z, b.height, b.width, &opts, &Monitor::new()).unwrap();
-        let fits: Vec<_> = members
-            .iter()
-            .enumerate()
-            .map(|(k, m)| {
-                let x: Vec<f32> = m.iter().flat_map(|&i| b.texel(i as usize).to_vec()).collect();
-                staged::fit_cluster(&x, d, k, &opts).unwrap()
-            })
-            .collect();
-        let m = staged::assemble(b.height, b.width, b.views, b.lights, None, ids, &members, &fits, &opts).unwrap();
-        let local = lpca::fit_lpca(&b, &opts, &Monitor::new()).unwrap();
-        use crate::Model;
-        assert_eq!(m.to_arrays(), local.to_arrays());
+        let every = LpcaOptions { clusters: 6, components: 3, reduced_dims: 16, ..LpcaOptions::default() };
+        for opts in [every, LpcaOptions { sample: 48, ..every }] {
+            let pick = staged::sample(b.height, b.width, &opts).unwrap();
+            let sample: Vec<f32> = match &pick {
+                Some(p) => p.iter().flat_map(|&i| b.texel(i as usize).to_vec()).collect(),
+                None => b.data.to_vec(),
+            };
+            let (mu, q) = staged::subspace(&sample, d, b.height, b.width, &opts, &Monitor::new()).unwrap();
+            let zs: Vec<_> = blocks.iter().map(|x| staged::project(x.data, d, &mu, &q).unwrap()).collect();
+            let z = nalgebra::DMatrix::from_fn(t, q.ncols(), |i, j| {
+                if i < zs[0].nrows() {
+                    zs[0][(i, j)]
+                } else {
+                    zs[1][(i - zs[0].nrows(), j)]
+                }
+            });
+            let (ids, members) = staged::cluster(&z, b.height, b.width, &opts, &Monitor::new()).unwrap();
+            let fits: Vec<_> = members
+                .iter()
+                .enumerate()
+                .map(|(k, m)| {
+                    let x: Vec<f32> = m.iter().flat_map(|&i| b.texel(i as usize).to_vec()).collect();
+                    staged::fit_cluster_sampled(&x, m, d, b.height, b.width, k, &opts).unwrap()
+                })
+                .collect();
+            let m = staged::assemble(b.height, b.width, b.views, b.lights, None, ids, &members, &fits, &opts).unwrap();
+            let local = lpca::fit_lpca(&b, &opts, &Monitor::new()).unwrap();
+            assert_eq!(local.sampled.map(|f| f.sample), (opts.sample < t).then_some(48));
+            use crate::Model;
+            assert_eq!(m.to_arrays(), local.to_arrays(), "sample {}", opts.sample);
+        }
+        let opts = every;
         // Full-space clustering cannot be staged: a clear error naming the option.
         let bad = LpcaOptions { reduced_dims: 0, ..opts };
         assert!(staged::sample(b.height, b.width, &bad).unwrap_err().to_string().starts_with("reduced_dims:"));

@@ -47,12 +47,15 @@
 //!    ([`btfrs_numerics::rpca`]) for larger ones. The `D x D` covariance is never formed.
 //! 5. *Quantize and re-solve* as above.
 //!
+//! A BTF of more texels than the `sample` option is fitted on a seeded sample of them, then
+//! streamed once ([`sampled`]): two reads of the data in all, whatever its size.
+//!
 //! Clusters that end up empty are dropped (`clusters` is the number used, which is also below the
 //! requested one when the sample has fewer distinct ABRDFs). A cluster of `n <= c` texels has only
 //! `n - 1` meaningful components; the others are zero Eigen-BRDFs (all `q = 0`, scale and bias 0).
 //!
-//! **Held-out pairs.** With a mask, the ABRDF vector is the present pairs only, so the fit never
-//! reads an absent value; afterwards every Eigen-BRDF is filled at the absent pairs by
+//! **Held-out pairs.** With a mask, the ABRDF vector is the present pairs only, so no absent
+//! value enters the fit (each is only checked finite, as every value is); afterwards every Eigen-BRDF is filled at the absent pairs by
 //! interpolating its present pairs ([`directions::present_pair_weights`]). That is linear, so it
 //! equals interpolating the data, and the model answers every (view, light) pair.
 
@@ -67,6 +70,7 @@ use nalgebra::DMatrix;
 use rayon::prelude::*;
 use std::borrow::Cow;
 
+mod sampled;
 pub mod staged;
 
 /// The most Eigen-BRDFs per cluster (besides the mean) a fit may ask for.
@@ -98,6 +102,9 @@ pub struct LpcaOptions {
     pub refine_iterations: usize,
     /// Principal coordinates the clustering works in; 0 = cluster the full ABRDFs (slow).
     pub reduced_dims: usize,
+    /// Texels the clusters and Eigen-BRDFs are found on when the BTF has more (a seeded sample;
+    /// the others are then assigned and projected in one streaming pass, [`sampled`]); 0 = all.
+    pub sample: usize,
     /// Seed of every random choice.
     pub seed: u64,
 }
@@ -135,6 +142,18 @@ pub struct Lpca {
     pub scale: Vec<f32>,
     /// `[K, c + 1]` quantization bias of each Eigen-BRDF (folded into the offsets already).
     pub bias: Vec<f32>,
+    /// What a fit on a texel sample measured in its streaming pass (`None`: fitted on every
+    /// texel, or read from a file).
+    pub sampled: Option<SampledFit>,
+}
+
+/// The figures of a fit on a texel sample ([`sampled`]), from its streaming pass.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SampledFit {
+    /// Texels the clusters and Eigen-BRDFs were found on.
+    pub sample: usize,
+    /// `||model - data|| / ||data||` over every texel's present values, as the pass solved them.
+    pub relative_error: f64,
 }
 
 /// Fit a local-PCA model to the present (view, light) pairs of `btf`.
@@ -145,13 +164,18 @@ pub struct Lpca {
 pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Result<Lpca> {
     let t = btf.texels();
     check_options(opts, btf.height, btf.width)?;
+    if let Some(pick) = sampled::pick(t, opts) {
+        return sampled::fit(btf, opts, &pick, monitor);
+    }
     let (nv, nl) = (btf.views.len(), btf.lights.len());
     let pairs: Vec<usize> = (0..nv * nl).filter(|&i| btf.has(i / nl, i % nl)).collect();
     let d = pairs.len() * 3;
     let chunk = memory_plan(monitor.memory_limit(), t, d, opts, pairs.len() < nv * nl)?;
     let compact = (pairs.len() < nv * nl).then(|| gather_pairs(btf, &pairs));
     let data: &[f32] = compact.as_deref().unwrap_or(btf.data);
-    check_values(data, d, &pairs, nl)?;
+    // Every value, present or not, as the caller's scan would (`SCANS_VALUES`: it skips it, so a
+    // BTF of more texels than the sample is read twice, not three times).
+    btfrs_core::btf::check_finite("data", btf.data)?;
 
     let reduce_units = if opts.reduced_dims > 0 { rpca::PROGRESS_UNITS } else { 0 };
     let total = reduce_units + (opts.kmeans_iterations + opts.refine_iterations + opts.clusters + 1) as u64;
@@ -326,6 +350,7 @@ pub fn assemble(
         basis,
         scale,
         bias,
+        sampled: None,
     })
 }
 
@@ -342,6 +367,45 @@ pub fn assemble(
 /// time. The counts are upper bounds (every transient of a stage at once).
 fn memory_plan(limit: Option<u64>, t: usize, d: usize, opts: &LpcaOptions, compact: bool) -> Result<Option<usize>> {
     let Some(limit) = limit else { return Ok(None) };
+    let p = plan_parts(t, d, opts, compact)?;
+    let least = p.least(t);
+    if limit < least {
+        let k = opts.clusters;
+        return Err(Error::arg(
+            "memory_limit",
+            format!(
+                "expected at least {} for an LPCA fit of {t} texels of {d} values into {k} clusters ({} of it grows with \
+                 the texels), got {}",
+                mb(least),
+                mb(p.fixed),
+                mb(limit)
+            ),
+        ));
+    }
+    Ok(Some(p.chunk(limit, t)))
+}
+
+/// [`memory_plan`]'s counts: bytes held whatever the chunk, per chunk, and per texel of a chunk.
+#[derive(Debug, Clone, Copy)]
+struct PlanParts {
+    fixed: u64,
+    per_chunk: u64,
+    per_texel_of_chunk: u64,
+}
+
+impl PlanParts {
+    /// The least limit: chunks of 32 texels (or all of them).
+    fn least(&self, t: usize) -> u64 {
+        self.fixed + self.per_chunk + 32.min(t as u64) * self.per_texel_of_chunk
+    }
+
+    /// The chunk a limit of at least [`PlanParts::least`] allows.
+    fn chunk(&self, limit: u64, t: usize) -> usize {
+        ((limit - self.fixed - self.per_chunk) / self.per_texel_of_chunk).min(t as u64) as usize
+    }
+}
+
+fn plan_parts(t: usize, d: usize, opts: &LpcaOptions, compact: bool) -> Result<PlanParts> {
     if opts.reduced_dims == 0 {
         return Err(Error::arg(
             "memory_limit",
@@ -372,20 +436,7 @@ fn memory_plan(limit: Option<u64>, t: usize, d: usize, opts: &LpcaOptions, compa
     // basis; then 4 bytes per value of each texel of the chunk.
     let per_chunk = d64 * (24 * l + 4 * (2 * cc + 2) + cc);
     let per_texel_of_chunk = 4 * d64;
-    let least = fixed + per_chunk + 32.min(t64) * per_texel_of_chunk;
-    if limit < least {
-        return Err(Error::arg(
-            "memory_limit",
-            format!(
-                "expected at least {} for an LPCA fit of {t} texels of {d} values into {k} clusters ({} of it grows with \
-                 the texels), got {}",
-                mb(least),
-                mb(fixed),
-                mb(limit)
-            ),
-        ));
-    }
-    Ok(Some(((limit - fixed - per_chunk) / per_texel_of_chunk).min(t64) as usize))
+    Ok(PlanParts { fixed, per_chunk, per_texel_of_chunk })
 }
 
 /// Bytes as decimal megabytes, as memory limits are written ("64MB").
@@ -409,22 +460,6 @@ fn gather_pairs(btf: &BtfRef<'_>, pairs: &[usize]) -> Vec<f32> {
         }
     });
     out
-}
-
-/// Fail on the first NaN or infinity among the values the fit reads, naming texel and pair.
-fn check_values(data: &[f32], d: usize, pairs: &[usize], nl: usize) -> Result<()> {
-    let bad = data.par_chunks(d).position_first(|x| !x.iter().all(|v| v.is_finite()));
-    if let Some(t) = bad {
-        let x = &data[t * d..(t + 1) * d];
-        if let Some(i) = x.iter().position(|v| !v.is_finite()) {
-            let pair = pairs[i / 3];
-            return Err(Error::arg(
-                "data",
-                format!("value {} at texel {t}, view {}, light {} is not finite", x[i], pair / nl, pair % nl),
-            ));
-        }
-    }
-    Ok(())
 }
 
 /// The mean of the member columns and the centred members as a `dim x n` matrix.
@@ -622,7 +657,35 @@ pub struct ClusterFit {
 /// texels whose values may be copied at once (`None`: any number); a larger cluster is streamed
 /// ([`streamed_components`]).
 fn fit_cluster(data: &[f32], d: usize, m: &[u32], c: usize, seed: u64, chunk: Option<usize>) -> ClusterFit {
-    let cc = c + 1;
+    let (basis, xc) = cluster_basis(data, d, m, c, seed, chunk);
+    let n = m.len();
+    let weights = if c == 0 {
+        basis.weights(&DMatrix::zeros(0, n)).0
+    } else {
+        let f = basis.deq.columns(1, c).into_owned();
+        let ftx = match (&xc, chunk) {
+            (Some(xc), _) => gemm(&view_t(&f), &view(xc)),
+            (None, s) => {
+                let x = rpca::Gathered { data, d, idx: m, centre: Some(&basis.mean), chunk: s.unwrap_or(n) };
+                x.t_times(&f).transpose()
+            }
+        };
+        basis.weights(&ftx).0
+    };
+    ClusterFit { q: basis.q, scale: basis.scale, bias: basis.bias, weights }
+}
+
+/// Step 4 for the members `m` of one cluster (their mean and principal directions) and the
+/// quantization of step 5: the cluster's [`Basis`], and the centred members when they were
+/// gathered (`None` when streamed).
+fn cluster_basis(
+    data: &[f32],
+    d: usize,
+    m: &[u32],
+    c: usize,
+    seed: u64,
+    chunk: Option<usize>,
+) -> (Basis, Option<DMatrix<f32>>) {
     let (mean, xc, e) = match chunk {
         Some(s) if m.len() > s => {
             let mean = column_mean(data, d, Some(m));
@@ -635,34 +698,59 @@ fn fit_cluster(data: &[f32], d: usize, m: &[u32], c: usize, seed: u64, chunk: Op
             (mean, Some(xc), e)
         }
     };
-    // Quantize each Eigen-BRDF (the mean first) over its own range.
-    let mut q = vec![0u8; cc * d];
-    let mut scale = vec![0.0f32; cc];
-    let mut bias = vec![0.0f32; cc];
-    let mut deq = DMatrix::<f32>::zeros(d, cc);
-    for j in 0..cc {
-        let src: &[f32] = if j == 0 { &mean } else { &e.as_slice()[(j - 1) * d..j * d] };
-        let (lo, hi) = src.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
-        let s = hi - lo;
-        bias[j] = lo;
-        scale[j] = if s > 0.0 && s.is_finite() { s } else { 0.0 };
-        let qj = &mut q[j * d..(j + 1) * d];
-        let mut col = deq.column_mut(j);
-        for p in 0..d {
-            let level = if scale[j] > 0.0 { ((src[p] - lo) / scale[j] * 255.0).round().clamp(0.0, 255.0) } else { 0.0 };
-            qj[p] = level as u8;
-            col[p] = lo + scale[j] * (level / 255.0);
+    (Basis::new(mean, &e, c), xc)
+}
+
+/// One cluster's quantized Eigen-BRDFs and the least-squares solve of a texel's weights against
+/// their dequantized values (step 5).
+#[derive(Debug, Clone)]
+pub(crate) struct Basis {
+    /// The members' mean (unquantized): texels are centred on it before [`Basis::weights`].
+    pub(crate) mean: Vec<f32>,
+    /// `[c + 1, D]` quantized Eigen-BRDFs, the mean first.
+    pub(crate) q: Vec<u8>,
+    pub(crate) scale: Vec<f32>,
+    pub(crate) bias: Vec<f32>,
+    /// `D x (c + 1)` dequantized Eigen-BRDFs `e~_j`.
+    pub(crate) deq: DMatrix<f32>,
+    /// Pseudo-inverse of `F^T F`, `F = e~_1..c`.
+    pinv: DMatrix<f64>,
+    /// `F^T F`.
+    ftf: DMatrix<f64>,
+    /// `F^T (mean - e~_0)`.
+    shift: Vec<f64>,
+}
+
+impl Basis {
+    /// Quantize each Eigen-BRDF (`mean`, then the columns of `e`) over its own range.
+    fn new(mean: Vec<f32>, e: &DMatrix<f32>, c: usize) -> Basis {
+        let d = mean.len();
+        let cc = c + 1;
+        let mut q = vec![0u8; cc * d];
+        let mut scale = vec![0.0f32; cc];
+        let mut bias = vec![0.0f32; cc];
+        let mut deq = DMatrix::<f32>::zeros(d, cc);
+        for j in 0..cc {
+            let src: &[f32] = if j == 0 { &mean } else { &e.as_slice()[(j - 1) * d..j * d] };
+            let (lo, hi) = src.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+            let s = hi - lo;
+            bias[j] = lo;
+            scale[j] = if s > 0.0 && s.is_finite() { s } else { 0.0 };
+            let qj = &mut q[j * d..(j + 1) * d];
+            let mut col = deq.column_mut(j);
+            for p in 0..d {
+                let level =
+                    if scale[j] > 0.0 { ((src[p] - lo) / scale[j] * 255.0).round().clamp(0.0, 255.0) } else { 0.0 };
+                qj[p] = level as u8;
+                col[p] = lo + scale[j] * (level / 255.0);
+            }
         }
-    }
-    // Re-solve a_1..a_c against the dequantized basis: (F^T F) a = F^T (x - e~_0), F = e~_1..c.
-    let n = m.len();
-    let mut a = DMatrix::<f64>::zeros(c, n);
-    if c > 0 {
-        let f = deq.columns(1, c).into_owned();
-        let ntn = DMatrix::<f64>::from_fn(c, c, |i, j| {
+        // Re-solve a_1..a_c against the dequantized basis: (F^T F) a = F^T (x - e~_0), F = e~_1..c.
+        let f = deq.columns(1, c);
+        let ftf = DMatrix::<f64>::from_fn(c, c, |i, j| {
             f.column(i).iter().zip(f.column(j).iter()).map(|(&x, &y)| x as f64 * y as f64).sum()
         });
-        let (vals, vecs) = sym_eigen_desc(ntn);
+        let (vals, vecs) = sym_eigen_desc(ftf.clone());
         let top = vals.first().copied().unwrap_or(0.0);
         // Pseudo-inverse: a zero Eigen-BRDF (or a degenerate pair) gets weight 0, never NaN.
         let mut pinv = DMatrix::<f64>::zeros(c, c);
@@ -683,30 +771,38 @@ fn fit_cluster(data: &[f32], d: usize, m: &[u32], c: usize, seed: u64, chunk: Op
                     .sum()
             })
             .collect();
-        let ftx = match (&xc, chunk) {
-            (Some(xc), _) => gemm(&view_t(&f), &view(xc)),
-            (None, s) => {
-                let x = rpca::Gathered { data, d, idx: m, centre: Some(&mean), chunk: s.unwrap_or(n) };
-                x.t_times(&f).transpose()
-            }
-        };
+        Basis { mean, q, scale, bias, deq, pinv, ftf, shift }
+    }
+
+    /// Eigen-BRDFs besides the mean.
+    fn components(&self) -> usize {
+        self.scale.len() - 1
+    }
+
+    /// The stored weights `[n, c + 2]` (`[offset, w_0 .. w_c]`) of `n` texels from `F^T (x -
+    /// mean)` (`ftx`, `c x n`), and their coefficients `a` (`c x n`).
+    fn weights(&self, ftx: &DMatrix<f32>) -> (Vec<f32>, DMatrix<f64>) {
+        let c = self.components();
+        let n = ftx.ncols();
+        let mut a = DMatrix::<f64>::zeros(c, n);
         for i in 0..n {
-            let rhs = nalgebra::DVector::<f64>::from_fn(c, |j, _| ftx[(j, i)] as f64 + shift[j]);
-            a.column_mut(i).copy_from(&(&pinv * rhs));
+            let rhs = nalgebra::DVector::<f64>::from_fn(c, |j, _| ftx[(j, i)] as f64 + self.shift[j]);
+            a.column_mut(i).copy_from(&(&self.pinv * rhs));
         }
-    }
-    let mut weights = vec![0.0f32; n * (c + 2)];
-    for (i, w) in weights.chunks_mut(c + 2).enumerate() {
-        let mut offset = bias[0] as f64;
-        w[1] = scale[0];
-        for j in 1..cc {
-            let aj = a[(j - 1, i)];
-            offset += aj * bias[j] as f64;
-            w[1 + j] = (aj * scale[j] as f64) as f32;
+        let (scale, bias) = (&self.scale, &self.bias);
+        let mut weights = vec![0.0f32; n * (c + 2)];
+        for (i, w) in weights.chunks_mut(c + 2).enumerate() {
+            let mut offset = bias[0] as f64;
+            w[1] = scale[0];
+            for j in 1..=c {
+                let aj = a[(j - 1, i)];
+                offset += aj * bias[j] as f64;
+                w[1 + j] = (aj * scale[j] as f64) as f32;
+            }
+            w[0] = offset as f32;
         }
-        w[0] = offset as f32;
+        (weights, a)
     }
-    ClusterFit { q, scale, bias, weights }
 }
 
 /// A prepared query: the 9 (view, light) taps and their weights.
@@ -922,7 +1018,7 @@ impl Lpca {
             ids.push(ids[0]);
             weights.extend_from_within(0..stride);
         }
-        let out = Lpca { height: rows, ids, weights, ..self.clone() };
+        let out = Lpca { height: rows, ids, weights, sampled: None, ..self.clone() };
         out.validate()?;
         Ok(out)
     }
@@ -970,10 +1066,14 @@ k-means++ (seeded) over the texels' ABRDFs, a PCA per cluster with `components` 
 besides the mean, then 8-bit Eigen-BRDFs with their scales folded into the per-texel weights
 (section 6.3). The k-means runs in a `reduced_dims`-dimensional randomized PCA projection of the
 ABRDFs (0: the full space) and is refined by `refine_iterations` passes that reassign each texel
-to the cluster whose subspace reconstructs it best (the LPCA objective itself). Under a
-`memory_limit` the range finder's texel sample and every cluster too large for the limit are
-streamed through chunks sized by it, so a memory-mapped BTF larger than memory fits (within a
-tolerance of the unlimited fit). Two renderers: `\"9tap\"` (three nearest views x three nearest
+to the cluster whose subspace reconstructs it best (the LPCA objective itself). A BTF of more
+than `sample` texels is fitted in two reads: the clusters and their Eigen-BRDFs are found on a
+seeded sample of `sample` texels, then one streaming pass assigns every other texel to the
+cluster whose subspace (in the principal coordinates) reconstructs it best and solves its
+weights, and reports the reconstruction error it measured on the way. Under a `memory_limit` the
+sample is held whole (the limit must hold it: a smaller `sample` needs less) and each cluster too
+large for what is left is streamed through chunks sized by the limit, so a memory-mapped BTF
+larger than memory fits, equal to the unlimited fit up to rounding. Two renderers: `\"9tap\"` (three nearest views x three nearest
 lights, section 5) and `\"3d\"` (Eigen-BRDFs resampled on the elevated concentric map in one 3D
 texture, section 6).";
     const OPTIONS: &'static [Spec] = &[
@@ -994,7 +1094,15 @@ texture, section 6).";
             None,
             "principal coordinates the clustering works in (0: the full ABRDFs, slow)",
         ),
-        Spec::seed("seed of every random choice (k-means++ seeding, the randomized PCA)"),
+        Spec::int(
+            "sample",
+            16384,
+            0,
+            None,
+            "texels the clusters and Eigen-BRDFs are found on when the BTF has more (drawn with the seed; the \
+             others are assigned and projected in one streaming pass); 0: every texel",
+        ),
+        Spec::seed("seed of every random choice (k-means++ seeding, the randomized PCA, the texel sample)"),
     ];
     const EXAMPLES: &'static [(&'static str, &'static str)] =
         &[("LPCA 8x4", r#"{"clusters": 8, "components": 4}"#), ("LPCA 32x4", r#"{"clusters": 32, "components": 4}"#)];
@@ -1011,6 +1119,8 @@ texture, section 6).";
         one_view: "any sampling (per-texel ABRDFs, clustered)",
     };
     type Options = LpcaOptions;
+    // Each value checked as it is read (the sample, then the streaming pass; or one scan).
+    const SCANS_VALUES: bool = true;
     // The clustering spans all texels: run as stages (`staged`).
     const BLOCKWISE: crate::blockwise::Blockwise = crate::blockwise::Blockwise::Staged("clustered_pca");
 
@@ -1079,13 +1189,19 @@ texture, section 6).";
             basis: basis.to_vec(),
             scale: scale.to_vec(),
             bias: bias.to_vec(),
+            sampled: None,
         };
         m.validate()?;
         Ok(m)
     }
 
     fn report(&self) -> serde_json::Value {
-        serde_json::json!({"clusters": self.clusters, "components": self.components})
+        let mut r = serde_json::json!({"clusters": self.clusters, "components": self.components});
+        if let Some(f) = self.sampled {
+            r["sample"] = f.sample.into();
+            r["relative_error"] = f.relative_error.into();
+        }
+        r
     }
 
     fn shaders() -> Vec<Shader> {

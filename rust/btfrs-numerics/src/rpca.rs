@@ -77,6 +77,51 @@ pub fn coordinates(
     chunk: Option<usize>,
     monitor: &Monitor,
 ) -> Result<(Vec<f32>, usize)> {
+    coordinates_map(data, d, t, r, seed, chunk, monitor).map(|(p, r, _)| (p, r))
+}
+
+/// The map [`coordinates`] applies to every texel, kept to apply to texels it did not see
+/// (those a fit on a sample of texels streams afterwards): centre `mu`, subspace `q` (`d x l`)
+/// and the rotation `vr` (`l x r'`) to the principal axes within it.
+#[derive(Debug, Clone)]
+pub struct CoordinateMap {
+    pub mu: Vec<f32>,
+    pub q: DMatrix<f32>,
+    pub vr: DMatrix<f32>,
+}
+
+impl CoordinateMap {
+    /// `[n, r']` coordinates (texel-major) of the `n` texels of `data` (`n x d`, texel-major),
+    /// by the same two products as [`coordinates`]' own.
+    pub fn apply(&self, data: &[f32], d: usize) -> Vec<f32> {
+        let n = data.len() / d.max(1);
+        if self.vr.ncols() == 0 || n == 0 {
+            return Vec::new();
+        }
+        let z = centred_t_times(data, d, n, &self.mu, &self.q);
+        axes_times(&self.vr, &z)
+    }
+
+    /// Coordinates of rows of already projected texels (`z`: `n x l`, as [`project_texels`]
+    /// gives them): the rotation only.
+    pub fn rotate(&self, z: &DMatrix<f32>) -> Vec<f32> {
+        if self.vr.ncols() == 0 || z.nrows() == 0 {
+            return Vec::new();
+        }
+        axes_times(&self.vr, z)
+    }
+}
+
+/// [`coordinates`] with the map that made them ([`CoordinateMap`]).
+pub fn coordinates_map(
+    data: &[f32],
+    d: usize,
+    t: usize,
+    r: usize,
+    seed: u64,
+    chunk: Option<usize>,
+    monitor: &Monitor,
+) -> Result<(Vec<f32>, usize, CoordinateMap)> {
     let mut rng = Rng::new(seed);
     let s = t.min(RANGE_SAMPLE);
     let pick = pick_sample(&mut rng, t);
@@ -103,7 +148,10 @@ pub fn coordinates(
             (range_finder(&Dense { data, d, n: s }, &mu, l, &mut rng, monitor)?, mu)
         }
     };
-    project(data, d, t, r, &mu, &q, monitor)
+    let z = centred_t_times(data, d, t, &mu, &q);
+    monitor.advance(1);
+    let (p, keep, vr) = principal_axes_map(&z, r);
+    Ok((p, keep, CoordinateMap { mu, q, vr }))
 }
 
 /// The range finder's sample of [`coordinates`]: `None` when it is every texel (at most
@@ -192,34 +240,28 @@ fn range_finder(sub: &impl Columns, mu: &[f32], l: usize, rng: &mut Rng, monitor
     Ok(q)
 }
 
-/// The last step of [`coordinates`]: every texel projected on the subspace `q` (one pass over
-/// the data, read in place), rotated to principal axes, the `r` strongest kept.
-fn project(
-    data: &[f32],
-    d: usize,
-    t: usize,
-    r: usize,
-    mu: &[f32],
-    q: &DMatrix<f32>,
-    monitor: &Monitor,
-) -> Result<(Vec<f32>, usize)> {
-    let z = centred_t_times(data, d, t, mu, q);
-    monitor.advance(1);
-    Ok(principal_axes(&z, r))
-}
-
 /// The projected texels `z` (`t x l`) rotated to principal axes within the subspace, the `r`
 /// strongest kept: `([t, r'], r')` texel-major, `r' = 0` when every texel projects the same.
 pub fn principal_axes(z: &DMatrix<f32>, r: usize) -> (Vec<f32>, usize) {
+    let (p, keep, _) = principal_axes_map(z, r);
+    (p, keep)
+}
+
+/// [`principal_axes`] with the rotation (`l x r'`) it applied.
+pub fn principal_axes_map(z: &DMatrix<f32>, r: usize) -> (Vec<f32>, usize, DMatrix<f32>) {
     let (vals, vecs) = sym_eigen_desc(gram_t(z));
     let top = vals.first().copied().unwrap_or(0.0);
     let keep = vals.iter().take(r).take_while(|&&v| top > 0.0 && v > 1e-10 * top).count();
-    if keep == 0 {
-        return (Vec::new(), 0);
-    }
     let vr = DMatrix::<f32>::from_fn(vecs.nrows(), keep, |i, j| vecs[(i, j)] as f32);
-    let p = gemm(&view_t(&vr), &view_t(z));
-    (p.as_slice().to_vec(), keep)
+    if keep == 0 {
+        return (Vec::new(), 0, vr);
+    }
+    (axes_times(&vr, z), keep, vr)
+}
+
+/// `(z vr)` texel-major: `[n, r']` for `z` (`n x l`) and `vr` (`l x r'`).
+fn axes_times(vr: &DMatrix<f32>, z: &DMatrix<f32>) -> Vec<f32> {
+    gemm(&view_t(vr), &view_t(z)).as_slice().to_vec()
 }
 
 /// `m -= u s^T` for a column vector `u` (rows) and the column sums `s` of `x`.

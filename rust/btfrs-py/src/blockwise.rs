@@ -210,13 +210,17 @@ pub fn lpca_cluster<'py>(
     Ok((vec1(py, ids)?, members.into_iter().map(|m| vec1(py, m)).collect::<PyResult<_>>()?))
 }
 
-/// LPCA stage 4: cluster `index`'s fit from its members' ABRDFs `[n, d]` (texel order):
+/// LPCA stage 4: cluster `index`'s fit from its members' ABRDFs `[n, d]` (texel order) and
+/// their texel indices `[n]` (ascending) in a `height x width` BTF:
 /// `(q [c + 1, d] uint8, scale [c + 1], bias [c + 1], weights [n, c + 2])`.
-#[allow(clippy::type_complexity)]
+#[allow(clippy::type_complexity, clippy::too_many_arguments)]
 #[pyfunction]
 pub fn lpca_fit_cluster<'py>(
     py: Python<'py>,
     members: &Bound<'py, PyAny>,
+    texels: &Bound<'py, PyAny>,
+    height: usize,
+    width: usize,
     index: usize,
     options_json: &str,
 ) -> PyResult<(Bound<'py, PyArrayDyn<u8>>, F32Array<'py>, F32Array<'py>, F32Array<'py>)> {
@@ -224,9 +228,11 @@ pub fn lpca_fit_cluster<'py>(
     let m = borrow::<f32>("members", members)?;
     let (x, d) = texel_rows("members", &m)?;
     let n = x.len() / d.max(1);
+    let tx = borrow::<u32>("texels", texels)?;
+    let tx = tx.as_slice().map_err(|e| arg("texels", e))?;
     let f = detach(py, || {
         btfrs_core::btf::check_finite("members", x)?;
-        staged::fit_cluster(x, d, index, &o)
+        staged::fit_cluster_sampled(x, tx, d, height, width, index, &o)
     })?;
     let cc = f.scale.len();
     Ok((

@@ -15,10 +15,11 @@
 //! three values each, as the fit compacts them. The principal coordinates must be on
 //! (`reduced_dims > 0`): clustering the full ABRDFs needs every value on one machine.
 
-use super::{check_options, sub_seed, ClusterFit, LpcaOptions};
+use super::{check_options, sampled, sub_seed, ClusterFit, LpcaOptions};
 use btfrs_core::{ensure_arg, Monitor, Result};
 use btfrs_numerics::rpca;
 use nalgebra::DMatrix;
+use rayon::prelude::*;
 
 /// The options of a staged fit, given as JSON (checked against the LPCA schema).
 pub fn parse_options(json: &str) -> Result<LpcaOptions> {
@@ -29,7 +30,22 @@ pub fn parse_options(json: &str) -> Result<LpcaOptions> {
 /// `height x width` BTF.
 pub fn sample(height: usize, width: usize, opts: &LpcaOptions) -> Result<Option<Vec<u32>>> {
     check(opts, height, width)?;
-    Ok(rpca::sample_texels(height * width, sub_seed(opts.seed, 1)))
+    let t = height * width;
+    Ok(match sampled::pick(t, opts) {
+        // The range finder draws from the texel sample, as the local fit on it does.
+        Some(pick) => Some(match rpca::sample_texels(pick.len(), sub_seed(opts.seed, 1)) {
+            Some(sub) => sub.iter().map(|&i| pick[i as usize]).collect(),
+            None => pick,
+        }),
+        None => rpca::sample_texels(t, sub_seed(opts.seed, 1)),
+    })
+}
+
+/// The texels the clusters and their Eigen-BRDFs are found on (`None`: every texel): the
+/// `sample` option's seeded draw, as the local fit makes it.
+pub fn basis_texels(height: usize, width: usize, opts: &LpcaOptions) -> Result<Option<Vec<u32>>> {
+    check(opts, height, width)?;
+    Ok(sampled::pick(height * width, opts))
 }
 
 /// Stage 1b: the centre (`[d]`) and subspace (`d x l`) from the sample's ABRDFs (`s x d`,
@@ -43,7 +59,9 @@ pub fn subspace(
     monitor: &Monitor,
 ) -> Result<(Vec<f32>, DMatrix<f32>)> {
     check(opts, height, width)?;
-    rpca::sample_subspace(sample, d, height * width, opts.reduced_dims, sub_seed(opts.seed, 1), monitor)
+    let t = height * width;
+    let n = sampled::pick(t, opts).map_or(t, |p| p.len());
+    rpca::sample_subspace(sample, d, n, opts.reduced_dims, sub_seed(opts.seed, 1), monitor)
 }
 
 /// Stage 2: one block's texels (`n x d`) projected on the subspace: `n x l`.
@@ -63,8 +81,31 @@ pub fn cluster(
     check(opts, height, width)?;
     let t = height * width;
     ensure_arg!(z.nrows() == t, "z", "expected {t} projected texels, got {}", z.nrows());
-    let (space, dim) = rpca::principal_axes(z, opts.reduced_dims);
-    super::cluster_space(&space, dim, t, opts, monitor)
+    let Some(pick) = sampled::pick(t, opts) else {
+        let (space, dim) = rpca::principal_axes(z, opts.reduced_dims);
+        return super::cluster_space(&space, dim, t, opts, monitor);
+    };
+    // On a texel sample: its rows clustered, every other texel assigned to its best subspace.
+    let zs = DMatrix::<f32>::from_fn(pick.len(), z.ncols(), |i, j| z[(pick[i] as usize, j)]);
+    let (space, dim, vr) = rpca::principal_axes_map(&zs, opts.reduced_dims);
+    let (ids_s, members_s) = super::cluster_space(&space, dim, pick.len(), opts, monitor)?;
+    let pcas = sampled::reduced_pcas(&space, dim, &members_s, opts.components, opts.seed);
+    let mut ids = vec![u32::MAX; t];
+    for (&i, &k) in pick.iter().zip(&ids_s) {
+        ids[i as usize] = k;
+    }
+    let others: Vec<usize> = (0..t).filter(|&i| ids[i] == u32::MAX).collect();
+    let zo = DMatrix::<f32>::from_fn(others.len(), z.ncols(), |i, j| z[(others[i], j)]);
+    let map = rpca::CoordinateMap { mu: Vec::new(), q: DMatrix::zeros(0, 0), vr };
+    let best = sampled::assign(&map.rotate(&zo), dim, &pcas, opts.components);
+    for (&i, &k) in others.iter().zip(&best) {
+        ids[i] = k;
+    }
+    let mut members = vec![Vec::new(); members_s.len()];
+    for (i, &k) in ids.iter().enumerate() {
+        members[k as usize].push(i as u32);
+    }
+    Ok((ids, members))
 }
 
 /// Stage 4: cluster `index`'s Eigen-BRDFs, quantization and weights from its members' ABRDFs
@@ -79,6 +120,42 @@ pub fn fit_cluster(members: &[f32], d: usize, index: usize, opts: &LpcaOptions) 
     ensure_arg!(opts.components <= super::MAX_COMPONENTS, "components", "expected 0 to {}", super::MAX_COMPONENTS);
     let m: Vec<u32> = (0..(members.len() / d) as u32).collect();
     Ok(super::fit_cluster(members, d, &m, opts.components, sub_seed(opts.seed, 1000 + index as u64), None))
+}
+
+/// Stage 4 of a fit on a texel sample ([`basis_texels`] is `Some`): cluster `index`'s
+/// Eigen-BRDFs from those of its members in the sample, every member's weights solved against
+/// them, as the local fit's streaming pass does. `texels`: the members' texel indices, ascending,
+/// one per row of `members`.
+pub fn fit_cluster_sampled(
+    members: &[f32],
+    texels: &[u32],
+    d: usize,
+    height: usize,
+    width: usize,
+    index: usize,
+    opts: &LpcaOptions,
+) -> Result<ClusterFit> {
+    ensure_arg!(
+        d > 0 && members.len() == texels.len() * d && !texels.is_empty(),
+        "members",
+        "expected one ABRDF of {d} values per texel of `texels` ({}), got {} values",
+        texels.len(),
+        members.len()
+    );
+    ensure_arg!(texels.windows(2).all(|w| w[0] < w[1]), "texels", "expected ascending texel indices");
+    let Some(pick) = basis_texels(height, width, opts)? else {
+        return fit_cluster(members, d, index, opts);
+    };
+    let rows: Vec<u32> =
+        (0..texels.len() as u32).filter(|&i| pick.binary_search(&texels[i as usize]).is_ok()).collect();
+    ensure_arg!(!rows.is_empty(), "texels", "cluster {index} has no member in the texel sample");
+    let c = opts.components;
+    let (basis, _) = super::cluster_basis(members, d, &rows, c, sub_seed(opts.seed, 1000 + index as u64), None);
+    let mut xc = vec![0.0f32; members.len()];
+    let norms: Vec<(f64, f64)> =
+        xc.par_chunks_mut(d).zip(members.par_chunks(d)).map(|(o, x)| sampled::centre(x, &basis.mean, o)).collect();
+    let (weights, _, _) = sampled::solve(&basis, &xc, d, &norms);
+    Ok(ClusterFit { q: basis.q, scale: basis.scale, bias: basis.bias, weights })
 }
 
 /// Stage 5: the model from the clusters of [`cluster`] and their fits (in cluster order): the

@@ -231,7 +231,9 @@ fn held_out_pairs_are_never_read_and_are_filled() {
     let clean = b.data.clone();
     for (i, x) in b.data.iter_mut().enumerate() {
         if test[(i / 3) % (n * n)] {
-            *x = [1e6, f32::NAN, f32::NEG_INFINITY][i % 3];
+            // Large finite values: a non-finite one anywhere is refused (the fit scans every
+            // value, as the caller's check would).
+            *x = [1e6, -3e30, 7e20][i % 3];
         }
     }
     let g = fit(&b.data).unwrap();
@@ -323,11 +325,12 @@ fn bad_arguments_name_the_parameter() {
     assert!(e.starts_with("components:") && e.contains("16"), "{e}");
     assert!(err(LpcaOptions { kmeans_iterations: 0, ..opts(4, 2) }).starts_with("kmeans_iterations:"));
     let mut data = b.data.clone();
-    data[(5 * 81 * 81 + 2 * 81 + 7) * 3 + 1] = f32::NAN;
+    let at = (5 * 81 * 81 + 2 * 81 + 7) * 3 + 1;
+    data[at] = f32::NAN;
     let e = fit_lpca(&BtfRef::new(8, 8, &b.views, &b.lights, &data, None).unwrap(), &opts(2, 2), &Monitor::new())
         .unwrap_err()
         .to_string();
-    assert!(e.starts_with("data:") && e.contains("texel 5, view 2, light 7"), "{e}");
+    assert_eq!(e, format!("data: value NaN at flat index {at} is not finite"));
     let m = Monitor::new();
     m.cancel();
     assert!(matches!(fit_lpca(&r, &opts(2, 2), &m), Err(Error::Interrupted)));
@@ -463,4 +466,71 @@ fn a_fit_under_a_memory_limit_streams_and_matches_the_unlimited_fit() {
     // A limit too small for the fit is refused before any work, naming the least it needs.
     m.set_memory_limit(Some(limit / 4));
     assert!(fit_lpca(&b, &o, &m).unwrap_err().to_string().starts_with("memory_limit: expected at least"));
+}
+
+#[test]
+fn a_fit_on_a_texel_sample_reports_its_error_and_equals_itself_under_a_memory_limit() {
+    // knit 48^2 (2304 texels of 19683 values), clusters and Eigen-BRDFs found on 768 of them.
+    let btf = knit(48);
+    let b = btf.as_ref();
+    let t = b.texels();
+    let o = LpcaOptions { clusters: 6, components: 3, sample: 768, ..Default::default() };
+    let m = fit_lpca(&b, &o, &Monitor::new()).unwrap();
+    let f = m.sampled.expect("a sampled fit");
+    assert_eq!(f.sample, 768);
+    // The error the streaming pass summed is the stored model's, evaluated independently (its
+    // 8-bit basis and f32 weights, through the renderer's evaluation at the measured pairs).
+    let e = model_error(&m, &b).unwrap().relative();
+    assert!((f.relative_error - e).abs() <= 1e-4 * e, "pass {} vs model {e}", f.relative_error);
+    // Sample texels keep the cluster found for them; every cluster has sample members.
+    let pick = sampled::pick(t, &o).unwrap();
+    assert_eq!(pick.len(), 768);
+    let mut seen = vec![false; m.clusters];
+    for &i in &pick {
+        seen[m.ids[i as usize] as usize] = true;
+    }
+    assert!(seen.iter().all(|&x| x));
+    // Each texel outside the sample is in the cluster that reconstructs it best among those
+    // its neighbours use, or no worse than 2% off the best: the pass's choice is made in the
+    // principal coordinates, so check it against the full-space reconstruction of the model.
+    // (A looser, independent property: the whole fit is close to the fit on every texel.)
+    let all = fit_lpca(&b, &LpcaOptions { sample: 0, ..o }, &Monitor::new()).unwrap();
+    assert!(all.sampled.is_none());
+    let ea = model_error(&all, &b).unwrap().relative();
+    assert!(e <= 1.03 * ea, "sampled {e} against every texel {ea}");
+    // Under a memory limit that holds the sample and little more (large clusters of the sample
+    // streamed): the same model, bit for bit.
+    let mut limit = 1u64 << 20;
+    let mon = Monitor::new();
+    loop {
+        mon.set_memory_limit(Some(limit));
+        match fit_lpca(&b, &o, &mon) {
+            Ok(tight) => {
+                assert!(tight.ids == m.ids, "the clusters differ under {limit} bytes");
+                assert!(tight.basis == m.basis, "the Eigen-BRDFs differ under {limit} bytes");
+                assert!(tight.weights == m.weights, "the weights differ under {limit} bytes");
+                break;
+            }
+            Err(e) => {
+                let msg = e.to_string();
+                assert!(msg.starts_with("memory_limit: expected at least"), "{msg}");
+                assert!(msg.contains("a smaller `sample` needs less"), "{msg}");
+                limit += 8 << 20;
+            }
+        }
+    }
+    // A non-finite value outside the sample (found by the pass) or in it (found by the sample's
+    // read) fails as the caller's scan would, wherever it lies.
+    let outside = (0..t as u32).rev().find(|i| pick.binary_search(i).is_err()).unwrap() as usize;
+    for texel in [outside, pick[3] as usize] {
+        let mut data = btf.data.clone();
+        let at = texel * 19683 + 100;
+        data[at] = f32::INFINITY;
+        let mut bad = b;
+        bad.data = &data;
+        let e = fit_lpca(&bad, &o, &Monitor::new()).unwrap_err().to_string();
+        assert_eq!(e, format!("data: value inf at flat index {at} is not finite"));
+    }
+    let sample_bytes = 768 * 19683 * 4;
+    assert!(limit < sample_bytes + (300 << 20), "the plan wanted {limit} bytes");
 }
