@@ -13,10 +13,13 @@
 // written there once; the WGSL `struct Params` is generated from it).
 
 // Regions marked <view>, <direct> and <cached> are the generic form: rust/btfrs-fit/src/sh/wgsl.rs
-// replaces them, for models up to 25 x 25, by straight-line code generated for the model's
-// kv x kl (larger ones keep these loops: the compile time explodes; lavapipe keeps
-// dynamically indexed private arrays in memory and gathers them per lane; with constant
-// indices they stay in registers: a 25x25 one-light frame 1.54 s -> 0.51 s, BENCHMARKS.md).
+// replaces them by code generated for the model's kv x kl: straight-line up to 16 x 16, and
+// above it a middle form (the one-light evaluation a loop over a row's words whose body is
+// written out over the rows, and up to 36 x 36 the several-light coefficients the same way).
+// lavapipe keeps dynamically indexed private arrays in memory and gathers them per lane; with
+// constant indices they stay in registers (a 25x25 one-light frame 1.54 s -> 0.18 s,
+// BENCHMARKS.md), and the middle form compiles in about a second where full straight-line code
+// takes seconds to minutes from 25 x 36.
 // <view>
 struct ViewQuery {
     y: array<f32, 64>,

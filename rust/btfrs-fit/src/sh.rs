@@ -755,11 +755,11 @@ section 4: `btfrs.render(..., environment=env, lighting=\"sh\")`).";
     const SAMPLING: Sampling = Sampling::Any { note: "over all pairs", one_view: "view_coeffs=1 for a single view" };
     const MIP: Mip = Mip::Average;
     type Options = ShOptions;
-    /// The generic shader and the variants of the example sizes (and one with kv != kl);
-    /// every size is validated in rust/btfrs-render/tests/shader_validation.rs.
+    /// The generic shader and the forms the example sizes draw with (and one with kv != kl);
+    /// every size in both forms is validated in rust/btfrs-render/tests/shader_validation.rs.
     fn shaders() -> Vec<Shader> {
         let mut v = vec![<Self as GpuLayout>::SHADER];
-        v.extend([(16, 16), (25, 25), (25, 9)].map(|(kv, kl)| wgsl::shader_for(kv, kl)));
+        v.extend([(16, 16), (25, 25), (25, 9), (36, 36)].map(|(kv, kl)| wgsl::shader(kv, kl)));
         v
     }
     // The CLS solves each texel alone; only the quantization's scale and bias span all texels.

@@ -197,8 +197,8 @@ fn double_sh_variants_match_the_cpu_reference_and_the_generic_shader() {
     // The SH renderer draws with code generated for the model's kv x kl (btfrs_fit::sh::wgsl)
     // up to 25 x 25: sizes beyond the registry's examples (kv != kl, kl not a multiple of 4,
     // degree 0), with one light (the direct path) and with two (the cached light
-    // coefficients), against the CPU reference and against the generic loop shader; and a size
-    // above the limit (9 x 36) still forced to the variant, as a user could not.
+    // coefficients), against the CPU reference and against the generic loop shader, in both
+    // generated forms (straight-line, and the middle form that sizes above 25 draw with).
     let gpu = Gpu::shared().expect("a wgpu adapter");
     let btf = material();
     let (_, mesh, cam) = scenes().swap_remove(1);
@@ -208,21 +208,30 @@ fn double_sh_variants_match_the_cpu_reference_and_the_generic_shader() {
         let opts = ShOptions { view_coeffs: kv, light_coeffs: kl, ..Default::default() };
         let sh = fit_sh(&btf.as_ref(), &opts, &Monitor::new()).unwrap();
         let variant = btfrs_fit::sh::wgsl::shader_for(kv, kl);
+        let middle = btfrs_fit::sh::wgsl::middle_for(kv, kl);
         let drawn = btfrs_fit::gpu::GpuModel::shader(&sh);
-        assert_eq!(drawn == variant, kv <= 25 && kl <= 25, "{kv} x {kl}: the variant where it pays");
+        let small = kv <= btfrs_fit::sh::wgsl::MAX_STRAIGHT_LINE && kl <= btfrs_fit::sh::wgsl::MAX_STRAIGHT_LINE;
+        assert_eq!(
+            drawn,
+            if small { variant } else { middle },
+            "{kv} x {kl}: straight-line up to 16, else the middle form"
+        );
         assert!(variant.source.contains(&format!("y: array<f32, {kv}>")));
-        let (special, generic) = (WithShader(&sh, variant.source), WithShader(&sh, btfrs_fit::sh::wgsl::GENERIC));
-        let (up, up_generic) = (gpu::upload(&gpu, &special).unwrap(), gpu::upload(&gpu, &generic).unwrap());
-        for lights in [&one, &two] {
-            let view = plain_view(&mesh, &cam, lights, (96, 80), [3.0, 2.0]);
-            let (g, _) = gpu::render(&gpu, &up, &view).unwrap();
-            let (gg, _) = gpu::render(&gpu, &up_generic, &view).unwrap();
-            let c = render_cpu(&sh, &view).unwrap();
-            assert!(c.iter().filter(|&&x| x > 0.0).count() > 96 * 80 / 10);
-            let (p, pg) = (psnr(&g, &c), psnr(&g, &gg));
-            eprintln!("SH {kv}x{kl}, {} light(s): {p:.1} dB vs CPU, {pg:.1} dB vs the generic shader", lights.len());
-            assert!(p >= 40.0, "SH {kv}x{kl}, {} light(s): GPU vs CPU PSNR {p:.1} dB < 40", lights.len());
-            assert!(pg >= 60.0, "SH {kv}x{kl}, {} light(s): variant vs generic {pg:.1} dB < 60", lights.len());
+        let up_generic = gpu::upload(&gpu, &WithShader(&sh, btfrs_fit::sh::wgsl::GENERIC)).unwrap();
+        for (form, shader) in [("straight-line", variant), ("middle", middle)] {
+            let up = gpu::upload(&gpu, &WithShader(&sh, shader.source)).unwrap();
+            for lights in [&one, &two] {
+                let view = plain_view(&mesh, &cam, lights, (96, 80), [3.0, 2.0]);
+                let (g, _) = gpu::render(&gpu, &up, &view).unwrap();
+                let (gg, _) = gpu::render(&gpu, &up_generic, &view).unwrap();
+                let c = render_cpu(&sh, &view).unwrap();
+                assert!(c.iter().filter(|&&x| x > 0.0).count() > 96 * 80 / 10);
+                let (p, pg) = (psnr(&g, &c), psnr(&g, &gg));
+                let n = lights.len();
+                eprintln!("SH {kv}x{kl} {form}, {n} light(s): {p:.1} dB vs CPU, {pg:.1} dB vs the generic shader");
+                assert!(p >= 40.0, "SH {kv}x{kl} {form}, {n} light(s): GPU vs CPU PSNR {p:.1} dB < 40");
+                assert!(pg >= 60.0, "SH {kv}x{kl} {form}, {n} light(s): against the generic {pg:.1} dB < 60");
+            }
         }
     }
 }

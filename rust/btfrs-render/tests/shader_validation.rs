@@ -93,15 +93,17 @@ fn globals_match_their_rust_mirror() {
 
 #[test]
 fn every_double_sh_size_validates() {
-    // The SH renderer draws with straight-line code generated per (kv, kl): every size the fit
-    // accepts (degree 0 to 7 on each side, kl not a multiple of 4 included) must validate.
+    // The SH renderer draws with code generated per (kv, kl), straight-line or the middle form:
+    // every size the fit accepts (degree 0 to 7 on each side, kl not a multiple of 4 included),
+    // in both forms, must validate.
     let sizes = [1, 4, 9, 16, 25, 36, 49, 64];
     for kv in sizes {
         for kl in sizes {
-            let s = btfrs_fit::sh::wgsl::shader_for(kv, kl);
-            for single_chunk in [true, false] {
-                if let Err(e) = parse(&shader_source(s, single_chunk)) {
-                    panic!("sh.wgsl for {kv} x {kl} (single chunk: {single_chunk}) does not validate:\n{e}");
+            for s in [btfrs_fit::sh::wgsl::shader_for(kv, kl), btfrs_fit::sh::wgsl::middle_for(kv, kl)] {
+                for single_chunk in [true, false] {
+                    if let Err(e) = parse(&shader_source(s, single_chunk)) {
+                        panic!("sh.wgsl for {kv} x {kl} (single chunk: {single_chunk}) does not validate:\n{e}");
+                    }
                 }
             }
         }
