@@ -70,7 +70,7 @@ pub fn principal_coordinates_with(
     ensure_arg!(d > 0 && n > 0 && data.len() == d * n, "data", "expected {n} x {d} values, got {}", data.len());
     ensure_arg!(r > 0, "dims", "expected at least 1 principal component, got 0");
     ensure_arg!(power_iterations <= 1, "power_iterations", "expected 0 or 1, got {power_iterations}");
-    coordinates_iter(data, d, n, r, seed, chunk, power_iterations, monitor).map(|(p, r, _)| (p, r))
+    coordinates_map(data, d, n, r, seed, chunk, power_iterations, monitor).map(|(p, r, _)| (p, r))
 }
 
 /// `[T, r']` principal coordinates (`r' <= r`; 0 when all texels are equal) of the
@@ -96,7 +96,7 @@ pub fn coordinates(
     chunk: Option<usize>,
     monitor: &Monitor,
 ) -> Result<(Vec<f32>, usize)> {
-    coordinates_map(data, d, t, r, seed, chunk, monitor).map(|(p, r, _)| (p, r))
+    coordinates_map(data, d, t, r, seed, chunk, 1, monitor).map(|(p, r, _)| (p, r))
 }
 
 /// The map [`coordinates`] applies to every texel, kept to apply to texels it did not see
@@ -131,21 +131,10 @@ impl CoordinateMap {
     }
 }
 
-/// [`coordinates`] with the map that made them ([`CoordinateMap`]).
+/// [`coordinates`] with `power` (0 or 1) steps of subspace iteration in the range finder
+/// ([`principal_coordinates_with`]), and the map that made them ([`CoordinateMap`]).
+#[allow(clippy::too_many_arguments)] // coordinates', and the power iterations
 pub fn coordinates_map(
-    data: &[f32],
-    d: usize,
-    t: usize,
-    r: usize,
-    seed: u64,
-    chunk: Option<usize>,
-    monitor: &Monitor,
-) -> Result<(Vec<f32>, usize, CoordinateMap)> {
-    coordinates_iter(data, d, t, r, seed, chunk, 1, monitor)
-}
-
-#[allow(clippy::too_many_arguments)] // coordinates_map's, and the power iterations
-fn coordinates_iter(
     data: &[f32],
     d: usize,
     t: usize,

@@ -149,7 +149,7 @@ pub(crate) fn fit(btf: &BtfRef<'_>, opts: &LpcaOptions, pick: &[u32], monitor: &
 
     // 2. Principal coordinates, clusters and their Eigen-BRDFs, on the sample alone.
     let (space, dim, map) =
-        rpca::coordinates_map(&sample, d, s, opts.reduced_dims, sub_seed(opts.seed, 1), chunk, monitor)?;
+        rpca::coordinates_map(&sample, d, s, opts.reduced_dims, sub_seed(opts.seed, 1), chunk, 1, monitor)?;
     monitor.check()?;
     let (ids_s, members) = cluster_space(&space, dim, s, opts, monitor)?;
     monitor.check()?;

@@ -82,12 +82,21 @@ pub fn shader(kv: usize, kl: usize) -> Shader {
 /// constants folded) and the one-light evaluation as a loop over the `ceil(kl / 4)` words of a
 /// coefficient row whose body is written out over the `kv` rows (`sum_i y_i(v) q[i][w]`, every
 /// view-basis index a constant, then one dot product with the light basis's group `w`): code
-/// that grows with `kv`, not `kv x kl`. Several lights keep the generic loops.
+/// that grows with `kv`, not `kv x kl`; several lights the same way ([`MAX_MIDDLE_CACHED`]).
 pub fn middle_for(kv: usize, kl: usize) -> Shader {
+    static CACHE: Sources = OnceLock::new();
+    kept(&CACHE, kv, kl, middle_source)
+}
+
+/// Generated sources by size, built once and kept for the process.
+type Sources = OnceLock<Mutex<HashMap<(usize, usize), &'static str>>>;
+
+/// The shader of `make(kv, kl)`, the same source (and address) for every call with the same
+/// sizes: the pipeline cache keys on it.
+fn kept(cache: &'static Sources, kv: usize, kl: usize, make: fn(usize, usize) -> String) -> Shader {
     assert!(valid(kv) && valid(kl), "double SH sizes are perfect squares in 1..=64, got {kv} x {kl}");
-    static CACHE: OnceLock<Mutex<HashMap<(usize, usize), &'static str>>> = OnceLock::new();
-    let mut cache = CACHE.get_or_init(Default::default).lock().unwrap_or_else(|e| e.into_inner());
-    let source = *cache.entry((kv, kl)).or_insert_with(|| Box::leak(middle_source(kv, kl).into_boxed_str()));
+    let mut cache = cache.get_or_init(Default::default).lock().unwrap_or_else(|e| e.into_inner());
+    let source = *cache.entry((kv, kl)).or_insert_with(|| Box::leak(make(kv, kl).into_boxed_str()));
     Shader::new::<ShParams>("sh", source)
 }
 
@@ -181,11 +190,8 @@ fn direct_middle(kv: usize, kl: usize, lb: &str) -> String {
 /// The shader specialised to `kv x kl` coefficients (perfect squares in 1..=64, as the fit
 /// checks), whatever the size; the same source (and address) for every call with the same sizes.
 pub fn shader_for(kv: usize, kl: usize) -> Shader {
-    assert!(valid(kv) && valid(kl), "double SH sizes are perfect squares in 1..=64, got {kv} x {kl}");
-    static CACHE: OnceLock<Mutex<HashMap<(usize, usize), &'static str>>> = OnceLock::new();
-    let mut cache = CACHE.get_or_init(Default::default).lock().unwrap_or_else(|e| e.into_inner());
-    let source = *cache.entry((kv, kl)).or_insert_with(|| Box::leak(source_for(kv, kl).into_boxed_str()));
-    Shader::new::<ShParams>("sh", source)
+    static CACHE: Sources = OnceLock::new();
+    kept(&CACHE, kv, kl, source_for)
 }
 
 /// A coefficient count the fit accepts: a perfect square in 1..=64.
