@@ -93,7 +93,7 @@ pub fn btf_features(
             let (coords, r) =
                 // No power iteration: the coordinates only compare pixels (paper 000 section 4.1,
                 // "a PCA projection"), and it saves two of the range finder's three products.
-                btfrs_numerics::principal_coordinates_with(data, 3 * pairs.len(), n, dims, seed, chunk, 0, monitor)?;
+                btfrs_numerics::principal_coordinates(data, 3 * pairs.len(), n, dims, seed, chunk, 0, monitor)?;
             if r == 0 {
                 // Every pixel is the same: one coordinate of zeros keeps the shapes valid.
                 return Features::new(h, w, 1, vec![0.0; n]);

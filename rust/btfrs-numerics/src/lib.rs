@@ -15,4 +15,4 @@ pub mod kmeans;
 pub mod rpca;
 
 pub use kmeans::{kmeans, KMeans};
-pub use rpca::{principal_coordinates, principal_coordinates_with};
+pub use rpca::principal_coordinates;

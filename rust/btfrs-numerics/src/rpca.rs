@@ -35,29 +35,17 @@ pub const PROGRESS_UNITS: u64 = 4;
 
 /// `[n, r']` principal coordinates (`r' <= r`, texel-major) of the `n` points of dimension `d`
 /// stored point-major in `data`, by the randomized PCA of the LPCA fit's first step (a random
-/// range finder with one power iteration, see `coordinates`' notes). Distances between the
+/// range finder, see `coordinates`' notes). Distances between the
 /// coordinates approximate the distances between the points, which is what the texton analysis
 /// of the synthesis (paper 000 section 4.1, "a PCA projection of them") needs. `monitor`
 /// advances by 4 (`PROGRESS_UNITS`). `chunk`: the most points whose values may be copied at
 /// once (`None`: no bound; an out-of-core caller streams the range finder's sample through it).
-pub fn principal_coordinates(
-    data: &[f32],
-    d: usize,
-    n: usize,
-    r: usize,
-    seed: u64,
-    chunk: Option<usize>,
-    monitor: &Monitor,
-) -> Result<(Vec<f32>, usize)> {
-    principal_coordinates_with(data, d, n, r, seed, chunk, 1, monitor)
-}
-
-/// [`principal_coordinates`] with `power_iterations` (0 or 1) steps of subspace iteration in the
-/// range finder: 0 saves two of its three products over the sample (about 40% of the work for
+/// `power_iterations` (0 or 1): steps of subspace iteration in the range finder, 1 as the LPCA
+/// fit; 0 saves two of its three products over the sample (about 40% of the work for
 /// a few thousand points) for a subspace that is a little less sharp, which is enough where the
 /// coordinates only compare points (the texton analysis).
 #[allow(clippy::too_many_arguments)] // the data, its shape, the options, the monitor
-pub fn principal_coordinates_with(
+pub fn principal_coordinates(
     data: &[f32],
     d: usize,
     n: usize,
@@ -132,7 +120,7 @@ impl CoordinateMap {
 }
 
 /// [`coordinates`] with `power` (0 or 1) steps of subspace iteration in the range finder
-/// ([`principal_coordinates_with`]), and the map that made them ([`CoordinateMap`]).
+/// ([`principal_coordinates`]), and the map that made them ([`CoordinateMap`]).
 #[allow(clippy::too_many_arguments)] // coordinates', and the power iterations
 pub fn coordinates_map(
     data: &[f32],

@@ -297,6 +297,7 @@ fn pca_latents(btf: &BtfRef<'_>, pairs: &Pairs, k: usize, seed: u64, monitor: &M
             k.min(d).min(t - 1).max(1),
             seed,
             None,
+            1,
             &Monitor::new(),
         )?;
         found = r;

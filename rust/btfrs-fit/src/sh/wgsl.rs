@@ -146,11 +146,7 @@ fn cached_middle(kv: usize, kl: usize, lb: &str) -> String {
     let _ =
         writeln!(s, "            hm[ch * {rw}u + w] = {};\n        }}\n    }}", row_sum(kv, rw, "                "));
     s.push_str("    h_texel = texel;\n}\n\n");
-    let _ = writeln!(s, "fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {{");
-    s.push_str("    if (g.n_lights == 1u) {\n        return eval_direct(texel, vq, l);\n    }\n");
-    s.push_str("    if (texel != h_texel) {\n        light_coefficients(texel, vq);\n    }\n");
-    let _ = writeln!(s, "    let yl = {lb}(l);");
-    s.push_str(&light_groups(kl, "    "));
+    s.push_str(&eval_model_head(kl, lb));
     let groups: Vec<String> = (0..rw).map(|w| format!("g{w}")).collect();
     let _ = writeln!(s, "    let gl = array<vec4<f32>, {rw}>({});", groups.join(", "));
     let _ = writeln!(s, "    var acc = vec3<f32>(0.0);\n    for (var w = 0u; w < {rw}u; w++) {{");
@@ -160,10 +156,7 @@ fn cached_middle(kv: usize, kl: usize, lb: &str) -> String {
         "        acc += vec3<f32>(dot(hm[w], gw), dot(hm[{rw}u + w], gw), dot(hm[{}u + w], gw));\n    }}",
         2 * rw
     );
-    s.push_str("    let sb = mp.scale_bias;\n");
-    s.push_str("    let bias = vec3<f32>(load(sb + 3u), load(sb + 4u), load(sb + 5u));\n");
-    s.push_str("    let scale = vec3<f32>(load(sb), load(sb + 1u), load(sb + 2u));\n");
-    s.push_str("    return bias * (vq.sum * sl) + 255.0 * scale * acc;\n}\n");
+    s.push_str(EVAL_MODEL_TAIL);
     s
 }
 
@@ -285,6 +278,26 @@ fn basis(name: &str, n: usize) -> String {
     s
 }
 
+/// The several-light `eval_model` up to its contraction: one light goes to `eval_direct`, a new
+/// texel gets its light coefficients, then the light basis in groups (`g0..`, `sl`).
+fn eval_model_head(kl: usize, lb: &str) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {{");
+    s.push_str("    if (g.n_lights == 1u) {\n        return eval_direct(texel, vq, l);\n    }\n");
+    s.push_str("    if (texel != h_texel) {\n        light_coefficients(texel, vq);\n    }\n");
+    let _ = writeln!(s, "    let yl = {lb}(l);");
+    s.push_str(&light_groups(kl, "    "));
+    s
+}
+
+/// `eval_model` after its contraction `acc`: the stored bias and scale applied.
+const EVAL_MODEL_TAIL: &str = "    let sb = mp.scale_bias;
+    let bias = vec3<f32>(load(sb + 3u), load(sb + 4u), load(sb + 5u));
+    let scale = vec3<f32>(load(sb), load(sb + 1u), load(sb + 2u));
+    return bias * (vq.sum * sl) + 255.0 * scale * acc;
+}
+";
+
 /// `let g0 = vec4(yl[0], ..); ..` and `let sl = ..`: the light basis in the groups of four
 /// of the padded coefficient rows (zero beyond kl), and its sum.
 fn light_groups(kl: usize, indent: &str) -> String {
@@ -370,17 +383,10 @@ fn cached_straight(kv: usize, kl: usize, lb: &str) -> String {
         }
     }
     s.push_str("    h_texel = texel;\n}\n\n");
-    let _ = writeln!(s, "fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {{");
-    s.push_str("    if (g.n_lights == 1u) {\n        return eval_direct(texel, vq, l);\n    }\n");
-    s.push_str("    if (texel != h_texel) {\n        light_coefficients(texel, vq);\n    }\n");
-    let _ = writeln!(s, "    let yl = {lb}(l);");
-    s.push_str(&light_groups(kl, "    "));
+    s.push_str(&eval_model_head(kl, lb));
     let dots = |ch: usize| (0..rw).map(|w| format!("dot(h{ch}_{w}, g{w})")).collect::<Vec<_>>().join(" + ");
     let _ = writeln!(s, "    let acc = vec3<f32>({}, {}, {});", dots(0), dots(1), dots(2));
-    s.push_str("    let sb = mp.scale_bias;\n");
-    s.push_str("    let bias = vec3<f32>(load(sb + 3u), load(sb + 4u), load(sb + 5u));\n");
-    s.push_str("    let scale = vec3<f32>(load(sb), load(sb + 1u), load(sb + 2u));\n");
-    s.push_str("    return bias * (vq.sum * sl) + 255.0 * scale * acc;\n}\n");
+    s.push_str(EVAL_MODEL_TAIL);
     s
 }
 
