@@ -315,6 +315,7 @@ impl Stream<'_, '_> {
         let mut copy = if self.compact { vec![0.0f32; block * d] } else { Vec::new() };
         let mut grouped = vec![0.0f32; block * d];
         let mut reported = 0u64;
+        let out_of_core = monitor.memory_limit().is_some();
         for (j, b0) in (0..t).step_by(block).enumerate() {
             monitor.check()?;
             computing.store(j, Ordering::Release);
@@ -384,7 +385,11 @@ impl Stream<'_, '_> {
                 res += r;
                 norm += x2;
             }
-            advise(raw, Access::Done);
+            if out_of_core {
+                // Only out of core: on a BTF held in memory the advice would mark the caller's
+                // own array as the first to swap out.
+                advise(raw, Access::Done);
+            }
             let done = ((b0 + n) as u64 * STREAM_UNITS) / t as u64;
             monitor.advance(done - reported);
             reported = done;
