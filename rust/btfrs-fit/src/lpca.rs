@@ -183,7 +183,8 @@ pub fn fit_lpca(btf: &BtfRef<'_>, opts: &LpcaOptions, monitor: &Monitor) -> Resu
 
     // 1. The space the clustering works in: principal coordinates, or the ABRDFs themselves.
     let (space, dim): (Cow<'_, [f32]>, usize) = if opts.reduced_dims > 0 {
-        let (p, r) = rpca::coordinates(data, d, t, opts.reduced_dims, sub_seed(opts.seed, 1), chunk, monitor)?;
+        let (p, r, _) =
+            rpca::coordinates_map(data, d, t, opts.reduced_dims, sub_seed(opts.seed, 1), chunk, 1, monitor)?;
         (Cow::Owned(p), r)
     } else {
         (Cow::Borrowed(data), d)

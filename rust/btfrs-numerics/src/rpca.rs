@@ -14,7 +14,7 @@
 //! Used by:
 //!
 //! * the local PCA fit (paper 004, sections 3 and 6.3; `btfrs_fit::lpca`): step 1, the principal
-//!   coordinates the clustering works in (`coordinates`), and the final PCA of large clusters
+//!   coordinates the clustering works in (`coordinates_map`), and the final PCA of large clusters
 //!   (`top_directions`);
 //! * the texture synthesis (paper 000, section 4.1: the textons are compared "by a PCA projection
 //!   of them"), through [`principal_coordinates`].
@@ -28,14 +28,14 @@ use rayon::prelude::*;
 pub const OVERSAMPLE: usize = 10;
 /// Subspace iterations of [`top_directions`].
 const POWER_ITERS: usize = 2;
-/// Points the range finder of [`coordinates`] samples.
+/// Points the range finder of [`coordinates_map`] samples.
 const RANGE_SAMPLE: usize = 2048;
-/// Progress units of [`coordinates`] and [`principal_coordinates`] (one per pass over the data).
+/// Progress units of [`coordinates_map`] and [`principal_coordinates`] (one per pass over the data).
 pub const PROGRESS_UNITS: u64 = 4;
 
 /// `[n, r']` principal coordinates (`r' <= r`, texel-major) of the `n` points of dimension `d`
 /// stored point-major in `data`, by the randomized PCA of the LPCA fit's first step (a random
-/// range finder, see `coordinates`' notes). Distances between the
+/// range finder, see `coordinates_map`' notes). Distances between the
 /// coordinates approximate the distances between the points, which is what the texton analysis
 /// of the synthesis (paper 000 section 4.1, "a PCA projection of them") needs. `monitor`
 /// advances by 4 (`PROGRESS_UNITS`). `chunk`: the most points whose values may be copied at
@@ -61,33 +61,7 @@ pub fn principal_coordinates(
     coordinates_map(data, d, n, r, seed, chunk, power_iterations, monitor).map(|(p, r, _)| (p, r))
 }
 
-/// `[T, r']` principal coordinates (`r' <= r`; 0 when all texels are equal) of the
-/// columns of the `d x t` matrix over `data`, by a randomized PCA: the range finder with one step of subspace
-/// iteration (Halko et al.'s algorithm 4.4 with `q = 1`), then the principal axes within the
-/// subspace from a small eigenproblem. `monitor` advances by [`PROGRESS_UNITS`].
-///
-/// The subspace is found on a random subset of at most [`RANGE_SAMPLE`] texels (all of them in a
-/// smaller sample), then every texel is projected on it: `3 s / t + 1` passes over the data
-/// instead of 4, and the cost of the reduction stops growing with the sample size beyond one
-/// projection pass. A few thousand ABRDFs pin down the leading principal directions of a
-/// material well; the coordinates only steer the clustering, never the stored basis.
-///
-/// `chunk`: the most texels whose values may be copied at once (`None`: no bound). When the
-/// sample does not fit, it is streamed through [`Gathered`] instead of copied: the same
-/// subspace up to rounding, in bounded memory (an out-of-core fit of a memory-mapped BTF).
-pub fn coordinates(
-    data: &[f32],
-    d: usize,
-    t: usize,
-    r: usize,
-    seed: u64,
-    chunk: Option<usize>,
-    monitor: &Monitor,
-) -> Result<(Vec<f32>, usize)> {
-    coordinates_map(data, d, t, r, seed, chunk, 1, monitor).map(|(p, r, _)| (p, r))
-}
-
-/// The map [`coordinates`] applies to every texel, kept to apply to texels it did not see
+/// The map [`coordinates_map`] applies to every texel, kept to apply to texels it did not see
 /// (those a fit on a sample of texels streams afterwards): centre `mu`, subspace `q` (`d x l`)
 /// and the rotation `vr` (`l x r'`) to the principal axes within it.
 #[derive(Debug, Clone)]
@@ -99,7 +73,7 @@ pub struct CoordinateMap {
 
 impl CoordinateMap {
     /// `[n, r']` coordinates (texel-major) of the `n` texels of `data` (`n x d`, texel-major),
-    /// by the same two products as [`coordinates`]' own.
+    /// by the same two products as [`coordinates_map`]' own.
     pub fn apply(&self, data: &[f32], d: usize) -> Vec<f32> {
         let n = data.len() / d.max(1);
         if self.vr.ncols() == 0 || n == 0 {
@@ -119,9 +93,25 @@ impl CoordinateMap {
     }
 }
 
-/// [`coordinates`] with `power` (0 or 1) steps of subspace iteration in the range finder
-/// ([`principal_coordinates`]), and the map that made them ([`CoordinateMap`]).
-#[allow(clippy::too_many_arguments)] // coordinates', and the power iterations
+/// `[T, r']` principal coordinates (`r' <= r`; 0 when all texels are equal) of the
+/// columns of the `d x t` matrix over `data`, by a randomized PCA: the range finder with one step of subspace
+/// iteration (Halko et al.'s algorithm 4.4 with `q = 1`), then the principal axes within the
+/// subspace from a small eigenproblem. `monitor` advances by [`PROGRESS_UNITS`].
+///
+/// The subspace is found on a random subset of at most [`RANGE_SAMPLE`] texels (all of them in a
+/// smaller sample), then every texel is projected on it: `3 s / t + 1` passes over the data
+/// instead of 4, and the cost of the reduction stops growing with the sample size beyond one
+/// projection pass. A few thousand ABRDFs pin down the leading principal directions of a
+/// material well; the coordinates only steer the clustering, never the stored basis.
+///
+/// `chunk`: the most texels whose values may be copied at once (`None`: no bound). When the
+/// sample does not fit, it is streamed through [`Gathered`] instead of copied: the same
+/// subspace up to rounding, in bounded memory (an out-of-core fit of a memory-mapped BTF).
+///
+/// `power` (0 or 1): steps of subspace iteration in the range finder (1: the LPCA fit; 0: see
+/// [`principal_coordinates`]). Returns the map too ([`CoordinateMap`]), to apply to texels the
+/// call did not see.
+#[allow(clippy::too_many_arguments)] // the data, its shape, the options, the monitor
 pub fn coordinates_map(
     data: &[f32],
     d: usize,
@@ -164,7 +154,7 @@ pub fn coordinates_map(
     Ok((p, keep, CoordinateMap { mu, q, vr }))
 }
 
-/// The range finder's sample of [`coordinates`]: `None` when it is every texel (at most
+/// The range finder's sample of [`coordinates_map`]: `None` when it is every texel (at most
 /// [`RANGE_SAMPLE`]), else [`RANGE_SAMPLE`] texels drawn by a partial Fisher-Yates shuffle from
 /// `rng`, in texel order.
 fn pick_sample(rng: &mut Rng, t: usize) -> Option<Vec<u32>> {
@@ -180,15 +170,15 @@ fn pick_sample(rng: &mut Rng, t: usize) -> Option<Vec<u32>> {
     })
 }
 
-/// The texels (`None`: all `t`) whose ABRDFs [`coordinates`] with `seed` finds its subspace on:
+/// The texels (`None`: all `t`) whose ABRDFs [`coordinates_map`] with `seed` finds its subspace on:
 /// the first stage of the blockwise LPCA fit (`btfrs_fit::lpca::staged`), which gathers them.
 pub fn sample_texels(t: usize, seed: u64) -> Option<Vec<u32>> {
     pick_sample(&mut Rng::new(seed), t)
 }
 
-/// The centre and the orthonormal `d x l` subspace [`coordinates`] with `seed` finds on the
+/// The centre and the orthonormal `d x l` subspace [`coordinates_map`] with `seed` finds on the
 /// sample of [`sample_texels`], given that sample's values (`s x d`, texel-major, in the
-/// sample's order): the same numbers as the in-memory path of [`coordinates`].
+/// sample's order): the same numbers as the in-memory path of [`coordinates_map`].
 pub fn sample_subspace(
     sample: &[f32],
     d: usize,
@@ -201,7 +191,7 @@ pub fn sample_subspace(
     let s = t.min(RANGE_SAMPLE);
     ensure_arg!(d > 0 && sample.len() == s * d, "sample", "expected {s} x {d} values, got {}", sample.len());
     ensure_arg!(r > 0, "reduced_dims", "expected at least 1 principal coordinate, got 0");
-    let _ = pick_sample(&mut rng, t); // the same random stream as `coordinates`
+    let _ = pick_sample(&mut rng, t); // the same random stream as `coordinates_map`
     let l = (r + OVERSAMPLE).min(s).min(d);
     let mu = dense::column_mean(sample, d, None);
     let q = range_finder(&Dense { data: sample, d, n: s }, &mu, l, 1, &mut rng, monitor)?;
@@ -209,7 +199,7 @@ pub fn sample_subspace(
 }
 
 /// `[n, l]` (column-major `n x l`) coordinates of the `n` texels of `data` (`n x d`,
-/// texel-major) in the subspace `q` centred on `mu`: one block's share of [`coordinates`]'
+/// texel-major) in the subspace `q` centred on `mu`: one block's share of [`coordinates_map`]'
 /// projection pass; the rows of all blocks in texel order go to [`principal_axes`].
 pub fn project_texels(data: &[f32], d: usize, mu: &[f32], q: &DMatrix<f32>) -> Result<DMatrix<f32>> {
     ensure_arg!(
@@ -223,7 +213,7 @@ pub fn project_texels(data: &[f32], d: usize, mu: &[f32], q: &DMatrix<f32>) -> R
     Ok(centred_t_times(data, d, data.len() / d, mu, q))
 }
 
-/// The range finder of [`coordinates`] on the sample `sub` (centred on `mu` inside the products):
+/// The range finder of [`coordinates_map`] on the sample `sub` (centred on `mu` inside the products):
 /// `l` orthonormal columns spanning its leading principal directions, after one power iteration.
 /// `monitor` advances by 3.
 fn range_finder(
@@ -511,8 +501,8 @@ mod tests {
         let basis = gaussian(d, 4, 8);
         let data = &basis * gaussian(4, t, 9) + gaussian(d, t, 10) * 0.01;
         let m = Monitor::new();
-        let (a, ra) = coordinates(data.as_slice(), d, t, 4, 11, None, &m).unwrap();
-        let (b, rb) = coordinates(data.as_slice(), d, t, 4, 11, Some(100), &m).unwrap();
+        let (a, ra, _) = coordinates_map(data.as_slice(), d, t, 4, 11, None, 1, &m).unwrap();
+        let (b, rb, _) = coordinates_map(data.as_slice(), d, t, 4, 11, Some(100), 1, &m).unwrap();
         assert_eq!((ra, rb), (4, 4));
         let scale = a.iter().fold(0.0f32, |s, v| s.max(v.abs()));
         for j in 0..4 {

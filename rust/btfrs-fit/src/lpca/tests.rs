@@ -166,7 +166,7 @@ fn refinement_never_increases_the_lpca_objective() {
     let b = knit(16);
     let (t, d) = (256, 81 * 81 * 3);
     // In the reduced space the fit clusters in, and in the full space (reduced_dims = 0).
-    let (p, r) = btfrs_numerics::rpca::coordinates(&b.data, d, t, 32, 5, None, &Monitor::new()).unwrap();
+    let (p, r, _) = btfrs_numerics::rpca::coordinates_map(&b.data, d, t, 32, 5, None, 1, &Monitor::new()).unwrap();
     for (points, dim) in [(&p[..], r), (&b.data[..], d)] {
         let km = kmeans(points, dim, 8, 25, 1, &Monitor::new()).unwrap();
         let (assign, hist) = refine(points, dim, km.assign.clone(), km.k(), 3, 6, 2, &Monitor::new()).unwrap();
