@@ -81,13 +81,19 @@ function bufferWith(device, bytes, usage, label) {
   return buf;
 }
 
-// An adapter and a device able to hold the model's largest buffer in one binding.
-export async function openGpu(largestBuffer) {
+// An adapter and a device able to hold the model's largest buffer in one binding. After a lost
+// device (`afterLoss`) the browser may still be restarting its GPU process: requestAdapter then
+// answers null for a moment, so it is asked again for up to 3 s before that counts as no adapter.
+export async function openGpu(largestBuffer, afterLoss = false) {
   if (!("gpu" in navigator) || !navigator.gpu) {
     throw new Error("WebGPU is not available in this browser (navigator.gpu is missing): use a recent Chrome, Edge " +
       "or Firefox over https:// or http://localhost, or open the file from disk");
   }
-  const adapter = await navigator.gpu.requestAdapter();
+  let adapter = await navigator.gpu.requestAdapter();
+  for (let i = 0; !adapter && afterLoss && i < 12; i++) {
+    await new Promise((r) => setTimeout(r, 250));
+    adapter = await navigator.gpu.requestAdapter();
+  }
   if (!adapter) throw new Error("WebGPU is present but no GPU adapter was found (requestAdapter returned null)");
   const need = Math.max(largestBuffer, 4);
   const limits = {};

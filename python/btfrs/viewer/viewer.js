@@ -335,7 +335,7 @@ async function startGpu(manifest, files) {
   const headless = /HeadlessChrome/.test(navigator.userAgent);
   let lastError = null;
   for (const present of headless ? ["2d"] : ["webgpu", "2d"]) {
-    const gpu = await openGpu(largest);
+    const gpu = await openGpu(largest, lastError !== null);
     const canvas = present === "webgpu" ? viewerUi.canvas : viewerUi.newCanvas();
     let current = false;
     let lost = null;
