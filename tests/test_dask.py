@@ -240,8 +240,14 @@ def test_a_memory_mapped_btf_is_read_by_path_on_the_workers(client, tmp_path, sa
 
 def test_bad_input_gets_clear_errors(client, tmp_path, stored, sample):
     arr = bd.open(stored)
-    with pytest.raises(InvalidArgumentError, match="^resolution: the blockwise rbf fit sums a 867 x 867 covariance"):
-        bd.fit("rbf", arr, resolution=17)
+    # The blockwise limit is each view slot's exact eigenproblem, min(3 n^2, 3 x lights) rows: 867 x
+    # 867 for resolution 17 under 300 lights (under this sample's 27 lights it is 81 x 81).
+    i = np.arange(300)
+    th, ph = 1.2 * (i + 0.5) / 300, 2.4 * i
+    lights = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=1)
+    wide = btfrs.Btf(np.full((4, 4, 1, 300, 3), 0.5, np.float32), [[0.0, 0.0, 1.0]], lights)
+    with pytest.raises(InvalidArgumentError, match="^resolution: the blockwise rbf fit solves an exact 867 x 867"):
+        bd.fit("rbf", bd.from_btf(wide, chunks=4), resolution=17)
     with pytest.raises(InvalidArgumentError, match="^width: expected a number > 0"):
         bd.fit("rbf", arr, width=-1.0)
     with pytest.raises(InvalidArgumentError, match="^model: "):

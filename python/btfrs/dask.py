@@ -28,13 +28,14 @@ the model declares in Rust (``rust/btfrs-fit/src/blockwise.rs``):
   coordinates, one task per cluster over its members' ABRDFs: **the same model as the local
   in-memory fit** (same seeds, same code);
 * RBF and bilinear (relight's light bases): per tile and view slot the count, mean and centred
-  second moment of the texels' resampled light functions (``float64``), merged in pairs on the
-  workers (Chan et al.'s update), the principal functions from their eigenvectors on the client,
-  the projection per tile, the 8-bit quantization on the client: **equal to the local fit to
+  second moment of the texels' samples under the slot's lights (``float64``), merged in pairs on
+  the workers (Chan et al.'s update), the principal functions on the client (the eigenvectors of
+  the resampled functions' covariance, which is the samples' through the resampling), the
+  projection per tile, the 8-bit quantization on the client: **equal to the local fit to
   rounding** (each principal function possibly of the opposite sign, its coefficients with it).
-  A tile's moments are ``8 V d^2`` bytes (``d = 3 n^2``, rgb, or ``2 n^2``, ycc; RBF defaults
-  with 81 views: 121 MB), so the blockwise fit takes ``d <= 768`` (rgb resolution <= 16, ycc
-  <= 19): above, a clear error.
+  A tile's moments are ``8 V (3 m)^2`` bytes for ``m`` lights per view (81 views of 81 lights:
+  38 MB). The eigenproblem per slot is the smaller of ``3 n^2`` (rgb; ``2 n^2`` ycc) and
+  ``3 m``; above 768, a clear error.
 
 The result is the model class of the local fit, saved like any other. ``model.report`` holds the
 blocks' reports combined (the counts a model declares summed, means weighted by texels,
@@ -781,7 +782,7 @@ def _fit_clustered_pca(kind: str, arr: BtfArray, options: Dict[str, Any], option
 
 def _fit_light_pca(kind: str, arr: BtfArray, options: Dict[str, Any], options_json: str, progress: Progress) -> Model:
     dask, _ = _dask()
-    _native.light_pca_check(kind, options_json)
+    _native.light_pca_check(kind, _own(arr.views), _own(arr.lights), _own(arr.mask), options_json)
     blocks = _blocks(arr)
     name = kind
     # 1. Every tile's moments, merged in pairs on the workers.
@@ -789,7 +790,7 @@ def _fit_light_pca(kind: str, arr: BtfArray, options: Dict[str, Any], options_js
                        for b, *_ in blocks], _lp_merge, callback(progress, f"{name} moments"), f"{name} moments")
     # 2. The principal functions on the client.
     table = _native.light_pca_table(kind, (moments[0], [_own(x) for x in moments[1]], [_own(x) for x in moments[2]]),
-                                    len(arr.views), options_json)
+                                    _own(arr.views), _own(arr.lights), _own(arr.mask), options_json)
     del moments
     # 3. Every tile projected; the coefficients stitched in texel order.
     table_d = dask.delayed(table)

@@ -209,6 +209,59 @@ pub fn advise(values: &[f32], access: Access) {
     let _ = (values, access);
 }
 
+/// Run `work(j, b0, n)` over the blocks of `block` texels of `data` (`full` values per texel) in
+/// storage order (block `j` starts at texel `b0` and holds `n`), while a reader thread keeps up to
+/// `ahead` blocks in memory ahead of it: it asks for each block at once ([`Access::WillNeed`],
+/// large requests) and touches one value per page, so it is the thread that waits for the
+/// storage (a memory-mapped file larger than memory) while the computing threads find the pages
+/// there. A streaming pass reads a file at the storage's speed this way and no page is read
+/// twice. The reader stops when `work` fails or the last block is done.
+pub fn stream_blocks<E>(
+    data: &[f32],
+    full: usize,
+    block: usize,
+    ahead: usize,
+    mut work: impl FnMut(usize, usize, usize) -> std::result::Result<(), E>,
+) -> std::result::Result<(), E> {
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+    let t = data.len() / full.max(1);
+    let block = block.max(1);
+    let computing = AtomicUsize::new(0);
+    let done = AtomicBool::new(false);
+    std::thread::scope(|scope| {
+        scope.spawn(|| {
+            for (j, b0) in (0..t).step_by(block).enumerate().skip(1) {
+                while j > computing.load(Ordering::Acquire) + ahead {
+                    if done.load(Ordering::Acquire) {
+                        return;
+                    }
+                    std::thread::sleep(std::time::Duration::from_micros(200));
+                }
+                if done.load(Ordering::Acquire) {
+                    return;
+                }
+                let x = &data[b0 * full..(b0 + block).min(t) * full];
+                advise(x, Access::WillNeed);
+                let mut sum = 0.0f32;
+                for i in (0..x.len()).step_by(1024) {
+                    sum += x[i];
+                }
+                std::hint::black_box(sum);
+            }
+        });
+        let mut run = || {
+            for (j, b0) in (0..t).step_by(block).enumerate() {
+                computing.store(j, Ordering::Release);
+                work(j, b0, block.min(t - b0))?;
+            }
+            Ok(())
+        };
+        let r = run();
+        done.store(true, Ordering::Release);
+        r
+    })
+}
+
 /// An owned BTF (what the material generator and the file loader produce).
 #[derive(Debug, Clone)]
 pub struct Btf {
@@ -256,6 +309,30 @@ mod tests {
         bad[1234] = f32::INFINITY;
         let e = check_finite("data", &bad).unwrap_err().to_string();
         assert!(e.contains("1234"), "{e}");
+    }
+
+    #[test]
+    fn stream_blocks_visits_every_texel_once_in_order_and_stops_at_an_error() {
+        // 1000 texels of 3 values, blocks of 64: the last block is short.
+        let data: Vec<f32> = (0..3000).map(|i| i as f32).collect();
+        let mut seen = Vec::new();
+        stream_blocks::<()>(&data, 3, 64, 2, |j, b0, n| {
+            assert_eq!(b0, 64 * j);
+            seen.extend(b0..b0 + n);
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(seen, (0..1000).collect::<Vec<_>>());
+        let mut calls = 0;
+        let r = stream_blocks(&data, 3, 64, 2, |j, _, _| {
+            calls += 1;
+            if j == 3 {
+                Err(j)
+            } else {
+                Ok(())
+            }
+        });
+        assert_eq!((r, calls), (Err(3), 4));
     }
 
     #[test]

@@ -29,6 +29,13 @@
 //! than asked for (fewer texels than components, or a constant slot), the missing components
 //! are zero functions with zero coefficients: every slot has the same number of planes.
 //!
+//! **Two passes.** The exact PCA needs only each slot's mean and covariance, which texel blocks
+//! sum apart ([`staged`]). So where it applies (and the BTF has at least as many texels as values
+//! per vector), the fit reads the data in two passes over blocks of texels in storage order
+//! (the moments, then the coefficients) instead of slot by slot: a memory-mapped BTF larger
+//! than memory is read twice, not once per view slot. Longer vectors (the randomized PCA) are
+//! fitted slot by slot.
+//!
 //! **Storage.** Coefficients `[texel][slot][K]` (`K = components + chroma_components`) as one
 //! [`Planes`] (`coeffs_q`, `coeffs_scale`, `coeffs_bias`: a scale and bias per slot and
 //! component); the table `[slot][node][R]` f32, row `R = 3 + w components (+ 2 chroma)` with `w`
@@ -446,14 +453,82 @@ pub struct FallbackSlot {
 }
 
 /// The least memory limit of [`fit`] on `btf` (bytes, besides the model): it does not stream
-/// below it. The float coefficients of every slot before they are quantized (4 bytes per stored
-/// byte), one view slot's samples and its resampled data with their centred copy (`3 L + 6 G`
-/// floats per texel), and 16 MB.
+/// below it. Both ways hold the float coefficients of every slot and their 8-bit planes (5 bytes
+/// per stored byte) and 16 MB. In two passes ([`two_passes`]) add the moments of every slot
+/// (`8 V d^2` bytes per group), a product per thread and a block of [`MIN_BLOCK`] texels
+/// ([`block_texels`]); slot by slot, one view slot's samples and its resampled data with their
+/// centred copy (`3 L + 6 G` floats per texel).
 pub fn least_memory(btf: &BtfRef<'_>, opts: &PcaOptions) -> u64 {
     let kc = opts.check().unwrap_or(0) as u64; // a bad option is reported by the fit itself
     let (t, nv, nl) = (btf.texels() as u64, btf.views.len() as u64, btf.lights.len() as u64);
     let g = (opts.resolution * opts.resolution) as u64;
-    16_000_000 + 4 * t * nv * (opts.components as u64 + kc) + 4 * t * (3 * nl + 6 * g)
+    let coeffs = 16_000_000 + 5 * t * nv * (opts.components as u64 + kc);
+    if two_passes(opts, btf.texels(), max_slot_pairs(btf)) {
+        let (fixed, per) = block_memory(btf, opts);
+        coeffs + fixed + MIN_BLOCK as u64 * per
+    } else {
+        coeffs + 4 * t * (3 * nl + 6 * g)
+    }
+}
+
+/// The fewest texels per block of the two-pass fit.
+pub const MIN_BLOCK: usize = 64;
+
+/// The values per vector of each PCA group of `opts` ([`groups`]).
+fn group_dims(opts: &PcaOptions) -> Vec<usize> {
+    let g = opts.resolution * opts.resolution;
+    match opts.colour {
+        Colour::Rgb => vec![3 * g],
+        Colour::Ycc => vec![g, 2 * g],
+    }
+}
+
+/// The size of the exact eigenproblems of a slot fitted from `m` pairs: a group's covariance
+/// has the rank of its map ([`Plan::group_maps`]), at most `min(d, 3 m)`.
+pub fn exact_dim(opts: &PcaOptions, m: usize) -> usize {
+    group_dims(opts).into_iter().max().unwrap_or(0).min(3 * m)
+}
+
+/// Whether [`fit`] runs in two passes over blocks of texels ([`staged::fit_two_passes`]), its
+/// slots fitted from at most `m` pairs: when the exact eigenproblems ([`exact_dim`]) have at most
+/// [`EXACT_PCA_DIM`] rows and there are at least as many texels (below, one slot's Gram matrix
+/// is the smaller exact eigenproblem).
+pub(crate) fn two_passes(opts: &PcaOptions, t: usize, m: usize) -> bool {
+    let d = exact_dim(opts, m);
+    d <= EXACT_PCA_DIM && t >= d
+}
+
+/// The most pairs a slot of `btf` is fitted from ([`slot_pairs`]).
+fn max_slot_pairs(btf: &BtfRef<'_>) -> usize {
+    (0..btf.views.len()).map(|v| slot_pairs(btf, v).0.len()).max().unwrap_or(0)
+}
+
+/// The two-pass fit's memory besides the coefficients: `(fixed, per texel of a block)`. Fixed:
+/// the samples' moments (`8 V (s^2 + s)`, `s = 3 m`) and per thread a block's second moment
+/// (`4 s^2`) and a slot's group maps and eigenproblem (`8 (d s + 2 d^2)`); per texel and thread:
+/// one slot's samples and their centred copy; the block's coefficients.
+fn block_memory(btf: &BtfRef<'_>, opts: &PcaOptions) -> (u64, u64) {
+    let threads = rayon::current_num_threads() as u64;
+    let nv = btf.views.len() as u64;
+    let s = 3 * max_slot_pairs(btf) as u64;
+    let d = exact_dim(opts, max_slot_pairs(btf)) as u64;
+    let dg: u64 = group_dims(opts).iter().map(|&d| d as u64).sum();
+    (8 * nv * (s * s + s) + threads * (4 * s * s + 8 * (dg * s + 2 * d * d)), 8 * threads * s + 8 * nv * 64)
+}
+
+/// Texels per block of the two-pass fit: about 256 MB of values (an eighth of `limit` when
+/// smaller, at least 8 MB), and no more than what `limit` leaves for the work on a block.
+pub(crate) fn block_texels(btf: &BtfRef<'_>, opts: &PcaOptions, limit: Option<u64>) -> usize {
+    let full = btf.abrdf_len().max(1) as u64;
+    let bytes = limit.map_or(256 << 20, |l| (l / 8).clamp(8 << 20, 256 << 20));
+    let mut n = (bytes / (4 * full)).max(MIN_BLOCK as u64);
+    if let Some(l) = limit {
+        // What the least memory holds besides its block, then as many texels as the rest holds.
+        let per = block_memory(btf, opts).1.max(1);
+        let rest = least_memory(btf, opts) - MIN_BLOCK as u64 * per;
+        n = n.min(l.saturating_sub(rest) / per).max(MIN_BLOCK as u64);
+    }
+    (n as usize).min(btf.texels()).max(1)
 }
 
 /// One view slot's resampling: the (view, light) pairs it is fitted from and the operator from
@@ -526,31 +601,97 @@ impl Plan {
 
     /// Slot `v`'s functions of every texel of `btf` on the grid: column `3 t + c` (`G` values) is
     /// texel `t`'s channel `c`, so the `3 G x T` matrix over the same storage is the joint RGB
-    /// data (channel-major per texel).
-    pub(crate) fn resample(&self, btf: &BtfRef<'_>, v: usize) -> DMatrix<f32> {
-        self.resample_checked(btf, v, None)
+    /// data (channel-major per texel). Every value of view `v` (all its lights, present or not)
+    /// is checked on the way when `scan` is given: over all views, each value of the BTF once, as
+    /// the fit reads it (`SCANS_VALUES`).
+    pub(crate) fn resample_checked(&self, btf: &BtfRef<'_>, v: usize, scan: Option<&TexelScan>) -> DMatrix<f32> {
+        let m = self.slots[v].pairs.len();
+        let s = self.samples(btf, v, scan);
+        gemm(&view(&self.slots[v].w), &btfrs_numerics::dense::cols(&s, m, 3 * btf.texels()))
     }
 
-    /// [`Plan::resample`], checking every value of view `v` (all its lights, present or not) on
-    /// the way when `scan` is given: over all views, each value of the BTF once, as the fit reads
-    /// it (`SCANS_VALUES`).
-    pub(crate) fn resample_checked(&self, btf: &BtfRef<'_>, v: usize, scan: Option<&TexelScan>) -> DMatrix<f32> {
-        let SlotPlan { pairs, w } = &self.slots[v];
+    /// Slot `v`'s samples of every texel of `btf`, `[T][3][m]` (texel `t`'s channel `c` at the
+    /// slot's `m` pairs), checking every value of view `v` when `scan` is given.
+    pub(crate) fn samples(&self, btf: &BtfRef<'_>, v: usize, scan: Option<&TexelScan>) -> Vec<f32> {
+        let pairs = &self.slots[v].pairs;
         let (m, nl, t) = (pairs.len(), btf.lights.len(), btf.texels());
-        // Samples: column 3 t + c is texel t's channel c over the slot's lights.
+        // Runs of consecutive pairs (one run for a slot without a mask): `(first value, first
+        // sample, length)`, copied without an index check per value.
+        let mut runs: Vec<(usize, usize, usize)> = Vec::new();
+        for (j, &(u, l)) in pairs.iter().enumerate() {
+            let at = (u * nl + l) * 3;
+            match runs.last_mut() {
+                Some((a0, j0, len)) if *a0 + 3 * *len == at && *j0 + *len == j => *len += 1,
+                _ => runs.push((at, j, 1)),
+            }
+        }
         let mut s = vec![0.0f32; m * 3 * t];
         s.par_chunks_mut(3 * m).enumerate().for_each(|(tx, out)| {
             let a = btf.texel(tx);
             if let Some(scan) = scan {
                 scan.check(&a[v * nl * 3..(v + 1) * nl * 3]);
             }
-            for (j, &(u, l)) in pairs.iter().enumerate() {
-                for c in 0..3 {
-                    out[c * m + j] = a[(u * nl + l) * 3 + c];
+            let (r, gb) = out.split_at_mut(m);
+            let (g, b) = gb.split_at_mut(m);
+            for &(a0, j0, len) in &runs {
+                let src = a[a0..a0 + 3 * len].chunks_exact(3);
+                let dst = r[j0..j0 + len].iter_mut().zip(&mut g[j0..j0 + len]).zip(&mut b[j0..j0 + len]);
+                for (((r, g), b), px) in dst.zip(src) {
+                    (*r, *g, *b) = (px[0], px[1], px[2]);
                 }
             }
         });
-        gemm(&view(w), &btfrs_numerics::dense::cols(&s, m, 3 * t))
+        s
+    }
+
+    /// The most pairs any slot is fitted from.
+    pub fn max_pairs(&self) -> usize {
+        self.slots.iter().map(|s| s.pairs.len()).max().unwrap_or(0)
+    }
+
+    /// Slot `v`'s pairs.
+    pub(crate) fn pairs(&self, v: usize) -> usize {
+        self.slots[v].pairs.len()
+    }
+
+    /// Slot `v`'s map from a texel's samples (`3 m`, as [`Plan::samples`]) to each group's
+    /// vector ([`groups`]): `d x 3 m` per group. rgb: the operator `W` on each channel; ycc: the
+    /// luminance `W (r + g + b) / 3`, then the chroma `W b - Y` and `W r - Y`.
+    pub(crate) fn group_maps(&self, v: usize, colour: Colour) -> Vec<DMatrix<f64>> {
+        let w = &self.slots[v].w;
+        let (g, m) = (w.nrows(), w.ncols());
+        // Rows [r0, r0 + g) of a group map get `coef[c] W` in channel c's columns.
+        let put = |t: &mut DMatrix<f64>, r0: usize, coef: [f64; 3]| {
+            for c in 0..3 {
+                for i in 0..g {
+                    for j in 0..m {
+                        t[(r0 + i, c * m + j)] = coef[c] * w[(i, j)] as f64;
+                    }
+                }
+            }
+        };
+        let third = 1.0 / 3.0;
+        match colour {
+            Colour::Rgb => {
+                let mut t = DMatrix::<f64>::zeros(3 * g, 3 * m);
+                for c in 0..3 {
+                    let mut coef = [0.0; 3];
+                    coef[c] = 1.0;
+                    let mut part = DMatrix::<f64>::zeros(g, 3 * m);
+                    put(&mut part, 0, coef);
+                    t.rows_mut(c * g, g).copy_from(&part);
+                }
+                vec![t]
+            }
+            Colour::Ycc => {
+                let mut y = DMatrix::<f64>::zeros(g, 3 * m);
+                put(&mut y, 0, [third; 3]);
+                let mut ch = DMatrix::<f64>::zeros(2 * g, 3 * m);
+                put(&mut ch, 0, [-third, -third, 1.0 - third]);
+                put(&mut ch, g, [1.0 - third, -third, -third]);
+                vec![y, ch]
+            }
+        }
     }
 }
 
@@ -645,9 +786,25 @@ pub(crate) fn read_slot(
         .collect()
 }
 
-/// Fit: resample every slot with `op`, then PCA and quantize (see the module doc). `what`
-/// names the model in errors; `monitor` counts slots.
+/// Fit: resample every slot with `op`, then PCA and quantize (see the module doc). Where the
+/// PCA is the exact one of a covariance ([`two_passes`]), in two passes over blocks of texels in
+/// storage order ([`staged::fit_two_passes`]; `monitor` counts the blocks of both), else slot by
+/// slot (`monitor` counts slots). `what` names the model in errors.
 pub fn fit(btf: &BtfRef<'_>, opts: &PcaOptions, op: &Operator<'_>, what: &str, monitor: &Monitor) -> Result<LightPca> {
+    opts.check()?;
+    let t = btf.texels();
+    let plan = Plan::new(btf.views, btf.lights, btf.mask, opts.resolution, op, what)?;
+    if two_passes(opts, t, plan.max_pairs()) {
+        let block = block_texels(btf, opts, monitor.memory_limit());
+        staged::fit_two_passes(btf, opts, plan, block, monitor)
+    } else {
+        fit_per_slot(btf, opts, plan, monitor)
+    }
+}
+
+/// The fit slot by slot: each slot's resampled functions of every texel at once, then their
+/// PCA ([`pca`]: the Gram matrix's or the randomized one).
+pub(crate) fn fit_per_slot(btf: &BtfRef<'_>, opts: &PcaOptions, plan: Plan, monitor: &Monitor) -> Result<LightPca> {
     let kc = opts.check()?;
     let (nv, t) = (btf.views.len(), btf.texels());
     let n = opts.resolution;
@@ -657,7 +814,6 @@ pub fn fit(btf: &BtfRef<'_>, opts: &PcaOptions, op: &Operator<'_>, what: &str, m
     let lw = if opts.colour == Colour::Rgb { 3 } else { 1 };
     let stride = 3 + lw * km + 2 * kc;
     monitor.start(nv as u64);
-    let plan = Plan::new(btf.views, btf.lights, btf.mask, n, op, what)?;
     let mut coeffs = vec![0.0f32; t * nv * k];
     let mut table = vec![0.0f32; nv * g * stride];
     let scan = TexelScan::new();

@@ -245,11 +245,22 @@ pub fn sym_eigen_desc(m: DMatrix<f64>) -> (Vec<f64>, DMatrix<f64>) {
 /// up to its end), which saves about 40% of the work of a full product for a large Gram matrix;
 /// the lower triangle is mirrored.
 pub fn gram_t(a: &DMatrix<f32>) -> DMatrix<f64> {
+    gram_bands(&view(a), &view_t(a))
+}
+
+/// `x x^T` in `f64` of the column-major `rows x cols` matrix `x` in `data` (as [`gram_t`]: the
+/// blocks on and above the diagonal multiplied, the rest mirrored).
+pub fn gram(data: &[f32], rows: usize, cols: usize) -> DMatrix<f64> {
+    gram_bands(&cols_t(data, rows, cols), &self::cols(data, rows, cols))
+}
+
+/// `a^T a` given `a` and its transpose `at` (views of the same values).
+fn gram_bands(a: &View<'_, f32>, at: &View<'_, f32>) -> DMatrix<f64> {
     let n = a.ncols();
     let bands = if n >= 128 { 8 } else { 1 };
     let edges: Vec<(usize, usize)> = (0..bands).map(|b| (b * n / bands, (b + 1) * n / bands)).collect();
     let parts: Vec<DMatrix<f32>> =
-        edges.par_iter().map(|&(j0, j1)| gemm(&view_t(a).rows(0, j1), &view(a).columns(j0, j1 - j0))).collect();
+        edges.par_iter().map(|&(j0, j1)| gemm(&at.rows(0, j1), &a.columns(j0, j1 - j0))).collect();
     let mut g = DMatrix::<f64>::zeros(n, n);
     for (&(j0, j1), p) in edges.iter().zip(&parts) {
         for j in j0..j1 {
@@ -342,6 +353,25 @@ mod tests {
             assert!(worst < 1e-4 * (k.max(1) as f64).sqrt(), "{m}x{k}x{n}: {worst}");
             // The parallel product agrees with the single call.
             assert_eq!(gemm(&view(&a32), &view(&b32)), c32);
+        }
+    }
+
+    #[test]
+    fn gram_is_x_x_transposed_in_both_band_counts() {
+        // 200 rows (8 bands) and 20 rows (one), against an f64 triple loop.
+        for (rows, ncols) in [(200, 57), (20, 300)] {
+            let x = gaussian(rows, ncols, 4);
+            let g = gram(x.as_slice(), rows, ncols);
+            let mut worst = 0.0f64;
+            for i in 0..rows {
+                for j in 0..rows {
+                    let r: f64 = (0..ncols).map(|k| x[(i, k)] as f64 * x[(j, k)] as f64).sum();
+                    worst = worst.max((g[(i, j)] - r).abs());
+                }
+            }
+            // f32 products of standard normals summed in f32: about 1e-5 of sums near sqrt(300).
+            assert!(worst < 1e-3, "{rows} x {ncols}: {worst}");
+            assert_eq!(g, g.transpose());
         }
     }
 

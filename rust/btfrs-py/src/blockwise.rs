@@ -348,7 +348,7 @@ pub fn light_pca_moments<'py>(
     let m = detach(py, || {
         btfrs_core::btf::check_finite("data", b.data)?;
         let plan = basis.plan(b.views, b.lights, b.mask)?;
-        lp::moments(&b, &plan, &basis.options()?)
+        lp::moments(&b, &plan)
     })?;
     moments_to_py(py, m)
 }
@@ -363,18 +363,27 @@ pub fn light_pca_merge<'py>(py: Python<'py>, a: MomentsArgs<'py>, b: MomentsArgs
 
 /// RBF / bilinear stage 4: the model's table `[V, n, n, R]` float32 from all texels' moments.
 #[pyfunction]
+#[pyo3(signature = (kind, moments, views, lights, mask, options_json))]
 pub fn light_pca_table<'py>(
     py: Python<'py>,
     kind: &str,
     moments: MomentsArgs<'py>,
-    n_views: usize,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
     options_json: &str,
 ) -> PyResult<F32Array<'py>> {
     let basis = basis_of(kind, options_json)?;
     let m = moments_from_py(&moments)?;
+    let (v, l) = (borrow::<f64>("views", views)?, borrow::<f64>("lights", lights)?);
+    let mk = mask.map(|m| borrow::<bool>("mask", m)).transpose()?;
+    let (v, l) = (dirs("views", &v)?, dirs("lights", &l)?);
+    let mask = mask_of(&mk, v.len(), l.len())?;
+    let n_views = v.len();
     let (o, t) = detach(py, || {
         let o = basis.options()?;
-        let t = lp::table(&m, &o, n_views)?;
+        let plan = basis.plan(v, l, mask)?;
+        let t = lp::table(&m, &plan, &o)?;
         Ok((o, t))
     })?;
     let r = t.len() / (n_views * o.resolution * o.resolution).max(1);
@@ -441,10 +450,23 @@ pub fn light_pca_assemble<'py>(
     Ok(PyModel { inner, robust: serde_json::Value::Null })
 }
 
-/// Check RBF / bilinear options for the blockwise fit (before any task is sent).
+/// Check RBF / bilinear options and directions for the blockwise fit (before any task is sent).
 #[pyfunction]
-pub fn light_pca_check(kind: &str, options_json: &str) -> PyResult<()> {
-    basis_of(kind, options_json).map(|_| ())
+#[pyo3(signature = (kind, views, lights, mask, options_json))]
+pub fn light_pca_check<'py>(
+    py: Python<'py>,
+    kind: &str,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+    options_json: &str,
+) -> PyResult<()> {
+    let basis = basis_of(kind, options_json)?;
+    let (v, l) = (borrow::<f64>("views", views)?, borrow::<f64>("lights", lights)?);
+    let mk = mask.map(|m| borrow::<bool>("mask", m)).transpose()?;
+    let (v, l) = (dirs("views", &v)?, dirs("lights", &l)?);
+    let mask = mask_of(&mk, v.len(), l.len())?;
+    detach(py, || basis.plan(v, l, mask).map(|_| ()))
 }
 
 /// `robust_images`' answer: the floor, the spreads, the bad images.

@@ -1,45 +1,48 @@
-//! The light-PCA fit of the RBF and bilinear models ([`super`]) cut into the stages a blockwise
-//! driver runs over texel blocks fitted apart (`btfrs.dask`, [`crate::blockwise`]). The local
-//! fit holds one view slot's resampled functions of *every* texel to find its principal
-//! directions; here each block contributes sufficient statistics instead, so no machine holds
-//! more than one block:
+//! The light-PCA fit of the RBF and bilinear models ([`super`]) cut into stages over texel
+//! blocks: what a blockwise driver runs on blocks fitted apart (`btfrs.dask`,
+//! [`crate::blockwise`]), and what the local fit runs in two passes over a BTF's blocks in
+//! storage order ([`fit_two_passes`]). Each block contributes sufficient statistics, so no
+//! machine holds more than one block and a file is read twice, not once per view slot:
 //!
 //! 1. [`Basis::plan`]: the slots' pairs and resampling operators, a function of the directions,
 //!    mask and options only (every task computes the same one).
-//! 2. [`moments`] per block: per slot and group (see [`super::groups`]), the count, the mean and
-//!    the centred second moment `M2 = sum (x - mean)(x - mean)^T` of the resampled functions,
-//!    accumulated in `f64`.
+//! 2. [`moments`] per block: per slot, the count, the mean and the centred second moment
+//!    `M2 = sum (s - mean)(s - mean)^T` of the texels' *samples* `s` (the `3 m` values under the
+//!    slot's `m` pairs), accumulated in `f64`. Every group's vector is a linear map `T s` of them
+//!    ([`Plan::group_maps`]: the resampling, then the colour grouping), so these moments hold
+//!    the groups' too, in `(3 m)^2` values instead of `d^2` (RBF defaults: 243^2 against 432^2).
 //! 3. [`Moments::merge`]: two blocks' moments as one by the pairwise update of Chan, Golub and
 //!    LeVeque ("Updating formulae and a pairwise algorithm for computing sample variances",
 //!    1979): `M2 = M2a + M2b + delta delta^T na nb / n`, `delta = mean_b - mean_a`. Centred
 //!    per block and merged in pairs (a tree), so no sum of squares of large values cancels.
-//! 4. [`table`] on the client: per slot and group, the `f64` eigenvectors of `M2`, the same
-//!    exact PCA as the local fit's covariance path (the top `components` directions with
-//!    eigenvalue above `1e-12` of the largest, zero functions beyond), written as the model's table.
-//! 5. [`project`] per block: each texel's coefficients against the table's mean and directions
-//!    (as the local fit computes them).
+//! 4. [`table`] on the client: per slot and group, the `f64` eigenvectors of `T M2 T^T` (or of
+//!    the smaller `R M2 R^T`, `T = Q R`), the same exact PCA as the local fit's (the top
+//!    `components` directions with eigenvalue above `1e-12` of the largest, zero functions
+//!    beyond), written as the model's table.
+//! 5. [`project`] per block: each texel's coefficients against the table's mean and directions,
+//!    one product of its samples with `B^T T`.
 //! 6. [`assemble`] on the client: the 8-bit quantization over all texels' coefficients and the
 //!    model.
 //!
-//! The result equals the local fit to rounding: the same principal subspace of every slot (the
-//! eigenproblem of the same covariance, summed in another order), each direction possibly of the
-//! opposite sign (an eigenvector's sign is arbitrary; the coefficient flips with it, so every
-//! evaluation agrees). The covariance is `d x d` per slot and group, so a block's moments are
-//! `8 V d^2` bytes (RBF defaults, `d = 3 * 12^2 = 432`, 81 views: 121 MB): the blockwise fit
-//! takes groups of at most [`super::EXACT_PCA_DIM`] values (rgb up to resolution 16, ycc up to
-//! 19), where the local fit itself is exact; above, it would need the randomized subspace
-//! iteration as passes over the blocks, which is not built.
+//! The result equals the slot-by-slot fit to rounding: the same principal subspace of every
+//! slot (the eigenproblem of the same covariance, summed in another order), each direction
+//! possibly of the opposite sign (an eigenvector's sign is arbitrary; the coefficient flips with
+//! it, so every evaluation agrees). A block's moments are `8 V (3 m)^2` bytes (81 views of 81
+//! lights: 38 MB); the eigenproblems are at most `min(d, 3 m)` square, and the blockwise fit
+//! takes those up to [`super::EXACT_PCA_DIM`] (above, it would need the randomized subspace
+//! iteration as passes over the blocks, which is not built).
 
 use super::{
-    group_planes, groups, put_coeffs, read_slot, write_slot, Colour, LightPca, PcaOptions, Plan, EXACT_PCA_DIM,
+    exact_dim, group_planes, put_coeffs, read_slot, write_slot, Colour, LightPca, PcaOptions, Plan, EXACT_PCA_DIM,
 };
 use crate::bilinear::{self, BilinearOptions};
 use crate::model::Model;
 use crate::options;
 use crate::planes::Planes;
 use crate::rbf::{self, RbfOptions};
-use btfrs_core::{ensure_arg, BtfRef, Error, Result};
-use btfrs_numerics::dense::{gemm, sym_eigen_desc, view, view_t};
+use btfrs_core::btf::{advise, stream_blocks, Access, TexelScan};
+use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, Result};
+use btfrs_numerics::dense::{gemm, gram, sym_eigen_desc, view};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 
@@ -54,7 +57,7 @@ pub enum Basis {
 
 impl Basis {
     /// Model `kind` (`"rbf"` or `"bilinear"`) with its options (a JSON object, as the fit takes
-    /// them), checked, including the blockwise limit on the vector length (module doc).
+    /// them), checked.
     pub fn parse(kind: &str, options_json: &str) -> Result<Basis> {
         let b = match kind {
             "rbf" => Basis::Rbf(options::parse(<rbf::Rbf as Model>::OPTIONS, options_json)?),
@@ -66,19 +69,7 @@ impl Basis {
                 ))
             }
         };
-        let o = b.options()?;
-        let g = o.resolution * o.resolution;
-        let d = if o.colour == Colour::Rgb { 3 * g } else { 2 * g };
-        ensure_arg!(
-            d <= EXACT_PCA_DIM,
-            "resolution",
-            "the blockwise {kind} fit sums a {d} x {d} covariance per view slot (resolution {}, colour {}), more than \
-             the {EXACT_PCA_DIM} values it supports: use resolution <= {} or fit it out of core on one machine \
-             (btfrs.fit.{kind}(btf, memory_limit=...))",
-            o.resolution,
-            if o.colour == Colour::Rgb { "rgb" } else { "ycc" },
-            if o.colour == Colour::Rgb { 16 } else { 19 }
-        );
+        b.options()?;
         Ok(b)
     }
 
@@ -98,18 +89,32 @@ impl Basis {
         })
     }
 
-    /// Stage 1: the plan of every slot for these directions and mask (the local fit's).
+    /// Stage 1: the plan of every slot for these directions and mask (the local fit's), checked
+    /// against the blockwise limit on the eigenproblems (module doc).
     pub fn plan(&self, views: &[[f64; 3]], lights: &[[f64; 3]], mask: Option<&[bool]>) -> Result<Plan> {
-        match self {
+        let plan = match self {
             Basis::Rbf(o) => {
                 let (p, op) = rbf::prepare(o)?;
-                Plan::new(views, lights, mask, p.resolution, &*op, "rbf")
+                Plan::new(views, lights, mask, p.resolution, &*op, "rbf")?
             }
             Basis::Bilinear(o) => {
                 let (p, op) = bilinear::prepare(o, lights)?;
-                Plan::new(views, lights, mask, p.resolution, &*op, "bilinear")
+                Plan::new(views, lights, mask, p.resolution, &*op, "bilinear")?
             }
-        }
+        };
+        let o = self.options()?;
+        let (m, e) = (plan.max_pairs(), exact_dim(&o, plan.max_pairs()));
+        ensure_arg!(
+            e <= EXACT_PCA_DIM,
+            "resolution",
+            "the blockwise {} fit solves an exact {e} x {e} eigenproblem per view slot (the smaller of the values per \
+             vector at resolution {} and 3 x {m} samples), more than the {EXACT_PCA_DIM} it supports: use a lower \
+             resolution or fewer lights per view, or fit it on one machine (btfrs.fit.{}(btf, memory_limit=...))",
+            self.kind(),
+            o.resolution,
+            self.kind()
+        );
+        Ok(plan)
     }
 
     /// Wrap the fitted light basis as the model.
@@ -185,79 +190,109 @@ impl Moments {
 }
 
 /// Stage 2: the moments of one block's texels (its directions and mask those of the plan).
-pub fn moments(block: &BtfRef<'_>, plan: &Plan, opts: &PcaOptions) -> Result<Moments> {
+pub fn moments(block: &BtfRef<'_>, plan: &Plan) -> Result<Moments> {
     check_block(block, plan)?;
-    let (nv, t, g) = (block.views.len(), block.texels(), opts.resolution * opts.resolution);
-    // Per slot in parallel: the slots are independent, and one slot's block is small.
-    let per: Vec<Vec<(Vec<f64>, Vec<f64>)>> = (0..nv)
-        .into_par_iter()
-        .map(|v| {
-            let r = plan.resample(block, v);
-            groups(r.as_slice(), g, t, opts.colour)
-                .into_iter()
-                .map(|(x, d)| {
-                    let mut mean = vec![0.0f64; d];
-                    for col in x.chunks_exact(d) {
-                        mean.iter_mut().zip(col).for_each(|(m, &v)| *m += v as f64);
-                    }
-                    mean.iter_mut().for_each(|m| *m /= t.max(1) as f64);
-                    let xc = DMatrix::<f64>::from_fn(d, t, |i, j| x[j * d + i] as f64 - mean[i]);
-                    let m2 = &xc * xc.transpose();
-                    (mean, m2.as_slice().to_vec())
-                })
-                .collect()
-        })
-        .collect();
-    let ng = per.first().map_or(0, |p| p.len());
-    let groups = (0..ng)
-        .map(|gi| {
-            let d = per[0][gi].0.len();
-            let mut mean = Vec::with_capacity(nv * d);
-            let mut m2 = Vec::with_capacity(nv * d * d);
-            for slot in &per {
-                mean.extend_from_slice(&slot[gi].0);
-                m2.extend_from_slice(&slot[gi].1);
+    let mut m = Moments::empty(plan);
+    m.add(block, plan, None);
+    Ok(m)
+}
+
+impl Moments {
+    /// The moments of no texel for the slots of `plan`: one group of `3 m` samples per slot,
+    /// `m` the most pairs a slot has (a slot with fewer leaves the rest zero).
+    pub fn empty(plan: &Plan) -> Moments {
+        let (nv, d) = (plan.slots.len(), 3 * plan.max_pairs());
+        Moments { n: 0, groups: vec![GroupMoments { d, mean: vec![0.0; nv * d], m2: vec![0.0; nv * d * d] }] }
+    }
+
+    /// Add the texels of `block` (the plan's directions and mask; checked by the caller): per
+    /// slot in parallel, the block's samples are centred on their own mean, their second moment
+    /// is one symmetric `f32` product ([`gram`]), and it is merged into the running `f64` sums by the pairwise update
+    /// (module doc). In place: no second copy of the moments.
+    /// With `scan`, every value of the block is checked on the way ([`Plan::samples`]).
+    pub(crate) fn add(&mut self, block: &BtfRef<'_>, plan: &Plan, scan: Option<&TexelScan>) {
+        let t = block.texels();
+        if t == 0 {
+            return;
+        }
+        let (na, nb) = (self.n as f64, t as f64);
+        let n = na + nb;
+        let gm = &mut self.groups[0];
+        let d = gm.d;
+        gm.mean.par_chunks_mut(d).zip(gm.m2.par_chunks_mut(d * d)).enumerate().for_each(|(v, (mean, m2))| {
+            let sd = 3 * plan.pairs(v);
+            let x = plan.samples(block, v, scan);
+            let mut mb = vec![0.0f64; sd];
+            for col in x.chunks_exact(sd) {
+                mb.iter_mut().zip(col).for_each(|(m, &v)| *m += v as f64);
             }
-            GroupMoments { d, mean, m2 }
-        })
-        .collect();
-    Ok(Moments { n: t as u64, groups })
+            mb.iter_mut().for_each(|m| *m /= nb);
+            let mb32: Vec<f32> = mb.iter().map(|&m| m as f32).collect();
+            let mut xc = x;
+            xc.chunks_exact_mut(sd).for_each(|c| c.iter_mut().zip(&mb32).for_each(|(a, m)| *a -= m));
+            // Symmetric: the blocks on and above the diagonal only (about 0.56 of the product).
+            let m2b = gram(&xc, sd, t);
+            // Chan et al.: M2 = M2a + M2b + delta delta^T na nb / n, mean += delta nb / n.
+            let delta: Vec<f64> = mean.iter().zip(&mb).map(|(a, b)| b - a).collect();
+            let f = na * nb / n;
+            for i in 0..sd {
+                let row = &mut m2[i * d..i * d + sd];
+                for (j, m) in row.iter_mut().enumerate() {
+                    *m += m2b[(i, j)] + delta[i] * delta[j] * f;
+                }
+            }
+            mean.iter_mut().zip(&delta).for_each(|(m, dl)| *m += dl * nb / n);
+        });
+        self.n += t as u64;
+    }
 }
 
 /// Stage 4: the model's table (`[V][G][R]`, module doc of [`super`]) from the moments of all
-/// texels.
-pub fn table(m: &Moments, opts: &PcaOptions, nv: usize) -> Result<Vec<f32>> {
+/// texels: per slot and group, the mean and covariance of the group's vectors are those of the
+/// samples through the group's map `T` ([`Plan::group_maps`]): `T mu` and `T C T^T`. Its
+/// eigenvectors are found in the smaller of two exact forms: the `d x d` matrix itself, or, when
+/// `T` has fewer columns than rows, `R C R^T` of `T = Q R` (thin QR; `T C T^T = Q (R C R^T)
+/// Q^T`, so its eigenvectors `y` give `Q y`).
+pub fn table(m: &Moments, plan: &Plan, opts: &PcaOptions) -> Result<Vec<f32>> {
     let kc = opts.check()?;
     let (g, km) = (opts.resolution * opts.resolution, opts.components);
+    let nv = plan.slots.len();
+    let d = 3 * plan.max_pairs();
     let planes = group_planes(opts.colour, km, kc);
-    let dims: Vec<usize> = match opts.colour {
-        Colour::Rgb => vec![3 * g],
-        Colour::Ycc => vec![g, 2 * g],
-    };
     let ok = m.n > 0
-        && m.groups.len() == dims.len()
-        && m.groups.iter().zip(&dims).all(|(gm, &d)| gm.d == d && gm.mean.len() == nv * d && gm.m2.len() == nv * d * d);
-    ensure_arg!(
-        ok,
-        "moments",
-        "expected the moments of {nv} view slots of groups {dims:?} values long over some texels"
-    );
+        && m.groups.len() == 1
+        && m.groups[0].d == d
+        && m.groups[0].mean.len() == nv * d
+        && m.groups[0].m2.len() == nv * d * d;
+    ensure_arg!(ok, "moments", "expected the moments of {nv} view slots of {d} samples over some texels");
+    let gm = &m.groups[0];
     let stride = 3 + km * if opts.colour == Colour::Rgb { 3 } else { 1 } + 2 * kc;
     let mut table = vec![0.0f32; nv * g * stride];
     table.par_chunks_mut(g * stride).enumerate().for_each(|(v, slot)| {
-        let parts: Vec<(Vec<f32>, DMatrix<f32>)> = m
-            .groups
-            .iter()
+        let sd = 3 * plan.pairs(v);
+        let m2 = &gm.m2[v * d * d..(v + 1) * d * d];
+        let c = DMatrix::<f64>::from_fn(sd, sd, |i, j| 0.5 * (m2[i * d + j] + m2[j * d + i]));
+        let mu = nalgebra::DVector::from_column_slice(&gm.mean[v * d..v * d + sd]);
+        let parts: Vec<(Vec<f32>, DMatrix<f32>)> = plan
+            .group_maps(v, opts.colour)
+            .into_iter()
             .zip(&planes)
-            .map(|(gm, &(k, _))| {
-                let d = gm.d;
-                let m2 = &gm.m2[v * d * d..(v + 1) * d * d];
-                let c = DMatrix::<f64>::from_fn(d, d, |i, j| 0.5 * (m2[i * d + j] + m2[j * d + i]));
-                let (vals, vecs) = sym_eigen_desc(c);
+            .map(|(tm, &(k, _))| {
+                let dg = tm.nrows();
+                let (vals, vecs) = if dg <= sd {
+                    let cx = &tm * &c * tm.transpose();
+                    sym_eigen_desc(DMatrix::from_fn(dg, dg, |i, j| 0.5 * (cx[(i, j)] + cx[(j, i)])))
+                } else {
+                    let qr = tm.clone().qr();
+                    let (q, r) = (qr.q(), qr.r());
+                    let kr = &r * &c * r.transpose();
+                    let (vals, y) = sym_eigen_desc(DMatrix::from_fn(sd, sd, |i, j| 0.5 * (kr[(i, j)] + kr[(j, i)])));
+                    (vals, q * y)
+                };
                 let top = vals.first().copied().unwrap_or(0.0);
-                let keep = (0..k.min(d)).take_while(|&j| top > 0.0 && vals[j] > 1e-12 * top).count();
-                let basis = DMatrix::<f32>::from_fn(d, k, |i, j| if j < keep { vecs[(i, j)] as f32 } else { 0.0 });
-                let mean = gm.mean[v * d..(v + 1) * d].iter().map(|&x| x as f32).collect();
+                let keep = (0..k.min(vals.len())).take_while(|&j| top > 0.0 && vals[j] > 1e-12 * top).count();
+                let basis = DMatrix::<f32>::from_fn(dg, k, |i, j| if j < keep { vecs[(i, j)] as f32 } else { 0.0 });
+                let mean = (&tm * &mu).iter().map(|&x| x as f32).collect();
                 (mean, basis)
             })
             .collect();
@@ -269,7 +304,8 @@ pub fn table(m: &Moments, opts: &PcaOptions, nv: usize) -> Result<Vec<f32>> {
 }
 
 /// Stage 5: one block's coefficients `[texel][V][K]` (f32, before quantization) against the
-/// table's means and directions.
+/// table's means and directions: per slot and group, `B^T (T s - mean)` as one product of the
+/// samples `s` with `B^T T` (`K x 3 m`, [`Plan::group_maps`]), so no texel's vector is formed.
 pub fn project(block: &BtfRef<'_>, plan: &Plan, table: &[f32], opts: &PcaOptions) -> Result<Vec<f32>> {
     check_block(block, plan)?;
     let kc = opts.check()?;
@@ -280,16 +316,23 @@ pub fn project(block: &BtfRef<'_>, plan: &Plan, table: &[f32], opts: &PcaOptions
     let per: Vec<Vec<(usize, DMatrix<f32>)>> = (0..nv)
         .into_par_iter()
         .map(|v| {
-            let r = plan.resample(block, v);
+            let sd = 3 * plan.pairs(v);
+            let x = plan.samples(block, v, None);
             let stored = read_slot(&table[v * g * stride..(v + 1) * g * stride], opts.colour, km, kc, g);
-            groups(r.as_slice(), g, t, opts.colour)
+            plan.group_maps(v, opts.colour)
                 .into_iter()
                 .zip(stored)
                 .zip(group_planes(opts.colour, km, kc))
-                .map(|(((x, d), (mean, basis)), (_, off))| {
-                    let mut xc = DMatrix::<f32>::from_column_slice(d, t, &x);
-                    xc.column_iter_mut().for_each(|mut c| c.iter_mut().zip(&mean).for_each(|(a, m)| *a -= m));
-                    (off, gemm(&view_t(&basis), &view(&xc)))
+                .map(|((tm, (mean, basis)), (_, off))| {
+                    let b64 = DMatrix::<f64>::from_fn(basis.nrows(), basis.ncols(), |i, j| basis[(i, j)] as f64);
+                    let a64 = b64.transpose() * &tm;
+                    let a = DMatrix::<f32>::from_fn(a64.nrows(), sd, |i, j| a64[(i, j)] as f32);
+                    let bias: Vec<f32> = (0..basis.ncols())
+                        .map(|p| (0..mean.len()).map(|i| b64[(i, p)] * mean[i] as f64).sum::<f64>() as f32)
+                        .collect();
+                    let mut c = gemm(&view(&a), &btfrs_numerics::dense::cols(&x, sd, t));
+                    c.column_iter_mut().for_each(|mut col| col.iter_mut().zip(&bias).for_each(|(y, b)| *y -= b));
+                    (off, c)
                 })
                 .collect()
         })
@@ -327,6 +370,60 @@ pub fn assemble(
     );
     let Plan { pooled, fallback_slots, .. } = plan;
     super::assemble(height, width, views, opts, Planes::quantize(coeffs, nv * k)?, table, pooled, fallback_slots)
+}
+
+/// Blocks the two-pass fit keeps in memory ahead of the one it computes on.
+const AHEAD: usize = 2;
+
+/// The local fit ([`super::fit`]) in two passes over texel blocks in storage order, where its
+/// vectors get the exact PCA ([`super::two_passes`]): the stages above run by one machine. The
+/// first pass checks every value and sums the moments, the second projects; so a BTF larger
+/// than memory (a memory-mapped file) is read twice, whatever its number of view slots, where a
+/// slot-by-slot fit would read each texel's values once per slot. `block`: texels per block.
+pub(crate) fn fit_two_passes(
+    btf: &BtfRef<'_>,
+    opts: &PcaOptions,
+    plan: Plan,
+    block: usize,
+    monitor: &Monitor,
+) -> Result<LightPca> {
+    let kc = opts.check()?;
+    let (nv, t, full) = (btf.views.len(), btf.texels(), btf.abrdf_len());
+    let k = opts.components + kc;
+    monitor.start(2 * t.div_ceil(block.max(1)) as u64);
+    // Only out of core: on a BTF held in memory the advice would mark the caller's own array as
+    // the first to swap out.
+    let out_of_core = monitor.memory_limit().is_some();
+    let sub = |b0: usize, n: usize| BtfRef { height: 1, width: n, data: &btf.data[b0 * full..(b0 + n) * full], ..*btf };
+    // 1. Every value checked (present or not, as the caller's scan would), the moments summed.
+    let mut moments = Moments::empty(&plan);
+    let scan = TexelScan::new();
+    stream_blocks(btf.data, full, block, AHEAD, |_, b0, n| {
+        monitor.check()?;
+        let b = sub(b0, n);
+        moments.add(&b, &plan, Some(&scan));
+        scan.finish("data", btf.data)?;
+        if out_of_core {
+            advise(b.data, Access::Done);
+        }
+        monitor.advance(1);
+        Ok(())
+    })?;
+    let table = table(&moments, &plan, opts)?;
+    drop(moments);
+    // 2. Every texel's coefficients against the table.
+    let mut coeffs = vec![0.0f32; t * nv * k];
+    stream_blocks(btf.data, full, block, AHEAD, |_, b0, n| {
+        monitor.check()?;
+        let b = sub(b0, n);
+        coeffs[b0 * nv * k..(b0 + n) * nv * k].copy_from_slice(&project(&b, &plan, &table, opts)?);
+        if out_of_core {
+            advise(b.data, Access::Done);
+        }
+        monitor.advance(1);
+        Ok(())
+    })?;
+    assemble(btf.height, btf.width, btf.views, plan, table, &coeffs, opts)
 }
 
 fn check_block(block: &BtfRef<'_>, plan: &Plan) -> Result<()> {
@@ -379,43 +476,54 @@ mod tests {
 
     #[test]
     fn merged_moments_equal_a_float64_reference() {
-        // Two blocks' moments merged against numpy-style moments of all texels at once.
+        // Two blocks' moments merged against moments of all texels' samples at once in f64, with
+        // a mask (slots of different sizes in one padded layout).
         let btf = generate(&MaterialSpec::new(Preset::Bumps, 8, 3), &Monitor::new()).unwrap();
-        let b = btf.as_ref();
+        let (nv, nl) = (btf.views.len(), btf.lights.len());
+        let mask: Vec<bool> = (0..nv * nl).map(|i| (i / nl) % 2 == 0 || i % 3 != 1).collect();
+        let b = BtfRef { mask: Some(&mask), ..btf.as_ref() };
         let basis = Basis::parse("bilinear", r#"{"resolution": 4, "colour": "ycc"}"#).unwrap();
-        let o = basis.options().unwrap();
-        let plan = basis.plan(b.views, b.lights, None).unwrap();
-        let whole = moments(&b, &plan, &o).unwrap();
-        let parts = [moments(&rows(&b, 0, 3), &plan, &o).unwrap(), moments(&rows(&b, 3, 8), &plan, &o).unwrap()];
+        let plan = basis.plan(b.views, b.lights, b.mask).unwrap();
+        let whole = moments(&b, &plan).unwrap();
+        let parts = [moments(&rows(&b, 0, 3), &plan).unwrap(), moments(&rows(&b, 3, 8), &plan).unwrap()];
         let merged = parts[0].merge(&parts[1]).unwrap();
         assert_eq!(merged.n, 64);
-        // The reference: sums over all texels in f64 from the resampled data directly.
-        let g = 16;
-        for v in [0, b.views.len() - 1] {
-            let r = plan.resample(&b, v);
-            for (gi, (x, d)) in groups(r.as_slice(), g, 64, Colour::Ycc).into_iter().enumerate() {
-                let cols: Vec<&[f32]> = x.chunks_exact(d).collect();
-                let mean: Vec<f64> = (0..d).map(|i| cols.iter().map(|c| c[i] as f64).sum::<f64>() / 64.0).collect();
-                let gm = &merged.groups[gi];
-                let scale = gm.m2[v * d * d..(v + 1) * d * d].iter().fold(0.0f64, |a, x| a.max(x.abs()));
-                for i in 0..d {
-                    assert!((gm.mean[v * d + i] - mean[i]).abs() < 1e-9);
-                    for j in 0..d {
-                        let m2: f64 = cols.iter().map(|c| (c[i] as f64 - mean[i]) * (c[j] as f64 - mean[j])).sum();
-                        assert!((gm.m2[v * d * d + i * d + j] - m2).abs() <= 1e-9 * scale, "slot {v} group {gi}");
-                        let w = whole.groups[gi].m2[v * d * d + i * d + j];
-                        assert!((w - m2).abs() <= 1e-9 * scale);
+        let (gm, d) = (&merged.groups[0], merged.groups[0].d);
+        assert_eq!(d, 3 * nl);
+        let mut worst = 0.0f64;
+        for v in [0, 1, nv - 1] {
+            let sd = 3 * plan.pairs(v);
+            let x = plan.samples(&b, v, None);
+            let cols: Vec<&[f32]> = x.chunks_exact(sd).collect();
+            let mean: Vec<f64> = (0..sd).map(|i| cols.iter().map(|c| c[i] as f64).sum::<f64>() / 64.0).collect();
+            let scale = gm.m2[v * d * d..(v + 1) * d * d].iter().fold(0.0f64, |a, x| a.max(x.abs()));
+            for i in 0..d {
+                for j in 0..d {
+                    let m2: f64 = if i < sd && j < sd {
+                        cols.iter().map(|c| (c[i] as f64 - mean[i]) * (c[j] as f64 - mean[j])).sum()
+                    } else {
+                        0.0 // the padding of a slot with fewer pairs
+                    };
+                    for m in [&gm.m2, &whole.groups[0].m2] {
+                        worst = worst.max((m[v * d * d + i * d + j] - m2).abs() / scale);
                     }
                 }
+                let mu = if i < sd { mean[i] } else { 0.0 };
+                assert!((gm.mean[v * d + i] - mu).abs() < 1e-9, "slot {v}: mean {i}");
             }
         }
+        // Each block's second moment is one f32 product of values centred on the block's mean
+        // (merged in f64): measured 4.5e-7 of the largest entry, f32 rounding of 64-term sums.
+        assert!(worst <= 2e-6, "the merged second moments differ by {worst:e} of the largest from the f64 sums");
         // Merging with an empty set is the identity; different layouts are refused.
         let empty = Moments { n: 0, groups: merged.groups.clone() };
         assert_eq!(empty.merge(&merged).unwrap(), merged);
-        let rgb = Basis::parse("bilinear", r#"{"resolution": 4}"#).unwrap();
-        let other = moments(&b, &rgb.plan(b.views, b.lights, None).unwrap(), &rgb.options().unwrap()).unwrap();
+        let few: Vec<bool> = (0..nv * nl).map(|i| i % nl < 40).collect();
+        let other_plan = basis.plan(b.views, b.lights, Some(&few)).unwrap();
+        let other = moments(&BtfRef { mask: Some(&few), ..b }, &other_plan).unwrap();
         assert!(merged.merge(&other).unwrap_err().to_string().starts_with("moments: the two sets"));
-        assert!(table(&other, &o, b.views.len()).unwrap_err().to_string().starts_with("moments: expected"));
+        let o = basis.options().unwrap();
+        assert!(table(&other, &plan, &o).unwrap_err().to_string().starts_with("moments: expected"));
     }
 
     #[test]
@@ -438,8 +546,8 @@ mod tests {
             let o = basis.options().unwrap();
             let plan = basis.plan(b.views, b.lights, b.mask).unwrap();
             let blocks = [rows(&b, 0, 5), rows(&b, 5, 6), rows(&b, 6, 12)];
-            let m = blocks.iter().map(|x| moments(x, &plan, &o).unwrap()).reduce(|a, x| a.merge(&x).unwrap()).unwrap();
-            let tab = table(&m, &o, nv).unwrap();
+            let m = blocks.iter().map(|x| moments(x, &plan).unwrap()).reduce(|a, x| a.merge(&x).unwrap()).unwrap();
+            let tab = table(&m, &plan, &o).unwrap();
             let coeffs: Vec<f32> = blocks.iter().flat_map(|x| project(x, &plan, &tab, &o).unwrap()).collect();
             let staged = assemble(b.height, b.width, b.views, plan, tab, &coeffs, &o).unwrap();
             let local = match basis {
@@ -469,11 +577,96 @@ mod tests {
     }
 
     #[test]
+    fn two_pass_fits_evaluate_as_slot_by_slot_fits() {
+        // The two-pass fit (one block, and blocks of 100, 100 and 56 texels) against the
+        // slot-by-slot fit of the same options, with a mask; then under a memory limit of
+        // exactly the least the fit needs, which streams blocks of MIN_BLOCK texels.
+        // RBF at resolution 12 has 432 values per vector from 3 x 65 samples: the eigenproblem
+        // of R C R^T; the other two the covariance's own.
+        let btf = generate(&MaterialSpec::new(Preset::Bumps, 16, 3), &Monitor::new()).unwrap();
+        let b = btf.as_ref();
+        let (nv, nl) = (b.views.len(), b.lights.len());
+        let mask: Vec<bool> = (0..nv * nl).map(|i| i % 5 != 2).collect();
+        let b = BtfRef { mask: Some(&mask), ..b };
+        for (kind, json) in [
+            ("bilinear", r#"{"components": 6, "resolution": 4}"#),
+            ("rbf", r#"{"components": 4, "colour": "ycc", "resolution": 6}"#),
+            ("rbf", r#"{"components": 5, "resolution": 12}"#),
+        ] {
+            let basis = Basis::parse(kind, json).unwrap();
+            let o = basis.options().unwrap();
+            let plan = || basis.plan(b.views, b.lights, b.mask).unwrap();
+            assert!(super::super::two_passes(&o, b.texels(), plan().max_pairs()));
+            let slots = super::super::fit_per_slot(&b, &o, plan(), &Monitor::new()).unwrap();
+            let limited = Monitor::new();
+            let least = match basis {
+                Basis::Rbf(ro) => rbf::Rbf::least_memory(&b, &ro),
+                Basis::Bilinear(bo) => bilinear::Bilinear::least_memory(&b, &bo),
+            };
+            limited.set_memory_limit(Some(least));
+            assert_eq!(super::super::block_texels(&b, &o, Some(least)), super::super::MIN_BLOCK);
+            let fits = [
+                fit_two_passes(&b, &o, plan(), 256, &Monitor::new()).unwrap(),
+                fit_two_passes(&b, &o, plan(), 100, &Monitor::new()).unwrap(),
+                match basis {
+                    Basis::Rbf(ro) => rbf::Rbf::fit(&b, &ro, &limited).unwrap().0,
+                    Basis::Bilinear(bo) => bilinear::Bilinear::fit(&b, &bo, &limited).unwrap().0,
+                },
+            ];
+            for (fi, fit) in fits.iter().enumerate() {
+                assert_eq!((&fit.pooled, &fit.fallback_slots), (&slots.pooled, &slots.fallback_slots));
+                let (mut worst, mut peak) = (0.0f32, 0.0f32);
+                for (vi, li) in [(0, 0), (3, 17), (nv - 1, nl - 1), (nv / 2, nl / 3)] {
+                    let (qa, qb) = (fit.query(b.views[vi], b.lights[li]), slots.query(b.views[vi], b.lights[li]));
+                    for t in 0..b.texels() {
+                        let (x, y) = (fit.eval(t, &qa), slots.eval(t, &qb));
+                        for c in 0..3 {
+                            worst = worst.max((x[c] - y[c]).abs());
+                            peak = peak.max(y[c].abs());
+                        }
+                    }
+                }
+                // Float rounding only; one 8-bit step of a coefficient that rounds the other way
+                // would be about 1e-3 of the peak.
+                assert!(worst <= 2e-3 * peak, "{kind} fit {fi}: differs from slot by slot by {worst} (peak {peak})");
+            }
+        }
+    }
+
+    #[test]
+    fn two_pass_fits_check_every_value() {
+        // A non-finite value at a masked-out pair fails as the caller's scan would, naming it.
+        let btf = generate(&MaterialSpec::new(Preset::Bumps, 12, 3), &Monitor::new()).unwrap();
+        let (nv, nl) = (btf.views.len(), btf.lights.len());
+        let mask: Vec<bool> = (0..nv * nl).map(|i| i != 7).collect();
+        let mut data = btf.data.clone();
+        let at = 100 * nv * nl * 3 + 7 * 3 + 1;
+        data[at] = f32::NAN;
+        let b = BtfRef { mask: Some(&mask), data: &data, ..btf.as_ref() };
+        let o: BilinearOptions =
+            options::parse(<bilinear::Bilinear as Model>::OPTIONS, r#"{"resolution": 4}"#).unwrap();
+        let e = bilinear::Bilinear::fit(&b, &o, &Monitor::new()).unwrap_err().to_string();
+        let want = btfrs_core::btf::check_finite("data", &data).unwrap_err().to_string();
+        assert_eq!(e, want);
+    }
+
+    #[test]
     fn bad_input_is_refused() {
         let e = |k: &str, j: &str| Basis::parse(k, j).unwrap_err().to_string();
         assert!(e("ptm", "{}").starts_with("kind: expected \"rbf\" or \"bilinear\""));
-        assert!(e("rbf", r#"{"resolution": 17}"#).starts_with("resolution: the blockwise rbf fit sums a 867 x 867"));
-        assert!(Basis::parse("rbf", r#"{"resolution": 19, "colour": "ycc"}"#).is_ok());
+        // The blockwise limit is the eigenproblem's size, min(values per vector, 3 x lights).
+        let d = btfrs_core::directions::ubo81();
+        let many: Vec<[f64; 3]> = (0..300)
+            .map(|i| {
+                let (th, ph) = (1.2 * (i as f64 + 0.5) / 300.0, 2.4 * i as f64);
+                [th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()]
+            })
+            .collect();
+        let rbf17 = Basis::parse("rbf", r#"{"resolution": 17}"#).unwrap();
+        assert!(rbf17.plan(&d, &d, None).is_ok(), "867 values per vector, but 243 samples");
+        let err = rbf17.plan(&d[..1], &many, None).unwrap_err().to_string();
+        assert!(err.starts_with("resolution: the blockwise rbf fit solves an exact 867 x 867"), "{err}");
+        assert!(Basis::parse("rbf", r#"{"resolution": 12}"#).unwrap().plan(&d[..1], &many, None).is_ok());
         assert!(e("bilinear", r#"{"regularization": -1}"#).starts_with("regularization:"));
         assert!(e("rbf", r#"{"bogus": 1}"#).contains("bogus"));
     }

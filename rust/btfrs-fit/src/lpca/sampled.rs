@@ -26,14 +26,13 @@ use super::{
     cluster_basis, cluster_space, lpca_errors, mb, plan_parts, sub_seed, Basis, ClusterFit, LocalPca, Lpca,
     LpcaOptions, SampledFit, EXACT_MAX,
 };
-use btfrs_core::btf::{advise, Access, TexelScan};
+use btfrs_core::btf::{advise, stream_blocks, Access, TexelScan};
 use btfrs_core::rng::{mix, Rng};
 use btfrs_core::{BtfRef, Error, Monitor, Result};
 use btfrs_numerics::dense::{cols, gemm, view_t};
 use btfrs_numerics::rpca::{self, CoordinateMap};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 /// Bytes of ABRDF values per block of the streaming pass (blocks are read ahead while one is
 /// computed), at most: each block's texels are grouped by cluster for one product per cluster,
@@ -263,50 +262,6 @@ impl Stream<'_, '_> {
     /// residual of the solves and the summed squared values.
     fn run(&self, ids: &mut [u32], weights: &mut [f32], monitor: &Monitor) -> Result<(f64, f64)> {
         let btf = self.btf;
-        let t = btf.texels();
-        let full = btf.data.len() / t.max(1);
-        let block = block_texels(self.d, t, monitor.memory_limit());
-        // A reader thread keeps AHEAD blocks in memory ahead of the computation: it touches
-        // one value per page, so it is the one that waits for the storage (a memory-mapped file
-        // larger than memory), while the computing threads find the pages there.
-        let computing = AtomicUsize::new(0);
-        let done = AtomicBool::new(false);
-        std::thread::scope(|scope| {
-            scope.spawn(|| {
-                for (j, b0) in (0..t).step_by(block).enumerate().skip(1) {
-                    while j > computing.load(Ordering::Acquire) + AHEAD {
-                        if done.load(Ordering::Acquire) {
-                            return;
-                        }
-                        std::thread::sleep(std::time::Duration::from_micros(200));
-                    }
-                    if done.load(Ordering::Acquire) {
-                        return;
-                    }
-                    let x = &btf.data[b0 * full..(b0 + block).min(t) * full];
-                    // The whole block asked for at once (large requests), then waited for.
-                    advise(x, Access::WillNeed);
-                    let mut sum = 0.0f32;
-                    for i in (0..x.len()).step_by(1024) {
-                        sum += x[i];
-                    }
-                    std::hint::black_box(sum);
-                }
-            });
-            let r = self.run_blocks(ids, weights, monitor, &computing);
-            done.store(true, Ordering::Release);
-            r
-        })
-    }
-
-    fn run_blocks(
-        &self,
-        ids: &mut [u32],
-        weights: &mut [f32],
-        monitor: &Monitor,
-        computing: &AtomicUsize,
-    ) -> Result<(f64, f64)> {
-        let btf = self.btf;
         let (t, d) = (btf.texels(), self.d);
         let full = btf.data.len() / t.max(1);
         let c = self.bases.first().map_or(0, Basis::components);
@@ -316,10 +271,8 @@ impl Stream<'_, '_> {
         let mut grouped = vec![0.0f32; block * d];
         let mut reported = 0u64;
         let out_of_core = monitor.memory_limit().is_some();
-        for (j, b0) in (0..t).step_by(block).enumerate() {
+        stream_blocks(btf.data, full, block, AHEAD, |_, b0, n| {
             monitor.check()?;
-            computing.store(j, Ordering::Release);
-            let n = block.min(t - b0);
             // The block's present values, in place or copied.
             let raw = &btf.data[b0 * full..(b0 + n) * full];
             let rows: &[f32] = if self.compact {
@@ -393,7 +346,8 @@ impl Stream<'_, '_> {
             let done = ((b0 + n) as u64 * STREAM_UNITS) / t as u64;
             monitor.advance(done - reported);
             reported = done;
-        }
+            Ok(())
+        })?;
         Ok((res, norm))
     }
 }
