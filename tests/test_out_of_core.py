@@ -17,6 +17,7 @@ import pytest
 import btfrs
 from btfrs._checks import memory_size
 from btfrs.exceptions import ArgumentTypeError, FormatError, InvalidArgumentError
+from btfrs.tools.bench import light_basis_steps
 
 LIMIT = "64MB"
 
@@ -94,13 +95,31 @@ def test_a_limit_below_the_least_a_fit_needs_is_an_error_naming_it(big):
     with pytest.raises(InvalidArgumentError, match=r"memory_limit: expected at least 16.0 MB for a ptm fit"):
         btfrs.fit.ptm(btf, memory_limit=10**6)
     # Double SH holds its float coefficients before quantizing (4 x 3 x 256 per texel: 15.9 MB
-    # here), RBF one view slot's resampled data too: their least grows with the texels.
+    # here): its least grows with the texels. RBF's is every view slot's moments and a block.
     with pytest.raises(InvalidArgumentError, match=r"memory_limit: expected at least 31\.9 MB for a sh fit of 72 x 72"):
         btfrs.fit.sh(btf, light_coeffs=16, view_coeffs=16, memory_limit="20MB")
     with pytest.raises(InvalidArgumentError, match=r"memory_limit: expected at least [\d.]+ MB for a rbf fit"):
         btfrs.fit.rbf(btf, components=8, memory_limit="20MB")
     with pytest.raises(InvalidArgumentError, match="memory_limit: a fit under a memory limit clusters in principal"):
         btfrs.fit.lpca(btf, clusters=4, reduced_dims=0, memory_limit="1GB")
+
+
+def test_rbf_below_its_coefficients_keeps_them_in_a_temporary_file(big):
+    # 72^2 texels x 81 views x 8 planes of float coefficients are 13.4 MB; the fit's least (the
+    # moments of every view slot's samples and a block) is 30.1 MB. Under 32 MB the coefficients
+    # wait for the 8-bit quantization in an unlinked temporary file: the anonymous memory stays
+    # within the limit, and the model is the unlimited fit's to rounding.
+    opts = {"components": 8, "memory_limit": "32MB"}
+    r = subprocess.run([sys.executable, "-m", "btfrs.tools.memprobe", str(big), "rbf", json.dumps(opts)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    m = json.loads(r.stdout.strip().splitlines()[-1])
+    assert m["growth"] <= memory_size("limit", "32MB") + m["model"], m
+    mapped = btfrs.Btf.load(big, mmap=True)
+    tight = btfrs.fit.rbf(mapped, **opts)
+    free = btfrs.fit.rbf(btfrs.Btf.load(big), components=8)
+    assert light_basis_steps(tight, free) <= 1.01
+    assert tight.error(mapped).rmse == pytest.approx(free.error(mapped).rmse, rel=1e-4)
 
 
 def test_memory_sizes_are_parsed_as_dask_writes_them():

@@ -23,6 +23,7 @@ pub mod metrics;
 pub mod monitor;
 pub mod process;
 pub mod rng;
+pub mod scratch;
 pub mod split;
 
 pub use arrays::NamedArrays;

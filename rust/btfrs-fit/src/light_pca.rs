@@ -453,22 +453,33 @@ pub struct FallbackSlot {
 }
 
 /// The least memory limit of [`fit`] on `btf` (bytes, besides the model): it does not stream
-/// below it. Both ways hold the float coefficients of every slot and their 8-bit planes (5 bytes
-/// per stored byte) and 16 MB. In two passes ([`two_passes`]) add the moments of every slot
-/// (`8 V d^2` bytes per group), a product per thread and a block of [`MIN_BLOCK`] texels
-/// ([`block_texels`]); slot by slot, one view slot's samples and its resampled data with their
-/// centred copy (`3 L + 6 G` floats per texel).
+/// below it. In two passes ([`two_passes`]): 16 MB, the moments of every slot and per thread a
+/// product ([`block_memory`]), and a block of [`MIN_BLOCK`] texels; every texel's float
+/// coefficients too when the limit holds them (4 bytes per stored byte), else they wait for the
+/// quantization in a temporary file ([`btfrs_core::scratch`]). Slot by slot: 16 MB, the float
+/// coefficients, one view slot's samples and its resampled data with their centred copy
+/// (`3 L + 6 G` floats per texel).
 pub fn least_memory(btf: &BtfRef<'_>, opts: &PcaOptions) -> u64 {
-    let kc = opts.check().unwrap_or(0) as u64; // a bad option is reported by the fit itself
-    let (t, nv, nl) = (btf.texels() as u64, btf.views.len() as u64, btf.lights.len() as u64);
+    let (t, nl) = (btf.texels() as u64, btf.lights.len() as u64);
     let g = (opts.resolution * opts.resolution) as u64;
-    let coeffs = 16_000_000 + 5 * t * nv * (opts.components as u64 + kc);
     if two_passes(opts, btf.texels(), max_slot_pairs(btf)) {
         let (fixed, per) = block_memory(btf, opts);
-        coeffs + fixed + MIN_BLOCK as u64 * per
+        16_000_000 + fixed + MIN_BLOCK as u64 * per
     } else {
-        coeffs + 4 * t * (3 * nl + 6 * g)
+        16_000_000 + coefficient_bytes(btf, opts) + 4 * t * (3 * nl + 6 * g)
     }
+}
+
+/// The float coefficients of every texel and slot, bytes.
+fn coefficient_bytes(btf: &BtfRef<'_>, opts: &PcaOptions) -> u64 {
+    let kc = opts.check().unwrap_or(0) as u64; // a bad option is reported by the fit itself
+    4 * btf.texels() as u64 * btf.views.len() as u64 * (opts.components as u64 + kc)
+}
+
+/// Whether the two-pass fit under `limit` keeps the float coefficients in a temporary file: when
+/// the limit does not hold them besides its least.
+fn spills(btf: &BtfRef<'_>, opts: &PcaOptions, limit: Option<u64>) -> bool {
+    limit.is_some_and(|l| l < least_memory(btf, opts) + coefficient_bytes(btf, opts))
 }
 
 /// The fewest texels per block of the two-pass fit.
@@ -523,9 +534,13 @@ pub(crate) fn block_texels(btf: &BtfRef<'_>, opts: &PcaOptions, limit: Option<u6
     let bytes = limit.map_or(256 << 20, |l| (l / 8).clamp(8 << 20, 256 << 20));
     let mut n = (bytes / (4 * full)).max(MIN_BLOCK as u64);
     if let Some(l) = limit {
-        // What the least memory holds besides its block, then as many texels as the rest holds.
+        // What the least memory holds besides its block (and the coefficients, unless they
+        // spill), then as many texels as the rest holds.
         let per = block_memory(btf, opts).1.max(1);
-        let rest = least_memory(btf, opts) - MIN_BLOCK as u64 * per;
+        let mut rest = least_memory(btf, opts) - MIN_BLOCK as u64 * per;
+        if !spills(btf, opts, limit) {
+            rest += coefficient_bytes(btf, opts);
+        }
         n = n.min(l.saturating_sub(rest) / per).max(MIN_BLOCK as u64);
     }
     (n as usize).min(btf.texels()).max(1)
@@ -796,7 +811,8 @@ pub fn fit(btf: &BtfRef<'_>, opts: &PcaOptions, op: &Operator<'_>, what: &str, m
     let plan = Plan::new(btf.views, btf.lights, btf.mask, opts.resolution, op, what)?;
     if two_passes(opts, t, plan.max_pairs()) {
         let block = block_texels(btf, opts, monitor.memory_limit());
-        staged::fit_two_passes(btf, opts, plan, block, monitor)
+        let spill = spills(btf, opts, monitor.memory_limit());
+        staged::fit_two_passes(btf, opts, plan, block, spill, monitor)
     } else {
         fit_per_slot(btf, opts, plan, monitor)
     }

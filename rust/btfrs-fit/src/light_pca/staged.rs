@@ -41,6 +41,7 @@ use crate::options;
 use crate::planes::Planes;
 use crate::rbf::{self, RbfOptions};
 use btfrs_core::btf::{advise, stream_blocks, Access, TexelScan};
+use btfrs_core::scratch::Floats;
 use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, Result};
 use btfrs_numerics::dense::{gemm, gram, sym_eigen_desc, view};
 use nalgebra::DMatrix;
@@ -379,12 +380,15 @@ const AHEAD: usize = 2;
 /// vectors get the exact PCA ([`super::two_passes`]): the stages above run by one machine. The
 /// first pass checks every value and sums the moments, the second projects; so a BTF larger
 /// than memory (a memory-mapped file) is read twice, whatever its number of view slots, where a
-/// slot-by-slot fit would read each texel's values once per slot. `block`: texels per block.
+/// slot-by-slot fit would read each texel's values once per slot. `block`: texels per block;
+/// `spill`: the float coefficients wait for the quantization in a temporary file
+/// ([`btfrs_core::scratch`]) instead of memory.
 pub(crate) fn fit_two_passes(
     btf: &BtfRef<'_>,
     opts: &PcaOptions,
     plan: Plan,
     block: usize,
+    spill: bool,
     monitor: &Monitor,
 ) -> Result<LightPca> {
     let kc = opts.check()?;
@@ -412,7 +416,7 @@ pub(crate) fn fit_two_passes(
     let table = table(&moments, &plan, opts)?;
     drop(moments);
     // 2. Every texel's coefficients against the table.
-    let mut coeffs = vec![0.0f32; t * nv * k];
+    let mut coeffs = Floats::zeros(t * nv * k, spill)?;
     stream_blocks(btf.data, full, block, AHEAD, |_, b0, n| {
         monitor.check()?;
         let b = sub(b0, n);
@@ -578,9 +582,10 @@ mod tests {
 
     #[test]
     fn two_pass_fits_evaluate_as_slot_by_slot_fits() {
-        // The two-pass fit (one block, and blocks of 100, 100 and 56 texels) against the
-        // slot-by-slot fit of the same options, with a mask; then under a memory limit of
-        // exactly the least the fit needs, which streams blocks of MIN_BLOCK texels.
+        // The two-pass fit (one block; blocks of 100, 100 and 56 texels with the coefficients in
+        // a temporary file) against the slot-by-slot fit of the same options, with a mask; then
+        // under a memory limit of exactly the least the fit needs, which streams blocks of
+        // MIN_BLOCK texels and spills.
         // RBF at resolution 12 has 432 values per vector from 3 x 65 samples: the eigenproblem
         // of R C R^T; the other two the covariance's own.
         let btf = generate(&MaterialSpec::new(Preset::Bumps, 16, 3), &Monitor::new()).unwrap();
@@ -606,8 +611,8 @@ mod tests {
             limited.set_memory_limit(Some(least));
             assert_eq!(super::super::block_texels(&b, &o, Some(least)), super::super::MIN_BLOCK);
             let fits = [
-                fit_two_passes(&b, &o, plan(), 256, &Monitor::new()).unwrap(),
-                fit_two_passes(&b, &o, plan(), 100, &Monitor::new()).unwrap(),
+                fit_two_passes(&b, &o, plan(), 256, false, &Monitor::new()).unwrap(),
+                fit_two_passes(&b, &o, plan(), 100, true, &Monitor::new()).unwrap(),
                 match basis {
                     Basis::Rbf(ro) => rbf::Rbf::fit(&b, &ro, &limited).unwrap().0,
                     Basis::Bilinear(bo) => bilinear::Bilinear::fit(&b, &bo, &limited).unwrap().0,
