@@ -145,35 +145,41 @@ impl Raw {
         }
     }
 
-    /// Linear RGB of the `dst.len() / 3` consecutive pixels from pixel `p` (row-major) into
-    /// `dst`: [`Raw::rgb`] for a run, the sample type and lookup table chosen once per run
-    /// instead of once per pixel (the scatter into a capture converts every pixel of every
-    /// image this way).
-    pub fn rgb_run(&self, p: usize, dst: &mut [f32]) {
-        fn run<T: Copy>(v: &[T], ch: usize, p: usize, dst: &mut [f32], f: impl Fn(T) -> f32) {
-            let src = &v[p * ch..];
+    /// Linear RGB of the `n` consecutive pixels from pixel `p` (row-major) into `dst`, pixel `k`
+    /// at `dst[k * stride..k * stride + 3]` (`stride >= 3`; `dst` holds at least
+    /// `(n - 1) * stride + 3` values): [`Raw::rgb`] for a run, the sample type and lookup table
+    /// chosen once per run instead of once per pixel. The scatter into a capture converts every
+    /// pixel of every image this way, straight into the texel-major output (stride: the values
+    /// per texel).
+    pub fn rgb_run(&self, p: usize, n: usize, dst: &mut [f32], stride: usize) {
+        fn run<T: Copy>(v: &[T], ch: usize, p: usize, n: usize, dst: &mut [f32], stride: usize, f: impl Fn(T) -> f32) {
+            let src = v[p * ch..(p + n) * ch].chunks_exact(ch);
+            let dst = dst.chunks_mut(stride).take(n);
             if ch >= 3 {
-                for (d, s) in dst.chunks_exact_mut(3).zip(src.chunks_exact(ch)) {
-                    d[0] = f(s[0]);
-                    d[1] = f(s[1]);
-                    d[2] = f(s[2]);
+                for (d, s) in dst.zip(src) {
+                    d[..3].copy_from_slice(&[f(s[0]), f(s[1]), f(s[2])]);
                 }
             } else {
-                for (d, s) in dst.chunks_exact_mut(3).zip(src.chunks_exact(ch)) {
-                    d.fill(f(s[0]));
+                for (d, s) in dst.zip(src) {
+                    d[..3].fill(f(s[0]));
                 }
             }
         }
+        assert!(
+            stride >= 3 && (n == 0 || dst.len() >= (n - 1) * stride + 3),
+            "rgb_run: {n} pixels at stride {stride} into {}",
+            dst.len()
+        );
         match &self.samples {
             Samples::U8(v, ch) => {
                 let l = lut8(self.transfer);
-                run(v, *ch, p, dst, |x| l[x as usize]);
+                run(v, *ch, p, n, dst, stride, |x| l[x as usize]);
             }
             Samples::U16(v, ch) => {
                 let l = lut16(self.transfer);
-                run(v, *ch, p, dst, |x| l[x as usize]);
+                run(v, *ch, p, n, dst, stride, |x| l[x as usize]);
             }
-            Samples::F32(v, ch) => run(v, *ch, p, dst, |x| x),
+            Samples::F32(v, ch) => run(v, *ch, p, n, dst, stride, |x| x),
         }
     }
 

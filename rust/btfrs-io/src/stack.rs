@@ -388,7 +388,7 @@ impl Source for ImageStack {
 
 /// Texels per block of the scatter (measured best of 16 to 128): a block's slices of the output
 /// (`SCATTER_BLOCK` texels of `abrdf` values) stay in cache while every image of the batch writes its run of pixels into
-/// them, each image's run converted in one loop ([`Raw::rgb_run`]).
+/// them, each image's run converted in one loop straight into them ([`Raw::rgb_run`]).
 const SCATTER_BLOCK: usize = 128;
 
 /// Write the images of a batch, each with its `(view, light)` slot, into the texel-major
@@ -405,17 +405,14 @@ fn scatter<'a>(
 ) {
     out.par_chunks_mut(abrdf * SCATTER_BLOCK).enumerate().for_each(|(b, block)| {
         let (t0, n) = (b * SCATTER_BLOCK, block.len() / abrdf);
-        let mut buf = [0.0f32; 3 * SCATTER_BLOCK];
         for ((v, l), img) in images.clone() {
             let dst = (v * nl + l) * 3;
             let mut i = 0;
             while i < n {
                 let t = t0 + i;
                 let run = (n - i).min(crop.cols - t % crop.cols);
-                img.rgb_run((crop.row + t / crop.cols) * fw + crop.col + t % crop.cols, &mut buf[..3 * run]);
-                for (k, px) in buf[..3 * run].chunks_exact(3).enumerate() {
-                    block[(i + k) * abrdf + dst..][..3].copy_from_slice(px);
-                }
+                let p = (crop.row + t / crop.cols) * fw + crop.col + t % crop.cols;
+                img.rgb_run(p, run, &mut block[i * abrdf + dst..], abrdf);
                 i += run;
             }
         }
