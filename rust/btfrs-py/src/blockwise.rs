@@ -330,6 +330,23 @@ fn moments_from_py(m: &MomentsArgs<'_>) -> PyResult<lp::Moments> {
     Ok(lp::Moments { n: *n, groups })
 }
 
+/// The plan of `basis` for the directions and mask of a BTF given as arrays (stage 1, the GIL
+/// released), with the view directions.
+fn plan_of<'py>(
+    py: Python<'py>,
+    basis: &lp::Basis,
+    views: &Bound<'py, PyAny>,
+    lights: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+) -> PyResult<(btfrs_fit::light_pca::Plan, Vec<[f64; 3]>)> {
+    let (v, l) = (borrow::<f64>("views", views)?, borrow::<f64>("lights", lights)?);
+    let mk = mask.map(|m| borrow::<bool>("mask", m)).transpose()?;
+    let (v, l) = (dirs("views", &v)?, dirs("lights", &l)?);
+    let mask = mask_of(&mk, v.len(), l.len())?;
+    let plan = detach(py, || basis.plan(v, l, mask))?;
+    Ok((plan, v.to_vec()))
+}
+
 /// RBF / bilinear stage 2 on one block: the moments of its resampled light functions.
 #[pyfunction]
 #[pyo3(signature = (kind, data, views, lights, mask, options_json))]
@@ -375,14 +392,10 @@ pub fn light_pca_table<'py>(
 ) -> PyResult<F32Array<'py>> {
     let basis = basis_of(kind, options_json)?;
     let m = moments_from_py(&moments)?;
-    let (v, l) = (borrow::<f64>("views", views)?, borrow::<f64>("lights", lights)?);
-    let mk = mask.map(|m| borrow::<bool>("mask", m)).transpose()?;
-    let (v, l) = (dirs("views", &v)?, dirs("lights", &l)?);
-    let mask = mask_of(&mk, v.len(), l.len())?;
+    let (plan, v) = plan_of(py, &basis, views, lights, mask)?;
     let n_views = v.len();
     let (o, t) = detach(py, || {
         let o = basis.options()?;
-        let plan = basis.plan(v, l, mask)?;
         let t = lp::table(&m, &plan, &o)?;
         Ok((o, t))
     })?;
@@ -433,18 +446,14 @@ pub fn light_pca_assemble<'py>(
     options_json: &str,
 ) -> PyResult<PyModel> {
     let basis = basis_of(kind, options_json)?;
-    let (v, l) = (borrow::<f64>("views", views)?, borrow::<f64>("lights", lights)?);
-    let mk = mask.map(|m| borrow::<bool>("mask", m)).transpose()?;
-    let (v, l) = (dirs("views", &v)?, dirs("lights", &l)?);
-    let mask = mask_of(&mk, v.len(), l.len())?;
+    let (plan, v) = plan_of(py, &basis, views, lights, mask)?;
     let tab: Vec<f32> = borrow::<f32>("table", table)?.as_array().iter().copied().collect();
     let c = borrow::<f32>("coeffs", coeffs)?;
     check_shape("coeffs", c.shape(), &[None, None, None])?;
     let (h, w) = (c.shape()[0], c.shape()[1]);
     let c = c.as_slice().map_err(|e| arg("coeffs", e))?;
     let inner = detach(py, || {
-        let plan = basis.plan(v, l, mask)?;
-        let m = lp::assemble(h, w, v, plan, tab, c, &basis.options()?)?;
+        let m = lp::assemble(h, w, &v, plan, tab, c, &basis.options()?)?;
         Ok(basis.model(m))
     })?;
     Ok(PyModel { inner, robust: serde_json::Value::Null })
@@ -461,12 +470,7 @@ pub fn light_pca_check<'py>(
     mask: Option<&Bound<'py, PyAny>>,
     options_json: &str,
 ) -> PyResult<()> {
-    let basis = basis_of(kind, options_json)?;
-    let (v, l) = (borrow::<f64>("views", views)?, borrow::<f64>("lights", lights)?);
-    let mk = mask.map(|m| borrow::<bool>("mask", m)).transpose()?;
-    let (v, l) = (dirs("views", &v)?, dirs("lights", &l)?);
-    let mask = mask_of(&mk, v.len(), l.len())?;
-    detach(py, || basis.plan(v, l, mask).map(|_| ()))
+    plan_of(py, &basis_of(kind, options_json)?, views, lights, mask).map(|_| ())
 }
 
 /// `robust_images`' answer: the floor, the spreads, the bad images.

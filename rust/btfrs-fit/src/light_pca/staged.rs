@@ -454,6 +454,24 @@ mod tests {
         BtfRef { height: r1 - r0, data: &b.data[r0 * per..r1 * per], ..*b }
     }
 
+    /// The largest difference of two light bases' evaluations over every texel at four (view,
+    /// light) pairs of `b`, and the largest value of `y`'s.
+    fn difference(x: &LightPca, y: &LightPca, b: &BtfRef<'_>) -> (f32, f32) {
+        let (nv, nl) = (b.views.len(), b.lights.len());
+        let (mut worst, mut peak) = (0.0f32, 0.0f32);
+        for (vi, li) in [(0, 0), (3, 17), (nv - 1, nl - 1), (nv / 2, nl / 3)] {
+            let (qx, qy) = (x.query(b.views[vi], b.lights[li]), y.query(b.views[vi], b.lights[li]));
+            for t in 0..b.texels() {
+                let (a, c) = (x.eval(t, &qx), y.eval(t, &qy));
+                for ch in 0..3 {
+                    worst = worst.max((a[ch] - c[ch]).abs());
+                    peak = peak.max(c[ch].abs());
+                }
+            }
+        }
+        (worst, peak)
+    }
+
     #[test]
     fn table_round_trips_through_write_and_read() {
         // read_slot inverts write_slot for both colour groupings.
@@ -562,18 +580,7 @@ mod tests {
                 (staged.pooled.clone(), staged.fallback_slots.clone()),
                 (local.pooled.clone(), local.fallback_slots.clone())
             );
-            let mut worst = 0.0f32;
-            let mut peak = 0.0f32;
-            for (vi, li) in [(0, 0), (3, 17), (nv - 1, nl - 1), (nv / 2, nl / 3)] {
-                let (qs, ql) = (staged.query(b.views[vi], b.lights[li]), local.query(b.views[vi], b.lights[li]));
-                for t in 0..b.texels() {
-                    let (x, y) = (staged.eval(t, &qs), local.eval(t, &ql));
-                    for c in 0..3 {
-                        worst = worst.max((x[c] - y[c]).abs());
-                        peak = peak.max(y[c].abs());
-                    }
-                }
-            }
+            let (worst, peak) = difference(&staged, &local, &b);
             // Measured: 2.4e-7 of the peak (float rounding); one 8-bit step of a coefficient that
             // rounds the other way would be about 1e-3.
             assert!(worst <= 2e-3 * peak, "{kind} {json}: staged and local differ by {worst} (peak {peak})");
@@ -620,17 +627,7 @@ mod tests {
             ];
             for (fi, fit) in fits.iter().enumerate() {
                 assert_eq!((&fit.pooled, &fit.fallback_slots), (&slots.pooled, &slots.fallback_slots));
-                let (mut worst, mut peak) = (0.0f32, 0.0f32);
-                for (vi, li) in [(0, 0), (3, 17), (nv - 1, nl - 1), (nv / 2, nl / 3)] {
-                    let (qa, qb) = (fit.query(b.views[vi], b.lights[li]), slots.query(b.views[vi], b.lights[li]));
-                    for t in 0..b.texels() {
-                        let (x, y) = (fit.eval(t, &qa), slots.eval(t, &qb));
-                        for c in 0..3 {
-                            worst = worst.max((x[c] - y[c]).abs());
-                            peak = peak.max(y[c].abs());
-                        }
-                    }
-                }
+                let (worst, peak) = difference(fit, &slots, &b);
                 // Float rounding only; one 8-bit step of a coefficient that rounds the other way
                 // would be about 1e-3 of the peak.
                 assert!(worst <= 2e-3 * peak, "{kind} fit {fi}: differs from slot by slot by {worst} (peak {peak})");
