@@ -489,8 +489,7 @@ def _lp_moments(block: NDArray[Any], views: NDArray[np.float64], lights: NDArray
 
 
 def _lp_merge(a: _native._Moments, b: _native._Moments) -> _native._Moments:
-    own: Callable[[_native._Moments], _native._Moments] = (
-        lambda m: (m[0], [_own(x) for x in m[1]], [_own(x) for x in m[2]]))
+    own: Callable[[_native._Moments], _native._Moments] = lambda m: (m[0], _own(m[1]), _own(m[2]))
     return _native.light_pca_merge(own(a), own(b))
 
 
@@ -789,8 +788,8 @@ def _fit_light_pca(kind: str, arr: BtfArray, options: Dict[str, Any], options_js
     moments = _reduce([dask.delayed(_lp_moments, pure=True)(b, arr.views, arr.lights, arr.mask, kind, options_json)
                        for b, *_ in blocks], _lp_merge, callback(progress, f"{name} moments"), f"{name} moments")
     # 2. The principal functions on the client.
-    table = _native.light_pca_table(kind, (moments[0], [_own(x) for x in moments[1]], [_own(x) for x in moments[2]]),
-                                    _own(arr.views), _own(arr.lights), _own(arr.mask), options_json)
+    table = _native.light_pca_table(kind, (moments[0], _own(moments[1]), _own(moments[2])), _own(arr.views),
+                                    _own(arr.lights), _own(arr.mask), options_json)
     del moments
     # 3. Every tile projected; the coefficients stitched in texel order.
     table_d = dask.delayed(table)

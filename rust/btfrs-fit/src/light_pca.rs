@@ -29,12 +29,13 @@
 //! than asked for (fewer texels than components, or a constant slot), the missing components
 //! are zero functions with zero coefficients: every slot has the same number of planes.
 //!
-//! **Two passes.** The exact PCA needs only each slot's mean and covariance, which texel blocks
-//! sum apart ([`staged`]). So where it applies (and the BTF has at least as many texels as values
-//! per vector), the fit reads the data in two passes over blocks of texels in storage order
-//! (the moments, then the coefficients) instead of slot by slot: a memory-mapped BTF larger
-//! than memory is read twice, not once per view slot. Longer vectors (the randomized PCA) are
-//! fitted slot by slot.
+//! **Two passes.** The exact PCA needs only each slot's mean and covariance, and those follow
+//! from the mean and covariance of the texels' samples, which texel blocks sum apart
+//! ([`staged`]). So the fit reads the data in two passes over blocks of texels in storage order
+//! (the moments, then the coefficients) instead of slot by slot: a memory-mapped BTF larger than
+//! memory is read twice, not once per view slot. Slot by slot remain the fits whose eigenproblem
+//! (`min(d, 3 m)` rows for `m` lights, [`exact_dim`]) exceeds [`EXACT_PCA_DIM`] (the randomized
+//! PCA) and those of fewer texels than its rows (one slot's Gram matrix is then smaller).
 //!
 //! **Storage.** Coefficients `[texel][slot][K]` (`K = components + chroma_components`) as one
 //! [`Planes`] (`coeffs_q`, `coeffs_scale`, `coeffs_bias`: a scale and bias per slot and
@@ -689,13 +690,9 @@ impl Plan {
         match colour {
             Colour::Rgb => {
                 let mut t = DMatrix::<f64>::zeros(3 * g, 3 * m);
-                for c in 0..3 {
-                    let mut coef = [0.0; 3];
-                    coef[c] = 1.0;
-                    let mut part = DMatrix::<f64>::zeros(g, 3 * m);
-                    put(&mut part, 0, coef);
-                    t.rows_mut(c * g, g).copy_from(&part);
-                }
+                put(&mut t, 0, [1.0, 0.0, 0.0]);
+                put(&mut t, g, [0.0, 1.0, 0.0]);
+                put(&mut t, 2 * g, [0.0, 0.0, 1.0]);
                 vec![t]
             }
             Colour::Ycc => {

@@ -288,46 +288,30 @@ pub fn lpca_assemble<'py>(
     Ok(PyModel { inner: Box::new(m), robust: serde_json::Value::Null })
 }
 
-/// Moments as they cross into Python: `(n, [mean [V, d] float64], [m2 [V, d, d] float64])`,
-/// one entry per group.
-type MomentsArgs<'py> = (u64, Vec<Bound<'py, PyArrayDyn<f64>>>, Vec<Bound<'py, PyArrayDyn<f64>>>);
+/// Moments as they cross into Python: `(n, mean [V, d] float64, m2 [V, d, d] float64)`.
+type MomentsArgs<'py> = (u64, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>);
 
 fn basis_of(kind: &str, options_json: &str) -> PyResult<lp::Basis> {
     lp::Basis::parse(kind, options_json).py()
 }
 
 fn moments_to_py(py: Python<'_>, m: lp::Moments) -> PyResult<MomentsArgs<'_>> {
-    let mut means = Vec::new();
-    let mut m2s = Vec::new();
-    for g in m.groups {
-        let nv = g.mean.len() / g.d.max(1);
-        means.push(g.mean.into_pyarray(py).reshape(vec![nv, g.d])?);
-        m2s.push(g.m2.into_pyarray(py).reshape(vec![nv, g.d, g.d])?);
-    }
-    Ok((m.n, means, m2s))
+    let nv = m.mean.len() / m.d.max(1);
+    Ok((m.n, m.mean.into_pyarray(py).reshape(vec![nv, m.d])?, m.m2.into_pyarray(py).reshape(vec![nv, m.d, m.d])?))
 }
 
 fn moments_from_py(m: &MomentsArgs<'_>) -> PyResult<lp::Moments> {
-    let (n, means, m2s) = m;
-    if means.len() != m2s.len() {
-        return Err(arg("moments", format!("{} means but {} second moments", means.len(), m2s.len())));
-    }
-    let groups = means
-        .iter()
-        .zip(m2s)
-        .map(|(mean, m2)| {
-            let (mean, m2) = (mean.readonly(), m2.readonly());
-            check_shape("moments", mean.shape(), &[None, None])?;
-            let (nv, d) = (mean.shape()[0], mean.shape()[1]);
-            check_shape("moments", m2.shape(), &[Some(nv), Some(d), Some(d)])?;
-            Ok(lp::GroupMoments {
-                d,
-                mean: mean.as_array().iter().copied().collect(),
-                m2: m2.as_array().iter().copied().collect(),
-            })
-        })
-        .collect::<PyResult<_>>()?;
-    Ok(lp::Moments { n: *n, groups })
+    let (n, mean, m2) = m;
+    let (mean, m2) = (mean.readonly(), m2.readonly());
+    check_shape("moments", mean.shape(), &[None, None])?;
+    let (nv, d) = (mean.shape()[0], mean.shape()[1]);
+    check_shape("moments", m2.shape(), &[Some(nv), Some(d), Some(d)])?;
+    Ok(lp::Moments {
+        n: *n,
+        d,
+        mean: mean.as_array().iter().copied().collect(),
+        m2: m2.as_array().iter().copied().collect(),
+    })
 }
 
 /// The plan of `basis` for the directions and mask of a BTF given as arrays (stage 1, the GIL

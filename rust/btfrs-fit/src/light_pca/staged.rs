@@ -127,10 +127,14 @@ impl Basis {
     }
 }
 
-/// One group's moments over some texels for every slot.
+/// The moments of a set of texels (stage 2, module doc): per view slot, those of the texels'
+/// samples, `d = 3 m` values for the most pairs `m` a slot has (a slot with fewer leaves the rest
+/// zero).
 #[derive(Debug, Clone, PartialEq)]
-pub struct GroupMoments {
-    /// Values per vector.
+pub struct Moments {
+    /// Texels counted.
+    pub n: u64,
+    /// Values per slot (`3 m`).
     pub d: usize,
     /// `[V][d]` means.
     pub mean: Vec<f64>,
@@ -138,25 +142,13 @@ pub struct GroupMoments {
     pub m2: Vec<f64>,
 }
 
-/// The moments of a set of texels (stage 2): the count and each group's (module doc).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Moments {
-    /// Texels counted.
-    pub n: u64,
-    /// One per group ([`super::groups`]: rgb one, ycc luminance then chroma).
-    pub groups: Vec<GroupMoments>,
-}
-
 impl Moments {
     /// Both sets' moments as one (Chan et al.'s pairwise update, module doc).
     pub fn merge(&self, other: &Moments) -> Result<Moments> {
-        let same = self.groups.len() == other.groups.len()
-            && self.groups.iter().zip(&other.groups).all(|(a, b)| {
-                a.d == b.d
-                    && a.mean.len() == b.mean.len()
-                    && a.m2.len() == b.m2.len()
-                    && a.m2.len() == a.mean.len() * a.d
-            });
+        let same = self.d == other.d
+            && self.mean.len() == other.mean.len()
+            && self.m2.len() == other.m2.len()
+            && self.m2.len() == self.mean.len() * self.d;
         ensure_arg!(same, "moments", "the two sets of moments have different layouts (another model or options?)");
         if self.n == 0 {
             return Ok(other.clone());
@@ -166,27 +158,19 @@ impl Moments {
         }
         let (na, nb) = (self.n as f64, other.n as f64);
         let n = na + nb;
-        let groups = self
-            .groups
-            .iter()
-            .zip(&other.groups)
-            .map(|(a, b)| {
-                let d = a.d;
-                let delta: Vec<f64> = a.mean.iter().zip(&b.mean).map(|(x, y)| y - x).collect();
-                let mean = a.mean.iter().zip(&delta).map(|(x, dl)| x + dl * nb / n).collect();
-                let f = na * nb / n;
-                let mut m2: Vec<f64> = a.m2.iter().zip(&b.m2).map(|(x, y)| x + y).collect();
-                m2.par_chunks_mut(d * d).zip(delta.par_chunks(d)).for_each(|(m, dl)| {
-                    for i in 0..d {
-                        for j in 0..d {
-                            m[i * d + j] += dl[i] * dl[j] * f;
-                        }
-                    }
-                });
-                GroupMoments { d, mean, m2 }
-            })
-            .collect();
-        Ok(Moments { n: self.n + other.n, groups })
+        let d = self.d;
+        let delta: Vec<f64> = self.mean.iter().zip(&other.mean).map(|(x, y)| y - x).collect();
+        let mean = self.mean.iter().zip(&delta).map(|(x, dl)| x + dl * nb / n).collect();
+        let f = na * nb / n;
+        let mut m2: Vec<f64> = self.m2.iter().zip(&other.m2).map(|(x, y)| x + y).collect();
+        m2.par_chunks_mut(d * d).zip(delta.par_chunks(d)).for_each(|(m, dl)| {
+            for i in 0..d {
+                for j in 0..d {
+                    m[i * d + j] += dl[i] * dl[j] * f;
+                }
+            }
+        });
+        Ok(Moments { n: self.n + other.n, d, mean, m2 })
     }
 }
 
@@ -199,11 +183,10 @@ pub fn moments(block: &BtfRef<'_>, plan: &Plan) -> Result<Moments> {
 }
 
 impl Moments {
-    /// The moments of no texel for the slots of `plan`: one group of `3 m` samples per slot,
-    /// `m` the most pairs a slot has (a slot with fewer leaves the rest zero).
+    /// The moments of no texel for the slots of `plan`.
     pub fn empty(plan: &Plan) -> Moments {
         let (nv, d) = (plan.slots.len(), 3 * plan.max_pairs());
-        Moments { n: 0, groups: vec![GroupMoments { d, mean: vec![0.0; nv * d], m2: vec![0.0; nv * d * d] }] }
+        Moments { n: 0, d, mean: vec![0.0; nv * d], m2: vec![0.0; nv * d * d] }
     }
 
     /// Add the texels of `block` (the plan's directions and mask; checked by the caller): per
@@ -218,9 +201,8 @@ impl Moments {
         }
         let (na, nb) = (self.n as f64, t as f64);
         let n = na + nb;
-        let gm = &mut self.groups[0];
-        let d = gm.d;
-        gm.mean.par_chunks_mut(d).zip(gm.m2.par_chunks_mut(d * d)).enumerate().for_each(|(v, (mean, m2))| {
+        let d = self.d;
+        self.mean.par_chunks_mut(d).zip(self.m2.par_chunks_mut(d * d)).enumerate().for_each(|(v, (mean, m2))| {
             let sd = 3 * plan.pairs(v);
             let x = plan.samples(block, v, scan);
             let mut mb = vec![0.0f64; sd];
@@ -260,20 +242,15 @@ pub fn table(m: &Moments, plan: &Plan, opts: &PcaOptions) -> Result<Vec<f32>> {
     let nv = plan.slots.len();
     let d = 3 * plan.max_pairs();
     let planes = group_planes(opts.colour, km, kc);
-    let ok = m.n > 0
-        && m.groups.len() == 1
-        && m.groups[0].d == d
-        && m.groups[0].mean.len() == nv * d
-        && m.groups[0].m2.len() == nv * d * d;
+    let ok = m.n > 0 && m.d == d && m.mean.len() == nv * d && m.m2.len() == nv * d * d;
     ensure_arg!(ok, "moments", "expected the moments of {nv} view slots of {d} samples over some texels");
-    let gm = &m.groups[0];
     let stride = 3 + km * if opts.colour == Colour::Rgb { 3 } else { 1 } + 2 * kc;
     let mut table = vec![0.0f32; nv * g * stride];
     table.par_chunks_mut(g * stride).enumerate().for_each(|(v, slot)| {
         let sd = 3 * plan.pairs(v);
-        let m2 = &gm.m2[v * d * d..(v + 1) * d * d];
+        let m2 = &m.m2[v * d * d..(v + 1) * d * d];
         let c = DMatrix::<f64>::from_fn(sd, sd, |i, j| 0.5 * (m2[i * d + j] + m2[j * d + i]));
-        let mu = nalgebra::DVector::from_column_slice(&gm.mean[v * d..v * d + sd]);
+        let mu = nalgebra::DVector::from_column_slice(&m.mean[v * d..v * d + sd]);
         let parts: Vec<(Vec<f32>, DMatrix<f32>)> = plan
             .group_maps(v, opts.colour)
             .into_iter()
@@ -510,7 +487,7 @@ mod tests {
         let parts = [moments(&rows(&b, 0, 3), &plan).unwrap(), moments(&rows(&b, 3, 8), &plan).unwrap()];
         let merged = parts[0].merge(&parts[1]).unwrap();
         assert_eq!(merged.n, 64);
-        let (gm, d) = (&merged.groups[0], merged.groups[0].d);
+        let (gm, d) = (&merged, merged.d);
         assert_eq!(d, 3 * nl);
         let mut worst = 0.0f64;
         for v in [0, 1, nv - 1] {
@@ -526,7 +503,7 @@ mod tests {
                     } else {
                         0.0 // the padding of a slot with fewer pairs
                     };
-                    for m in [&gm.m2, &whole.groups[0].m2] {
+                    for m in [&gm.m2, &whole.m2] {
                         worst = worst.max((m[v * d * d + i * d + j] - m2).abs() / scale);
                     }
                 }
@@ -538,7 +515,7 @@ mod tests {
         // (merged in f64): measured 4.5e-7 of the largest entry, f32 rounding of 64-term sums.
         assert!(worst <= 2e-6, "the merged second moments differ by {worst:e} of the largest from the f64 sums");
         // Merging with an empty set is the identity; different layouts are refused.
-        let empty = Moments { n: 0, groups: merged.groups.clone() };
+        let empty = Moments { n: 0, ..merged.clone() };
         assert_eq!(empty.merge(&merged).unwrap(), merged);
         let few: Vec<bool> = (0..nv * nl).map(|i| i % nl < 40).collect();
         let other_plan = basis.plan(b.views, b.lights, Some(&few)).unwrap();
