@@ -160,13 +160,18 @@ fn cached_middle(kv: usize, kl: usize, lb: &str) -> String {
     s
 }
 
-/// One light, the middle form: a loop over the row's words, its body written out over the rows.
-fn direct_middle(kv: usize, kl: usize, lb: &str) -> String {
-    let rw = kl.div_ceil(4);
+/// The head both one-light forms share: the signature, the light basis and its groups of four.
+fn direct_head(kl: usize, lb: &str) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "fn eval_direct(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {{");
     let _ = writeln!(s, "    let yl = {lb}(l);");
     s.push_str(&light_groups(kl, "    "));
+    s
+}
+
+/// One light, the middle form: a loop over the row's words, its body written out over the rows.
+fn direct_middle(kv: usize, kl: usize, lb: &str) -> String {
+    let (rw, mut s) = (kl.div_ceil(4), direct_head(kl, lb));
     let groups: Vec<String> = (0..rw).map(|w| format!("g{w}")).collect();
     let _ = writeln!(s, "    let gl = array<vec4<f32>, {rw}>({});", groups.join(", "));
     let _ = writeln!(s, "    let sb = mp.scale_bias;\n    var out = vec3<f32>(0.0);");
@@ -343,11 +348,7 @@ fn view_part(kv: usize, kl: usize) -> (String, &'static str) {
 
 /// One light, straight-line: each coefficient row dotted with the light basis as it is loaded.
 fn direct_straight(kv: usize, kl: usize, lb: &str) -> String {
-    let rw = kl.div_ceil(4);
-    let mut s = String::new();
-    let _ = writeln!(s, "fn eval_direct(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {{");
-    let _ = writeln!(s, "    let yl = {lb}(l);");
-    s.push_str(&light_groups(kl, "    "));
+    let (rw, mut s) = (kl.div_ceil(4), direct_head(kl, lb));
     let _ = writeln!(s, "    let sb = mp.scale_bias;\n    var out = vec3<f32>(0.0);");
     let _ = writeln!(s, "    for (var ch = 0u; ch < 3u; ch++) {{");
     let _ = writeln!(s, "        let o = mp.coeffs + (texel * 3u + ch) * {}u;\n        var acc = 0.0;", kv * rw);
