@@ -22,12 +22,12 @@
 //!
 //! where `E` is the energy of the sampled function, estimated by solid-angle quadrature over the
 //! present pairs ([`solid_angle_weights`]). `||c(lambda)||^2` decreases monotonically in lambda,
-//! so lambda is found by bisection (in log space, to 1e-6 relative).
+//! so lambda is found by a safeguarded Newton iteration (to 1e-7 relative, `btfrs_numerics::cls`).
 //!
 //! **Fitting in the eigenbasis.** `A` depends only on the directions and the mask, which every
 //! texel shares: it is eigen-decomposed once, `A = Q D Q^T`, and per texel and channel
-//! `c~ = Q^T b`, `||c(lambda)||^2 = sum_k c~_k^2 / (d_k + lambda)^2`, so each bisection step costs
-//! O(k). With the complete (view, light) grid `A` is a Kronecker product,
+//! `c~ = Q^T b`, `||c(lambda)||^2 = sum_k c~_k^2 / (d_k + lambda)^2`, so each step of that search
+//! costs O(k). With the complete (view, light) grid `A` is a Kronecker product,
 //! `A = (Yv^T Yv) kron (Yl^T Yl)`, and only the two small factors are decomposed; the texel's
 //! `[V, L]` data matrix `F` is then rotated by `b~ = (Yv Qv)^T F (Yl Ql)`, two matrix products that
 //! are batched over a block of texels into two large GEMMs (`dense::gemm_into`: `matrixmultiply`
@@ -327,7 +327,12 @@ impl Plan {
                         coef[i * kl..(i + 1) * kl].copy_from_slice(&bt[i * w + col * kl..i * w + (col + 1) * kl]);
                     }
                     let (t, ch) = (col % nb, col / nb);
-                    lambda[t * 3 + ch] = scratch.solve(&mut coef, &self.d, energy[t * 3 + ch], self.cls);
+                    // The search starts at the texel's previous channel's lambda (columns go
+                    // channel by channel), which is scale-invariant and so close when the
+                    // channels differ mostly in brightness; a neighbouring texel's would tie
+                    // the result, to the tolerance, to where the blocks start.
+                    let hint = if ch > 0 { lambda[t * 3 + ch - 1] } else { 0.0 };
+                    lambda[t * 3 + ch] = scratch.solve(&mut coef, &self.d, energy[t * 3 + ch], self.cls, hint);
                     for i in 0..kv {
                         bt[i * w + col * kl..i * w + (col + 1) * kl].copy_from_slice(&coef[i * kl..(i + 1) * kl]);
                     }
@@ -364,7 +369,12 @@ impl Plan {
                         coef[k] = rb[k * cols + col];
                     }
                     let (t, ch) = (col % nb, col / nb);
-                    lambda[t * 3 + ch] = scratch.solve(&mut coef, &self.d, energy[t * 3 + ch], self.cls);
+                    // The search starts at the texel's previous channel's lambda (columns go
+                    // channel by channel), which is scale-invariant and so close when the
+                    // channels differ mostly in brightness; a neighbouring texel's would tie
+                    // the result, to the tolerance, to where the blocks start.
+                    let hint = if ch > 0 { lambda[t * 3 + ch - 1] } else { 0.0 };
+                    lambda[t * 3 + ch] = scratch.solve(&mut coef, &self.d, energy[t * 3 + ch], self.cls, hint);
                     for k in 0..n {
                         rb[k * cols + col] = coef[k];
                     }
@@ -712,9 +722,9 @@ impl Model for Sh {
 Real spherical harmonics over the view and over the light direction, `view_coeffs x
 light_coeffs` coefficients per texel and channel, fitted by constrained least squares (the
 paper's appendix): each fit's coefficient energy is kept within the sampled function's (the
-Lagrange multiplier found by bisection), which makes the coefficients robust to the 8-bit
-quantization that follows (`quantize=false` keeps float32; `cls=false` is plain least squares,
-for comparison). Texels are processed `chunk_texels` at a time, so a memory-mapped BTF streams
+Lagrange multiplier found by Newton's method on the secular equation), which makes the
+coefficients robust to the 8-bit quantization that follows (`quantize=false` keeps float32;
+`cls=false` is plain least squares, for comparison). Texels are processed `chunk_texels` at a time, so a memory-mapped BTF streams
 through. Double-SH models also render under an environment by the SH method (paper 002,
 section 4: `btfrs.render(..., environment=env, lighting=\"sh\")`).";
     const OPTIONS: &'static [Spec] = &[

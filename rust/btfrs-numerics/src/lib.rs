@@ -4,7 +4,7 @@
 //! * [`dense`]: column- and row-major views, GEMM over rayon (nalgebra's `matrixmultiply`),
 //!   small symmetric eigenproblems in `f64`, orthonormalization.
 //! * [`cls`]: constrained least squares (paper 002, appendix): energy-bounded solutions by
-//!   bisection on the Lagrange multiplier.
+//!   a safeguarded Newton iteration on the Lagrange multiplier.
 //! * [`mod@kmeans`]: k-means++ seeding and Lloyd iterations on column-major points.
 //! * [`rpca`]: randomized PCA (Halko et al.'s range finder), streamed through chunks when
 //!   memory is limited; principal coordinates of texels.

@@ -15,16 +15,20 @@ use rayon::prelude::*;
 /// treated as 1.
 pub fn quantize(coeffs: &[f32], per_channel: usize) -> (Vec<u8>, [f32; 3], [f32; 3]) {
     let pc = per_channel.max(1);
-    let chan = |k: usize| (k / pc) % 3;
-    let mut lo = [f32::INFINITY; 3];
-    let mut hi = [f32::NEG_INFINITY; 3];
-    for (k, &x) in coeffs.iter().enumerate() {
-        let c = chan(k);
-        if x.is_finite() {
+    // Channel blocks of `pc` values, channel `i % 3` for block `i`: whole blocks per task, so
+    // that no value pays for an index division.
+    let fold = |(mut lo, mut hi): ([f32; 3], [f32; 3]), (i, block): (usize, &[f32])| {
+        let c = i % 3;
+        for &x in block.iter().filter(|x| x.is_finite()) {
             lo[c] = lo[c].min(x);
             hi[c] = hi[c].max(x);
         }
-    }
+        (lo, hi)
+    };
+    let none = || ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    let (lo, hi) = coeffs.par_chunks(pc).enumerate().fold(none, fold).reduce(none, |(a, b), (c, d)| {
+        (std::array::from_fn(|k| a[k].min(c[k])), std::array::from_fn(|k| b[k].max(d[k])))
+    });
     let mut scale = [0.0f32; 3];
     let mut bias = [0.0f32; 3];
     for c in 0..3 {
@@ -33,18 +37,18 @@ pub fn quantize(coeffs: &[f32], per_channel: usize) -> (Vec<u8>, [f32; 3], [f32;
             scale[c] = ((hi[c] as f64 - lo[c] as f64) / 255.0) as f32;
         }
     }
-    let q = coeffs
-        .par_iter()
-        .enumerate()
-        .map(|(k, &x)| {
-            let c = chan(k);
-            if scale[c] > 0.0 && x.is_finite() {
-                ((x as f64 - bias[c] as f64) / scale[c] as f64).round().clamp(0.0, 255.0) as u8
-            } else {
-                0
+    let mut q = vec![0u8; coeffs.len()];
+    q.par_chunks_mut(pc).zip(coeffs.par_chunks(pc)).enumerate().for_each(|(i, (q, block))| {
+        let c = i % 3;
+        if scale[c] > 0.0 {
+            let (b, s) = (bias[c] as f64, scale[c] as f64);
+            for (q, &x) in q.iter_mut().zip(block) {
+                if x.is_finite() {
+                    *q = ((x as f64 - b) / s).round().clamp(0.0, 255.0) as u8;
+                }
             }
-        })
-        .collect();
+        }
+    });
     (q, scale, bias)
 }
 
