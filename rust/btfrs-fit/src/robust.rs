@@ -160,13 +160,24 @@ fn median(v: &mut [f32]) -> f32 {
         }
         return if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) };
     }
-    let (lo, mid, _) = v.select_nth_unstable_by(n / 2, f32::total_cmp);
+    // Select on integer keys in the order of `f32::total_cmp` (its own definition: the bits
+    // with the magnitude flipped below zero), in place, then back: an integer comparison is a
+    // fraction of `total_cmp`'s, and the screen takes two of these medians per image.
+    let key = |b: u32| (b ^ (((b as i32 >> 31) as u32) >> 1)) as i32;
+    // SAFETY: `f32` and `i32` have the same size and alignment, and every bit pattern is valid
+    // for both; the slice is only reborrowed for this function.
+    let keys: &mut [i32] = unsafe { std::slice::from_raw_parts_mut(v.as_mut_ptr().cast::<i32>(), n) };
+    keys.iter_mut().for_each(|k| *k = key(*k as u32));
+    let (lo, mid, _) = keys.select_nth_unstable(n / 2);
     let hi = *mid;
-    if n % 2 == 1 {
-        hi
-    } else {
-        let lo_max = lo.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-        0.5 * (lo_max + hi)
+    let lo_max = if n % 2 == 0 { lo.iter().copied().max() } else { None };
+    // The map is its own inverse (it flips the magnitude bits of negative values only, and
+    // keeps the sign bit).
+    keys.iter_mut().for_each(|k| *k = key(*k as u32));
+    let back = |k: i32| f32::from_bits(key(k as u32) as u32);
+    match lo_max {
+        None => back(hi),
+        Some(l) => 0.5 * (back(l) + back(hi)),
     }
 }
 
@@ -311,43 +322,44 @@ pub fn screen_images(
     let lum = luminance_by_pair(data, texels, npairs);
     let per_pair: Vec<(usize, f32, f32)> = flat
         .par_iter()
-        .map(|(p, nlt, nvw, nb)| {
-            let (p, nlt, nvw) = (*p as usize, *nlt as usize, *nvw as usize);
-            let x = &lum[p * ns..(p + 1) * ns];
-            let (mut sum, mut lo, mut hi, mut d) =
-                (vec![0.0f32; ns], vec![0.0f32; ns], vec![0.0f32; ns], vec![0.0f32; ns]);
-            let mut spread = |from: usize, n: usize| -> f32 {
-                if n < 2 {
-                    return f32::NAN;
-                }
-                // Per texel the neighbours' mean without their smallest and largest (one bad
-                // neighbour moves it little, and it runs across the texels in lockstep, where
-                // a median per texel would not), the ratio to it, and the log of the ratios'
-                // median over the texels: signed, so that a brightness change common to the
-                // texels (a misfired flash) is told from ratios scattered both ways (shadows
-                // at grazing angles, which differ from texel to texel).
-                sum.fill(0.0);
-                lo.fill(f32::INFINITY);
-                hi.fill(f32::NEG_INFINITY);
-                for &o in &nb[from..from + n] {
-                    let row = &lum[o as usize * ns..(o as usize + 1) * ns];
-                    // (Comparisons rather than f32::min/max, whose NaN rules keep the loop
-                    // from vectorising; NaNs here only make this pair's spread NaN.)
-                    for (((s, l), h), &y) in sum.iter_mut().zip(lo.iter_mut()).zip(hi.iter_mut()).zip(row) {
-                        *s += y;
-                        *l = if y < *l { y } else { *l };
-                        *h = if y > *h { y } else { *h };
+        .map_init(
+            || [vec![0.0f32; ns], vec![0.0f32; ns], vec![0.0f32; ns], vec![0.0f32; ns]],
+            |[sum, lo, hi, d], (p, nlt, nvw, nb)| {
+                let (p, nlt, nvw) = (*p as usize, *nlt as usize, *nvw as usize);
+                let x = &lum[p * ns..(p + 1) * ns];
+                let mut spread = |from: usize, n: usize| -> f32 {
+                    if n < 2 {
+                        return f32::NAN;
                     }
-                }
-                let (drop2, keep) = if n > 2 { (1.0, (n - 2) as f32) } else { (0.0, n as f32) };
-                for ((((d, s), l), h), &y) in d.iter_mut().zip(&sum).zip(&lo).zip(&hi).zip(x) {
-                    let m = (s - drop2 * (l + h)) / keep + floor;
-                    *d = (y + floor) / m;
-                }
-                median(&mut d).ln()
-            };
-            (p, spread(0, nlt), spread(nlt, nvw))
-        })
+                    // Per texel the neighbours' mean without their smallest and largest (one bad
+                    // neighbour moves it little, and it runs across the texels in lockstep, where
+                    // a median per texel would not), the ratio to it, and the log of the ratios'
+                    // median over the texels: signed, so that a brightness change common to the
+                    // texels (a misfired flash) is told from ratios scattered both ways (shadows
+                    // at grazing angles, which differ from texel to texel).
+                    sum.fill(0.0);
+                    lo.fill(f32::INFINITY);
+                    hi.fill(f32::NEG_INFINITY);
+                    for &o in &nb[from..from + n] {
+                        let row = &lum[o as usize * ns..(o as usize + 1) * ns];
+                        // (Comparisons rather than f32::min/max, whose NaN rules keep the loop
+                        // from vectorising; NaNs here only make this pair's spread NaN.)
+                        for (((s, l), h), &y) in sum.iter_mut().zip(lo.iter_mut()).zip(hi.iter_mut()).zip(row) {
+                            *s += y;
+                            *l = if y < *l { y } else { *l };
+                            *h = if y > *h { y } else { *h };
+                        }
+                    }
+                    let (drop2, keep) = if n > 2 { (1.0, (n - 2) as f32) } else { (0.0, n as f32) };
+                    for ((((d, s), l), h), &y) in d.iter_mut().zip(sum.iter()).zip(lo.iter()).zip(hi.iter()).zip(x) {
+                        let m = (s - drop2 * (l + h)) / keep + floor;
+                        *d = (y + floor) / m;
+                    }
+                    median(d).ln()
+                };
+                (p, spread(0, nlt), spread(nlt, nvw))
+            },
+        )
         .collect();
     let mut spread = vec![f32::NAN; nv * nl];
     let mut spread_view = vec![f32::NAN; nv * nl];
@@ -589,6 +601,124 @@ pub fn moved_images(
     Ok(moved)
 }
 
+/// Per colour channel of a row of interleaved RGB values: the sum, the two largest values and
+/// the smallest (the screen's gate).
+struct RowStats {
+    sum: [f64; 3],
+    top: [f32; 3],
+    second: [f32; 3],
+    lowest: [f32; 3],
+}
+
+impl RowStats {
+    fn new() -> Self {
+        RowStats {
+            sum: [0.0; 3],
+            top: [f32::NEG_INFINITY; 3],
+            second: [f32::NEG_INFINITY; 3],
+            lowest: [f32::INFINITY; 3],
+        }
+    }
+
+    /// One pixel. (Branch-free selects; a NaN never becomes the top or the lowest, and makes the
+    /// sum NaN: such a row's gate is the floor, and the fit names the value.)
+    #[inline(always)]
+    fn add(&mut self, px: &[f32]) {
+        for c in 0..3 {
+            let x = px[c];
+            self.sum[c] += x as f64;
+            let m = if x < self.top[c] { x } else { self.top[c] };
+            self.second[c] = if m > self.second[c] { m } else { self.second[c] };
+            self.top[c] = if x > self.top[c] { x } else { self.top[c] };
+            self.lowest[c] = if x < self.lowest[c] { x } else { self.lowest[c] };
+        }
+    }
+}
+
+/// [`RowStats`] of a whole row (this loop is the screen's cost on clean data), in the widest
+/// vector registers the CPU has: the wheel is built for the x86-64 baseline, so the AVX2 and
+/// AVX-512 forms are compiled apart and chosen at run time (the same code, [`row_lanes`]).
+fn row_stats(row: &[f32]) -> RowStats {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU has the features the function is compiled for.
+            return unsafe { row_stats_avx512(row) };
+        }
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: as above.
+            return unsafe { row_stats_avx2(row) };
+        }
+    }
+    row_lanes::<12>(row)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn row_stats_avx512(row: &[f32]) -> RowStats {
+    row_lanes::<48>(row)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn row_stats_avx2(row: &[f32]) -> RowStats {
+    row_lanes::<24>(row)
+}
+
+/// [`RowStats`] in `N` independent lanes, `N` a multiple of 12 (so that lane `k` always holds
+/// channel `k % 3`, and the lanes fold to 12), sized to four vector registers per statistic:
+/// one pixel at a time is a chain of dependent scalar selects. The lanes' sums are `f32` over
+/// at most `nl / 4` values each, then added in `f64`; the two largest of a channel are the
+/// two largest of its lanes' two largest.
+#[inline(always)]
+fn row_lanes<const N: usize>(row: &[f32]) -> RowStats {
+    let (mut sum, mut top, mut second, mut lowest) =
+        ([0.0f32; N], [f32::NEG_INFINITY; N], [f32::NEG_INFINITY; N], [f32::INFINITY; N]);
+    let chunks = row.chunks_exact(N);
+    let rest = chunks.remainder();
+    for chunk in chunks {
+        for k in 0..N {
+            let x = chunk[k];
+            sum[k] += x;
+            let m = if x < top[k] { x } else { top[k] };
+            second[k] = if m > second[k] { m } else { second[k] };
+            top[k] = if x > top[k] { x } else { top[k] };
+            lowest[k] = if x < lowest[k] { x } else { lowest[k] };
+        }
+    }
+    for (k, &x) in rest.iter().enumerate() {
+        sum[k] += x;
+        let m = if x < top[k] { x } else { top[k] };
+        second[k] = if m > second[k] { m } else { second[k] };
+        top[k] = if x > top[k] { x } else { top[k] };
+        lowest[k] = if x < lowest[k] { x } else { lowest[k] };
+    }
+    // Fold the lanes to 12, element by element (in vector registers), then to the channels.
+    for g in 1..N / 12 {
+        for k in 0..12 {
+            let (t, s) = (top[g * 12 + k], second[g * 12 + k]);
+            sum[k] += sum[g * 12 + k];
+            let lo = if t < top[k] { t } else { top[k] };
+            let hs = if s > second[k] { s } else { second[k] };
+            second[k] = if lo > hs { lo } else { hs };
+            top[k] = if t > top[k] { t } else { top[k] };
+            lowest[k] = if lowest[g * 12 + k] < lowest[k] { lowest[g * 12 + k] } else { lowest[k] };
+        }
+    }
+    let mut st = RowStats::new();
+    for k in 0..12 {
+        let c = k % 3;
+        st.sum[c] += sum[k] as f64;
+        for x in [top[k], second[k]] {
+            let m = if x < st.top[c] { x } else { st.top[c] };
+            st.second[c] = if m > st.second[c] { m } else { st.second[c] };
+            st.top[c] = if x > st.top[c] { x } else { st.top[c] };
+        }
+        st.lowest[c] = if lowest[k] < st.lowest[c] { lowest[k] } else { st.lowest[c] };
+    }
+    st
+}
+
 /// The values of `btf` far above both their light and their spatial neighbours (module docs),
 /// among the texels of rows `rows` and columns `cols` (the others are only neighbours: a block
 /// with its one-texel halo), with `floor` from [`screen_images`]. Flat indices into `btf.data`
@@ -643,23 +773,13 @@ pub fn screen_values(
                     // (highlights, mostly) are the only ones compared with their neighbours.
                     // (All three channels in one pass over the row: this loop is the screen's
                     // cost on clean data.)
-                    let (mut sum, mut top, mut second) = ([0.0f64; 3], [f32::NEG_INFINITY; 3], [f32::NEG_INFINITY; 3]);
-                    let mut lowest = [f32::INFINITY; 3];
-                    let mut add = |px: &[f32]| {
-                        for c in 0..3 {
-                            // (Branch-free: the two largest by max/min.)
-                            let x = px[c];
-                            sum[c] += x as f64;
-                            second[c] = second[c].max(top[c].min(x));
-                            top[c] = top[c].max(x);
-                            lowest[c] = lowest[c].min(x);
-                        }
-                    };
-                    if per.len() == nl {
-                        row.chunks_exact(3).for_each(&mut add);
+                    let RowStats { sum, top, second, lowest } = if per.len() == nl {
+                        row_stats(row)
                     } else {
-                        per.iter().for_each(|(l, _)| add(&row[l * 3..l * 3 + 3]));
-                    }
+                        let mut st = RowStats::new();
+                        per.iter().for_each(|(l, _)| st.add(&row[l * 3..l * 3 + 3]));
+                        st
+                    };
                     // A row with values below -floor is not radiance (data made from a model's
                     // random coefficients, a difference of images): "8 times its neighbours"
                     // means nothing there, and the row is not screened.
@@ -850,6 +970,72 @@ pub fn fit(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The median against a full sort, for lengths on both sides of the insertion sort's limit,
+    /// with negative values, signed zeros and ties; the values come back (in some order).
+    #[test]
+    fn median_equals_the_middle_of_a_sort() {
+        let mut x = 0x1234_5678_9ABC_DEF1u64;
+        for n in 1..=80usize {
+            let v: Vec<f32> = (0..n)
+                .map(|i| {
+                    x ^= x << 13;
+                    x ^= x >> 7;
+                    x ^= x << 17;
+                    let u = (x >> 40) as f32 / (1u64 << 24) as f32 - 0.5;
+                    match i % 9 {
+                        0 => -0.0,
+                        1 => 0.0,
+                        2 => 0.125,
+                        _ => u * 1e3,
+                    }
+                })
+                .collect();
+            let mut sorted = v.clone();
+            sorted.sort_by(f32::total_cmp);
+            let want = if n % 2 == 1 { sorted[n / 2] } else { 0.5 * (sorted[n / 2 - 1] + sorted[n / 2]) };
+            let mut w = v.clone();
+            assert_eq!(median(&mut w).to_bits(), want.to_bits(), "n {n}");
+            w.sort_by(f32::total_cmp);
+            assert!(w.iter().zip(&sorted).all(|(a, b)| a.to_bits() == b.to_bits()), "n {n}: values changed");
+        }
+    }
+
+    /// The lanes' statistics, in every lane count and in the form this CPU runs, equal a plain
+    /// pass in f64 over every pixel (the sums to f32 rounding): rows of every length up to 100
+    /// pixels, with ties, negative values and values far above the rest.
+    #[test]
+    fn row_statistics_in_lanes_equal_a_plain_pass() {
+        let mut x = 0x9E37_79B9_7F4A_7C15u64;
+        for n in 1..=100 {
+            let row: Vec<f32> = (0..3 * n)
+                .map(|i| {
+                    x ^= x << 13;
+                    x ^= x >> 7;
+                    x ^= x << 17;
+                    let u = (x >> 40) as f32 / (1u64 << 24) as f32;
+                    if i % 17 == 4 {
+                        1000.0 * u
+                    } else if i % 5 == 0 {
+                        0.25
+                    } else {
+                        u - 0.1
+                    }
+                })
+                .collect();
+            for st in [row_stats(&row), row_lanes::<12>(&row), row_lanes::<24>(&row), row_lanes::<48>(&row)] {
+                for c in 0..3 {
+                    let mut v: Vec<f32> = row.iter().skip(c).step_by(3).copied().collect();
+                    let sum: f64 = v.iter().map(|&y| y as f64).sum();
+                    v.sort_by(|a, b| b.total_cmp(a));
+                    assert!((st.sum[c] - sum).abs() <= 1e-6 * v.iter().map(|y| y.abs() as f64).sum::<f64>(), "n {n}");
+                    assert_eq!(st.top[c], v[0], "n {n} channel {c}");
+                    assert_eq!(st.second[c], if n > 1 { v[1] } else { f32::NEG_INFINITY }, "n {n} channel {c}");
+                    assert_eq!(st.lowest[c], v[v.len() - 1], "n {n} channel {c}");
+                }
+            }
+        }
+    }
 
     fn lambert(h: usize, w: usize, nv: usize, nl: usize) -> (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<f32>) {
         let dirs = |n: usize, s: f64| -> Vec<[f64; 3]> {
