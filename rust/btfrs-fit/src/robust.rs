@@ -170,7 +170,7 @@ fn median(v: &mut [f32]) -> f32 {
     keys.iter_mut().for_each(|k| *k = key(*k as u32));
     let (lo, mid, _) = keys.select_nth_unstable(n / 2);
     let hi = *mid;
-    let lo_max = if n % 2 == 0 { lo.iter().copied().max() } else { None };
+    let lo_max = if n.is_multiple_of(2) { lo.iter().copied().max() } else { None };
     // The map is its own inverse (it flips the magnitude bits of negative values only, and
     // keeps the sign bit).
     keys.iter_mut().for_each(|k| *k = key(*k as u32));
@@ -624,8 +624,7 @@ impl RowStats {
     /// sum NaN: such a row's gate is the floor, and the fit names the value.)
     #[inline(always)]
     fn add(&mut self, px: &[f32]) {
-        for c in 0..3 {
-            let x = px[c];
+        for (c, &x) in px.iter().enumerate().take(3) {
             self.sum[c] += x as f64;
             let m = if x < self.top[c] { x } else { self.top[c] };
             self.second[c] = if m > self.second[c] { m } else { self.second[c] };

@@ -137,7 +137,7 @@ impl Solver {
         // usually within tens of percent of this one's), else at the infeasible end.
         let mut x = if hint > lo && hint < hi { hint } else { lo };
         let (mut n, mut s3) = self.norm2_slope(x);
-        if x == lo && !(n > energy) {
+        if x == lo && n.partial_cmp(&energy) != Some(std::cmp::Ordering::Greater) {
             // `lo` is infeasible in exact arithmetic, so this is rounding only (and `lo > 0`:
             // `norm2(0) > energy` is the precondition).
             return lo;
