@@ -347,11 +347,11 @@ def sh(
     Real spherical harmonics over the view and over the light direction, `view_coeffs x light_coeffs`
     coefficients per texel and channel, fitted by constrained least squares (the paper's appendix): each
     fit's coefficient energy is kept within the sampled function's (the Lagrange multiplier found by
-    bisection), which makes the coefficients robust to the 8-bit quantization that follows
-    (`quantize=false` keeps float32; `cls=false` is plain least squares, for comparison). Texels are
-    processed `chunk_texels` at a time, so a memory-mapped BTF streams through. Double-SH models also
-    render under an environment by the SH method (paper 002, section 4: `btfrs.render(...,
-    environment=env, lighting="sh")`).
+    Newton's method on the secular equation), which makes the coefficients robust to the 8-bit
+    quantization that follows (`quantize=false` keeps float32; `cls=false` is plain least squares, for
+    comparison). Texels are processed `chunk_texels` at a time, so a memory-mapped BTF streams through.
+    Double-SH models also render under an environment by the SH method (paper 002, section 4:
+    `btfrs.render(..., environment=env, lighting="sh")`).
 
     Parameters
     ----------
