@@ -220,18 +220,27 @@ pub fn sample_texels(h: usize, w: usize) -> Vec<usize> {
 
 /// Luminance of every pair at the `texels` of `data` (whole ABRDFs of `npairs` RGB pairs,
 /// one after the other), pair-major: `out[p * n + k]` for pair p, texel k. Blocks of 64 pairs
-/// in parallel, each reading 64 pairs of every texel at once (contiguous), so that neither the
-/// reads nor the writes stride across the whole table.
+/// in parallel, each reading 64 pairs of 8 texels at once (contiguous runs) into a small tile
+/// that is written out as runs of 8 texels, so that neither the reads nor the writes stride
+/// across the whole table one value at a time.
 fn luminance_by_pair(data: &[f32], texels: &[usize], npairs: usize) -> Vec<f32> {
+    const PAIRS: usize = 64;
+    const TEX: usize = 8;
     let n = texels.len();
     let mut lum = vec![0.0f32; npairs * n];
-    lum.par_chunks_mut(64 * n).enumerate().for_each(|(blk, out)| {
-        let p0 = blk * 64;
+    lum.par_chunks_mut(PAIRS * n).enumerate().for_each(|(blk, out)| {
+        let p0 = blk * PAIRS;
         let m = out.len() / n;
-        for (k, &t) in texels.iter().enumerate() {
-            let src = &data[(t * npairs + p0) * 3..(t * npairs + p0 + m) * 3];
-            for (i, px) in src.chunks_exact(3).enumerate() {
-                out[i * n + k] = (px[0] + px[1] + px[2]) / 3.0;
+        let mut tile = [[0.0f32; TEX]; PAIRS];
+        for (g, ts) in texels.chunks(TEX).enumerate() {
+            for (k, &t) in ts.iter().enumerate() {
+                let src = &data[(t * npairs + p0) * 3..(t * npairs + p0 + m) * 3];
+                for (row, px) in tile.iter_mut().zip(src.chunks_exact(3)) {
+                    row[k] = (px[0] + px[1] + px[2]) / 3.0;
+                }
+            }
+            for (i, row) in tile.iter().take(m).enumerate() {
+                out[i * n + g * TEX..i * n + g * TEX + ts.len()].copy_from_slice(&row[..ts.len()]);
             }
         }
     });
@@ -431,33 +440,49 @@ pub fn patch_window(h: usize, w: usize) -> (usize, usize, usize, usize) {
     ((h - ph) / 2, (w - pw) / 2, ph, pw)
 }
 
+/// [`ncc`] unshifted, of two images of the same size (every image once): one pass over both.
+/// Eight `f32` lanes per statistic, so that the loop vectorises, each lane summing 8 values
+/// before the totals are taken in `f64` (blocks of 64 values).
+#[inline(always)]
+fn ncc0(a: &[f32], b: &[f32]) -> f32 {
+    let mut tot = [0.0f64; 5];
+    for (ba, bb) in a.chunks(64).zip(b.chunks(64)) {
+        let mut l = [[0.0f32; 8]; 5];
+        let mut add = |k: usize, p: f32, q: f32| {
+            l[0][k] += p;
+            l[1][k] += q;
+            l[2][k] += p * p;
+            l[3][k] += q * q;
+            l[4][k] += p * q;
+        };
+        let (ca, cb) = (ba.chunks_exact(8), bb.chunks_exact(8));
+        let (ra, rb) = (ca.remainder(), cb.remainder());
+        for (ca, cb) in ca.zip(cb) {
+            for k in 0..8 {
+                add(k, ca[k], cb[k]);
+            }
+        }
+        for (k, (&p, &q)) in ra.iter().zip(rb).enumerate() {
+            add(k, p, q);
+        }
+        for (t, lane) in tot.iter_mut().zip(&l) {
+            *t += lane.iter().map(|&x| x as f64).sum::<f64>();
+        }
+    }
+    let [sa, sb, saa, sbb, sab] = tot;
+    let n = a.len() as f64;
+    let (va, vb) = (saa - sa * sa / n, sbb - sb * sb / n);
+    if va <= 1e-12 * saa.max(1e-30) || vb <= 1e-12 * sbb.max(1e-30) {
+        return f32::NAN;
+    }
+    ((sab - sa * sb / n) / (va * vb).sqrt()) as f32
+}
+
 /// Normalized cross correlation of `a` and `b` (`ph x pw` images) over their overlap when `a`'s
 /// texel `(y + dy, x + dx)` is laid on `b`'s `(y, x)`; NaN without contrast.
 fn ncc(a: &[f32], b: &[f32], ph: usize, pw: usize, dy: i32, dx: i32) -> f32 {
     if (dy, dx) == (0, 0) {
-        // Unshifted (every image once): one pass over both, in lanes of 8 with f64 totals.
-        let (mut sa, mut sb, mut saa, mut sbb, mut sab) = (0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
-        for (ca, cb) in a[..ph * pw].chunks(8).zip(b[..ph * pw].chunks(8)) {
-            let (mut la, mut lb, mut laa, mut lbb, mut lab) = (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
-            for (&p, &q) in ca.iter().zip(cb) {
-                la += p;
-                lb += q;
-                laa += p * p;
-                lbb += q * q;
-                lab += p * q;
-            }
-            sa += la as f64;
-            sb += lb as f64;
-            saa += laa as f64;
-            sbb += lbb as f64;
-            sab += lab as f64;
-        }
-        let n = (ph * pw) as f64;
-        let (va, vb) = (saa - sa * sa / n, sbb - sb * sb / n);
-        if va <= 1e-12 * saa.max(1e-30) || vb <= 1e-12 * sbb.max(1e-30) {
-            return f32::NAN;
-        }
-        return ((sab - sa * sb / n) / (va * vb).sqrt()) as f32;
+        return ncc0(&a[..ph * pw], &b[..ph * pw]);
     }
     let (ph_, pw_) = (ph as i32, pw as i32);
     let (y0, y1) = (0.max(-dy), ph_.min(ph_ - dy));
@@ -484,6 +509,86 @@ fn ncc(a: &[f32], b: &[f32], ph: usize, pw: usize, dy: i32, dx: i32) -> f32 {
         return f32::NAN;
     }
     ((sab - sa * sb / n) / (va * vb).sqrt()) as f32
+}
+
+/// The reference image of the pairs `pairs` of `lum` (images of `np` texels, one after the
+/// other): per texel their mean without the smallest and largest (the plain mean of one or two),
+/// into `r[0]` (`r[1]`, `r[2]` scratch). False, and `r[0]` untouched, when there are none.
+/// Neighbour by neighbour across the texels, so the loops vectorise.
+#[inline(always)]
+fn reference_into(lum: &[f32], np: usize, pairs: impl Iterator<Item = usize>, r: &mut [Vec<f32>; 3]) -> bool {
+    let [s, lo, hi] = r;
+    s.fill(0.0);
+    lo.fill(f32::INFINITY);
+    hi.fill(f32::NEG_INFINITY);
+    let mut n = 0usize;
+    for q in pairs {
+        n += 1;
+        for (((s, l), h), &y) in s.iter_mut().zip(lo.iter_mut()).zip(hi.iter_mut()).zip(&lum[q * np..(q + 1) * np]) {
+            *s += y;
+            *l = if y < *l { y } else { *l };
+            *h = if y > *h { y } else { *h };
+        }
+    }
+    if n == 0 {
+        return false;
+    }
+    if n > 2 {
+        let k = (n - 2) as f32;
+        s.iter_mut().zip(lo.iter()).zip(hi.iter()).for_each(|((s, l), h)| *s = (*s - l - h) / k);
+    } else {
+        s.iter_mut().for_each(|s| *s /= n as f32);
+    }
+    true
+}
+
+/// `ncc` of `img` with the reference of `pairs` ([`reference_into`]) unshifted; NaN without
+/// neighbours. Compiled apart for AVX2 and chosen at run time (the wheel targets the x86-64
+/// baseline), as the value screen's gate is.
+fn unshifted_ncc(
+    lum: &[f32],
+    np: usize,
+    pairs: impl Iterator<Item = usize>,
+    img: &[f32],
+    ph: usize,
+    pw: usize,
+    scratch: &mut [Vec<f32>; 3],
+) -> f32 {
+    #[inline(always)]
+    fn body(
+        lum: &[f32],
+        np: usize,
+        pairs: impl Iterator<Item = usize>,
+        img: &[f32],
+        ph: usize,
+        pw: usize,
+        scratch: &mut [Vec<f32>; 3],
+    ) -> f32 {
+        if reference_into(lum, np, pairs, scratch) {
+            ncc0(&img[..ph * pw], &scratch[0][..ph * pw])
+        } else {
+            f32::NAN
+        }
+    }
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn avx2(
+        lum: &[f32],
+        np: usize,
+        pairs: impl Iterator<Item = usize>,
+        img: &[f32],
+        ph: usize,
+        pw: usize,
+        scratch: &mut [Vec<f32>; 3],
+    ) -> f32 {
+        body(lum, np, pairs, img, ph, pw, scratch)
+    }
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has the features the function is compiled for.
+        return unsafe { avx2(lum, np, pairs, img, ph, pw, scratch) };
+    }
+    body(lum, np, pairs, img, ph, pw, scratch)
 }
 
 /// Images moved against their neighbours (a sample knocked between two shots, a misregistered
@@ -524,34 +629,23 @@ pub fn moved_images(
     // The reference image: the neighbours' mean per texel without their smallest and largest
     // (neighbour by neighbour across the texels, so the loop vectorises).
     let reference = |pairs: &[usize]| -> Option<Vec<f32>> {
-        if pairs.is_empty() {
-            return None;
-        }
-        let (mut s, mut lo, mut hi) = (vec![0.0f32; np], vec![f32::INFINITY; np], vec![f32::NEG_INFINITY; np]);
-        for &q in pairs {
-            for (((s, l), h), &y) in s.iter_mut().zip(lo.iter_mut()).zip(hi.iter_mut()).zip(&lum[q * np..(q + 1) * np])
-            {
-                *s += y;
-                *l = if y < *l { y } else { *l };
-                *h = if y > *h { y } else { *h };
-            }
-        }
-        let n = pairs.len();
-        Some(if n > 2 {
-            s.iter().zip(&lo).zip(&hi).map(|((s, l), h)| (s - l - h) / (n - 2) as f32).collect()
-        } else {
-            s.iter().map(|s| s / n as f32).collect()
-        })
+        let mut r = [vec![0.0f32; np], vec![0.0f32; np], vec![0.0f32; np]];
+        reference_into(&lum, np, pairs.iter().copied(), &mut r).then(|| r[0].clone())
     };
     let light_pairs = |v: usize, nb: &[usize]| -> Vec<usize> { nb.iter().map(|&o| v * nl + o).collect() };
     let cases: Vec<(usize, usize, &[usize])> =
         nbrs.iter().enumerate().flat_map(|(v, per)| per.iter().map(move |(l, nb)| (v, *l, nb.as_slice()))).collect();
+    // Every image's correlation with its light neighbours' reference: the part of this check
+    // that runs for every pair (per-thread scratch; compiled for AVX2 where the CPU has it).
     let unshifted: Vec<f32> = cases
         .par_iter()
-        .map(|&(v, l, nb)| match reference(&light_pairs(v, nb)) {
-            Some(r) => ncc(&lum[(v * nl + l) * np..(v * nl + l + 1) * np], &r, ph, pw, 0, 0),
-            None => f32::NAN,
-        })
+        .map_init(
+            || [vec![0.0f32; np], vec![0.0f32; np], vec![0.0f32; np]],
+            |scratch, &(v, l, nb)| {
+                let img = &lum[(v * nl + l) * np..(v * nl + l + 1) * np];
+                unshifted_ncc(&lum, np, nb.iter().map(|&o| v * nl + o), img, ph, pw, scratch)
+            },
+        )
         .collect();
     let mut finite: Vec<f32> = unshifted.iter().copied().filter(|x| x.is_finite()).collect();
     if finite.is_empty() {
