@@ -239,14 +239,9 @@ pub fn fit_hsh(btf: &BtfRef<'_>, opts: &HshOptions, monitor: &Monitor) -> Result
         if monitor.is_cancelled() || scan.failed() {
             return;
         }
-        for col in 0..w {
-            let abrdf = btf.texel(row * w + col);
-            if !scan.check(abrdf) {
-                return;
-            }
-            for (v, slot) in slots.iter().enumerate() {
-                slot.fit_rgb(abrdf, &mut crow[(col * nv + v) * per..(col * nv + v + 1) * per]);
-            }
+        let a = btf.abrdf_len();
+        if !crate::lightfit::fit_row_rgb(&slots, &btf.data[row * w * a..(row + 1) * w * a], a, crow, &scan) {
+            return;
         }
         monitor.advance(1);
     });

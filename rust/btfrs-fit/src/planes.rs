@@ -53,28 +53,37 @@ impl Planes {
                 format!("{} values are not a whole number of {k}-plane texels", values.len()),
             ));
         }
-        if let Some(i) = values.iter().position(|x| !x.is_finite()) {
+        if let Some(i) = values.par_iter().position_first(|x| !x.is_finite()) {
             return Err(Error::arg("planes", format!("coefficient at flat index {i} is not finite")));
         }
         let texels = values.len() / k;
-        let empty = || (vec![f32::INFINITY; groups], vec![f32::NEG_INFINITY; groups]);
-        let (lo, hi) = values
-            .par_chunks(k)
-            .fold(empty, |(mut lo, mut hi), t| {
-                for (p, &x) in t.iter().enumerate() {
-                    let g = group_of(p);
-                    lo[g] = lo[g].min(x);
-                    hi[g] = hi[g].max(x);
+        // Each plane's range first (blocks of texels in parallel, no group lookup in the inner
+        // loop, so that it vectorises), then the planes' ranges joined per group.
+        let empty = || (vec![f32::INFINITY; k], vec![f32::NEG_INFINITY; k]);
+        let (plo, phi) = values
+            .par_chunks(k * 256)
+            .fold(empty, |(mut lo, mut hi), block| {
+                for t in block.chunks_exact(k) {
+                    for ((l, h), &x) in lo.iter_mut().zip(hi.iter_mut()).zip(t) {
+                        *l = l.min(x);
+                        *h = h.max(x);
+                    }
                 }
                 (lo, hi)
             })
             .reduce(empty, |(mut a, mut b), (c, d)| {
-                for g in 0..groups {
-                    a[g] = a[g].min(c[g]);
-                    b[g] = b[g].max(d[g]);
+                for p in 0..k {
+                    a[p] = a[p].min(c[p]);
+                    b[p] = b[p].max(d[p]);
                 }
                 (a, b)
             });
+        let (mut lo, mut hi) = (vec![f32::INFINITY; groups], vec![f32::NEG_INFINITY; groups]);
+        for p in 0..k {
+            let g = group_of(p);
+            lo[g] = lo[g].min(plo[p]);
+            hi[g] = hi[g].max(phi[p]);
+        }
         let mut gscale = vec![0.0f32; groups];
         let mut gbias = vec![0.0f32; groups];
         for g in 0..groups {
@@ -85,18 +94,16 @@ impl Planes {
         }
         let scale: Vec<f32> = (0..k).map(|p| gscale[group_of(p)]).collect();
         let bias: Vec<f32> = (0..k).map(|p| gbias[group_of(p)]).collect();
-        let q = values
-            .par_iter()
-            .enumerate()
-            .map(|(i, &x)| {
-                let p = i % k;
-                if scale[p] > 0.0 {
-                    ((x as f64 - bias[p] as f64) / scale[p] as f64).round().clamp(0.0, 255.0) as u8
-                } else {
-                    0
+        // Texel by texel against the planes' scales (no division of the index per value).
+        let (sf, bf): (Vec<f64>, Vec<f64>) = scale.iter().zip(&bias).map(|(&s, &b)| (s as f64, b as f64)).unzip();
+        let mut q = vec![0u8; values.len()];
+        q.par_chunks_mut(k * 64).zip(values.par_chunks(k * 64)).for_each(|(q, x)| {
+            for (q, x) in q.chunks_exact_mut(k).zip(x.chunks_exact(k)) {
+                for (((q, &x), &s), &b) in q.iter_mut().zip(x).zip(&sf).zip(&bf) {
+                    *q = if s > 0.0 { ((x as f64 - b) / s).round().clamp(0.0, 255.0) as u8 } else { 0 };
                 }
-            })
-            .collect();
+            }
+        });
         Ok(Planes { texels, k, q, scale, bias })
     }
 
@@ -108,16 +115,23 @@ impl Planes {
 
     /// Every decoded value (`texels * k`, texel-major).
     pub fn dequantize(&self) -> Vec<f32> {
-        self.q.par_iter().enumerate().map(|(i, &b)| self.bias[i % self.k] + self.scale[i % self.k] * b as f32).collect()
+        let mut out = Vec::new();
+        self.dequantize_into(&mut out);
+        out
     }
 
     /// [`Planes::dequantize`] into `out` (resized to the values' count), reusing its buffer.
     pub fn dequantize_into(&self, out: &mut Vec<f32>) {
         out.resize(self.q.len(), 0.0);
-        out.par_iter_mut()
-            .zip(self.q.par_iter())
-            .enumerate()
-            .for_each(|(i, (o, &b))| *o = self.bias[i % self.k] + self.scale[i % self.k] * b as f32);
+        // Texel by texel against the planes (no division of the index per value).
+        let k = self.k.max(1);
+        out.par_chunks_mut(k * 64).zip(self.q.par_chunks(k * 64)).for_each(|(o, q)| {
+            for (o, q) in o.chunks_exact_mut(k).zip(q.chunks_exact(k)) {
+                for (((o, &b), &s), &c) in o.iter_mut().zip(q).zip(&self.scale).zip(&self.bias) {
+                    *o = c + s * b as f32;
+                }
+            }
+        });
     }
 
     /// The bytes packed four to a little-endian 32-bit word (the GPU store; zero padded).

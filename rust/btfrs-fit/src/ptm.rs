@@ -168,6 +168,14 @@ pub fn fit_ptm(btf: &BtfRef<'_>, opts: &PtmOptions, monitor: &Monitor) -> Result
         if monitor.is_cancelled() || scan.failed() {
             return;
         }
+        if opts.kind == PtmKind::Rgb {
+            let a = btf.abrdf_len();
+            if !crate::lightfit::fit_row_rgb(&slots, &btf.data[row * w * a..(row + 1) * w * a], a, crow, &scan) {
+                return;
+            }
+            monitor.advance(1);
+            return;
+        }
         for col in 0..w {
             let abrdf = btf.texel(row * w + col);
             if !scan.check(abrdf) {
@@ -175,13 +183,8 @@ pub fn fit_ptm(btf: &BtfRef<'_>, opts: &PtmOptions, monitor: &Monitor) -> Result
             }
             for (v, slot) in slots.iter().enumerate() {
                 let out = &mut crow[(col * nv + v) * per_coef..(col * nv + v + 1) * per_coef];
-                match opts.kind {
-                    PtmKind::Rgb => slot.fit_rgb(abrdf, out),
-                    PtmKind::Lrgb => {
-                        let base = &mut rrow[(col * nv + v) * 3..(col * nv + v + 1) * 3];
-                        fit_lrgb(slot, abrdf, btf.lights, out, base)
-                    }
-                }
+                let base = &mut rrow[(col * nv + v) * 3..(col * nv + v + 1) * 3];
+                fit_lrgb(slot, abrdf, btf.lights, out, base)
             }
         }
         monitor.advance(1);
@@ -309,14 +312,40 @@ impl Ptm {
         let k = nv * pc;
         // group of plane p: (slot, coefficient index)
         let group = |p: usize| (p / pc) * NCOEF + p % NCOEF;
+        // Each plane's range first (texel blocks in parallel, no group lookup in the inner loop,
+        // so it vectorises), then the planes' ranges joined per group. 255 x is exact in f64 and
+        // monotone, so the range of 255 x is 255 times the range of x.
+        let kk = k.max(1);
+        let (plo, phi) = self
+            .coeffs
+            .par_chunks(kk * 256)
+            .fold(
+                || (vec![f32::INFINITY; k], vec![f32::NEG_INFINITY; k]),
+                |(mut lo, mut hi), block| {
+                    for t in block.chunks_exact(kk) {
+                        for ((l, h), &x) in lo.iter_mut().zip(hi.iter_mut()).zip(t) {
+                            *l = l.min(x);
+                            *h = h.max(x);
+                        }
+                    }
+                    (lo, hi)
+                },
+            )
+            .reduce(
+                || (vec![f32::INFINITY; k], vec![f32::NEG_INFINITY; k]),
+                |(a, b), (c, d)| {
+                    (
+                        a.iter().zip(&c).map(|(x, y)| x.min(*y)).collect(),
+                        b.iter().zip(&d).map(|(x, y)| x.max(*y)).collect(),
+                    )
+                },
+            );
         let mut lo = vec![f64::INFINITY; nv * NCOEF];
         let mut hi = vec![f64::NEG_INFINITY; nv * NCOEF];
-        for t in self.coeffs.chunks_exact(k) {
-            for (p, &x) in t.iter().enumerate() {
-                let g = group(p);
-                lo[g] = lo[g].min(255.0 * x as f64);
-                hi[g] = hi[g].max(255.0 * x as f64);
-            }
+        for p in 0..k {
+            let g = group(p);
+            lo[g] = lo[g].min(255.0 * plo[p] as f64);
+            hi[g] = hi[g].max(255.0 * phi[p] as f64);
         }
         let mut gs = vec![(1.0f32, 0i32); nv * NCOEF];
         for g in 0..nv * NCOEF {
@@ -337,15 +366,17 @@ impl Ptm {
         let scale: Vec<f32> = (0..k).map(|p| (gs[group(p)].0 as f64 / 255.0) as f32).collect();
         let bias: Vec<f32> =
             (0..k).map(|p| (-(gs[group(p)].1 as f64) * gs[group(p)].0 as f64 / 255.0) as f32).collect();
-        let q: Vec<u8> = self
-            .coeffs
-            .par_iter()
-            .enumerate()
-            .map(|(i, &a)| {
-                let (s, b) = gs[group(i % k)];
-                (a as f64 * 255.0 / s as f64 + b as f64).round().clamp(0.0, 255.0) as u8
-            })
-            .collect();
+        // Per plane its file scale and bias as f64 (the same arithmetic as value by value with
+        // the group looked up, without a division of the index per value).
+        let sb: Vec<(f64, f64)> = (0..k).map(|p| (gs[group(p)].0 as f64, gs[group(p)].1 as f64)).collect();
+        let mut q = vec![0u8; self.coeffs.len()];
+        q.par_chunks_mut(kk * 64).zip(self.coeffs.par_chunks(kk * 64)).for_each(|(q, a)| {
+            for (q, a) in q.chunks_exact_mut(kk).zip(a.chunks_exact(kk)) {
+                for ((q, &a), &(s, b)) in q.iter_mut().zip(a).zip(&sb) {
+                    *q = (a as f64 * 255.0 / s + b).round().clamp(0.0, 255.0) as u8;
+                }
+            }
+        });
         let c = Planes { texels: self.height * self.width, k, q, scale, bias };
         let r = self.rgb.as_ref().map(|r| Planes {
             texels: self.height * self.width,
