@@ -616,13 +616,8 @@ mod tests {
     /// a row that is not a multiple of 8 and slots over a subset of the pairs (a mask).
     #[test]
     fn groups_of_texels_equal_one_at_a_time() {
-        let mut x = 0x0123_4567_89AB_CDEFu64;
-        let mut u = move || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = btfrs_core::rng::Rng::new(1);
+        let mut u = move || rng.next_f64();
         let (nv, nl, w) = (3usize, 20usize, 19usize);
         let abrdf = nv * nl * 3;
         let row: Vec<f32> = (0..w * abrdf).map(|_| u() as f32).collect();

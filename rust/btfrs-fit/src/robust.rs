@@ -1068,14 +1068,11 @@ mod tests {
     /// with negative values, signed zeros and ties; the values come back (in some order).
     #[test]
     fn median_equals_the_middle_of_a_sort() {
-        let mut x = 0x1234_5678_9ABC_DEF1u64;
+        let mut rng = btfrs_core::rng::Rng::new(3);
         for n in 1..=80usize {
             let v: Vec<f32> = (0..n)
                 .map(|i| {
-                    x ^= x << 13;
-                    x ^= x >> 7;
-                    x ^= x << 17;
-                    let u = (x >> 40) as f32 / (1u64 << 24) as f32 - 0.5;
+                    let u = rng.next_f64() as f32 - 0.5;
                     match i % 9 {
                         0 => -0.0,
                         1 => 0.0,
@@ -1099,14 +1096,11 @@ mod tests {
     /// pixels, with ties, negative values and values far above the rest.
     #[test]
     fn row_statistics_in_lanes_equal_a_plain_pass() {
-        let mut x = 0x9E37_79B9_7F4A_7C15u64;
+        let mut rng = btfrs_core::rng::Rng::new(5);
         for n in 1..=100 {
             let row: Vec<f32> = (0..3 * n)
                 .map(|i| {
-                    x ^= x << 13;
-                    x ^= x >> 7;
-                    x ^= x << 17;
-                    let u = (x >> 40) as f32 / (1u64 << 24) as f32;
+                    let u = rng.next_f64() as f32;
                     if i % 17 == 4 {
                         1000.0 * u
                     } else if i % 5 == 0 {

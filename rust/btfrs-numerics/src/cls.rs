@@ -204,13 +204,8 @@ mod tests {
     /// to 1e-6 relative, on the feasible side, and the coefficients are `b / (d + lambda)`.
     #[test]
     fn multiplier_matches_a_bisection_reference() {
-        let mut state = 0x2545f4914f6cdd1du64;
-        let mut uniform = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = btfrs_core::rng::Rng::new(7);
+        let mut uniform = move || rng.next_f64();
         let mut solver = Solver::new(64);
         let mut active = 0;
         for case in 0..400 {
