@@ -31,6 +31,34 @@ pub struct Planes {
     pub bias: Vec<f32>,
 }
 
+/// The smallest and largest value of each of the `k` planes of `values` (`texels * k`,
+/// texel-major; infinities for none): blocks of texels in parallel, plane by plane with no
+/// lookup in the inner loop, so that it vectorises. The quantizers join these per group.
+pub fn plane_ranges(values: &[f32], k: usize) -> (Vec<f32>, Vec<f32>) {
+    let empty = || (vec![f32::INFINITY; k], vec![f32::NEG_INFINITY; k]);
+    if k == 0 {
+        return empty();
+    }
+    values
+        .par_chunks(k * 256)
+        .fold(empty, |(mut lo, mut hi), block| {
+            for t in block.chunks_exact(k) {
+                for ((l, h), &x) in lo.iter_mut().zip(hi.iter_mut()).zip(t) {
+                    *l = l.min(x);
+                    *h = h.max(x);
+                }
+            }
+            (lo, hi)
+        })
+        .reduce(empty, |(mut a, mut b), (c, d)| {
+            for p in 0..k {
+                a[p] = a[p].min(c[p]);
+                b[p] = b[p].max(d[p]);
+            }
+            (a, b)
+        })
+}
+
 impl Planes {
     /// Quantize `values` (`texels * k`, texel-major, finite) plane by plane.
     pub fn quantize(values: &[f32], k: usize) -> Result<Planes> {
@@ -57,27 +85,7 @@ impl Planes {
             return Err(Error::arg("planes", format!("coefficient at flat index {i} is not finite")));
         }
         let texels = values.len() / k;
-        // Each plane's range first (blocks of texels in parallel, no group lookup in the inner
-        // loop, so that it vectorises), then the planes' ranges joined per group.
-        let empty = || (vec![f32::INFINITY; k], vec![f32::NEG_INFINITY; k]);
-        let (plo, phi) = values
-            .par_chunks(k * 256)
-            .fold(empty, |(mut lo, mut hi), block| {
-                for t in block.chunks_exact(k) {
-                    for ((l, h), &x) in lo.iter_mut().zip(hi.iter_mut()).zip(t) {
-                        *l = l.min(x);
-                        *h = h.max(x);
-                    }
-                }
-                (lo, hi)
-            })
-            .reduce(empty, |(mut a, mut b), (c, d)| {
-                for p in 0..k {
-                    a[p] = a[p].min(c[p]);
-                    b[p] = b[p].max(d[p]);
-                }
-                (a, b)
-            });
+        let (plo, phi) = plane_ranges(values, k);
         let (mut lo, mut hi) = (vec![f32::INFINITY; groups], vec![f32::NEG_INFINITY; groups]);
         for p in 0..k {
             let g = group_of(p);
@@ -208,11 +216,15 @@ mod tests {
             assert!((a - b).abs() <= p.scale[i % k] * 0.5 + 1e-5, "{i}: {a} vs {b}");
             assert_eq!(b, p.get(i / k, i % k));
         }
-        // the extremes of every plane are exact
+        // the extremes of every plane (300 texels: two blocks of the parallel range pass) are
+        // the bias and the top of the plane's 255 steps
         for pl in 0..k {
             let col: Vec<f32> = vals.iter().skip(pl).step_by(k).copied().collect();
             let lo = col.iter().cloned().fold(f32::INFINITY, f32::min);
+            let hi = col.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
             assert_eq!(p.bias[pl], lo);
+            assert!((p.bias[pl] + 255.0 * p.scale[pl] - hi).abs() <= 1e-5 * hi.abs().max(1.0), "plane {pl}");
+            assert_eq!(plane_ranges(&vals, k).1[pl], hi);
         }
     }
 

@@ -312,34 +312,10 @@ impl Ptm {
         let k = nv * pc;
         // group of plane p: (slot, coefficient index)
         let group = |p: usize| (p / pc) * NCOEF + p % NCOEF;
-        // Each plane's range first (texel blocks in parallel, no group lookup in the inner loop,
-        // so it vectorises), then the planes' ranges joined per group. 255 x is exact in f64 and
-        // monotone, so the range of 255 x is 255 times the range of x.
+        // Each plane's range, then the planes' ranges joined per group. 255 x is exact in f64
+        // and monotone, so the range of 255 x is 255 times the range of x.
         let kk = k.max(1);
-        let (plo, phi) = self
-            .coeffs
-            .par_chunks(kk * 256)
-            .fold(
-                || (vec![f32::INFINITY; k], vec![f32::NEG_INFINITY; k]),
-                |(mut lo, mut hi), block| {
-                    for t in block.chunks_exact(kk) {
-                        for ((l, h), &x) in lo.iter_mut().zip(hi.iter_mut()).zip(t) {
-                            *l = l.min(x);
-                            *h = h.max(x);
-                        }
-                    }
-                    (lo, hi)
-                },
-            )
-            .reduce(
-                || (vec![f32::INFINITY; k], vec![f32::NEG_INFINITY; k]),
-                |(a, b), (c, d)| {
-                    (
-                        a.iter().zip(&c).map(|(x, y)| x.min(*y)).collect(),
-                        b.iter().zip(&d).map(|(x, y)| x.max(*y)).collect(),
-                    )
-                },
-            );
+        let (plo, phi) = crate::planes::plane_ranges(&self.coeffs, k);
         let mut lo = vec![f64::INFINITY; nv * NCOEF];
         let mut hi = vec![f64::NEG_INFINITY; nv * NCOEF];
         for p in 0..k {
