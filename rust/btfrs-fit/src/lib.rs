@@ -46,6 +46,7 @@ pub mod rbf;
 pub mod registry;
 pub mod robust;
 pub mod sh;
+mod simd;
 pub mod srf;
 pub mod svbrdf;
 

@@ -237,40 +237,26 @@ impl Slot {
     }
 }
 
-/// Fit one row of texels (`row`: their ABRDFs, `abrdf` values each) in every view slot into
-/// `out` (`[texel][slot][3 k]`), each texel's values checked by `scan` first; false as soon as
-/// one is not finite. PTM-RGB and HSH share it.
-///
-/// On a CPU with AVX-512 the texels go 8 at a time: the accumulators of one coefficient are a
-/// vector across the 8 texels (3 k vectors of 8 doubles stay in the 32 registers), so that
-/// every multiply-add fills its lanes, where one texel at a time leaves most of them idle. Each
-/// texel's sums are the same products added in the same order, so the result is the same to
-/// the bit.
-pub fn fit_row_rgb(
-    slots: &[Slot],
-    row: &[f32],
-    abrdf: usize,
-    out: &mut [f32],
-    scan: &btfrs_core::btf::TexelScan,
-) -> bool {
-    #[cfg(target_arch = "x86_64")]
-    if slots.first().is_some_and(|s| matches!(s.k, 4 | 6 | 9 | 16)) && std::arch::is_x86_feature_detected!("avx512f") {
-        // SAFETY: the CPU has the features the function is compiled for.
-        return unsafe { fit_row_avx512(slots, row, abrdf, out, scan) };
+crate::simd::by_cpu! {
+    /// Fit one row of texels (`row`: their ABRDFs, `abrdf` values each) in every view slot into
+    /// `out` (`[texel][slot][3 k]`), each texel's values checked by `scan` first; false as soon as
+    /// one is not finite. PTM-RGB and HSH share it.
+    ///
+    /// On a CPU with AVX-512 the texels go 8 at a time: the accumulators of one coefficient are a
+    /// vector across the 8 texels (3 k vectors of 8 doubles stay in the 32 registers), so that
+    /// every multiply-add fills its lanes, where one texel at a time leaves most of them idle. Each
+    /// texel's sums are the same products added in the same order, so the result is the same to
+    /// the bit.
+    pub fn fit_row_rgb(
+        slots: &[Slot],
+        row: &[f32],
+        abrdf: usize,
+        out: &mut [f32],
+        scan: &btfrs_core::btf::TexelScan,
+    ) -> bool {
+        ["avx512f"] => fit_row_groups::<8>(slots, row, abrdf, out, scan),
+        _ => fit_row_groups::<1>(slots, row, abrdf, out, scan),
     }
-    fit_row_groups::<1>(slots, row, abrdf, out, scan)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn fit_row_avx512(
-    slots: &[Slot],
-    row: &[f32],
-    abrdf: usize,
-    out: &mut [f32],
-    scan: &btfrs_core::btf::TexelScan,
-) -> bool {
-    fit_row_groups::<8>(slots, row, abrdf, out, scan)
 }
 
 #[inline(always)]

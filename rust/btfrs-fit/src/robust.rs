@@ -542,20 +542,11 @@ fn reference_into(lum: &[f32], np: usize, pairs: impl Iterator<Item = usize>, r:
     true
 }
 
-/// `ncc` of `img` with the reference of `pairs` ([`reference_into`]) unshifted; NaN without
-/// neighbours. Compiled apart for AVX2 and chosen at run time (the wheel targets the x86-64
-/// baseline), as the value screen's gate is.
-fn unshifted_ncc(
-    lum: &[f32],
-    np: usize,
-    pairs: impl Iterator<Item = usize>,
-    img: &[f32],
-    ph: usize,
-    pw: usize,
-    scratch: &mut [Vec<f32>; 3],
-) -> f32 {
-    #[inline(always)]
-    fn body(
+crate::simd::by_cpu! {
+    /// `ncc` of `img` with the reference of `pairs` ([`reference_into`]) unshifted; NaN without
+    /// neighbours. Compiled apart for AVX2 and chosen at run time (the wheel targets the x86-64
+    /// baseline), as the value screen's gate is.
+    fn unshifted_ncc(
         lum: &[f32],
         np: usize,
         pairs: impl Iterator<Item = usize>,
@@ -563,32 +554,13 @@ fn unshifted_ncc(
         ph: usize,
         pw: usize,
         scratch: &mut [Vec<f32>; 3],
-    ) -> f32 {
+    ) -> f32 ["avx2"] {
         if reference_into(lum, np, pairs, scratch) {
             ncc0(&img[..ph * pw], &scratch[0][..ph * pw])
         } else {
             f32::NAN
         }
     }
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn avx2(
-        lum: &[f32],
-        np: usize,
-        pairs: impl Iterator<Item = usize>,
-        img: &[f32],
-        ph: usize,
-        pw: usize,
-        scratch: &mut [Vec<f32>; 3],
-    ) -> f32 {
-        body(lum, np, pairs, img, ph, pw, scratch)
-    }
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has the features the function is compiled for.
-        return unsafe { avx2(lum, np, pairs, img, ph, pw, scratch) };
-    }
-    body(lum, np, pairs, img, ph, pw, scratch)
 }
 
 /// Images moved against their neighbours (a sample knocked between two shots, a misregistered
@@ -728,34 +700,15 @@ impl RowStats {
     }
 }
 
-/// [`RowStats`] of a whole row (this loop is the screen's cost on clean data), in the widest
-/// vector registers the CPU has: the wheel is built for the x86-64 baseline, so the AVX2 and
-/// AVX-512 forms are compiled apart and chosen at run time (the same code, [`row_lanes`]).
-fn row_stats(row: &[f32]) -> RowStats {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU has the features the function is compiled for.
-            return unsafe { row_stats_avx512(row) };
-        }
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: as above.
-            return unsafe { row_stats_avx2(row) };
-        }
+crate::simd::by_cpu! {
+    /// [`RowStats`] of a whole row (this loop is the screen's cost on clean data), in the widest
+    /// vector registers the CPU has: the wheel is built for the x86-64 baseline, so the AVX2 and
+    /// AVX-512 forms are compiled apart and chosen at run time (the same code, [`row_lanes`]).
+    fn row_stats(row: &[f32]) -> RowStats {
+        ["avx512f"] => row_lanes::<48>(row),
+        ["avx2"] => row_lanes::<24>(row),
+        _ => row_lanes::<12>(row),
     }
-    row_lanes::<12>(row)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn row_stats_avx512(row: &[f32]) -> RowStats {
-    row_lanes::<48>(row)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn row_stats_avx2(row: &[f32]) -> RowStats {
-    row_lanes::<24>(row)
 }
 
 /// [`RowStats`] in `N` independent lanes, `N` a multiple of 12 (so that lane `k` always holds
