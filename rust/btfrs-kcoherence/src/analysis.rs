@@ -371,95 +371,183 @@ fn units(h: usize, opts: &AnalysisOptions, radii: &[usize]) -> u64 {
     (opts.levels * opts.iterations) as u64 + rows
 }
 
-/// One row of the index and distance outputs, with its row number.
-type RowsMut<'a> = (usize, (&'a mut [u32], &'a mut [f32]));
-
 /// Brute-force `m` most similar interior neighbourhoods of every interior pixel of a level.
 ///
-/// The result is the `m` smallest `(distance, index)` pairs, ties going to the lower index, as a
-/// scan in index order with a running top `m` finds them. The scan prunes a window as soon as its
-/// partial sum loses to the current `m`-th entry, so it is cheap once that bound is tight: every
-/// pixel therefore first scores the shifted matches of its left neighbour (`q + 1` for each of
-/// its `q`: in a coherent sample they are near the final answer), then scans the rest. The order
-/// only changes how much is pruned, never the result: the distances are the same sums in the
-/// same order, and the pairs are compared as a whole.
+/// Every pair of interior windows is scored, displacement by displacement: for a displacement
+/// `v`, the distances `e(u) = d(u, u + v)` of every pixel to the pixel `v` away are computed
+/// once, and a window pair's distance is the box sum of `e` over the window (its rows summed
+/// left to right, then the row sums top to bottom). Each pixel thus costs one texton distance
+/// per displacement instead of one per window pixel, and the sum of a pair is the same whichever
+/// of its two pixels it is scored for, so only half the displacements are visited and each pair
+/// is offered to both pixels. Each pixel keeps the `m` smallest `(distance, index)` pairs, ties
+/// going to the lower index; the pairs are compared as a whole, so the result does not depend
+/// on the visiting order or on how the displacements are split among the threads.
+///
+/// A texton distance is an entry of the texton distance table, except for appearance vectors of
+/// at most four values (an RGB texture's): a table of a thousand textons is 4 MB, and reading it
+/// at random waits on the cache for every entry, so those entries are recomputed from the pixels'
+/// vectors instead, by the table's own formula (the same bits).
 fn similar_neighbourhoods(lv: &Level, r: usize, m: usize, monitor: &Monitor) -> Result<Neighbours> {
-    let (h, w) = (lv.height, lv.width);
-    let tex = &lv.textons;
-    let t = tex.count();
-    let ri = r as isize;
-    let deltas: Vec<isize> = (-ri..=ri).flat_map(|dy| (-ri..=ri).map(move |dx| dy * w as isize + dx)).collect();
-    let side = 2 * r + 1;
-    let mut index = vec![u32::MAX; h * w * m];
-    let mut dist = vec![f32::INFINITY; h * w * m];
-    let rows: Vec<RowsMut<'_>> = index.chunks_mut(w * m).zip(dist.chunks_mut(w * m)).enumerate().collect();
-    rows.into_par_iter().filter(|(y, _)| *y >= r && *y < h - r).try_for_each(|(y, (irow, drow))| -> Result<()> {
-        monitor.check()?;
-        let mut base = vec![0usize; deltas.len()];
-        let mut best: Vec<(f32, u32)> = Vec::with_capacity(m + 1);
-        let mut seeds: Vec<u32> = Vec::with_capacity(m);
-        for x in r..w - r {
-            let p = (y * w + x) as isize;
-            for (b, &d) in base.iter_mut().zip(&deltas) {
-                *b = tex.assign[(p + d) as usize] as usize * t;
+    match lv.textons.dim {
+        1 => search(lv, r, m, &Vectors::<1>::new(lv), monitor),
+        2 => search(lv, r, m, &Vectors::<2>::new(lv), monitor),
+        3 => search(lv, r, m, &Vectors::<3>::new(lv), monitor),
+        4 => search(lv, r, m, &Vectors::<4>::new(lv), monitor),
+        _ => search(lv, r, m, &Table(&lv.textons), monitor),
+    }
+}
+
+/// The texton distance of pixel pairs, as [`search`] reads it.
+trait PairCost: Sync {
+    /// `out[i]` = the distance between pixel `u + i` and pixel `u + i + v`.
+    fn run(&self, u: usize, v: usize, out: &mut [f32]);
+}
+
+/// Entries of the texton distance table.
+struct Table<'a>(&'a Textons);
+
+impl PairCost for Table<'_> {
+    fn run(&self, u: usize, v: usize, out: &mut [f32]) {
+        let (t, assign, dist) = (self.0.count(), &self.0.assign, &self.0.dist);
+        for ((o, &a), &b) in out.iter_mut().zip(&assign[u..]).zip(&assign[u + v..]) {
+            *o = dist[a as usize * t + b as usize];
+        }
+    }
+}
+
+/// The table's entries recomputed from the pixels' appearance vectors of `D` values.
+struct Vectors<const D: usize> {
+    /// Every pixel's texton's vector, widened.
+    pixels: Vec<[f64; D]>,
+}
+
+impl<const D: usize> Vectors<D> {
+    fn new(lv: &Level) -> Self {
+        let tex = &lv.textons;
+        let at = |a: u16, k: usize| tex.centers[a as usize * D + k] as f64;
+        Self { pixels: tex.assign.iter().map(|&a| std::array::from_fn(|k| at(a, k))).collect() }
+    }
+}
+
+impl<const D: usize> PairCost for Vectors<D> {
+    fn run(&self, u: usize, v: usize, out: &mut [f32]) {
+        for ((o, a), b) in out.iter_mut().zip(&self.pixels[u..]).zip(&self.pixels[u + v..]) {
+            // `Textons::from_parts`'s entry: the squared differences in f64, summed in order.
+            let mut e = (a[0] - b[0]) * (a[0] - b[0]);
+            for k in 1..D {
+                e += (a[k] - b[k]) * (a[k] - b[k]);
             }
-            // The left neighbour's matches, shifted one column right.
-            seeds.clear();
-            if x > r {
-                seeds.extend(irow[(x - 1) * m..x * m].iter().filter(|&&q| q != u32::MAX).map(|&q| q + 1).filter(
-                    |&q| {
-                        let (qx, qy) = (q as usize % w, q as usize / w);
-                        qx < w - r && !(qy.abs_diff(y) <= r && qx.abs_diff(x) <= r)
-                    },
-                ));
-            }
-            best.clear();
-            // The current m-th entry (infinite until there are m).
-            let mut worst = (f32::INFINITY, u32::MAX);
-            let consider = |q: usize, best: &mut Vec<(f32, u32)>, worst: &mut (f32, u32)| {
-                let qu = q as u32;
-                let q = q as isize;
-                let mut s = 0.0f32;
-                for (rb, rd) in base.chunks_exact(side).zip(deltas.chunks_exact(side)) {
-                    for (&b, &d) in rb.iter().zip(rd) {
-                        s += tex.dist[b + tex.assign[(q + d) as usize] as usize];
-                    }
-                    // A partial sum only grows: once it loses to the m-th pair, so does the whole.
-                    if s > worst.0 || (s == worst.0 && qu > worst.1) {
-                        return;
-                    }
-                }
-                let pos = best.partition_point(|e| e.0 < s || (e.0 == s && e.1 < qu));
-                best.insert(pos, (s, qu));
-                if best.len() > m {
-                    best.pop();
-                }
-                if best.len() == m {
-                    *worst = best[m - 1];
-                }
-            };
-            for &q in &seeds {
-                consider(q as usize, &mut best, &mut worst);
-            }
-            for qy in r..h - r {
-                for qx in r..w - r {
-                    if qy.abs_diff(y) <= r && qx.abs_diff(x) <= r {
-                        continue;
-                    }
-                    let q = qy * w + qx;
-                    if !seeds.contains(&(q as u32)) {
-                        consider(q, &mut best, &mut worst);
-                    }
-                }
-            }
-            for (j, &(d, i)) in best.iter().enumerate() {
-                irow[x * m + j] = i;
-                drow[x * m + j] = d;
+            *o = e as f32;
+        }
+    }
+}
+
+/// Every pixel's `m` best `(distance, index)` pairs so far, in order (empty: `(inf, MAX)`).
+struct Lists {
+    m: usize,
+    best: Vec<(f32, u32)>,
+    /// Every pixel's `m`-th distance, apart: almost every offer loses to it, and this check
+    /// then reads 4 bytes per pixel instead of a pixel's whole list.
+    worst: Vec<f32>,
+}
+
+impl Lists {
+    fn new(pixels: usize, m: usize) -> Self {
+        Self { m, best: vec![(f32::INFINITY, u32::MAX); pixels * m], worst: vec![f32::INFINITY; pixels] }
+    }
+
+    /// Offer `(s, q)` to pixel `p`.
+    #[inline(always)]
+    fn offer(&mut self, p: usize, s: f32, q: u32) {
+        if s > self.worst[p] {
+            return;
+        }
+        let l = &mut self.best[p * self.m..(p + 1) * self.m];
+        let before = |e: &(f32, u32)| s < e.0 || (s == e.0 && q < e.1);
+        if !before(&l[l.len() - 1]) {
+            return;
+        }
+        let mut j = l.len() - 1;
+        while j > 0 && before(&l[j - 1]) {
+            l[j] = l[j - 1];
+            j -= 1;
+        }
+        l[j] = (s, q);
+        self.worst[p] = l[l.len() - 1].0;
+    }
+
+    /// The `m` best of both, per pixel.
+    fn merge(mut self, other: Self) -> Self {
+        for (p, l) in other.best.chunks(self.m).enumerate() {
+            for &(s, q) in l.iter().take_while(|e| e.1 != u32::MAX) {
+                self.offer(p, s, q);
             }
         }
-        monitor.advance(1);
-        Ok(())
-    })?;
+        self
+    }
+}
+
+/// [`similar_neighbourhoods`] with texton distances from `cost`.
+fn search<C: PairCost>(lv: &Level, r: usize, m: usize, cost: &C, monitor: &Monitor) -> Result<Neighbours> {
+    let (h, w) = (lv.height, lv.width);
+    let (ih, iw) = (h - 2 * r, w - 2 * r);
+    let side = 2 * r + 1;
+    let n = h * w;
+    // One task per vertical displacement `dy >= 0` (with `dx > 0` when `dy = 0`): the other
+    // half are the same pairs seen from the other pixel.
+    let lists = (0..ih)
+        .into_par_iter()
+        .try_fold(
+            || (Lists::new(n, m), Vec::new(), Vec::new()),
+            |(mut lists, mut e, mut hs), dy| -> Result<_> {
+                monitor.check()?;
+                let dxs = if dy == 0 { 1 } else { 1 - iw as isize }..iw as isize;
+                for dx in dxs {
+                    if dy <= r && dx.unsigned_abs() <= r {
+                        continue; // the windows overlap
+                    }
+                    // Pixels p = (x, y) with p and p + (dx, dy) interior: x in x0..x1, y in r..y1.
+                    let x0 = (r as isize).max(r as isize - dx) as usize;
+                    let x1 = ((w - r) as isize).min((w - r) as isize - dx) as usize;
+                    let y1 = h - r - dy;
+                    let (nx, ny) = (x1 - x0, y1 - r);
+                    let (ew, eh) = (nx + 2 * r, ny + 2 * r);
+                    let v = (dy as isize * w as isize + dx) as usize;
+                    // e over the windows' pixels, then its row sums over `side` columns.
+                    e.resize(ew * eh, 0.0f32);
+                    hs.resize(nx * eh, 0.0f32);
+                    for (j, (er, hr)) in e.chunks_exact_mut(ew).zip(hs.chunks_exact_mut(nx)).enumerate() {
+                        cost.run(j * w + x0 - r, v, er);
+                        hr.copy_from_slice(&er[..nx]);
+                        for k in 1..side {
+                            for (a, &b) in hr.iter_mut().zip(&er[k..k + nx]) {
+                                *a += b;
+                            }
+                        }
+                    }
+                    let mut col = vec![0.0f32; nx];
+                    for j in 0..ny {
+                        col.copy_from_slice(&hs[j * nx..(j + 1) * nx]);
+                        for k in 1..side {
+                            for (a, &b) in col.iter_mut().zip(&hs[(j + k) * nx..(j + k + 1) * nx]) {
+                                *a += b;
+                            }
+                        }
+                        let p0 = (j + r) * w + x0;
+                        for (i, &s) in col.iter().enumerate() {
+                            let p = p0 + i;
+                            lists.offer(p, s, (p + v) as u32);
+                            lists.offer(p + v, s, p as u32);
+                        }
+                    }
+                }
+                monitor.advance(1);
+                Ok((lists, e, hs))
+            },
+        )
+        .map(|l| l.map(|(lists, _, _)| lists))
+        .try_reduce(|| Lists::new(n, m), |a, b| Ok(a.merge(b)))?;
+    let (index, dist) = lists.best.into_iter().map(|(s, q)| (q, s)).unzip();
     Ok(Neighbours { radius: r, m, index, dist })
 }
 
@@ -504,6 +592,56 @@ mod tests {
         }
         // Border pixels have no entries.
         assert_eq!(nb.index[0], u32::MAX);
+    }
+
+    #[test]
+    fn every_pixel_gets_the_best_pairs_of_an_exhaustive_scan() {
+        // Few textons (so many windows tie exactly and the index must break the ties), vectors
+        // of 3 values (distances recomputed from the vectors) and of 6 (the table), radii 1
+        // and 2, on a level too big for one thread's share of the displacements.
+        for (dim, r) in [(3usize, 1usize), (3, 2), (6, 1), (6, 2)] {
+            let (h, w) = (17usize, 15usize);
+            let data = (0..h * w * dim).map(|i| btfrs_core::rng::hash01(dim as u64, i as i64, 1) as f32).collect();
+            let f = Features::new(h, w, dim, data).unwrap();
+            let opts = AnalysisOptions { textons: 6, levels: 1, m: 5, iterations: 4, seed: 2 };
+            let an = Analysis::of_features(f, opts, &[r], &Monitor::new()).unwrap();
+            let lv = &an.levels[0];
+            let nb = lv.neighbours(r).unwrap();
+            let d = |a: usize, b: usize| lv.textons.d(lv.textons.assign[a], lv.textons.assign[b]);
+            let side = 2 * r + 1;
+            for y in r..h - r {
+                for x in r..w - r {
+                    let p = y * w + x;
+                    let mut all: Vec<(f32, u32, f64)> = Vec::new();
+                    for qy in r..h - r {
+                        for qx in r..w - r {
+                            if qy.abs_diff(y) <= r && qx.abs_diff(x) <= r {
+                                continue;
+                            }
+                            let q = qy * w + qx;
+                            // Row sums left to right, then the rows top to bottom; and in f64.
+                            let (mut s, mut s64) = (0.0f32, 0.0f64);
+                            for oy in 0..side {
+                                let mut row = 0.0f32;
+                                for ox in 0..side {
+                                    let o = oy * w + ox;
+                                    row += d(p - r * w - r + o, q - r * w - r + o);
+                                    s64 += d(p - r * w - r + o, q - r * w - r + o) as f64;
+                                }
+                                s += row;
+                            }
+                            all.push((s, q as u32, s64));
+                        }
+                    }
+                    all.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                    for (j, &(s, q, s64)) in all.iter().take(5).enumerate() {
+                        assert_eq!(nb.index[p * 5 + j], q, "dim {dim}, r {r}, pixel ({x}, {y}), rank {j}");
+                        assert_eq!(nb.dist[p * 5 + j], s);
+                        assert!((s as f64 - s64).abs() <= 1e-5 * (1.0 + s64));
+                    }
+                }
+            }
+        }
     }
 
     #[test]

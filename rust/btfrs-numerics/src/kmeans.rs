@@ -5,7 +5,9 @@
 //! matrix, i.e. point `i` is `points[i * dim..(i + 1) * dim]` (a BTF's texel-major data is such a
 //! matrix of ABRDFs). Squared distances are computed as `|x|^2 - 2 x.c + |c|^2` with one GEMM per
 //! iteration (a parallel `matrixmultiply` GEMM), so the cost is that of a matrix product even for long
-//! vectors; sums are accumulated in `f64`, and every sum has a fixed order, so the result
+//! vectors; points of at most four values (an RGB texture's pixels, for texton analysis) are
+//! compared directly in `f64` instead, where the GEMM's table would cost more than its arithmetic;
+//! sums are accumulated in `f64`, and every sum has a fixed order, so the result
 //! depends only on the seed, never on the number of threads.
 //!
 //! * **Seeding**: greedy k-means++ (Arthur and Vassilvitskii 2007) as scikit-learn does it: each
@@ -122,15 +124,29 @@ fn distances(points: &[f32], dim: usize, norms: &[f64], cand: &[f32]) -> Vec<f64
 }
 
 /// Greedy k-means++ seeding; returns `[k', dim]` centres, `k' <= k`.
+///
+/// Each round scores every candidate against every point. Two things keep that cheap without
+/// changing a bit of the result:
+/// * very short vectors (an RGB texture's pixels) hold all the candidates in the lanes of one
+///   vector ([`potentials`]);
+/// * longer ones skip a point whose nearest centre `a` so far is far from the candidate `c`:
+///   when `|c - a|^2 >= PRUNE |x - a|^2`, the triangle inequality puts `c` farther from `x` than
+///   `a` is, so the point keeps its distance whatever `|x - c|` is. `PRUNE` is 4 (twice the
+///   distance) with a margin far above the rounding of the `f32` sums, so a skipped point is
+///   one whose computed distance would have lost too.
 fn seed_plus_plus(points: &[f32], dim: usize, norms: &[f64], k: usize, seed: u64) -> Vec<f32> {
     let n = norms.len();
     let mut rng = Rng::new(seed);
     let first = rng.below(n);
     let mut centers: Vec<f32> = points[first * dim..(first + 1) * dim].to_vec();
     let mut closest: Vec<f64> = points.par_chunks(dim).map(|x| direct(x, &centers)).collect();
+    // The centre `closest` measures, for the pruning bound.
+    let mut near = vec![0u32; n];
     let trials = 2 + (k as f64).ln() as usize;
     let mut cdf = vec![0.0f64; n];
     let mut d = vec![0.0f64; n * trials];
+    let parallel = n * trials * dim > SEED_SERIAL_WORK;
+    let short = dim < 8 && trials <= LANES;
     while centers.len() / dim < k {
         // Draw candidates proportionally to the squared distance (inverse CDF over a prefix sum).
         let mut acc = 0.0;
@@ -149,36 +165,156 @@ fn seed_plus_plus(points: &[f32], dim: usize, norms: &[f64], k: usize, seed: u64
             })
             .collect();
         let cand: Vec<f32> = picks.iter().flat_map(|&p| points[p * dim..(p + 1) * dim].iter().copied()).collect();
-        // Each point's distance to each candidate and, per block of points, the potential each
-        // candidate would leave; blocks are fixed and summed in order, so the result does not
-        // depend on the threads. The distances are direct (x - c)^2 sums, exactly 0 between
-        // equal points, which is what the seeding must see.
-        let pots: Vec<Vec<f64>> = d
-            .par_chunks_mut(SEED_BLOCK * trials)
-            .zip(closest.par_chunks(SEED_BLOCK))
-            .zip(points.par_chunks(SEED_BLOCK * dim))
-            .map(|((dd, cl), xs)| {
-                let mut pot = vec![0.0f64; trials];
-                for ((o, &best), x) in dd.chunks_mut(trials).zip(cl).zip(xs.chunks(dim)) {
-                    for (c, (o, p)) in o.iter_mut().zip(pot.iter_mut()).enumerate() {
-                        *o = direct(x, &cand[c * dim..(c + 1) * dim]);
-                        *p += best.min(*o);
-                    }
+        // The candidates' distances to the centres so far (`[candidate][centre]`), for the bound.
+        let kc = centers.len() / dim;
+        let cc: Vec<f64> = if short {
+            Vec::new()
+        } else {
+            (0..trials * kc)
+                .into_par_iter()
+                .map(|j| direct(&cand[j / kc * dim..][..dim], &centers[j % kc * dim..][..dim]))
+                .collect()
+        };
+        // Each point's distance to each candidate (`[block][candidate][point]`, infinite where
+        // the bound skips it) and, per block of points, the potential each candidate would
+        // leave; blocks are fixed and summed in order, so the result does not depend on the
+        // threads. The distances are direct (x - c)^2 sums, exactly 0 between equal points,
+        // which is what the seeding must see.
+        let block = |b: usize, dd: &mut [f64], cl: &[f64], nr: &[u32]| -> Vec<f64> {
+            let len = cl.len();
+            let xs = &points[b * SEED_BLOCK * dim..][..len * dim];
+            if short {
+                return if trials <= LANES / 2 {
+                    potentials::<{ LANES / 2 }>(xs, dim, cl, &cand, trials, dd)
+                } else {
+                    potentials::<LANES>(xs, dim, cl, &cand, trials, dd)
+                };
+            }
+            for (i, ((x, &best), &a)) in xs.chunks(dim).zip(cl).zip(nr).enumerate() {
+                for c in 0..trials {
+                    dd[c * len + i] = if cc[c * kc + a as usize] >= PRUNE * best {
+                        f64::INFINITY
+                    } else {
+                        direct(x, &cand[c * dim..(c + 1) * dim])
+                    };
                 }
-                pot
-            })
-            .collect();
+            }
+            // Point by point, every candidate's sum at once: each sum keeps its order (points in
+            // turn), and the candidates' sums are independent chains the core overlaps.
+            let mut pot = [0.0f64; MAX_TRIALS];
+            let pot = &mut pot[..trials];
+            let dd = &dd[..trials * len];
+            for (i, &best) in cl.iter().enumerate() {
+                for (c, p) in pot.iter_mut().enumerate() {
+                    let o = dd[c * len + i];
+                    // Not `f64::min`: no distance is NaN, and a plain comparison is one instruction.
+                    *p += if o < best { o } else { best };
+                }
+            }
+            pot.to_vec()
+        };
+        // A small round (a texture's few thousand pixels) costs less than waking the threads.
+        let pots: Vec<Vec<f64>> = if parallel {
+            d.par_chunks_mut(SEED_BLOCK * trials)
+                .zip(closest.par_chunks(SEED_BLOCK))
+                .zip(near.par_chunks(SEED_BLOCK))
+                .enumerate()
+                .map(|(b, ((dd, cl), nr))| block(b, dd, cl, nr))
+                .collect()
+        } else {
+            d.chunks_mut(SEED_BLOCK * trials)
+                .zip(closest.chunks(SEED_BLOCK))
+                .zip(near.chunks(SEED_BLOCK))
+                .enumerate()
+                .map(|(b, ((dd, cl), nr))| block(b, dd, cl, nr))
+                .collect()
+        };
         let pots: Vec<f64> = (0..trials).map(|c| pots.iter().map(|p| p[c]).sum()).collect();
         // The candidate that leaves the smallest potential wins (first on ties: deterministic).
         let best = (0..trials).fold(0, |b, c| if pots[c] < pots[b] { c } else { b });
-        closest.par_iter_mut().zip(d.par_chunks(trials)).for_each(|(c, dd)| *c = c.min(dd[best]));
+        let update = |((cl, nr), dd): ((&mut [f64], &mut [u32]), &[f64])| {
+            let len = cl.len();
+            for ((c, a), &o) in cl.iter_mut().zip(nr.iter_mut()).zip(&dd[best * len..(best + 1) * len]) {
+                if o < *c {
+                    *c = o;
+                    *a = kc as u32;
+                }
+            }
+        };
+        if parallel {
+            closest
+                .par_chunks_mut(SEED_BLOCK)
+                .zip(near.par_chunks_mut(SEED_BLOCK))
+                .zip(d.par_chunks(SEED_BLOCK * trials))
+                .for_each(update);
+        } else {
+            closest
+                .chunks_mut(SEED_BLOCK)
+                .zip(near.chunks_mut(SEED_BLOCK))
+                .zip(d.chunks(SEED_BLOCK * trials))
+                .for_each(update);
+        }
         centers.extend_from_slice(&cand[best * dim..(best + 1) * dim]);
     }
     centers
 }
 
+/// The pruning bound's factor (see [`seed_plus_plus`]): 4, the squared triangle inequality,
+/// widened by 1%, far above the relative rounding of a sum of squares in `f32` (about `1e-3`
+/// for a BTF texel's twenty thousand values).
+const PRUNE: f64 = 4.04;
+
 /// Points per block of the seeding's parallel passes.
 const SEED_BLOCK: usize = 256;
+
+/// Most candidates held in the lanes of one vector by the seeding of very short vectors.
+const LANES: usize = 16;
+
+/// The potential each of `trials <= L` candidates (`cand`, `[trials, dim]`) would leave over the
+/// points `xs` (fewer than 8 coordinates each) whose nearest squared distances so far are `cl`,
+/// summed point after point; the distances go to `dd` (`[candidate][point]`). Each distance is
+/// [`direct`]'s (for so few coordinates its sum is one `f32` chain over them): the candidates
+/// sit in the lanes of one vector, coordinate by coordinate, and the lanes past `trials` are
+/// computed and dropped.
+fn potentials<const L: usize>(
+    xs: &[f32],
+    dim: usize,
+    cl: &[f64],
+    cand: &[f32],
+    trials: usize,
+    dd: &mut [f64],
+) -> Vec<f64> {
+    let len = cl.len();
+    let ct: Vec<[f32; L]> =
+        (0..dim).map(|k| std::array::from_fn(|c| if c < trials { cand[c * dim + k] } else { 0.0 })).collect();
+    let mut pot = [0.0f64; L];
+    for (i, (x, &best)) in xs.chunks_exact(dim).zip(cl).enumerate() {
+        let mut s = [0.0f32; L];
+        for (&xk, ck) in x.iter().zip(&ct) {
+            for (s, &c) in s.iter_mut().zip(ck) {
+                let e = xk - c;
+                *s += e * e;
+            }
+        }
+        for (c, (p, &o)) in pot.iter_mut().zip(&s).enumerate() {
+            let o = o as f64;
+            if c < trials {
+                dd[c * len + i] = o;
+            }
+            // Not `f64::min`: no distance is NaN, and a plain comparison is one instruction.
+            *p += if o < best { o } else { best };
+        }
+    }
+    pot[..trials].to_vec()
+}
+
+/// Most candidates a seeding round draws (`2 + ln k` for `k` up to 2^32).
+const MAX_TRIALS: usize = 24;
+
+/// Largest seeding round (points x candidates x coordinates) run on the calling thread: below
+/// it, a round is a few tens of microseconds, about what waking the pool costs, and a texton
+/// analysis runs a thousand rounds.
+const SEED_SERIAL_WORK: usize = 1 << 18;
 
 /// `|x - c|^2`, the differences in `f32` (exact for equal points), summed in `f64`.
 #[inline]
@@ -215,6 +351,9 @@ fn assign_nearest(
     dist: &mut [f64],
 ) -> usize {
     let k = centers.len() / dim;
+    if dim <= SHORT_DIM {
+        return assign_short(points, dim, centers, assign, dist);
+    }
     // In blocks of points, so the [n, k] distances (and the GEMM behind them) are held for one
     // block at a time: a texton analysis with a thousand centres would otherwise hold 12 kB per
     // point. Each point's distances do not depend on the blocking.
@@ -237,6 +376,76 @@ fn assign_nearest(
             .sum::<usize>();
     }
     changed
+}
+
+/// Longest points [`assign_nearest`] compares directly with every centre.
+const SHORT_DIM: usize = 4;
+
+/// [`assign_nearest`] for points of at most [`SHORT_DIM`] values (an RGB texture's pixels): the
+/// distances directly in `f64`, every centre's in turn from a coordinate-major copy of the
+/// centres, so they run in vector lanes. A GEMM over three-value vectors would spend more on
+/// writing its `[n, k]` table than on the arithmetic.
+fn assign_short(points: &[f32], dim: usize, centers: &[f32], assign: &mut [u32], dist: &mut [f64]) -> usize {
+    let k = centers.len() / dim;
+    let ct: Vec<Vec<f64>> = (0..dim).map(|j| centers.chunks(dim).map(|c| c[j] as f64).collect()).collect();
+    assign
+        .par_chunks_mut(SEED_BLOCK)
+        .zip(dist.par_chunks_mut(SEED_BLOCK))
+        .zip(points.par_chunks(SEED_BLOCK * dim))
+        .map(|((a, dd), xs)| {
+            let mut row = vec![0.0f64; k];
+            let mut changed = 0;
+            for ((a, dd), x) in a.iter_mut().zip(dd.iter_mut()).zip(xs.chunks_exact(dim)) {
+                let x0 = x[0] as f64;
+                for (o, &c) in row.iter_mut().zip(&ct[0]) {
+                    *o = (x0 - c) * (x0 - c);
+                }
+                for (&xj, cj) in x.iter().zip(&ct).skip(1) {
+                    let xj = xj as f64;
+                    for (o, &c) in row.iter_mut().zip(cj) {
+                        *o += (xj - c) * (xj - c);
+                    }
+                }
+                let best = argmin(&row);
+                *dd = row[best];
+                changed += usize::from(*a != best as u32);
+                *a = best as u32;
+            }
+            changed
+        })
+        .sum()
+}
+
+/// The first index of the smallest value (none is NaN), scanned in eight interleaved lanes so
+/// that the comparisons do not wait on each other.
+fn argmin(row: &[f64]) -> usize {
+    let mut lanes = [(f64::INFINITY, usize::MAX); 8];
+    let mut chunks = row.chunks_exact(8);
+    for (b, ch) in (&mut chunks).enumerate() {
+        for (l, (&v, lane)) in ch.iter().zip(lanes.iter_mut()).enumerate() {
+            if v < lane.0 {
+                *lane = (v, b * 8 + l);
+            }
+        }
+    }
+    let tail = row.len() - chunks.remainder().len();
+    let mut best = (f64::INFINITY, usize::MAX);
+    for (l, &v) in chunks.remainder().iter().enumerate() {
+        if v < best.0 {
+            best = (v, tail + l);
+        }
+    }
+    // Each lane holds its first smallest; the smallest value's lowest index wins among them.
+    for lane in lanes {
+        if lane.0 < best.0 || (lane.0 == best.0 && lane.1 < best.1) {
+            best = lane;
+        }
+    }
+    if best.1 == usize::MAX {
+        0
+    } else {
+        best.1
+    }
 }
 
 /// Point-centre distances per block of [`assign_nearest`] (2^20: 12 MB of f64 distances and f32
@@ -344,6 +553,126 @@ mod tests {
         let again = means(&pts, 5, 6, &km.assign);
         let worst = again.iter().zip(&km.centers).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
         assert!(worst < 1e-5, "{worst}");
+    }
+
+    /// Greedy k-means++ as the module doc states it, every distance computed: the reference the
+    /// lanes and the pruning must reproduce bit for bit.
+    fn seed_reference(points: &[f32], dim: usize, k: usize, seed: u64) -> Vec<f32> {
+        let n = points.len() / dim;
+        let mut rng = Rng::new(seed);
+        let first = rng.below(n);
+        let mut centers = points[first * dim..(first + 1) * dim].to_vec();
+        let mut closest: Vec<f64> = points.chunks(dim).map(|x| direct(x, &centers)).collect();
+        let trials = 2 + (k as f64).ln() as usize;
+        while centers.len() / dim < k {
+            let mut cdf = Vec::with_capacity(n);
+            let mut acc = 0.0;
+            for &x in &closest {
+                acc += x;
+                cdf.push(acc);
+            }
+            if acc <= 0.0 {
+                break;
+            }
+            let picks: Vec<usize> = (0..trials)
+                .map(|_| {
+                    let u = rng.next_f64() * acc;
+                    cdf.partition_point(|&c| c <= u).min(n - 1)
+                })
+                .collect();
+            let dist = |c: usize, i: usize| direct(&points[i * dim..(i + 1) * dim], &points[picks[c] * dim..][..dim]);
+            // Potentials per block of points, the blocks added in order.
+            let pots: Vec<f64> = (0..trials)
+                .map(|c| {
+                    (0..n)
+                        .step_by(SEED_BLOCK)
+                        .map(|b0| (b0..n.min(b0 + SEED_BLOCK)).fold(0.0, |p, i| p + closest[i].min(dist(c, i))))
+                        .sum()
+                })
+                .collect();
+            let best = (0..trials).fold(0, |b, c| if pots[c] < pots[b] { c } else { b });
+            for (i, c) in closest.iter_mut().enumerate() {
+                *c = c.min(dist(best, i));
+            }
+            centers.extend_from_slice(&points[picks[best] * dim..][..dim]);
+        }
+        centers
+    }
+
+    #[test]
+    fn seeding_skips_only_what_the_reference_would_not_change() {
+        // Separated blobs (where the bound skips most points once each blob has a centre), in
+        // vectors too long for the lanes and short ones, in serial and parallel rounds.
+        for (k, per, dim) in [(8usize, 40usize, 12usize), (5, 90, 3), (12, 60, 70), (6, 300, 40)] {
+            let (pts, _) = blobs(k, per, dim, 4);
+            let norms: Vec<f64> = pts.chunks(dim).map(sq_norm).collect();
+            for want in [k, 3 * k] {
+                let got = seed_plus_plus(&pts, dim, &norms, want, 21);
+                assert_eq!(got, seed_reference(&pts, dim, want, 21), "{k} blobs of {per} in {dim} dimensions");
+            }
+        }
+    }
+
+    #[test]
+    fn lane_potentials_have_the_bits_of_the_direct_ones() {
+        // Up to 7 coordinates, with as many candidates as lanes and fewer, one of them a point.
+        for (dim, trials) in [(1usize, 3usize), (3, 8), (3, 16), (5, 11), (7, 2)] {
+            let mut rng = Rng::new(dim as u64 * 31 + trials as u64);
+            let n = 50;
+            let xs: Vec<f32> = (0..n * dim).map(|_| rng.next_f64() as f32 * 2.0 - 1.0).collect();
+            let mut cand: Vec<f32> = (0..trials * dim).map(|_| rng.next_f64() as f32).collect();
+            cand[..dim].copy_from_slice(&xs[7 * dim..8 * dim]);
+            let cl: Vec<f64> = (0..n).map(|_| rng.next_f64()).collect();
+            let mut dd = vec![0.0f64; n * trials];
+            let got = if trials <= 8 {
+                potentials::<8>(&xs, dim, &cl, &cand, trials, &mut dd)
+            } else {
+                potentials::<16>(&xs, dim, &cl, &cand, trials, &mut dd)
+            };
+            for c in 0..trials {
+                let mut want = 0.0f64;
+                for (i, (x, &best)) in xs.chunks(dim).zip(&cl).enumerate() {
+                    let o = direct(x, &cand[c * dim..(c + 1) * dim]);
+                    assert_eq!(dd[c * n + i].to_bits(), o.to_bits());
+                    want += best.min(o);
+                }
+                assert_eq!(got[c].to_bits(), want.to_bits(), "dim {dim}, candidate {c} of {trials}");
+            }
+        }
+    }
+
+    #[test]
+    fn short_points_take_the_nearest_centre_by_a_float64_reference() {
+        // Three-value points (an RGB texture's) and 37 centres, with ties: two centres equal,
+        // so the lower index must win, and a point equal to a centre.
+        let mut rng = Rng::new(9);
+        let pts: Vec<f32> = (0..3 * 300).map(|_| (rng.below(16) as f32) / 15.0).collect();
+        let mut centers: Vec<f32> = (0..3 * 37).map(|_| rng.next_f64() as f32).collect();
+        centers.copy_within(3..6, 30);
+        centers[..3].copy_from_slice(&pts[..3]);
+        let (mut a, mut d) = (vec![u32::MAX; 300], vec![0.0f64; 300]);
+        assign_short(&pts, 3, &centers, &mut a, &mut d);
+        for i in 0..300 {
+            let dist =
+                |c: usize| -> f64 { (0..3).map(|j| (pts[3 * i + j] as f64 - centers[3 * c + j] as f64).powi(2)).sum() };
+            let want = (0..37).fold(0, |b, c| if dist(c) < dist(b) { c } else { b });
+            assert_eq!(a[i] as usize, want, "point {i}");
+            assert!((d[i] - dist(want)).abs() <= 1e-15, "point {i}");
+            assert_ne!(a[i], 10, "centre 10 equals centre 1, which comes first");
+        }
+        assert_eq!((a[0], d[0]), (0, 0.0));
+        // The lanes of the argmin keep the first of equal values, wherever they fall.
+        for len in [1usize, 7, 8, 9, 17, 40] {
+            for at in 0..len {
+                let mut row = vec![1.0f64; len];
+                row[at] = 0.5;
+                if at + 3 < len {
+                    row[at + 3] = 0.5;
+                }
+                assert_eq!(argmin(&row), at, "len {len}, at {at}");
+            }
+            assert_eq!(argmin(&vec![2.0; len]), 0);
+        }
     }
 
     #[test]
