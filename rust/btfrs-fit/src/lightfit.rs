@@ -336,13 +336,30 @@ impl Slot {
     }
 }
 
+/// The plain fit of one set of lights to the full basis: its pseudo-inverse (`[k, n]`), rank,
+/// smallest/largest singular value ratio and amplification. It depends on the lights only, so
+/// the view slots that share their lights (every slot of a complete sampling) share it: found
+/// once per set, not 81 times (an SVD and an amplification each, which made a small fit's fixed
+/// cost).
+#[derive(Clone)]
+struct OwnFit {
+    p: Vec<f64>,
+    rank: usize,
+    ratio: f64,
+    amp: f64,
+}
+
+/// [`OwnFit`]s by light set.
+type OwnFits = std::collections::HashMap<Vec<usize>, OwnFit>;
+
 /// The fit of view slot `v`, and its entry in the report when it is not the plain fit of the
-/// full basis to its own lights.
-pub fn slot_fit(
+/// full basis to its own lights. `memo` keeps the plain fits of the light sets seen so far.
+fn slot_fit(
     btf: &BtfRef<'_>,
     v: usize,
     basis: &LightBasis<'_>,
     opts: &SlotOptions,
+    memo: &mut OwnFits,
 ) -> Result<(Slot, Option<DegenerateSlot>)> {
     let k = basis.k;
     let full: Vec<usize> = (0..k).collect();
@@ -361,7 +378,18 @@ pub fn slot_fit(
     };
     let amp = |s: &Slot| s.amplification(basis, btf.lights);
     let own_pairs: Vec<usize> = own.iter().map(|&l| v * nl + l).collect();
-    let (own_fit, rank, ratio) = fit(&own, own_pairs.clone(), &full)?;
+    // The plain fit of its own lights, shared with the slots that have the same lights.
+    let (own_fit, rank, ratio, own_amp) = match memo.get(&own) {
+        Some(of) => (Slot::new(own_pairs.clone(), own.clone(), &of.p, &full, k), of.rank, of.ratio, of.amp),
+        None => {
+            let (p, rank, ratio) = pinv_cols(basis, &dirs(&own), &full, opts.rcond, opts.lambda)
+                .ok_or_else(|| Error::Degenerate(format!("{}: the SVD of the light design matrix failed", name())))?;
+            let slot = Slot::new(own_pairs.clone(), own.clone(), &p, &full, k);
+            let amp = amp(&slot);
+            memo.insert(own.clone(), OwnFit { p, rank, ratio, amp });
+            (slot, rank, ratio, amp)
+        }
+    };
     let reason = if n < k {
         "few lights"
     } else if rank < k {
@@ -406,13 +434,13 @@ pub fn slot_fit(
         Degenerate::Reduce => {
             // Candidates in order of preference; the first within K_AMP is taken, else the one
             // with the least amplification.
-            if rank == k && amp(&own_fit) <= K_AMP {
+            if rank == k && own_amp <= K_AMP {
                 return Ok((own_fit, None));
             }
             // A full-rank but extrapolating fit of its own lights is kept only if nothing else does better.
             let mut best: Option<(f64, Slot, &'static str, Vec<usize>)> = None;
             if rank == k {
-                best = Some((amp(&own_fit), own_fit, "kept", Vec::new()));
+                best = Some((own_amp, own_fit, "kept", Vec::new()));
             }
             for (action, cols) in &basis.reduced {
                 if n < cols.len() {
@@ -491,8 +519,9 @@ pub fn fit_slots(
     }
     let mut slots = Vec::with_capacity(btf.views.len());
     let mut degenerate = Vec::new();
+    let mut memo = OwnFits::new();
     for v in 0..btf.views.len() {
-        let (s, e) = slot_fit(btf, v, basis, opts)?;
+        let (s, e) = slot_fit(btf, v, basis, opts, &mut memo)?;
         slots.push(s);
         degenerate.extend(e);
     }
