@@ -148,22 +148,10 @@ fn seed_plus_plus(points: &[f32], dim: usize, norms: &[f64], k: usize, seed: u64
     let parallel = n * trials * dim > SEED_SERIAL_WORK;
     let short = dim < 8 && trials <= LANES;
     while centers.len() / dim < k {
-        // Draw candidates proportionally to the squared distance (inverse CDF over a prefix sum).
-        let mut acc = 0.0;
-        for (c, &x) in cdf.iter_mut().zip(&closest) {
-            acc += x;
-            *c = acc;
-        }
-        if acc <= 0.0 {
+        let Some(picks) = draw(&closest, &mut cdf, trials, &mut rng) else {
             // Every point sits on a centre already: there are no more distinct points to seed.
             break;
-        }
-        let picks: Vec<usize> = (0..trials)
-            .map(|_| {
-                let u = rng.next_f64() * acc;
-                cdf.partition_point(|&c| c <= u).min(n - 1)
-            })
-            .collect();
+        };
         let cand: Vec<f32> = picks.iter().flat_map(|&p| points[p * dim..(p + 1) * dim].iter().copied()).collect();
         // The candidates' distances to the centres so far (`[candidate][centre]`), for the bound.
         let kc = centers.len() / dim;
@@ -257,6 +245,23 @@ fn seed_plus_plus(points: &[f32], dim: usize, norms: &[f64], k: usize, seed: u64
         centers.extend_from_slice(&cand[best * dim..(best + 1) * dim]);
     }
     centers
+}
+
+/// `trials` candidate points drawn with probability proportional to `closest`, their squared
+/// distances to the nearest centre (inverse CDF over the prefix sums, written to `cdf`); `None`
+/// when every point sits on a centre.
+fn draw(closest: &[f64], cdf: &mut [f64], trials: usize, rng: &mut Rng) -> Option<Vec<usize>> {
+    let mut acc = 0.0;
+    for (c, &x) in cdf.iter_mut().zip(closest) {
+        acc += x;
+        *c = acc;
+    }
+    if acc <= 0.0 {
+        return None;
+    }
+    let last = closest.len() - 1;
+    let pick = |u: f64| cdf.partition_point(|&c| c <= u).min(last);
+    Some((0..trials).map(|_| pick(rng.next_f64() * acc)).collect())
 }
 
 /// The pruning bound's factor (see [`seed_plus_plus`]): 4, the squared triangle inequality,
@@ -565,21 +570,7 @@ mod tests {
         let mut closest: Vec<f64> = points.chunks(dim).map(|x| direct(x, &centers)).collect();
         let trials = 2 + (k as f64).ln() as usize;
         while centers.len() / dim < k {
-            let mut cdf = Vec::with_capacity(n);
-            let mut acc = 0.0;
-            for &x in &closest {
-                acc += x;
-                cdf.push(acc);
-            }
-            if acc <= 0.0 {
-                break;
-            }
-            let picks: Vec<usize> = (0..trials)
-                .map(|_| {
-                    let u = rng.next_f64() * acc;
-                    cdf.partition_point(|&c| c <= u).min(n - 1)
-                })
-                .collect();
+            let Some(picks) = draw(&closest, &mut vec![0.0; n], trials, &mut rng) else { break };
             let dist = |c: usize, i: usize| direct(&points[i * dim..(i + 1) * dim], &points[picks[c] * dim..][..dim]);
             // Potentials per block of points, the blocks added in order.
             let pots: Vec<f64> = (0..trials)
@@ -597,6 +588,22 @@ mod tests {
             centers.extend_from_slice(&points[picks[best] * dim..][..dim]);
         }
         centers
+    }
+
+    #[test]
+    fn candidates_are_drawn_by_the_inverse_cdf_of_one_uniform_each() {
+        // Points 0 and 2 sit on centres (never drawn); 1 and 3 hold a quarter and three quarters.
+        let closest = [0.0, 1.0, 0.0, 3.0];
+        let (mut rng, mut twin) = (Rng::new(5), Rng::new(5));
+        let picks = draw(&closest, &mut [0.0; 4], 200, &mut rng).unwrap();
+        for &p in &picks {
+            let u = twin.next_f64() * 4.0;
+            assert_eq!(p, if u < 1.0 { 1 } else { 3 });
+        }
+        let ones = picks.iter().filter(|&&p| p == 1).count();
+        assert!((30..=70).contains(&ones), "{ones} of 200 draws of the point holding a quarter");
+        assert_eq!(rng.next_f64(), twin.next_f64(), "one uniform per candidate");
+        assert!(draw(&[0.0, 0.0], &mut [0.0; 2], 3, &mut rng).is_none());
     }
 
     #[test]
