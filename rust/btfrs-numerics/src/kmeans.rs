@@ -147,22 +147,19 @@ fn seed_plus_plus(points: &[f32], dim: usize, norms: &[f64], k: usize, seed: u64
     let mut d = vec![0.0f64; n * trials];
     let parallel = n * trials * dim > SEED_SERIAL_WORK;
     let short = dim < 8 && trials <= LANES;
+    // The centres coordinate-major (`columns[k][centre]`), for the bound's distances.
+    let mut columns: Vec<Vec<f32>> = if short { Vec::new() } else { centers.iter().map(|&x| vec![x]).collect() };
     while centers.len() / dim < k {
         let Some(picks) = draw(&closest, &mut cdf, trials, &mut rng) else {
             // Every point sits on a centre already: there are no more distinct points to seed.
             break;
         };
         let cand: Vec<f32> = picks.iter().flat_map(|&p| points[p * dim..(p + 1) * dim].iter().copied()).collect();
-        // The candidates' distances to the centres so far (`[candidate][centre]`), for the bound.
+        // The candidates' distances to the centres so far (`[candidate][centre]`), for the bound:
+        // coordinate by coordinate across the centres, so the loop runs in vector lanes. Only
+        // compared with a 1% margin, so any accurate order of the sums serves.
         let kc = centers.len() / dim;
-        let cc: Vec<f64> = if short {
-            Vec::new()
-        } else {
-            (0..trials * kc)
-                .into_par_iter()
-                .map(|j| direct(&cand[j / kc * dim..][..dim], &centers[j % kc * dim..][..dim]))
-                .collect()
-        };
+        let cc: Vec<f64> = if short { Vec::new() } else { centre_distances(&cand, &columns, kc) };
         // Each point's distance to each candidate (`[block][candidate][point]`, infinite where
         // the bound skips it) and, per block of points, the potential each candidate would
         // leave; blocks are fixed and summed in order, so the result does not depend on the
@@ -178,23 +175,19 @@ fn seed_plus_plus(points: &[f32], dim: usize, norms: &[f64], k: usize, seed: u64
                     potentials::<LANES>(xs, dim, cl, &cand, trials, dd)
                 };
             }
-            for (i, ((x, &best), &a)) in xs.chunks(dim).zip(cl).zip(nr).enumerate() {
-                for c in 0..trials {
-                    dd[c * len + i] = if cc[c * kc + a as usize] >= PRUNE * best {
-                        f64::INFINITY
-                    } else {
-                        direct(x, &cand[c * dim..(c + 1) * dim])
-                    };
-                }
-            }
             // Point by point, every candidate's sum at once: each sum keeps its order (points in
-            // turn), and the candidates' sums are independent chains the core overlaps.
+            // turn), and the candidates' sums are independent chains the core overlaps. A skipped
+            // point keeps its distance (the minimum below would choose it).
             let mut pot = [0.0f64; MAX_TRIALS];
             let pot = &mut pot[..trials];
-            let dd = &dd[..trials * len];
-            for (i, &best) in cl.iter().enumerate() {
+            for ((x, &best), &a) in xs.chunks(dim).zip(cl).zip(nr) {
+                let ca = &cc[a as usize..];
                 for (c, p) in pot.iter_mut().enumerate() {
-                    let o = dd[c * len + i];
+                    if ca[c * kc] >= PRUNE * best {
+                        *p += best;
+                        continue;
+                    }
+                    let o = direct(x, &cand[c * dim..(c + 1) * dim]);
                     // Not `f64::min`: no distance is NaN, and a plain comparison is one instruction.
                     *p += if o < best { o } else { best };
                 }
@@ -220,9 +213,20 @@ fn seed_plus_plus(points: &[f32], dim: usize, norms: &[f64], k: usize, seed: u64
         let pots: Vec<f64> = (0..trials).map(|c| pots.iter().map(|p| p[c]).sum()).collect();
         // The candidate that leaves the smallest potential wins (first on ties: deterministic).
         let best = (0..trials).fold(0, |b, c| if pots[c] < pots[b] { c } else { b });
-        let update = |((cl, nr), dd): ((&mut [f64], &mut [u32]), &[f64])| {
+        // The winner's distances: from the table for short points, recomputed for the others
+        // (the points the bound does not skip: a few percent once there are many centres).
+        let winner = &cand[best * dim..(best + 1) * dim];
+        let update = |(b, ((cl, nr), dd)): UpdateBlock<'_>| {
             let len = cl.len();
-            for ((c, a), &o) in cl.iter_mut().zip(nr.iter_mut()).zip(&dd[best * len..(best + 1) * len]) {
+            let xs = &points[b * SEED_BLOCK * dim..][..len * dim];
+            for (i, ((c, a), x)) in cl.iter_mut().zip(nr.iter_mut()).zip(xs.chunks(dim)).enumerate() {
+                let o = if short {
+                    dd[best * len + i]
+                } else if cc[best * kc + *a as usize] >= PRUNE * *c {
+                    continue;
+                } else {
+                    direct(x, winner)
+                };
                 if o < *c {
                     *c = o;
                     *a = kc as u32;
@@ -234,17 +238,41 @@ fn seed_plus_plus(points: &[f32], dim: usize, norms: &[f64], k: usize, seed: u64
                 .par_chunks_mut(SEED_BLOCK)
                 .zip(near.par_chunks_mut(SEED_BLOCK))
                 .zip(d.par_chunks(SEED_BLOCK * trials))
+                .enumerate()
                 .for_each(update);
         } else {
             closest
                 .chunks_mut(SEED_BLOCK)
                 .zip(near.chunks_mut(SEED_BLOCK))
                 .zip(d.chunks(SEED_BLOCK * trials))
+                .enumerate()
                 .for_each(update);
         }
-        centers.extend_from_slice(&cand[best * dim..(best + 1) * dim]);
+        centers.extend_from_slice(winner);
+        if !short {
+            columns.iter_mut().zip(winner).for_each(|(col, &x)| col.push(x));
+        }
     }
     centers
+}
+
+/// Squared distances `[candidate][centre]` of the candidates `cand` (`[m, dim]`) to the `kc`
+/// centres stored coordinate-major (`columns[k][centre]`), in `f32` per coordinate across the
+/// centres (vector lanes), widened at the end.
+fn centre_distances(cand: &[f32], columns: &[Vec<f32>], kc: usize) -> Vec<f64> {
+    let dim = columns.len();
+    let mut acc = vec![0.0f32; kc];
+    let mut out = Vec::with_capacity(cand.len() / dim.max(1) * kc);
+    for c in cand.chunks(dim) {
+        acc.fill(0.0);
+        for (&x, col) in c.iter().zip(columns) {
+            for (a, &y) in acc.iter_mut().zip(col) {
+                *a += (x - y) * (x - y);
+            }
+        }
+        out.extend(acc.iter().map(|&a| a as f64));
+    }
+    out
 }
 
 /// `trials` candidate points drawn with probability proportional to `closest`, their squared
@@ -268,6 +296,10 @@ fn draw(closest: &[f64], cdf: &mut [f64], trials: usize, rng: &mut Rng) -> Optio
 /// widened by 1%, far above the relative rounding of a sum of squares in `f32` (about `1e-3`
 /// for a BTF texel's twenty thousand values).
 const PRUNE: f64 = 4.04;
+
+/// One block of the seeding's update: its index, its points' nearest distances and centres, and
+/// its slice of the distance table.
+type UpdateBlock<'a> = (usize, ((&'a mut [f64], &'a mut [u32]), &'a [f64]));
 
 /// Points per block of the seeding's parallel passes.
 const SEED_BLOCK: usize = 256;
