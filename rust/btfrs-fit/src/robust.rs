@@ -668,7 +668,8 @@ pub fn moved_images(
 }
 
 /// Per colour channel of a row of interleaved RGB values: the sum, the two largest values and
-/// the smallest (the screen's gate).
+/// the smallest (the screen's gate). A NaN never becomes the top or the lowest and makes the sum
+/// NaN: such a row's gate is the floor, and the fit names the value.
 struct RowStats {
     sum: [f64; 3],
     top: [f32; 3],
@@ -685,23 +686,10 @@ impl RowStats {
             lowest: [f32::INFINITY; 3],
         }
     }
-
-    /// One pixel. (Branch-free selects; a NaN never becomes the top or the lowest, and makes the
-    /// sum NaN: such a row's gate is the floor, and the fit names the value.)
-    #[inline(always)]
-    fn add(&mut self, px: &[f32]) {
-        for (c, &x) in px.iter().enumerate().take(3) {
-            self.sum[c] += x as f64;
-            let m = if x < self.top[c] { x } else { self.top[c] };
-            self.second[c] = if m > self.second[c] { m } else { self.second[c] };
-            self.top[c] = if x > self.top[c] { x } else { self.top[c] };
-            self.lowest[c] = if x < self.lowest[c] { x } else { self.lowest[c] };
-        }
-    }
 }
 
 crate::simd::by_cpu! {
-    /// [`RowStats`] of a whole row (this loop is the screen's cost on clean data), in the widest
+    /// [`RowStats`] of a row (this loop is the screen's cost on clean data), in the widest
     /// vector registers the CPU has: the wheel is built for the x86-64 baseline, so the AVX2 and
     /// AVX-512 forms are compiled apart and chosen at run time (the same code, [`row_lanes`]).
     fn row_stats(row: &[f32]) -> RowStats {
@@ -806,6 +794,7 @@ pub fn screen_values(
             let mut found = Vec::new();
             let (mut b1, mut b2, mut b3) =
                 (Vec::with_capacity(NEIGHBOURS), Vec::with_capacity(8), Vec::with_capacity(NEIGHBOURS));
+            let mut present: Vec<f32> = Vec::with_capacity(nl * 3);
             for c0 in cols.clone() {
                 let t = r * w + c0;
                 for (v, per) in nbrs.iter().enumerate() {
@@ -819,12 +808,14 @@ pub fn screen_values(
                     // (highlights, mostly) are the only ones compared with their neighbours.
                     // (All three channels in one pass over the row: this loop is the screen's
                     // cost on clean data.)
+                    // (A row with lights held out, as every row of a split BTF: its present
+                    // values gathered first, so that they too are read in vector lanes.)
                     let RowStats { sum, top, second, lowest } = if per.len() == nl {
                         row_stats(row)
                     } else {
-                        let mut st = RowStats::new();
-                        per.iter().for_each(|(l, _)| st.add(&row[l * 3..l * 3 + 3]));
-                        st
+                        present.clear();
+                        present.extend(per.iter().flat_map(|(l, _)| &row[l * 3..l * 3 + 3]));
+                        row_stats(&present)
                     };
                     // A row with values below -floor is not radiance (data made from a model's
                     // random coefficients, a difference of images): "8 times its neighbours"
@@ -1123,6 +1114,34 @@ mod tests {
         got.sort();
         assert_eq!(got, hot);
         // The replacement is the light neighbours' median: near the clean value on a smooth BRDF.
+        for &(i, x) in &sc.values {
+            assert!((x - clean[i]).abs() <= 0.25 * clean[i] + 1e-6, "{i}: {x} vs {}", clean[i]);
+        }
+    }
+
+    /// With pairs held out (every row of lights incomplete, as in a split BTF, so the gate's
+    /// statistics come from the gathered present values): the hot values at present pairs are
+    /// found, and one at an absent pair is not (it was not measured).
+    #[test]
+    fn hot_values_are_found_with_lights_held_out() {
+        let (h, w, nv, nl) = (8, 9, 2, 40);
+        let (views, lights, mut data) = lambert(h, w, nv, nl);
+        let clean = data.clone();
+        let abrdf = nv * nl * 3;
+        let mut mask: Vec<bool> = (0..nv * nl).map(|i| i % 7 != 3).collect();
+        let at = |t: usize, v: usize, l: usize, c: usize| t * abrdf + (v * nl + l) * 3 + c;
+        let hot = [at(0, 0, 1, 2), at(13, 1, 20, 0), at(40, 0, 39, 1), at(71, 1, 0, 2)];
+        let absent = at(20, 0, 10, 0);
+        mask[10] = false;
+        assert!(hot.iter().all(|&i| mask[(i % abrdf) / 3]));
+        for &i in hot.iter().chain([&absent]) {
+            data[i] *= 1000.0;
+        }
+        let b = BtfRef::new(h, w, &views, &lights, &data, Some(&mask)).unwrap();
+        let sc = screen(&b, &Monitor::new()).unwrap();
+        let mut got: Vec<usize> = sc.values.iter().map(|v| v.0).collect();
+        got.sort();
+        assert_eq!(got, hot);
         for &(i, x) in &sc.values {
             assert!((x - clean[i]).abs() <= 0.25 * clean[i] + 1e-6, "{i}: {x} vs {}", clean[i]);
         }
