@@ -1,9 +1,9 @@
 //! Fit time and reconstruction error of local PCA on the built-in knit (UBO 81 x 81).
 //!
 //! `cargo run --release -p btfrs-fit --example lpca_knit -- [size] [clusters] [components]
-//! [refine_iterations] [reduced_dims]` (defaults 64 32 4 2 64). Prints the best of 3 fits and
-//! both accuracy figures: reconstruction (all pairs, fitted on all) and held-out (fitted on 90%
-//! of the pairs, error on the other 10%, split seed 0).
+//! [refine_iterations] [reduced_dims]` (defaults 64 32 4 2 64). Prints the best of 3 fits on all
+//! pairs and of 3 on 90% of them (split seed 0), and both accuracy figures: reconstruction (all
+//! pairs, fitted on all) and held-out (fitted on the 90%, error on the other 10%).
 use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::{split::split_pairs, BtfRef, Monitor};
 use btfrs_fit::Model;
@@ -32,11 +32,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let n = btf.views.len();
     let (train, test) = split_pairs(n, n, None, 0.1, 0)?;
     let part = |mask| BtfRef::new(size, size, &btf.views, &btf.lights, &btf.data, Some(mask));
-    let held = fit_lpca(&part(&train)?, &opts, &Monitor::new())?;
-    let h = model_error(&held, &part(&test)?)?;
+    let (mut best_held, mut held) = (f64::INFINITY, None);
+    for _ in 0..3 {
+        let t0 = Instant::now();
+        let m = fit_lpca(&part(&train)?, &opts, &Monitor::new())?;
+        best_held = best_held.min(t0.elapsed().as_secs_f64());
+        held = Some(m);
+    }
+    let h = model_error(&held.ok_or("no fit")?, &part(&test)?)?;
     println!(
-        "knit {size}^2 x 81 x 81, {opts:?}: fit {best:.3} s (best of 3), {} clusters used, reconstruction \
-         relative error {:.3}%, held-out {:.3}%, {} bytes (1:{:.1})",
+        "knit {size}^2 x 81 x 81, {opts:?}: fit {best:.3} s, on 90% of the pairs {best_held:.3} s (best of 3 \
+         each), {} clusters used, reconstruction relative error {:.3}%, held-out {:.3}%, {} bytes (1:{:.1})",
         m.clusters,
         e.relative() * 100.0,
         h.relative() * 100.0,
