@@ -224,6 +224,17 @@ pub(crate) fn round_up_16_bits(x: f64) -> f32 {
 
 /// Fit an HSH to the present (view, light) pairs of `btf`; `monitor` counts texel rows.
 pub fn fit_hsh(btf: &BtfRef<'_>, opts: &HshOptions, monitor: &Monitor) -> Result<Hsh> {
+    fit_hsh_screened(btf, opts, None, monitor)
+}
+
+/// [`fit_hsh`] with the robust value screen run on each texel inside the fit's pass
+/// ([`crate::robust::TexelScreen`]; `None`: the values as measured).
+pub fn fit_hsh_screened(
+    btf: &BtfRef<'_>,
+    opts: &HshOptions,
+    screen: Option<&crate::robust::TexelScreen<'_>>,
+    monitor: &Monitor,
+) -> Result<Hsh> {
     ensure_arg!((1..=MAX_ORDER).contains(&opts.order), "order", "expected 1, 2, 3 or 4, got {}", opts.order);
     check_bits(opts.bits)?;
     let n2 = opts.order * opts.order;
@@ -240,7 +251,9 @@ pub fn fit_hsh(btf: &BtfRef<'_>, opts: &HshOptions, monitor: &Monitor) -> Result
             return;
         }
         let a = btf.abrdf_len();
-        if !crate::lightfit::fit_row_rgb(&slots, &btf.data[row * w * a..(row + 1) * w * a], a, crow, &scan) {
+        let values = &btf.data[row * w * a..(row + 1) * w * a];
+        let r = crate::lightfit::Row { values, abrdf: a, first: row * w, screen };
+        if !crate::lightfit::fit_row_rgb(&slots, &r, crow, &scan) {
             return;
         }
         monitor.advance(1);
@@ -453,6 +466,18 @@ the three channels of a slot and term share a scale and bias, as in a `.rti` fil
 
     fn fit(btf: &BtfRef<'_>, options: &HshOptions, monitor: &Monitor) -> Result<Self> {
         fit_hsh(btf, options, monitor)
+    }
+
+    // Every texel is fitted from its own values alone.
+    const SCREENS_TEXELS: bool = true;
+
+    fn fit_screened(
+        btf: &BtfRef<'_>,
+        options: &HshOptions,
+        screen: &crate::robust::TexelScreen<'_>,
+        monitor: &Monitor,
+    ) -> Result<Self> {
+        fit_hsh_screened(btf, options, Some(screen), monitor)
     }
 
     fn mip_texels(&self, groups: &[Vec<(u32, f32)>]) -> Result<Self> {

@@ -237,46 +237,66 @@ impl Slot {
     }
 }
 
+/// One row of texels as [`fit_row_rgb`] reads it.
+#[derive(Debug, Clone, Copy)]
+pub struct Row<'a> {
+    /// Their ABRDFs, `abrdf` values each.
+    pub values: &'a [f32],
+    /// Values per texel.
+    pub abrdf: usize,
+    /// The flat index of the row's first texel (where the screen finds its neighbours).
+    pub first: usize,
+    /// The robust value screen, run on each texel inside the pass (`None`: the values as
+    /// measured).
+    pub screen: Option<&'a crate::robust::TexelScreen<'a>>,
+}
+
+impl Row<'_> {
+    /// Texel `col`'s values as the fit sees them: `values`, or their repaired copy when the
+    /// screen flags any.
+    #[inline]
+    fn repaired(&self, col: usize, values: &[f32]) -> Option<Vec<f32>> {
+        self.screen.and_then(|s| s.repaired(self.first + col, values))
+    }
+}
+
 crate::simd::by_cpu! {
-    /// Fit one row of texels (`row`: their ABRDFs, `abrdf` values each) in every view slot into
-    /// `out` (`[texel][slot][3 k]`), each texel's values checked by `scan` first; false as soon as
-    /// one is not finite. PTM-RGB and HSH share it.
+    /// Fit one row of texels in every view slot into `out` (`[texel][slot][3 k]`), each texel's
+    /// values checked by `scan` first (false as soon as one is not finite), then judged by the
+    /// row's screen if it has one. PTM-RGB and HSH share it.
     ///
     /// On a CPU with AVX-512 the texels go 8 at a time: the accumulators of one coefficient are a
     /// vector across the 8 texels (3 k vectors of 8 doubles stay in the 32 registers), so that
     /// every multiply-add fills its lanes, where one texel at a time leaves most of them idle. Each
     /// texel's sums are the same products added in the same order, so the result is the same to
     /// the bit.
-    pub fn fit_row_rgb(
-        slots: &[Slot],
-        row: &[f32],
-        abrdf: usize,
-        out: &mut [f32],
-        scan: &btfrs_core::btf::TexelScan,
-    ) -> bool {
-        ["avx512f"] => fit_row_groups::<8>(slots, row, abrdf, out, scan),
-        _ => fit_row_groups::<1>(slots, row, abrdf, out, scan),
+    pub fn fit_row_rgb(slots: &[Slot], row: &Row<'_>, out: &mut [f32], scan: &btfrs_core::btf::TexelScan) -> bool {
+        ["avx512f"] => fit_row_groups::<8>(slots, row, out, scan),
+        _ => fit_row_groups::<1>(slots, row, out, scan),
     }
 }
 
 #[inline(always)]
 fn fit_row_groups<const T: usize>(
     slots: &[Slot],
-    row: &[f32],
-    abrdf: usize,
+    row: &Row<'_>,
     out: &mut [f32],
     scan: &btfrs_core::btf::TexelScan,
 ) -> bool {
-    let w = row.len() / abrdf;
+    let abrdf = row.abrdf;
+    let w = row.values.len() / abrdf;
     let nv = slots.len();
     let per = slots.first().map_or(0, |s| 3 * s.k);
+    let texel = |col: usize| &row.values[col * abrdf..(col + 1) * abrdf];
     let mut col = 0;
     if T > 1 {
         while col + T <= w {
-            let texels: [&[f32]; T] = std::array::from_fn(|t| &row[(col + t) * abrdf..(col + t + 1) * abrdf]);
-            if !texels.iter().all(|a| scan.check(a)) {
+            let measured: [&[f32]; T] = std::array::from_fn(|t| texel(col + t));
+            if !measured.iter().all(|a| scan.check(a)) {
                 return false;
             }
+            let fixed: [Option<Vec<f32>>; T] = std::array::from_fn(|t| row.repaired(col + t, measured[t]));
+            let texels: [&[f32]; T] = std::array::from_fn(|t| fixed[t].as_deref().unwrap_or(measured[t]));
             for (v, slot) in slots.iter().enumerate() {
                 slot.fit_rgb_group::<T>(&texels, &mut out[(col * nv + v) * per..], nv * per);
             }
@@ -284,10 +304,12 @@ fn fit_row_groups<const T: usize>(
         }
     }
     for col in col..w {
-        let a = &row[col * abrdf..(col + 1) * abrdf];
-        if !scan.check(a) {
+        let measured = texel(col);
+        if !scan.check(measured) {
             return false;
         }
+        let fixed = row.repaired(col, measured);
+        let a = fixed.as_deref().unwrap_or(measured);
         for (v, slot) in slots.iter().enumerate() {
             slot.fit_rgb(a, &mut out[(col * nv + v) * per..(col * nv + v + 1) * per]);
         }
@@ -649,9 +671,10 @@ mod tests {
             let n = w * nv * 3 * k;
             let (mut one, mut eight, mut chosen) = (vec![0.0f32; n], vec![0.0f32; n], vec![0.0f32; n]);
             let scan = btfrs_core::btf::TexelScan::new();
-            assert!(fit_row_groups::<1>(&slots, &row, abrdf, &mut one, &scan));
-            assert!(fit_row_groups::<8>(&slots, &row, abrdf, &mut eight, &scan));
-            assert!(fit_row_rgb(&slots, &row, abrdf, &mut chosen, &scan));
+            let r = Row { values: &row, abrdf, first: 0, screen: None };
+            assert!(fit_row_groups::<1>(&slots, &r, &mut one, &scan));
+            assert!(fit_row_groups::<8>(&slots, &r, &mut eight, &scan));
+            assert!(fit_row_rgb(&slots, &r, &mut chosen, &scan));
             let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&one), bits(&eight), "k {k}");
             assert_eq!(bits(&one), bits(&chosen), "k {k}");
@@ -676,6 +699,7 @@ mod tests {
         bad[9 * abrdf + 4] = f32::NAN;
         let slots = vec![Slot::new(vec![0], vec![0], &[1.0; 6], &[0, 1, 2, 3, 4, 5], 6)];
         let mut out = vec![0.0f32; w * 18];
-        assert!(!fit_row_rgb(&slots, &bad, abrdf, &mut out, &btfrs_core::btf::TexelScan::new()));
+        let r = Row { values: &bad, abrdf, first: 0, screen: None };
+        assert!(!fit_row_rgb(&slots, &r, &mut out, &btfrs_core::btf::TexelScan::new()));
     }
 }

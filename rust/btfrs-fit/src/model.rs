@@ -115,6 +115,24 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     /// ([`btfrs_core::btf::TexelScan`]) and fails as [`btfrs_core::btf::check_finite`] would,
     /// so its caller need not scan first: a memory-mapped BTF is then read once, not twice.
     const SCANS_VALUES: bool = false;
+    /// Whether [`Model::fit_screened`] runs the robust value screen inside the fit's own pass
+    /// (each texel judged and, if need be, repaired as it is read), which needs every texel to
+    /// be fitted from its own values alone. The others are screened before the fit, from a
+    /// repaired copy of the data ([`crate::robust::fit`]).
+    const SCREENS_TEXELS: bool = false;
+    /// [`Model::fit`] with `screen` run on each texel inside the pass; called only when
+    /// [`Model::SCREENS_TEXELS`].
+    fn fit_screened(
+        _btf: &BtfRef<'_>,
+        _options: &Self::Options,
+        _screen: &crate::robust::TexelScreen<'_>,
+        _monitor: &Monitor,
+    ) -> Result<Self> {
+        Err(btfrs_core::Error::arg(
+            "robust",
+            format!("a {} fit does not screen its texels in its own pass", Self::KIND),
+        ))
+    }
     /// How the fit splits over blocks of texels fitted apart (a Dask cluster's chunks,
     /// `btfrs.dask`): see [`crate::blockwise`]. The default is the safe answer for a new model.
     const BLOCKWISE: crate::blockwise::Blockwise =

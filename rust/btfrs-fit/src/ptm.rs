@@ -143,6 +143,17 @@ fn light_basis() -> LightBasis<'static> {
 
 /// Fit a PTM to the present (view, light) pairs of `btf`; `monitor` counts texel rows.
 pub fn fit_ptm(btf: &BtfRef<'_>, opts: &PtmOptions, monitor: &Monitor) -> Result<Ptm> {
+    fit_ptm_screened(btf, opts, None, monitor)
+}
+
+/// [`fit_ptm`] with the robust value screen run on each texel inside the fit's pass
+/// ([`crate::robust::TexelScreen`]; `None`: the values as measured).
+pub fn fit_ptm_screened(
+    btf: &BtfRef<'_>,
+    opts: &PtmOptions,
+    screen: Option<&crate::robust::TexelScreen<'_>>,
+    monitor: &Monitor,
+) -> Result<Ptm> {
     check_bits(opts.bits)?;
     let nv = btf.views.len();
     let so = SlotOptions { rcond: opts.rcond, lambda: 0.0, on_degenerate: opts.on_degenerate };
@@ -170,17 +181,21 @@ pub fn fit_ptm(btf: &BtfRef<'_>, opts: &PtmOptions, monitor: &Monitor) -> Result
         }
         if opts.kind == PtmKind::Rgb {
             let a = btf.abrdf_len();
-            if !crate::lightfit::fit_row_rgb(&slots, &btf.data[row * w * a..(row + 1) * w * a], a, crow, &scan) {
+            let values = &btf.data[row * w * a..(row + 1) * w * a];
+            let r = crate::lightfit::Row { values, abrdf: a, first: row * w, screen };
+            if !crate::lightfit::fit_row_rgb(&slots, &r, crow, &scan) {
                 return;
             }
             monitor.advance(1);
             return;
         }
         for col in 0..w {
-            let abrdf = btf.texel(row * w + col);
-            if !scan.check(abrdf) {
+            let measured = btf.texel(row * w + col);
+            if !scan.check(measured) {
                 return;
             }
+            let fixed = screen.and_then(|s| s.repaired(row * w + col, measured));
+            let abrdf = fixed.as_deref().unwrap_or(measured);
             for (v, slot) in slots.iter().enumerate() {
                 let out = &mut crow[(col * nv + v) * per_coef..(col * nv + v + 1) * per_coef];
                 let base = &mut rrow[(col * nv + v) * 3..(col * nv + v + 1) * 3];
@@ -575,6 +590,18 @@ a scale and a bias), so `nbytes` is what a viewer holds and `save_ptm` writes th
 
     fn fit(btf: &BtfRef<'_>, options: &PtmOptions, monitor: &Monitor) -> Result<Self> {
         fit_ptm(btf, options, monitor)
+    }
+
+    // Every texel is fitted from its own values alone.
+    const SCREENS_TEXELS: bool = true;
+
+    fn fit_screened(
+        btf: &BtfRef<'_>,
+        options: &PtmOptions,
+        screen: &crate::robust::TexelScreen<'_>,
+        monitor: &Monitor,
+    ) -> Result<Self> {
+        fit_ptm_screened(btf, options, Some(screen), monitor)
     }
 
     const MIP: Mip = Mip::Average;

@@ -43,6 +43,9 @@ pub struct Entry {
     pub texel_arrays: &'static [&'static str],
     /// [`Model::SCANS_VALUES`]: the fit checks the values itself, in its own pass.
     pub scans_values: bool,
+    /// [`Model::fit_screened`] with options given as a JSON object, for the models that
+    /// [`Model::SCREENS_TEXELS`].
+    pub fit_screened: Option<FitScreened>,
     /// [`Model::BLOCKWISE`].
     pub blockwise: crate::blockwise::Blockwise,
     /// Rebuild from the stitched arrays of a blockwise fit and [`Model::finish_blocks`] with
@@ -65,6 +68,13 @@ impl Entry {
 }
 
 fn fit_erased<M: Model + std::fmt::Debug>(btf: &BtfRef<'_>, options: &str, mon: &Monitor) -> Result<Box<dyn DynModel>> {
+    let o = checked_options::<M>(btf, options, mon)?;
+    Ok(Box::new(M::fit(btf, &o, mon)?))
+}
+
+/// The model's options from their JSON object, with the memory limit checked against the
+/// least the fit of `btf` needs and set on `mon`.
+fn checked_options<M: Model>(btf: &BtfRef<'_>, options: &str, mon: &Monitor) -> Result<M::Options> {
     let (map, limit) = take_memory_limit(options)?;
     let o: M::Options = options::build(M::OPTIONS, map)?;
     if let Some(limit) = limit {
@@ -84,7 +94,7 @@ fn fit_erased<M: Model + std::fmt::Debug>(btf: &BtfRef<'_>, options: &str, mon: 
         }
     }
     mon.set_memory_limit(limit);
-    Ok(Box::new(M::fit(btf, &o, mon)?))
+    Ok(o)
 }
 
 /// The option every fit takes besides its own: `memory_limit`, the anonymous memory in bytes
@@ -103,6 +113,19 @@ pub(crate) fn take_memory_limit(options: &str) -> Result<(serde_json::Map<String
         },
     };
     Ok((map, limit))
+}
+
+/// A fit with the value screen inside its pass ([`Entry::fit_screened`]).
+pub type FitScreened = fn(&BtfRef<'_>, &str, &crate::robust::TexelScreen<'_>, &Monitor) -> Result<Box<dyn DynModel>>;
+
+fn fit_screened_erased<M: Model + std::fmt::Debug>(
+    btf: &BtfRef<'_>,
+    options: &str,
+    screen: &crate::robust::TexelScreen<'_>,
+    mon: &Monitor,
+) -> Result<Box<dyn DynModel>> {
+    let o = checked_options::<M>(btf, options, mon)?;
+    Ok(Box::new(M::fit_screened(btf, &o, screen, mon)?))
 }
 
 fn from_arrays_erased<M: Model + std::fmt::Debug>(a: &NamedArrays) -> Result<Box<dyn DynModel>> {
@@ -134,6 +157,7 @@ pub const fn entry<M: Model + std::fmt::Debug>() -> Entry {
         shaders: M::shaders,
         texel_arrays: M::TEXEL_ARRAYS,
         scans_values: M::SCANS_VALUES,
+        fit_screened: if M::SCREENS_TEXELS { Some(fit_screened_erased::<M>) } else { None },
         blockwise: M::BLOCKWISE,
         finish_blocks: finish_blocks_erased::<M>,
     }

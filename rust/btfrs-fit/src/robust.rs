@@ -689,13 +689,25 @@ impl RowStats {
 }
 
 crate::simd::by_cpu! {
-    /// [`RowStats`] of a row (this loop is the screen's cost on clean data), in the widest
-    /// vector registers the CPU has: the wheel is built for the x86-64 baseline, so the AVX2 and
-    /// AVX-512 forms are compiled apart and chosen at run time (the same code, [`row_lanes`]).
+    /// [`RowStats`] of a row, in the widest vector registers the CPU has: the wheel is built for
+    /// the x86-64 baseline, so the AVX2 and AVX-512 forms are compiled apart and chosen at run
+    /// time (the same code, [`row_lanes`]).
     fn row_stats(row: &[f32]) -> RowStats {
-        ["avx512f"] => row_lanes::<48>(row),
-        ["avx2"] => row_lanes::<24>(row),
-        _ => row_lanes::<12>(row),
+        ["avx512f"] => row_lanes::<48, true>(row),
+        ["avx2"] => row_lanes::<24, true>(row),
+        _ => row_lanes::<12, true>(row),
+    }
+}
+
+crate::simd::by_cpu! {
+    /// [`row_stats`] without the second largest values (left at minus infinity): the sums, the
+    /// largest and the smallest, the same bits, in three fifths of the work. This loop is the
+    /// screen's cost on clean data: a gate that takes the largest value for the second too is
+    /// lower than the true gate, so a row under it is under the true one.
+    fn row_bounds(row: &[f32]) -> RowStats {
+        ["avx512f"] => row_lanes::<48, false>(row),
+        ["avx2"] => row_lanes::<24, false>(row),
+        _ => row_lanes::<12, false>(row),
     }
 }
 
@@ -705,7 +717,7 @@ crate::simd::by_cpu! {
 /// at most `nl / 4` values each, then added in `f64`; the two largest of a channel are the
 /// two largest of its lanes' two largest.
 #[inline(always)]
-fn row_lanes<const N: usize>(row: &[f32]) -> RowStats {
+fn row_lanes<const N: usize, const SECOND: bool>(row: &[f32]) -> RowStats {
     let (mut sum, mut top, mut second, mut lowest) =
         ([0.0f32; N], [f32::NEG_INFINITY; N], [f32::NEG_INFINITY; N], [f32::INFINITY; N]);
     let chunks = row.chunks_exact(N);
@@ -714,41 +726,47 @@ fn row_lanes<const N: usize>(row: &[f32]) -> RowStats {
         for k in 0..N {
             let x = chunk[k];
             sum[k] += x;
-            let m = if x < top[k] { x } else { top[k] };
-            second[k] = if m > second[k] { m } else { second[k] };
+            if SECOND {
+                let m = if x < top[k] { x } else { top[k] };
+                second[k] = if m > second[k] { m } else { second[k] };
+            }
             top[k] = if x > top[k] { x } else { top[k] };
             lowest[k] = if x < lowest[k] { x } else { lowest[k] };
         }
     }
     for (k, &x) in rest.iter().enumerate() {
         sum[k] += x;
-        let m = if x < top[k] { x } else { top[k] };
-        second[k] = if m > second[k] { m } else { second[k] };
+        if SECOND {
+            let m = if x < top[k] { x } else { top[k] };
+            second[k] = if m > second[k] { m } else { second[k] };
+        }
         top[k] = if x > top[k] { x } else { top[k] };
         lowest[k] = if x < lowest[k] { x } else { lowest[k] };
     }
-    // Fold the lanes to 12, element by element (in vector registers), then to the channels.
-    for g in 1..N / 12 {
-        for k in 0..12 {
-            let (t, s) = (top[g * 12 + k], second[g * 12 + k]);
-            sum[k] += sum[g * 12 + k];
-            let lo = if t < top[k] { t } else { top[k] };
-            let hs = if s > second[k] { s } else { second[k] };
-            second[k] = if lo > hs { lo } else { hs };
+    // Fold the lanes in halves, element by element (in vector registers), down to the three
+    // channels: lanes `k` and `k + n / 2` hold the same channel while `n / 2` is a multiple of 3.
+    let mut n = N;
+    while n > 3 {
+        let half = if (n / 2) % 3 == 0 { n / 2 } else { 3 };
+        for k in 0..n - half {
+            let (t, s) = (top[half + k], second[half + k]);
+            sum[k] += sum[half + k];
+            if SECOND {
+                let lo = if t < top[k] { t } else { top[k] };
+                let hs = if s > second[k] { s } else { second[k] };
+                second[k] = if lo > hs { lo } else { hs };
+            }
             top[k] = if t > top[k] { t } else { top[k] };
-            lowest[k] = if lowest[g * 12 + k] < lowest[k] { lowest[g * 12 + k] } else { lowest[k] };
+            lowest[k] = if lowest[half + k] < lowest[k] { lowest[half + k] } else { lowest[k] };
         }
+        n -= half;
     }
     let mut st = RowStats::new();
-    for k in 0..12 {
-        let c = k % 3;
-        st.sum[c] += sum[k] as f64;
-        for x in [top[k], second[k]] {
-            let m = if x < st.top[c] { x } else { st.top[c] };
-            st.second[c] = if m > st.second[c] { m } else { st.second[c] };
-            st.top[c] = if x > st.top[c] { x } else { st.top[c] };
-        }
-        st.lowest[c] = if lowest[k] < st.lowest[c] { lowest[k] } else { st.lowest[c] };
+    for c in 0..3 {
+        st.sum[c] = sum[c] as f64;
+        st.top[c] = top[c];
+        st.second[c] = second[c];
+        st.lowest[c] = lowest[c];
     }
     st
 }
@@ -764,111 +782,18 @@ pub fn screen_values(
     cols: std::ops::Range<usize>,
     monitor: &Monitor,
 ) -> Result<Flags> {
-    let (h, w, nv, nl) = (btf.height, btf.width, btf.views.len(), btf.lights.len());
+    let (h, w) = (btf.height, btf.width);
     if rows.end > h || cols.end > w {
         return Err(Error::arg("rows", format!("rows {rows:?} and columns {cols:?} must lie inside {h} x {w}")));
     }
-    let abrdf = nv * nl * 3;
-    let nbrs = light_tables(btf.lights, btf.mask, nv);
-    let at = |t: usize, v: usize, l: usize, c: usize| btf.data[t * abrdf + (v * nl + l) * 3 + c];
-    // Whether value (t, v, l, c) = x is more than FACTOR times above its light neighbours'
-    // median, and that median. The minimum bounds the median from below, so most values are
-    // cleared by the minimum alone, without a selection.
-    let above_lights = |t: usize, v: usize, nb: &[usize], c: usize, x: f32, buf: &mut Vec<f32>| -> Option<f32> {
-        let base = t * abrdf + v * nl * 3 + c;
-        let lowest = nb.iter().map(|&o| btf.data[base + o * 3]).fold(f32::INFINITY, f32::min);
-        // (A NaN is never above: it is left for the fit to name.)
-        if x.partial_cmp(&(FACTOR * lowest + floor)) != Some(std::cmp::Ordering::Greater) {
-            return None;
-        }
-        buf.clear();
-        buf.extend(nb.iter().map(|&o| btf.data[base + o * 3]));
-        let md = median(buf);
-        // (Signed data, a PTM's or noise's negative values: a negative median is no scale.)
-        (x > FACTOR * md.max(0.0) + floor).then_some(md)
-    };
+    let judge = ValueScreen::new(btf, floor);
     let found: Vec<Result<Flags>> = rows
         .into_par_iter()
         .map(|r| {
             monitor.check()?;
-            let mut found = Vec::new();
-            let (mut b1, mut b2, mut b3) =
-                (Vec::with_capacity(NEIGHBOURS), Vec::with_capacity(8), Vec::with_capacity(NEIGHBOURS));
-            let mut present: Vec<f32> = Vec::with_capacity(nl * 3);
-            for c0 in cols.clone() {
-                let t = r * w + c0;
-                for (v, per) in nbrs.iter().enumerate() {
-                    if per.len() <= 2 {
-                        continue;
-                    }
-                    let row = &btf.data[t * abrdf + v * nl * 3..t * abrdf + (v + 1) * nl * 3];
-                    // First the gate: 8 times the mean of the texel's row of lights per channel
-                    // without its two largest values (so that two hot values in a row do not
-                    // raise it). A value below the gate cannot wreck a fit; the few above it
-                    // (highlights, mostly) are the only ones compared with their neighbours.
-                    // (All three channels in one pass over the row: this loop is the screen's
-                    // cost on clean data.)
-                    // (A row with lights held out, as every row of a split BTF: its present
-                    // values gathered first, so that they too are read in vector lanes.)
-                    let RowStats { sum, top, second, lowest } = if per.len() == nl {
-                        row_stats(row)
-                    } else {
-                        present.clear();
-                        present.extend(per.iter().flat_map(|(l, _)| &row[l * 3..l * 3 + 3]));
-                        row_stats(&present)
-                    };
-                    // A row with values below -floor is not radiance (data made from a model's
-                    // random coefficients, a difference of images): "8 times its neighbours"
-                    // means nothing there, and the row is not screened.
-                    let gate: [f32; 3] = std::array::from_fn(|c| {
-                        let trimmed = (sum[c] - top[c] as f64 - second[c] as f64) / (per.len() - 2) as f64;
-                        if lowest[c] < -floor {
-                            f32::INFINITY
-                        } else {
-                            FACTOR * trimmed.max(0.0) as f32 + floor
-                        }
-                    });
-                    // Nothing in the row above its gate: the common case, one comparison per
-                    // channel.
-                    if (0..3).all(|c| top[c].partial_cmp(&gate[c]) != Some(std::cmp::Ordering::Greater)) {
-                        continue;
-                    }
-                    for (l, nb) in per.iter() {
-                        if nb.is_empty() {
-                            continue;
-                        }
-                        for (c, g) in gate.iter().enumerate() {
-                            let x = row[l * 3 + c];
-                            if x.partial_cmp(g) != Some(std::cmp::Ordering::Greater) {
-                                continue;
-                            }
-                            let Some(md) = above_lights(t, v, nb, c, x, &mut b1) else {
-                                continue;
-                            };
-                            // The spatial neighbours, but for those that are themselves far
-                            // above their light neighbours: at 1% of the values hot, some
-                            // texel has half its neighbours hot at the same pair somewhere.
-                            b2.clear();
-                            for dr in [-1i64, 0, 1] {
-                                for dc in [-1i64, 0, 1] {
-                                    let (rr, cc) = (r as i64 + dr, c0 as i64 + dc);
-                                    if (dr, dc) == (0, 0) || rr < 0 || cc < 0 || rr as usize >= h || cc as usize >= w {
-                                        continue;
-                                    }
-                                    let tn = rr as usize * w + cc as usize;
-                                    let y = at(tn, v, *l, c);
-                                    if above_lights(tn, v, nb, c, y, &mut b3).is_none() {
-                                        b2.push(y);
-                                    }
-                                }
-                            }
-                            let ms = if b2.is_empty() { 0.0 } else { median(&mut b2) };
-                            if x > FACTOR * ms.max(0.0) + floor {
-                                found.push((t * abrdf + (v * nl + l) * 3 + c, md));
-                            }
-                        }
-                    }
-                }
+            let (mut found, mut scratch) = (Vec::new(), Scratch::default());
+            for c in cols.clone() {
+                judge.flag_texel(r * w + c, &mut scratch, &mut found);
             }
             Ok(found)
         })
@@ -879,6 +804,189 @@ pub fn screen_values(
         values.extend(f?);
     }
     Ok(values)
+}
+
+/// The value screen's judge of one texel at a time (module docs): what [`screen_values`] runs
+/// over a block, and what a per-texel fit runs inside its own pass ([`TexelScreen`]).
+#[derive(Debug)]
+struct ValueScreen<'a> {
+    btf: BtfRef<'a>,
+    floor: f32,
+    /// Per view slot, the present lights with their light neighbours.
+    nbrs: Vec<Table>,
+}
+
+/// The buffers of [`ValueScreen::flag_texel`], kept across the texels a thread judges (empty
+/// until a row needs them).
+#[derive(Default)]
+struct Scratch {
+    /// A value's light neighbours (its texel's, then a spatial neighbour's).
+    lights: Vec<f32>,
+    neighbour_lights: Vec<f32>,
+    /// The spatial neighbours that are not themselves far above their light neighbours.
+    spatial: Vec<f32>,
+    /// The present values of a row with lights held out.
+    present: Vec<f32>,
+}
+
+impl<'a> ValueScreen<'a> {
+    fn new(btf: &BtfRef<'a>, floor: f32) -> Self {
+        ValueScreen { btf: *btf, floor, nbrs: light_tables(btf.lights, btf.mask, btf.views.len()) }
+    }
+
+    /// Append the flagged values of texel `t` (flat indices into the data, in increasing order,
+    /// with their replacements) to `found`.
+    fn flag_texel(&self, t: usize, s: &mut Scratch, found: &mut Flags) {
+        let (btf, floor) = (&self.btf, self.floor);
+        let (h, w, nv, nl) = (btf.height, btf.width, btf.views.len(), btf.lights.len());
+        let abrdf = nv * nl * 3;
+        let (r, c0) = (t / w, t % w);
+        let at = |t: usize, v: usize, l: usize, c: usize| btf.data[t * abrdf + (v * nl + l) * 3 + c];
+        // Whether value (t, v, l, c) = x is more than FACTOR times above its light neighbours'
+        // median, and that median. The minimum bounds the median from below, so most values are
+        // cleared by the minimum alone, without a selection.
+        let above_lights = |t: usize, v: usize, nb: &[usize], c: usize, x: f32, buf: &mut Vec<f32>| -> Option<f32> {
+            let base = t * abrdf + v * nl * 3 + c;
+            let lowest = nb.iter().map(|&o| btf.data[base + o * 3]).fold(f32::INFINITY, f32::min);
+            // (A NaN is never above: it is left for the fit to name.)
+            if x.partial_cmp(&(FACTOR * lowest + floor)) != Some(std::cmp::Ordering::Greater) {
+                return None;
+            }
+            buf.clear();
+            buf.extend(nb.iter().map(|&o| btf.data[base + o * 3]));
+            let md = median(buf);
+            // (Signed data, a PTM's or noise's negative values: a negative median is no scale.)
+            (x > FACTOR * md.max(0.0) + floor).then_some(md)
+        };
+        for (v, per) in self.nbrs.iter().enumerate() {
+            if per.len() <= 2 {
+                continue;
+            }
+            let row = &btf.data[t * abrdf + v * nl * 3..t * abrdf + (v + 1) * nl * 3];
+            // First the gate: 8 times the mean of the texel's row of lights per channel without
+            // its two largest values (so that two hot values in a row do not raise it). A value
+            // below the gate cannot wreck a fit; the few above it (highlights, mostly) are the
+            // only ones compared with their neighbours. (All three channels in one pass over the
+            // row: this loop is the screen's cost on clean data. A row with lights held out, as
+            // every row of a split BTF, has its present values gathered first, so that they too
+            // are read in vector lanes.)
+            let values: &[f32] = if per.len() == nl {
+                row
+            } else {
+                s.present.clear();
+                s.present.extend(per.iter().flat_map(|(l, _)| &row[l * 3..l * 3 + 3]));
+                &s.present
+            };
+            // A row with values below -floor is not radiance (data made from a model's random
+            // coefficients, a difference of images): "8 times its neighbours" means nothing
+            // there, and the row is not screened.
+            let gate_of = |st: &RowStats, second: [f32; 3]| -> [f32; 3] {
+                std::array::from_fn(|c| {
+                    let trimmed = (st.sum[c] - st.top[c] as f64 - second[c] as f64) / (per.len() - 2) as f64;
+                    if st.lowest[c] < -floor {
+                        f32::INFINITY
+                    } else {
+                        FACTOR * trimmed.max(0.0) as f32 + floor
+                    }
+                })
+            };
+            let under = |top: &[f32; 3], gate: &[f32; 3]| {
+                (0..3).all(|c| top[c].partial_cmp(&gate[c]) != Some(std::cmp::Ordering::Greater))
+            };
+            // Nothing in the row above its gate: the common case, one comparison per channel,
+            // first against the lower gate of the largest value taken twice (no second largest
+            // to track: the same sums in fewer operations; every step of the gate is monotonic,
+            // so a row under it is under the true gate).
+            let bounds = row_bounds(values);
+            if under(&bounds.top, &gate_of(&bounds, bounds.top)) {
+                continue;
+            }
+            let st = row_stats(values);
+            let gate = gate_of(&st, st.second);
+            if under(&st.top, &gate) {
+                continue;
+            }
+            for (l, nb) in per.iter() {
+                if nb.is_empty() {
+                    continue;
+                }
+                for (c, g) in gate.iter().enumerate() {
+                    let x = row[l * 3 + c];
+                    if x.partial_cmp(g) != Some(std::cmp::Ordering::Greater) {
+                        continue;
+                    }
+                    let Some(md) = above_lights(t, v, nb, c, x, &mut s.lights) else {
+                        continue;
+                    };
+                    // The spatial neighbours, but for those that are themselves far above their
+                    // light neighbours: at 1% of the values hot, some texel has half its
+                    // neighbours hot at the same pair somewhere.
+                    s.spatial.clear();
+                    for dr in [-1i64, 0, 1] {
+                        for dc in [-1i64, 0, 1] {
+                            let (rr, cc) = (r as i64 + dr, c0 as i64 + dc);
+                            if (dr, dc) == (0, 0) || rr < 0 || cc < 0 || rr as usize >= h || cc as usize >= w {
+                                continue;
+                            }
+                            let tn = rr as usize * w + cc as usize;
+                            let y = at(tn, v, *l, c);
+                            if above_lights(tn, v, nb, c, y, &mut s.neighbour_lights).is_none() {
+                                s.spatial.push(y);
+                            }
+                        }
+                    }
+                    let ms = if s.spatial.is_empty() { 0.0 } else { median(&mut s.spatial) };
+                    if x > FACTOR * ms.max(0.0) + floor {
+                        found.push((t * abrdf + (v * nl + l) * 3 + c, md));
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The value screen inside a fit's own pass over the texels, for the models whose texels are
+/// fitted apart (PTM, HSH: [`crate::Model::SCREENS_TEXELS`]). A separate screen reads every
+/// value once more before the fit (a third of a small PTM fit's time and more); here each
+/// texel is judged while the fit has its values in cache, and a texel with flagged values is
+/// fitted from a repaired copy of its ABRDF, which is what the fit of a repaired copy of the
+/// whole data does to that texel. The values flagged are collected for the report.
+#[derive(Debug)]
+pub struct TexelScreen<'a> {
+    judge: ValueScreen<'a>,
+    found: std::sync::Mutex<Flags>,
+}
+
+impl<'a> TexelScreen<'a> {
+    /// The screen of the values of `btf` (its values and mask: those judged, which a fit that
+    /// leaves out bad images does not share) with the `floor` of [`screen_images`].
+    pub fn new(btf: &BtfRef<'a>, floor: f32) -> Self {
+        TexelScreen { judge: ValueScreen::new(btf, floor), found: std::sync::Mutex::new(Flags::new()) }
+    }
+
+    /// Texel `t`'s ABRDF (`values`, as the fit reads it) with its flagged values replaced, or
+    /// `None` when none is flagged (the common case: no copy).
+    pub fn repaired(&self, t: usize, values: &[f32]) -> Option<Vec<f32>> {
+        let mut flags = Flags::new();
+        self.judge.flag_texel(t, &mut Scratch::default(), &mut flags);
+        if flags.is_empty() {
+            return None;
+        }
+        let base = t * values.len();
+        let mut fixed = values.to_vec();
+        for &(i, x) in &flags {
+            fixed[i - base] = x;
+        }
+        self.found.lock().unwrap_or_else(|e| e.into_inner()).extend(flags);
+        Some(fixed)
+    }
+
+    /// Every value flagged, in increasing index (as [`screen_values`] lists them).
+    pub fn into_flags(self) -> Flags {
+        let mut f = self.found.into_inner().unwrap_or_else(|e| e.into_inner());
+        f.sort_unstable_by_key(|x| x.0);
+        f
+    }
 }
 
 /// Screen `btf`'s present values (module docs).
@@ -944,9 +1052,13 @@ impl Screen {
     }
 }
 
-/// Fit model `kind` with its options (a JSON object) robustly: screen, repair the flagged
-/// values in a copy, optionally mask the bad images, fit. Returns the model and the robust
-/// report (`Null` with `robust = false`).
+/// Fit model `kind` with its options (a JSON object) robustly: judge the images, optionally
+/// mask the bad ones, screen the values and fit to the repaired values. Returns the model and
+/// the robust report (`Null` with `robust = false`).
+///
+/// A model whose texels are fitted apart ([`crate::Model::SCREENS_TEXELS`]) screens each texel
+/// in its own pass ([`TexelScreen`]); the others are screened first and fitted to a repaired
+/// copy of the values. Both give the same model.
 pub fn fit(
     entry: &crate::registry::Entry,
     btf: &BtfRef<'_>,
@@ -957,7 +1069,11 @@ pub fn fit(
     if !robust.robust && !robust.exclude_bad_images {
         return Ok(((entry.fit)(btf, options, monitor)?, Value::Null));
     }
-    let sc = screen(btf, monitor)?;
+    let (h, w) = (btf.height, btf.width);
+    let im = screen_images(btf.views, btf.lights, btf.mask, btf.data, &sample_texels(h, w))?;
+    let moved = moved_images(btf.views, btf.lights, btf.mask, btf.data, w, patch_window(h, w))?;
+    monitor.check()?;
+    let mut sc = Screen::new(Flags::new(), im, moved);
     let mut mask_owned: Option<Vec<bool>> = None;
     if robust.exclude_bad_images && !sc.bad_images.is_empty() {
         let nl = btf.lights.len();
@@ -970,6 +1086,17 @@ pub fn fit(
         }
         mask_owned = Some(m);
     }
+    let mask = mask_owned.as_deref().or(btf.mask);
+    if let (true, Some(fit_screened)) = (robust.robust, entry.fit_screened) {
+        let ts = TexelScreen::new(btf, sc.floor);
+        let b = BtfRef::new(h, w, btf.views, btf.lights, btf.data, mask)?;
+        let model = fit_screened(&b, options, &ts, monitor)?;
+        sc.values = ts.into_flags();
+        let mut report = sc.report(btf, true, robust.exclude_bad_images);
+        report["robust"] = json!(true);
+        return Ok((model, report));
+    }
+    sc.values = screen_values(btf, sc.floor, 0..h, 0..w, monitor)?;
     // Out of core: a repaired copy that does not fit the memory limit is not made; the values
     // found are reported (`repaired: false`, with the reason) and the fit sees them as measured.
     let too_big =
@@ -984,7 +1111,6 @@ pub fn fit(
         }
         Some(d)
     };
-    let mask = mask_owned.as_deref().or(btf.mask);
     let fit_on = |data: Option<&[f32]>| -> Result<Box<dyn crate::model::DynModel>> {
         let b = BtfRef::new(btf.height, btf.width, btf.views, btf.lights, data.unwrap_or(btf.data), mask)?;
         (entry.fit)(&b, options, monitor)
@@ -1054,7 +1180,24 @@ mod tests {
                     }
                 })
                 .collect();
-            for st in [row_stats(&row), row_lanes::<12>(&row), row_lanes::<24>(&row), row_lanes::<48>(&row)] {
+            let full = [
+                row_stats(&row),
+                row_lanes::<12, true>(&row),
+                row_lanes::<24, true>(&row),
+                row_lanes::<48, true>(&row),
+            ];
+            let bounds = [
+                row_bounds(&row),
+                row_lanes::<12, false>(&row),
+                row_lanes::<24, false>(&row),
+                row_lanes::<48, false>(&row),
+            ];
+            // Without the second largest: the same bits for the rest (the gate's order relies on it).
+            for (b, f) in bounds.iter().zip(&full) {
+                assert!(b.sum == f.sum && b.top == f.top && b.lowest == f.lowest, "n {n}");
+                assert_eq!(b.second, [f32::NEG_INFINITY; 3]);
+            }
+            for st in full {
                 for c in 0..3 {
                     let mut v: Vec<f32> = row.iter().skip(c).step_by(3).copied().collect();
                     let sum: f64 = v.iter().map(|&y| y as f64).sum();
@@ -1144,6 +1287,52 @@ mod tests {
         assert_eq!(got, hot);
         for &(i, x) in &sc.values {
             assert!((x - clean[i]).abs() <= 0.25 * clean[i] + 1e-6, "{i}: {x} vs {}", clean[i]);
+        }
+    }
+
+    /// The fits that screen each texel in their own pass (PTM, HSH) give the model that a fit to
+    /// a repaired copy of the whole data gives (the separate screen's flags applied), bit for
+    /// bit, and flag the same values; with and without held-out pairs, every path of the pass
+    /// (PTM-RGB's texels 8 at a time and the rest of a row, PTM-LRGB's one at a time).
+    #[test]
+    fn a_screen_inside_the_pass_fits_what_a_repaired_copy_fits() {
+        let (h, w, nv, nl) = (8, 11, 3, 40);
+        let (views, lights, mut data) = lambert(h, w, nv, nl);
+        let abrdf = nv * nl * 3;
+        // Texels 0, 9 (in a group of 8), 10 (the rest of row 1), 45 and the last.
+        for &i in &[5usize, 9 * abrdf + 200, 10 * abrdf + 3, 45 * abrdf + 301, data.len() - 1] {
+            data[i] *= 1000.0;
+        }
+        let mut mask = vec![true; nv * nl];
+        mask[7] = false;
+        mask[nl + 3] = false;
+        let robust = RobustOptions { robust: true, exclude_bad_images: false };
+        for m in [None, Some(&mask[..])] {
+            let b = BtfRef::new(h, w, &views, &lights, &data, m).unwrap();
+            let sc = screen(&b, &Monitor::new()).unwrap();
+            assert_eq!(sc.values.len(), 5);
+            let mut fixed = data.clone();
+            for &(i, x) in &sc.values {
+                fixed[i] = x;
+            }
+            let repaired = BtfRef::new(h, w, &views, &lights, &fixed, m).unwrap();
+            for (kind, opts) in [
+                ("ptm", r#"{"kind": "rgb"}"#),
+                ("ptm", r#"{"kind": "lrgb"}"#),
+                ("hsh", "{}"),
+                ("hsh", r#"{"order": 3, "bits": 32}"#),
+            ] {
+                let e = crate::registry::lookup(kind).unwrap();
+                assert!(e.fit_screened.is_some(), "{kind}");
+                let (model, report) = fit(e, &b, opts, robust, &Monitor::new()).unwrap();
+                let reference = (e.fit)(&repaired, opts, &Monitor::new()).unwrap();
+                assert!(model.to_arrays() == reference.to_arrays(), "{kind} {opts} mask {}", m.is_some());
+                assert_eq!(report["values_flagged"], sc.values.len(), "{kind} {opts}");
+                assert_eq!(report["values_replaced"], sc.values.len(), "{kind} {opts}");
+            }
+            let ts = TexelScreen::new(&b, sc.floor);
+            crate::ptm::fit_ptm_screened(&b, &Default::default(), Some(&ts), &Monitor::new()).unwrap();
+            assert_eq!(ts.into_flags(), sc.values);
         }
     }
 
