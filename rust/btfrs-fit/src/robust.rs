@@ -35,6 +35,13 @@
 //! at neighbouring texels, and is kept: on the clean built-in materials a few values in ten
 //! thousand are flagged and no model's error moves by 1%.
 //!
+//! **Where the value screen runs.** Most fits get a repaired copy of the values, screened in a
+//! pass of its own before the fit. PTM and HSH fit every texel from its own values alone, so
+//! they judge each texel inside their own pass instead ([`TexelScreen`]), while its values are
+//! in cache, and fit a texel with flagged values from a repaired copy of its ABRDF: the same
+//! model, without the second read of the data nor a copy of it (a memory-mapped BTF larger than
+//! the memory limit is repaired too).
+//!
 //! **Bad images.** For every (view, light) pair the log of the median over 64 texels (an 8 x 8
 //! grid) of `(x + a) / (m + a)`, the ratio of the image's luminance to its light neighbours'
 //! (`m`: their mean without the smallest and the largest, so one bad neighbour moves it little),

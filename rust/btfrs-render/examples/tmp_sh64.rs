@@ -1,0 +1,59 @@
+use btfrs_core::materials::{generate, MaterialSpec, Preset};
+use btfrs_core::Monitor;
+use btfrs_fit::{fit_ptm, fit_sh, PtmOptions, ShOptions};
+use btfrs_render::scene::{Camera, Light, Mesh};
+use btfrs_render::{gpu, Gpu, View, WithShader};
+use std::time::Instant;
+
+fn time(gpu: &Gpu, m: &dyn btfrs_fit::Renderable, view: &View<'_>, repeat: usize) -> (f64, f64) {
+    let up = gpu::upload(gpu, m).unwrap();
+    let t = Instant::now();
+    let _ = gpu::render(gpu, &up, view).unwrap();
+    let first = t.elapsed().as_secs_f64();
+    let best = (0..repeat).map(|_| gpu::render(gpu, &up, view).unwrap().1.draw_ms).fold(f64::INFINITY, f64::min);
+    (first, best)
+}
+
+fn main() {
+    let gpu = Gpu::shared().expect("adapter");
+    let mon = Monitor::new();
+    let size: usize = std::env::var("N").map(|s| s.parse().unwrap()).unwrap_or(64);
+    let btf = generate(&MaterialSpec::new(Preset::Knit, 16, 1), &mon).unwrap();
+    let b = btf.as_ref();
+    let ptm = fit_ptm(&b, &PtmOptions::default(), &mon).unwrap();
+    let sh = fit_sh(&b, &ShOptions { light_coeffs: size, view_coeffs: size, ..ShOptions::default() }, &mon).unwrap();
+    if std::env::var("DUMP").is_ok() {
+        std::fs::write("/tmp/shv/middle.wgsl", btfrs_fit::sh::wgsl::middle_source(size, size)).unwrap();
+        std::fs::write("/tmp/shv/generic.wgsl", btfrs_fit::sh::wgsl::GENERIC).unwrap();
+        return;
+    }
+    let mesh = Mesh::sphere(1.0, 64, 32).unwrap();
+    let cam = Camera::look_at([0.0, -3.0, 2.0], [0.0, 0.0, 0.0], 40.0).unwrap();
+    let point = [Light::Point { position: [2.0, -2.0, 3.0], intensity: [8.0; 3] }];
+    let view = View {
+        mesh: &mesh,
+        camera: &cam,
+        lights: &point,
+        width: 512,
+        height: 512,
+        uv_scale: [4.0, 4.0],
+        coords: None,
+        tiles: None,
+        filter: None,
+    };
+    let (f, p) = time(&gpu, &ptm, &view, 5);
+    println!("PTM-RGB: first {f:.2} s, draw {p:.0} ms");
+    let (f0, d0) = time(&gpu, &sh, &view, 3);
+    let up = gpu::upload(&gpu, &sh).unwrap();
+    let reference = gpu::render(&gpu, &up, &view).unwrap().0;
+    println!("SH {size}x{size} built-in: first {f0:.2} s, draw {d0:.0} ms ({:.2}x)", d0 / p);
+    for path in std::env::args().skip(1) {
+        let src: &'static str = Box::leak(std::fs::read_to_string(&path).unwrap().into_boxed_str());
+        let w = WithShader(&sh, src);
+        let (f, d) = time(&gpu, &w, &view, 3);
+        let up = gpu::upload(&gpu, &w).unwrap();
+        let img = gpu::render(&gpu, &up, &view).unwrap().0;
+        let diff = img.iter().zip(&reference).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+        println!("{path}: first {f:.2} s, draw {d:.0} ms ({:.2}x), max diff {diff:.2e}", d / p);
+    }
+}
