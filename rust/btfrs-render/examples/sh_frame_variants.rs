@@ -1,3 +1,11 @@
+//! Double-SH frames against PTM-RGB's, with other WGSL forms of the SH shader: a 512² sphere
+//! under one point light, knit 16², fitted at `N x N` coefficients (env `N`, default 64: the
+//! largest size the fit makes). Prints the first frame (pipeline build and draw: run with
+//! `MESA_SHADER_CACHE_DISABLE=true` so that every first frame compiles) and the best of 3 draws,
+//! for PTM-RGB, the SH model's own shader, and each WGSL file given (drawn with `WithShader`,
+//! their images compared with the own shader's). `--dump DIR` writes the generated middle form
+//! and the generic shader there, to edit into variants.
+//! `MESA_SHADER_CACHE_DISABLE=true cargo run --release -p btfrs-render --example sh_frame_variants -- [FILE.wgsl ...]`
 use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::Monitor;
 use btfrs_fit::{fit_ptm, fit_sh, PtmOptions, ShOptions};
@@ -22,10 +30,14 @@ fn main() {
     let b = btf.as_ref();
     let ptm = fit_ptm(&b, &PtmOptions::default(), &mon).unwrap();
     let sh = fit_sh(&b, &ShOptions { light_coeffs: size, view_coeffs: size, ..ShOptions::default() }, &mon).unwrap();
-    if std::env::var("DUMP").is_ok() {
-        std::fs::write("/tmp/shv/middle.wgsl", btfrs_fit::sh::wgsl::middle_source(size, size)).unwrap();
-        std::fs::write("/tmp/shv/generic.wgsl", btfrs_fit::sh::wgsl::GENERIC).unwrap();
-        return;
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if let [flag, dir] = &args[..] {
+        if flag == "--dump" {
+            let dir = std::path::Path::new(dir);
+            std::fs::write(dir.join("middle.wgsl"), btfrs_fit::sh::wgsl::middle_source(size, size)).unwrap();
+            std::fs::write(dir.join("generic.wgsl"), btfrs_fit::sh::wgsl::GENERIC).unwrap();
+            return;
+        }
     }
     let mesh = Mesh::sphere(1.0, 64, 32).unwrap();
     let cam = Camera::look_at([0.0, -3.0, 2.0], [0.0, 0.0, 0.0], 40.0).unwrap();
@@ -47,7 +59,7 @@ fn main() {
     let up = gpu::upload(&gpu, &sh).unwrap();
     let reference = gpu::render(&gpu, &up, &view).unwrap().0;
     println!("SH {size}x{size} built-in: first {f0:.2} s, draw {d0:.0} ms ({:.2}x)", d0 / p);
-    for path in std::env::args().skip(1) {
+    for path in args {
         let src: &'static str = Box::leak(std::fs::read_to_string(&path).unwrap().into_boxed_str());
         let w = WithShader(&sh, src);
         let (f, d) = time(&gpu, &w, &view, 3);
