@@ -754,7 +754,7 @@ fn row_lanes<const N: usize, const SECOND: bool>(row: &[f32]) -> RowStats {
     // channels: lanes `k` and `k + n / 2` hold the same channel while `n / 2` is a multiple of 3.
     let mut n = N;
     while n > 3 {
-        let half = if (n / 2) % 3 == 0 { n / 2 } else { 3 };
+        let half = if (n / 2).is_multiple_of(3) { n / 2 } else { 3 };
         for k in 0..n - half {
             let (t, s) = (top[half + k], second[half + k]);
             sum[k] += sum[half + k];
