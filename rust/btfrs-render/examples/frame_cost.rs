@@ -4,28 +4,17 @@
 use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::Monitor;
 use btfrs_fit::{fit_ptm, PtmOptions};
-use btfrs_render::scene::{Camera, Light, Mesh};
-use btfrs_render::{gpu, Gpu, View, WithShader};
+use btfrs_render::{gpu, Gpu, WithShader};
+
+mod common;
 
 fn main() {
     let gpu = Gpu::shared().expect("adapter");
     println!("{}", gpu.describe());
     let btf = generate(&MaterialSpec::new(Preset::Weave, 64, 2), &Monitor::new()).unwrap();
     let ptm = fit_ptm(&btf.as_ref(), &PtmOptions::default(), &Monitor::new()).unwrap();
-    let mesh = Mesh::sphere(1.0, 64, 32).unwrap();
-    let cam = Camera::look_at([0.0, -3.0, 2.0], [0.0, 0.0, 0.0], 40.0).unwrap();
-    let lights = [Light::Point { position: [2.0, -2.0, 3.0], intensity: [8.0; 3] }];
-    let view = View {
-        mesh: &mesh,
-        camera: &cam,
-        lights: &lights,
-        width: 512,
-        height: 512,
-        uv_scale: [4.0, 4.0],
-        coords: None,
-        tiles: None,
-        filter: None,
-    };
+    let scene = common::Sphere::new();
+    let view = scene.view(&scene.point, (512, 512));
     let nothing = "struct ViewQuery { x: f32 };\nfn view_query(v: vec3<f32>) -> ViewQuery { return ViewQuery(v.z); }\nfn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> { return vec3<f32>(vq.x * l.z); }\n";
     let search = "struct ViewQuery { w: Weights3 };\nfn view_query(v: vec3<f32>) -> ViewQuery { return ViewQuery(interp3(0u, mp.n_views, mp.view_table, v)); }\nfn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> { return vec3<f32>(vq.w.w0, vq.w.w1, f32(vq.w.i0)); }\n";
     for (name, src) in [

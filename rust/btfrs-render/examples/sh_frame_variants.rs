@@ -9,9 +9,10 @@
 use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::Monitor;
 use btfrs_fit::{fit_ptm, fit_sh, PtmOptions, ShOptions};
-use btfrs_render::scene::{Camera, Light, Mesh};
 use btfrs_render::{gpu, Gpu, View, WithShader};
 use std::time::Instant;
+
+mod common;
 
 fn time(gpu: &Gpu, m: &dyn btfrs_fit::Renderable, view: &View<'_>, repeat: usize) -> (f64, f64) {
     let up = gpu::upload(gpu, m).unwrap();
@@ -39,20 +40,8 @@ fn main() {
             return;
         }
     }
-    let mesh = Mesh::sphere(1.0, 64, 32).unwrap();
-    let cam = Camera::look_at([0.0, -3.0, 2.0], [0.0, 0.0, 0.0], 40.0).unwrap();
-    let point = [Light::Point { position: [2.0, -2.0, 3.0], intensity: [8.0; 3] }];
-    let view = View {
-        mesh: &mesh,
-        camera: &cam,
-        lights: &point,
-        width: 512,
-        height: 512,
-        uv_scale: [4.0, 4.0],
-        coords: None,
-        tiles: None,
-        filter: None,
-    };
+    let scene = common::Sphere::new();
+    let view = scene.view(&scene.point, (512, 512));
     let (f, p) = time(&gpu, &ptm, &view, 5);
     println!("PTM-RGB: first {f:.2} s, draw {p:.0} ms");
     let (f0, d0) = time(&gpu, &sh, &view, 3);

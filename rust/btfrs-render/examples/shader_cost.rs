@@ -9,8 +9,9 @@ use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::Monitor;
 use btfrs_fit::{fit_bilinear, fit_ptm, fit_rbf, fit_sh, BilinearOptions, PtmOptions, RbfOptions, ShOptions};
 use btfrs_render::environment::Environment;
-use btfrs_render::scene::{Camera, Light, Mesh};
 use btfrs_render::{gpu, Gpu, View, WithShader};
+
+mod common;
 
 fn best(gpu: &Gpu, m: &dyn btfrs_fit::Renderable, view: &View<'_>, repeat: usize) -> f64 {
     let up = gpu::upload(gpu, m).unwrap();
@@ -28,24 +29,9 @@ fn main() {
     let sh = fit_sh(&b, &ShOptions::default(), &mon).unwrap();
     let rbf = fit_rbf(&b, &RbfOptions::default(), &mon).unwrap();
     let bil = fit_bilinear(&b, &BilinearOptions::default(), &mon).unwrap();
-    let mesh = Mesh::sphere(1.0, 64, 32).unwrap();
-    let cam = Camera::look_at([0.0, -3.0, 2.0], [0.0, 0.0, 0.0], 40.0).unwrap();
-    let point = [Light::Point { position: [2.0, -2.0, 3.0], intensity: [8.0; 3] }];
+    let scene = common::Sphere::new();
     let sky = Environment::sky([0.3, 0.2, 0.9], 3.0, 128, 0.2).unwrap().sample_lights(64, 0).unwrap();
-    let view = |lights: &'static [Light], (h, w): (usize, usize)| View {
-        mesh: &mesh,
-        camera: &cam,
-        lights,
-        width: w,
-        height: h,
-        uv_scale: [4.0, 4.0],
-        coords: None,
-        tiles: None,
-        filter: None,
-    };
-    let sky: &'static [Light] = Box::leak(sky.into_boxed_slice());
-    let point: &'static [Light] = Box::leak(Box::new(point));
-    let (one, env) = (view(point, (512, 512)), view(sky, (480, 640)));
+    let (one, env) = (scene.view(&scene.point, (512, 512)), scene.view(&sky, (480, 640)));
     let generic = btfrs_fit::sh::wgsl::GENERIC;
     let alt: Option<&'static str> =
         std::env::var("ALT_LIGHT_PCA").ok().map(|p| &*Box::leak(std::fs::read_to_string(p).unwrap().into_boxed_str()));
