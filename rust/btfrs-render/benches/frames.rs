@@ -11,33 +11,23 @@ use btfrs_core::Monitor;
 use btfrs_fit::registry::MODELS;
 use btfrs_fit::{DynModel, RawModel, Renderable};
 use btfrs_render::environment::Environment;
-use btfrs_render::scene::{Camera, Light, Mesh};
 use btfrs_render::sh_env::ShEnvironment;
-use btfrs_render::{gpu, Gpu, View};
+use btfrs_render::{gpu, Gpu};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use std::time::Duration;
+
+// The scene of the render examples.
+#[path = "../examples/common/mod.rs"]
+mod common;
 
 fn bench(c: &mut Criterion) {
     let gpu = Gpu::shared().expect("a wgpu adapter (lavapipe: apt-get install mesa-vulkan-drivers)");
     let btf = generate(&MaterialSpec::new(Preset::Knit, 32, 1), &Monitor::new()).unwrap();
     let b = btf.as_ref();
-    let mesh = Mesh::sphere(1.0, 64, 32).unwrap();
-    let cam = Camera::look_at([0.0, -3.0, 2.0], [0.0, 0.0, 0.0], 40.0).unwrap();
-    let point = [Light::Point { position: [2.0, -2.0, 3.0], intensity: [8.0; 3] }];
+    let scene = common::Sphere::new();
     let env = Environment::sky([0.3, 0.2, 0.9], 3.0, 128, 0.2).unwrap();
     let sky = env.sample_lights(64, 0).unwrap();
-    let view = |lights, width, height| View {
-        mesh: &mesh,
-        camera: &cam,
-        lights,
-        width,
-        height,
-        uv_scale: [4.0, 4.0],
-        coords: None,
-        tiles: None,
-        filter: None,
-    };
-    let (one, many) = (view(&point, 256, 256), view(&sky, 320, 240));
+    let (one, many) = (scene.view(&scene.point, (256, 256)), scene.view(&sky, (240, 320)));
 
     let mut fitted: Vec<(&str, Box<dyn DynModel>, &str)> = Vec::new();
     for e in MODELS {

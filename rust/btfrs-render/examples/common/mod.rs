@@ -1,4 +1,4 @@
-//! The scene the render examples time, as the Python bench's frames: a unit sphere (64 x 32
+//! The scene the render examples and the frame benches time, as the Python bench's frames: a unit sphere (64 x 32
 //! segments) seen from (0, -3, 2) with a 40 degree field of view, the texture repeated 4 x 4,
 //! and one point light at (2, -2, 3).
 use btfrs_render::scene::{Camera, Light, Mesh};
