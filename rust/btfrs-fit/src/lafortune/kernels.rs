@@ -214,70 +214,195 @@ impl Layout {
     }
 }
 
-/// would not vectorise: LLVM may not reassociate floating-point additions by itself).
+/// Lanes of the partial sums that [`dot_lanes`] and [`gram_block`] keep across the chunks of a
+/// pass: each lane sums every eighth product, and the lanes are added only once at the end
+/// ([`lane_sum`]), instead of reducing a vector to one number for every chunk and product (74
+/// reductions per chunk of a two-lobe Newton step).
+pub(crate) const LANES: usize = 8;
+/// The side of the square blocks in which [`gram_chunk`] accumulates `J^T J`.
+const TILE: usize = 4;
+/// One block of the Gram matrix: `TILE x TILE` entries of [`LANES`] partial sums each.
+pub(crate) type Tile = [[f64; LANES]; TILE * TILE];
+/// Rows of one chunk's Jacobian and residual (the residual as the row after the parameters),
+/// padded with zero rows to whole tiles.
+const ROWS: usize = (MAXM + 1).next_multiple_of(TILE);
+
+/// The blocks of the upper triangle of the Gram matrix of `rows` Jacobian and residual rows
+/// ([`blocks`]).
+pub(crate) fn gram_tiles(rows: usize) -> usize {
+    let nb = rows.div_ceil(TILE);
+    nb * (nb + 1) / 2
+}
+
+/// The lanes of `v` added up, in a fixed order (the same at every call, so the result does not
+/// depend on which kernel produced the lanes' layout).
 #[inline(always)]
-fn dot<const F: bool, const Z: bool>(x: &[f64; CH], y: &[f64; CH]) -> f64 {
+fn lane_sum(v: &[f64; LANES]) -> f64 {
+    ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7]))
+}
+
+/// Adds the products `x[i] y[i]` of one chunk into the [`LANES`] partial sums `acc` (lane `i %
+/// 8` for the portable and AVX-512 kernels; the AVX2 kernel uses lanes 0-3). Written as lanes
+/// rather than one running sum because LLVM may not reassociate floating-point additions by
+/// itself, and a single chain would not vectorise.
+#[inline(always)]
+fn dot_lanes<const F: bool, const Z: bool>(x: &[f64; CH], y: &[f64; CH], acc: &mut [f64; LANES]) {
     #[cfg(target_arch = "x86_64")]
     if Z {
         // SAFETY: `Z` is true only in the kernels compiled with AVX-512, which run only after
         // `have_avx512()` confirmed the CPU has it.
-        return unsafe { dot_avx512(x, y) };
+        return unsafe { dot_lanes_avx512(x, y, acc) };
     }
     #[cfg(target_arch = "x86_64")]
     if F {
         // SAFETY: `F` is true only in the kernels compiled with AVX2 and FMA enabled, which run
         // only after `have_fma()` confirmed the CPU has both.
-        return unsafe { dot_avx2(x, y) };
+        return unsafe { dot_lanes_avx2(x, y, acc) };
     }
-    let mut acc = [0.0f64; 8];
-    for (xs, ys) in x.as_chunks::<8>().0.iter().zip(y.as_chunks::<8>().0) {
-        for k in 0..8 {
+    for (xs, ys) in x.as_chunks::<LANES>().0.iter().zip(y.as_chunks::<LANES>().0) {
+        for k in 0..LANES {
             acc[k] = mad::<F>(xs[k], ys[k], acc[k]);
         }
     }
-    ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
 }
 
-/// [`dot`] with AVX2 intrinsics: four 4-lane FMA chains. LLVM's own vectorisation of the
-/// portable version shuffles lanes across the fully unrolled chunk and runs 3x slower; the
-/// `J^T J` accumulation is most of the cost of an accepted LM step.
+/// [`dot_lanes`] with AVX2 intrinsics: four 4-lane FMA chains, added into lanes 0-3. LLVM's own
+/// vectorisation of the portable version shuffles lanes across the fully unrolled chunk and
+/// runs 3x slower.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 #[inline]
-fn dot_avx2(x: &[f64; CH], y: &[f64; CH]) -> f64 {
+fn dot_lanes_avx2(x: &[f64; CH], y: &[f64; CH], acc: &mut [f64; LANES]) {
     use std::arch::x86_64::*;
     const { assert!(CH.is_multiple_of(16)) };
     let (px, py) = (x.as_ptr(), y.as_ptr());
-    let mut acc = [_mm256_setzero_pd(); 4];
+    let mut t = [_mm256_setzero_pd(); 4];
     for j in (0..CH).step_by(16) {
-        for (k, a) in acc.iter_mut().enumerate() {
+        for (k, a) in t.iter_mut().enumerate() {
             // SAFETY: j + 4 k + 3 < CH, so the 4 loaded values lie inside both arrays.
             let (xv, yv) = unsafe { (_mm256_loadu_pd(px.add(j + 4 * k)), _mm256_loadu_pd(py.add(j + 4 * k))) };
             *a = _mm256_fmadd_pd(xv, yv, *a);
         }
     }
-    let s = _mm256_add_pd(_mm256_add_pd(acc[0], acc[1]), _mm256_add_pd(acc[2], acc[3]));
-    let t = _mm_add_pd(_mm256_castpd256_pd128(s), _mm256_extractf128_pd::<1>(s));
-    _mm_cvtsd_f64(_mm_add_sd(t, _mm_unpackhi_pd(t, t)))
+    let s = _mm256_add_pd(_mm256_add_pd(t[0], t[1]), _mm256_add_pd(t[2], t[3]));
+    // SAFETY: `acc` holds 8 >= 4 values.
+    unsafe { _mm256_storeu_pd(acc.as_mut_ptr(), _mm256_add_pd(_mm256_loadu_pd(acc.as_ptr()), s)) };
 }
 
-/// [`dot`] with AVX-512 intrinsics: two 8-lane FMA chains.
+/// [`dot_lanes`] with AVX-512 intrinsics: two 8-lane FMA chains.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 #[inline]
-fn dot_avx512(x: &[f64; CH], y: &[f64; CH]) -> f64 {
+fn dot_lanes_avx512(x: &[f64; CH], y: &[f64; CH], acc: &mut [f64; LANES]) {
     use std::arch::x86_64::*;
     const { assert!(CH.is_multiple_of(16)) };
     let (px, py) = (x.as_ptr(), y.as_ptr());
-    let mut acc = [_mm512_setzero_pd(); 2];
+    let mut t = [_mm512_setzero_pd(); 2];
     for j in (0..CH).step_by(16) {
-        for (k, a) in acc.iter_mut().enumerate() {
+        for (k, a) in t.iter_mut().enumerate() {
             // SAFETY: j + 8 k + 7 < CH, so the 8 loaded values lie inside both arrays.
             let (xv, yv) = unsafe { (_mm512_loadu_pd(px.add(j + 8 * k)), _mm512_loadu_pd(py.add(j + 8 * k))) };
             *a = _mm512_fmadd_pd(xv, yv, *a);
         }
     }
-    _mm512_reduce_add_pd(_mm512_add_pd(acc[0], acc[1]))
+    // SAFETY: `acc` holds the 8 values one vector loads and stores.
+    unsafe {
+        let s = _mm512_add_pd(_mm512_loadu_pd(acc.as_ptr()), _mm512_add_pd(t[0], t[1]));
+        _mm512_storeu_pd(acc.as_mut_ptr(), s);
+    }
+}
+
+/// The row blocks of the Gram matrix of `rows` Jacobian and residual rows: `TILE` rows each, the
+/// last one 2 (a fit has `4 lobes + 1` or `+ 2` of them; an odd count is padded with a zero row).
+fn blocks(rows: usize) -> impl Iterator<Item = (usize, usize)> {
+    let n = rows.next_multiple_of(2);
+    (0..n).step_by(TILE).map(move |q0| (q0, TILE.min(n - q0)))
+}
+
+/// Adds the products of rows `q0..q0 + TQ` with rows `u0..u0 + TU` of one chunk into `tile`
+/// (entry `4 a + b` for rows `q0 + a`, `u0 + b`), as [`dot_lanes`] would for each pair; `DIAG`:
+/// the block on the diagonal (`q0 = u0`), of which only the upper triangle is computed. The
+/// point of a block: each loaded vector of samples serves up to four products instead of one,
+/// so the `J^T J` accumulation (45 products for two lobes and kd) is no longer bound by the
+/// loads, which two dot products per pair were (two loads for each multiply-add).
+#[inline(always)]
+fn gram_block<const F: bool, const Z: bool, const TQ: usize, const TU: usize, const DIAG: bool>(
+    rows: &[[f64; CH]; ROWS],
+    q0: usize,
+    u0: usize,
+    tile: &mut Tile,
+) {
+    let (Some(qr), Some(ur)) = (rows[q0..].first_chunk::<TQ>(), rows[u0..].first_chunk::<TU>()) else {
+        return; // blocks() stays inside ROWS, a multiple of TILE: unreachable
+    };
+    #[cfg(target_arch = "x86_64")]
+    if Z {
+        // SAFETY: as in `dot_lanes`.
+        return unsafe { gram_block_avx512::<TQ, TU, DIAG>(qr, ur, tile) };
+    }
+    for a in 0..TQ {
+        for b in 0..TU {
+            if !DIAG || b >= a {
+                dot_lanes::<F, Z>(&qr[a], &ur[b], &mut tile[TILE * a + b]);
+            }
+        }
+    }
+}
+
+/// [`gram_block`] with AVX-512 intrinsics: up to 16 accumulators of 8 lanes, `TQ + TU` loads
+/// for up to `TQ TU` multiply-adds.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+fn gram_block_avx512<const TQ: usize, const TU: usize, const DIAG: bool>(
+    qr: &[[f64; CH]; TQ],
+    ur: &[[f64; CH]; TU],
+    tile: &mut Tile,
+) {
+    use std::arch::x86_64::*;
+    let mut t = [_mm512_setzero_pd(); TILE * TILE];
+    for j in (0..CH).step_by(8) {
+        // SAFETY: j + 7 < CH, so every load lies inside its row.
+        let qv: [__m512d; TQ] = std::array::from_fn(|a| unsafe { _mm512_loadu_pd(qr[a].as_ptr().add(j)) });
+        let uv: [__m512d; TU] = std::array::from_fn(|b| unsafe { _mm512_loadu_pd(ur[b].as_ptr().add(j)) });
+        for a in 0..TQ {
+            for b in 0..TU {
+                if !DIAG || b >= a {
+                    t[TILE * a + b] = _mm512_fmadd_pd(qv[a], uv[b], t[TILE * a + b]);
+                }
+            }
+        }
+    }
+    for a in 0..TQ {
+        for b in 0..TU {
+            if !DIAG || b >= a {
+                let acc = &mut tile[TILE * a + b];
+                // SAFETY: each entry holds the 8 values one vector loads and stores.
+                unsafe {
+                    _mm512_storeu_pd(acc.as_mut_ptr(), _mm512_add_pd(_mm512_loadu_pd(acc.as_ptr()), t[TILE * a + b]))
+                };
+            }
+        }
+    }
+}
+
+/// One chunk's products of every pair of rows of `rows` (the `m1` Jacobian and residual rows)
+/// added into `gram`, block by block ([`blocks`]) in the upper triangle.
+#[inline(always)]
+fn gram_chunk<const F: bool, const Z: bool>(rows: &[[f64; CH]; ROWS], m1: usize, gram: &mut [Tile]) {
+    let mut t = 0;
+    for (q0, tq) in blocks(m1) {
+        for (u0, tu) in blocks(m1).filter(|&(u0, _)| u0 >= q0) {
+            let tile = &mut gram[t];
+            match (tq, tu, q0 == u0) {
+                (4, 4, true) => gram_block::<F, Z, 4, 4, true>(rows, q0, u0, tile),
+                (4, 4, false) => gram_block::<F, Z, 4, 4, false>(rows, q0, u0, tile),
+                (4, _, false) => gram_block::<F, Z, 4, 2, false>(rows, q0, u0, tile),
+                _ => gram_block::<F, Z, 2, 2, true>(rows, q0, u0, tile),
+            }
+            t += 1;
+        }
+    }
 }
 
 /// Per-fit scratch: the target values and, per sample and lobe, `s^n` and `ln s` of the last
@@ -292,11 +417,23 @@ pub(crate) struct Work {
     e: Vec<f64>,
     /// `ln s` likewise (0 where s <= 0).
     l: Vec<f64>,
+    /// The lane sums of `J^T J` and `J^T r`, by blocks ([`gram_chunk`]).
+    gram: Vec<Tile>,
+    /// The lane sums of the second-order term, 10 per lobe.
+    second: Vec<[f64; LANES]>,
 }
 
 impl Work {
     pub fn new(npad: usize, lobes: usize) -> Self {
-        Work { y: vec![0.0; npad], sub: None, e: vec![0.0; npad * lobes], l: vec![0.0; npad * lobes] }
+        Work {
+            y: vec![0.0; npad],
+            sub: None,
+            e: vec![0.0; npad * lobes],
+            l: vec![0.0; npad * lobes],
+            // kd, 4 per lobe and the residual.
+            gram: vec![[[0.0; LANES]; TILE * TILE]; gram_tiles(4 * lobes + 2)],
+            second: vec![[0.0; LANES]; 10 * lobes],
+        }
     }
 }
 
@@ -390,7 +527,7 @@ pub(crate) fn cost_impl<const F: bool>(g: &Geometry, lay: Layout, th: &[f64], w:
 // The Gauss-Newton part alone: the tests, and fits built on these kernels that do not take
 // Newton steps, call it.
 #[cfg_attr(not(test), allow(dead_code))]
-pub(crate) fn normal_equations(g: &Geometry, lay: Layout, th: &[f64], w: &Work, jtj: &mut [f64], jtr: &mut [f64]) {
+pub(crate) fn normal_equations(g: &Geometry, lay: Layout, th: &[f64], w: &mut Work, jtj: &mut [f64], jtr: &mut [f64]) {
     normal_equations_with(g, lay, th, w, jtj, jtr, None)
 }
 
@@ -411,7 +548,7 @@ pub(crate) fn normal_equations_with(
     g: &Geometry,
     lay: Layout,
     th: &[f64],
-    w: &Work,
+    w: &mut Work,
     jtj: &mut [f64],
     jtr: &mut [f64],
     second: Option<&mut [f64]>,
@@ -435,7 +572,7 @@ fn normal_equations_avx512(
     g: &Geometry,
     lay: Layout,
     th: &[f64],
-    w: &Work,
+    w: &mut Work,
     jtj: &mut [f64],
     jtr: &mut [f64],
     second: Option<&mut [f64]>,
@@ -449,7 +586,7 @@ fn normal_equations_fma(
     g: &Geometry,
     lay: Layout,
     th: &[f64],
-    w: &Work,
+    w: &mut Work,
     jtj: &mut [f64],
     jtr: &mut [f64],
     second: Option<&mut [f64]>,
@@ -464,41 +601,56 @@ pub(crate) fn normal_equations_impl<const F: bool, const Z: bool>(
     g: &Geometry,
     lay: Layout,
     th: &[f64],
-    w: &Work,
+    w: &mut Work,
     jtj: &mut [f64],
     jtr: &mut [f64],
-    mut second: Option<&mut [f64]>,
+    second: Option<&mut [f64]>,
 ) {
     let m = lay.m();
     let (off, nl) = (lay.off(), lay.lobes);
     let kd = lay.kd(th);
-    jtj[..m * m].iter_mut().for_each(|x| *x = 0.0);
-    jtr[..m].iter_mut().for_each(|x| *x = 0.0);
-    if let Some(sm) = second.as_deref_mut() {
-        sm[..m * m].iter_mut().for_each(|x| *x = 0.0);
+    // The Gram matrix of the m Jacobian rows and the residual (row m), by tiles of lane sums.
+    let m1 = m + 1;
+    let tiles = gram_tiles(m1);
+    if w.gram.len() < tiles || w.second.len() < 10 * nl {
+        w.gram.resize(tiles, [[0.0; LANES]; TILE * TILE]);
+        w.second.resize(10 * nl, [0.0; LANES]);
     }
-    let mut rows = [[0.0f64; CH]; MAXM];
-    let mut r = [0.0f64; CH];
+    let Work { y, e, l, gram, second: sacc, .. } = w;
+    let gram = &mut gram[..tiles];
+    let sacc = &mut sacc[..10 * nl];
+    gram.iter_mut().for_each(|t| *t = [[0.0; LANES]; TILE * TILE]);
+    sacc.iter_mut().for_each(|v| *v = [0.0; LANES]);
+    // Rows past the residual stay zero: they pad the last tiles.
+    let mut rows = [[0.0f64; CH]; ROWS];
+    // Per lobe, `lz n s^(n-2)` (0 where s <= S_MIN): the second derivatives' common factor.
+    let mut g2 = [[0.0f64; CH]; MAX_LOBES];
     let (mut r1, mut px, mut py, mut pz) = ([0.0f64; CH], [0.0f64; CH], [0.0f64; CH], [0.0f64; CH]);
     let (a, b, c) = (g.a.as_chunks::<CH>().0, g.b.as_chunks::<CH>().0, g.c.as_chunks::<CH>().0);
-    let (lz, y) = (g.lz.as_chunks::<CH>().0, w.y.as_chunks::<CH>().0);
-    let mut es = w.e.as_chunks::<CH>().0.iter();
-    let mut ls = w.l.as_chunks::<CH>().0.iter();
-    for (ci, ((((aj, bj), cj), lzj), yj)) in a.iter().zip(b).zip(c).zip(lz).zip(y).enumerate() {
+    let (lz, y) = (g.lz.as_chunks::<CH>().0, y.as_chunks::<CH>().0);
+    let mut es = e.as_chunks::<CH>().0.iter();
+    let mut ls = l.as_chunks::<CH>().0.iter();
+    for ((((aj, bj), cj), lzj), yj) in a.iter().zip(b).zip(c).zip(lz).zip(y) {
         let mut sum = [kd; CH];
+        let mut lobe_l = [&[0.0f64; CH]; MAX_LOBES];
         for k in 0..nl {
             let p = &th[off + 4 * k..off + 4 * k + 4];
             let (cx, cy, cz, n) = (p[0], p[1], p[2], p[3].exp());
             let (Some(e), Some(l)) = (es.next(), ls.next()) else {
                 return; // Work holds npad * lobes entries: unreachable
             };
+            lobe_l[k] = l;
             let Some([rx, ry, rz, rn]) = rows[off + 4 * k..].first_chunk_mut::<4>() else {
                 return; // m = off + 4 lobes rows exist by construction
             };
+            let g2k = &mut g2[k];
             for i in 0..CH {
                 let s = mad::<F>(cx, aj[i], mad::<F>(cy, bj[i], cz * cj[i]));
-                // e = 0 wherever s <= S_MIN, so the safe divisor only avoids 0/0 there.
-                let gi = lzj[i] * n * e[i] / s.max(S_MIN);
+                // e = 0 wherever s <= S_MIN, so the safe divisor only avoids 0/0 there. One
+                // division: 1 / s serves the first and the second derivatives.
+                let inv = 1.0 / s.max(S_MIN);
+                let gi = lzj[i] * n * e[i] * inv;
+                g2k[i] = gi * inv;
                 rx[i] = gi * aj[i];
                 ry[i] = gi * bj[i];
                 rz[i] = gi * cj[i];
@@ -509,62 +661,72 @@ pub(crate) fn normal_equations_impl<const F: bool, const Z: bool>(
         if lay.diffuse {
             rows[0] = *lzj;
         }
+        let r = &mut rows[m];
         for i in 0..CH {
             r[i] = mad::<F>(lzj[i], sum[i], -yj[i]);
         }
-        if let Some(sm) = second.as_deref_mut() {
-            // The lobes' e and ln s of this chunk again (the iterators above moved past them).
+        if second.is_some() {
+            let r = &rows[m];
             for k in 0..nl {
-                let p = &th[off + 4 * k..off + 4 * k + 4];
-                let (cx, cy, cz, n) = (p[0], p[1], p[2], p[3].exp());
-                let base = (ci * nl + k) * CH;
-                let (e, l) = (&w.e[base..base + CH], &w.l[base..base + CH]);
+                let n = th[off + 4 * k + 3].exp();
+                let l = lobe_l[k];
                 let [rx, ry, rz, rn] =
                     [&rows[off + 4 * k], &rows[off + 4 * k + 1], &rows[off + 4 * k + 2], &rows[off + 4 * k + 3]];
                 for i in 0..CH {
-                    let s = mad::<F>(cx, aj[i], mad::<F>(cy, bj[i], cz * cj[i]));
-                    // rx = lz n s^(n-1) a, so (n - 1) / s * rx * b = lz n (n-1) s^(n-2) a b;
-                    // e = 0 (hence rx = 0) wherever s <= S_MIN.
-                    let q = if e[i] > 0.0 { r[i] * (n - 1.0) / s.max(S_MIN) } else { 0.0 };
-                    px[i] = q * rx[i];
-                    py[i] = q * ry[i];
-                    pz[i] = q * rz[i];
+                    // lz n (n-1) s^(n-2), times the residual; 0 wherever s <= S_MIN.
+                    let q = r[i] * (n - 1.0) * g2[k][i];
+                    px[i] = q * aj[i];
+                    py[i] = q * bj[i];
+                    pz[i] = q * cj[i];
                     r1[i] = r[i] * mad::<F>(n, l[i], 1.0);
                 }
-                let o = off + 4 * k;
-                let blk = [
-                    (0, 0, dot::<F, Z>(&px, aj)),
-                    (0, 1, dot::<F, Z>(&px, bj)),
-                    (0, 2, dot::<F, Z>(&px, cj)),
-                    (1, 1, dot::<F, Z>(&py, bj)),
-                    (1, 2, dot::<F, Z>(&py, cj)),
-                    (2, 2, dot::<F, Z>(&pz, cj)),
-                    (0, 3, dot::<F, Z>(&r1, rx)),
-                    (1, 3, dot::<F, Z>(&r1, ry)),
-                    (2, 3, dot::<F, Z>(&r1, rz)),
-                    (3, 3, dot::<F, Z>(&r1, rn)),
-                ];
-                for (u, v, x) in blk {
-                    sm[(o + u) * m + o + v] += x;
+                let Some(s) = sacc[10 * k..].first_chunk_mut::<10>() else {
+                    return; // 10 per lobe by construction: unreachable
+                };
+                dot_lanes::<F, Z>(&px, aj, &mut s[0]);
+                dot_lanes::<F, Z>(&px, bj, &mut s[1]);
+                dot_lanes::<F, Z>(&px, cj, &mut s[2]);
+                dot_lanes::<F, Z>(&py, bj, &mut s[3]);
+                dot_lanes::<F, Z>(&py, cj, &mut s[4]);
+                dot_lanes::<F, Z>(&pz, cj, &mut s[5]);
+                dot_lanes::<F, Z>(&r1, rx, &mut s[6]);
+                dot_lanes::<F, Z>(&r1, ry, &mut s[7]);
+                dot_lanes::<F, Z>(&r1, rz, &mut s[8]);
+                dot_lanes::<F, Z>(&r1, rn, &mut s[9]);
+            }
+        }
+        gram_chunk::<F, Z>(&rows, m1, gram);
+    }
+    let mut t = 0;
+    for (q0, _) in blocks(m1) {
+        for (u0, _) in blocks(m1).filter(|&(u0, _)| u0 >= q0) {
+            for i in 0..TILE {
+                for j in 0..TILE {
+                    let (q, u) = (q0 + i, u0 + j);
+                    if q <= u && q < m && u < m1 {
+                        let v = lane_sum(&gram[t][TILE * i + j]);
+                        if u < m {
+                            jtj[q * m + u] = v;
+                            jtj[u * m + q] = v;
+                        } else {
+                            jtr[q] = v;
+                        }
+                    }
                 }
             }
-        }
-        for q in 0..m {
-            jtr[q] += dot::<F, Z>(&rows[q], &r);
-            for u in q..m {
-                jtj[q * m + u] += dot::<F, Z>(&rows[q], &rows[u]);
-            }
-        }
-    }
-    for q in 0..m {
-        for u in 0..q {
-            jtj[q * m + u] = jtj[u * m + q];
+            t += 1;
         }
     }
     if let Some(sm) = second {
-        for q in 0..m {
-            for u in 0..q {
-                sm[q * m + u] = sm[u * m + q];
+        sm[..m * m].iter_mut().for_each(|x| *x = 0.0);
+        const BLOCK: [(usize, usize); 10] =
+            [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2), (0, 3), (1, 3), (2, 3), (3, 3)];
+        for k in 0..nl {
+            let o = off + 4 * k;
+            for (&(u, v), x) in BLOCK.iter().zip(&sacc[10 * k..10 * k + 10]) {
+                let x = lane_sum(x);
+                sm[(o + u) * m + o + v] = x;
+                sm[(o + v) * m + o + u] = x;
             }
         }
     }

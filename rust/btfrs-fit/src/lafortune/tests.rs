@@ -198,11 +198,11 @@ fn analytic_jacobian_matches_central_differences() {
             let (mut jtj, mut jtr) = (vec![0.0; MAXM * MAXM], vec![0.0; MAXM]);
             let c = if portable {
                 let c = kernels::cost_impl::<false>(&geo, lay, &th_l, &mut w);
-                kernels::normal_equations_impl::<false, false>(&geo, lay, &th_l, &w, &mut jtj, &mut jtr, None);
+                kernels::normal_equations_impl::<false, false>(&geo, lay, &th_l, &mut w, &mut jtj, &mut jtr, None);
                 c
             } else {
                 let c = kernels::cost(&geo, lay, &th_l, &mut w);
-                kernels::normal_equations(&geo, lay, &th_l, &w, &mut jtj, &mut jtr);
+                kernels::normal_equations(&geo, lay, &th_l, &mut w, &mut jtj, &mut jtr);
                 c
             };
             let what = format!("diffuse {diffuse}, portable {portable}");
@@ -273,7 +273,7 @@ fn second_order_term_matches_differences_of_the_gradient() {
                         &geo,
                         lay,
                         &th_l,
-                        &w,
+                        &mut w,
                         &mut jtj2,
                         &mut jtr2,
                         Some(&mut sec),
@@ -285,7 +285,7 @@ fn second_order_term_matches_differences_of_the_gradient() {
                         &geo,
                         lay,
                         &th_l,
-                        &w,
+                        &mut w,
                         &mut jtj2,
                         &mut jtr2,
                         Some(&mut sec),
@@ -293,7 +293,7 @@ fn second_order_term_matches_differences_of_the_gradient() {
                 }
                 _ => {
                     kernels::cost(&geo, lay, &th_l, &mut w);
-                    kernels::normal_equations_with(&geo, lay, &th_l, &w, &mut jtj2, &mut jtr2, Some(&mut sec));
+                    kernels::normal_equations_with(&geo, lay, &th_l, &mut w, &mut jtj2, &mut jtr2, Some(&mut sec));
                 }
             }
             for q in 0..m {
@@ -307,6 +307,12 @@ fn second_order_term_matches_differences_of_the_gradient() {
                 // The blocks between lobes and with kd are exactly zero (the model is a sum).
             }
             assert!((0..m).all(|q| (0..m).all(|u| jtj2[q * m + u] == jtj2[u * m + q])), "{kind}: J^T J not symmetric");
+            // Every kernel's J^T J (AVX2's included, which the central differences above do not
+            // see) against the portable one's, which those differences check: the same sums in
+            // other orders.
+            for (q, (&got, &want)) in jtj2[..m * m].iter().zip(&jtj[..m * m]).enumerate() {
+                assert!((got - want).abs() <= 1e-12 * scale, "{kind}: J^T J [{}, {}]: {got} vs {want}", q / m, q % m);
+            }
         }
     }
 }
@@ -724,9 +730,15 @@ fn lafortune_profile() {
     let (mut jtj, mut jtr) = ([0.0; MAXM * MAXM], [0.0; MAXM]);
     let s = Instant::now();
     for _ in 0..reps {
-        kernels::normal_equations(&ctx.geo, lay, &th, &w, &mut jtj, &mut jtr);
+        kernels::normal_equations(&ctx.geo, lay, &th, &mut w, &mut jtj, &mut jtr);
     }
     let tn = s.elapsed().as_secs_f64() / reps as f64;
+    let mut sec = [0.0; MAXM * MAXM];
+    let s = Instant::now();
+    for _ in 0..reps {
+        kernels::normal_equations_with(&ctx.geo, lay, &th, &mut w, &mut jtj, &mut jtr, Some(&mut sec));
+    }
+    let tns = s.elapsed().as_secs_f64() / reps as f64;
     let s = Instant::now();
     for _ in 0..reps {
         let fty = ctx.basis.fty(&w.y);
@@ -735,7 +747,7 @@ fn lafortune_profile() {
     let ti = s.elapsed().as_secs_f64() / reps as f64;
     println!(
         "sse {sse_sum:.6e} | samples {} | setup {:.2} ms | per texel: gather {:.1} us, fit {:.1} us, {:.1} LM steps, status {st:?} | \
-         cost pass {:.1} us, normal equations {:.1} us, init {:.1} us ({acc:.1e} {})",
+         cost pass {:.1} us, normal equations {:.1} us (with S {:.1} us), init {:.1} us ({acc:.1e} {})",
         ctx.geo.n,
         setup * 1e3,
         tg / win as f64 * 1e6,
@@ -743,6 +755,7 @@ fn lafortune_profile() {
         it as f64 / win as f64,
         tc * 1e6,
         tn * 1e6,
+        tns * 1e6,
         ti * 1e6,
         jtj[0],
     );
