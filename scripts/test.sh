@@ -35,9 +35,12 @@ stage "cargo fmt --check"
 if cargo fmt --version >/dev/null 2>&1; then cargo fmt --all --check; else echo "rustfmt not installed: format check skipped"; fi
 
 stage "cargo test (workspace; $lint)"
-cargo test --quiet --profile "$BTFRS_PROFILE"
+# --workspace selects the PyO3 crate too (it has no test target: nothing of it is built) so that
+# the dependencies' features resolve as in the extension's build and its compiled dependencies
+# are reused instead of built a second time (rust/btfrs-py/Cargo.toml).
+cargo test --quiet --profile "$BTFRS_PROFILE" --workspace
 stage "cargo build --benches ($lint)"
-cargo build --quiet --profile "$BTFRS_PROFILE" --benches
+cargo build --quiet --profile "$BTFRS_PROFILE" --workspace --benches
 
 stage "stubtest btfrs._native"
 .venv/bin/python -m mypy.stubtest btfrs._native
