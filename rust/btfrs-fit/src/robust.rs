@@ -144,8 +144,15 @@ fn nearest(dirs: &[[f64; 3]], of: usize, among: &[usize], k: usize) -> Vec<usize
             (-(a[0] * b[0] + a[1] * b[1] + a[2] * b[2]), o)
         })
         .collect();
-    by.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
-    by.into_iter().take(k).map(|(_, o)| o).collect()
+    // The k smallest first (linear), then only those sorted: the same k in the same order as a
+    // full sort, since the order is total (ties broken by index).
+    let cmp = |x: &(f64, usize), y: &(f64, usize)| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1));
+    if k < by.len() {
+        by.select_nth_unstable_by(k, cmp);
+        by.truncate(k);
+    }
+    by.sort_by(cmp);
+    by.into_iter().map(|(_, o)| o).collect()
 }
 
 fn median(v: &mut [f32]) -> f32 {
@@ -188,8 +195,11 @@ fn median(v: &mut [f32]) -> f32 {
     }
 }
 
-/// Per view: its present lights and each one's `NEIGHBOURS` nearest present lights (in
-/// parallel; views with the same present lights, all of them without a mask, share one table).
+/// Per view: its present lights and each one's `NEIGHBOURS` nearest present lights (views with
+/// the same present lights, all of them without a mask, share one table). The distinct light
+/// sets are found first and their tables made in parallel, one set per task: with pairs held
+/// out every view has its own set, and a parallel loop over the few dozen lights of each set
+/// spent more on waking the pool's threads than on the work.
 type Table = std::sync::Arc<Vec<(usize, Vec<usize>)>>;
 
 fn light_tables(lights: &[[f64; 3]], mask: Option<&[bool]>, nv: usize) -> Vec<Table> {
@@ -197,23 +207,22 @@ fn light_tables(lights: &[[f64; 3]], mask: Option<&[bool]>, nv: usize) -> Vec<Ta
     let present = |v: usize, l: usize| mask.is_none_or(|m| m[v * nl + l]);
     let table = |ls: &[usize]| -> Vec<(usize, Vec<usize>)> {
         let k = NEIGHBOURS.min(ls.len().saturating_sub(1));
-        ls.par_iter().map(|&l| (l, nearest(lights, l, ls, k))).collect()
+        ls.iter().map(|&l| (l, nearest(lights, l, ls, k))).collect()
     };
-    let mut seen: std::collections::HashMap<Vec<usize>, Table> = std::collections::HashMap::new();
-    let mut nbrs: Vec<Table> = Vec::with_capacity(nv);
-    for v in 0..nv {
-        let ls: Vec<usize> = (0..nl).filter(|&l| present(v, l)).collect();
-        let t = match seen.get(&ls) {
-            Some(t) => t.clone(),
-            None => {
-                let t: Table = std::sync::Arc::new(table(&ls));
-                seen.insert(ls, t.clone());
-                t
-            }
-        };
-        nbrs.push(t);
-    }
-    nbrs
+    let sets: Vec<Vec<usize>> = (0..nv).map(|v| (0..nl).filter(|&l| present(v, l)).collect()).collect();
+    let mut first: std::collections::HashMap<&[usize], usize> = std::collections::HashMap::new();
+    let mut distinct: Vec<&[usize]> = Vec::new();
+    let which: Vec<usize> = sets
+        .iter()
+        .map(|ls| {
+            *first.entry(ls.as_slice()).or_insert_with(|| {
+                distinct.push(ls);
+                distinct.len() - 1
+            })
+        })
+        .collect();
+    let tables: Vec<Table> = distinct.par_iter().map(|ls| std::sync::Arc::new(table(ls))).collect();
+    which.iter().map(|&i| tables[i].clone()).collect()
 }
 
 /// The texels (flat indices) that judge the images and set the floor: a grid of at most
@@ -1140,6 +1149,34 @@ pub fn fit(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The nearest directions against a full sort of every candidate, with ties (repeated
+    /// directions) broken by index, for k from 0 to all of them.
+    #[test]
+    fn nearest_equals_the_first_of_a_full_sort() {
+        let mut rng = btfrs_core::rng::Rng::new(3);
+        let mut dirs: Vec<[f64; 3]> = (0..40)
+            .map(|_| {
+                let (x, y) = (rng.next_f64() - 0.5, rng.next_f64() - 0.5);
+                [x, y, (1.0 - x * x - y * y).sqrt()]
+            })
+            .collect();
+        dirs.extend_from_within(..10);
+        let among: Vec<usize> = (0..dirs.len()).filter(|i| i % 7 != 3).collect();
+        for of in [0, 5, 12, 44] {
+            let a = dirs[of];
+            let mut all: Vec<(f64, usize)> = among
+                .iter()
+                .filter(|&&o| o != of)
+                .map(|&o| (-(a[0] * dirs[o][0] + a[1] * dirs[o][1] + a[2] * dirs[o][2]), o))
+                .collect();
+            all.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+            for k in [0, 1, 4, 8, all.len() - 1, all.len(), all.len() + 3] {
+                let want: Vec<usize> = all.iter().take(k).map(|x| x.1).collect();
+                assert_eq!(nearest(&dirs, of, &among, k), want, "of {of}, k {k}");
+            }
+        }
+    }
 
     /// The median against a full sort, for lengths on both sides of the insertion sort's limit,
     /// with negative values, signed zeros and ties; the values come back (in some order).
