@@ -2,20 +2,18 @@
 // a scale and a bias per plane, and one decoder MLP, (latents, direction encoding) -> hidden ->
 // hidden -> RGB, evaluated per fragment and light.
 //
-// Parameters: `mp`, the `NeuralParams` struct of neural.rs. The decoder's parameters are one
-// f32 array in the store (w1 [hidden][inputs], b1, w2 [hidden][hidden], b2, w3 [3][hidden], b3,
-// matrices row-major [out][in]: decoder.rs's layout), then the learned direction tables: per
-// direction (view, light, half vector; as many as the encoding has) `grid x grid` nodes of
-// `features` channels over the concentric square, looked up bilinearly (decoder.rs, `taps`). The
-// second and output layers are fused: each second-layer unit is added into the output as soon as
-// it is computed, so only the first layer's activations are kept in a private array.
-
-// A decoder parameter. The decoder is the store's first part (neural.rs), so it lies in the first
-// storage binding: read directly, without `load`'s chunk lookup (a division and a switch per
-// weight, which dominated the frame).
-fn nw(i: u32) -> f32 {
-    return bitcast<f32>(s0[i]);
-}
+// Parameters: `mp`, the `NeuralParams` struct of neural.rs, followed in the same uniform block by
+// the decoder's dense layers (`mp.constants`, decoder.rs `gpu_halves`): half-precision values two
+// to a word, rows padded to vectors of eight halves (one `vec4<u32>`): w1 [hidden][n8], b1 [h8],
+// w2 [hidden][h8], b2 [h8], w3 [3][h8], b3 [1], matrices row-major [out][in], the output layer
+// divided by `mp.out_scale`. Every fragment reads the same weights: GPUs serve uniform reads from
+// their constant caches, and software rasterisers read a uniform block without the per-lane
+// bounds checks of a storage buffer; two halves per word halve the reads again. The learned
+// direction tables are in the store (per direction, view, light, half vector, as many as the
+// encoding has: `grid x grid` nodes of `features` halves, padded to an even count, over the
+// concentric square, looked up bilinearly: decoder.rs, `taps`). The second and output layers
+// are fused: each second-layer unit is added into the output as soon as it is computed, so only
+// the first layer's activations are kept in a private array.
 
 struct ViewQuery {
     v: vec3<f32>,
@@ -32,34 +30,51 @@ fn nn_act4(x: vec4<f32>) -> vec4<f32> {
     return max(x, vec4<f32>(0.0));
 }
 
-// Four consecutive decoder parameters from `i`.
-fn nw4(i: u32) -> vec4<f32> {
-    return vec4<f32>(nw(i), nw(i + 1u), nw(i + 2u), nw(i + 3u));
+// The first and last four halves of a vector of eight.
+fn lo4(u: vec4<u32>) -> vec4<f32> {
+    return vec4<f32>(unpack2x16float(u.x), unpack2x16float(u.y));
+}
+fn hi4(u: vec4<u32>) -> vec4<f32> {
+    return vec4<f32>(unpack2x16float(u.z), unpack2x16float(u.w));
+}
+
+// Halves 4j to 4j + 3 of the row of vectors starting at constant vector `b`.
+fn nc4(b: u32, j: u32) -> vec4<f32> {
+    let u = mp.constants[b + j / 2u];
+    return select(lo4(u), hi4(u), (j & 1u) == 1u);
 }
 
 // Table `t`'s features at direction `d`, written into the inputs from `first` (decoder.rs,
-// `taps`: node (i, j) at square point (i, j) / (grid - 1), index j * grid + i).
-fn nn_table(inp: ptr<function, array<vec4<f32>, 22>>, first: u32, tables: u32, t: u32, d: vec3<f32>) {
+// `taps`: node (i, j) at square point (i, j) / (grid - 1), index j * grid + i). Two features
+// per store word.
+fn nn_table(inp: ptr<function, array<vec4<f32>, 22>>, first: u32, t: u32, d: vec3<f32>) {
     let g = mp.grid;
     let c = mp.features;
+    let cw = (c + 1u) / 2u;
     let m = f32(g - 1u);
     let x = clamp(hemisphere_to_square(d) * m, vec2<f32>(0.0), vec2<f32>(m));
     let i = min(vec2<u32>(floor(x)), vec2<u32>(g - 2u));
     let f = x - vec2<f32>(i);
-    let n0 = tables + (t * g * g + i.y * g + i.x) * c;
-    let n2 = n0 + g * c;
+    let n0 = mp.tables + (t * g * g + i.y * g + i.x) * cw;
+    let n2 = n0 + g * cw;
     let w = vec4<f32>((1.0 - f.x) * (1.0 - f.y), f.x * (1.0 - f.y), (1.0 - f.x) * f.y, f.x * f.y);
-    for (var ch = 0u; ch < c; ch++) {
-        let k = first + ch;
-        (*inp)[k / 4u][k % 4u] = w.x * nw(n0 + ch) + w.y * nw(n0 + c + ch) + w.z * nw(n2 + ch) + w.w * nw(n2 + c + ch);
+    for (var p = 0u; p < cw; p++) {
+        let v = w.x * unpack2x16float(load_u32(n0 + p)) + w.y * unpack2x16float(load_u32(n0 + cw + p))
+            + w.z * unpack2x16float(load_u32(n2 + p)) + w.w * unpack2x16float(load_u32(n2 + cw + p));
+        let k = first + 2u * p;
+        (*inp)[k / 4u][k % 4u] = v.x;
+        // An odd count's padding feature is not an input (the next inputs stay zero).
+        if (2u * p + 1u < c) {
+            (*inp)[(k + 1u) / 4u][(k + 1u) % 4u] = v.y;
+        }
     }
 }
 
 // The inputs are kept as vectors of four (zero beyond the last) and every layer computes four
 // units at a time: one read of the private arrays per four products instead of one per product
-// (lavapipe keeps dynamically indexed arrays in memory). The weight matrices' rows are read
-// four values at a time from their start; a row's last vector may run into the next row, whose
-// values meet zero inputs. The hidden width is a multiple of 4 (neural.rs checks).
+// (lavapipe keeps dynamically indexed arrays in memory), one constant vector per eight weights.
+// Rows are padded with zero weights to vectors of eight, and the inputs and activations beyond
+// the last are zero. The hidden width is a multiple of 4 (neural.rs checks).
 fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
     let k = mp.latents;
     let h = mp.hidden;
@@ -98,55 +113,73 @@ fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
     if (c > 0u) {
         nt = select(select(3u, 2u, mp.directions == 1u), 1u, mp.directions == 0u);
     }
-    let ni = n + nt * c;
-    let tables = mp.weights + h * ni + h + h * h + h + 3u * h + 3u;
     if (nt == 1u) {
-        nn_table(&inp, n, tables, 0u, l);
+        nn_table(&inp, n, 0u, l);
     } else if (nt >= 2u) {
         let v = vq.v;
-        nn_table(&inp, n, tables, 0u, v);
-        nn_table(&inp, n + c, tables, 1u, l);
+        nn_table(&inp, n, 0u, v);
+        nn_table(&inp, n + c, 1u, l);
         if (nt == 3u) {
             let hv = v + l;
             var hd = vec3<f32>(0.0, 0.0, 1.0);
             if (length(hv) > 1e-9) {
                 hd = normalize(hv);
             }
-            nn_table(&inp, n + 2u * c, tables, 2u, hd);
+            nn_table(&inp, n + 2u * c, 2u, hd);
         }
     }
-    n = ni;
-    let w1 = mp.weights;
-    let b1 = w1 + h * n;
-    let w2 = b1 + h;
-    let b2 = w2 + h * h;
-    let w3 = b2 + h;
-    let b3 = w3 + 3u * h;
-    let n4 = (n + 3u) / 4u;
+    n = n + nt * c;
+    // Where each layer starts, in vectors of eight halves.
+    let n8 = (n + 7u) / 8u;
+    let h8 = (h + 7u) / 8u;
+    let b1 = h * n8;
+    let w2 = b1 + h8;
+    let b2 = w2 + h * h8;
+    let w3 = b2 + h8;
+    let b3 = w3 + 3u * h8;
     let h4 = h / 4u;
     var h1: array<vec4<f32>, 16>;
     for (var j = 0u; j < h4; j++) {
-        let r = w1 + 4u * j * n;
-        var acc = nw4(b1 + 4u * j);
-        for (var i = 0u; i < n4; i++) {
-            let x = inp[i];
-            let o = 4u * i;
-            acc += vec4<f32>(dot(nw4(r + o), x), dot(nw4(r + n + o), x), dot(nw4(r + 2u * n + o), x), dot(nw4(r + 3u * n + o), x));
+        let r = 4u * j * n8;
+        var acc = nc4(b1, j);
+        for (var i = 0u; i < n8; i++) {
+            let x0 = inp[2u * i];
+            let x1 = inp[2u * i + 1u];
+            let u0 = mp.constants[r + i];
+            let u1 = mp.constants[r + n8 + i];
+            let u2 = mp.constants[r + 2u * n8 + i];
+            let u3 = mp.constants[r + 3u * n8 + i];
+            acc += vec4<f32>(
+                dot(lo4(u0), x0) + dot(hi4(u0), x1),
+                dot(lo4(u1), x0) + dot(hi4(u1), x1),
+                dot(lo4(u2), x0) + dot(hi4(u2), x1),
+                dot(lo4(u3), x0) + dot(hi4(u3), x1),
+            );
         }
         h1[j] = nn_act4(acc);
     }
-    var out = vec3<f32>(nw(b3), nw(b3 + 1u), nw(b3 + 2u));
+    var out = nc4(b3, 0u).xyz;
     for (var j = 0u; j < h4; j++) {
-        let r = w2 + 4u * j * h;
-        var acc = nw4(b2 + 4u * j);
-        for (var i = 0u; i < h4; i++) {
-            let x = h1[i];
-            let o = 4u * i;
-            acc += vec4<f32>(dot(nw4(r + o), x), dot(nw4(r + h + o), x), dot(nw4(r + 2u * h + o), x), dot(nw4(r + 3u * h + o), x));
+        let r = w2 + 4u * j * h8;
+        var acc = nc4(b2, j);
+        for (var i = 0u; i < h8; i++) {
+            let x0 = h1[2u * i];
+            let x1 = h1[2u * i + 1u];
+            let u0 = mp.constants[r + i];
+            let u1 = mp.constants[r + h8 + i];
+            let u2 = mp.constants[r + 2u * h8 + i];
+            let u3 = mp.constants[r + 3u * h8 + i];
+            acc += vec4<f32>(
+                dot(lo4(u0), x0) + dot(hi4(u0), x1),
+                dot(lo4(u1), x0) + dot(hi4(u1), x1),
+                dot(lo4(u2), x0) + dot(hi4(u2), x1),
+                dot(lo4(u3), x0) + dot(hi4(u3), x1),
+            );
         }
         let a = nn_act4(acc);
-        out += vec3<f32>(dot(a, nw4(w3 + 4u * j)), dot(a, nw4(w3 + h + 4u * j)), dot(a, nw4(w3 + 2u * h + 4u * j)));
+        out += vec3<f32>(dot(a, nc4(w3, j)), dot(a, nc4(w3 + h8, j)), dot(a, nc4(w3 + 2u * h8, j)));
     }
+    out *= mp.out_scale;
     // The BTF encodings' output is a reflectance times the light's cosine (Directions::gain).
     if (mp.directions != 0u) {
         out *= max(l.z, 0.0);

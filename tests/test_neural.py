@@ -35,8 +35,17 @@ def test_fits_every_material_and_beats_its_mean(name):
     r = m.report
     assert r["steps"] <= 400 and r["qat_steps"] >= 1 and r["validation_pairs"] > 0
     assert m.latents.shape == (16, 16, 4)
-    # nbytes: the latent bytes, their scales and biases, and the decoder's floats.
-    assert m.nbytes == 16 * 16 * 4 + 8 * 4 + 4 * m.arrays["decoder"].size
+    # nbytes: the latent bytes, their scales and biases, and the decoder as the renderer holds
+    # it, half-precision values: the dense layers' rows padded to vectors of eight (4 latents +
+    # 6 coordinates + 3 x 4 features = 22 inputs -> 24; 16 units; 3 outputs), the direction
+    # tables (3 x 8 x 8 nodes of 4 features).
+    dense = 16 * 24 + 16 + 16 * 16 + 16 + 3 * 16 + 8
+    assert m.nbytes == 16 * 16 * 4 + 8 * 4 + 2 * (dense + 3 * 64 * 4)
+    # Every decoder parameter is a half (the output layer's times a power of two).
+    d = m.arrays["decoder"]
+    assert d.size == 16 * 22 + 16 + 16 * 16 + 16 + 3 * 16 + 3 + 3 * 64 * 4
+    plain = np.r_[d[: 16 * 22 + 16 + 16 * 16 + 16], d[-3 * 64 * 4 :]]  # all but the output layer
+    assert np.array_equal(plain.astype(np.float16).astype(np.float32), plain)
 
 
 def _capture(size=16, seed=3):
@@ -161,6 +170,14 @@ def test_gpu_matches_the_cpu_reference_on_every_scene_and_with_a_coordinate_map(
     g = btfrs.render(r, btfrs.Scene.plane(), cam, lights, size=48)
     c = btfrs.render(r, btfrs.Scene.plane(), cam, lights, size=48, backend="cpu")
     assert psnr(g, c) >= 40
+    # The shader's layout edges: the largest decoder (its weights fill the uniform block), an
+    # odd feature count (a padded half per table node), a hidden width not a multiple of 8.
+    for shape in (dict(latents=32, hidden=64, features=15), dict(latents=5, hidden=12, features=3)):
+        e = btfrs.fit.neural(btf, steps=30, **shape)
+        g = btfrs.render(e, btfrs.Scene.sphere(), cam, lights, size=48)
+        c = btfrs.render(e, btfrs.Scene.sphere(), cam, lights, size=48, backend="cpu")
+        assert (c.sum(-1) > 0).mean() > 0.2
+        assert psnr(g, c) >= 40, (shape, psnr(g, c))
 
 
 def test_cli_exports_neuralrti_into_a_folder(rti_model, tmp_path, capsys):

@@ -12,12 +12,17 @@
 //! Evaluation splits the first layer in two, as the training does: the latent columns times a
 //! texel's code (cached per texel, `hidden` floats) plus the direction columns times the pair's
 //! encoding (once per query); the rest is one `hidden x hidden` layer and the RGB output.
+//!
+//! The decoder's parameters are half-precision values ([`decoder::Decoder::new`] rounds them).
+//! The renderer reads its dense layers as halves from the uniform block (`mp.constants`): every
+//! fragment reads the same weights, which GPUs serve from their constant caches and software
+//! rasterisers without per-lane bounds checks, and two halves to a word halve the reads.
 
 pub mod decoder;
 pub mod dense;
 pub mod train;
 
-use crate::gpu::{words, GpuLayout, Shader};
+use crate::gpu::{GpuLayout, Shader};
 use crate::model::{Mip, Model, ReflectanceModel, Sampling, Setting};
 use crate::options::Spec;
 use crate::planes::Planes;
@@ -31,6 +36,14 @@ pub const MAX_HIDDEN: usize = 64;
 pub const MAX_LATENTS: usize = 32;
 /// The most channels per direction table.
 pub const MAX_FEATURES: usize = 16;
+
+/// Vectors of four words the largest decoder's dense layers take as halves
+/// ([`Decoder::gpu_halves`]): rows of `inputs` then `hidden` values padded to vectors of eight.
+const GPU_CONSTANTS: usize = {
+    let n8 = (MAX_LATENTS + decoder::MAX_ENCODING).div_ceil(8);
+    let h8 = MAX_HIDDEN.div_ceil(8);
+    MAX_HIDDEN * n8 + h8 + MAX_HIDDEN * h8 + h8 + 3 * h8 + 1
+};
 
 /// Fit options.
 #[derive(Debug, Clone, serde::Deserialize)]
@@ -256,13 +269,17 @@ crate::gpu_params! {
         pub q: u32,
         /// Store offset of the latents' scales then biases (`2 latents` f32).
         pub scale: u32,
-        /// Store offset of the decoder's parameters (w1, b1, w2, b2, w3, b3, tables; f32).
-        pub weights: u32,
+        /// Store offset of the direction tables (`[table][grid * grid][features]` as halves,
+        /// two to a word, each node's features padded to an even count).
+        pub tables: u32,
         /// Channels of each direction table (0: none).
         pub features: u32,
         /// Nodes per side of each direction table.
         pub grid: u32,
+        /// The power of two the output layer's halves are scaled by.
+        pub out_scale: f32,
     }
+    constants = GPU_CONSTANTS;
 }
 
 impl GpuLayout for Neural {
@@ -270,9 +287,14 @@ impl GpuLayout for Neural {
     const SHADER: Shader = Shader::new::<NeuralParams>("neural", include_str!("../../../shaders_wgsl/neural.wgsl"));
 
     fn parts(&self) -> Vec<Cow<'_, [u32]>> {
-        // The decoder first: at the start of the store, its few thousand words lie in the first
-        // storage binding, which the shader reads directly (no chunk lookup per weight).
-        vec![words(&self.decoder.params), Cow::Owned(self.latents.scale_bias_words()), Cow::Owned(self.latents.words())]
+        // The direction tables first: at the start of the store they lie in the first storage
+        // binding, which the shader reads directly (no chunk lookup per feature).
+        let (_, tables) = self.decoder.gpu_halves();
+        vec![Cow::Owned(tables), Cow::Owned(self.latents.scale_bias_words()), Cow::Owned(self.latents.words())]
+    }
+
+    fn constants(&self) -> Vec<u32> {
+        self.decoder.gpu_halves().0
     }
 
     fn params(&self, offsets: &[u32], _tables: &[u32]) -> NeuralParams {
@@ -284,9 +306,10 @@ impl GpuLayout for Neural {
             activation: sh.activation.code() as u32,
             q: offsets[2],
             scale: offsets[1],
-            weights: offsets[0],
+            tables: offsets[0],
             features: sh.features as u32,
             grid: sh.grid as u32,
+            out_scale: self.decoder.output_scale(),
         }
     }
 }

@@ -366,13 +366,14 @@ mod tests {
 
     #[test]
     fn nbytes_is_what_the_default_renderer_uploads() {
-        // Counted independently from the renderer's own parts: the words it uploads, plus the
-        // 3D texture of renderers that have one.
+        // Counted independently from the renderer's own parts: the words it uploads (the store
+        // and the constants after the parameter block), plus the 3D texture of renderers that
+        // have one.
         let btf = sample();
         for e in MODELS {
             let m = (e.fit)(&btf.as_ref(), e.examples[0].1, &Monitor::new()).unwrap();
             let r = m.renderer(e.renderers[0], 2048).unwrap();
-            let words: usize = r.gpu_parts().iter().map(|p| p.len()).sum();
+            let words: usize = r.gpu_parts().iter().map(|p| p.len()).sum::<usize>() + r.gpu_constants().len();
             assert_eq!(m.nbytes(), 4 * words + r.gpu_volume().map_or(0, |v| v.texels.len()), "{}", e.kind);
         }
     }

@@ -297,7 +297,8 @@ fn pipeline(
 
 /// What a model puts on the device, before any device is involved (shared with the web viewer's
 /// [`crate::web`]): its store parts, the parameter words that address them, its measured
-/// direction sets with their candidate tables, and its optional 3D texture.
+/// direction sets with their candidate tables, and its optional 3D texture. `params` is the
+/// uniform block: the 16 parameter words, then the model's constants if it has any.
 pub(crate) struct Prepared<'a> {
     pub(crate) parts: Vec<std::borrow::Cow<'a, [u32]>>,
     pub(crate) total: usize,
@@ -325,7 +326,18 @@ pub(crate) fn prepare(model: &dyn GpuModel) -> Result<Prepared<'_>> {
         table_at.push(tables.len() as u32);
         tables.extend(crate::model::candidate_table(set, crate::model::TABLE_GRID));
     }
-    let params = model.gpu_params(&offsets, &table_at).to_vec();
+    // The parameter block, then the model's constants in the same uniform buffer.
+    let mut params = model.gpu_params(&offsets, &table_at).to_vec();
+    let (mut constants, declared) = (model.gpu_constants(), model.gpu_constants_len());
+    if constants.len() > declared {
+        return Err(Error::Device(format!(
+            "the {} model has {} constant words, more than the {declared} its shader declares",
+            model.shader().name,
+            constants.len()
+        )));
+    }
+    constants.resize(declared, 0);
+    params.extend(constants);
     Ok(Prepared { parts, total, params, dirs, tables, volume: model.gpu_volume() })
 }
 

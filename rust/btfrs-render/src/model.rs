@@ -29,6 +29,12 @@ impl<M: GpuModel + ?Sized> GpuModel for WithShader<'_, M> {
     fn gpu_params(&self, offsets: &[u32], tables: &[u32]) -> [u32; PARAM_WORDS] {
         self.0.gpu_params(offsets, tables)
     }
+    fn gpu_constants(&self) -> Vec<u32> {
+        self.0.gpu_constants()
+    }
+    fn gpu_constants_len(&self) -> usize {
+        self.0.gpu_constants_len()
+    }
     fn gpu_volume(&self) -> Option<Volume<'_>> {
         self.0.gpu_volume()
     }

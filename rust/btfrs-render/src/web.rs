@@ -20,7 +20,8 @@ use serde_json::{json, Value};
 pub struct WebModel {
     /// The assembled WGSL (single-chunk store).
     pub shader: String,
-    /// The model's 16 parameter words (`Params`, group 1 binding 0).
+    /// The model's uniform block (`Params`, group 1 binding 0): its 16 parameter words, then
+    /// its constants if it has any.
     pub params: Vec<u32>,
     /// The store: the model's arrays concatenated (group 1 binding 1, `s0`).
     pub store: Vec<u32>,

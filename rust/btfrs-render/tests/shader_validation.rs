@@ -17,7 +17,10 @@ fn all_shaders() -> Vec<Shader> {
 
 fn parse(src: &str) -> Result<naga::Module, String> {
     let module = naga::front::wgsl::parse_str(src).map_err(|e| e.emit_to_string(src))?;
-    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::empty())
+    // `unpack2x16float` (core WGSL) is behind this capability in naga: wgpu grants it on every
+    // adapter that meets WebGPU's downlevel defaults (`SHADER_F16_IN_F32`), lavapipe included.
+    let caps = naga::valid::Capabilities::SHADER_FLOAT16_IN_FLOAT32;
+    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), caps)
         .validate(&module)
         .map_err(|e| format!("{e:?}"))?;
     Ok(module)
@@ -42,8 +45,9 @@ fn every_model_shader_validates() {
 fn parameter_structs_match_their_rust_mirrors() {
     // naga lays out the generated `struct Params` by WGSL's uniform rules: each field must sit at
     // the offset the Rust struct gives it (4 x its index, checked at compile time there), the
-    // block must be 64 bytes, and the shader must read every field it declares (a field the
-    // shader ignores means the two sides disagree about what the words are).
+    // block must be 64 bytes (then the model's constants, if any), and the shader must read every
+    // field it declares (a field the shader ignores means the two sides disagree about what the
+    // words are).
     for s in all_shaders() {
         let module = parse(&shader_source(s, true)).unwrap();
         let (_, ty) = module
@@ -52,10 +56,31 @@ fn parameter_structs_match_their_rust_mirrors() {
             .find(|(_, t)| t.name.as_deref() == Some("Params"))
             .unwrap_or_else(|| panic!("{}: no Params struct", s.name));
         let naga::TypeInner::Struct { members, span } = &ty.inner else { panic!("{}: Params is not a struct", s.name) };
-        assert_eq!(*span as usize, 4 * PARAM_WORDS, "{}", s.name);
-        assert_eq!(members.len(), PARAM_WORDS, "{}", s.name);
+        // A model with constants declares them after the 16 words: `constants`, an array of
+        // vectors of four words at byte 64, which its shader reads.
+        let constants = match members.get(PARAM_WORDS) {
+            None => 0,
+            Some(m) => {
+                assert_eq!((m.name.as_deref(), m.offset as usize), (Some("constants"), 4 * PARAM_WORDS), "{}", s.name);
+                let naga::TypeInner::Array { base, size: naga::ArraySize::Constant(n), stride: 16 } =
+                    module.types[m.ty].inner
+                else {
+                    panic!("{}: constants is not a fixed array of 16-byte vectors", s.name)
+                };
+                assert!(
+                    matches!(module.types[base].inner, naga::TypeInner::Vector { size: naga::VectorSize::Quad, scalar } if scalar == naga::Scalar::U32),
+                    "{}: constants are vec4<u32>",
+                    s.name
+                );
+                assert!(s.source.contains("mp.constants["), "{}.wgsl never reads mp.constants", s.name);
+                n.get() as usize
+            }
+        };
+        assert_eq!(*span as usize, 4 * PARAM_WORDS + 16 * constants, "{}", s.name);
+        assert!(4 * constants <= btfrs_fit::gpu::MAX_CONSTANT_WORDS, "{}: within 64 KiB", s.name);
+        assert_eq!(members.len(), PARAM_WORDS + (constants > 0) as usize, "{}", s.name);
         let params = (s.params)();
-        for (i, m) in members.iter().enumerate() {
+        for (i, m) in members.iter().take(PARAM_WORDS).enumerate() {
             assert_eq!(m.offset as usize, 4 * i, "{}: field {:?}", s.name, m.name);
             let name = m.name.as_deref().unwrap();
             if !name.starts_with("_pad") {

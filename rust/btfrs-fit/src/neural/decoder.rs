@@ -202,7 +202,9 @@ impl Shape {
     }
 }
 
-/// A decoder: its shape and parameters.
+/// A decoder: its shape and parameters. The parameters are half-precision values (the output
+/// layer's times a power of two, [`output_scale`]): [`Decoder::new`] rounds them, so the decoder
+/// evaluated on the CPU is the one the renderer reads as halves.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Decoder {
     /// The shape.
@@ -213,6 +215,18 @@ pub struct Decoder {
 
 /// The most inputs besides the latents: 6 coordinates and 3 tables of at most 16 features.
 pub const MAX_ENCODING: usize = 6 + 3 * 16;
+
+/// The power of two that brings the output layer (`w3`, `b3`: the data's scale) into half
+/// precision's range, its largest value to `[2^14, 2^15)`; 1 for an all-zero layer. The other
+/// layers work on unit-scale inputs and are halves as they are.
+pub fn output_scale(params: &[f32], o: &Offsets) -> f32 {
+    let m = params[o.w3..o.tables].iter().fold(0.0f32, |m, x| m.max(x.abs()));
+    if m == 0.0 || !m.is_finite() {
+        return 1.0;
+    }
+    let e = (m.log2().floor() as i32 - 14).clamp(-120, 100);
+    2f32.powi(e)
+}
 
 /// Bilinear taps of one direction in a table: `(node, weight)` for the four nodes around its
 /// point of the concentric square.
@@ -303,7 +317,63 @@ impl Decoder {
         if let Some(i) = params.iter().position(|x| !x.is_finite()) {
             return Err(Error::format(name, format!("decoder parameter {i} ({}) is not finite", params[i])));
         }
+        let mut params = params;
+        let o = shape.offsets();
+        let scale = output_scale(&params, &o);
+        for (i, x) in params.iter_mut().enumerate() {
+            let s = if (o.w3..o.tables).contains(&i) { scale } else { 1.0 };
+            let r = half::f16::from_f32(*x / s);
+            if r.is_infinite() {
+                return Err(Error::format(
+                    name,
+                    format!("decoder parameter {i} ({x}) is beyond half precision's range (65504)"),
+                ));
+            }
+            *x = r.to_f32() * s;
+        }
         Ok(Decoder { shape, params })
+    }
+
+    /// The power of two the output layer's halves are scaled by ([`output_scale`]).
+    pub fn output_scale(&self) -> f32 {
+        output_scale(&self.params, &self.shape.offsets())
+    }
+
+    /// The renderer's form of the decoder: the dense layers as halves packed two to a word, every
+    /// row padded to whole vectors of eight (`[w1 rows][n8]`, `b1 [h8]`, `[w2 rows][h8]`,
+    /// `b2 [h8]`, `[w3 rows][h8]`, `b3 [1]` in vectors of four words), with the output layer
+    /// divided by [`Decoder::output_scale`]; and the direction tables as halves, each node's
+    /// features padded to an even count.
+    pub fn gpu_halves(&self) -> (Vec<u32>, Vec<u32>) {
+        let sh = &self.shape;
+        let (o, n, h) = (sh.offsets(), sh.inputs(), sh.hidden);
+        let (n8, h8) = (n.div_ceil(8), h.div_ceil(8));
+        let inv = 1.0 / self.output_scale();
+        let p = &self.params;
+        let mut c: Vec<u16> = Vec::with_capacity(8 * (h * n8 + h * h8 + 3 * h8 + 2 * h8 + 1));
+        let mut rows = |rows: usize, len: usize, at: usize, s: f32| {
+            for r in 0..rows {
+                let row = &p[at + r * len..at + (r + 1) * len];
+                c.extend(row.iter().map(|&x| half::f16::from_f32(x * s).to_bits()));
+                c.resize(c.len().next_multiple_of(8), 0);
+            }
+        };
+        rows(h, n, o.w1, 1.0);
+        rows(1, h, o.b1, 1.0);
+        rows(h, h, o.w2, 1.0);
+        rows(1, h, o.b2, 1.0);
+        rows(3, h, o.w3, inv);
+        rows(1, 3, o.b3, inv);
+        let f = sh.features;
+        let nodes = sh.tables() * sh.grid * sh.grid;
+        let mut t: Vec<u16> = Vec::with_capacity(nodes * f.next_multiple_of(2));
+        for node in p[o.tables..].chunks(f.max(1)).take(nodes) {
+            t.extend(node.iter().map(|&x| half::f16::from_f32(x).to_bits()));
+            t.resize(t.len().next_multiple_of(2), 0);
+        }
+        let pack =
+            |v: Vec<u16>| v.chunks(2).map(|w| w[0] as u32 | (w.get(1).copied().unwrap_or(0) as u32) << 16).collect();
+        (pack(c), pack(t))
     }
 
     /// `W1[:, ..latents] z`: the per-texel part of the first layer.

@@ -9,7 +9,7 @@ fn random_decoder(shape: Shape, seed: u64, gain: f64) -> Decoder {
     let mut rng = Rng::new(seed);
     let n = shape.offsets().len;
     let params = (0..n).map(|_| ((2.0 * rng.next_f64() - 1.0) * gain) as f32).collect();
-    Decoder { shape, params }
+    Decoder::new(shape, params, "decoder").unwrap()
 }
 
 /// A BTF made by a decoder from random codes: what a perfect fit recovers.
@@ -195,4 +195,118 @@ fn bad_arrays_and_options_are_named() {
     assert!(e.to_string().starts_with("directions: expected"), "{e}");
     let e = fit_neural(&b, &NeuralOptions { learning_rate: 0.5, ..Default::default() }, &Monitor::new()).unwrap_err();
     assert!(e.to_string().starts_with("learning_rate: expected"), "{e}");
+}
+
+/// A half's value (bits as `gpu_halves` packs them, two to a word, low first).
+fn half_at(words: &[u32], i: usize) -> f32 {
+    half::f16::from_bits((words[i / 2] >> (16 * (i % 2))) as u16).to_f32()
+}
+
+#[test]
+fn the_renderers_halves_hold_every_parameter_where_the_shader_reads_it() {
+    // Decoded here from the layout neural.wgsl reads: rows of vectors of eight halves, the
+    // output layer divided by the output scale, tables with each node padded to an even count.
+    let shapes = [
+        Shape {
+            latents: 5,
+            directions: Directions::Half,
+            features: 3,
+            grid: 4,
+            hidden: 12,
+            activation: Activation::Elu,
+        },
+        Shape {
+            latents: 2,
+            directions: Directions::Light,
+            features: 0,
+            grid: 2,
+            hidden: 4,
+            activation: Activation::Elu,
+        },
+        Shape {
+            latents: MAX_LATENTS,
+            directions: Directions::Half,
+            features: MAX_FEATURES,
+            grid: 3,
+            hidden: MAX_HIDDEN,
+            activation: Activation::Relu,
+        },
+    ];
+    for (si, sh) in shapes.into_iter().enumerate() {
+        let mut dec = random_decoder(sh, 7 + si as u64, 0.7);
+        let o = sh.offsets();
+        // The output layer on a large scale, as a BTF of radiances.
+        dec.params[o.w3..o.tables].iter_mut().for_each(|x| *x *= 3.0e6);
+        let dec = Decoder::new(sh, dec.params, "decoder").unwrap();
+        let (c, t) = dec.gpu_halves();
+        let (n, h) = (sh.inputs(), sh.hidden);
+        let (n8, h8) = (n.div_ceil(8), h.div_ceil(8));
+        let s = dec.output_scale();
+        let mut at = 0; // in halves
+        let mut row = |len: usize, from: usize, scale: f32, padded: usize| {
+            for i in 0..padded {
+                let want = if i < len { dec.params[from + i] / scale } else { 0.0 };
+                assert_eq!(half_at(&c, at + i), want, "shape {si}, parameter {} of a row", from + i);
+            }
+            at += padded;
+        };
+        (0..h).for_each(|j| row(n, o.w1 + j * n, 1.0, 8 * n8));
+        row(h, o.b1, 1.0, 8 * h8);
+        (0..h).for_each(|j| row(h, o.w2 + j * h, 1.0, 8 * h8));
+        row(h, o.b2, 1.0, 8 * h8);
+        (0..3).for_each(|j| row(h, o.w3 + j * h, s, 8 * h8));
+        row(3, o.b3, s, 8);
+        assert_eq!(2 * c.len(), at, "shape {si}");
+        assert!(c.len() <= 4 * GPU_CONSTANTS, "shape {si}: {} words", c.len());
+        if si == 2 {
+            assert_eq!(c.len(), 4 * GPU_CONSTANTS, "the largest decoder fills the declared block");
+        }
+        let (f, fp) = (sh.features, sh.features.next_multiple_of(2));
+        let nodes = sh.tables() * sh.grid * sh.grid;
+        assert_eq!(2 * t.len(), nodes * fp, "shape {si}");
+        for node in 0..nodes {
+            for ch in 0..fp {
+                let want = if ch < f { dec.params[o.tables + node * f + ch] } else { 0.0 };
+                assert_eq!(half_at(&t, node * fp + ch), want, "shape {si}, node {node}, channel {ch}");
+            }
+        }
+    }
+}
+
+#[test]
+fn decoder_parameters_are_halves_and_the_output_layer_keeps_the_datas_scale() {
+    let sh =
+        Shape { latents: 3, directions: Directions::Xy, features: 2, grid: 3, hidden: 8, activation: Activation::Relu };
+    let o = sh.offsets();
+    let mut rng = Rng::new(5);
+    let raw: Vec<f32> = (0..o.len)
+        .map(|i| {
+            let x = (2.0 * rng.next_f64() - 1.0) as f32;
+            if (o.w3..o.tables).contains(&i) {
+                x * 2.5e7
+            } else {
+                x
+            }
+        })
+        .collect();
+    let dec = Decoder::new(sh, raw.clone(), "decoder").unwrap();
+    let s = dec.output_scale();
+    assert_eq!(s, 2f32.powi(s.log2() as i32), "a power of two");
+    let m = dec.params[o.w3..o.tables].iter().fold(0.0f32, |m, x| m.max(x.abs()));
+    assert!((16384.0..32768.0).contains(&(m / s)), "largest output value {m} over {s}");
+    for (i, (&r, &x)) in raw.iter().zip(&dec.params).enumerate() {
+        let scale = if (o.w3..o.tables).contains(&i) { s } else { 1.0 };
+        let y = x / scale;
+        // Exactly a half, and the nearest one (within half a step of 2^-11 relative, or of the
+        // subnormal step).
+        assert_eq!(half::f16::from_f32(y).to_f32(), y, "parameter {i}");
+        let tol = (r.abs() / scale * 2f32.powi(-11)).max(2f32.powi(-25)) * scale;
+        assert!((r - x).abs() <= tol, "parameter {i}: {r} -> {x}");
+    }
+    // Rounding again changes nothing.
+    assert_eq!(Decoder::new(sh, dec.params.clone(), "decoder").unwrap(), dec);
+    let mut big = raw;
+    big[o.w2] = 1.0e5;
+    let e = Decoder::new(sh, big, "decoder").unwrap_err().to_string();
+    assert!(e.contains(&format!("decoder parameter {} (100000)", o.w2)) && e.contains("half precision"), "{e}");
 }
