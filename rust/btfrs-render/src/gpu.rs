@@ -123,7 +123,8 @@ pub struct UploadedModel {
     bind_group: ManuallyDrop<wgpu::BindGroup>,
     /// The process that uploaded the model.
     owner: ProcessId,
-    /// Bytes held on the device.
+    /// Bytes of model data on the device: the store, the constants in the uniform block and the
+    /// 3D texture.
     pub device_bytes: u64,
 }
 
@@ -303,6 +304,8 @@ pub(crate) struct Prepared<'a> {
     pub(crate) parts: Vec<std::borrow::Cow<'a, [u32]>>,
     pub(crate) total: usize,
     pub(crate) params: Vec<u32>,
+    /// The model's constant words in `params` (after the parameter words; the rest is padding).
+    pub(crate) constant_words: usize,
     pub(crate) dirs: Vec<[f32; 4]>,
     pub(crate) tables: Vec<u32>,
     pub(crate) volume: Option<Volume<'a>>,
@@ -336,15 +339,16 @@ pub(crate) fn prepare(model: &dyn GpuModel) -> Result<Prepared<'_>> {
             constants.len()
         )));
     }
+    let constant_words = constants.len();
     constants.resize(declared, 0);
     params.extend(constants);
-    Ok(Prepared { parts, total, params, dirs, tables, volume: model.gpu_volume() })
+    Ok(Prepared { parts, total, params, constant_words, dirs, tables, volume: model.gpu_volume() })
 }
 
 /// Upload a model's store and parameters.
 pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
     gpu.check_process()?;
-    let Prepared { parts, total, params, dirs, tables, volume } = prepare(model)?;
+    let Prepared { parts, total, params, constant_words, dirs, tables, volume } = prepare(model)?;
     if let Some(v) = &volume {
         v.validate(gpu.limits.max_texture_dimension_3d)?;
     }
@@ -472,9 +476,11 @@ pub fn upload(gpu: &Gpu, model: &dyn GpuModel) -> Result<UploadedModel> {
             chunks: n_chunks,
             bind_group: ManuallyDrop::new(bind_group),
             owner: ProcessId::current(),
-            // Measured from what was allocated (the store chunks in use and the 3D texture), not
-            // from the model's own count, so `nbytes` can be tested against it.
+            // Measured from what was allocated (the store chunks in use and the 3D texture) and
+            // written (the constants in the uniform block, without its parameter words and
+            // padding), not from the model's own count, so `nbytes` can be tested against it.
             device_bytes: chunks[..n_chunks].iter().map(|b| b.size()).sum::<u64>()
+                + 4 * constant_words as u64
                 + volume.as_ref().map_or(0, |_| {
                     texture.width() as u64 * texture.height() as u64 * texture.depth_or_array_layers() as u64 * 4
                 }),
