@@ -44,6 +44,21 @@ fn nc4(b: u32, j: u32) -> vec4<f32> {
     return select(lo4(u), hi4(u), (j & 1u) == 1u);
 }
 
+// Four rows' products with eight inputs `x0`, `x1`: constant vectors `r`, `r + stride`,
+// `r + 2 stride`, `r + 3 stride` (eight halves each).
+fn rows4x8(r: u32, stride: u32, x0: vec4<f32>, x1: vec4<f32>) -> vec4<f32> {
+    let u0 = mp.constants[r];
+    let u1 = mp.constants[r + stride];
+    let u2 = mp.constants[r + 2u * stride];
+    let u3 = mp.constants[r + 3u * stride];
+    return vec4<f32>(
+        dot(lo4(u0), x0) + dot(hi4(u0), x1),
+        dot(lo4(u1), x0) + dot(hi4(u1), x1),
+        dot(lo4(u2), x0) + dot(hi4(u2), x1),
+        dot(lo4(u3), x0) + dot(hi4(u3), x1),
+    );
+}
+
 // Table `t`'s features at direction `d`, written into the inputs from `first` (decoder.rs,
 // `taps`: node (i, j) at square point (i, j) / (grid - 1), index j * grid + i). Two features
 // per store word.
@@ -143,18 +158,7 @@ fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
         let r = 4u * j * n8;
         var acc = nc4(b1, j);
         for (var i = 0u; i < n8; i++) {
-            let x0 = inp[2u * i];
-            let x1 = inp[2u * i + 1u];
-            let u0 = mp.constants[r + i];
-            let u1 = mp.constants[r + n8 + i];
-            let u2 = mp.constants[r + 2u * n8 + i];
-            let u3 = mp.constants[r + 3u * n8 + i];
-            acc += vec4<f32>(
-                dot(lo4(u0), x0) + dot(hi4(u0), x1),
-                dot(lo4(u1), x0) + dot(hi4(u1), x1),
-                dot(lo4(u2), x0) + dot(hi4(u2), x1),
-                dot(lo4(u3), x0) + dot(hi4(u3), x1),
-            );
+            acc += rows4x8(r + i, n8, inp[2u * i], inp[2u * i + 1u]);
         }
         h1[j] = nn_act4(acc);
     }
@@ -163,18 +167,7 @@ fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
         let r = w2 + 4u * j * h8;
         var acc = nc4(b2, j);
         for (var i = 0u; i < h8; i++) {
-            let x0 = h1[2u * i];
-            let x1 = h1[2u * i + 1u];
-            let u0 = mp.constants[r + i];
-            let u1 = mp.constants[r + h8 + i];
-            let u2 = mp.constants[r + 2u * h8 + i];
-            let u3 = mp.constants[r + 3u * h8 + i];
-            acc += vec4<f32>(
-                dot(lo4(u0), x0) + dot(hi4(u0), x1),
-                dot(lo4(u1), x0) + dot(hi4(u1), x1),
-                dot(lo4(u2), x0) + dot(hi4(u2), x1),
-                dot(lo4(u3), x0) + dot(hi4(u3), x1),
-            );
+            acc += rows4x8(r + i, h8, h1[2u * i], h1[2u * i + 1u]);
         }
         let a = nn_act4(acc);
         out += vec3<f32>(dot(a, nc4(w3, j)), dot(a, nc4(w3 + h8, j)), dot(a, nc4(w3 + 2u * h8, j)));

@@ -2,27 +2,16 @@
 //! sphere under one point light, knit 32², the default decoder and a smaller one.
 //! `ALT_NEURAL=path.wgsl` adds rows drawn with another `neural.wgsl`.
 //! `cargo run --release -p btfrs-render --example neural_frame_variants`
-use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::Monitor;
 use btfrs_fit::neural::{fit_neural, NeuralOptions};
-use btfrs_fit::{fit_ptm, PtmOptions};
-use btfrs_render::{gpu, Gpu, View, WithShader};
+use btfrs_render::WithShader;
 
 mod common;
 
-fn best(gpu: &Gpu, m: &dyn btfrs_fit::Renderable, view: &View<'_>, repeat: usize) -> f64 {
-    let up = gpu::upload(gpu, m).unwrap();
-    let _ = gpu::render(gpu, &up, view).unwrap(); // builds the pipeline
-    (0..repeat).map(|_| gpu::render(gpu, &up, view).unwrap().1.draw_ms).fold(f64::INFINITY, f64::min)
-}
-
 fn main() {
-    let gpu = Gpu::shared().expect("adapter");
-    println!("{}", gpu.describe());
+    let (gpu, btf, ptm) = common::frame_bench(32);
     let mon = Monitor::new();
-    let btf = generate(&MaterialSpec::new(Preset::Knit, 32, 1), &mon).unwrap();
     let b = btf.as_ref();
-    let ptm = fit_ptm(&b, &PtmOptions::default(), &mon).unwrap();
     let neural = fit_neural(&b, &NeuralOptions { steps: Some(300), ..NeuralOptions::default() }, &mon).unwrap();
     let small =
         NeuralOptions { steps: Some(300), latents: 4, hidden: 32, features: Some(8), ..NeuralOptions::default() };
@@ -43,7 +32,7 @@ fn main() {
     println!("{:<32} {:>12} {:>8}", "model", "512² 1 light", "x PTM");
     let mut ptm_ms = 0.0;
     for (name, m) in &rows {
-        let a = best(&gpu, m.as_ref(), &one, 3);
+        let a = common::best(&gpu, m.as_ref(), &one, 3);
         if ptm_ms == 0.0 {
             ptm_ms = a;
         }

@@ -5,27 +5,17 @@
 //! with the generic loop shader, and RBF / bilinear. `ALT_LIGHT_PCA=path.wgsl` adds rows for
 //! RBF and bilinear drawn with another `light_pca.wgsl` (e.g. the one before 7ed5146: `git show c597a3c:shaders_wgsl/light_pca.wgsl`).
 //! `cargo run --release -p btfrs-render --example shader_cost`
-use btfrs_core::materials::{generate, MaterialSpec, Preset};
 use btfrs_core::Monitor;
-use btfrs_fit::{fit_bilinear, fit_ptm, fit_rbf, fit_sh, BilinearOptions, PtmOptions, RbfOptions, ShOptions};
+use btfrs_fit::{fit_bilinear, fit_rbf, fit_sh, BilinearOptions, RbfOptions, ShOptions};
 use btfrs_render::environment::Environment;
-use btfrs_render::{gpu, Gpu, View, WithShader};
+use btfrs_render::WithShader;
 
 mod common;
 
-fn best(gpu: &Gpu, m: &dyn btfrs_fit::Renderable, view: &View<'_>, repeat: usize) -> f64 {
-    let up = gpu::upload(gpu, m).unwrap();
-    let _ = gpu::render(gpu, &up, view).unwrap(); // builds the pipeline
-    (0..repeat).map(|_| gpu::render(gpu, &up, view).unwrap().1.draw_ms).fold(f64::INFINITY, f64::min)
-}
-
 fn main() {
-    let gpu = Gpu::shared().expect("adapter");
-    println!("{}", gpu.describe());
+    let (gpu, btf, ptm) = common::frame_bench(32);
     let mon = Monitor::new();
-    let btf = generate(&MaterialSpec::new(Preset::Knit, 32, 1), &mon).unwrap();
     let b = btf.as_ref();
-    let ptm = fit_ptm(&b, &PtmOptions::default(), &mon).unwrap();
     let sh = fit_sh(&b, &ShOptions::default(), &mon).unwrap();
     let rbf = fit_rbf(&b, &RbfOptions::default(), &mon).unwrap();
     let bil = fit_bilinear(&b, &BilinearOptions::default(), &mon).unwrap();
@@ -49,7 +39,8 @@ fn main() {
     println!("{:<30} {:>12} {:>8} {:>16}", "model", "512² 1 light", "x PTM", "640x480 env 64");
     let mut ptm_ms = 0.0;
     for (name, m, repeat) in &rows {
-        let (a, e) = (best(&gpu, m.as_ref(), &one, *repeat), best(&gpu, m.as_ref(), &env, (*repeat).min(2)));
+        let (a, e) =
+            (common::best(&gpu, m.as_ref(), &one, *repeat), common::best(&gpu, m.as_ref(), &env, (*repeat).min(2)));
         if ptm_ms == 0.0 {
             ptm_ms = a;
         }

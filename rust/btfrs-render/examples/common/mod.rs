@@ -35,3 +35,25 @@ impl Sphere {
         }
     }
 }
+
+/// The best draw time of `repeat` frames of `m` after one that builds the pipeline.
+#[allow(dead_code)] // not every example times frames
+pub fn best(gpu: &btfrs_render::Gpu, m: &dyn btfrs_fit::Renderable, view: &View<'_>, repeat: usize) -> f64 {
+    use btfrs_render::gpu;
+    let up = gpu::upload(gpu, m).unwrap();
+    let _ = gpu::render(gpu, &up, view).unwrap(); // builds the pipeline
+    (0..repeat).map(|_| gpu::render(gpu, &up, view).unwrap().1.draw_ms).fold(f64::INFINITY, f64::min)
+}
+
+/// The frame benches' start: the adapter (printed), knit at `size`² (seed 1) and its PTM-RGB
+/// fit (the 3x target's reference).
+#[allow(dead_code)] // not every example times frames
+pub fn frame_bench(size: usize) -> (std::sync::Arc<btfrs_render::Gpu>, btfrs_core::Btf, btfrs_fit::Ptm) {
+    use btfrs_core::materials::{generate, MaterialSpec, Preset};
+    let gpu = btfrs_render::Gpu::shared().expect("adapter");
+    println!("{}", gpu.describe());
+    let mon = btfrs_core::Monitor::new();
+    let btf = generate(&MaterialSpec::new(Preset::Knit, size, 1), &mon).unwrap();
+    let ptm = btfrs_fit::fit_ptm(&btf.as_ref(), &btfrs_fit::PtmOptions::default(), &mon).unwrap();
+    (gpu, btf, ptm)
+}
