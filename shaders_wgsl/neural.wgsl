@@ -3,15 +3,16 @@
 // hidden -> RGB, evaluated per fragment and light.
 //
 // Parameters: `mp`, the `NeuralParams` struct of neural.rs, followed in the same uniform block by
-// the decoder's dense layers (`mp.constants`, decoder.rs `gpu_halves`): half-precision values two
+// the decoder's dense layers (`mp.constants`, decoder.rs `gpu_dense`): half-precision values two
 // to a word, rows padded to vectors of eight halves (one `vec4<u32>`): w1 [hidden][n8], b1 [h8],
 // w2 [hidden][h8], b2 [h8], w3 [3][h8], b3 [1], matrices row-major [out][in], the output layer
 // divided by `mp.out_scale`. Every fragment reads the same weights: GPUs serve uniform reads from
 // their constant caches, and software rasterisers read a uniform block without the per-lane
 // bounds checks of a storage buffer; two halves per word halve the reads again. The learned
-// direction tables are in the store (per direction, view, light, half vector, as many as the
-// encoding has: `grid x grid` nodes of `features` halves, padded to an even count, over the
-// concentric square, looked up bilinearly: decoder.rs, `taps`). The second and output layers
+// direction tables are in the store (decoder.rs `gpu_tables`; per direction, view, light, half
+// vector, as many as the encoding has: `grid x grid` nodes of `features` halves, padded to an
+// even count, over the concentric square, looked up bilinearly: decoder.rs, `taps`). The
+// second and output layers
 // are fused: each second-layer unit is added into the output as soon as it is computed, so only
 // the first layer's activations are kept in a private array.
 

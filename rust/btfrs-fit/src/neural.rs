@@ -38,7 +38,7 @@ pub const MAX_LATENTS: usize = 32;
 pub const MAX_FEATURES: usize = 16;
 
 /// Vectors of four words the largest decoder's dense layers take as halves
-/// ([`Decoder::gpu_halves`]): rows of `inputs` then `hidden` values padded to vectors of eight.
+/// ([`Decoder::gpu_dense`]): rows of `inputs` then `hidden` values padded to vectors of eight.
 const GPU_CONSTANTS: usize = {
     let n8 = (MAX_LATENTS + decoder::MAX_ENCODING).div_ceil(8);
     let h8 = MAX_HIDDEN.div_ceil(8);
@@ -289,12 +289,15 @@ impl GpuLayout for Neural {
     fn parts(&self) -> Vec<Cow<'_, [u32]>> {
         // The direction tables first: at the start of the store they lie in the first storage
         // binding, which the shader reads directly (no chunk lookup per feature).
-        let (_, tables) = self.decoder.gpu_halves();
-        vec![Cow::Owned(tables), Cow::Owned(self.latents.scale_bias_words()), Cow::Owned(self.latents.words())]
+        vec![
+            Cow::Owned(self.decoder.gpu_tables()),
+            Cow::Owned(self.latents.scale_bias_words()),
+            Cow::Owned(self.latents.words()),
+        ]
     }
 
     fn constants(&self) -> Vec<u32> {
-        self.decoder.gpu_halves().0
+        self.decoder.gpu_dense()
     }
 
     fn params(&self, offsets: &[u32], _tables: &[u32]) -> NeuralParams {

@@ -216,6 +216,11 @@ pub struct Decoder {
 /// The most inputs besides the latents: 6 coordinates and 3 tables of at most 16 features.
 pub const MAX_ENCODING: usize = 6 + 3 * 16;
 
+/// Halves as words, two to a word, the first in the low half (an even count).
+fn pack_halves(v: &[u16]) -> Vec<u32> {
+    v.chunks(2).map(|w| w[0] as u32 | (w.get(1).copied().unwrap_or(0) as u32) << 16).collect()
+}
+
 /// The power of two that brings the output layer (`w3`, `b3`: the data's scale) into half
 /// precision's range, its largest value to `[2^14, 2^15)`; 1 for an all-zero layer. The other
 /// layers work on unit-scale inputs and are halves as they are.
@@ -339,18 +344,16 @@ impl Decoder {
         output_scale(&self.params, &self.shape.offsets())
     }
 
-    /// The renderer's form of the decoder: the dense layers as halves packed two to a word, every
-    /// row padded to whole vectors of eight (`[w1 rows][n8]`, `b1 [h8]`, `[w2 rows][h8]`,
-    /// `b2 [h8]`, `[w3 rows][h8]`, `b3 [1]` in vectors of four words), with the output layer
-    /// divided by [`Decoder::output_scale`]; and the direction tables as halves, each node's
-    /// features padded to an even count.
-    pub fn gpu_halves(&self) -> (Vec<u32>, Vec<u32>) {
+    /// The renderer's form of the dense layers: halves packed two to a word, every row padded to
+    /// whole vectors of eight (`[w1 rows][n8]`, `b1 [h8]`, `[w2 rows][h8]`, `b2 [h8]`,
+    /// `[w3 rows][h8]`, `b3 [1]` in vectors of four words), the output layer divided by
+    /// [`Decoder::output_scale`].
+    pub fn gpu_dense(&self) -> Vec<u32> {
         let sh = &self.shape;
         let (o, n, h) = (sh.offsets(), sh.inputs(), sh.hidden);
-        let (n8, h8) = (n.div_ceil(8), h.div_ceil(8));
         let inv = 1.0 / self.output_scale();
         let p = &self.params;
-        let mut c: Vec<u16> = Vec::with_capacity(8 * (h * n8 + h * h8 + 3 * h8 + 2 * h8 + 1));
+        let mut c: Vec<u16> = Vec::new();
         let mut rows = |rows: usize, len: usize, at: usize, s: f32| {
             for r in 0..rows {
                 let row = &p[at + r * len..at + (r + 1) * len];
@@ -364,16 +367,21 @@ impl Decoder {
         rows(1, h, o.b2, 1.0);
         rows(3, h, o.w3, inv);
         rows(1, 3, o.b3, inv);
+        pack_halves(&c)
+    }
+
+    /// The renderer's form of the direction tables: halves packed two to a word, each node's
+    /// features padded to an even count.
+    pub fn gpu_tables(&self) -> Vec<u32> {
+        let sh = &self.shape;
         let f = sh.features;
         let nodes = sh.tables() * sh.grid * sh.grid;
         let mut t: Vec<u16> = Vec::with_capacity(nodes * f.next_multiple_of(2));
-        for node in p[o.tables..].chunks(f.max(1)).take(nodes) {
+        for node in self.params[sh.offsets().tables..].chunks(f.max(1)).take(nodes) {
             t.extend(node.iter().map(|&x| half::f16::from_f32(x).to_bits()));
             t.resize(t.len().next_multiple_of(2), 0);
         }
-        let pack =
-            |v: Vec<u16>| v.chunks(2).map(|w| w[0] as u32 | (w.get(1).copied().unwrap_or(0) as u32) << 16).collect();
-        (pack(c), pack(t))
+        pack_halves(&t)
     }
 
     /// `W1[:, ..latents] z`: the per-texel part of the first layer.

@@ -197,7 +197,7 @@ fn bad_arrays_and_options_are_named() {
     assert!(e.to_string().starts_with("learning_rate: expected"), "{e}");
 }
 
-/// A half's value (bits as `gpu_halves` packs them, two to a word, low first).
+/// A half's value (bits as `gpu_dense` and `gpu_tables` pack them, two to a word, low first).
 fn half_at(words: &[u32], i: usize) -> f32 {
     half::f16::from_bits((words[i / 2] >> (16 * (i % 2))) as u16).to_f32()
 }
@@ -238,7 +238,7 @@ fn the_renderers_halves_hold_every_parameter_where_the_shader_reads_it() {
         // The output layer on a large scale, as a BTF of radiances.
         dec.params[o.w3..o.tables].iter_mut().for_each(|x| *x *= 3.0e6);
         let dec = Decoder::new(sh, dec.params, "decoder").unwrap();
-        let (c, t) = dec.gpu_halves();
+        let (c, t) = (dec.gpu_dense(), dec.gpu_tables());
         let (n, h) = (sh.inputs(), sh.hidden);
         let (n8, h8) = (n.div_ceil(8), h.div_ceil(8));
         let s = dec.output_scale();
