@@ -535,19 +535,20 @@ class Neural(Model):
 
     @property
     def layers(self) -> List[Tuple[np.ndarray, np.ndarray]]:
-        """The decoder's three ``(weight [out, in], bias [out])`` float32 pairs."""
-        a = self.arrays
-        k, h = int(a["architecture"][0]), int(a["architecture"][1])
-        n = k + {"light": 2, "xy": 4, "half": 6}[self.directions]
-        p = a["decoder"]
-        out = []
-        o = 0
-        for rows, cols in ((h, n), (h, h), (3, h)):
-            w = p[o:o + rows * cols].reshape(rows, cols)
-            o += rows * cols
-            out.append((w, p[o:o + rows]))
-            o += rows
-        return out
+        """The decoder's three ``(weight [out, in], bias [out])`` float32 pairs, on the data's
+        scale. Layer 1's inputs are the code, then the encoding: the coordinates of
+        :attr:`directions`, then, for each table of :attr:`tables`, its features at the
+        direction (view, light, half vector, as many as the encoding has), looked up
+        bilinearly."""
+        u = self._m.unpacked()
+        return [(u[f"layer{i}_weight"], u[f"layer{i}_bias"]) for i in (1, 2, 3)]
+
+    @property
+    def tables(self) -> np.ndarray:
+        """``[tables, grid, grid, features]`` float32: the learned direction tables (view, light,
+        half vector; none for NeuralRTI's form), node ``[j, i]`` at point ``(i, j) / (grid -
+        1)`` of the elevated concentric square (:func:`btfrs.hemimap.hemisphere_to_square`)."""
+        return self._m.unpacked()["tables"]
 
 
 class Svbrdf(Model):

@@ -464,6 +464,10 @@ and whether training stopped early. Filtered lookups average the codes (`mip = \
     fn report(&self) -> serde_json::Value {
         self.report.clone()
     }
+
+    fn unpacked(&self) -> NamedArrays {
+        self.decoder.unpacked()
+    }
 }
 
 #[cfg(test)]

@@ -384,6 +384,25 @@ impl Decoder {
         pack_halves(&t)
     }
 
+    /// The decoder as a reader applies it, on the data's scale: `layer{1,2,3}_weight`
+    /// (`[out][in]`, layer 1's inputs the latents, then [`Shape::encoding`]'s coordinates and
+    /// table features), `layer{1,2,3}_bias`, and `tables` (`[tables][grid][grid][features]`,
+    /// node `(i, j)` at concentric-square point `(i, j) / (grid - 1)`, indexed `[j][i]`).
+    pub fn unpacked(&self) -> btfrs_core::NamedArrays {
+        let sh = &self.shape;
+        let (o, n, h) = (sh.offsets(), sh.inputs(), sh.hidden);
+        let p = &self.params;
+        let mut a = btfrs_core::NamedArrays::new();
+        for (i, (w, b, rows, cols)) in
+            [(o.w1, o.b1, h, n), (o.w2, o.b2, h, h), (o.w3, o.b3, 3, h)].into_iter().enumerate()
+        {
+            a.put(&format!("layer{}_weight", i + 1), &[rows, cols], p[w..w + rows * cols].to_vec());
+            a.put(&format!("layer{}_bias", i + 1), &[rows], p[b..b + rows].to_vec());
+        }
+        a.put("tables", &[sh.tables(), sh.grid, sh.grid, sh.features], p[o.tables..o.len].to_vec());
+        a
+    }
+
     /// `W1[:, ..latents] z`: the per-texel part of the first layer.
     pub fn latent_part(&self, z: &[f32], out: &mut [f32]) {
         let (n, h) = (self.shape.inputs(), self.shape.hidden);
