@@ -8,10 +8,12 @@
 //! * [`mod@kmeans`]: k-means++ seeding and Lloyd iterations on column-major points.
 //! * [`rpca`]: randomized PCA (Halko et al.'s range finder), streamed through chunks when
 //!   memory is limited; principal coordinates of texels.
+//! * [`poisson`]: surfaces from their slopes (Frankot and Chellappa 1988), periodic or mirrored.
 
 pub mod cls;
 pub mod dense;
 pub mod kmeans;
+pub mod poisson;
 pub mod rpca;
 
 pub use kmeans::{kmeans, KMeans};
