@@ -549,6 +549,19 @@ def test_gltf_roughness_below_the_model_is_reported_and_a_bad_factor_refused(tmp
         btfrs.load(d)
 
 
+@pytest.mark.parametrize("fmt", ["gltf", "mitsuba"])
+def test_a_model_at_the_ends_of_its_range_reads_back_without_a_warning(fmt, tmp_path):
+    arrays = {k: v.copy() for k, v in _svbrdf().arrays.items()}
+    arrays["roughness"][0, :] = 0.02  # the smallest roughness, which glTF's 16-bit map rounds under
+    arrays["roughness"][1, :] = 1.0
+    m = btfrs.Model.from_arrays(arrays, kind="svbrdf")
+    m.export(tmp_path / fmt, format=fmt)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        back = btfrs.load(tmp_path / fmt)
+    np.testing.assert_allclose(back.arrays["roughness"], arrays["roughness"], atol=1e-4)
+
+
 def _png16(path: Path, rgb: np.ndarray) -> None:
     """A 16-bit RGB PNG (Pillow cannot write one)."""
     h, w, _ = rgb.shape

@@ -148,7 +148,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 #: The range of every numeric option, by its destination: (flag, low, high, low open, high
 #: open); ``None`` is unbounded. Integers and floats alike; a float must also be finite.
 _RANGES: Dict[str, Tuple[str, Optional[float], Optional[float], bool, bool]] = {
-    "size": ("--size", 1, None, False, False),
+    "size": ("--size", 8, 1024, False, False),  # the built-in materials' range
     "seed": ("--seed", 0, 2**64 - 1, False, False),
     "material_seed": ("--material-seed", 0, 2**64 - 1, False, False),
     "eval_seed": ("--eval-seed", 0, 2**64 - 1, False, False),
@@ -507,7 +507,7 @@ def _open(args: argparse.Namespace) -> Any:
                    max_bytes=args.max_bytes)
 
 
-def _data_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
+def _data_commands(sub: "argparse._SubParsersAction[_Parser]") -> None:
     i = sub.add_parser("info", help="what a capture or btfrs file holds: sizes, directions, values, what fits")
     _sample_args(i)
     f = sub.add_parser("fit", help="fit any model to a capture or BTF file and save it")

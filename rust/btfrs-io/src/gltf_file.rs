@@ -349,7 +349,8 @@ pub fn import_within(path: &Path, limits: &Limits) -> Result<(Svbrdf, Vec<String
     // glTF clamps the dielectric F0 to 1 before the specular factor.
     let specular: Vec<f32> = (0..3 * t).map(|i| ((f0 * sc_f[i % 3] * sc[i] as f64).min(1.0) * s_f) as f32).collect();
     // glTF's roughness r in [0, 1] is the model's alpha = r^2; below the model's smallest
-    // alpha (a mirror) it is raised to it, and said so.
+    // alpha (a mirror) it is raised to it, and said so when it lies below by more than a
+    // 16-bit map's step (2 r / 65535 in alpha: the export's own ALPHA_MIN rounds to just under).
     let mut raised = Repairs::new(
         shown,
         format!("roughness value(s) of metallicRoughnessTexture below the svbrdf's smallest (alpha {ALPHA_MIN}) raised to it"),
@@ -359,7 +360,7 @@ pub fn import_within(path: &Path, limits: &Limits) -> Result<(Svbrdf, Vec<String
     let roughness: Vec<f32> = (0..t)
         .map(|i| {
             let a = (rough_f * mr[3 * i + 1] as f64).powi(2);
-            if a < ALPHA_MIN {
+            if a < ALPHA_MIN - 1e-4 {
                 raised.add(i, a);
             }
             a.clamp(ALPHA_MIN, ALPHA_MAX) as f32

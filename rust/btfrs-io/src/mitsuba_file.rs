@@ -395,13 +395,14 @@ pub fn import_within(path: &Path, limits: &Limits) -> Result<(Svbrdf, Vec<String
     );
     let roughness: Vec<f32> = (0..t)
         .map(|i| {
-            let a = r[3 * i];
-            if f64::from(a) < ALPHA_MIN {
+            // Compared as the f32 the model stores: the export writes ALPHA_MIN as f32.
+            let (a, lo, hi) = (r[3 * i], ALPHA_MIN as f32, ALPHA_MAX as f32);
+            if a < lo {
                 low.add(i, f64::from(a));
-            } else if f64::from(a) > ALPHA_MAX {
+            } else if a > hi {
                 high.add(i, f64::from(a));
             }
-            a.clamp(ALPHA_MIN as f32, ALPHA_MAX as f32)
+            a.clamp(lo, hi)
         })
         .collect();
     let mut a = NamedArrays::new();
@@ -452,6 +453,18 @@ mod tests {
         for (a, b) in back.normal.iter().zip(&m.normal) {
             assert!((a - b).abs() < 2e-7, "{a} {b}");
         }
+    }
+
+    #[test]
+    fn roughness_at_the_ends_of_its_range_reads_back_without_a_warning() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut m = model();
+        m.roughness[0] = ALPHA_MIN as f32;
+        m.roughness[1] = ALPHA_MAX as f32;
+        export(&m, dir.path()).unwrap();
+        let (back, warnings) = import_within(dir.path(), &Limits::default()).unwrap();
+        assert!(warnings.is_empty(), "{warnings:?}");
+        assert_eq!(back.roughness, m.roughness);
     }
 
     #[test]

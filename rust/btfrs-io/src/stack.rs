@@ -466,7 +466,8 @@ pub fn open_table_limited(
     let is_json = shown.to_ascii_lowercase().ends_with(".json");
     let mut lines: Vec<String> = Vec::new();
     let rows: Vec<serde_json::Map<String, serde_json::Value>> = if is_json {
-        let v = crate::untrusted::parse_json(&text, &shown)?;
+        // One object per image: up to a million images.
+        let v = crate::untrusted::parse_json_within(&text, &shown, 1 << 20)?;
         let list = match v {
             serde_json::Value::Array(a) => a,
             serde_json::Value::Object(mut o) => match o.remove("images") {

@@ -14,7 +14,8 @@
 //! * **UTF-8 text**: invalid UTF-8, UTF-16 (by its byte-order mark) and NUL bytes (UTF-16
 //!   without a mark, or binary data) are an [`Error::Format`] naming the file and line.
 //! * **Linear parses with caps** ([`parse_json`], [`parse_xml`]): JSON nesting is serde_json's
-//!   128 levels; XML is scanned once before it is parsed for at most [`MAX_XML_ATTRIBUTES`]
+//!   128 levels and a JSON file holds at most [`MAX_JSON_CONTAINERS`] arrays and objects; XML
+//!   is scanned once before it is parsed for at most [`MAX_XML_ATTRIBUTES`]
 //!   attributes on one element (the XML parser's duplicate check is quadratic in them) and
 //!   [`MAX_XML_DEPTH`] levels of nesting, and parsed with at most [`MAX_XML_NODES`] nodes and no
 //!   DTD.
@@ -49,6 +50,10 @@ pub const MAX_TABLE: u64 = 16 << 20;
 /// becomes a 32-byte value, and a growing list may hold twice what it needs. A text of `n`
 /// bytes is refused when `PARSE_FACTOR * n` exceeds `max_bytes`.
 pub const PARSE_FACTOR: u64 = 32;
+/// Most arrays and objects in a JSON file (btfrs's index files hold a few dozen): each costs
+/// an allocation however small its text (`[],` is 3 bytes), which would otherwise let 16 MiB
+/// of empty arrays take seconds and a gigabyte to parse.
+pub const MAX_JSON_CONTAINERS: usize = 1 << 16;
 /// Most attributes on one XML element (btfrs's scenes use 3).
 pub const MAX_XML_ATTRIBUTES: usize = 64;
 /// Deepest nesting of XML elements (btfrs's scenes: 7).
@@ -253,9 +258,49 @@ pub fn check_parse(shown: &str, len: u64, max_bytes: u64) -> Result<()> {
     Ok(())
 }
 
-/// Parse JSON (serde_json: linear, nesting at most 128 levels). An error names `shown`, the
-/// line and the column.
+/// One linear pass over JSON text: at most `max_containers` arrays and objects (outside
+/// strings). Whether the text is valid JSON is the parser's to say.
+pub fn scan_json(text: &str, shown: &str, max_containers: usize) -> Result<()> {
+    let b = text.as_bytes();
+    let (mut containers, mut in_string, mut escaped) = (0usize, false, false);
+    for (i, &c) in b.iter().enumerate() {
+        if in_string {
+            if escaped {
+                escaped = false;
+            } else if c == b'\\' {
+                escaped = true;
+            } else if c == b'"' {
+                in_string = false;
+            }
+        } else if c == b'"' {
+            in_string = true;
+        } else if c == b'[' || c == b'{' {
+            containers += 1;
+            if containers > max_containers {
+                return Err(Error::format(
+                    shown,
+                    format!(
+                        "line {}: more than {max_containers} JSON arrays and objects; at most that many are read",
+                        line_of(b, i)
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Parse JSON with at most [`MAX_JSON_CONTAINERS`] arrays and objects ([`scan_json`];
+/// serde_json: linear, nesting at most 128 levels). An error names `shown`, the line and the
+/// column.
 pub fn parse_json(text: &str, shown: &str) -> Result<serde_json::Value> {
+    parse_json_within(text, shown, MAX_JSON_CONTAINERS)
+}
+
+/// [`parse_json`] with at most `max_containers` arrays and objects (a direction table holds
+/// one object per image).
+pub fn parse_json_within(text: &str, shown: &str, max_containers: usize) -> Result<serde_json::Value> {
+    scan_json(text, shown, max_containers)?;
     serde_json::from_str(text).map_err(|e| {
         let what = if e.to_string().contains("recursion limit") {
             "nested more than 128 levels deep".to_string()
@@ -607,6 +652,11 @@ mod tests {
         assert!(e.contains("nested more than 128 levels"), "{e}");
         let ok = format!("{}{}", "[".repeat(100), "]".repeat(100));
         assert!(parse_json(&ok, "info.json").is_ok());
+        // Containers are counted outside strings only.
+        let many = |n: usize| format!("[{}0, \"[[{{\\\"[\"]", "[],".repeat(n - 1));
+        assert!(parse_json(&many(MAX_JSON_CONTAINERS), "info.json").is_ok());
+        let e = parse_json(&many(MAX_JSON_CONTAINERS + 1), "info.json").unwrap_err().to_string();
+        assert!(e.contains("line 1: more than 65536 JSON arrays and objects"), "{e}");
         let e = parse_json("{\n\"a\": 1,\n\"b\": }", "info.json").unwrap_err().to_string();
         assert!(e.contains("line 3"), "{e}");
     }
