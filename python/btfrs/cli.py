@@ -188,13 +188,18 @@ def _check_number(flag: str, v: Any, lo: Optional[float], hi: Optional[float], l
     if ok and hi is not None:
         ok = v < hi if hi_open else v <= hi
     if not ok:
-        parts = []
-        if lo is not None:
-            parts.append(f"{'>' if lo_open else '>='} {lo}")
-        if hi is not None:
-            parts.append(f"{'<' if hi_open else '<='} {hi}")
+        def n(x: float) -> str:
+            return f"{x:g}" if isinstance(x, float) else str(x)
+        if lo is not None and hi is not None:
+            rng = f" in {'(' if lo_open else '['}{n(lo)}, {n(hi)}{')' if hi_open else ']'}"
+        elif lo is not None:
+            rng = f" {'>' if lo_open else '>='} {n(lo)}"
+        elif hi is not None:
+            rng = f" {'<' if hi_open else '<='} {n(hi)}"
+        else:
+            rng = ""
         what = "a finite number" if isinstance(v, float) else "an integer"
-        raise InvalidArgumentError(f"{flag}: expected {what}{' ' + ' and '.join(parts) if parts else ''}, got {v}")
+        raise InvalidArgumentError(f"{flag}: expected {what}{rng}, got {v}")
 
 
 def _settle_defaults(args: argparse.Namespace) -> None:

@@ -578,10 +578,7 @@ impl Directions {
             normalised: Repairs::new(shown, format!("{what} vector(s) normalised"), "length(s)", unit),
             lifted: Repairs::new(
                 shown,
-                format!(
-                    "{what}(s) below the horizon by at most {HORIZON_TOLERANCE} (unit z) moved onto it (z = 0, \
-                     renormalised)"
-                ),
+                format!("{what}(s) a hair below the horizon (unit z >= -{HORIZON_TOLERANCE}) moved onto it"),
                 "z",
                 unit,
             ),
@@ -735,7 +732,8 @@ mod tests {
         assert_eq!(w.len(), 2, "{w:?}");
         assert_eq!(w[0], "d.lp: 1 light vector normalised (length 1.01) at line 3");
         assert!(
-            w[1].starts_with("d.lp: 2 lights below the horizon by at most 0.02") && w[1].ends_with("at lines 4, 5")
+            w[1].starts_with("d.lp: 2 lights a hair below the horizon (unit z >= -0.02) moved onto it (z ")
+                && w[1].ends_with("at lines 4, 5")
         );
     }
 }
