@@ -309,6 +309,17 @@ def test_a_fifo_named_as_a_plane_or_photograph_never_blocks(fmt, hsh_folder, tmp
     assert not guard.had_to, "the load blocked on the FIFO"
 
 
+def test_other_inputs_named_by_a_fifo_are_refused_without_blocking(tmp_path):
+    # A coordinate map, an image, a .btfrs file: every reader checks the file type first.
+    for name, read in (("c.npy", btfrs.io.load_array), ("i.png", btfrs.io.load_image),
+                       ("i.exr", btfrs.io.load_image), ("b.btfrs", btfrs.load), ("p.ptm", btfrs.load)):
+        os.mkfifo(tmp_path / name)
+        with _Unblock(tmp_path / name) as guard:
+            with pytest.raises(FormatError, match=rf"{name}: is a FIFO \(named pipe\); expected a regular file"):
+                read(tmp_path / name)
+        assert not guard.had_to, f"{name}: the read blocked on the FIFO"
+
+
 def test_cli_refuses_what_it_cannot_honour_in_one_line(tmp_path, capsys, monkeypatch):
     # Every hostile invocation: exit code 2, exactly one line on stderr naming the flag, no
     # traceback, and nothing generated, fitted or written before the refusal.

@@ -123,6 +123,8 @@ def load_array(path: PathLike) -> NDArray[Any]:
     """A ``.npy`` file written by :func:`save_array` (or ``numpy.save``), read without pickles:
     a file that is not one raises :class:`FormatError` naming it."""
     p = os.fspath(path)
+    if os.path.exists(p):
+        _check_regular(p)  # a FIFO would block np.load
     try:
         a = np.load(p, allow_pickle=False)
     except (ValueError, EOFError) as e:
@@ -354,7 +356,7 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
     is ever decoded. ``mmap_to="big.btfrs"`` decodes straight into that file (memory-mapped,
     written atomically) and returns it opened with ``mmap=True``, so a capture larger than memory
     loads. ``linear=True`` reads 8/16-bit images as linear (e.g. TIFFs converted from RAW) instead
-    of sRGB. ``progress`` shows or reports decoding progress; Ctrl-C stops it and writes nothing.
+    of sRGB (captures only: it is refused for a ``.btfrs`` or model file). ``progress`` shows or reports decoding progress; Ctrl-C stops it and writes nothing.
     Light vectors of an ``.lp`` file or a table that are not unit length are normalised, and a
     light at most 0.02 below the horizon (as unit z) is moved onto it, each kind of repair
     reported in one :class:`UserWarning` per file (how many, the range, the first lines).
