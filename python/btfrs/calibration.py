@@ -71,7 +71,8 @@ class Calibration:
         #: ``(height, width)`` of the photographs.
         self.size: Tuple[int, int] = (int(report["height"]), int(report["width"]))
         #: The sphere's outline as a circle ``(cx, cy, r)`` in pixels (found or given).
-        self.sphere: Tuple[float, float, float] = tuple(report["sphere"]["circle"])  # type: ignore[assignment]
+        cx, cy, r = report["sphere"]["circle"]
+        self.sphere: Tuple[float, float, float] = (float(cx), float(cy), float(r))
         #: Every photograph, in order.
         self.images: List[ImageCalibration] = [
             ImageCalibration(file=i["file"], status=i["status"], reason=i["reason"],
@@ -136,7 +137,7 @@ class Calibration:
         if spaced:
             warnings.warn(f"{p}: {len(spaced)} file names contain spaces ({spaced[0]!r}, ...): btfrs reads them, "
                           "relight and RTIBuilder read a name only up to its first space", UserWarning, stacklevel=2)
-        _native.write_lp(p, names, [tuple(float(v) for v in l) for l in self.lights])
+        _native.write_lp(p, names, [(float(x), float(y), float(z)) for x, y, z in self.lights])
         return p
 
     def save_report(self, path: PathLike) -> str:
@@ -212,9 +213,12 @@ class Calibration:
 
 
 def _tuple(name: str, value: object, n: int, what: str) -> Tuple[object, ...]:
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != n:  # type: ignore[arg-type]
+    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) and not isinstance(value, np.ndarray):
         raise ArgumentTypeError(f"{name}: expected {what}, got {value!r}")
-    return tuple(value)  # type: ignore[call-overload,no-any-return]
+    items = tuple(value)
+    if len(items) != n:
+        raise ArgumentTypeError(f"{name}: expected {what}, got {value!r}")
+    return items
 
 
 def calibrate(images: Union[PathLike, Sequence[PathLike]], sphere: Optional[Sequence[float]] = None, *,

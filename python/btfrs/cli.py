@@ -14,6 +14,7 @@ import os
 import sys
 import tempfile
 import time
+import warnings
 import webbrowser
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
@@ -807,8 +808,6 @@ def _calibrate_args(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") 
 def calibrate_command(args: argparse.Namespace) -> None:
     """``btfrs calibrate``: find the lights from the sphere, write the .lp (and the report, the
     picture); photographs left out are named on stderr."""
-    import warnings  # noqa: PLC0415
-
     _check_output("-o", args.out, args, (".lp",))
     if args.report:
         _check_output("--report", args.report, args, (".json",))
