@@ -301,9 +301,15 @@ pub fn calibrate(input: &Input, opts: &Options, monitor: &Monitor) -> Result<Cal
             (c, 2.0 * s as f64 + 0.08 * c[2] + 2.0)
         }
     };
-    let outer =
-        if opts.sphere.is_some() { Rect::around(circle, 2.0, w, h) } else { Rect::around(circle, slack + 4.0, w, h) };
-    let inner = Rect::around([circle[0], circle[1], 0.85 * circle[2]], slack + 2.0, w, h);
+    // The highlights are looked for on the circle known before reading them all: the given
+    // one, or the coarse one (a few reduced pixels off at most, which moves the edge of the
+    // search, at 47.5 degrees of normal, by a fraction of a degree; the directions come from
+    // the outline fitted afterwards). So each photograph is searched as soon as it is decoded
+    // and its pixels dropped: memory stays that of the photographs being decoded, whatever the
+    // capture's length.
+    let outer = Rect::around(circle, slack + 4.0, w, h);
+    let inner = Rect::around([circle[0], circle[1], 0.8 * circle[2]], 2.0, w, h);
+    let search = Search::new(&SphereView::from_circle(camera, circle), inner);
     let acc = Mutex::new(vec![0f64; if opts.sphere.is_some() { 0 } else { outer.len() }]);
     let per = files
         .par_iter()
@@ -322,9 +328,10 @@ pub fn calibrate(input: &Input, opts: &Options, monitor: &Monitor) -> Result<Cal
                 let (dx, dy) = (inner.x0 - outer.x0, inner.y0 - outer.y0);
                 (0..inner.h).flat_map(|y| all[(dy + y) * outer.w + dx..][..inner.w].to_vec()).collect()
             };
+            let finding = highlight::find(&lum, &search);
             let wt = white.map(|r| photo::rect_mean(&raw, r));
             monitor.advance(1);
-            Ok((lum, wt))
+            Ok((finding, wt))
         })
         .collect::<Result<Vec<_>>>()?;
 
@@ -381,13 +388,12 @@ pub fn calibrate(input: &Input, opts: &Options, monitor: &Monitor) -> Result<Cal
     };
     let sphere = SphereReport { axis, angular_radius_deg: angular, ..sphere };
 
-    // The highlights and their lights.
-    let search = Search::new(&view, inner);
+    // The lights, from the final outline.
+    let below = -highlight::HORIZON_TOLERANCE_DEG.to_radians().sin();
     let mut images: Vec<ImageReport> = files
         .iter()
         .zip(per)
-        .map(|(f, (lum, wt))| {
-            let mut finding = highlight::find(&lum, &search);
+        .map(|(f, (mut finding, wt))| {
             let mut report = ImageReport {
                 file: f.display().to_string(),
                 finding: finding.clone(),
@@ -400,9 +406,8 @@ pub fn calibrate(input: &Input, opts: &Options, monitor: &Monitor) -> Result<Cal
             };
             if finding.status == Status::Ok {
                 let s = finding.spots[0];
-                match view.light_at(s.x, s.y) {
-                    Some(l) => {
-                        let mut l = geometry::unit(l);
+                match view.light_at(s.x, s.y).map(geometry::unit) {
+                    Some(mut l) if l[2] >= below => {
                         if l[2] < 0.0 {
                             report.note = Some(format!(
                                 "the light was {:.2} degrees below the horizon; moved onto it",
@@ -413,9 +418,15 @@ pub fn calibrate(input: &Input, opts: &Options, monitor: &Monitor) -> Result<Cal
                         report.highlight = Some([s.x, s.y]);
                         report.light = Some(l);
                     }
-                    None => {
+                    found => {
                         finding.status = Status::Missing;
-                        finding.reason = Some("the highlight's centre is off the sphere".into());
+                        finding.reason = Some(match found {
+                            None => "the highlight's centre is off the sphere".into(),
+                            Some(l) => format!(
+                                "the highlight mirrors a light {:.1} degrees below the horizon",
+                                -l[2].asin().to_degrees()
+                            ),
+                        });
                         report.finding = finding;
                     }
                 }
