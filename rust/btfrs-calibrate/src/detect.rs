@@ -5,11 +5,17 @@
 //! but for its small highlight, while the table and the object around it are lit by most
 //! lights. So the coarse search looks at the upper quartile of each reduced pixel over a
 //! subset of the photographs (a pixel that is dark in three quarters of them: shadows move with
-//! the light and highlights are small, so neither survives the quartile), splits it into dark
-//! and bright by Otsu's threshold, and keeps the dark regions shaped like a disc (bounding box
-//! nearly square, the disc inscribed in it nearly filled). Among those, the one where the most
-//! photographs show a small bright spot (a highlight) wins, then the largest. A dark round
-//! object that is not the sphere (a coin under raking light) shows no highlight.
+//! the light and highlights are small, so neither survives the quartile) and splits it into
+//! dark and bright by Otsu's threshold. A dark region stands for a sphere when its darkest core
+//! is shaped like a disc (bounding box nearly square, the disc inscribed in it nearly filled):
+//! the core is found by Otsu's threshold again within the region, and again, down to where
+//! the sphere parts from its own shadow, which clings to it in the quartile. Among those, the
+//! one where the most photographs show a small bright spot (a highlight) wins, then the
+//! largest: a dark round object that is not the sphere (a coin under raking light) shows no
+//! highlight. The core is centred on the sphere (its rim, brightened by reflections at grazing
+//! angles, is the same all round) but smaller; the radius is where the mean photograph
+//! brightens outwards along the most rays from the core's centre (the sphere's edge adds up at
+//! one radius, other edges at many).
 //!
 //! **Outline.** Along rays from the coarse centre, the outline is where the mean photograph
 //! brightens fastest going outwards (the largest difference across one pixel, located between
@@ -131,23 +137,19 @@ pub fn coarse(frames: &[Vec<f32>], dw: usize, dh: usize, s: usize, shown: &str) 
              (give its circle instead: sphere=(cx, cy, r) in pixels, or --sphere CX CY R)"
         ))
     };
-    let mut best: Option<((usize, usize), [f64; 3])> = None;
+    let mut best: Option<((usize, usize), Region)> = None;
     for r in regions(&dark, dw) {
         if r.area < 16 {
             continue;
         }
         // The sphere's shadow on the table, dark in many photographs, may join the disc at this
-        // threshold: split the region's surroundings again, by their own threshold.
-        let tight = tighten(&upper, dw, dh, &r, s).and_then(|t| as_disc(&t, s).map(|d| (t, d)));
-        let (r, (cx, cy, rad)) = match (tight, as_disc(&r, s)) {
-            (Some(t), _) => t,
-            (None, Some(d)) => (r, d),
-            (None, None) => continue,
-        };
+        // threshold: the region's darkest round core stands for it then.
+        let Some(core) = core(&upper, dw, dh, &r, s) else { continue };
+        let (cx, cy, rad) = as_disc(&core, s).unwrap_or_default();
         // Photographs with a highlight: a reduced pixel well above the disc's typical level
         // within 0.75 of its radius.
-        let inner: Vec<usize> = (r.y0..=r.y1)
-            .flat_map(|y| (r.x0..=r.x1).map(move |x| (x, y)))
+        let inner: Vec<usize> = (core.y0..=core.y1)
+            .flat_map(|y| (core.x0..=core.x1).map(move |x| (x, y)))
             .filter(|&(x, y)| (x as f64 + 0.5 - cx).hypot(y as f64 + 0.5 - cy) <= 0.75 * rad)
             .map(|(x, y)| y * dw + x)
             .collect();
@@ -158,12 +160,21 @@ pub fn coarse(frames: &[Vec<f32>], dw: usize, dh: usize, s: usize, shown: &str) 
         let mid = levels.len() / 2;
         let typical = *levels.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1;
         let lit = frames.iter().filter(|f| inner.iter().any(|&p| f[p] > typical + 0.25)).count();
-        let circle = [cx * s as f64, cy * s as f64, rad * s as f64];
         if best.as_ref().is_none_or(|(k, _)| (lit, r.area) > *k) {
-            best = Some(((lit, r.area), circle));
+            best = Some(((lit, r.area), core));
         }
     }
-    best.map(|(_, c)| c).ok_or_else(|| not_found("no dark round region in the photographs"))
+    let (_, core) = best.ok_or_else(|| not_found("no dark round region in the photographs"))?;
+    let (cx, cy, rad) = as_disc(&core, s).unwrap_or_default();
+    // The core is centred on the sphere (its rim, brightened by reflections at grazing angles,
+    // is the same all round) but smaller than it. The radius is the one where the mean
+    // photograph brightens outwards along the most rays: summed over rays from the centre, the
+    // sphere's edge adds up at one radius, other edges (the relief, a target, a shadow) at many.
+    let mean: Vec<f32> =
+        (0..dw * dh).map(|p| (frames.iter().map(|f| f[p] as f64).sum::<f64>() / n as f64) as f32).collect();
+    let rect = Rect { x0: 0, y0: 0, w: dw, h: dh };
+    let r0 = radial_vote(&mean, rect, cx, cy, 0.9 * rad, 1.6 * rad + 2.0).unwrap_or(rad);
+    Ok([cx * s as f64, cy * s as f64, r0 * s as f64])
 }
 
 /// The region's disc (cx, cy, r) in reduced pixels when it is shaped like one: its bounding box
@@ -178,47 +189,84 @@ fn as_disc(r: &Region, s: usize) -> Option<(f64, f64, f64)> {
 }
 
 /// The darkest round part of the region `r`: thresholds by Otsu's method over its bounding box
-/// grown by a quarter on each side, then over what is darker than that, and so on (up to three
-/// times), until the region around its darkest spot (the box's darkest 3 x 3 mean) is round.
-fn tighten(upper: &[f32], dw: usize, dh: usize, r: &Region, s: usize) -> Option<Region> {
+/// grown by a quarter on each side, then over what is darker than that, and so on (up to four
+/// times); of the regions around the box's darkest spot (its darkest 3 x 3 mean) at each level,
+/// the last that is round, as long as it keeps a tenth of the first's area.
+fn core(upper: &[f32], dw: usize, dh: usize, r: &Region, s: usize) -> Option<Region> {
     let (mx, my) = ((r.x1 - r.x0 + 1) / 4 + 1, (r.y1 - r.y0 + 1) / 4 + 1);
     let (x0, y0) = (r.x0.saturating_sub(mx), r.y0.saturating_sub(my));
     let (x1, y1) = ((r.x1 + mx).min(dw - 1), (r.y1 + my).min(dh - 1));
     let (ww, wh) = (x1 - x0 + 1, y1 - y0 + 1);
     let window: Vec<f32> = (y0..=y1).flat_map(|y| upper[y * dw + x0..=y * dw + x1].iter().copied()).collect();
-    // The seed: the darkest 3 x 3 mean of the window (inside the sphere, not a dark speck).
-    let seed = (1..wh.saturating_sub(1)).flat_map(|y| (1..ww.saturating_sub(1)).map(move |x| (x, y))).min_by(
-        |&(ax, ay), &(bx, by)| {
-            let m = |x: usize, y: usize| -> f32 {
-                (0..3)
-                    .flat_map(|j| (0..3).map(move |i| (i, j)))
-                    .map(|(i, j)| window[(y + j - 1) * ww + x + i - 1])
-                    .sum()
-            };
-            m(ax, ay).total_cmp(&m(bx, by))
-        },
-    )?;
+    let box3 = |x: usize, y: usize| -> f32 {
+        (0..3).flat_map(|j| (0..3).map(move |i| (i, j))).map(|(i, j)| window[(y + j - 1) * ww + x + i - 1]).sum()
+    };
+    let seed = (1..wh.saturating_sub(1))
+        .flat_map(|y| (1..ww.saturating_sub(1)).map(move |x| (x, y)))
+        .min_by(|&(ax, ay), &(bx, by)| box3(ax, ay).total_cmp(&box3(bx, by)))?;
     let mut values = window.clone();
-    for _ in 0..3 {
+    let mut last: Option<Region> = None;
+    for _ in 0..4 {
         let t = otsu(&values);
         let mask: Vec<bool> = window.iter().map(|&v| v < t).collect();
-        let found = regions(&mask, ww).into_iter().find(|q| {
-            q.x0 <= seed.0 && seed.0 <= q.x1 && q.y0 <= seed.1 && seed.1 <= q.y1 && {
-                // the seed pixel itself belongs to it
-                mask[seed.1 * ww + seed.0]
-            }
-        })?;
-        let moved =
+        if !mask[seed.1 * ww + seed.0] {
+            break;
+        }
+        let Some(found) = regions(&mask, ww)
+            .into_iter()
+            .find(|q| q.x0 <= seed.0 && seed.0 <= q.x1 && q.y0 <= seed.1 && seed.1 <= q.y1)
+        else {
+            break;
+        };
+        let here =
             Region { area: found.area, x0: found.x0 + x0, y0: found.y0 + y0, x1: found.x1 + x0, y1: found.y1 + y0 };
-        if as_disc(&moved, s).is_some() {
-            return Some(moved);
+        if last.as_ref().is_some_and(|l| 10 * here.area < l.area) {
+            break;
+        }
+        match (as_disc(&here, s), &last) {
+            (Some(_), _) => last = Some(here),
+            (None, Some(_)) => break,
+            (None, None) => {}
         }
         values.retain(|&v| v < t);
         if values.len() < 16 {
-            return None;
+            break;
         }
     }
-    None
+    last
+}
+
+/// The radius in `lo..hi` at which `img` (over `rect`) brightens outwards the most, summed over
+/// rays from (cx, cy) (the steps of a quarter pixel, differences across one pixel, the peak
+/// located between steps by a parabola); None when nothing brightens.
+fn radial_vote(img: &[f32], rect: Rect, cx: f64, cy: f64, lo: f64, hi: f64) -> Option<f64> {
+    let step = 0.25;
+    let half = 2;
+    let count = ((hi - lo) / step) as usize + 1;
+    let mut votes = vec![0f64; count];
+    let rays = ((std::f64::consts::TAU * hi) as usize).clamp(90, 1440);
+    for k in 0..rays {
+        let t = std::f64::consts::TAU * k as f64 / rays as f64;
+        let (dx, dy) = (t.cos(), t.sin());
+        let at = |i: usize| {
+            let rho = lo + i as f64 * step;
+            sample(img, rect.w, rect.h, cx + rho * dx - rect.x0 as f64, cy + rho * dy - rect.y0 as f64)
+        };
+        for (i, v) in votes.iter_mut().enumerate().take(count.saturating_sub(half)).skip(half) {
+            if let (Some(a), Some(b)) = (at(i - half), at(i + half)) {
+                *v += (b - a).max(0.0);
+            }
+        }
+    }
+    let (i, &best) = votes.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1))?;
+    if best <= 0.0 {
+        return None;
+    }
+    let off = match (i.checked_sub(1).map(|j| votes[j]), votes.get(i + 1)) {
+        (Some(a), Some(&c)) if a - 2.0 * best + c < 0.0 => (0.5 * (a - c) / (a - 2.0 * best + c)).clamp(-0.5, 0.5),
+        _ => 0.0,
+    };
+    Some(lo + (i as f64 + off) * step)
 }
 
 /// Bilinear sample of `img` (`w x h`, pixel centres at +0.5) at (x, y); None outside.

@@ -144,6 +144,8 @@ pub struct SphereReport {
     /// radius (degrees) of the sphere seen from it.
     pub axis: Option<[f64; 3]>,
     pub angular_radius_deg: Option<f64>,
+    /// When found: the coarse circle the outline was traced from.
+    pub coarse: Option<[f64; 3]>,
 }
 
 /// One photograph's calibration.
@@ -218,6 +220,22 @@ fn check_size(shown: &Path, got: (usize, usize), want: (usize, usize), first: &P
     Ok(())
 }
 
+/// Decode a photograph into `buf` (each rayon task keeps one, from one photograph to the next)
+/// after checking for a cancel, and check its size against the capture's.
+fn open_checked<'a>(
+    f: &Path,
+    transfer: Transfer,
+    buf: &'a mut Vec<u8>,
+    size: (usize, usize),
+    first: &Path,
+    monitor: &Monitor,
+) -> Result<photo::Photo<'a>> {
+    monitor.check()?;
+    let p = photo::open(f, transfer, buf)?;
+    check_size(f, (p.width, p.height), size, first)?;
+    Ok(p)
+}
+
 /// Calibrate the lights of `input` (see the crate's documentation). Photographs that cannot be
 /// calibrated are reported in [`ImageReport::finding`]; none calibrated at all is an error
 /// naming each with its reason.
@@ -237,8 +255,9 @@ pub fn calibrate(input: &Input, opts: &Options, monitor: &Monitor) -> Result<Cal
     let (size, first) = match size {
         Some(s) => s,
         None => {
-            let raw = photo::open(&files[0], opts.transfer)?;
-            ((raw.width, raw.height), files[0].as_path())
+            let mut buf = Vec::new();
+            let first = photo::open(&files[0], opts.transfer, &mut buf)?;
+            ((first.width, first.height), files[0].as_path())
         }
     };
     let (w, h) = size;
@@ -272,13 +291,6 @@ pub fn calibrate(input: &Input, opts: &Options, monitor: &Monitor) -> Result<Cal
             Some(Rect { x0: col, y0: row, w: cols, h: rows })
         }
     };
-    let decode = |f: &PathBuf| -> Result<btfrs_io::decode::Raw> {
-        monitor.check()?;
-        let raw = photo::open(f, opts.transfer)?;
-        check_size(f, (raw.width, raw.height), size, first)?;
-        Ok(raw)
-    };
-
     // The coarse circle, or the given one.
     let coarse_count = if opts.sphere.is_some() { 0 } else { n.min(COARSE_IMAGES) };
     monitor.start((coarse_count + n) as u64);
@@ -290,15 +302,17 @@ pub fn calibrate(input: &Input, opts: &Options, monitor: &Monitor) -> Result<Cal
             let s = ((w.max(h) as f64 / COARSE_SIDE).ceil() as usize).max(1);
             let frames = picks
                 .par_iter()
-                .map(|&i| {
-                    let raw = decode(&files[i])?;
-                    let (d, _, _) = photo::downsample(&raw, s);
+                .map_init(Vec::new, |buf, &i| {
+                    let p = open_checked(&files[i], opts.transfer, buf, size, first, monitor)?;
+                    let (d, _, _) = photo::downsample(&p, s);
                     monitor.advance(1);
                     Ok(d)
                 })
                 .collect::<Result<Vec<_>>>()?;
             let c = detect::coarse(&frames, w.div_ceil(s), h.div_ceil(s), s, &shown)?;
-            (c, 2.0 * s as f64 + 0.08 * c[2] + 2.0)
+            // How far the coarse circle may be off: its outline is found within a reduced pixel
+            // or two, plus a share of the radius where the sphere's shadow clung to it.
+            (c, 2.0 * s as f64 + 0.03 * c[2] + 2.0)
         }
     };
     // The highlights are looked for on the circle known before reading them all: the given
@@ -307,29 +321,39 @@ pub fn calibrate(input: &Input, opts: &Options, monitor: &Monitor) -> Result<Cal
     // the outline fitted afterwards). So each photograph is searched as soon as it is decoded
     // and its pixels dropped: memory stays that of the photographs being decoded, whatever the
     // capture's length.
-    let outer = Rect::around(circle, slack + 4.0, w, h);
     let inner = Rect::around([circle[0], circle[1], 0.8 * circle[2]], 2.0, w, h);
     let search = Search::new(&SphereView::from_circle(camera, circle), inner);
+    // Only the searched pixels' luminance is needed: the rows' runs of the search's disc.
+    let disc = photo::ring_runs(inner, circle[0], circle[1], 0.0, 0.8 * circle[2] + 2.0);
+    // The mean photograph is summed over a ring around the coarse outline only: the outline is
+    // traced within `slack` of it, then within `slack` of a first fit that moved by `slack` at
+    // most (a quarter of the pixels of the whole disc's box, for a large sphere).
+    let reach = 2.0 * slack + 4.0;
+    let outer = Rect::around(circle, reach, w, h);
+    let runs = if opts.sphere.is_some() {
+        Vec::new()
+    } else {
+        photo::ring_runs(outer, circle[0], circle[1], (circle[2] - reach).max(0.0), circle[2] + reach)
+    };
     let acc = Mutex::new(vec![0f64; if opts.sphere.is_some() { 0 } else { outer.len() }]);
     let per = files
         .par_iter()
-        .map(|f| {
-            let raw = decode(f)?;
-            let lum = if opts.sphere.is_some() {
-                photo::luminance_of(&raw, inner)
-            } else {
-                let all = photo::luminance_of(&raw, outer);
-                {
-                    let mut a = acc.lock().unwrap_or_else(|e| e.into_inner());
-                    for (s, v) in a.iter_mut().zip(&all) {
+        .map_init(Vec::new, |buf, f| {
+            let p = open_checked(f, opts.transfer, buf, size, first, monitor)?;
+            if !runs.is_empty() {
+                let ring = photo::luminance_runs(&p, &runs);
+                let mut a = acc.lock().unwrap_or_else(|e| e.into_inner());
+                let mut k = 0;
+                for &(y, x0, x1) in &runs {
+                    let at = (y - outer.y0) * outer.w + (x0 - outer.x0);
+                    for (s, v) in a[at..at + x1 - x0].iter_mut().zip(&ring[k..k + x1 - x0]) {
                         *s += *v as f64;
                     }
+                    k += x1 - x0;
                 }
-                let (dx, dy) = (inner.x0 - outer.x0, inner.y0 - outer.y0);
-                (0..inner.h).flat_map(|y| all[(dy + y) * outer.w + dx..][..inner.w].to_vec()).collect()
-            };
-            let finding = highlight::find(&lum, &search);
-            let wt = white.map(|r| photo::rect_mean(&raw, r));
+            }
+            let finding = highlight::find(&photo::luminance_in(&p, inner, &disc), &search);
+            let wt = white.map(|r| photo::rect_mean(&p, r));
             monitor.advance(1);
             Ok((finding, wt))
         })
@@ -347,6 +371,7 @@ pub fn calibrate(input: &Input, opts: &Options, monitor: &Monitor) -> Result<Cal
                 edge_rms_px: 0.0,
                 axis: None,
                 angular_radius_deg: None,
+                coarse: None,
             },
         ),
         None => {
@@ -355,12 +380,18 @@ pub fn calibrate(input: &Input, opts: &Options, monitor: &Monitor) -> Result<Cal
             // Traced twice: from the coarse circle, then from the first fit with a narrow window
             // (a coarse circle several pixels off leaves part of the outline outside the first
             // window; its rays catch shadow edges, which the robust fit drops).
+            let moved = |c: [f64; 3]| (c[0] - circle[0]).hypot(c[1] - circle[1]) + (c[2] - circle[2]).abs();
             let pts = detect::edge_points(&mean, outer, circle, slack);
             let first = detect::outline(&pts, camera, &shown)?;
-            let pts = detect::edge_points(&mean, outer, first.circle, (4.0 * first.rms_px).clamp(2.0, slack));
-            let o = detect::outline(&pts, camera, &shown)?;
-            let moved = (o.circle[0] - circle[0]).hypot(o.circle[1] - circle[1]) + (o.circle[2] - circle[2]).abs();
-            if moved > 2.0 * slack || 2 * o.kept < o.points {
+            let second = (moved(first.circle) <= slack).then(|| {
+                let pts = detect::edge_points(&mean, outer, first.circle, (4.0 * first.rms_px).clamp(2.0, slack));
+                detect::outline(&pts, camera, &shown)
+            });
+            let o = match second {
+                Some(o) => o?,
+                None => first,
+            };
+            if moved(o.circle) > 2.0 * slack || 2 * o.kept < o.points {
                 return Err(Error::Degenerate(format!(
                     "no sphere found in {shown}: the dark disc near ({:.0}, {:.0}) has no clear round outline (only {} \
                      of {} edge points agree); give its circle instead: sphere=(cx, cy, r) in pixels, or --sphere CX CY R",
@@ -378,6 +409,7 @@ pub fn calibrate(input: &Input, opts: &Options, monitor: &Monitor) -> Result<Cal
                     edge_rms_px: o.rms_px,
                     axis: o.cone.map(|c| c.0),
                     angular_radius_deg: o.cone.map(|c| c.1.acos().to_degrees()),
+                    coarse: Some(circle),
                 },
             )
         }
