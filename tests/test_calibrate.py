@@ -268,6 +268,12 @@ def test_bad_arguments_name_themselves(tmp_path):
     cal = btfrs.calibrate([folder / "img_00.png"])
     with pytest.raises(InvalidArgumentError, match=r"\.lp"):
         cal.save(tmp_path / "dirs.txt")
+    # A name with a space: written (btfrs reads it), with a warning that relight would not.
+    shutil.copy(folder / "img_00.png", folder / "img 01.png")
+    spaced = btfrs.calibrate([folder / "img 01.png"])
+    with pytest.warns(UserWarning, match=r"contain spaces .*relight and RTIBuilder read a name only up to"):
+        spaced.save(folder / "dirs.lp")
+    assert btfrs.load(folder / "dirs.lp").n_lights == 1
 
 
 def test_progress_counts_every_photograph_read(tmp_path):
