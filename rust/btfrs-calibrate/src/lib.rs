@@ -438,7 +438,8 @@ pub fn calibrate(input: &Input, opts: &Options, monitor: &Monitor) -> Result<Cal
             };
             if finding.status == Status::Ok {
                 let s = finding.spots[0];
-                match view.light_at(s.x, s.y).map(geometry::unit) {
+                let (hx, hy) = (s.x, s.y);
+                match view.light_at(hx, hy).map(geometry::unit) {
                     Some(mut l) if l[2] >= below => {
                         if l[2] < 0.0 {
                             report.note = Some(format!(
@@ -447,7 +448,7 @@ pub fn calibrate(input: &Input, opts: &Options, monitor: &Monitor) -> Result<Cal
                             ));
                             l = geometry::unit([l[0], l[1], 0.0]);
                         }
-                        report.highlight = Some([s.x, s.y]);
+                        report.highlight = Some([hx, hy]);
                         report.light = Some(l);
                     }
                     found => {

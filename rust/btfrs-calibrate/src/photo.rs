@@ -229,15 +229,6 @@ pub fn luminance_in(photo: &Photo<'_>, rect: Rect, runs: &[(usize, usize, usize)
     out
 }
 
-/// Linear luminance of `rect` of `photo`, row-major.
-pub fn luminance_of(photo: &Photo<'_>, rect: Rect) -> Vec<f32> {
-    let mut out = vec![0f32; rect.len()];
-    for (y, row) in out.chunks_exact_mut(rect.w.max(1)).enumerate().take(rect.h) {
-        photo.luminance_run((rect.y0 + y) * photo.width + rect.x0, rect.w, row);
-    }
-    out
-}
-
 /// Luminance box-averaged over `s x s` blocks (the last row and column of blocks over what is
 /// left): `(values, columns, rows)`. Blocks of 8 rows or more are averaged over every
 /// `s / 4`-th of their rows (a reduced picture to find a disc in needs no more, and the
