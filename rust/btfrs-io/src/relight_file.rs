@@ -61,7 +61,7 @@
 
 use std::path::{Path, PathBuf};
 
-use btfrs_core::{Error, Result};
+use btfrs_core::{Error, Monitor, Result};
 use btfrs_fit::hsh::HshSlot;
 use btfrs_fit::light_pca::{Colour, LightPca, MAX_COMPONENTS, MAX_RESOLUTION};
 use btfrs_fit::lightfit::Coeffs;
@@ -71,6 +71,7 @@ use serde_json::{json, Value};
 
 use crate::atomic::write_atomic;
 use crate::capture::Limits;
+use crate::deepzoom::{self, Tiling};
 use crate::formats::{concrete, read_index, Imported};
 use crate::untrusted;
 
@@ -83,6 +84,7 @@ pub const FORMAT: crate::formats::Format = crate::formats::Format {
     index: "info.json",
     export: export_model,
     import: import_model,
+    tiles: Some(export_tiles),
 };
 
 /// JPEG quality of the planes (relight's default is 95; the planes are data, not pictures).
@@ -108,6 +110,78 @@ fn folder(path: &Path) -> PathBuf {
 }
 
 // --- export ----------------------------------------------------------------------------------
+
+/// How a folder's images are written: whole (JPEG, with lossless PNG copies), or as Deep Zoom
+/// pyramids ([`crate::deepzoom`]) in one format, the tiles counted on the monitor.
+#[derive(Clone, Copy)]
+pub(crate) enum Layout<'a> {
+    Planes,
+    Tiles(&'a Tiling, &'a Monitor),
+}
+
+impl Layout<'_> {
+    /// Write one RGB image named `name` (without extension) into `dir` in this layout; the
+    /// files written.
+    pub(crate) fn write_image(
+        &self,
+        dir: &Path,
+        name: &str,
+        rgb: &[u8],
+        width: usize,
+        height: usize,
+        quality: u8,
+    ) -> Result<Vec<String>> {
+        match self {
+            Layout::Planes => ["jpg", "png"]
+                .into_iter()
+                .map(|ext| {
+                    let file = format!("{name}.{ext}");
+                    write_atomic(&dir.join(&file), |w| crate::image::encode_rgb8(w, rgb, width, height, ext, quality))?;
+                    Ok(file)
+                })
+                .collect(),
+            Layout::Tiles(t, m) => {
+                deepzoom::write_image(dir, name, rgb, width, height, t, m)?;
+                Ok(vec![format!("{name}.dzi")])
+            }
+        }
+    }
+
+    /// Count the tiles of `images` images of `width x height` on the monitor (tiles only).
+    pub(crate) fn start(&self, images: usize, width: usize, height: usize) -> Result<()> {
+        if let Layout::Tiles(t, m) = self {
+            let n = deepzoom::Pyramid::new(width, height, t.tile_size, t.overlap)?.tiles().len();
+            m.start((n * images) as u64);
+        }
+        Ok(())
+    }
+
+    /// The fields `info.json` gets for this layout: the tiles' `format`, and btfrs's note of
+    /// the pyramid (`{"layout", "tilesize", "overlap", "levels"}`), which the reader checks.
+    pub(crate) fn fields(&self, width: usize, height: usize) -> Option<(Value, Value)> {
+        match self {
+            Layout::Planes => None,
+            Layout::Tiles(t, _) => Some((
+                json!(t.format),
+                json!({"layout": "deepzoom", "tilesize": t.tile_size, "overlap": t.overlap,
+                       "levels": deepzoom::level_count(width, height, t.tile_size)}),
+            )),
+        }
+    }
+}
+
+/// The level count an `info.json` declares for its pyramids (btfrs's `btfrs.tiles.levels`),
+/// if it declares one.
+pub(crate) fn declared_levels(info: &Value, shown: &str) -> Result<Option<usize>> {
+    let v = &info["btfrs"]["tiles"]["levels"];
+    if v.is_null() {
+        return Ok(None);
+    }
+    v.as_u64()
+        .filter(|n| (1..=32).contains(n))
+        .map(|n| Some(n as usize))
+        .ok_or_else(|| bad(shown, "btfrs.tiles.levels", format!("expected a level count in 1..=32, got {v}")))
+}
 
 /// What a folder holds before it is written: relight's plane bytes (texel-major, `nplanes`
 /// per texel), per-plane scale and bias in relight's form, and the other `info.json` fields.
@@ -168,12 +242,13 @@ impl Web {
         self.bias[p] = bias;
     }
 
-    /// Write the folder: planes as JPEG and PNG, then `info.json` last (atomically each).
-    fn write(mut self, path: &Path, kind: &str) -> Result<Value> {
+    /// Write the folder: the planes in `layout`, then `info.json` last (atomically each).
+    fn write(mut self, path: &Path, kind: &str, layout: Layout<'_>) -> Result<Value> {
         let dir = folder(path);
         std::fs::create_dir_all(&dir).map_err(|e| Error::io(dir.display().to_string(), e))?;
         let texels = self.width * self.height;
         let njpegs = self.nplanes.div_ceil(3);
+        layout.start(njpegs, self.width, self.height)?;
         let mut files = Vec::new();
         for i in 0..njpegs {
             let mut rgb = vec![0u8; texels * 3];
@@ -184,18 +259,13 @@ impl Web {
                     }
                 }
             }
-            for ext in ["jpg", "png"] {
-                let name = format!("plane_{i}.{ext}");
-                write_atomic(&dir.join(&name), |w| {
-                    crate::image::encode_rgb8(w, &rgb, self.width, self.height, ext, QUALITY)
-                })?;
-                files.push(name);
-            }
+            files.extend(layout.write_image(&dir, &format!("plane_{i}"), &rgb, self.width, self.height, QUALITY)?);
         }
+        let tiles = layout.fields(self.width, self.height);
         let mut info = serde_json::Map::new();
         info.insert("width".into(), json!(self.width));
         info.insert("height".into(), json!(self.height));
-        info.insert("format".into(), json!("jpg"));
+        info.insert("format".into(), tiles.as_ref().map_or(json!("jpg"), |t| t.0.clone()));
         info.append(&mut self.fields);
         info.insert("nplanes".into(), json!(self.nplanes));
         info.insert("quality".into(), json!(QUALITY));
@@ -206,10 +276,11 @@ impl Web {
         material.insert("scale".into(), json!(self.scale));
         material.insert("bias".into(), json!(self.bias));
         info.insert("materials".into(), json!([material]));
-        info.insert(
-            "btfrs".into(),
-            json!({"model": kind, "values": "btfrs units x 255 = relight's (the 8-bit display value)"}),
-        );
+        let mut note = json!({"model": kind, "values": "btfrs units x 255 = relight's (the 8-bit display value)"});
+        if let Some((_, t)) = tiles {
+            note["tiles"] = t;
+        }
+        info.insert("btfrs".into(), note);
         // Compact: the basis alone can hold tens of thousands of numbers.
         let text = serde_json::to_string(&Value::Object(info)).map_err(|e| Error::arg("model", e))?;
         write_atomic(&dir.join("info.json"), |w| w.write_all(text.as_bytes()))?;
@@ -219,16 +290,26 @@ impl Web {
 }
 
 fn export_model(model: &dyn DynModel, view: usize, path: &Path) -> Result<Value> {
+    export_with(model, view, path, Layout::Planes)
+}
+
+/// The tiled layout: every plane image a Deep Zoom pyramid (`plane_0.dzi` + `plane_0_files/`),
+/// as OpenLIME's RTI layer reads with its `deepzoom` layout.
+fn export_tiles(model: &dyn DynModel, view: usize, path: &Path, tiling: &Tiling, monitor: &Monitor) -> Result<Value> {
+    export_with(model, view, path, Layout::Tiles(tiling, monitor))
+}
+
+fn export_with(model: &dyn DynModel, view: usize, path: &Path, layout: Layout<'_>) -> Result<Value> {
     match model.kind() {
-        "ptm" => export_ptm(concrete::<Ptm>(model, "a PTM")?, view, path),
-        "hsh" => export_hsh(concrete::<Hsh>(model, "an HSH model")?, view, path),
-        "rbf" => export_pca(&concrete::<Rbf>(model, "an RBF model")?.0, view, path, "rbf"),
-        "bilinear" => export_pca(&concrete::<Bilinear>(model, "a bilinear model")?.0, view, path, "bilinear"),
+        "ptm" => export_ptm(concrete::<Ptm>(model, "a PTM")?, view, path, layout),
+        "hsh" => export_hsh(concrete::<Hsh>(model, "an HSH model")?, view, path, layout),
+        "rbf" => export_pca(&concrete::<Rbf>(model, "an RBF model")?.0, view, path, "rbf", layout),
+        "bilinear" => export_pca(&concrete::<Bilinear>(model, "a bilinear model")?.0, view, path, "bilinear", layout),
         other => Err(Error::arg("format", format!("relight's web format holds no {other} model"))),
     }
 }
 
-fn export_ptm(m: &Ptm, view: usize, path: &Path) -> Result<Value> {
+fn export_ptm(m: &Ptm, view: usize, path: &Path, layout: Layout<'_>) -> Result<Value> {
     let slot = m.slot(view)?;
     let texels = slot.width * slot.height;
     let planes = match &slot.planes {
@@ -267,10 +348,10 @@ fn export_ptm(m: &Ptm, view: usize, path: &Path) -> Result<Value> {
         }
     };
     web.fields.insert("type".into(), json!("ptm"));
-    web.write(path, "ptm")
+    web.write(path, "ptm", layout)
 }
 
-fn export_hsh(m: &Hsh, view: usize, path: &Path) -> Result<Value> {
+fn export_hsh(m: &Hsh, view: usize, path: &Path, layout: Layout<'_>) -> Result<Value> {
     let slot = m.slot(view)?;
     if slot.order > 3 {
         return Err(Error::arg(
@@ -291,7 +372,7 @@ fn export_hsh(m: &Hsh, view: usize, path: &Path) -> Result<Value> {
     }
     web.fields.insert("type".into(), json!("hsh"));
     web.fields.insert("colorspace".into(), json!("rgb"));
-    web.write(path, "hsh")
+    web.write(path, "hsh", layout)
 }
 
 /// The hemisphere direction of point `(x, y)` of relight's rotated octahedral square
@@ -332,7 +413,7 @@ fn rgb_row(m: &LightPca, v: usize, l: [f64; 3]) -> Vec<f64> {
     out
 }
 
-fn export_pca(m: &LightPca, view: usize, path: &Path, kind: &str) -> Result<Value> {
+fn export_pca(m: &LightPca, view: usize, path: &Path, kind: &str, layout: Layout<'_>) -> Result<Value> {
     let nv = m.views.len();
     if view >= nv {
         return Err(Error::arg("view", format!("expected a view slot index in [0, {nv}), got {view}")));
@@ -376,7 +457,7 @@ fn export_pca(m: &LightPca, view: usize, path: &Path, kind: &str) -> Result<Valu
     web.fields.insert("colorspace".into(), json!("mrgb"));
     web.fields.insert("basis".into(), json!(basis));
     web.fields.insert("range".into(), json!(range));
-    let mut out = web.write(path, kind)?;
+    let mut out = web.write(path, kind, layout)?;
     out["resolution"] = json!(res);
     Ok(out)
 }
@@ -388,9 +469,46 @@ fn import_model(path: &Path, limits: &Limits) -> Result<Imported> {
     let info = untrusted::parse_json(&text, &shown)?;
     drop(text);
     if info["type"].as_str() == Some("neural") {
-        return Ok(Imported::model(Box::new(crate::neuralrti_file::from_info(&dir, &shown, &info, limits)?)));
+        return Ok(Imported::model(Box::new(crate::neuralrti_file::from_info(&dir, &shown, &info, limits, None)?)));
     }
-    Ok(Imported::model(import(&dir, &info, &shown, limits)?))
+    Ok(Imported::model(import(&dir, &info, &shown, limits, None)?))
+}
+
+/// The plane images of a relight or NeuralRTI folder (`path`: the folder or its `info.json`),
+/// by name without extension, and how many planes they hold (plane `p` of a texel is channel
+/// `p % 3` of image `p / 3`, the channels as stored in the files).
+pub fn plane_images(path: &Path, limits: &Limits) -> Result<(Vec<String>, usize)> {
+    let (_, shown, text) = read_index(path, "info.json", untrusted::JSON_INDEX, limits.max_bytes)?;
+    let info = untrusted::parse_json(&text, &shown)?;
+    if info["type"].as_str() == Some("neural") {
+        let n = crate::neuralrti_file::LATENTS;
+        return Ok(((1..=n / 3).map(|i| format!("plane_{i}")).collect(), n));
+    }
+    let n = if info["colorspace"].as_str() == Some("mycc") {
+        numbers(&info, "yccplanes", &shown)?.iter().sum::<f64>() as usize
+    } else {
+        info["nplanes"].as_u64().unwrap_or(0) as usize
+    };
+    if n == 0 || n > 3 * MAX_COMPONENTS + 3 {
+        return Err(bad(&shown, "nplanes", format!("expected a plane count, got {}", info["nplanes"])));
+    }
+    Ok(((0..n.div_ceil(3)).map(|i| format!("plane_{i}")).collect(), n))
+}
+
+/// The model the `info.json` of a relight or NeuralRTI folder (`path`) makes with the plane
+/// bytes `q` of a `width x height` image in place of the folder's own (`q` texel-major, as
+/// [`plane_images`] orders the planes): what a page assembling the folder's tiles draws, each
+/// window of the image a model of this form.
+pub fn with_planes(path: &Path, width: usize, height: usize, q: Vec<u8>, limits: &Limits) -> Result<Box<dyn DynModel>> {
+    let (dir, shown, text) = read_index(path, "info.json", untrusted::JSON_INDEX, limits.max_bytes)?;
+    let info = untrusted::parse_json(&text, &shown)?;
+    if width == 0 || height == 0 {
+        return Err(Error::arg("planes", format!("expected a size of at least 1 x 1, got {width} x {height}")));
+    }
+    if info["type"].as_str() == Some("neural") {
+        return Ok(Box::new(crate::neuralrti_file::from_info(&dir, &shown, &info, limits, Some((width, height, q)))?));
+    }
+    import(&dir, &info, &shown, limits, Some((width, height, q)))
 }
 
 /// An `info.json` field error.
@@ -409,22 +527,70 @@ fn numbers(info: &Value, key: &str, shown: &str) -> Result<Vec<f64>> {
         .collect()
 }
 
+/// One plane image of a folder: a whole image (`plane_0.png`, `plane_0.jpg`) or a Deep Zoom
+/// pyramid (`plane_0.dzi`, its last level read).
+pub(crate) enum Source {
+    File(PathBuf),
+    Pyramid(String),
+}
+
+/// Where image `name` of `dir` is: the lossless PNG where present, else the JPEG, else the
+/// pyramid; `None` when none is.
+pub(crate) fn find_image(dir: &Path, name: &str) -> Option<Source> {
+    untrusted::first_present(["png", "jpg"].map(|e| dir.join(format!("{name}.{e}"))))
+        .map(Source::File)
+        .or_else(|| untrusted::present(&dir.join(format!("{name}.dzi"))).then(|| Source::Pyramid(name.to_string())))
+}
+
+/// The RGB bytes of images `sources` (all `width x height`), each checked as its kind is (the
+/// headers of whole images first; every tile of a pyramid, [`deepzoom::read_image`], with the
+/// level count `levels` the index file declares).
+pub(crate) fn read_images(
+    dir: &Path,
+    sources: &[Source],
+    width: usize,
+    height: usize,
+    levels: Option<usize>,
+    shown: &str,
+    max_bytes: u64,
+    mut each: impl FnMut(usize, &[u8]),
+) -> Result<()> {
+    let files: Vec<PathBuf> = sources
+        .iter()
+        .filter_map(|s| match s {
+            Source::File(p) => Some(p.clone()),
+            Source::Pyramid(_) => None,
+        })
+        .collect();
+    untrusted::check_image_sizes(&files, width, height, "info.json")?;
+    for (i, s) in sources.iter().enumerate() {
+        let rgb = match s {
+            Source::File(f) => untrusted::read_rgb8(f, width, height, max_bytes)?,
+            Source::Pyramid(name) => deepzoom::read_image(dir, name, width, height, levels, shown, max_bytes)?,
+        };
+        each(i, &rgb);
+    }
+    Ok(())
+}
+
 /// The folder's planes, texel-major (`nplanes` bytes per texel): `plane_N.png` where present
-/// (btfrs's lossless copies), else `plane_N.jpg`. Every image's size is read from its header
-/// and checked against `info.json`'s, and the model's memory against `max_bytes`, before the
-/// planes are allocated; each image is decoded within the budget of every image btfrs reads.
+/// (btfrs's lossless copies), else `plane_N.jpg`, else the pyramid `plane_N.dzi`. Every image's
+/// size is read from its header and checked against `info.json`'s, and the model's memory
+/// against `max_bytes`, before the planes are allocated; each image is decoded within the
+/// budget of every image btfrs reads.
 fn read_planes(
     dir: &Path,
     width: usize,
     height: usize,
     nplanes: usize,
+    levels: Option<usize>,
     shown: &str,
     max_bytes: u64,
 ) -> Result<Vec<u8>> {
-    let files = (0..nplanes.div_ceil(3))
+    let sources = (0..nplanes.div_ceil(3))
         .map(|i| {
-            untrusted::first_present(["png", "jpg"].map(|e| dir.join(format!("plane_{i}.{e}"))))
-                .ok_or_else(|| bad(shown, "planes", format!("no plane_{i}.jpg (or .png) beside it")))
+            find_image(dir, &format!("plane_{i}"))
+                .ok_or_else(|| bad(shown, "planes", format!("no plane_{i}.jpg (or .png, or .dzi) beside it")))
         })
         .collect::<Result<Vec<_>>>()?;
     let texels = width * height;
@@ -435,10 +601,8 @@ fn read_planes(
         need,
         max_bytes,
     )?;
-    untrusted::check_image_sizes(&files, width, height, "info.json")?;
     let mut q = vec![0u8; texels * nplanes];
-    for (i, file) in files.iter().enumerate() {
-        let rgb = untrusted::read_rgb8(file, width, height, max_bytes)?;
+    read_images(dir, &sources, width, height, levels, shown, max_bytes, |i, rgb| {
         for (t, px) in rgb.chunks_exact(3).enumerate() {
             for c in 0..3 {
                 if 3 * i + c < nplanes {
@@ -446,7 +610,7 @@ fn read_planes(
                 }
             }
         }
-    }
+    })?;
     Ok(q)
 }
 
@@ -474,7 +638,11 @@ fn reorder(src: &[u8], texels: usize, k_in: usize, from: &[usize]) -> Vec<u8> {
     out
 }
 
-fn import(dir: &Path, info: &Value, shown: &str, limits: &Limits) -> Result<Box<dyn DynModel>> {
+/// Plane bytes given in place of a folder's own: `(width, height, q)`, `q` texel-major with the
+/// planes in the images' order (plane `p` = channel `p % 3` of image `p / 3`).
+pub(crate) type Given = (usize, usize, Vec<u8>);
+
+fn import(dir: &Path, info: &Value, shown: &str, limits: &Limits, given: Option<Given>) -> Result<Box<dyn DynModel>> {
     let dim = |key: &str| -> Result<usize> {
         info[key]
             .as_u64()
@@ -482,7 +650,10 @@ fn import(dir: &Path, info: &Value, shown: &str, limits: &Limits) -> Result<Box<
             .map(|v| v as usize)
             .ok_or_else(|| bad(shown, key, format!("expected a size in 1..={MAX_SIDE}, got {}", info[key])))
     };
-    let (width, height) = (dim("width")?, dim("height")?);
+    let (width, height) = match &given {
+        Some((w, h, _)) => (*w, *h),
+        None => (dim("width")?, dim("height")?),
+    };
     let texels = width * height;
     let kind = info["type"].as_str().unwrap_or("");
     let space = info["colorspace"].as_str().unwrap_or("");
@@ -530,7 +701,16 @@ fn import(dir: &Path, info: &Value, shown: &str, limits: &Limits) -> Result<Box<
             ))
         }
     }
-    let q = read_planes(dir, width, height, nplanes, shown, limits.max_bytes)?;
+    let q = match given {
+        Some((_, _, q)) if q.len() == texels * nplanes => q,
+        Some((_, _, q)) => {
+            return Err(Error::arg(
+                "planes",
+                format!("expected {} bytes ({width} x {height} x {nplanes}), got {}", texels * nplanes, q.len()),
+            ))
+        }
+        None => read_planes(dir, width, height, nplanes, declared_levels(info, shown)?, shown, limits.max_bytes)?,
+    };
     match combo {
         ("ptm", "rgb") => {
             // btfrs plane c * 6 + ours <- relight plane 3 j + c.
