@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from . import _native
 from .btf import Btf, read_container
 from ._checks import boolean, choice, index, instance, integer
+from ._progress import callback
 from .exceptions import ArgumentTypeError, FormatError, InternalError, InvalidArgumentError
 
 __all__ = ["ErrorReport", "Model", "Ptm", "Hsh", "Lafortune", "LafortuneView", "Srf", "Sh", "Lpca", "Rbf", "Bilinear", "Neural", "Svbrdf", "load",
@@ -157,7 +158,7 @@ class Model:
                 p, self._m, format, _slot_index(self, view), boolean("force", force),
                 integer("tile_size", tile_size, min=16, max=8192), integer("overlap", overlap, min=0, max=4096),
                 choice("tile_format", tile_format, ("jpg", "png")), integer("quality", quality, min=1, max=100),
-                progress)))
+                callback(progress, "tiles"))))
         return cast(Dict[str, Any], json.loads(_native.export_model(p, self._m, format, _slot_index(self, view),
                                                                     force=boolean("force", force))))
 

@@ -385,8 +385,8 @@ def save_web(model: Model, folder: PathLike, *, single_file: bool = False, force
                 f.write(data)
         if tiled:
             where = os.path.join(tmp, "model")
-            _native.export_tiled(where, model._m, fmt, slot, False, int(tile_size), int(overlap), str(tile_format),
-                                 int(quality), progress)
+            model.export(where, format=fmt, view=slot, tiled=True, tile_format=tile_format, tile_size=tile_size,
+                         overlap=overlap, quality=quality, progress=progress)
             b = bundle_tiled(where, name=name)
         else:
             os.makedirs(os.path.join(tmp, "model"))
