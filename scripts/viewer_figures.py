@@ -51,8 +51,13 @@ def main() -> int:
     ptm = btfrs.fit.ptm(cap)
     btfrs.web.save_web(ptm, root / "ptm", name="bumps PTM")
     # A tiled page: the PTM repeated over 1536 x 1024 texels, in 256-pixel JPEG tiles.
+    # (a disc of the material on its flat ground, so that the level and the region show)
     a = dict(ptm.arrays)
-    a["coeffs_q"] = np.ascontiguousarray(np.tile(a["coeffs_q"], (11, 16, 1, 1, 1))[:1024, :1536])
+    q = np.tile(a["coeffs_q"], (11, 16, 1, 1, 1))[:1024, :1536].astype(np.float32)
+    yy, xx = np.mgrid[0:1024, 0:1536]
+    disc = np.clip((430.0 - np.hypot(xx - 768, yy - 512)) / 6.0, 0, 1)[..., None, None, None]
+    ground = np.median(a["coeffs_q"].reshape(-1, 3, 6), axis=0)[None, None, None]
+    a["coeffs_q"] = np.ascontiguousarray(np.round(disc * q + (1 - disc) * ground).astype(np.uint8))
     big = btfrs.Model.from_arrays(a, kind="ptm")
     btfrs.web.save_web(big, root / "tiled", tiled=True, name="bumps PTM, tiled")
     handler = functools.partial(_Quiet, directory=str(root))
@@ -82,11 +87,20 @@ def main() -> int:
         page.wait_for_function("window.btfrsViewer && (window.btfrsViewer.frames > 0 || window.btfrsViewer.error)",
                                timeout=120000)
         page.evaluate("window.btfrsViewer.settled()")
-        frame(page).save(out / "tiled_fit.png")
-        print(page.evaluate("window.btfrsViewer.tiles().requested.length"), "tiles for the fitted view")
+        fit = frame(page)
+        n_fit = page.evaluate("window.btfrsViewer.tiles().requested.length")
+        set_({"zoom": 3.0, "center": [1090.0, 330.0], "mode": "specular"})
+        page.evaluate("window.btfrsViewer.settled()")
+        zoom = frame(page)
+        n_zoom = page.evaluate("window.btfrsViewer.tiles().requested.length") - n_fit
+        both = Image.new("RGB", (fit.width + zoom.width + 8, fit.height), (17, 17, 17))
+        both.paste(fit, (0, 0))
+        both.paste(zoom, (fit.width + 8, 0))
+        both.save(out / "tiled.png")
+        print(f"{n_fit} tiles for the fitted view, {n_zoom} more for the zoomed one")
         b.close()
     httpd.shutdown()
-    for n in ("rti_zoom", "tiled_fit", "rti_page"):
+    for n in ("rti_zoom", "tiled", "rti_page"):
         print(f"wrote {out / f'{n}.png'}")
     return 0
 

@@ -114,6 +114,13 @@ def test_the_image_view_fills_the_canvas_and_is_bilinear_between_texels(kind, br
             st["size"], st["zoom"], st["center"], (W, H)))
         assert got[40:60, 60:80].std() > 0 and psnr(got, blocky) >= MIN_PSNR
         assert (got[:, :10] == 0).all(), "left of the image is background"
+        assert st["passes"] == 2  # magnified: each texel relit once, then interpolated
+        # Minified (0.75 pixel a texel): each pixel relights its four texels itself.
+        pg.evaluate("(s) => window.btfrsViewer.set(s)", {"size": [30, 24], "zoom": None, "center": None})
+        st = pg.evaluate("window.btfrsViewer.state()")
+        assert st["zoom"] == pytest.approx(0.75) and st["passes"] == 1
+        got = frame(pg)
+        assert psnr(got, expected(model, st)) >= MIN_PSNR, psnr(got, expected(model, st))
         assert page.errors == []
 
 

@@ -4,7 +4,7 @@
 // viewer owns, which is also drawn on the canvas, and read back from.
 
 import { cameraViewProj } from "./math.js";
-import { RTI_WGSL, RTI_UNIFORM_SIZE } from "./rti.js";
+import { RTI_WGSL, RTI_SHOW_WGSL, RTI_UNIFORM_SIZE } from "./rti.js";
 
 // The display pass: a full-screen triangle reading the linear frame with textureLoad.
 const DISPLAY_WGSL = `
@@ -257,24 +257,66 @@ export async function createRenderer(gpu, manifest, files, shaderCode, canvas, p
     fragment: { module, entryPoint: layout.entry.fragment, targets: [{ format: targets.color }] },
   });
 
-  // The 2D view's pipeline: a full-screen triangle, its own uniform block in group 2.
-  let rtiPipeline = null;
-  let rtiGroup = null;
-  const rtiBuf = manifest.rti ? device.createBuffer({ label: "rti", size: RTI_UNIFORM_SIZE, usage: U.UNIFORM | U.COPY_DST }) : null;
+  // The 2D view's pipelines, each a full-screen triangle with the view's uniform block in
+  // group 2: in one pass, each pixel bilinear between four texels the model relights
+  // (minified views); in two, the texels under the canvas relit once each into a float
+  // texture, then each pixel bilinear between four of them (magnified views: a texel relit
+  // once, not once per pixel it covers).
+  let rti = null;
   if (manifest.rti) {
-    const rtiLayout = device.createBindGroupLayout({
-      label: "rti",
-      entries: [{ binding: 0, visibility: GPUShaderStage.VERTEX | GPUShaderStage.FRAGMENT, buffer: { type: "uniform" } }],
-    });
-    rtiGroup = device.createBindGroup({ label: "rti", layout: rtiLayout, entries: [{ binding: 0, resource: { buffer: rtiBuf } }] });
-    rtiPipeline = await device.createRenderPipelineAsync({
+    const vis = GPUShaderStage.VERTEX | GPUShaderStage.FRAGMENT;
+    const buf = device.createBuffer({ label: "rti", size: RTI_UNIFORM_SIZE, usage: U.UNIFORM | U.COPY_DST });
+    const layout2 = device.createBindGroupLayout({ label: "rti", entries: [{ binding: 0, visibility: vis, buffer: { type: "uniform" } }] });
+    const group = device.createBindGroup({ label: "rti", layout: layout2, entries: [{ binding: 0, resource: { buffer: buf } }] });
+    const pipelineLayout = device.createPipelineLayout({ bindGroupLayouts: [...groupLayouts, layout2] });
+    const direct = await device.createRenderPipelineAsync({
       label: `btfrs ${manifest.model.kind} 2D`,
-      layout: device.createPipelineLayout({ bindGroupLayouts: [...groupLayouts, rtiLayout] }),
+      layout: pipelineLayout,
       vertex: { module, entryPoint: "vs_rti" },
       primitive: { topology: "triangle-list" },
       depthStencil: { format: targets.depth, depthWriteEnabled: false, depthCompare: "always" },
       fragment: { module, entryPoint: "fs_rti", targets: [{ format: targets.color }] },
     });
+    const relight = await device.createRenderPipelineAsync({
+      label: `btfrs ${manifest.model.kind} 2D texels`,
+      layout: pipelineLayout,
+      vertex: { module, entryPoint: "vs_rti" },
+      primitive: { topology: "triangle-list" },
+      fragment: { module, entryPoint: "fs_rti_texels", targets: [{ format: "rgba32float" }] },
+    });
+    const showModule = await compiledModule(device, RTI_SHOW_WGSL, "rti_show.wgsl");
+    const showLayout = device.createBindGroupLayout({
+      label: "rti show",
+      entries: [
+        { binding: 0, visibility: vis, buffer: { type: "uniform" } },
+        { binding: 1, visibility: GPUShaderStage.FRAGMENT, texture: { sampleType: "unfilterable-float" } },
+      ],
+    });
+    const show = await device.createRenderPipelineAsync({
+      label: "btfrs 2D show",
+      layout: device.createPipelineLayout({ bindGroupLayouts: [showLayout] }),
+      vertex: { module: showModule, entryPoint: "vs_show" },
+      primitive: { topology: "triangle-list" },
+      depthStencil: { format: targets.depth, depthWriteEnabled: false, depthCompare: "always" },
+      fragment: { module: showModule, entryPoint: "fs_show", targets: [{ format: targets.color }] },
+    });
+    rti = { buf, group, direct, relight, show, showLayout, values: null, showGroup: null };
+  }
+
+  // The float texture the two-pass view relights its texels into (kept, grown as needed).
+  function valuesFor(w, h) {
+    const v = rti.values;
+    if (v && v.width >= w && v.height >= h) return v;
+    if (v) v.destroy();
+    const size = [Math.max(w, v ? v.width : 0), Math.max(h, v ? v.height : 0)].map((x) => Math.ceil(x / 64) * 64);
+    rti.values = device.createTexture({ label: "rti values", size, format: "rgba32float",
+      usage: GPUTextureUsage.RENDER_ATTACHMENT | GPUTextureUsage.TEXTURE_BINDING });
+    rti.showGroup = device.createBindGroup({
+      label: "rti show",
+      layout: rti.showLayout,
+      entries: [{ binding: 0, resource: { buffer: rti.buf } }, { binding: 1, resource: rti.values.createView() }],
+    });
+    return rti.values;
   }
 
   // The display pipelines: into the owned rgba8unorm texture and into the canvas.
@@ -402,20 +444,39 @@ export async function createRenderer(gpu, manifest, files, shaderCode, canvas, p
     writeGlobals(view, view.image ? 0 : view.lights.length);
     writeLights(view.image ? [] : view.lights);
     device.queue.writeBuffer(displayBuf, 0, new Float32Array([view.exposure, view.raw ? 1 : 0, 0, 0]));
-    if (view.image) device.queue.writeBuffer(rtiBuf, 0, view.image);
+    if (view.image) device.queue.writeBuffer(rti.buf, 0, view.image);
     const s = view.image ? null : sceneBuffers(view.scene);
     const clear = targets.clear || [0, 0, 0, 1];
     const enc = device.createCommandEncoder({ label: "frame" });
+    if (view.image && view.texels) {
+      // The texels first, into the values texture (its top-left corner).
+      const values = valuesFor(view.texels.w, view.texels.h);
+      const rp = enc.beginRenderPass({
+        colorAttachments: [{ view: values.createView(), loadOp: "clear", storeOp: "store", clearValue: { r: 0, g: 0, b: 0, a: 1 } }],
+      });
+      rp.setViewport(0, 0, view.texels.w, view.texels.h, 0, 1);
+      rp.setScissorRect(0, 0, view.texels.w, view.texels.h);
+      rp.setPipeline(rti.relight);
+      rp.setBindGroup(0, frameGroup);
+      rp.setBindGroup(1, modelGroup);
+      rp.setBindGroup(2, rti.group);
+      rp.draw(3);
+      rp.end();
+    }
     const pass = enc.beginRenderPass({
       colorAttachments: [{ view: t.color.createView(), loadOp: "clear", storeOp: "store",
         clearValue: { r: clear[0], g: clear[1], b: clear[2], a: clear[3] } }],
       depthStencilAttachment: { view: t.depth.createView(), depthClearValue: 1, depthLoadOp: "clear", depthStoreOp: "store" },
     });
-    if (view.image) {
-      pass.setPipeline(rtiPipeline);
+    if (view.image && view.texels) {
+      pass.setPipeline(rti.show);
+      pass.setBindGroup(0, rti.showGroup);
+      pass.draw(3);
+    } else if (view.image) {
+      pass.setPipeline(rti.direct);
       pass.setBindGroup(0, frameGroup);
       pass.setBindGroup(1, modelGroup);
-      pass.setBindGroup(2, rtiGroup);
+      pass.setBindGroup(2, rti.group);
       pass.draw(3);
     } else {
       pass.setPipeline(pipeline);

@@ -8,11 +8,11 @@
 export const RTI_MODES = ["default", "diffuse_gain", "specular", "normals"];
 // Fit lights the uniform block holds at most.
 export const RTI_MAX_FIT = 32;
-// Bytes of the RtiView uniform: 8 vectors, then the fit lights, then the 6 x 32 fit matrix.
-export const RTI_UNIFORM_SIZE = 16 * (8 + RTI_MAX_FIT + (6 * RTI_MAX_FIT) / 4);
+// Bytes of the RtiView uniform: 9 vectors, then the fit lights, then the 6 x 32 fit matrix.
+export const RTI_UNIFORM_SIZE = 16 * (9 + RTI_MAX_FIT + (6 * RTI_MAX_FIT) / 4);
 
-export const RTI_WGSL = `
-// --- The 2D view (python/btfrs/viewer/rti.js) -------------------------------------------------
+// The RtiView uniform block, shared by both passes.
+const RTI_STRUCT = `
 const RTI_MAX_FIT: u32 = ${RTI_MAX_FIT}u;
 
 struct RtiView {
@@ -24,9 +24,15 @@ struct RtiView {
     intensity: vec4<f32>,  // the light's RGB
     params: vec4<f32>,     // gain, kd, ks, exponent
     lum: vec4<f32>,        // luminance weights
+    texels: vec4<u32>,     // the texels the first pass of two relights: origin (x, y), size (z, w)
     fit_l: array<vec4<f32>, ${RTI_MAX_FIT}>,
     fit_m: array<vec4<f32>, ${(6 * RTI_MAX_FIT) / 4}>,
 };
+`;
+
+export const RTI_WGSL = `
+// --- The 2D view (python/btfrs/viewer/rti.js) -------------------------------------------------
+${RTI_STRUCT}
 @group(2) @binding(0) var<uniform> rti: RtiView;
 
 @vertex
@@ -160,6 +166,55 @@ fn fs_rti(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
     }
     return vec4<f32>(sum, 1.0);
 }
+
+// The first of two passes (magnified views): the mode's value of each texel of rti.texels, one
+// fragment a texel, into a float texture the second pass (RTI_SHOW_WGSL) interpolates.
+@fragment
+fn fs_rti_texels(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
+    let x = i32(rti.texels.x) + i32(pos.x);
+    let y = i32(rti.texels.y) + i32(pos.y);
+    let vq = view_query(vec3<f32>(0.0, 0.0, 1.0));
+    return vec4<f32>(rti_texel(rti_index(x, y), vq), 1.0);
+}
+`;
+
+// The second pass of two: each pixel bilinear between the four relit texels around it (a
+// module of its own, the model not involved).
+export const RTI_SHOW_WGSL = `
+${RTI_STRUCT}
+@group(0) @binding(0) var<uniform> rti: RtiView;
+@group(0) @binding(1) var values: texture_2d<f32>;
+
+@vertex
+fn vs_show(@builtin(vertex_index) i: u32) -> @builtin(position) vec4<f32> {
+    let p = vec2<f32>(f32((i << 1u) & 2u), f32(i & 2u));
+    return vec4<f32>(p * 2.0 - 1.0, 0.5, 1.0);
+}
+
+fn value_at(x: i32, y: i32) -> vec3<f32> {
+    let tx = clamp(x - i32(rti.texels.x), 0, i32(rti.texels.z) - 1);
+    let ty = clamp(y - i32(rti.texels.y), 0, i32(rti.texels.w) - 1);
+    return textureLoad(values, vec2<i32>(tx, ty), 0).xyz;
+}
+
+@fragment
+fn fs_show(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
+    let p = pos.xy * rti.to_level.xy + rti.to_level.zw;
+    if (p.x < 0.0 || p.y < 0.0 || p.x >= rti.image.x || p.y >= rti.image.y) {
+        return vec4<f32>(vec3<f32>(rti.image.z), 1.0);
+    }
+    let q = p - vec2<f32>(0.5);
+    let i0 = floor(q);
+    let f = q - i0;
+    let wl = i32(rti.level.x) - 1;
+    let hl = i32(rti.level.y) - 1;
+    let x0 = clamp(i32(i0.x), 0, wl);
+    let x1 = clamp(i32(i0.x) + 1, 0, wl);
+    let y0 = clamp(i32(i0.y), 0, hl);
+    let y1 = clamp(i32(i0.y) + 1, 0, hl);
+    let c = mix(mix(value_at(x0, y0), value_at(x1, y0), f.x), mix(value_at(x0, y1), value_at(x1, y1), f.x), f.y);
+    return vec4<f32>(c, 1.0);
+}
 `;
 
 // The level drawn at `zoom` screen pixels per image texel, of a pyramid of `levels` levels (the
@@ -200,10 +255,26 @@ export function rtiWindow(view, imageSize, levels, level, align) {
   return { level, x0, y0, w: x1 - x0, h: y1 - y0, levelSize: [lw, lh], scale: s };
 }
 
+// The texels under the canvas, with the taps around them, within the window: what the first of
+// two passes relights. {x0, y0, w, h} in level texels.
+export function rtiVisible(view, win) {
+  const s = win.scale;
+  const lo = (c, half) => Math.floor((c - half) / s - 0.5);
+  const hi = (c, half) => Math.floor((c + half) / s - 0.5) + 2;
+  const hx = view.width / (2 * view.zoom);
+  const hy = view.height / (2 * view.zoom);
+  const x0 = Math.min(Math.max(win.x0, lo(view.center[0], hx)), win.x0 + win.w - 1);
+  const y0 = Math.min(Math.max(win.y0, lo(view.center[1], hy)), win.y0 + win.h - 1);
+  const x1 = Math.max(x0 + 1, Math.min(win.x0 + win.w, hi(view.center[0], hx)));
+  const y1 = Math.max(y0 + 1, Math.min(win.y0 + win.h, hi(view.center[1], hy)));
+  return { x0, y0, w: x1 - x0, h: y1 - y0 };
+}
+
 // The RtiView uniform block of a frame. `view`: {width, height, zoom, center}; `win`: the
 // window (rtiWindow); `rti`: the manifest's block; `s`: {mode, light, intensity, gain, kd, ks,
-// exponent}; `imageSize`: the image's [width, height].
-export function rtiUniform(view, win, rti, s, imageSize) {
+// exponent}; `imageSize`: the image's [width, height]; `texels`: the texels the first of two
+// passes relights (rtiVisible), or null for one pass.
+export function rtiUniform(view, win, rti, s, imageSize, texels) {
   const data = new ArrayBuffer(RTI_UNIFORM_SIZE);
   const f = new Float32Array(data);
   const u = new Uint32Array(data);
@@ -221,8 +292,10 @@ export function rtiUniform(view, win, rti, s, imageSize) {
   f.set([s.intensity[0], s.intensity[1], s.intensity[2], 0], 20);
   f.set([s.gain, s.kd, s.ks, s.exponent], 24);
   f.set([rti.luminance[0], rti.luminance[1], rti.luminance[2], 0], 28);
-  lights.forEach((l, i) => f.set([l[0], l[1], l[2], 0], 32 + 4 * i));
-  const m0 = 32 + 4 * RTI_MAX_FIT;
+  const t = texels || { x0: 0, y0: 0, w: 0, h: 0 };
+  u.set([t.x0, t.y0, t.w, t.h], 32);
+  lights.forEach((l, i) => f.set([l[0], l[1], l[2], 0], 36 + 4 * i));
+  const m0 = 36 + 4 * RTI_MAX_FIT;
   rti.fit_matrix.forEach((row, r) => row.forEach((x, j) => { f[m0 + r * RTI_MAX_FIT + j] = x; }));
   return data;
 }

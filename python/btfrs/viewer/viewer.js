@@ -9,7 +9,7 @@ import { discToLight, orbitCamera, panCamera, vec3Normalize, vec3Length } from "
 import { openGpu, createRenderer } from "./gpu.js";
 import { buildUi } from "./ui.js";
 import { KNOWN_KINDS } from "./kinds.js";
-import { RTI_MODES, rtiLevelFor, rtiWindow, rtiUniform } from "./rti.js";
+import { RTI_MODES, rtiLevelFor, rtiWindow, rtiUniform, rtiVisible } from "./rti.js";
 import { openTiles } from "./tiles.js";
 
 const WEB_FORMAT = "btfrs-web";
@@ -216,8 +216,13 @@ function imageFrame(renderer) {
   }
   drawnWindow = win;
   const s = { ...viewerState };
+  // Two passes where the texels under the canvas are no more than its pixels (a magnified
+  // view: each texel relit once), one where they are more.
+  const vis = rtiVisible(view, win);
+  const texels = vis.w * vis.h <= view.width * view.height && Math.max(vis.w, vis.h) <= 8192 ? vis : null;
   return {
-    image: rtiUniform(view, win, viewerManifest.rti, s, imageSize()),
+    image: rtiUniform(view, win, viewerManifest.rti, s, imageSize(), texels),
+    texels,
     sampleSize: [win.w, win.h],
     raw: viewerState.mode === "normals",
     exposure: viewerState.exposure,
@@ -457,6 +462,7 @@ const api = {
       out.zoom = v.zoom;
       out.center = v.center;
       out.window = drawnWindow ? { ...drawnWindow } : null;
+      out.passes = drawnWindow && rtiVisible(v, drawnWindow).w * rtiVisible(v, drawnWindow).h <= v.width * v.height ? 2 : 1;
       out.address = addressOf();
     }
     return out;
