@@ -27,7 +27,7 @@ import json
 import os
 import shutil
 import tempfile
-from typing import Any, Dict, Optional, Tuple
+from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -215,7 +215,8 @@ def bundle_tiled(folder: PathLike, *, name: Optional[str] = None,
     cap = int(min(capacity, width * height))
     win = _native.web_window(probes, cap)
     constants = [(int(o), np.ascontiguousarray(words, dtype="<u4")) for o, words in win["constants"]]
-    texels = [{"offset": int(o), "bytes": int(r), "from": [int(x) for x in frm]} for o, r, frm in win["texels"]]
+    texels: List[Dict[str, Any]] = [{"offset": int(o), "bytes": int(r), "from": [int(x) for x in frm]}
+                                    for o, r, frm in win["texels"]]
     files: Dict[str, bytes] = {
         "shader.wgsl": win["shader"].encode(),
         "params.bin": np.ascontiguousarray(win["params"], dtype="<u4").tobytes(),
@@ -223,7 +224,7 @@ def bundle_tiled(folder: PathLike, *, name: Optional[str] = None,
         "dirs.bin": np.ascontiguousarray(win["dirs"], dtype="<f4").tobytes(),
         "tables.bin": np.ascontiguousarray(win["tables"], dtype="<u4").tobytes(),
     }
-    nbytes = width * height * sum(t["bytes"] for t in texels) + 4 * sum(len(w) for _, w in constants)
+    nbytes = width * height * sum(int(t["bytes"]) for t in texels) + 4 * sum(len(w) for _, w in constants)
     tile = info.get("btfrs", {}).get("tiles", {})
     manifest = {
         "format": "btfrs-web",

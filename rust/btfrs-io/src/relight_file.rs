@@ -67,6 +67,7 @@ use btfrs_fit::light_pca::{Colour, LightPca, MAX_COMPONENTS, MAX_RESOLUTION};
 use btfrs_fit::lightfit::Coeffs;
 use btfrs_fit::planes::Planes;
 use btfrs_fit::{Bilinear, DynModel, Hsh, Ptm, PtmKind, PtmPlanes, PtmSlot, Rbf};
+use rayon::prelude::*;
 use serde_json::{json, Value};
 
 use crate::atomic::write_atomic;
@@ -147,6 +148,14 @@ impl Layout<'_> {
         }
     }
 
+    /// The JPEG quality the images are written with (`whole`: the whole images').
+    pub(crate) fn quality(&self, whole: u8) -> u8 {
+        match self {
+            Layout::Planes => whole,
+            Layout::Tiles(t, _) => t.quality,
+        }
+    }
+
     /// Count the tiles of `images` images of `width x height` on the monitor (tiles only).
     pub(crate) fn start(&self, images: usize, width: usize, height: usize) -> Result<()> {
         if let Layout::Tiles(t, m) = self {
@@ -209,11 +218,6 @@ fn relight_plane(scale: f32, bias: f32, bytes: &mut [u8]) -> (f64, f64) {
     }
 }
 
-/// Gather plane `src` of `planes` (texel-major) for every texel.
-fn column(planes: &Planes, src: usize) -> Vec<u8> {
-    (0..planes.texels).map(|t| planes.q[t * planes.k + src]).collect()
-}
-
 impl Web {
     fn new(width: usize, height: usize, nplanes: usize) -> Web {
         Web {
@@ -227,11 +231,26 @@ impl Web {
         }
     }
 
-    /// Set relight plane `p` from btfrs plane `src` of `planes`.
-    fn put(&mut self, p: usize, planes: &Planes, src: usize) {
-        let mut bytes = column(planes, src);
-        let (s, b) = relight_plane(planes.scale[src], planes.bias[src], &mut bytes);
-        self.put_bytes(p, &bytes, s, b);
+    /// Set relight planes from btfrs planes of `planes`: `pairs` of (relight plane, btfrs
+    /// plane), in one pass over the texels (in parallel; per texel, its bytes are together in
+    /// both layouts).
+    fn put(&mut self, planes: &Planes, pairs: &[(usize, usize)]) {
+        let mut constant = vec![false; pairs.len()];
+        for (i, &(p, src)) in pairs.iter().enumerate() {
+            let mut none: [u8; 0] = [];
+            let (s, b) = relight_plane(planes.scale[src], planes.bias[src], &mut none);
+            self.scale[p] = s;
+            self.bias[p] = b;
+            constant[i] = planes.scale[src] == 0.0;
+        }
+        let (n, k) = (self.nplanes, planes.k);
+        self.q.par_chunks_mut(n * 4096).zip(planes.q.par_chunks(k * 4096)).for_each(|(out, src)| {
+            for (o, s) in out.chunks_exact_mut(n).zip(src.chunks_exact(k)) {
+                for (&(p, from), &c) in pairs.iter().zip(&constant) {
+                    o[p] = if c { 255 } else { s[from] };
+                }
+            }
+        });
     }
 
     fn put_bytes(&mut self, p: usize, bytes: &[u8], scale: f64, bias: f64) {
@@ -252,13 +271,12 @@ impl Web {
         let mut files = Vec::new();
         for i in 0..njpegs {
             let mut rgb = vec![0u8; texels * 3];
-            for t in 0..texels {
-                for c in 0..3 {
-                    if 3 * i + c < self.nplanes {
-                        rgb[t * 3 + c] = self.q[t * self.nplanes + 3 * i + c];
-                    }
+            let (n, c) = (self.nplanes, (self.nplanes - 3 * i).min(3));
+            rgb.par_chunks_mut(3 * 4096).zip(self.q.par_chunks(n * 4096)).for_each(|(out, src)| {
+                for (o, s) in out.chunks_exact_mut(3).zip(src.chunks_exact(n)) {
+                    o[..c].copy_from_slice(&s[3 * i..3 * i + c]);
                 }
-            }
+            });
             files.extend(layout.write_image(&dir, &format!("plane_{i}"), &rgb, self.width, self.height, QUALITY)?);
         }
         let tiles = layout.fields(self.width, self.height);
@@ -268,7 +286,7 @@ impl Web {
         info.insert("format".into(), tiles.as_ref().map_or(json!("jpg"), |t| t.0.clone()));
         info.append(&mut self.fields);
         info.insert("nplanes".into(), json!(self.nplanes));
-        info.insert("quality".into(), json!(QUALITY));
+        info.insert("quality".into(), json!(layout.quality(QUALITY)));
         let mut material = serde_json::Map::new();
         if let Some(range) = info.remove("range") {
             material.insert("range".into(), range);
@@ -313,20 +331,21 @@ fn export_ptm(m: &Ptm, view: usize, path: &Path, layout: Layout<'_>) -> Result<V
     let slot = m.slot(view)?;
     let texels = slot.width * slot.height;
     let planes = match &slot.planes {
-        Some(p) => p.clone(),
-        None => PtmPlanes {
+        Some(p) => std::borrow::Cow::Borrowed(p),
+        None => std::borrow::Cow::Owned(PtmPlanes {
             coeffs: Planes::quantize(&slot.coeffs, slot.coeffs.len() / texels)?,
             rgb: slot.rgb.as_ref().map(|r| Planes::quantize(r, 3)).transpose()?,
-        },
+        }),
     };
     let mut web = match slot.kind {
         PtmKind::Rgb => {
             let mut web = Web::new(slot.width, slot.height, 18);
-            for (j, &ours) in PTM_ORDER.iter().enumerate() {
-                for c in 0..3 {
-                    web.put(3 * j + c, &planes.coeffs, c * 6 + ours);
-                }
-            }
+            let pairs: Vec<(usize, usize)> = PTM_ORDER
+                .iter()
+                .enumerate()
+                .flat_map(|(j, &ours)| (0..3).map(move |c| (3 * j + c, c * 6 + ours)))
+                .collect();
+            web.put(&planes.coeffs, &pairs);
             web.fields.insert("colorspace".into(), json!("rgb"));
             web
         }
@@ -340,9 +359,8 @@ fn export_ptm(m: &Ptm, view: usize, path: &Path, layout: Layout<'_>) -> Result<V
                     (0..texels).map(|t| (f64::from(rgb[t * 3 + c]) * 255.0).round().clamp(0.0, 255.0) as u8).collect();
                 web.put_bytes(c, &bytes, 1.0, 0.0);
             }
-            for (j, &ours) in PTM_ORDER.iter().enumerate() {
-                web.put(3 + j, &planes.coeffs, ours);
-            }
+            let pairs: Vec<(usize, usize)> = PTM_ORDER.iter().enumerate().map(|(j, &ours)| (3 + j, ours)).collect();
+            web.put(&planes.coeffs, &pairs);
             web.fields.insert("colorspace".into(), json!("lrgb"));
             web
         }
@@ -361,15 +379,12 @@ fn export_hsh(m: &Hsh, view: usize, path: &Path, layout: Layout<'_>) -> Result<V
     }
     let n2 = slot.order * slot.order;
     let planes = match &slot.coeffs.planes {
-        Some(p) => p.clone(),
-        None => Planes::quantize(&slot.coeffs.values, 3 * n2)?,
+        Some(p) => std::borrow::Cow::Borrowed(p),
+        None => std::borrow::Cow::Owned(Planes::quantize(&slot.coeffs.values, 3 * n2)?),
     };
     let mut web = Web::new(slot.width, slot.height, 3 * n2);
-    for j in 0..n2 {
-        for c in 0..3 {
-            web.put(3 * j + c, &planes, c * n2 + j);
-        }
-    }
+    let pairs: Vec<(usize, usize)> = (0..n2).flat_map(|j| (0..3).map(move |c| (3 * j + c, c * n2 + j))).collect();
+    web.put(&planes, &pairs);
     web.fields.insert("type".into(), json!("hsh"));
     web.fields.insert("colorspace".into(), json!("rgb"));
     web.write(path, "hsh", layout)
@@ -449,9 +464,8 @@ fn export_pca(m: &LightPca, view: usize, path: &Path, kind: &str, layout: Layout
         }
     }
     let mut web = Web::new(m.width, m.height, k);
-    for p in 0..k {
-        web.put(p, &m.planes, view * k + p);
-    }
+    let pairs: Vec<(usize, usize)> = (0..k).map(|p| (p, view * k + p)).collect();
+    web.put(&m.planes, &pairs);
     web.fields.insert("type".into(), json!("bilinear"));
     web.fields.insert("resolution".into(), json!(res));
     web.fields.insert("colorspace".into(), json!("mrgb"));
