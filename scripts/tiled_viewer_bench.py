@@ -3,7 +3,8 @@ megapixels by default) as a tiled page (``btfrs.web.save_web(..., tiled=True)``:
 Deep Zoom pyramids of 256-pixel tiles), read it back (``btfrs.load``), then open it in headless
 Chromium (WebGPU on SwiftShader) as a visitor would: the time to the first frame (drawn from the
 one-tile level 0), to the frame of the fitted view, and to a frame zoomed to 4 pixels a texel, with
-the tiles fetched for each and the bytes they hold, against the pyramid's.
+the tiles fetched for each and the bytes they hold, against the pyramid's; then the frame of each
+rendering mode at the zoomed view.
 
 The PTM is a 128^2 fit of a built-in capture repeated over the image (the export and the page do
 not care what the coefficients are; their sizes and the tiles' are what is measured).
@@ -133,6 +134,14 @@ def main() -> int:
             res["zoom_tiles"] = len(req2) - len(req)
             res["zoom_bytes"] = sum(sizes[r] for r in req2[len(req):])
             res["frame_ms"] = page.evaluate("window.btfrsViewer.frameMs")
+            # Each mode at the zoomed view, its frame alone (the best of three).
+            res["mode_ms"] = {}
+            for mode in ("default", "diffuse_gain", "specular", "normals"):
+                ms = []
+                for i in range(3):
+                    page.evaluate("(s) => window.btfrsViewer.set(s)", {"mode": mode, "exposure": 1.0 + 0.01 * i})
+                    ms.append(page.evaluate("window.btfrsViewer.frameMs"))
+                res["mode_ms"][mode] = min(ms)
             res["page_errors"] = errors
             res["first_frame_wall_s"] = first
             b.close()
@@ -153,6 +162,7 @@ def main() -> int:
           f"fetched, {res['fit_bytes'] / mb:.2f} MiB")
     print(f"  zoomed to 4 px a texel: {res['zoom_s']:.1f} s more, level {res['zoom_level']}, {res['zoom_tiles']} "
           f"tiles, {res['zoom_bytes'] / mb:.2f} MiB; last frame {res['frame_ms']:.0f} ms")
+    print("  frames at the zoomed view: " + ", ".join(f"{k} {v:.0f} ms" for k, v in res["mode_ms"].items()))
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(res, indent=1))

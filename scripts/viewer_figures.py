@@ -76,7 +76,7 @@ def main() -> int:
         set_({"light": LIGHT, "mode": "specular", "ks": 0.6, "exponent": 30})
         page.evaluate("window.btfrsViewer.settled()")
         page.screenshot(path=str(out / "rti_page.png"))
-        for mode, extra in (("default", {}), ("diffuse_gain", {"gain": 3.0}),
+        for mode, extra in (("default", {}), ("diffuse_gain", {"gain": 2.0}),
                             ("specular", {"kd": 0.6, "ks": 0.6, "exponent": 30.0}), ("normals", {})):
             set_({"light": LIGHT, "size": [384, 384], "mode": mode, "zoom": None, "center": None, **extra})
             frame(page).save(out / f"rti_{mode}.png")

@@ -328,3 +328,33 @@ def test_a_tiled_export_is_drawn_coarse_level_first_then_only_the_tiles_in_view(
         assert page.errors == []
     finally:
         page.close()
+
+
+def test_jpeg_tiles_in_the_page_match_what_btfrs_reads_from_them(browser, viewer_files, rti_models, tmp_path, pngs):  # noqa: F811
+    # The default tiles (JPEG, quality 95) decoded by the browser against btfrs's own decoding
+    # of the same files: the two JPEG decoders may round differently, nothing more.
+    a = dict(rti_models["hsh"].arrays)
+    q = a["coeffs_q"]
+    a["coeffs_q"] = np.ascontiguousarray(np.tile(q, (7, 6) + (1,) * (q.ndim - 2))[:210, :230])
+    model = btfrs.Model.from_arrays(a, kind="hsh")
+    save_web(model, tmp_path / "jpg", tiled=True, tile_size=64)
+    folder = tmp_path / "jpg" / "model"
+    assert {p.suffix for p in folder.rglob("*_files/*/*")} == {".jpg"}
+    server = Server(tmp_path)
+    try:
+        with opened(browser, f"{server.url}/jpg/index.html#size=160x120&zoom=2.5&center=120,90"
+                            f"&light={LIGHT[0]},{LIGHT[1]}") as page:
+            pg = page.page
+            pg.evaluate("window.btfrsViewer.settled()")
+            st = pg.evaluate("window.btfrsViewer.state()")
+            assert st["window"]["level"] == 2  # the last of 3 levels
+            got = frame(pg)
+            assert page.errors == []
+    finally:
+        server.close()
+    back = btfrs.load(folder)
+    want = ref.display(ref.resample(back.evaluate([0, 0, 1], st["light"]), st["size"], st["zoom"], st["center"],
+                                    (230, 210)))
+    write_png(pngs / "tiled_jpeg.viewer.png", got)
+    write_png(pngs / "tiled_jpeg.cpu.png", want)
+    assert psnr(got, want) >= MIN_PSNR, psnr(got, want)

@@ -559,6 +559,7 @@ pub(crate) fn find_image(dir: &Path, name: &str) -> Option<Source> {
 /// The RGB bytes of images `sources` (all `width x height`), each checked as its kind is (the
 /// headers of whole images first; every tile of a pyramid, [`deepzoom::read_image`], with the
 /// level count `levels` the index file declares).
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn read_images(
     dir: &Path,
     sources: &[Source],

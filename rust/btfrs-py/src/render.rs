@@ -467,7 +467,7 @@ pub fn web_window<'py>(
             .map(|(r, q)| btfrs_render::web::Probe {
                 model: r.as_ref(),
                 planes: q,
-                texels: if nplanes > 0 { q.len() / nplanes } else { 0 },
+                texels: q.len().checked_div(nplanes).unwrap_or(0),
             })
             .collect();
         btfrs_render::web::web_window(&list, nplanes, capacity)

@@ -302,6 +302,88 @@ pub fn layout() -> Value {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use btfrs_fit::gpu::{pack_u8, GpuParams, Shader};
+    use std::borrow::Cow;
+
+    btfrs_fit::gpu_params! {
+        /// A mock model's parameters: the offsets of its parts.
+        pub struct MockParams {
+            /// Store offset of the shared words.
+            pub head: u32,
+            /// Store offset of the texel bytes.
+            pub texels: u32,
+            /// Store offset of the tail.
+            pub tail: u32,
+        }
+    }
+
+    /// A model whose store is shared words, each texel's plane bytes in a fixed order (or, with
+    /// `floats`, its first plane as an f32 word: not a plane byte), and shared words again.
+    struct Mock {
+        texels: usize,
+        q: Vec<u8>,
+        order: Vec<usize>,
+        floats: bool,
+    }
+
+    impl GpuModel for Mock {
+        fn shader(&self) -> Shader {
+            Shader::new::<MockParams>("mock", "")
+        }
+        fn gpu_dims(&self) -> (usize, usize) {
+            (1, self.texels)
+        }
+        fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
+            let k = self.q.len() / self.texels;
+            let texel: Vec<u32> = if self.floats {
+                (0..self.texels).map(|t| (self.q[t * k] as f32 / 255.0).to_bits()).collect()
+            } else {
+                let bytes: Vec<u8> =
+                    (0..self.texels).flat_map(|t| self.order.iter().map(move |&p| self.q[t * k + p])).collect();
+                pack_u8(&bytes)
+            };
+            vec![Cow::Owned(vec![7, 8, 9]), Cow::Owned(texel), Cow::Owned(vec![1])]
+        }
+        fn gpu_params(&self, offsets: &[u32], _tables: &[u32]) -> [u32; 16] {
+            MockParams { head: offsets[0], texels: offsets[1], tail: offsets[2] }.words()
+        }
+    }
+
+    fn probes(k: usize, order: &[usize], floats: bool) -> Vec<(Mock, Vec<u8>)> {
+        let mut seed = 1u32;
+        [(8usize, 1), (8, 2), (12, 3)]
+            .into_iter()
+            .map(|(texels, _)| {
+                let q: Vec<u8> = (0..texels * k)
+                    .map(|_| {
+                        seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                        (seed >> 24) as u8
+                    })
+                    .collect();
+                (Mock { texels, q: q.clone(), order: order.to_vec(), floats }, q)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_window_layout_is_found_from_probes_alone() {
+        let order = [4, 0, 3, 1, 2];
+        let ms = probes(5, &order, false);
+        let list: Vec<Probe<'_>> = ms.iter().map(|(m, q)| Probe { model: m, planes: q, texels: m.texels }).collect();
+        let w = web_window(&list, 5, 1000).unwrap();
+        // The texel part's bytes, each the plane the model put there; the shared parts moved
+        // to the offsets of a 1000-texel store, and the parameters pointing at them.
+        assert_eq!(w.texels, vec![TexelPart { offset: 3, bytes: 5, from: order.iter().map(|&p| p as u32).collect() }]);
+        let texel_words = (1000 * 5usize).div_ceil(4) as u32;
+        assert_eq!(w.constants, vec![(0, vec![7, 8, 9]), (3 + texel_words, vec![1])]);
+        assert_eq!(w.store_words, 3 + texel_words + 1);
+        assert_eq!(&w.params[..3], &[0, 3, 3 + texel_words]);
+        // A model whose per-texel words are not the planes' bytes cannot be drawn from tiles.
+        let fs = probes(5, &order, true);
+        let list: Vec<Probe<'_>> = fs.iter().map(|(m, q)| Probe { model: m, planes: q, texels: m.texels }).collect();
+        let e = web_window(&list, 5, 1000).unwrap_err();
+        assert!(e.to_string().contains("not one of the image's planes"), "{e}");
+    }
 
     #[test]
     fn the_layout_names_every_globals_field_and_the_vertex_fits_its_stride() {
