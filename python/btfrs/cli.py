@@ -15,13 +15,14 @@ import os
 import sys
 import tempfile
 import time
+import warnings
 import webbrowser
 from typing import Any, Dict, List, NoReturn, Optional, Sequence, Tuple, Union
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from . import __version__, _native, io, materials, photometric, rendering, stability, synth, tiles, web
+from . import __version__, _native, calibration, io, materials, photometric, rendering, stability, synth, tiles, web
 from . import fit as fit_mod
 from . import fit as fitting
 from ._checks import memory_size
@@ -123,6 +124,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     t.add_argument("--seed", type=int, default=5, help="synthesis and tiling seed (default: 5)")
     t.add_argument("--out", default="tiles", help="output folder (default: tiles)")
     _data_commands(sub)
+    _calibrate_args(sub)
     args = p.parse_args(argv)
     try:
         _check_values(args)
@@ -132,7 +134,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             commands = {"synth": synth_command, "evaluate": evaluate_command, "choose": choose_command,
                         "stability": stability_command, "tiles": tiles_command, "info": info_command,
                         "fit": fit_command, "export": export_command, "render": render_command,
-                        "view": view_command, "normals": normals_command}
+                        "view": view_command, "normals": normals_command,
+                        "calibrate": calibrate_command}
             commands[args.command](args)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
@@ -961,6 +964,66 @@ def render_command(args: argparse.Namespace) -> None:
                            backend=args.backend, renderer=args.renderer)
     io.save_image(args.out, img, exposure=args.exposure)
     print(f"wrote {args.out} ({args.image_size[0]} x {args.image_size[1]}, mean {float(np.mean(img)):.4f})")
+
+
+def _calibrate_args(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
+    c = sub.add_parser("calibrate", help="the light directions of photographs with a glossy sphere in the frame: an "
+                                         ".lp file")
+    c.add_argument("photos", nargs="+", metavar="PHOTOS",
+                   help="a folder of photographs (every JPEG, PNG, TIFF, EXR in it, by name), or the photographs")
+    c.add_argument("-o", "--out", required=True, help="the .lp file to write (e.g. PHOTOS/dirs.lp)")
+    c.add_argument("--sphere", type=float, nargs=3, metavar=("CX", "CY", "R"),
+                   help="the sphere's circle in pixels, x right and y down from the image's top-left corner "
+                        "(default: found, as the darkest round region)")
+    g = c.add_mutually_exclusive_group()
+    g.add_argument("--fov", type=float, help="the camera's horizontal field of view in degrees, for a perspective "
+                                             "correction (default: an orthographic camera)")
+    g.add_argument("--focal", type=float, help="the camera's 35 mm-equivalent focal length in mm, for a perspective "
+                                               "correction")
+    c.add_argument("--white", type=int, nargs=4, metavar=("ROW", "COL", "ROWS", "COLS"),
+                   help="a white matte target in the frame: each light's relative intensity, written to --report")
+    c.add_argument("--report", metavar="FILE.json",
+                   help="write everything found as JSON: sphere, camera, per photograph its highlight, light, status "
+                        "and intensity")
+    c.add_argument("--figure", metavar="FILE.png",
+                   help="a picture of the sphere and the highlights on the first photograph, and the lights from above")
+    c.add_argument("--linear", action="store_true", help="8- and 16-bit values are linear (TIFF from RAW), not sRGB")
+    c.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def calibrate_command(args: argparse.Namespace) -> None:
+    """``btfrs calibrate``: find the lights from the sphere, write the .lp (and the report, the
+    picture); photographs left out are named on stderr."""
+    _check_output("-o", args.out, args, (".lp",))
+    if args.report:
+        _check_output("--report", args.report, args, (".json",))
+    if args.figure:
+        _check_output("--figure", args.figure, args, (".png",))
+    if args.white and not args.report:
+        raise InvalidArgumentError("--white: the intensities go into the report; give --report FILE.json too")
+    photos = args.photos[0] if len(args.photos) == 1 and os.path.isdir(args.photos[0]) else list(args.photos)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cal = calibration.calibrate(photos, args.sphere, fov=args.fov, focal=args.focal, white=args.white,
+                                    linear=args.linear, progress=not args.quiet)
+        cal.save(args.out)
+    for w in caught:
+        print(f"btfrs: warning: {w.message}", file=sys.stderr)
+    written = [args.out]
+    if args.report:
+        written.append(cal.save_report(args.report))
+    if args.figure:
+        written.append(cal.figure(args.figure))
+    cx, cy, r = cal.sphere
+    sph = cal.report["sphere"]
+    how = (f"found at ({cx:.1f}, {cy:.1f}), radius {r:.1f} px, outline fitted to {sph['edge_rms_px']:.2f} px rms"
+           if sph["detected"] else f"given at ({cx:.1f}, {cy:.1f}), radius {r:.1f} px")
+    cam = cal.report["camera"]
+    camera = "orthographic" if cam["projection"] == "orthographic" else f"perspective, focal {cam['focal_px']:.0f} px"
+    elev = np.degrees(np.arcsin(np.clip(cal.lights[:, 2], -1, 1)))
+    print(f"calibrated {len(cal.calibrated)} of {len(cal.images)} photographs ({camera} camera; sphere {how}); "
+          f"light elevations {elev.min():.1f} to {elev.max():.1f} degrees")
+    print("wrote " + ", ".join(written))
 
 
 if __name__ == "__main__":  # pragma: no cover

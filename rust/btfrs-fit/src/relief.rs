@@ -10,12 +10,18 @@
 //! `elevation(l) - horizon(azimuth(l))` predicts unseen lights 2-3 dB better than one that is
 //! not (BENCHMARKS.md, "RTI relighting").
 //!
+//! A model stores the map compactly ([`HorizonMap`]): the horizons at [`BINS`] azimuths are
+//! highly correlated (neighbouring azimuths see the same relief), so each texel keeps the
+//! coordinates of its horizon row in the map's leading principal components, as 8-bit planes;
+//! a lookup rebuilds the two bins around an azimuth from them.
+//!
 //! Photometric-stereo heights are too flat where the relief is deep (shadowed lights pull the
 //! normals towards the view); [`choose_scale`] picks the height scale whose horizons best
 //! explain the shadows the capture shows.
 
 use crate::photometric::{photometric_stereo, Method};
-use btfrs_core::{BtfRef, Monitor, Result};
+use crate::planes::Planes;
+use btfrs_core::{BtfRef, Error, Monitor, NamedArrays, Result};
 use btfrs_numerics::poisson::{integrate_slopes, Boundary};
 use rayon::prelude::*;
 use std::f64::consts::PI;
@@ -53,9 +59,12 @@ impl Height {
     }
 }
 
+/// Per-texel vectors (unit normals or RGB albedo), row-major.
+pub type TexelVectors = Vec<[f32; 3]>;
+
 /// The height of view slot `view` of `btf` from its robust photometric-stereo normals, mirrored
-/// at the borders (a capture need not tile).
-pub fn height_map(btf: &BtfRef<'_>, view: usize, monitor: &Monitor) -> Result<(Height, Vec<[f32; 3]>, Vec<[f32; 3]>)> {
+/// at the borders (a capture need not tile), with the normals and albedo it came from.
+pub fn height_map(btf: &BtfRef<'_>, view: usize, monitor: &Monitor) -> Result<(Height, TexelVectors, TexelVectors)> {
     let maps = photometric_stereo(btf, view, Method::Robust, monitor)?;
     let (rows, cols) = (btf.height, btf.width);
     let (p, q): (Vec<f64>, Vec<f64>) = maps
@@ -211,6 +220,155 @@ pub fn choose_scale(
     (best.0, best.1)
 }
 
+/// Azimuth bins of a [`HorizonMap`].
+pub const BINS: usize = 32;
+/// Texels the principal components of a horizon map are computed from, at most.
+const PCA_TEXELS: usize = 65_536;
+
+/// A compact horizon map: per texel the coordinates of its row of [`BINS`] horizon angles in
+/// the map's leading principal components (8-bit planes), `horizon(t, k) = mean[k] + sum_i
+/// coeffs[t, i] basis[i, k]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HorizonMap {
+    /// Azimuth bins.
+    pub bins: usize,
+    /// The mean row (`bins`).
+    pub mean: Vec<f32>,
+    /// The components, `[component][bin]`.
+    pub basis: Vec<f32>,
+    /// Per texel its coordinates (`texels x components`).
+    pub coeffs: Planes,
+}
+
+impl HorizonMap {
+    /// The map of `height` times `scale` in `components` principal components: the components
+    /// from the horizons of up to [`PCA_TEXELS`] texels spread over the map, then every texel's
+    /// horizons, a block of rows at a time, projected on them (`monitor` counts rows).
+    pub fn build(height: &Height, scale: f32, components: usize, monitor: &Monitor) -> Result<HorizonMap> {
+        let (bins, m) = (BINS, components.min(BINS));
+        let texels = height.rows * height.cols;
+        let stride = texels.div_ceil(PCA_TEXELS).max(1);
+        let sample: Vec<usize> = (0..texels).step_by(stride).collect();
+        let hs = horizons_of(height, scale, bins, &sample);
+        let n = sample.len() as f64;
+        let mut mean = vec![0.0f64; bins];
+        for row in hs.chunks_exact(bins) {
+            mean.iter_mut().zip(row).for_each(|(m, &x)| *m += x as f64 / n);
+        }
+        let mut cov = nalgebra::DMatrix::<f64>::zeros(bins, bins);
+        for row in hs.chunks_exact(bins) {
+            for i in 0..bins {
+                let a = row[i] as f64 - mean[i];
+                for j in i..bins {
+                    cov[(i, j)] += a * (row[j] as f64 - mean[j]);
+                }
+            }
+        }
+        for i in 0..bins {
+            for j in 0..i {
+                cov[(i, j)] = cov[(j, i)];
+            }
+        }
+        let (_, vecs) = btfrs_numerics::dense::sym_eigen_desc(cov);
+        let basis: Vec<f32> =
+            (0..m).flat_map(|c| (0..bins).map(move |k| (c, k))).map(|(c, k)| vecs[(k, c)] as f32).collect();
+        let mean: Vec<f32> = mean.iter().map(|&x| x as f32).collect();
+        // Every texel's coordinates, a block of rows at a time (the full map at 32 bins is
+        // 128 bytes per texel).
+        let mut coeffs = vec![0.0f32; texels * m];
+        let rows_per = (65_536 / height.cols.max(1)).max(1);
+        monitor.start(height.rows as u64);
+        for r0 in (0..height.rows).step_by(rows_per) {
+            monitor.check()?;
+            let r1 = (r0 + rows_per).min(height.rows);
+            let block: Vec<usize> = (r0 * height.cols..r1 * height.cols).collect();
+            let hb = horizons_of(height, scale, bins, &block);
+            coeffs[r0 * height.cols * m..r1 * height.cols * m]
+                .par_chunks_mut(m.max(1))
+                .zip(hb.par_chunks(bins))
+                .for_each(|(c, row)| {
+                    for (i, ci) in c.iter_mut().enumerate() {
+                        let b = &basis[i * bins..(i + 1) * bins];
+                        *ci = row.iter().zip(&mean).zip(b).map(|((x, mu), w)| (x - mu) * w).sum();
+                    }
+                });
+            monitor.advance((r1 - r0) as u64);
+        }
+        Ok(HorizonMap { bins, mean, basis, coeffs: Planes::quantize(&coeffs, m.max(1))? })
+    }
+
+    /// Components per texel.
+    pub fn components(&self) -> usize {
+        self.coeffs.k
+    }
+
+    /// Texel `t`'s row of horizons, rebuilt from its stored coordinates, into `out` (`bins`).
+    pub fn row(&self, t: usize, out: &mut [f32]) {
+        out.copy_from_slice(&self.mean);
+        for i in 0..self.components() {
+            let c = self.coeffs.get(t, i);
+            out.iter_mut().zip(&self.basis[i * self.bins..(i + 1) * self.bins]).for_each(|(o, b)| *o += c * b);
+        }
+    }
+
+    /// The rows of `texels`, `[texel][bin]`.
+    pub fn rows(&self, texels: &[usize]) -> Vec<f32> {
+        let mut out = vec![0.0f32; texels.len() * self.bins];
+        out.par_chunks_mut(self.bins).zip(texels.par_iter()).for_each(|(o, &t)| self.row(t, o));
+        out
+    }
+
+    /// Texel `t`'s horizon at bin `k`.
+    #[inline]
+    pub fn at(&self, t: usize, k: usize) -> f32 {
+        let mut h = self.mean[k];
+        for i in 0..self.components() {
+            h += self.coeffs.get(t, i) * self.basis[i * self.bins + k];
+        }
+        h
+    }
+
+    /// Texel `t`'s clearance towards a direction looked up as `(k0, k1, w, elevation)`
+    /// ([`lookup`]).
+    #[inline]
+    pub fn clearance(&self, t: usize, (k0, k1, w, el): (usize, usize, f32, f32)) -> f32 {
+        el - (self.at(t, k0) * (1.0 - w) + self.at(t, k1) * w)
+    }
+
+    /// Bytes a renderer holds: the coordinates' planes, the mean and the components.
+    pub fn nbytes(&self) -> usize {
+        self.coeffs.nbytes() + 4 * (self.mean.len() + self.basis.len())
+    }
+
+    /// Store as `{prefix}q`/`scale`/`bias` (the coordinates, `shape` = texel dims + components),
+    /// `{prefix}mean` (`[bins]`) and `{prefix}basis` (`[components, bins]`).
+    pub fn insert_into(&self, a: &mut NamedArrays, prefix: &str, shape: Vec<usize>) {
+        self.coeffs.insert_into(a, prefix, shape);
+        a.put(&format!("{prefix}mean"), &[self.bins], self.mean.clone());
+        a.put(&format!("{prefix}basis"), &[self.components(), self.bins], self.basis.clone());
+    }
+
+    /// Read back what [`HorizonMap::insert_into`] stored for `texels` texels and `components`,
+    /// every value checked finite.
+    pub fn from_arrays(a: &NamedArrays, prefix: &str, texels: usize, components: usize) -> Result<HorizonMap> {
+        let coeffs = Planes::from_arrays(a, prefix, texels, components)?;
+        let mean_name = format!("{prefix}mean");
+        let (mean, ms) = a.get::<f32>(&mean_name, &[None])?;
+        let bins = ms[0];
+        if !(2..=256).contains(&bins) {
+            return Err(Error::format(&mean_name, format!("expected 2 to 256 azimuth bins, got {bins}")));
+        }
+        let basis_name = format!("{prefix}basis");
+        let (basis, _) = a.get::<f32>(&basis_name, &[Some(components), Some(bins)])?;
+        for (name, v) in [(&mean_name, mean), (&basis_name, basis)] {
+            if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+                return Err(Error::format(name, format!("value {i} ({}) is not finite", v[i])));
+            }
+        }
+        Ok(HorizonMap { bins, mean: mean.to_vec(), basis: basis.to_vec(), coeffs })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -281,6 +439,37 @@ mod tests {
                 }
                 assert!((hz[t * bins + k] - best.atan()).abs() < 1e-6);
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod map_tests {
+    use super::*;
+
+    #[test]
+    fn compact_map_rebuilds_the_marched_horizons() {
+        // Smooth random relief: with every component kept the rows come back to the 8-bit
+        // step; with few, to a fraction of the horizons' spread; the arrays round-trip.
+        let (rows, cols) = (40, 36);
+        let z: Vec<f32> = (0..rows * cols)
+            .map(|i| {
+                let (r, c) = ((i / cols) as f32, (i % cols) as f32);
+                3.0 * (r / 5.0).sin() * (c / 7.0).cos() + 2.0 * ((r + c) / 9.0).sin()
+            })
+            .collect();
+        let h = Height { rows, cols, z };
+        let full = horizons(&h, 1.0, BINS);
+        for (m, tol) in [(BINS, 0.01f32), (8, 0.15)] {
+            let map = HorizonMap::build(&h, 1.0, m, &Monitor::new()).unwrap();
+            let back = map.rows(&(0..rows * cols).collect::<Vec<_>>());
+            let rms = (full.iter().zip(&back).map(|(a, b)| (a - b).powi(2)).sum::<f32>() / full.len() as f32).sqrt();
+            let spread = (full.iter().map(|a| a * a).sum::<f32>() / full.len() as f32).sqrt();
+            assert!(rms < tol * spread, "{m} components: rms {rms} of {spread}");
+            assert!((map.at(77, 5) - back[77 * BINS + 5]).abs() < 1e-5);
+            let mut a = NamedArrays::new();
+            map.insert_into(&mut a, "horizon_", vec![rows, cols, m]);
+            assert_eq!(HorizonMap::from_arrays(&a, "horizon_", rows * cols, m).unwrap(), map);
         }
     }
 }

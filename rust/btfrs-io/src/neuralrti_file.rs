@@ -104,6 +104,12 @@ fn export_layout(m: &Neural, path: &Path, layout: Layout<'_>) -> Result<Value> {
         ))
     } else if sh.features > 0 {
         Some("its decoder reads learned direction tables (fit with features=0)".to_string())
+    } else if sh.horizon > 0 {
+        Some(
+            "its decoder reads each texel's clearance above its horizon map, which OpenLIME does not hold \
+             (fit with horizon=0)"
+                .to_string(),
+        )
     } else if sh.activation != Activation::Elu {
         Some("its activation is ReLU; OpenLIME's decoder applies ELU (fit with activation=\"elu\")".to_string())
     } else if sh.latents > LATENTS {
@@ -328,6 +334,7 @@ pub(crate) fn from_info(
         grid: 2,
         hidden: hp,
         activation: Activation::Elu,
+        horizon: 0,
     };
     let o = shape.offsets();
     let n = shape.inputs();
@@ -406,6 +413,6 @@ pub(crate) fn from_info(
     }
     let bias: Vec<f32> = min.iter().map(|&x| x as f32).collect();
     let planes = Planes { texels, k, q, scale, bias };
-    Neural::new(height, width, planes, decoder, json!({"imported": "neuralrti"}))
+    Neural::new(height, width, planes, None, decoder, json!({"imported": "neuralrti"}))
         .map_err(untrusted::as_format(shown, "planes"))
 }
