@@ -203,10 +203,9 @@ def bundle_tiled(folder: PathLike, *, name: Optional[str] = None,
     tiles. Found generically from models the folder's ``info.json`` makes from random planes
     (:data:`PROBES`)."""
     path = os.fspath(folder)
-    with open(os.path.join(path, "info.json"), encoding="utf-8") as f:
-        info = json.load(f)
-    width, height = int(info["width"]), int(info["height"])
-    images, nplanes = _native.plane_images(path)
+    # The index read and checked by btfrs's reader of untrusted files (regular file, size cap,
+    # declared sizes in range), as btfrs.load reads it.
+    images, nplanes, width, height, kind_of_index, tile_size, levels = _native.plane_images(path)
     probes = []
     for h, w, seed in PROBES:
         q = np.random.default_rng(seed).integers(0, 256, (h, w, nplanes), dtype=np.uint8)
@@ -225,7 +224,6 @@ def bundle_tiled(folder: PathLike, *, name: Optional[str] = None,
         "tables.bin": np.ascontiguousarray(win["tables"], dtype="<u4").tobytes(),
     }
     nbytes = width * height * sum(int(t["bytes"]) for t in texels) + 4 * sum(len(w) for _, w in constants)
-    tile = info.get("btfrs", {}).get("tiles", {})
     manifest = {
         "format": "btfrs-web",
         "version": WEB_VERSION,
@@ -248,11 +246,11 @@ def bundle_tiled(folder: PathLike, *, name: Optional[str] = None,
         "tiles": {
             "layout": "deepzoom",
             "index": "info.json",
-            "type": info.get("type"),
+            "type": kind_of_index or None,
             "images": [f"{n}.dzi" for n in images],
             "planes": int(nplanes),
-            "tile_size": int(tile.get("tilesize", 0)),
-            "levels": int(tile.get("levels", 0)),
+            "tile_size": int(tile_size),
+            "levels": int(levels),
             "capacity": int(win["capacity"]),
             "store_words": int(win["store_words"]),
             "constants": [{"offset": o, "words": int(len(w))} for o, w in constants],

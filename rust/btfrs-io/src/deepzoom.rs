@@ -300,6 +300,21 @@ pub fn read_dzi(path: &Path, max_bytes: u64) -> Result<Dzi> {
     Ok(Dzi { format, pyramid: Pyramid::new(width, height, tile, overlap)? })
 }
 
+/// The descriptor `dir/NAME.dzi`, its `Size` checked against the `width x height` the index
+/// file `index` declares (what a reader checks of every pyramid before allocating the image).
+pub fn read_sized_dzi(dir: &Path, name: &str, width: usize, height: usize, index: &str, max_bytes: u64) -> Result<Dzi> {
+    let dzi_path = dir.join(format!("{name}.dzi"));
+    let dzi = read_dzi(&dzi_path, max_bytes)?;
+    let pyr = dzi.pyramid;
+    if (pyr.width, pyr.height) != (width, height) {
+        return Err(Error::format(
+            dzi_path.display(),
+            format!("Size is {} x {}; {index} declares {width} x {height}", pyr.width, pyr.height),
+        ));
+    }
+    Ok(dzi)
+}
+
 /// The last level of the pyramid `dir/NAME.dzi` as RGB bytes (`width x height`, the size the
 /// index file `index` declares), every tile of every level checked first (see the module doc).
 /// `levels`: the level count the index file declares, if it does. Decoding stays within
@@ -313,16 +328,8 @@ pub fn read_image(
     index: &str,
     max_bytes: u64,
 ) -> Result<Vec<u8>> {
-    let dzi_path = dir.join(format!("{name}.dzi"));
-    let dzi = read_dzi(&dzi_path, max_bytes)?;
-    let shown = dzi_path.display().to_string();
+    let dzi = read_sized_dzi(dir, name, width, height, index, max_bytes)?;
     let pyr = dzi.pyramid;
-    if (pyr.width, pyr.height) != (width, height) {
-        return Err(Error::format(
-            &shown,
-            format!("Size is {} x {}; {index} declares {width} x {height}", pyr.width, pyr.height),
-        ));
-    }
     if let Some(n) = levels {
         if n != pyr.levels {
             return Err(Error::format(

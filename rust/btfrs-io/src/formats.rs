@@ -51,8 +51,11 @@ pub struct Format {
     /// Write view slot `view` of a model as this format's tiled, multi-resolution layout (Deep
     /// Zoom pyramids of its images, [`crate::deepzoom`]) into the folder given, which exists and
     /// is empty; `None` for a format without one. The same `import` reads it back.
-    pub tiles: Option<fn(&dyn DynModel, usize, &Path, &Tiling, &Monitor) -> Result<serde_json::Value>>,
+    pub tiles: Option<TiledWriter>,
 }
+
+/// A format's writer of its tiled layout (see [`Format::tiles`]).
+pub type TiledWriter = fn(&dyn DynModel, usize, &Path, &Tiling, &Monitor) -> Result<serde_json::Value>;
 
 /// Every format, in the order `btfrs.load` tries extensions.
 /// relight's folder comes before NeuralRTI's: both are an `info.json`, and relight's reader

@@ -361,8 +361,12 @@ pub(crate) fn from_info(
     // Planes: image i's channels (after the swizzle) are latents 3i, 3i+1, 3i+2. Their sizes
     // (headers) and the model's memory are checked before the planes are allocated.
     let texels = width * height;
-    let mut q = vec![0u8; texels * k];
+    // Allocated at the first image: read_images checks every image's size before that.
+    let mut q = Vec::new();
     let mut put = |img: usize, rgb: &[u8]| {
+        if q.is_empty() {
+            q = vec![0u8; texels * k];
+        }
         for (t, px) in rgb.chunks_exact(3).enumerate() {
             for (j, &c) in swizzle.iter().enumerate() {
                 q[t * k + 3 * img + j] = px[c];

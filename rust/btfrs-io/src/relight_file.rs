@@ -488,25 +488,67 @@ fn import_model(path: &Path, limits: &Limits) -> Result<Imported> {
     Ok(Imported::model(import(&dir, &info, &shown, limits, None)?))
 }
 
-/// The plane images of a relight or NeuralRTI folder (`path`: the folder or its `info.json`),
-/// by name without extension, and how many planes they hold (plane `p` of a texel is channel
-/// `p % 3` of image `p / 3`, the channels as stored in the files).
-pub fn plane_images(path: &Path, limits: &Limits) -> Result<(Vec<String>, usize)> {
+/// What a tiled page needs of a relight or NeuralRTI folder's `info.json`, read through
+/// [`crate::untrusted`] and checked: its plane images and planes, its size, its `type`, and
+/// the pyramid btfrs notes (tile side and level count; 0 where the folder notes none).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FolderImages {
+    /// The plane images by name without extension (plane `p` of a texel is channel `p % 3` of
+    /// image `p / 3`, the channels as stored in the files).
+    pub images: Vec<String>,
+    /// Planes the images hold.
+    pub planes: usize,
+    /// Image width.
+    pub width: usize,
+    /// Image height.
+    pub height: usize,
+    /// `info.json`'s `type` (`""` if absent).
+    pub kind: String,
+    /// The tiles' side (`btfrs.tiles.tilesize`), 0 if not noted.
+    pub tile_size: usize,
+    /// The pyramids' level count (`btfrs.tiles.levels`), 0 if not noted.
+    pub levels: usize,
+}
+
+/// The plane images of a relight or NeuralRTI folder (`path`: the folder or its `info.json`)
+/// and the facts of its index a page needs (see [`FolderImages`]).
+pub fn plane_images(path: &Path, limits: &Limits) -> Result<FolderImages> {
     let (_, shown, text) = read_index(path, "info.json", untrusted::JSON_INDEX, limits.max_bytes)?;
     let info = untrusted::parse_json(&text, &shown)?;
-    if info["type"].as_str() == Some("neural") {
-        let n = crate::neuralrti_file::LATENTS;
-        return Ok(((1..=n / 3).map(|i| format!("plane_{i}")).collect(), n));
-    }
-    let n = if info["colorspace"].as_str() == Some("mycc") {
-        numbers(&info, "yccplanes", &shown)?.iter().sum::<f64>() as usize
-    } else {
-        info["nplanes"].as_u64().unwrap_or(0) as usize
+    drop(text);
+    let dim = |key: &str| -> Result<usize> {
+        info[key]
+            .as_u64()
+            .filter(|&v| v > 0 && v <= MAX_SIDE)
+            .map(|v| v as usize)
+            .ok_or_else(|| bad(&shown, key, format!("expected a size in 1..={MAX_SIDE}, got {}", info[key])))
     };
-    if n == 0 || n > 3 * MAX_COMPONENTS + 3 {
-        return Err(bad(&shown, "nplanes", format!("expected a plane count, got {}", info["nplanes"])));
-    }
-    Ok(((0..n.div_ceil(3)).map(|i| format!("plane_{i}")).collect(), n))
+    let (width, height) = (dim("width")?, dim("height")?);
+    let kind = info["type"].as_str().unwrap_or("").to_string();
+    let levels = declared_levels(&info, &shown)?.unwrap_or(0);
+    let t = &info["btfrs"]["tiles"]["tilesize"];
+    let tile_size = if t.is_null() {
+        0
+    } else {
+        t.as_u64().filter(|n| (1..=deepzoom::MAX_TILE as u64).contains(n)).ok_or_else(|| {
+            bad(&shown, "btfrs.tiles.tilesize", format!("expected a tile side in 1..={}, got {t}", deepzoom::MAX_TILE))
+        })? as usize
+    };
+    let (images, planes) = if kind == "neural" {
+        let n = crate::neuralrti_file::LATENTS;
+        ((1..=n / 3).map(|i| format!("plane_{i}")).collect(), n)
+    } else {
+        let n = if info["colorspace"].as_str() == Some("mycc") {
+            numbers(&info, "yccplanes", &shown)?.iter().sum::<f64>() as usize
+        } else {
+            info["nplanes"].as_u64().unwrap_or(0) as usize
+        };
+        if n == 0 || n > 3 * MAX_COMPONENTS + 3 {
+            return Err(bad(&shown, "nplanes", format!("expected a plane count, got {}", info["nplanes"])));
+        }
+        ((0..n.div_ceil(3)).map(|i| format!("plane_{i}")).collect(), n)
+    };
+    Ok(FolderImages { images, planes, width, height, kind, tile_size, levels })
 }
 
 /// The model the `info.json` of a relight or NeuralRTI folder (`path`) makes with the plane
@@ -556,9 +598,11 @@ pub(crate) fn find_image(dir: &Path, name: &str) -> Option<Source> {
         .or_else(|| untrusted::present(&dir.join(format!("{name}.dzi"))).then(|| Source::Pyramid(name.to_string())))
 }
 
-/// The RGB bytes of images `sources` (all `width x height`), each checked as its kind is (the
-/// headers of whole images first; every tile of a pyramid, [`deepzoom::read_image`], with the
-/// level count `levels` the index file declares).
+/// The RGB bytes of images `sources` (all `width x height`), each checked as its kind is: the
+/// headers of whole images and the descriptors of pyramids first, against the declared size,
+/// before `each` is first called (so that a caller allocating for the set on its first call
+/// allocates only for a size the files have); then every tile of a pyramid
+/// ([`deepzoom::read_image`], with the level count `levels` the index file declares).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn read_images(
     dir: &Path,
@@ -578,6 +622,11 @@ pub(crate) fn read_images(
         })
         .collect();
     untrusted::check_image_sizes(&files, width, height, "info.json")?;
+    for s in sources {
+        if let Source::Pyramid(name) = s {
+            deepzoom::read_sized_dzi(dir, name, width, height, shown, max_bytes)?;
+        }
+    }
     for (i, s) in sources.iter().enumerate() {
         let rgb = match s {
             Source::File(f) => untrusted::read_rgb8(f, width, height, max_bytes)?,
@@ -616,8 +665,12 @@ fn read_planes(
         need,
         max_bytes,
     )?;
-    let mut q = vec![0u8; texels * nplanes];
+    // Allocated at the first image, once read_images has checked every image's size.
+    let mut q = Vec::new();
     read_images(dir, &sources, width, height, levels, shown, max_bytes, |i, rgb| {
+        if q.is_empty() {
+            q = vec![0u8; texels * nplanes];
+        }
         for (t, px) in rgb.chunks_exact(3).enumerate() {
             for c in 0..3 {
                 if 3 * i + c < nplanes {

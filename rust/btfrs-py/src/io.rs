@@ -142,12 +142,18 @@ pub fn export_tiled(
     Ok(out.to_string())
 }
 
-/// The plane images of a relight or NeuralRTI folder (names without extension) and the planes
-/// they hold.
+/// The plane images of a relight or NeuralRTI folder (names without extension), the planes
+/// they hold, and its index's facts: `(images, planes, width, height, type, tile_size,
+/// levels)` (the last two 0 where the folder notes no pyramid).
 #[pyfunction]
-pub fn plane_images(py: Python<'_>, path: PathBuf) -> PyResult<(Vec<String>, usize)> {
+#[allow(clippy::type_complexity)]
+pub fn plane_images(
+    py: Python<'_>,
+    path: PathBuf,
+) -> PyResult<(Vec<String>, usize, usize, usize, String, usize, usize)> {
     let limits = btfrs_io::capture::Limits { max_bytes: btfrs_io::capture::default_max_bytes(), allow_outside: false };
-    detach(py, || btfrs_io::relight_file::plane_images(&path, &limits))
+    let f = detach(py, || btfrs_io::relight_file::plane_images(&path, &limits))?;
+    Ok((f.images, f.planes, f.width, f.height, f.kind, f.tile_size, f.levels))
 }
 
 /// The model a relight or NeuralRTI folder's `info.json` makes with other plane bytes: `planes`
