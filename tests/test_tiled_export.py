@@ -18,6 +18,7 @@ import pytest
 from PIL import Image
 
 import btfrs
+import btfrs.web
 from btfrs.cli import main
 from btfrs.exceptions import FormatError, InvalidArgumentError
 
@@ -39,7 +40,8 @@ def models(capture):
         "hsh": btfrs.fit.hsh(capture),
         "rbf": btfrs.fit.rbf(capture),
         "bilinear": btfrs.fit.bilinear(capture),
-        "neural": btfrs.fit.neural(capture, steps=60, hidden=8, seed=1),
+        # NeuralRTI's form: no horizon map (OpenLIME's decoder reads the light alone).
+        "neural": btfrs.fit.neural(capture, steps=60, hidden=8, seed=1, horizon=0),
     }
 
 
@@ -257,6 +259,38 @@ def test_options_and_models_without_a_tiled_layout_are_refused(models, capture, 
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
+def test_a_neural_model_with_a_horizon_map_is_refused_with_the_reason(capture, tmp_path, capsys):
+    # Its decoder reads each texel's clearance above its horizon map, which NeuralRTI's folder
+    # (and OpenLIME) cannot hold: refused as the whole-plane export refuses it, nothing written.
+    m = btfrs.fit.neural(capture, steps=20, hidden=8, seed=1, horizon=4)
+    assert m.horizon is not None
+    why = r"^format: NeuralRTI's form .*clearance above its horizon map.*\(fit with horizon=0\)"
+    with pytest.raises(InvalidArgumentError, match=why):
+        m.export(tmp_path / "whole", format="neuralrti")
+    with pytest.raises(InvalidArgumentError, match=why):
+        m.export(tmp_path / "a", tiled=True, tile_size=TILE)
+    with pytest.raises(InvalidArgumentError, match=why):
+        btfrs.web.save_web(m, tmp_path / "site", tiled=True, tile_size=TILE)
+    src = tmp_path / "m.btfrs"
+    m.save(src)
+    assert main(["export", "--quiet", str(src), "--web", str(tmp_path / "cli"), "--tiles"]) != 0
+    assert "horizon=0" in capsys.readouterr().err
+    assert sorted(os.listdir(tmp_path)) == ["m.btfrs"]
+
+
+def test_the_command_lines_quick_neural_fit_of_a_tiled_page_is_in_neuralrtis_form(capture, tmp_path):
+    # `export CAPTURE --web SITE --tiles --model neural` fits without a horizon map, so that the
+    # tiled folder can be NeuralRTI's.
+    src = tmp_path / "capture.btfrs"
+    btfrs.Btf(capture.data[:12, :20], capture.views, capture.lights).save(src)  # small: the fit's 1000 steps
+    site = tmp_path / "site"
+    assert main(["export", "--quiet", str(src), "--web", str(site), "--tiles", "--model", "neural",
+                 "--tile-size", "16", "--tile-format", "png"]) == 0
+    back = btfrs.load(site / "model")
+    assert back.kind == "neural" and back.horizon is None and back.directions == "light"
+    assert json.loads((site / "model" / "info.json").read_text())["type"] == "neural"
+
+
 def test_the_tiled_page_describes_the_window_store(models, tmp_path):
     import btfrs.web
 
@@ -267,7 +301,7 @@ def test_the_tiled_page_describes_the_window_store(models, tmp_path):
     t = man["tiles"]
     assert man["version"] == btfrs.web.WEB_VERSION and man["scenes"] == {} and man["rti"] is not None
     assert t["images"] == [f"plane_{i}.dzi" for i in range(6)] and t["planes"] == 18 and t["levels"] == 3
-    assert t["capacity"] == H * W
+    assert t["capacity"] == H * W and t["tile_size"] == TILE and t["type"] == "ptm"
     # One texel part: the 18 coefficient bytes of a texel, each one plane of the images, each
     # plane once.
     (part,) = t["texels"]
@@ -275,6 +309,26 @@ def test_the_tiled_page_describes_the_window_store(models, tmp_path):
     # The shared words: the store file; and the folder is what btfrs.load reads.
     assert (model / "store.bin").stat().st_size == 4 * sum(c["words"] for c in t["constants"])
     assert btfrs.load(model).kind == "ptm"
+
+
+def test_the_page_reads_the_folders_index_as_btfrs_reads_untrusted_files(tiled):
+    # The page's manifest is made from the folder's info.json through btfrs's reader: a size out
+    # of range, or an index that is not a regular file (a FIFO would block a plain open), is
+    # named rather than followed.
+    info = json.loads((tiled / "info.json").read_text())
+    btfrs.web.bundle_tiled(tiled)
+    (tiled / "info.json").write_text(json.dumps(dict(info, width=1 << 20)))
+    with pytest.raises(FormatError, match=r"info\.json.*width: expected a size in 1\.\.=32768, got 1048576"):
+        btfrs.web.bundle_tiled(tiled)
+    bad = dict(info)
+    bad["btfrs"] = {"tiles": dict(info["btfrs"]["tiles"], tilesize=-3)}
+    (tiled / "info.json").write_text(json.dumps(bad))
+    with pytest.raises(FormatError, match=r"info\.json.*btfrs\.tiles\.tilesize"):
+        btfrs.web.bundle_tiled(tiled)
+    (tiled / "info.json").unlink()
+    os.mkfifo(tiled / "info.json")
+    with pytest.raises(FormatError, match=r"info\.json.*regular file"):
+        btfrs.web.bundle_tiled(tiled)
 
 
 def test_the_command_line_writes_a_tiled_page_and_a_tiled_folder(models, tmp_path, capsys):

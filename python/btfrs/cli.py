@@ -879,9 +879,11 @@ def _viewable(obj: Any, args: argparse.Namespace) -> Tuple[Model, Dict[str, Any]
     if isinstance(obj, Model):
         return obj, surface
     if isinstance(obj, Btf):
+        # A tiled page of a neural model is NeuralRTI's folder, whose decoder reads no horizon map.
+        opts: Dict[str, Any] = {"horizon": 0} if args.tiles and args.model == "neural" else {}
         if not args.quiet:
             print(f"fitting a {args.model} model for the viewer (--model to choose another) ...", flush=True)
-        return fit_mod.fit(args.model, obj), surface
+        return fit_mod.fit(args.model, obj, **opts), surface
     raise InvalidArgumentError(f"path: {args.path} holds a {type(obj).__name__}; the viewer shows fitted models, "
                                f"BTFs, captures and tile sets")
 
@@ -966,7 +968,7 @@ def render_command(args: argparse.Namespace) -> None:
     print(f"wrote {args.out} ({args.image_size[0]} x {args.image_size[1]}, mean {float(np.mean(img)):.4f})")
 
 
-def _calibrate_args(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
+def _calibrate_args(sub: "argparse._SubParsersAction[_Parser]") -> None:
     c = sub.add_parser("calibrate", help="the light directions of photographs with a glossy sphere in the frame: an "
                                          ".lp file")
     c.add_argument("photos", nargs="+", metavar="PHOTOS",
