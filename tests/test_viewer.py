@@ -228,7 +228,8 @@ def test_every_kind_matches_the_cpu_reference(kind, browser, served, models, png
     with Page(browser) as page:
         page.open(f"{served.url}/{kind}/index.html")
         light = [0.3, -0.4, 0.87]
-        page.page.evaluate("(s) => window.btfrsViewer.set(s)", {"light": light, "size": [SIZE, SIZE]})
+        # On the plane (a single-view model opens in the 2D view: tests/test_viewer_rti.py).
+        page.page.evaluate("(s) => window.btfrsViewer.set(s)", {"light": light, "size": [SIZE, SIZE], "scene": "plane"})
         got = frame(page.page)
         model = models["lpca" if kind == "lpca_3d" else kind]
         want = reference(model, _camera(), light, renderer="3d" if kind == "lpca_3d" else None)
@@ -422,10 +423,11 @@ def test_drags_on_the_image_orbit_pan_zoom_and_move_the_light(browser, served, m
         assert moved["light"] == pytest.approx([-0.5, 0.0, np.sqrt(0.75)], abs=0.03)
         assert page.errors == []
     with Page(browser) as page:
-        # A single-view model pans: eye and target move together.
+        # A single-view model on the plane pans: eye and target move together.
         page.open(f"{served.url}/neural/index.html")
         pg = page.page
         assert pg.evaluate("window.btfrsViewer.info().views") == 1
+        pg.evaluate("(s) => window.btfrsViewer.set(s)", {"scene": "plane"})
         before = pg.evaluate("window.btfrsViewer.state().camera")
         box = pg.locator("#view").bounding_box()
         cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2

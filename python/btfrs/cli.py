@@ -564,6 +564,17 @@ def _data_commands(sub: "argparse._SubParsersAction[_Parser]") -> None:
     x.add_argument("--force", action="store_true",
                    help="with --web: replace an existing folder or file; with a folder format: write into a folder "
                    "that holds files")
+    x.add_argument("--tiles", action="store_true",
+                   help="with --web, --relight or --neuralrti: the tiled, multi-resolution layout (every plane a "
+                        "Deep Zoom pyramid, as relight writes and OpenLIME reads; the page fetches the tiles it "
+                        "shows)")
+    x.add_argument("--tile-format", choices=["jpg", "png"], default=None, help="with --tiles: the tiles' format "
+                   "(default: jpg)")
+    x.add_argument("--tile-quality", type=int, default=None, help="with --tiles: JPEG quality, 1 to 100 (default: 95)")
+    x.add_argument("--tile-size", type=int, default=None, help="with --tiles: tile side in pixels (default: 256)")
+    x.add_argument("--tile-overlap", type=int, default=None,
+                   help="with --tiles: pixels a tile shares with each neighbour (default: 0, as relight)")
+    x.set_defaults(default_tile_format="jpg", default_tile_quality=95, default_tile_size=256, default_tile_overlap=0)
     _surface_args(x, "with --web: ")
     nm = sub.add_parser("normals", help="photometric stereo on one view slot: normals, albedo and height maps "
                                         "(EXR and 16-bit PNG)")
@@ -775,6 +786,16 @@ def export_command(args: argparse.Namespace) -> None:
                 raise InvalidArgumentError(f"--{dest.replace('_', '-')}: only with --web")
     if "format" in args.given and not args.stack:
         raise InvalidArgumentError("--format: only with --stack")
+    for dest in ("tile_format", "tile_quality", "tile_size", "tile_overlap"):
+        if dest in args.given and not args.tiles:
+            raise InvalidArgumentError(f"--{dest.replace('_', '-')}: only with --tiles")
+    tiled = [name for name, path in formats if path and name in folders]
+    if args.tiles and not (args.web or any(n in ("relight", "neuralrti") for n in tiled)):
+        raise InvalidArgumentError("--tiles: only with --web, --relight or --neuralrti")
+    if args.tiles and args.single_file:
+        raise InvalidArgumentError("--tiles: a tiled page fetches its tiles; it cannot be one file (--single-file)")
+    tiling = dict(tile_format=args.tile_format, quality=args.tile_quality, tile_size=args.tile_size,
+                  overlap=args.tile_overlap, progress=not args.quiet) if args.tiles else {}
     if args.web:
         if args.single_file:
             _check_output("--web", args.web, args, (".html",))
@@ -798,6 +819,8 @@ def export_command(args: argparse.Namespace) -> None:
         print(f"wrote {io.save_stack(obj, args.stack, format=args.format)}")
     if args.web:
         model, surface = _viewable(obj, args)
+        if args.tiles:
+            surface = {"tiled": True, "view": args.view, **tiling}
         page = web.save_web(model, args.web, single_file=args.single_file, force=args.force,
                             name=os.path.basename(os.path.normpath(args.path or "")) or model.kind, **surface)
         print(f"wrote {page}" + ("" if args.single_file else " (serve the folder over HTTP, e.g. "
@@ -811,7 +834,10 @@ def export_command(args: argparse.Namespace) -> None:
                 able = [k for k, info in model_kinds().items() if fmt in info["exports"]]
                 raise InvalidArgumentError(f"--{fmt}: a {obj.kind} model cannot be written as .{fmt} "
                                            f"(fit --model {' or '.join(able)})")
-            obj.export(path, format=fmt, view=args.view, force=args.force)
+            if args.tiles and fmt in ("relight", "neuralrti"):
+                obj.export(path, format=fmt, view=args.view, force=args.force, tiled=True, **tiling)
+            else:
+                obj.export(path, format=fmt, view=args.view, force=args.force)
             print(f"wrote {path}")
     if args.exr:
         names = io.save_coefficients(obj, args.exr)
@@ -860,9 +886,11 @@ def _viewable(obj: Any, args: argparse.Namespace) -> Tuple[Model, Dict[str, Any]
     if isinstance(obj, Model):
         return obj, surface
     if isinstance(obj, Btf):
+        # A tiled page of a neural model is NeuralRTI's folder, whose decoder reads no horizon map.
+        opts: Dict[str, Any] = {"horizon": 0} if args.tiles and args.model == "neural" else {}
         if not args.quiet:
             print(f"fitting a {args.model} model for the viewer (--model to choose another) ...", flush=True)
-        return fit_mod.fit(args.model, obj), surface
+        return fit_mod.fit(args.model, obj, **opts), surface
     raise InvalidArgumentError(f"path: {args.path} holds a {type(obj).__name__}; the viewer shows fitted models, "
                                f"BTFs, captures and tile sets")
 

@@ -20,7 +20,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import _native
 from .btf import Btf, read_container
-from ._checks import boolean, choice, index, instance
+from ._checks import boolean, choice, index, instance, integer
+from ._progress import callback
 from .exceptions import ArgumentTypeError, FormatError, InternalError, InvalidArgumentError
 
 __all__ = ["ErrorReport", "Model", "Ptm", "Hsh", "Lafortune", "LafortuneView", "Srf", "Sh", "Lpca", "Rbf", "Bilinear", "Neural", "Svbrdf", "load",
@@ -125,14 +126,26 @@ class Model:
         return list(model_kinds()[self.kind]["exports"])
 
     def export(self, path: PathLike, *, format: Optional[str] = None, view: ArrayLike = 0,
-               force: bool = False) -> Dict[str, Any]:
+               force: bool = False, tiled: bool = False, tile_format: str = "jpg", tile_size: int = 256,
+               overlap: int = 0, quality: int = 95, progress: Any = None) -> Dict[str, Any]:
         """Write view slot ``view`` (an index or a direction) as another tool's file format
         (:attr:`exports`; by default chosen by the extension of ``path``: ``.ptm``, ``.rti``,
         ``.gltf``, ``.xml`` for Mitsuba). A format written as a folder (relight's, NeuralRTI's,
         glTF's, Mitsuba's) refuses a folder that exists and holds files unless ``force``.
         Returns what the writer chose, e.g. the quantization's ``scale`` and ``bias``, or the
-        files written."""
+        files written.
+
+        ``tiled=True`` writes relight's or NeuralRTI's folder in its tiled, multi-resolution
+        layout, as relight-cli's deepzoom output and OpenLIME's ``deepzoom`` layout have it:
+        each plane image a Deep Zoom pyramid (``plane_0.dzi`` + ``plane_0_files/{level}/
+        {col}_{row}.{tile_format}``, ``tile_size`` tiles sharing ``overlap`` pixels, level 0 one
+        tile), written into a temporary folder that is renamed (``force`` replaces an existing
+        folder whole); ``progress(done, total)`` counts the tiles. :func:`btfrs.load` reads it
+        back."""
         p = os.fspath(path)
+        if format is None and tiled is True:
+            # The formats with a tiled layout: relight's, else NeuralRTI's.
+            format = next((f for f in ("relight", "neuralrti") if f in self.exports), None)
         if format is None:
             ext = os.path.splitext(p)[1].lstrip(".").lower()
             named = [name for name, e, _, _, _ in _native.model_formats() if e == ext and name in self.exports]
@@ -140,6 +153,12 @@ class Model:
         if format not in self.exports:
             can = ", ".join(repr(e) for e in self.exports) or "none"
             raise InvalidArgumentError(f"format: the {self.kind} model cannot be written as {format!r} (its formats: {can})")
+        if boolean("tiled", tiled):
+            return cast(Dict[str, Any], json.loads(_native.export_tiled(
+                p, self._m, format, _slot_index(self, view), boolean("force", force),
+                integer("tile_size", tile_size, min=16, max=8192), integer("overlap", overlap, min=0, max=4096),
+                choice("tile_format", tile_format, ("jpg", "png")), integer("quality", quality, min=1, max=100),
+                callback(progress, "tiles"))))
         return cast(Dict[str, Any], json.loads(_native.export_model(p, self._m, format, _slot_index(self, view),
                                                                     force=boolean("force", force))))
 

@@ -4,10 +4,11 @@
 // viewer owns, which is also drawn on the canvas, and read back from.
 
 import { cameraViewProj } from "./math.js";
+import { RTI_WGSL, RTI_SHOW_WGSL, RTI_UNIFORM_SIZE } from "./rti.js";
 
 // The display pass: a full-screen triangle reading the linear frame with textureLoad.
 const DISPLAY_WGSL = `
-struct Display { exposure: f32, pad0: f32, pad1: f32, pad2: f32 };
+struct Display { exposure: f32, raw: f32, pad1: f32, pad2: f32 };
 @group(0) @binding(0) var frame: texture_2d<f32>;
 @group(0) @binding(1) var<uniform> display: Display;
 
@@ -27,6 +28,10 @@ fn srgb(x: f32) -> f32 {
 @fragment
 fn fs_display(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
     let v = textureLoad(frame, vec2<i32>(pos.xy), 0);
+    if (display.raw > 0.5) {
+        // Values that are already display values (a normal map's (n + 1) / 2).
+        return vec4<f32>(clamp(v.rgb, vec3<f32>(0.0), vec3<f32>(1.0)), 1.0);
+    }
     let c = clamp(v.rgb * display.exposure, vec3<f32>(0.0), vec3<f32>(1.0));
     return vec4<f32>(srgb(c.r), srgb(c.g), srgb(c.b), 1.0);
 }
@@ -123,6 +128,23 @@ async function compiledModule(device, code, label) {
   return module;
 }
 
+// The store's bytes: the model's store file, or for a tiled model a store laid out for a window
+// (`tiles.store_words`) holding the parts every window shares (the store file, concatenated) at
+// their offsets, its texel parts left for the window's tiles.
+function storeBytes(manifest, files) {
+  const t = manifest.tiles;
+  const bytes = files[manifest.files.store];
+  if (!t) return bytes;
+  const out = new Uint8Array(t.store_words * 4);
+  let at = 0;
+  for (const c of t.constants) {
+    out.set(bytes.subarray(at, at + c.words * 4), c.offset * 4);
+    at += c.words * 4;
+  }
+  if (at !== bytes.byteLength) throw new Error(`model/${manifest.files.store}: ${bytes.byteLength} bytes; the manifest's parts take ${at}`);
+  return out;
+}
+
 // Everything on the device for one model (`files`: name -> Uint8Array; `shaderCode`: the WGSL):
 // `render(view)` draws a frame, `readPixels()` reads the last displayed frame back. The frame is
 // shown on `canvas`: with `present` "webgpu" by a second draw into the canvas's own texture,
@@ -157,7 +179,7 @@ export async function createRenderer(gpu, manifest, files, shaderCode, canvas, p
     coord_map: { buffer: bufferWith(device, manifest.map ? files[manifest.map.file] : new Uint32Array([0]), U.STORAGE, "coord_map") },
     env: { buffer: bufferWith(device, new Float32Array(4), U.STORAGE, "env") },
     params: { buffer: bufferWith(device, files[manifest.files.params], U.UNIFORM, "params") },
-    store: { buffer: bufferWith(device, files[manifest.files.store], U.STORAGE, "store") },
+    store: { buffer: bufferWith(device, storeBytes(manifest, files), U.STORAGE, "store") },
     dirs: { buffer: bufferWith(device, files[manifest.files.dirs], U.STORAGE, "dirs") },
     tables: { buffer: bufferWith(device, files[manifest.files.tables], U.STORAGE, "tables") },
   };
@@ -212,8 +234,10 @@ export async function createRenderer(gpu, manifest, files, shaderCode, canvas, p
     return sceneBufs[name];
   }
 
-  // The model's pipeline, exactly as the native renderer builds it.
-  const module = await compiledModule(device, shaderCode, `${manifest.model.kind}.wgsl`);
+  // The model's pipeline, exactly as the native renderer builds it; with the 2D view's entry
+  // points appended for a single-view model (rti.js).
+  const code = manifest.rti ? shaderCode + RTI_WGSL : shaderCode;
+  const module = await compiledModule(device, code, `${manifest.model.kind}.wgsl`);
   const vtx = layout.vertex;
   const targets = layout.targets;
   const pipeline = await device.createRenderPipelineAsync({
@@ -232,6 +256,68 @@ export async function createRenderer(gpu, manifest, files, shaderCode, canvas, p
     depthStencil: { format: targets.depth, depthWriteEnabled: true, depthCompare: targets.depth_compare },
     fragment: { module, entryPoint: layout.entry.fragment, targets: [{ format: targets.color }] },
   });
+
+  // The 2D view's pipelines, each a full-screen triangle with the view's uniform block in
+  // group 2: in one pass, each pixel bilinear between four texels the model relights
+  // (minified views); in two, the texels under the canvas relit once each into a float
+  // texture, then each pixel bilinear between four of them (magnified views: a texel relit
+  // once, not once per pixel it covers).
+  let rti = null;
+  if (manifest.rti) {
+    const vis = GPUShaderStage.VERTEX | GPUShaderStage.FRAGMENT;
+    const buf = device.createBuffer({ label: "rti", size: RTI_UNIFORM_SIZE, usage: U.UNIFORM | U.COPY_DST });
+    const layout2 = device.createBindGroupLayout({ label: "rti", entries: [{ binding: 0, visibility: vis, buffer: { type: "uniform" } }] });
+    const group = device.createBindGroup({ label: "rti", layout: layout2, entries: [{ binding: 0, resource: { buffer: buf } }] });
+    const pipelineLayout = device.createPipelineLayout({ bindGroupLayouts: [...groupLayouts, layout2] });
+    const direct = await device.createRenderPipelineAsync({
+      label: `btfrs ${manifest.model.kind} 2D`,
+      layout: pipelineLayout,
+      vertex: { module, entryPoint: "vs_rti" },
+      primitive: { topology: "triangle-list" },
+      depthStencil: { format: targets.depth, depthWriteEnabled: false, depthCompare: "always" },
+      fragment: { module, entryPoint: "fs_rti", targets: [{ format: targets.color }] },
+    });
+    const relight = await device.createRenderPipelineAsync({
+      label: `btfrs ${manifest.model.kind} 2D texels`,
+      layout: pipelineLayout,
+      vertex: { module, entryPoint: "vs_rti" },
+      primitive: { topology: "triangle-list" },
+      fragment: { module, entryPoint: "fs_rti_texels", targets: [{ format: "rgba32float" }] },
+    });
+    const showModule = await compiledModule(device, RTI_SHOW_WGSL, "rti_show.wgsl");
+    const showLayout = device.createBindGroupLayout({
+      label: "rti show",
+      entries: [
+        { binding: 0, visibility: vis, buffer: { type: "uniform" } },
+        { binding: 1, visibility: GPUShaderStage.FRAGMENT, texture: { sampleType: "unfilterable-float" } },
+      ],
+    });
+    const show = await device.createRenderPipelineAsync({
+      label: "btfrs 2D show",
+      layout: device.createPipelineLayout({ bindGroupLayouts: [showLayout] }),
+      vertex: { module: showModule, entryPoint: "vs_show" },
+      primitive: { topology: "triangle-list" },
+      depthStencil: { format: targets.depth, depthWriteEnabled: false, depthCompare: "always" },
+      fragment: { module: showModule, entryPoint: "fs_show", targets: [{ format: targets.color }] },
+    });
+    rti = { buf, group, direct, relight, show, showLayout, values: null, showGroup: null };
+  }
+
+  // The float texture the two-pass view relights its texels into (kept, grown as needed).
+  function valuesFor(w, h) {
+    const v = rti.values;
+    if (v && v.width >= w && v.height >= h) return v;
+    if (v) v.destroy();
+    const size = [Math.max(w, v ? v.width : 0), Math.max(h, v ? v.height : 0)].map((x) => Math.ceil(x / 64) * 64);
+    rti.values = device.createTexture({ label: "rti values", size, format: "rgba32float",
+      usage: GPUTextureUsage.RENDER_ATTACHMENT | GPUTextureUsage.TEXTURE_BINDING });
+    rti.showGroup = device.createBindGroup({
+      label: "rti show",
+      layout: rti.showLayout,
+      entries: [{ binding: 0, resource: { buffer: rti.buf } }, { binding: 1, resource: rti.values.createView() }],
+    });
+    return rti.values;
+  }
 
   // The display pipelines: into the owned rgba8unorm texture and into the canvas.
   const displayModule = await compiledModule(device, DISPLAY_WGSL, "display.wgsl");
@@ -298,11 +384,13 @@ export async function createRenderer(gpu, manifest, files, shaderCode, canvas, p
     const data = new ArrayBuffer(layout.globals.size);
     const f = new Float32Array(data);
     const u = new Uint32Array(data);
-    const vp = cameraViewProj(view.camera, view.width / view.height);
-    f.set(vp, G.view_proj / 4);
-    f.set([view.camera.eye[0], view.camera.eye[1], view.camera.eye[2], 1], G.eye / 4);
+    // The 2D view has no camera: its own pass maps pixels to texels.
+    if (view.camera) {
+      f.set(cameraViewProj(view.camera, view.width / view.height), G.view_proj / 4);
+      f.set([view.camera.eye[0], view.camera.eye[1], view.camera.eye[2], 1], G.eye / 4);
+    }
     f.set(manifest.uv_scale || [1, 1], G.uv_scale / 4);
-    u.set([manifest.model.width, manifest.model.height], G.sample_size / 4);
+    u.set(view.sampleSize || [manifest.model.width, manifest.model.height], G.sample_size / 4);
     const map = manifest.map;
     u.set(map ? map.map_size : [0, 0], G.map_size / 4);
     u[G.n_lights / 4] = nLights;
@@ -340,29 +428,64 @@ export async function createRenderer(gpu, manifest, files, shaderCode, canvas, p
     device.queue.writeBuffer(lightsBuf, 0, data);
   }
 
+  // Bytes of the window's texels into the store (a tiled model's window, at word `offset`).
+  function writeStore(offset, bytes) {
+    device.queue.writeBuffer(resources.store.buffer, offset * 4, bytes);
+  }
+
   // One frame: view = {camera, lights: [{direction (unit, towards the light), intensity}],
-  // scene, exposure, width, height}. Resolves when the GPU has finished it.
+  // scene, exposure, width, height}, or for the 2D view {image: RtiView bytes, sampleSize: the
+  // window's [width, height], raw: display values as they are, exposure, width, height}.
+  // Resolves when the GPU has finished it.
   async function render(view) {
     const t0 = performance.now();
     device.pushErrorScope("validation");
     const t = targetsFor(view.width, view.height);
-    writeGlobals(view, view.lights.length);
-    writeLights(view.lights);
-    device.queue.writeBuffer(displayBuf, 0, new Float32Array([view.exposure, 0, 0, 0]));
-    const s = sceneBuffers(view.scene);
+    writeGlobals(view, view.image ? 0 : view.lights.length);
+    writeLights(view.image ? [] : view.lights);
+    device.queue.writeBuffer(displayBuf, 0, new Float32Array([view.exposure, view.raw ? 1 : 0, 0, 0]));
+    if (view.image) device.queue.writeBuffer(rti.buf, 0, view.image);
+    const s = view.image ? null : sceneBuffers(view.scene);
     const clear = targets.clear || [0, 0, 0, 1];
     const enc = device.createCommandEncoder({ label: "frame" });
+    if (view.image && view.texels) {
+      // The texels first, into the values texture (its top-left corner).
+      const values = valuesFor(view.texels.w, view.texels.h);
+      const rp = enc.beginRenderPass({
+        colorAttachments: [{ view: values.createView(), loadOp: "clear", storeOp: "store", clearValue: { r: 0, g: 0, b: 0, a: 1 } }],
+      });
+      rp.setViewport(0, 0, view.texels.w, view.texels.h, 0, 1);
+      rp.setScissorRect(0, 0, view.texels.w, view.texels.h);
+      rp.setPipeline(rti.relight);
+      rp.setBindGroup(0, frameGroup);
+      rp.setBindGroup(1, modelGroup);
+      rp.setBindGroup(2, rti.group);
+      rp.draw(3);
+      rp.end();
+    }
     const pass = enc.beginRenderPass({
       colorAttachments: [{ view: t.color.createView(), loadOp: "clear", storeOp: "store",
         clearValue: { r: clear[0], g: clear[1], b: clear[2], a: clear[3] } }],
       depthStencilAttachment: { view: t.depth.createView(), depthClearValue: 1, depthLoadOp: "clear", depthStoreOp: "store" },
     });
-    pass.setPipeline(pipeline);
-    pass.setBindGroup(0, frameGroup);
-    pass.setBindGroup(1, modelGroup);
-    pass.setVertexBuffer(0, s.vertices);
-    pass.setIndexBuffer(s.indices, "uint32");
-    pass.drawIndexed(s.count);
+    if (view.image && view.texels) {
+      pass.setPipeline(rti.show);
+      pass.setBindGroup(0, rti.showGroup);
+      pass.draw(3);
+    } else if (view.image) {
+      pass.setPipeline(rti.direct);
+      pass.setBindGroup(0, frameGroup);
+      pass.setBindGroup(1, modelGroup);
+      pass.setBindGroup(2, rti.group);
+      pass.draw(3);
+    } else {
+      pass.setPipeline(pipeline);
+      pass.setBindGroup(0, frameGroup);
+      pass.setBindGroup(1, modelGroup);
+      pass.setVertexBuffer(0, s.vertices);
+      pass.setIndexBuffer(s.indices, "uint32");
+      pass.drawIndexed(s.count);
+    }
     pass.end();
     // The model's pass is submitted and waited for alone: its time is what the native
     // renderer's draw time measures (the display pass below is the page's own).
@@ -421,5 +544,5 @@ export async function createRenderer(gpu, manifest, files, shaderCode, canvas, p
     return { width: w, height: h, bytes: out };
   }
 
-  return { render, readPixels };
+  return { render, readPixels, writeStore };
 }

@@ -1,5 +1,6 @@
-// The viewer's page: the canvas, the model's facts, the scene selector, the exposure slider and
-// the light-direction disc, with the pointer interactions on the image.
+// The viewer's page: the canvas, the model's facts, the scene selector, the exposure slider, the
+// light-direction disc and, in the 2D view, the rendering mode and its parameters, with the
+// pointer interactions on the image.
 
 import { discToLight } from "./math.js";
 
@@ -68,8 +69,18 @@ function uiLightDisc(parent, onLight) {
   };
 }
 
+// The 2D view's modes as the page names them, and their parameters' sliders.
+const MODE_NAMES = { default: "Default", diffuse_gain: "Diffuse gain", specular: "Specular enhancement", normals: "Normal map" };
+const PARAMS = {
+  gain: { label: "Gain", min: 1, max: 10, step: 0.1, modes: ["diffuse_gain"] },
+  kd: { label: "Diffuse (kd)", min: 0, max: 1, step: 0.01, modes: ["specular"] },
+  ks: { label: "Specular (ks)", min: 0, max: 2, step: 0.01, modes: ["specular"] },
+  exponent: { label: "Exponent", min: 1, max: 200, step: 1, modes: ["specular"] },
+};
+
 // Build the page under `root`. `on` holds the callbacks: light(dir), scene(name),
-// exposure(value), orbit(dxPixels, dyPixels), zoom(factor), imageLight(x, y in [-1, 1]).
+// exposure(value), orbit(dxPixels, dyPixels, rect), zoom(factor, [x, y] canvas pixels),
+// imageLight(x, y in [-1, 1]), mode(name), modeParam(name, value).
 export function buildUi(root, on) {
   const header = uiElement("header", {}, root);
   uiElement("h1", { text: "btfrs viewer" }, header);
@@ -90,6 +101,19 @@ export function buildUi(root, on) {
   const exposure = uiElement("input", { id: "exposure", type: "range", min: "-4", max: "4", step: "0.05", value: "0" }, expLabel);
   const expValue = uiElement("output", { id: "exposure-value", text: "1.00" }, expLabel);
   exposure.addEventListener("input", () => on.exposure(Math.pow(2, Number(exposure.value))));
+
+  const modeLabel = uiElement("label", { text: "Mode " }, panel);
+  const modeSelect = uiElement("select", { id: "mode" }, modeLabel);
+  for (const [k, v] of Object.entries(MODE_NAMES)) uiElement("option", { value: k, text: v }, modeSelect);
+  modeSelect.addEventListener("change", () => on.mode(modeSelect.value));
+  const params = {};
+  for (const [k, p] of Object.entries(PARAMS)) {
+    const label = uiElement("label", { text: `${p.label} ` }, panel);
+    const input = uiElement("input", { id: k, type: "range", min: String(p.min), max: String(p.max), step: String(p.step) }, label);
+    const out = uiElement("output", { id: `${k}-value` }, label);
+    input.addEventListener("input", () => on.modeParam(k, Number(input.value)));
+    params[k] = { label, input, out };
+  }
 
   const skyLabel = uiElement("label", { text: "Sky light " }, panel);
   const sky = uiElement("input", { id: "sky", type: "checkbox" }, skyLabel);
@@ -138,7 +162,11 @@ export function buildUi(root, on) {
   stage.addEventListener("pointercancel", stop);
   stage.addEventListener("wheel", (ev) => {
     ev.preventDefault();
-    on.zoom(Math.exp(Math.max(-1, Math.min(1, ev.deltaY * 0.001))));
+    const rect = canvas.getBoundingClientRect();
+    const at = rect.width > 0 && rect.height > 0
+      ? [((ev.clientX - rect.left) * canvas.width) / rect.width, ((ev.clientY - rect.top) * canvas.height) / rect.height]
+      : null;
+    on.zoom(Math.exp(Math.max(-1, Math.min(1, ev.deltaY * 0.001))), at);
   }, { passive: false });
 
   return {
@@ -147,7 +175,7 @@ export function buildUi(root, on) {
     },
     // A fresh canvas in place of the current one.
     newCanvas() {
-      const c = uiElement("canvas", { id: "view", width: canvas.width, height: canvas.height });
+      const c = uiElement("canvas", { id: "view", width: canvas.width, height: canvas.height, class: canvas.className });
       canvas.replaceWith(c);
       canvas = c;
       return c;
@@ -179,11 +207,26 @@ export function buildUi(root, on) {
       disc.set(l);
       lightText.textContent = `light (${l.map((x) => x.toFixed(2)).join(", ")})`;
     },
-    setHelp(singleView) {
-      help.textContent = (singleView
-        ? "Drag on the image to pan, wheel to zoom (a single-view model: the camera does not orbit). "
-        : "Drag on the image to orbit, wheel to zoom. ") +
+    setHelp(singleView, image) {
+      help.textContent = (image
+        ? "Drag on the image to pan, wheel to zoom (down to single texels). "
+        : singleView
+          ? "Drag on the image to pan, wheel to zoom (a single-view model: the camera does not orbit). "
+          : "Drag on the image to orbit, wheel to zoom. ") +
         "Drag on the disc, or hold L and drag on the image, to move the light.";
+    },
+    // The mode and its parameters (shown in the 2D view only, each parameter with its mode); in
+    // the 2D view the canvas fills the page (`fill`) or shows its pixels at their aspect.
+    setMode(state, image, fill) {
+      modeLabel.hidden = !image;
+      modeSelect.value = state.mode;
+      for (const [k, p] of Object.entries(PARAMS)) {
+        params[k].label.hidden = !image || !p.modes.includes(state.mode);
+        params[k].input.value = String(state[k]);
+        params[k].out.textContent = Number(state[k]).toFixed(2);
+      }
+      canvas.classList.toggle("image", image);
+      canvas.classList.toggle("fill", image && fill);
     },
   };
 }

@@ -57,6 +57,57 @@ fn temp_beside(path: &Path) -> Result<(String, PathBuf, fs::File)> {
     Ok((shown, tmp, file))
 }
 
+/// Write the folder `path` through `fill`, atomically: `fill` writes into a new temporary
+/// folder beside it (named as the temporary files are), which is then renamed to `path`. An
+/// existing `path` (a folder, a file or a link) is replaced only with `replace` (else an
+/// [`Error::InvalidArgument`] naming it, before anything is written); on any error the
+/// temporary folder is removed and `path` is untouched.
+pub fn write_folder<T>(path: &Path, replace: bool, fill: impl FnOnce(&Path) -> Result<T>) -> Result<T> {
+    let shown = path.display().to_string();
+    let exists = fs::symlink_metadata(path).is_ok();
+    if exists && !replace {
+        return Err(Error::arg("path", format!("{shown} exists; pass force=True (--force) to replace it")));
+    }
+    let name = path.file_name().ok_or_else(|| Error::arg("path", format!("{shown} does not name a folder")))?;
+    let parent = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    fs::create_dir_all(&parent).map_err(|e| Error::io(parent.display(), e))?;
+    sweep_stale(&parent);
+    let tmp = create_temp_dir(&parent, &name.to_string_lossy()).map_err(|e| Error::io(&shown, e))?;
+    let result = fill(&tmp).and_then(|v| {
+        let old = fs::symlink_metadata(path);
+        if let Ok(meta) = old {
+            let r = if meta.is_dir() { fs::remove_dir_all(path) } else { fs::remove_file(path) };
+            r.map_err(|e| Error::io(&shown, e))?;
+        }
+        fs::rename(&tmp, path).map_err(|e| Error::io(&shown, e))?;
+        Ok(v)
+    });
+    if result.is_err() {
+        let _ = fs::remove_dir_all(&tmp);
+    }
+    result
+}
+
+fn create_temp_dir(dir: &Path, name: &str) -> std::io::Result<PathBuf> {
+    let pid = std::process::id();
+    let mut last_err = None;
+    for _ in 0..100 {
+        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+        let tmp = dir.join(format!(".{name}.{pid}.{n}{TEMP_SUFFIX}"));
+        match fs::create_dir(&tmp) {
+            Ok(()) => return Ok(tmp),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => last_err = Some(e),
+            Err(e) => return Err(e),
+        }
+    }
+    Err(last_err.unwrap_or_else(|| std::io::Error::other("could not create a temporary folder")))
+}
+
+static COUNTER: AtomicU64 = AtomicU64::new(0);
+
 /// The suffix of btfrs's temporary files.
 pub const TEMP_SUFFIX: &str = ".btfrs-tmp";
 
@@ -91,7 +142,12 @@ pub fn sweep_stale(dir: &Path) {
         let name = e.file_name();
         let Some(pid) = name.to_str().and_then(temp_owner) else { continue };
         if pid != std::process::id() && !Path::new("/proc").join(pid.to_string()).exists() {
-            let _ = fs::remove_file(e.path());
+            // A folder writer's temporary folder ([`write_folder`]) or a file.
+            if e.file_type().is_ok_and(|t| t.is_dir()) {
+                let _ = fs::remove_dir_all(e.path());
+            } else {
+                let _ = fs::remove_file(e.path());
+            }
         }
     }
 }
@@ -99,7 +155,6 @@ pub fn sweep_stale(dir: &Path) {
 /// Create a new, uniquely named temporary file next to the target. `create_new` makes sure we
 /// never truncate somebody else's file; a name clash just moves on to the next name.
 fn create_temp(dir: &Path, name: &str) -> std::io::Result<(PathBuf, fs::File)> {
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
     let pid = std::process::id();
     let mut last_err = None;
     for _ in 0..100 {

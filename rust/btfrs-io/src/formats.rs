@@ -3,11 +3,12 @@
 //! names the formats it exports ([`btfrs_fit::Model::EXPORTS`]); the bindings, `btfrs.load`,
 //! `model.export(...)` and the CLI go through this table and never name a model.
 
-use btfrs_core::{Error, Result};
+use btfrs_core::{Error, Monitor, Result};
 use btfrs_fit::DynModel;
 use std::path::Path;
 
 use crate::capture::Limits;
+use crate::deepzoom::Tiling;
 use crate::untrusted::{self, TextKind};
 
 /// What reading another tool's file gives: the model, and one warning per kind of value the
@@ -47,7 +48,14 @@ pub struct Format {
     /// Read a file of this format as a one-slot model (view = the normal), within `limits`
     /// (`max_bytes`: the most bytes the reader allocates, its index file's parse included).
     pub import: fn(&Path, &Limits) -> Result<Imported>,
+    /// Write view slot `view` of a model as this format's tiled, multi-resolution layout (Deep
+    /// Zoom pyramids of its images, [`crate::deepzoom`]) into the folder given, which exists and
+    /// is empty; `None` for a format without one. The same `import` reads it back.
+    pub tiles: Option<TiledWriter>,
 }
+
+/// A format's writer of its tiled layout (see [`Format::tiles`]).
+pub type TiledWriter = fn(&dyn DynModel, usize, &Path, &Tiling, &Monitor) -> Result<serde_json::Value>;
 
 /// Every format, in the order `btfrs.load` tries extensions.
 /// relight's folder comes before NeuralRTI's: both are an `info.json`, and relight's reader
@@ -116,6 +124,42 @@ pub fn export(model: &dyn DynModel, format: &str, view: usize, path: &Path, forc
         }
     }
     (f.export)(model, view, path)
+}
+
+/// Write view slot `view` of `model` as `format`'s tiled layout (a folder: every image a Deep
+/// Zoom pyramid, [`crate::deepzoom`]), atomically: into a temporary folder beside `path`, then
+/// renamed. An existing `path` is an error naming it unless `force` (then it is replaced
+/// whole). `monitor` counts the tiles written and stops the work when cancelled.
+pub fn export_tiled(
+    model: &dyn DynModel,
+    format: &str,
+    view: usize,
+    path: &Path,
+    force: bool,
+    tiling: &Tiling,
+    monitor: &Monitor,
+) -> Result<serde_json::Value> {
+    let f = lookup(format)?;
+    let exports = btfrs_fit::registry::lookup(model.kind())?.exports;
+    if !exports.contains(&f.name) {
+        let list: Vec<String> = exports.iter().map(|e| format!("{e:?}")).collect();
+        let can = if list.is_empty() { "none".to_string() } else { list.join(", ") };
+        return Err(Error::arg(
+            "format",
+            format!("the {} model cannot be written as {format:?} (its formats: {can})", model.kind()),
+        ));
+    }
+    let write = f.tiles.ok_or_else(|| {
+        let tiled: Vec<String> =
+            FORMATS.iter().filter(|f| f.tiles.is_some()).map(|f| format!("{:?}", f.name)).collect();
+        Error::arg(
+            "tiles",
+            format!("the {format:?} format has no tiled layout (those that have: {})", tiled.join(", ")),
+        )
+    })?;
+    tiling.validate()?;
+    let dir = f.folder_of(path);
+    crate::atomic::write_folder(&dir, force, |tmp| write(model, view, tmp, tiling, monitor))
 }
 
 impl Format {

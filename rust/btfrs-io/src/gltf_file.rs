@@ -61,6 +61,7 @@ pub const FORMAT: Format = Format {
     index: INDEX,
     export: export_model,
     import: import_model,
+    tiles: None,
 };
 
 /// The index file.

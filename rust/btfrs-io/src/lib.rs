@@ -8,6 +8,7 @@
 //! * [`mitsuba_file`]: Mitsuba 3 scenes (XML + EXR maps) of `svbrdf` models, its BSDFs matching the model's lobe exactly.
 //! * [`rti_file`]: `.rti` hemispherical-harmonics files (`#HSH1.2`, RTI type 3), relight's reading.
 //! * [`image`]: PNG and OpenEXR images (rendered or measured), multi-channel EXR coefficient maps.
+//! * [`deepzoom`]: Deep Zoom tile pyramids (`.dzi` + `_files/`) as relight writes and OpenLIME reads them.
 //! * [`decode`]: photographs (JPEG, PNG, TIFF; 8 or 16 bit) and EXR decoded to linear RGB.
 //! * [`stack`]: image stacks (folder or zip) decoded in parallel into the texel-major layout; CSV/JSON direction tables.
 //! * [`ubo2003`]: Bonn UBO2003 / ATRIUM archives (angles in the file names).
@@ -22,6 +23,7 @@ pub mod atomic;
 pub mod capture;
 pub mod container;
 pub mod decode;
+pub mod deepzoom;
 pub mod formats;
 pub mod gltf_file;
 pub mod image;

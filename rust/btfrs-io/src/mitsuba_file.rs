@@ -55,6 +55,7 @@ pub const FORMAT: Format = Format {
     index: INDEX,
     export: export_model,
     import: import_model,
+    tiles: None,
 };
 
 /// The index file.

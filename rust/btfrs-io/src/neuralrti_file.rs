@@ -21,9 +21,11 @@
 
 use crate::atomic::write_atomic;
 use crate::capture::Limits;
+use crate::deepzoom::Tiling;
 use crate::formats::{concrete, read_index, Format, Imported};
+use crate::relight_file::Layout;
 use crate::untrusted;
-use btfrs_core::{Error, Result};
+use btfrs_core::{Error, Monitor, Result};
 use btfrs_fit::neural::decoder::{Activation, Decoder, Directions, Shape};
 use btfrs_fit::neural::Neural;
 use btfrs_fit::planes::Planes;
@@ -40,6 +42,7 @@ pub const FORMAT: Format = Format {
     index: "info.json",
     export: export_model,
     import: import_model,
+    tiles: Some(export_tiles),
 };
 
 /// Latents OpenLIME reads (three images of three channels).
@@ -73,8 +76,25 @@ fn export_model(model: &dyn DynModel, view: usize, path: &Path) -> Result<Value>
     export(m, path)
 }
 
+/// The tiled layout: `plane_1.dzi` to `plane_3.dzi` with their `_files/` pyramids, as
+/// OpenLIME's neural layer reads with its `deepzoom` layout.
+fn export_tiles(model: &dyn DynModel, view: usize, path: &Path, tiling: &Tiling, monitor: &Monitor) -> Result<Value> {
+    let m: &Neural = concrete(model, "a neural model")?;
+    if view != 0 {
+        return Err(Error::arg(
+            "view",
+            format!("a neural model has one decoder for every view; expected view 0, got {view}"),
+        ));
+    }
+    export_layout(m, path, Layout::Tiles(tiling, monitor))
+}
+
 /// Write `m` to folder `path` (created if missing); returns `{"min", "max", "files"}`.
 pub fn export(m: &Neural, path: &Path) -> Result<Value> {
+    export_layout(m, path, Layout::Planes)
+}
+
+fn export_layout(m: &Neural, path: &Path, layout: Layout<'_>) -> Result<Value> {
     let dec = m.decoder();
     let sh = dec.shape;
     let why = if sh.directions != Directions::Light {
@@ -150,6 +170,7 @@ pub fn export(m: &Neural, path: &Path) -> Result<Value> {
     }
     let texels = height * width;
     let mut files = Vec::new();
+    layout.start(LATENTS / 3, width, height)?;
     for img in 0..LATENTS / 3 {
         // Latents 3 img + 0, 1, 2 in the image's blue, green and red channels.
         let mut rgb = vec![0u8; texels * 3];
@@ -160,14 +181,10 @@ pub fn export(m: &Neural, path: &Path) -> Result<Value> {
                 }
             }
         }
-        for ext in ["png", "jpg"] {
-            let name = format!("plane_{}.{ext}", img + 1);
-            let target = dir.join(&name);
-            write_atomic(&target, |w| crate::image::encode_rgb8(w, &rgb, width, height, ext, QUALITY))?;
-            files.push(name);
-        }
+        files.extend(layout.write_image(&dir, &format!("plane_{}", img + 1), &rgb, width, height, QUALITY)?);
     }
-    let info = json!({
+    let tiles = layout.fields(width, height);
+    let mut info = json!({
         "type": "neural",
         "width": width,
         "height": height,
@@ -186,6 +203,10 @@ pub fn export(m: &Neural, path: &Path) -> Result<Value> {
             "hidden": h,
         },
     });
+    if let Some((format, t)) = tiles {
+        info["format"] = format;
+        info["btfrs"]["tiles"] = t;
+    }
     let text = serde_json::to_string(&info).map_err(|e| Error::Numerical(format!("info.json: {e}")))?;
     // info.json last: a reader that finds it finds every plane.
     write_atomic(&dir.join("info.json"), |w| w.write_all(text.as_bytes()))?;
@@ -209,11 +230,19 @@ pub fn import_within(path: &Path, limits: &Limits) -> Result<Neural> {
     let (dir, shown, text) = read_index(path, "info.json", untrusted::JSON_INDEX, limits.max_bytes)?;
     let info = untrusted::parse_json(&text, &shown)?;
     drop(text);
-    from_info(&dir, &shown, &info, limits)
+    from_info(&dir, &shown, &info, limits, None)
 }
 
-/// The model of a NeuralRTI folder `dir` whose `info.json` (`shown`) holds `info`.
-pub(crate) fn from_info(dir: &Path, shown: &str, info: &Value, limits: &Limits) -> Result<Neural> {
+/// The model of a NeuralRTI folder `dir` whose `info.json` (`shown`) holds `info`; with
+/// `given`, of those plane bytes instead of the folder's images (in the images' channel order,
+/// before the colour space's swizzle).
+pub(crate) fn from_info(
+    dir: &Path,
+    shown: &str,
+    info: &Value,
+    limits: &Limits,
+    given: Option<crate::relight_file::Given>,
+) -> Result<Neural> {
     let bad = |what: &str, msg: String| Error::format(shown, format!("{what}: {msg}"));
     if info["type"].as_str() != Some("neural") {
         return Err(bad("type", format!("expected \"neural\", got {}", info["type"])));
@@ -225,7 +254,10 @@ pub(crate) fn from_info(dir: &Path, shown: &str, info: &Value, limits: &Limits) 
             .map(|v| v as usize)
             .ok_or_else(|| bad(key, format!("expected a size in 1..={MAX_SIDE}, got {}", info[key])))
     };
-    let (width, height) = (dim("width")?, dim("height")?);
+    let (width, height) = match &given {
+        Some((w, h, _)) => (*w, *h),
+        None => (dim("width")?, dim("height")?),
+    };
     let k = dim("planes")?;
     if k != LATENTS {
         return Err(bad("planes", format!("expected {LATENTS} latents (three images), got {k}")));
@@ -328,34 +360,55 @@ pub(crate) fn from_info(dir: &Path, shown: &str, info: &Value, limits: &Limits) 
     let decoder = Decoder::new(shape, p, shown)?;
     // Planes: image i's channels (after the swizzle) are latents 3i, 3i+1, 3i+2. Their sizes
     // (headers) and the model's memory are checked before the planes are allocated.
-    let files = (0..k / 3)
-        .map(|img| {
-            untrusted::first_present(
-                [1 + img, img].iter().flat_map(|i| ["png", "jpg"].map(|e| dir.join(format!("plane_{i}.{e}")))),
-            )
-            .ok_or_else(|| bad("planes", format!("no plane_{}.png or .jpg beside it", img + 1)))
-        })
-        .collect::<Result<Vec<_>>>()?;
     let texels = width * height;
-    let need =
-        (texels as u64).checked_mul(k as u64).and_then(|n| n.checked_mul(crate::relight_file::BYTES_PER_PLANE_TEXEL));
-    untrusted::check_declared(
-        shown,
-        &format!(
-            "a {width} x {height} model of {k} latents ({} bytes per latent and texel)",
-            crate::relight_file::BYTES_PER_PLANE_TEXEL
-        ),
-        need,
-        limits.max_bytes,
-    )?;
-    untrusted::check_image_sizes(&files, width, height, "info.json")?;
-    let mut q = vec![0u8; texels * k];
-    for (img, file) in files.iter().enumerate() {
-        let rgb = untrusted::read_rgb8(file, width, height, limits.max_bytes)?;
+    // Allocated at the first image: read_images checks every image's size before that.
+    let mut q = Vec::new();
+    let mut put = |img: usize, rgb: &[u8]| {
+        if q.is_empty() {
+            q = vec![0u8; texels * k];
+        }
         for (t, px) in rgb.chunks_exact(3).enumerate() {
             for (j, &c) in swizzle.iter().enumerate() {
                 q[t * k + 3 * img + j] = px[c];
             }
+        }
+    };
+    match given {
+        Some((_, _, g)) => {
+            if g.len() != texels * k {
+                return Err(Error::arg(
+                    "planes",
+                    format!("expected {} bytes ({width} x {height} x {k}), got {}", texels * k, g.len()),
+                ));
+            }
+            for img in 0..k / 3 {
+                let rgb: Vec<u8> = g.chunks_exact(k).flat_map(|t| t[3 * img..3 * img + 3].to_vec()).collect();
+                put(img, &rgb);
+            }
+        }
+        None => {
+            let sources = (0..k / 3)
+                .map(|img| {
+                    [1 + img, img]
+                        .iter()
+                        .find_map(|i| crate::relight_file::find_image(dir, &format!("plane_{i}")))
+                        .ok_or_else(|| bad("planes", format!("no plane_{}.png, .jpg or .dzi beside it", img + 1)))
+                })
+                .collect::<Result<Vec<_>>>()?;
+            let need = (texels as u64)
+                .checked_mul(k as u64)
+                .and_then(|n| n.checked_mul(crate::relight_file::BYTES_PER_PLANE_TEXEL));
+            untrusted::check_declared(
+                shown,
+                &format!(
+                    "a {width} x {height} model of {k} latents ({} bytes per latent and texel)",
+                    crate::relight_file::BYTES_PER_PLANE_TEXEL
+                ),
+                need,
+                limits.max_bytes,
+            )?;
+            let levels = crate::relight_file::declared_levels(info, shown)?;
+            crate::relight_file::read_images(dir, &sources, width, height, levels, shown, limits.max_bytes, put)?;
         }
     }
     let scale: Vec<f32> = (0..k).map(|i| ((max[i] - min[i]) / 255.0) as f32).collect();

@@ -975,6 +975,7 @@ pub const FORMAT: crate::formats::Format = crate::formats::Format {
     index: "",
     export: export_model,
     import: import_model,
+    tiles: None,
 };
 
 /// Write one view slot of a PTM as a `.ptm` file: `{"scale": [..], "bias": [..]}` per

@@ -61,16 +61,18 @@
 
 use std::path::{Path, PathBuf};
 
-use btfrs_core::{Error, Result};
+use btfrs_core::{Error, Monitor, Result};
 use btfrs_fit::hsh::HshSlot;
 use btfrs_fit::light_pca::{Colour, LightPca, MAX_COMPONENTS, MAX_RESOLUTION};
 use btfrs_fit::lightfit::Coeffs;
 use btfrs_fit::planes::Planes;
 use btfrs_fit::{Bilinear, DynModel, Hsh, Ptm, PtmKind, PtmPlanes, PtmSlot, Rbf};
+use rayon::prelude::*;
 use serde_json::{json, Value};
 
 use crate::atomic::write_atomic;
 use crate::capture::Limits;
+use crate::deepzoom::{self, Tiling};
 use crate::formats::{concrete, read_index, Imported};
 use crate::untrusted;
 
@@ -83,6 +85,7 @@ pub const FORMAT: crate::formats::Format = crate::formats::Format {
     index: "info.json",
     export: export_model,
     import: import_model,
+    tiles: Some(export_tiles),
 };
 
 /// JPEG quality of the planes (relight's default is 95; the planes are data, not pictures).
@@ -108,6 +111,86 @@ fn folder(path: &Path) -> PathBuf {
 }
 
 // --- export ----------------------------------------------------------------------------------
+
+/// How a folder's images are written: whole (JPEG, with lossless PNG copies), or as Deep Zoom
+/// pyramids ([`crate::deepzoom`]) in one format, the tiles counted on the monitor.
+#[derive(Clone, Copy)]
+pub(crate) enum Layout<'a> {
+    Planes,
+    Tiles(&'a Tiling, &'a Monitor),
+}
+
+impl Layout<'_> {
+    /// Write one RGB image named `name` (without extension) into `dir` in this layout; the
+    /// files written.
+    pub(crate) fn write_image(
+        &self,
+        dir: &Path,
+        name: &str,
+        rgb: &[u8],
+        width: usize,
+        height: usize,
+        quality: u8,
+    ) -> Result<Vec<String>> {
+        match self {
+            Layout::Planes => ["jpg", "png"]
+                .into_iter()
+                .map(|ext| {
+                    let file = format!("{name}.{ext}");
+                    write_atomic(&dir.join(&file), |w| crate::image::encode_rgb8(w, rgb, width, height, ext, quality))?;
+                    Ok(file)
+                })
+                .collect(),
+            Layout::Tiles(t, m) => {
+                deepzoom::write_image(dir, name, rgb, width, height, t, m)?;
+                Ok(vec![format!("{name}.dzi")])
+            }
+        }
+    }
+
+    /// The JPEG quality the images are written with (`whole`: the whole images').
+    pub(crate) fn quality(&self, whole: u8) -> u8 {
+        match self {
+            Layout::Planes => whole,
+            Layout::Tiles(t, _) => t.quality,
+        }
+    }
+
+    /// Count the tiles of `images` images of `width x height` on the monitor (tiles only).
+    pub(crate) fn start(&self, images: usize, width: usize, height: usize) -> Result<()> {
+        if let Layout::Tiles(t, m) = self {
+            let n = deepzoom::Pyramid::new(width, height, t.tile_size, t.overlap)?.tiles().len();
+            m.start((n * images) as u64);
+        }
+        Ok(())
+    }
+
+    /// The fields `info.json` gets for this layout: the tiles' `format`, and btfrs's note of
+    /// the pyramid (`{"layout", "tilesize", "overlap", "levels"}`), which the reader checks.
+    pub(crate) fn fields(&self, width: usize, height: usize) -> Option<(Value, Value)> {
+        match self {
+            Layout::Planes => None,
+            Layout::Tiles(t, _) => Some((
+                json!(t.format),
+                json!({"layout": "deepzoom", "tilesize": t.tile_size, "overlap": t.overlap,
+                       "levels": deepzoom::level_count(width, height, t.tile_size)}),
+            )),
+        }
+    }
+}
+
+/// The level count an `info.json` declares for its pyramids (btfrs's `btfrs.tiles.levels`),
+/// if it declares one.
+pub(crate) fn declared_levels(info: &Value, shown: &str) -> Result<Option<usize>> {
+    let v = &info["btfrs"]["tiles"]["levels"];
+    if v.is_null() {
+        return Ok(None);
+    }
+    v.as_u64()
+        .filter(|n| (1..=32).contains(n))
+        .map(|n| Some(n as usize))
+        .ok_or_else(|| bad(shown, "btfrs.tiles.levels", format!("expected a level count in 1..=32, got {v}")))
+}
 
 /// What a folder holds before it is written: relight's plane bytes (texel-major, `nplanes`
 /// per texel), per-plane scale and bias in relight's form, and the other `info.json` fields.
@@ -135,11 +218,6 @@ fn relight_plane(scale: f32, bias: f32, bytes: &mut [u8]) -> (f64, f64) {
     }
 }
 
-/// Gather plane `src` of `planes` (texel-major) for every texel.
-fn column(planes: &Planes, src: usize) -> Vec<u8> {
-    (0..planes.texels).map(|t| planes.q[t * planes.k + src]).collect()
-}
-
 impl Web {
     fn new(width: usize, height: usize, nplanes: usize) -> Web {
         Web {
@@ -153,11 +231,26 @@ impl Web {
         }
     }
 
-    /// Set relight plane `p` from btfrs plane `src` of `planes`.
-    fn put(&mut self, p: usize, planes: &Planes, src: usize) {
-        let mut bytes = column(planes, src);
-        let (s, b) = relight_plane(planes.scale[src], planes.bias[src], &mut bytes);
-        self.put_bytes(p, &bytes, s, b);
+    /// Set relight planes from btfrs planes of `planes`: `pairs` of (relight plane, btfrs
+    /// plane), in one pass over the texels (in parallel; per texel, its bytes are together in
+    /// both layouts).
+    fn put(&mut self, planes: &Planes, pairs: &[(usize, usize)]) {
+        let mut constant = vec![false; pairs.len()];
+        for (i, &(p, src)) in pairs.iter().enumerate() {
+            let mut none: [u8; 0] = [];
+            let (s, b) = relight_plane(planes.scale[src], planes.bias[src], &mut none);
+            self.scale[p] = s;
+            self.bias[p] = b;
+            constant[i] = planes.scale[src] == 0.0;
+        }
+        let (n, k) = (self.nplanes, planes.k);
+        self.q.par_chunks_mut(n * 4096).zip(planes.q.par_chunks(k * 4096)).for_each(|(out, src)| {
+            for (o, s) in out.chunks_exact_mut(n).zip(src.chunks_exact(k)) {
+                for (&(p, from), &c) in pairs.iter().zip(&constant) {
+                    o[p] = if c { 255 } else { s[from] };
+                }
+            }
+        });
     }
 
     fn put_bytes(&mut self, p: usize, bytes: &[u8], scale: f64, bias: f64) {
@@ -168,37 +261,32 @@ impl Web {
         self.bias[p] = bias;
     }
 
-    /// Write the folder: planes as JPEG and PNG, then `info.json` last (atomically each).
-    fn write(mut self, path: &Path, kind: &str) -> Result<Value> {
+    /// Write the folder: the planes in `layout`, then `info.json` last (atomically each).
+    fn write(mut self, path: &Path, kind: &str, layout: Layout<'_>) -> Result<Value> {
         let dir = folder(path);
         std::fs::create_dir_all(&dir).map_err(|e| Error::io(dir.display().to_string(), e))?;
         let texels = self.width * self.height;
         let njpegs = self.nplanes.div_ceil(3);
+        layout.start(njpegs, self.width, self.height)?;
         let mut files = Vec::new();
         for i in 0..njpegs {
             let mut rgb = vec![0u8; texels * 3];
-            for t in 0..texels {
-                for c in 0..3 {
-                    if 3 * i + c < self.nplanes {
-                        rgb[t * 3 + c] = self.q[t * self.nplanes + 3 * i + c];
-                    }
+            let (n, c) = (self.nplanes, (self.nplanes - 3 * i).min(3));
+            rgb.par_chunks_mut(3 * 4096).zip(self.q.par_chunks(n * 4096)).for_each(|(out, src)| {
+                for (o, s) in out.chunks_exact_mut(3).zip(src.chunks_exact(n)) {
+                    o[..c].copy_from_slice(&s[3 * i..3 * i + c]);
                 }
-            }
-            for ext in ["jpg", "png"] {
-                let name = format!("plane_{i}.{ext}");
-                write_atomic(&dir.join(&name), |w| {
-                    crate::image::encode_rgb8(w, &rgb, self.width, self.height, ext, QUALITY)
-                })?;
-                files.push(name);
-            }
+            });
+            files.extend(layout.write_image(&dir, &format!("plane_{i}"), &rgb, self.width, self.height, QUALITY)?);
         }
+        let tiles = layout.fields(self.width, self.height);
         let mut info = serde_json::Map::new();
         info.insert("width".into(), json!(self.width));
         info.insert("height".into(), json!(self.height));
-        info.insert("format".into(), json!("jpg"));
+        info.insert("format".into(), tiles.as_ref().map_or(json!("jpg"), |t| t.0.clone()));
         info.append(&mut self.fields);
         info.insert("nplanes".into(), json!(self.nplanes));
-        info.insert("quality".into(), json!(QUALITY));
+        info.insert("quality".into(), json!(layout.quality(QUALITY)));
         let mut material = serde_json::Map::new();
         if let Some(range) = info.remove("range") {
             material.insert("range".into(), range);
@@ -206,10 +294,11 @@ impl Web {
         material.insert("scale".into(), json!(self.scale));
         material.insert("bias".into(), json!(self.bias));
         info.insert("materials".into(), json!([material]));
-        info.insert(
-            "btfrs".into(),
-            json!({"model": kind, "values": "btfrs units x 255 = relight's (the 8-bit display value)"}),
-        );
+        let mut note = json!({"model": kind, "values": "btfrs units x 255 = relight's (the 8-bit display value)"});
+        if let Some((_, t)) = tiles {
+            note["tiles"] = t;
+        }
+        info.insert("btfrs".into(), note);
         // Compact: the basis alone can hold tens of thousands of numbers.
         let text = serde_json::to_string(&Value::Object(info)).map_err(|e| Error::arg("model", e))?;
         write_atomic(&dir.join("info.json"), |w| w.write_all(text.as_bytes()))?;
@@ -219,33 +308,44 @@ impl Web {
 }
 
 fn export_model(model: &dyn DynModel, view: usize, path: &Path) -> Result<Value> {
+    export_with(model, view, path, Layout::Planes)
+}
+
+/// The tiled layout: every plane image a Deep Zoom pyramid (`plane_0.dzi` + `plane_0_files/`),
+/// as OpenLIME's RTI layer reads with its `deepzoom` layout.
+fn export_tiles(model: &dyn DynModel, view: usize, path: &Path, tiling: &Tiling, monitor: &Monitor) -> Result<Value> {
+    export_with(model, view, path, Layout::Tiles(tiling, monitor))
+}
+
+fn export_with(model: &dyn DynModel, view: usize, path: &Path, layout: Layout<'_>) -> Result<Value> {
     match model.kind() {
-        "ptm" => export_ptm(concrete::<Ptm>(model, "a PTM")?, view, path),
-        "hsh" => export_hsh(concrete::<Hsh>(model, "an HSH model")?, view, path),
-        "rbf" => export_pca(&concrete::<Rbf>(model, "an RBF model")?.0, view, path, "rbf"),
-        "bilinear" => export_pca(&concrete::<Bilinear>(model, "a bilinear model")?.0, view, path, "bilinear"),
+        "ptm" => export_ptm(concrete::<Ptm>(model, "a PTM")?, view, path, layout),
+        "hsh" => export_hsh(concrete::<Hsh>(model, "an HSH model")?, view, path, layout),
+        "rbf" => export_pca(&concrete::<Rbf>(model, "an RBF model")?.0, view, path, "rbf", layout),
+        "bilinear" => export_pca(&concrete::<Bilinear>(model, "a bilinear model")?.0, view, path, "bilinear", layout),
         other => Err(Error::arg("format", format!("relight's web format holds no {other} model"))),
     }
 }
 
-fn export_ptm(m: &Ptm, view: usize, path: &Path) -> Result<Value> {
+fn export_ptm(m: &Ptm, view: usize, path: &Path, layout: Layout<'_>) -> Result<Value> {
     let slot = m.slot(view)?;
     let texels = slot.width * slot.height;
     let planes = match &slot.planes {
-        Some(p) => p.clone(),
-        None => PtmPlanes {
+        Some(p) => std::borrow::Cow::Borrowed(p),
+        None => std::borrow::Cow::Owned(PtmPlanes {
             coeffs: Planes::quantize(&slot.coeffs, slot.coeffs.len() / texels)?,
             rgb: slot.rgb.as_ref().map(|r| Planes::quantize(r, 3)).transpose()?,
-        },
+        }),
     };
     let mut web = match slot.kind {
         PtmKind::Rgb => {
             let mut web = Web::new(slot.width, slot.height, 18);
-            for (j, &ours) in PTM_ORDER.iter().enumerate() {
-                for c in 0..3 {
-                    web.put(3 * j + c, &planes.coeffs, c * 6 + ours);
-                }
-            }
+            let pairs: Vec<(usize, usize)> = PTM_ORDER
+                .iter()
+                .enumerate()
+                .flat_map(|(j, &ours)| (0..3).map(move |c| (3 * j + c, c * 6 + ours)))
+                .collect();
+            web.put(&planes.coeffs, &pairs);
             web.fields.insert("colorspace".into(), json!("rgb"));
             web
         }
@@ -259,18 +359,17 @@ fn export_ptm(m: &Ptm, view: usize, path: &Path) -> Result<Value> {
                     (0..texels).map(|t| (f64::from(rgb[t * 3 + c]) * 255.0).round().clamp(0.0, 255.0) as u8).collect();
                 web.put_bytes(c, &bytes, 1.0, 0.0);
             }
-            for (j, &ours) in PTM_ORDER.iter().enumerate() {
-                web.put(3 + j, &planes.coeffs, ours);
-            }
+            let pairs: Vec<(usize, usize)> = PTM_ORDER.iter().enumerate().map(|(j, &ours)| (3 + j, ours)).collect();
+            web.put(&planes.coeffs, &pairs);
             web.fields.insert("colorspace".into(), json!("lrgb"));
             web
         }
     };
     web.fields.insert("type".into(), json!("ptm"));
-    web.write(path, "ptm")
+    web.write(path, "ptm", layout)
 }
 
-fn export_hsh(m: &Hsh, view: usize, path: &Path) -> Result<Value> {
+fn export_hsh(m: &Hsh, view: usize, path: &Path, layout: Layout<'_>) -> Result<Value> {
     let slot = m.slot(view)?;
     if slot.order > 3 {
         return Err(Error::arg(
@@ -280,18 +379,15 @@ fn export_hsh(m: &Hsh, view: usize, path: &Path) -> Result<Value> {
     }
     let n2 = slot.order * slot.order;
     let planes = match &slot.coeffs.planes {
-        Some(p) => p.clone(),
-        None => Planes::quantize(&slot.coeffs.values, 3 * n2)?,
+        Some(p) => std::borrow::Cow::Borrowed(p),
+        None => std::borrow::Cow::Owned(Planes::quantize(&slot.coeffs.values, 3 * n2)?),
     };
     let mut web = Web::new(slot.width, slot.height, 3 * n2);
-    for j in 0..n2 {
-        for c in 0..3 {
-            web.put(3 * j + c, &planes, c * n2 + j);
-        }
-    }
+    let pairs: Vec<(usize, usize)> = (0..n2).flat_map(|j| (0..3).map(move |c| (3 * j + c, c * n2 + j))).collect();
+    web.put(&planes, &pairs);
     web.fields.insert("type".into(), json!("hsh"));
     web.fields.insert("colorspace".into(), json!("rgb"));
-    web.write(path, "hsh")
+    web.write(path, "hsh", layout)
 }
 
 /// The hemisphere direction of point `(x, y)` of relight's rotated octahedral square
@@ -332,7 +428,7 @@ fn rgb_row(m: &LightPca, v: usize, l: [f64; 3]) -> Vec<f64> {
     out
 }
 
-fn export_pca(m: &LightPca, view: usize, path: &Path, kind: &str) -> Result<Value> {
+fn export_pca(m: &LightPca, view: usize, path: &Path, kind: &str, layout: Layout<'_>) -> Result<Value> {
     let nv = m.views.len();
     if view >= nv {
         return Err(Error::arg("view", format!("expected a view slot index in [0, {nv}), got {view}")));
@@ -368,15 +464,14 @@ fn export_pca(m: &LightPca, view: usize, path: &Path, kind: &str) -> Result<Valu
         }
     }
     let mut web = Web::new(m.width, m.height, k);
-    for p in 0..k {
-        web.put(p, &m.planes, view * k + p);
-    }
+    let pairs: Vec<(usize, usize)> = (0..k).map(|p| (p, view * k + p)).collect();
+    web.put(&m.planes, &pairs);
     web.fields.insert("type".into(), json!("bilinear"));
     web.fields.insert("resolution".into(), json!(res));
     web.fields.insert("colorspace".into(), json!("mrgb"));
     web.fields.insert("basis".into(), json!(basis));
     web.fields.insert("range".into(), json!(range));
-    let mut out = web.write(path, kind)?;
+    let mut out = web.write(path, kind, layout)?;
     out["resolution"] = json!(res);
     Ok(out)
 }
@@ -388,9 +483,88 @@ fn import_model(path: &Path, limits: &Limits) -> Result<Imported> {
     let info = untrusted::parse_json(&text, &shown)?;
     drop(text);
     if info["type"].as_str() == Some("neural") {
-        return Ok(Imported::model(Box::new(crate::neuralrti_file::from_info(&dir, &shown, &info, limits)?)));
+        return Ok(Imported::model(Box::new(crate::neuralrti_file::from_info(&dir, &shown, &info, limits, None)?)));
     }
-    Ok(Imported::model(import(&dir, &info, &shown, limits)?))
+    Ok(Imported::model(import(&dir, &info, &shown, limits, None)?))
+}
+
+/// What a tiled page needs of a relight or NeuralRTI folder's `info.json`, read through
+/// [`crate::untrusted`] and checked: its plane images and planes, its size, its `type`, and
+/// the pyramid btfrs notes (tile side and level count; 0 where the folder notes none).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FolderImages {
+    /// The plane images by name without extension (plane `p` of a texel is channel `p % 3` of
+    /// image `p / 3`, the channels as stored in the files).
+    pub images: Vec<String>,
+    /// Planes the images hold.
+    pub planes: usize,
+    /// Image width.
+    pub width: usize,
+    /// Image height.
+    pub height: usize,
+    /// `info.json`'s `type` (`""` if absent).
+    pub kind: String,
+    /// The tiles' side (`btfrs.tiles.tilesize`), 0 if not noted.
+    pub tile_size: usize,
+    /// The pyramids' level count (`btfrs.tiles.levels`), 0 if not noted.
+    pub levels: usize,
+}
+
+/// The plane images of a relight or NeuralRTI folder (`path`: the folder or its `info.json`)
+/// and the facts of its index a page needs (see [`FolderImages`]).
+pub fn plane_images(path: &Path, limits: &Limits) -> Result<FolderImages> {
+    let (_, shown, text) = read_index(path, "info.json", untrusted::JSON_INDEX, limits.max_bytes)?;
+    let info = untrusted::parse_json(&text, &shown)?;
+    drop(text);
+    let dim = |key: &str| -> Result<usize> {
+        info[key]
+            .as_u64()
+            .filter(|&v| v > 0 && v <= MAX_SIDE)
+            .map(|v| v as usize)
+            .ok_or_else(|| bad(&shown, key, format!("expected a size in 1..={MAX_SIDE}, got {}", info[key])))
+    };
+    let (width, height) = (dim("width")?, dim("height")?);
+    let kind = info["type"].as_str().unwrap_or("").to_string();
+    let levels = declared_levels(&info, &shown)?.unwrap_or(0);
+    let t = &info["btfrs"]["tiles"]["tilesize"];
+    let tile_size = if t.is_null() {
+        0
+    } else {
+        t.as_u64().filter(|n| (1..=deepzoom::MAX_TILE as u64).contains(n)).ok_or_else(|| {
+            bad(&shown, "btfrs.tiles.tilesize", format!("expected a tile side in 1..={}, got {t}", deepzoom::MAX_TILE))
+        })? as usize
+    };
+    let (images, planes) = if kind == "neural" {
+        let n = crate::neuralrti_file::LATENTS;
+        ((1..=n / 3).map(|i| format!("plane_{i}")).collect(), n)
+    } else {
+        let n = if info["colorspace"].as_str() == Some("mycc") {
+            numbers(&info, "yccplanes", &shown)?.iter().sum::<f64>() as usize
+        } else {
+            info["nplanes"].as_u64().unwrap_or(0) as usize
+        };
+        if n == 0 || n > 3 * MAX_COMPONENTS + 3 {
+            return Err(bad(&shown, "nplanes", format!("expected a plane count, got {}", info["nplanes"])));
+        }
+        ((0..n.div_ceil(3)).map(|i| format!("plane_{i}")).collect(), n)
+    };
+    Ok(FolderImages { images, planes, width, height, kind, tile_size, levels })
+}
+
+/// The model the `info.json` of a relight or NeuralRTI folder (`path`) makes with the plane
+/// bytes `q` of a `width x height` image in place of the folder's own (`q` texel-major, as
+/// [`plane_images`] orders the planes): what a page assembling the folder's tiles draws, each
+/// window of the image a model of this form.
+pub fn with_planes(path: &Path, width: usize, height: usize, q: Vec<u8>, limits: &Limits) -> Result<Box<dyn DynModel>> {
+    let (dir, shown, text) = read_index(path, "info.json", untrusted::JSON_INDEX, limits.max_bytes)?;
+    let info = untrusted::parse_json(&text, &shown)?;
+    if width == 0 || height == 0 {
+        return Err(Error::arg("planes", format!("expected a size of at least 1 x 1, got {width} x {height}")));
+    }
+    if info["type"].as_str() == Some("neural") {
+        return Ok(Box::new(crate::neuralrti_file::from_info(&dir, &shown, &info, limits, Some((width, height, q)))?));
+    }
+    import(&dir, &info, &shown, limits, Some((width, height, q)))
 }
 
 /// An `info.json` field error.
@@ -409,22 +583,78 @@ fn numbers(info: &Value, key: &str, shown: &str) -> Result<Vec<f64>> {
         .collect()
 }
 
+/// One plane image of a folder: a whole image (`plane_0.png`, `plane_0.jpg`) or a Deep Zoom
+/// pyramid (`plane_0.dzi`, its last level read).
+pub(crate) enum Source {
+    File(PathBuf),
+    Pyramid(String),
+}
+
+/// Where image `name` of `dir` is: the lossless PNG where present, else the JPEG, else the
+/// pyramid; `None` when none is.
+pub(crate) fn find_image(dir: &Path, name: &str) -> Option<Source> {
+    untrusted::first_present(["png", "jpg"].map(|e| dir.join(format!("{name}.{e}"))))
+        .map(Source::File)
+        .or_else(|| untrusted::present(&dir.join(format!("{name}.dzi"))).then(|| Source::Pyramid(name.to_string())))
+}
+
+/// The RGB bytes of images `sources` (all `width x height`), each checked as its kind is: the
+/// headers of whole images and the descriptors of pyramids first, against the declared size,
+/// before `each` is first called (so that a caller allocating for the set on its first call
+/// allocates only for a size the files have); then every tile of a pyramid
+/// ([`deepzoom::read_image`], with the level count `levels` the index file declares).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn read_images(
+    dir: &Path,
+    sources: &[Source],
+    width: usize,
+    height: usize,
+    levels: Option<usize>,
+    shown: &str,
+    max_bytes: u64,
+    mut each: impl FnMut(usize, &[u8]),
+) -> Result<()> {
+    let files: Vec<PathBuf> = sources
+        .iter()
+        .filter_map(|s| match s {
+            Source::File(p) => Some(p.clone()),
+            Source::Pyramid(_) => None,
+        })
+        .collect();
+    untrusted::check_image_sizes(&files, width, height, "info.json")?;
+    for s in sources {
+        if let Source::Pyramid(name) = s {
+            deepzoom::read_sized_dzi(dir, name, width, height, shown, max_bytes)?;
+        }
+    }
+    for (i, s) in sources.iter().enumerate() {
+        let rgb = match s {
+            Source::File(f) => untrusted::read_rgb8(f, width, height, max_bytes)?,
+            Source::Pyramid(name) => deepzoom::read_image(dir, name, width, height, levels, shown, max_bytes)?,
+        };
+        each(i, &rgb);
+    }
+    Ok(())
+}
+
 /// The folder's planes, texel-major (`nplanes` bytes per texel): `plane_N.png` where present
-/// (btfrs's lossless copies), else `plane_N.jpg`. Every image's size is read from its header
-/// and checked against `info.json`'s, and the model's memory against `max_bytes`, before the
-/// planes are allocated; each image is decoded within the budget of every image btfrs reads.
+/// (btfrs's lossless copies), else `plane_N.jpg`, else the pyramid `plane_N.dzi`. Every image's
+/// size is read from its header and checked against `info.json`'s, and the model's memory
+/// against `max_bytes`, before the planes are allocated; each image is decoded within the
+/// budget of every image btfrs reads.
 fn read_planes(
     dir: &Path,
     width: usize,
     height: usize,
     nplanes: usize,
+    levels: Option<usize>,
     shown: &str,
     max_bytes: u64,
 ) -> Result<Vec<u8>> {
-    let files = (0..nplanes.div_ceil(3))
+    let sources = (0..nplanes.div_ceil(3))
         .map(|i| {
-            untrusted::first_present(["png", "jpg"].map(|e| dir.join(format!("plane_{i}.{e}"))))
-                .ok_or_else(|| bad(shown, "planes", format!("no plane_{i}.jpg (or .png) beside it")))
+            find_image(dir, &format!("plane_{i}"))
+                .ok_or_else(|| bad(shown, "planes", format!("no plane_{i}.jpg (or .png, or .dzi) beside it")))
         })
         .collect::<Result<Vec<_>>>()?;
     let texels = width * height;
@@ -435,10 +665,12 @@ fn read_planes(
         need,
         max_bytes,
     )?;
-    untrusted::check_image_sizes(&files, width, height, "info.json")?;
-    let mut q = vec![0u8; texels * nplanes];
-    for (i, file) in files.iter().enumerate() {
-        let rgb = untrusted::read_rgb8(file, width, height, max_bytes)?;
+    // Allocated at the first image, once read_images has checked every image's size.
+    let mut q = Vec::new();
+    read_images(dir, &sources, width, height, levels, shown, max_bytes, |i, rgb| {
+        if q.is_empty() {
+            q = vec![0u8; texels * nplanes];
+        }
         for (t, px) in rgb.chunks_exact(3).enumerate() {
             for c in 0..3 {
                 if 3 * i + c < nplanes {
@@ -446,7 +678,7 @@ fn read_planes(
                 }
             }
         }
-    }
+    })?;
     Ok(q)
 }
 
@@ -474,7 +706,11 @@ fn reorder(src: &[u8], texels: usize, k_in: usize, from: &[usize]) -> Vec<u8> {
     out
 }
 
-fn import(dir: &Path, info: &Value, shown: &str, limits: &Limits) -> Result<Box<dyn DynModel>> {
+/// Plane bytes given in place of a folder's own: `(width, height, q)`, `q` texel-major with the
+/// planes in the images' order (plane `p` = channel `p % 3` of image `p / 3`).
+pub(crate) type Given = (usize, usize, Vec<u8>);
+
+fn import(dir: &Path, info: &Value, shown: &str, limits: &Limits, given: Option<Given>) -> Result<Box<dyn DynModel>> {
     let dim = |key: &str| -> Result<usize> {
         info[key]
             .as_u64()
@@ -482,7 +718,10 @@ fn import(dir: &Path, info: &Value, shown: &str, limits: &Limits) -> Result<Box<
             .map(|v| v as usize)
             .ok_or_else(|| bad(shown, key, format!("expected a size in 1..={MAX_SIDE}, got {}", info[key])))
     };
-    let (width, height) = (dim("width")?, dim("height")?);
+    let (width, height) = match &given {
+        Some((w, h, _)) => (*w, *h),
+        None => (dim("width")?, dim("height")?),
+    };
     let texels = width * height;
     let kind = info["type"].as_str().unwrap_or("");
     let space = info["colorspace"].as_str().unwrap_or("");
@@ -530,7 +769,16 @@ fn import(dir: &Path, info: &Value, shown: &str, limits: &Limits) -> Result<Box<
             ))
         }
     }
-    let q = read_planes(dir, width, height, nplanes, shown, limits.max_bytes)?;
+    let q = match given {
+        Some((_, _, q)) if q.len() == texels * nplanes => q,
+        Some((_, _, q)) => {
+            return Err(Error::arg(
+                "planes",
+                format!("expected {} bytes ({width} x {height} x {nplanes}), got {}", texels * nplanes, q.len()),
+            ))
+        }
+        None => read_planes(dir, width, height, nplanes, declared_levels(info, shown)?, shown, limits.max_bytes)?,
+    };
     match combo {
         ("ptm", "rgb") => {
             // btfrs plane c * 6 + ours <- relight plane 3 j + c.

@@ -352,6 +352,7 @@ pub const FORMAT: crate::formats::Format = crate::formats::Format {
     index: "",
     export: export_model,
     import: import_model,
+    tiles: None,
 };
 
 /// Write one view slot of an HSH model as a `.rti` HSH file (relight's scale/bias reading):

@@ -160,3 +160,28 @@ fn a_scene_with_many_attributes_or_deep_nesting_is_refused_by_count() {
     let (msg, _) = refused("scene.xml", || formats::import(&index, &limits(1 << 30)));
     assert!(msg.contains("more than 262144 XML nodes"), "{msg}");
 }
+
+#[test]
+fn a_tiled_folder_declaring_32768_squared_is_refused_before_allocating() {
+    // The same with every plane image a Deep Zoom pyramid of 8 x 8 pixels: its descriptor's
+    // size is checked against info.json's before the planes are allocated.
+    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    let rgb = vec![100u8; 8 * 8 * 3];
+    let tiling = btfrs_io::deepzoom::Tiling { format: "png".into(), ..Default::default() };
+    for i in 0..1 {
+        btfrs_io::deepzoom::write_image(dir.path(), &format!("plane_{i}"), &rgb, 8, 8, &tiling, &Default::default())
+            .unwrap();
+    }
+    let info = |side: u32| {
+        json!({"width": side, "height": side, "type": "hsh", "colorspace": "rgb", "nplanes": 3,
+               "materials": [{"scale": vec![1.0; 3], "bias": vec![0.0; 3]}]})
+    };
+    let index = dir.path().join("info.json");
+    std::fs::write(&index, info(32768).to_string()).unwrap();
+    let (msg, largest) = refused("plane_0.dzi", || formats::import(&index, &limits(64 << 30)));
+    assert_eq!(msg, format!("Size is 8 x 8; {} declares 32768 x 32768", index.display()));
+    assert!(largest < 1 << 20, "largest allocation {largest} bytes");
+    std::fs::write(&index, info(8).to_string()).unwrap();
+    assert_eq!(formats::import(&index, &limits(1 << 30)).unwrap().model.kind(), "hsh");
+}

@@ -116,6 +116,59 @@ pub fn export_model(
     Ok(detach(py, || formats::export(model.inner.as_ref(), format, view, &path, force))?.to_string())
 }
 
+/// Write view slot `view` of a model as a format's tiled layout (Deep Zoom pyramids of its
+/// images) into the folder `path`, atomically (a temporary folder renamed); `progress(done,
+/// total)` counts tiles. Returns the writer's JSON.
+#[pyfunction]
+#[pyo3(signature = (path, model, format, view, force, tile_size, overlap, tile_format, quality, progress=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn export_tiled(
+    py: Python<'_>,
+    path: PathBuf,
+    model: &PyModel,
+    format: &str,
+    view: usize,
+    force: bool,
+    tile_size: usize,
+    overlap: usize,
+    tile_format: &str,
+    quality: u8,
+    progress: Option<Bound<'_, PyAny>>,
+) -> PyResult<String> {
+    let tiling = btfrs_io::deepzoom::Tiling { tile_size, overlap, format: tile_format.to_string(), quality };
+    let out = crate::run::monitored(py, progress.as_ref(), |m| {
+        formats::export_tiled(model.inner.as_ref(), format, view, &path, force, &tiling, m)
+    })?;
+    Ok(out.to_string())
+}
+
+/// The plane images of a relight or NeuralRTI folder (names without extension), the planes
+/// they hold, and its index's facts: `(images, planes, width, height, type, tile_size,
+/// levels)` (the last two 0 where the folder notes no pyramid).
+#[pyfunction]
+#[allow(clippy::type_complexity)]
+pub fn plane_images(
+    py: Python<'_>,
+    path: PathBuf,
+) -> PyResult<(Vec<String>, usize, usize, usize, String, usize, usize)> {
+    let limits = btfrs_io::capture::Limits { max_bytes: btfrs_io::capture::default_max_bytes(), allow_outside: false };
+    let f = detach(py, || btfrs_io::relight_file::plane_images(&path, &limits))?;
+    Ok((f.images, f.planes, f.width, f.height, f.kind, f.tile_size, f.levels))
+}
+
+/// The model a relight or NeuralRTI folder's `info.json` makes with other plane bytes: `planes`
+/// uint8 `[height, width, nplanes]` (the images' channels in order).
+#[pyfunction]
+pub fn model_with_planes(py: Python<'_>, path: PathBuf, planes: &Bound<'_, PyAny>) -> PyResult<PyModel> {
+    let a = borrow::<u8>("planes", planes)?;
+    check_shape("planes", a.shape(), &[None, None, None])?;
+    let (h, w) = (a.shape()[0], a.shape()[1]);
+    let q = a.as_slice().map_err(|e| arg("planes", e))?.to_vec();
+    let limits = btfrs_io::capture::Limits { max_bytes: btfrs_io::capture::default_max_bytes(), allow_outside: false };
+    let inner = detach(py, || btfrs_io::relight_file::with_planes(&path, w, h, q, &limits))?;
+    Ok(PyModel { inner, robust: serde_json::Value::Null })
+}
+
 /// Read a file of another tool's format (by its extension) as a one-slot model, within
 /// `max_bytes` (default: half the machine's memory): `(model, warnings)`, the warnings naming
 /// values the reader changed.

@@ -74,6 +74,9 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(io::model_formats, m)?)?;
     m.add_function(wrap_pyfunction!(io::export_model, m)?)?;
     m.add_function(wrap_pyfunction!(io::import_model, m)?)?;
+    m.add_function(wrap_pyfunction!(io::export_tiled, m)?)?;
+    m.add_function(wrap_pyfunction!(io::plane_images, m)?)?;
+    m.add_function(wrap_pyfunction!(io::model_with_planes, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_png, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_png, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_exr, m)?)?;
@@ -93,6 +96,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render::gpu_upload_model, m)?)?;
     m.add_function(wrap_pyfunction!(render::web_model, m)?)?;
     m.add_function(wrap_pyfunction!(render::web_layout, m)?)?;
+    m.add_function(wrap_pyfunction!(render::web_window, m)?)?;
     m.add_function(wrap_pyfunction!(render::web_map, m)?)?;
     m.add_function(wrap_pyfunction!(render::cpu_render_model, m)?)?;
     m.add_function(wrap_pyfunction!(render::env_check, m)?)?;

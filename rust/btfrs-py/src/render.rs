@@ -438,6 +438,57 @@ pub fn web_model<'py>(py: Python<'py>, model: &PyModel, method: &str) -> PyResul
     Ok(d)
 }
 
+/// The window layout of a model family drawn from image tiles (see
+/// `btfrs_render::web::web_window`): `probes` are `(model, planes uint8 [h, w, nplanes])`, two
+/// of one size and one of another. Returns `{"shader", "params", "constants": [(offset,
+/// words)], "texels": [(offset, bytes, from)], "store_words", "capacity", "dirs", "tables"}`.
+#[pyfunction]
+pub fn web_window<'py>(
+    py: Python<'py>,
+    probes: Vec<(PyRef<'py, PyModel>, Bound<'py, PyAny>)>,
+    capacity: usize,
+) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+    let mut held = Vec::with_capacity(probes.len());
+    let mut nplanes = 0;
+    for (_, planes) in &probes {
+        let a = crate::arrays::borrow::<u8>("planes", planes)?;
+        crate::arrays::check_shape("planes", a.shape(), &[None, None, None])?;
+        nplanes = a.shape()[2];
+        held.push(a);
+    }
+    let slices =
+        held.iter().map(|a| a.as_slice().map_err(|e| crate::errors::arg("planes", e))).collect::<PyResult<Vec<_>>>()?;
+    let models: Vec<&dyn btfrs_fit::DynModel> = probes.iter().map(|(m, _)| m.inner.as_ref()).collect();
+    let w = detach(py, || {
+        let renderers = models.iter().map(|m| m.renderer("default", 2048)).collect::<btfrs_core::Result<Vec<_>>>()?;
+        let list: Vec<btfrs_render::web::Probe<'_>> = renderers
+            .iter()
+            .zip(&slices)
+            .map(|(r, q)| btfrs_render::web::Probe {
+                model: r.as_ref(),
+                planes: q,
+                texels: q.len().checked_div(nplanes).unwrap_or(0),
+            })
+            .collect();
+        btfrs_render::web::web_window(&list, nplanes, capacity)
+    })?;
+    let d = pyo3::types::PyDict::new(py);
+    d.set_item("shader", w.shader)?;
+    d.set_item("params", w.params.into_pyarray(py))?;
+    let constants: Vec<(u32, Bound<'py, numpy::PyArray1<u32>>)> =
+        w.constants.into_iter().map(|(o, words)| (o, words.into_pyarray(py))).collect();
+    d.set_item("constants", constants)?;
+    let texels: Vec<(u32, u32, Vec<u32>)> = w.texels.into_iter().map(|t| (t.offset, t.bytes, t.from)).collect();
+    d.set_item("texels", texels)?;
+    d.set_item("store_words", w.store_words)?;
+    d.set_item("capacity", w.capacity)?;
+    let n = w.dirs.len();
+    let flat: Vec<f32> = w.dirs.into_iter().flatten().collect();
+    d.set_item("dirs", flat.into_pyarray(py).reshape([n, 4])?)?;
+    d.set_item("tables", w.tables.into_pyarray(py))?;
+    Ok(d)
+}
+
 /// A coordinate map or a tile map laid out for the web viewer, checked against `model`:
 /// `{"words": uint32 map buffer, "map_size": [w, h], "tiles": [4], "tile_atlas": [4]}`.
 #[pyfunction]

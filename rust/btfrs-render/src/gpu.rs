@@ -320,6 +320,15 @@ pub(crate) fn prepare(model: &dyn GpuModel) -> Result<Prepared<'_>> {
         offsets.push(u32::try_from(total).map_err(|_| Error::Device("the model has more than 2^32 values".into()))?);
         total += p.len();
     }
+    let (params, constant_words, dirs, tables) = params_at(model, &offsets)?;
+    Ok(Prepared { parts, total, params, constant_words, dirs, tables, volume: model.gpu_volume() })
+}
+
+/// The uniform block of `model` with its store parts at `offsets` (the 16 parameter words,
+/// then its constants padded to the length its shader declares), the count of its constant
+/// words, and its direction sets with their candidate tables, as [`prepare`] gathers them.
+#[allow(clippy::type_complexity)]
+pub(crate) fn params_at(model: &dyn GpuModel, offsets: &[u32]) -> Result<(Vec<u32>, usize, Vec<[f32; 4]>, Vec<u32>)> {
     let sets = model.gpu_dir_sets();
     let mut dirs: Vec<[f32; 4]> = Vec::new();
     let mut tables: Vec<u32> = Vec::new();
@@ -330,7 +339,7 @@ pub(crate) fn prepare(model: &dyn GpuModel) -> Result<Prepared<'_>> {
         tables.extend(crate::model::candidate_table(set, crate::model::TABLE_GRID));
     }
     // The parameter block, then the model's constants in the same uniform buffer.
-    let mut params = model.gpu_params(&offsets, &table_at).to_vec();
+    let mut params = model.gpu_params(offsets, &table_at).to_vec();
     let (mut constants, declared) = (model.gpu_constants(), model.gpu_constants_len());
     if constants.len() > declared {
         return Err(Error::Device(format!(
@@ -342,7 +351,7 @@ pub(crate) fn prepare(model: &dyn GpuModel) -> Result<Prepared<'_>> {
     let constant_words = constants.len();
     constants.resize(declared, 0);
     params.extend(constants);
-    Ok(Prepared { parts, total, params, constant_words, dirs, tables, volume: model.gpu_volume() })
+    Ok((params, constant_words, dirs, tables))
 }
 
 /// Upload a model's store and parameters.

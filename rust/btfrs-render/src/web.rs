@@ -60,6 +60,161 @@ pub fn web_model(model: &dyn GpuModel) -> Result<WebModel> {
     })
 }
 
+/// A part of a tiled page's store: per texel, `bytes` bytes, byte `j` being plane `from[j]`
+/// of the image (plane `p` = channel `p % 3` of image `p / 3`), texel-major from word `offset`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TexelPart {
+    /// Word offset of the part in the store.
+    pub offset: u32,
+    /// Bytes per texel.
+    pub bytes: u32,
+    /// The plane of each byte.
+    pub from: Vec<u32>,
+}
+
+/// What a page drawing a model from image tiles needs: the model of a window of at most
+/// `capacity` texels (any width and height with `width * height <= capacity`) has this store
+/// layout and these parameters, whatever the window shows; its texel parts are filled from the
+/// tiles' bytes by [`TexelPart`]s, its other parts are the same for every window.
+#[derive(Debug, Clone)]
+pub struct WebWindow {
+    /// The assembled WGSL (single-chunk store).
+    pub shader: String,
+    /// The uniform block for a store laid out for `capacity` texels.
+    pub params: Vec<u32>,
+    /// The parts every window shares: (word offset, words).
+    pub constants: Vec<(u32, Vec<u32>)>,
+    /// The parts filled per window.
+    pub texels: Vec<TexelPart>,
+    /// Store words in all.
+    pub store_words: u32,
+    /// Texels a window may hold.
+    pub capacity: u32,
+    /// The measured direction sets (as [`WebModel::dirs`]).
+    pub dirs: Vec<[f32; 4]>,
+    /// Their candidate tables.
+    pub tables: Vec<u32>,
+}
+
+/// Probe models for [`web_window`]: each the model a folder's index file makes from plane bytes
+/// of `texels` texels (`planes`, texel-major, `nplanes` per texel).
+#[allow(missing_debug_implementations)]
+pub struct Probe<'a> {
+    /// The model.
+    pub model: &'a dyn GpuModel,
+    /// Its plane bytes.
+    pub planes: &'a [u8],
+    /// Its texel count.
+    pub texels: usize,
+}
+
+/// The window layout of a model family from probes: models made from random plane bytes (two of
+/// one texel count, one of another, each a multiple of 4). Found from the probes alone, with no
+/// knowledge of the model: a store part whose length and words are the same in every probe is
+/// shared; one whose length grows with the texels must hold, for each texel, the same plane
+/// bytes in the same order in every probe (found by matching the bytes, which random planes make
+/// unambiguous), else the model cannot be drawn from tiles and the error says so.
+pub fn web_window(probes: &[Probe<'_>], nplanes: usize, capacity: usize) -> Result<WebWindow> {
+    let not = |why: String| Error::arg("tiles", format!("this model cannot be drawn from image tiles: {why}"));
+    if probes.len() < 3 || probes.iter().any(|p| p.texels == 0 || p.texels % 4 != 0) {
+        return Err(Error::arg("probes", "expected three probes or more, each of a multiple of 4 texels"));
+    }
+    if probes.iter().all(|p| p.texels == probes[0].texels) {
+        return Err(Error::arg("probes", "expected probes of two texel counts"));
+    }
+    for p in probes {
+        if p.planes.len() != p.texels * nplanes {
+            return Err(Error::arg(
+                "probes",
+                format!("expected {} plane bytes, got {}", p.texels * nplanes, p.planes.len()),
+            ));
+        }
+    }
+    let prepared = probes.iter().map(|p| crate::gpu::prepare(p.model)).collect::<Result<Vec<_>>>()?;
+    let first = &prepared[0];
+    if prepared.iter().any(|q| q.parts.len() != first.parts.len() || q.dirs != first.dirs || q.tables != first.tables) {
+        return Err(not("its store's parts or direction sets change with the plane bytes".into()));
+    }
+    if first.volume.is_some() {
+        return Err(not("it samples a 3D texture".into()));
+    }
+    let bytes_of = |words: &[u32]| -> Vec<u8> { words.iter().flat_map(|w| w.to_le_bytes()).collect() };
+    let mut lengths = Vec::new();
+    let mut constants = Vec::new();
+    let mut texels = Vec::new();
+    for i in 0..first.parts.len() {
+        let same = prepared.iter().all(|q| q.parts[i] == first.parts[i]);
+        if same {
+            lengths.push(first.parts[i].len());
+            constants.push((i, first.parts[i].to_vec()));
+            continue;
+        }
+        // A texel part: R bytes per texel, texel-major.
+        let r = 4 * first.parts[i].len() / probes[0].texels;
+        let ok = r > 0 && probes.iter().zip(&prepared).all(|(p, q)| q.parts[i].len() * 4 == p.texels * r);
+        if !ok {
+            return Err(not(format!(
+                "store part {i} changes with the planes but is not a fixed number of bytes per texel"
+            )));
+        }
+        let bytes: Vec<Vec<u8>> = prepared.iter().map(|q| bytes_of(&q.parts[i])).collect();
+        let mut from = Vec::with_capacity(r);
+        for j in 0..r {
+            let plane = (0..nplanes).find(|&pl| {
+                probes
+                    .iter()
+                    .zip(&bytes)
+                    .all(|(p, b)| (0..p.texels).all(|t| b[t * r + j] == p.planes[t * nplanes + pl]))
+            });
+            match plane {
+                Some(pl) => from.push(pl as u32),
+                None => {
+                    return Err(not(format!(
+                        "byte {j} of each texel's {r} in store part {i} is not one of the image's planes"
+                    )))
+                }
+            }
+        }
+        lengths.push((capacity * r).div_ceil(4));
+        texels.push((i, r, from));
+    }
+    let mut offsets = Vec::with_capacity(lengths.len());
+    let mut total = 0usize;
+    for l in &lengths {
+        offsets.push(u32::try_from(total).map_err(|_| not("its window store passes 2^32 words".into()))?);
+        total += l;
+    }
+    if total as u64 * 4 > 1 << 31 {
+        return Err(Error::arg(
+            "capacity",
+            format!(
+                "a window of {capacity} texels needs {} MiB in one storage buffer; the viewer binds at most 2 GiB",
+                total / 262144
+            ),
+        ));
+    }
+    let (params, _, dirs, tables) = crate::gpu::params_at(probes[0].model, &offsets)?;
+    // Parameters that depend on the texel count other than through the offsets: not tileable.
+    for p in &probes[1..] {
+        if crate::gpu::params_at(p.model, &offsets)?.0 != params {
+            return Err(not("its parameters change with the size of the image".into()));
+        }
+    }
+    Ok(WebWindow {
+        shader: shader_source(probes[0].model.shader(), true),
+        params,
+        constants: constants.into_iter().map(|(i, w)| (offsets[i], w)).collect(),
+        texels: texels
+            .into_iter()
+            .map(|(i, r, from)| TexelPart { offset: offsets[i], bytes: r as u32, from })
+            .collect(),
+        store_words: total.max(1) as u32,
+        capacity: capacity as u32,
+        dirs: if dirs.is_empty() { vec![[0.0; 4]] } else { dirs },
+        tables: if tables.is_empty() { vec![0] } else { tables },
+    })
+}
+
 /// A coordinate map or a Wang tile map for the page: the map buffer's words (group 0,
 /// `coord_map`) and the `Globals` fields that describe it, as the native renderer fills them.
 #[derive(Debug, Clone)]
@@ -147,6 +302,88 @@ pub fn layout() -> Value {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use btfrs_fit::gpu::{pack_u8, GpuParams, Shader};
+    use std::borrow::Cow;
+
+    btfrs_fit::gpu_params! {
+        /// A mock model's parameters: the offsets of its parts.
+        pub struct MockParams {
+            /// Store offset of the shared words.
+            pub head: u32,
+            /// Store offset of the texel bytes.
+            pub texels: u32,
+            /// Store offset of the tail.
+            pub tail: u32,
+        }
+    }
+
+    /// A model whose store is shared words, each texel's plane bytes in a fixed order (or, with
+    /// `floats`, its first plane as an f32 word: not a plane byte), and shared words again.
+    struct Mock {
+        texels: usize,
+        q: Vec<u8>,
+        order: Vec<usize>,
+        floats: bool,
+    }
+
+    impl GpuModel for Mock {
+        fn shader(&self) -> Shader {
+            Shader::new::<MockParams>("mock", "")
+        }
+        fn gpu_dims(&self) -> (usize, usize) {
+            (1, self.texels)
+        }
+        fn gpu_parts(&self) -> Vec<Cow<'_, [u32]>> {
+            let k = self.q.len() / self.texels;
+            let texel: Vec<u32> = if self.floats {
+                (0..self.texels).map(|t| (self.q[t * k] as f32 / 255.0).to_bits()).collect()
+            } else {
+                let bytes: Vec<u8> =
+                    (0..self.texels).flat_map(|t| self.order.iter().map(move |&p| self.q[t * k + p])).collect();
+                pack_u8(&bytes)
+            };
+            vec![Cow::Owned(vec![7, 8, 9]), Cow::Owned(texel), Cow::Owned(vec![1])]
+        }
+        fn gpu_params(&self, offsets: &[u32], _tables: &[u32]) -> [u32; 16] {
+            MockParams { head: offsets[0], texels: offsets[1], tail: offsets[2] }.words()
+        }
+    }
+
+    fn probes(k: usize, order: &[usize], floats: bool) -> Vec<(Mock, Vec<u8>)> {
+        let mut seed = 1u32;
+        [(8usize, 1), (8, 2), (12, 3)]
+            .into_iter()
+            .map(|(texels, _)| {
+                let q: Vec<u8> = (0..texels * k)
+                    .map(|_| {
+                        seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                        (seed >> 24) as u8
+                    })
+                    .collect();
+                (Mock { texels, q: q.clone(), order: order.to_vec(), floats }, q)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_window_layout_is_found_from_probes_alone() {
+        let order = [4, 0, 3, 1, 2];
+        let ms = probes(5, &order, false);
+        let list: Vec<Probe<'_>> = ms.iter().map(|(m, q)| Probe { model: m, planes: q, texels: m.texels }).collect();
+        let w = web_window(&list, 5, 1000).unwrap();
+        // The texel part's bytes, each the plane the model put there; the shared parts moved
+        // to the offsets of a 1000-texel store, and the parameters pointing at them.
+        assert_eq!(w.texels, vec![TexelPart { offset: 3, bytes: 5, from: order.iter().map(|&p| p as u32).collect() }]);
+        let texel_words = (1000 * 5usize).div_ceil(4) as u32;
+        assert_eq!(w.constants, vec![(0, vec![7, 8, 9]), (3 + texel_words, vec![1])]);
+        assert_eq!(w.store_words, 3 + texel_words + 1);
+        assert_eq!(&w.params[..3], &[0, 3, 3 + texel_words]);
+        // A model whose per-texel words are not the planes' bytes cannot be drawn from tiles.
+        let fs = probes(5, &order, true);
+        let list: Vec<Probe<'_>> = fs.iter().map(|(m, q)| Probe { model: m, planes: q, texels: m.texels }).collect();
+        let e = web_window(&list, 5, 1000).unwrap_err();
+        assert!(e.to_string().contains("not one of the image's planes"), "{e}");
+    }
 
     #[test]
     fn the_layout_names_every_globals_field_and_the_vertex_fits_its_stride() {
