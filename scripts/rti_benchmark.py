@@ -213,7 +213,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--methods", default=",".join(m[0] for m in METHODS),
                     help="comma-separated labels of the methods to run (default: all)")
     ap.add_argument("--sets", default="*", help="a glob the set names must match (default: all)")
-    ap.add_argument("--fresh", action="store_true", help="recompute rows already in results.json")
+    ap.add_argument("--fresh", action="store_true", help="recompute the rows of these methods and sets already in results.json "
+                    "(one run at a time per --out folder: each rewrites results.json)")
     args = ap.parse_args(argv)
     try:
         import skimage  # noqa: F401
@@ -229,7 +230,11 @@ def main(argv: Optional[List[str]] = None) -> int:
         sys.exit("rti_benchmark: no SynthRTI set or .lp capture found")
     os.makedirs(args.out, exist_ok=True)
     store = os.path.join(args.out, "results.json")
-    rows: List[Dict[str, Any]] = json.load(open(store)) if os.path.exists(store) and not args.fresh else []
+    rows: List[Dict[str, Any]] = json.load(open(store)) if os.path.exists(store) else []
+    if args.fresh:
+        # Only the rows this run will recompute go: the other methods' and sets' stay.
+        names = {n for n, _ in sets}
+        rows = [r for r in rows if not (r["method"] in wanted and r["set"] in names)]
     done = {(r["set"], r["method"]) for r in rows}
     for name, folder in sets:
         todo = [m for m in methods if (name, m[0]) not in done]
