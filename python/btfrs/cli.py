@@ -142,7 +142,7 @@ def _kinds() -> List[str]:
 def _formats() -> List[Tuple[str, str, str, bool]]:
     """Other tools' model formats: ``(name, extension, doc, folder)`` (``folder``: written as a
     folder holding an index file, e.g. NeuralRTI's ``info.json``)."""
-    return [(name, ext, doc, folder) for name, ext, doc, folder, _ in _native.model_formats()]
+    return [(f.name, f.extension, f.doc, f.folder) for f in _native.model_formats()]
 
 
 def _sample_args(p: argparse.ArgumentParser, material: Optional[str] = None, size: int = 32, seed: int = 1,
@@ -548,7 +548,7 @@ def _fit_options(args: argparse.Namespace, kind: str) -> Dict[str, Any]:
     bad = [k for k, x in opts.items() if isinstance(x, float) and x != x or x in (float("inf"), float("-inf"))]
     if bad:
         raise InvalidArgumentError(f"--set {bad[0]}: expected {schema[bad[0]]['allowed']}, got {opts[bad[0]]}")
-    _native.check_options(kind, json.dumps(opts))
+    _native.check_options(kind, opts)
     return opts
 
 

@@ -1,9 +1,8 @@
 //! The contract every fitted model meets, written once per model.
 //!
-//! * [`ReflectanceModel`]: evaluation. A model answers *queries*: one (view, light) pair,
-//!   prepared once (`query`), then evaluated at every texel (`eval`). Splitting the two keeps
-//!   per-pair work (interpolation weights over view slots, basis functions of the light) out of
-//!   the per-texel loop. The CPU reference renderer shades through it ([`Shade`]).
+//! * [`ReflectanceModel`] (in [`crate::eval`], which the GPU half shares): evaluation. A model
+//!   answers *queries*: one (view, light) pair, prepared once (`query`), then evaluated at every
+//!   texel (`eval`). The CPU reference renderer shades through it ([`Shade`]).
 //! * [`Model`]: everything else a model is: its name, its fit options and fit, its named arrays
 //!   for saving ([`btfrs_core::NamedArrays`]), its fit report, the bytes it occupies as stored
 //!   for rendering, and its renderers. Together with [`crate::gpu::GpuLayout`] (the shader and
@@ -11,56 +10,12 @@
 //!   everything that iterates over models (bindings, `btfrs.load`, renderer, demo, bench) goes
 //!   through [`DynModel`], the object-safe form.
 
+pub use crate::eval::{ReflectanceModel, Shade};
 use crate::gpu::{GpuLayout, GpuModel, Renderable};
 use btfrs_core::{metrics::ErrorSums, BtfRef, Error, Monitor, NamedArrays, Result};
 use rayon::prelude::*;
 use serde::de::DeserializeOwned;
 use std::any::Any;
-
-/// A per-texel reflectance model over a `height x width` sample.
-pub trait ReflectanceModel: Sync {
-    /// Everything about one (view, light) pair that does not depend on the texel.
-    type Query: Send + Sync;
-    /// (height, width) in texels.
-    fn dims(&self) -> (usize, usize);
-    /// Prepare a query for unit directions `view` and `light` in the tangent frame.
-    fn query(&self, view: [f64; 3], light: [f64; 3]) -> Self::Query;
-    /// The model's RGB value at texel `t` (row-major index).
-    fn eval(&self, t: usize, q: &Self::Query) -> [f32; 3];
-}
-
-impl<M: ReflectanceModel + ?Sized> ReflectanceModel for &M {
-    type Query = M::Query;
-    fn dims(&self) -> (usize, usize) {
-        (**self).dims()
-    }
-    fn query(&self, view: [f64; 3], light: [f64; 3]) -> M::Query {
-        (**self).query(view, light)
-    }
-    #[inline]
-    fn eval(&self, t: usize, q: &M::Query) -> [f32; 3] {
-        (**self).eval(t, q)
-    }
-}
-
-/// Evaluation of one texel at one (view, light) pair without a prepared query: the object-safe
-/// form of [`ReflectanceModel`] that the CPU reference renderer uses (it prepares a query per
-/// fragment and light anyway).
-pub trait Shade: Sync {
-    /// (height, width) in texels.
-    fn shade_dims(&self) -> (usize, usize);
-    /// The RGB value at texel `t`.
-    fn shade(&self, t: usize, view: [f64; 3], light: [f64; 3]) -> [f32; 3];
-}
-
-impl<M: ReflectanceModel> Shade for M {
-    fn shade_dims(&self) -> (usize, usize) {
-        self.dims()
-    }
-    fn shade(&self, t: usize, view: [f64; 3], light: [f64; 3]) -> [f32; 3] {
-        self.eval(t, &self.query(view, light))
-    }
-}
 
 /// A fitted model: the contract a new model implements once (see CONTRIBUTING.md).
 pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
@@ -118,7 +73,7 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     /// Whether [`Model::fit_screened`] runs the robust value screen inside the fit's own pass
     /// (each texel judged and, if need be, repaired as it is read), which needs every texel to
     /// be fitted from its own values alone. The others are screened before the fit, from a
-    /// repaired copy of the data ([`crate::robust::fit`]).
+    /// repaired copy of the data ([`crate::driver::fit`]).
     const SCREENS_TEXELS: bool = false;
     /// [`Model::fit`] with `screen` run on each texel inside the pass; called only when
     /// [`Model::SCREENS_TEXELS`].
@@ -133,6 +88,11 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
             format!("a {} fit does not screen its texels in its own pass", Self::KIND),
         ))
     }
+    /// Whether the fit is stochastic: trained by stochastic gradient descent on minibatches, so
+    /// another `seed` gives another model and another error (not only another rounding). What
+    /// holds of a deterministic fit ("the clean case is the best", equal results under a memory
+    /// limit) holds of such a model within its spread over seeds.
+    const STOCHASTIC: bool = false;
     /// How the fit splits over blocks of texels fitted apart (a Dask cluster's chunks,
     /// `btfrs.dask`): see [`crate::blockwise`]. The default is the safe answer for a new model.
     const BLOCKWISE: crate::blockwise::Blockwise =
