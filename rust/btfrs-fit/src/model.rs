@@ -34,6 +34,11 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     const OPTIONS: &'static [crate::options::Spec];
     /// Example option sets `(label, JSON)` from small to large: what the demo and the bench fit.
     const EXAMPLES: &'static [(&'static str, &'static str)];
+    /// The cheapest option set (a JSON object) that still runs every stage of the fit: what the
+    /// tests fit where the data are large (the out-of-core checks); `""`: the first of
+    /// [`Model::EXAMPLES`]. A model whose fit time grows with an option the examples leave at
+    /// its default (a trained model's steps) names a smaller one here.
+    const SMALLEST: &'static str = "";
     /// The settings `btfrs.evaluate` sweeps (its quick sweep takes those marked `quick`); empty:
     /// the [`Model::EXAMPLES`], the first of them quick.
     const SWEEP: &'static [Setting] = &[];

@@ -53,6 +53,8 @@ pub struct Entry {
     pub finish_blocks: fn(&NamedArrays, &Values) -> Result<Box<dyn DynModel>>,
     /// [`Model::STOCHASTIC`].
     pub stochastic: bool,
+    /// [`Model::SMALLEST`] (`""`: the first example).
+    pub smallest: &'static str,
 }
 
 impl Entry {
@@ -173,6 +175,7 @@ pub const fn entry<M: Model + std::fmt::Debug>() -> Entry {
         blockwise: M::BLOCKWISE,
         finish_blocks: finish_blocks_erased::<M>,
         stochastic: M::STOCHASTIC,
+        smallest: if M::SMALLEST.is_empty() { M::EXAMPLES[0].1 } else { M::SMALLEST },
     }
 }
 
@@ -250,6 +253,7 @@ pub fn describe() -> Value {
                     "blockwise": blockwise,
                     "blockwise_note": why,
                     "stochastic": e.stochastic,
+                    "smallest": fact(e.smallest),
                 })
             })
             .collect(),
@@ -446,7 +450,7 @@ mod tests {
                     .unwrap_or_else(|x| panic!("{} {}: {x}", e.kind, st.label));
             }
             assert!(e.sweep().iter().any(|s| s.quick), "{}: no quick setting", e.kind);
-            for (label, o) in e.examples {
+            for (label, o) in e.examples.iter().chain([&("smallest", e.smallest)]) {
                 options::parse_json(o)
                     .and_then(|o| check_options(e.kind, &o))
                     .unwrap_or_else(|x| panic!("{} {label}: {x}", e.kind));
@@ -466,9 +470,18 @@ mod tests {
         for (m, e) in a.iter().zip(MODELS) {
             assert_eq!(m["kind"], e.kind);
             assert_eq!(m["options"].as_array().unwrap().len(), e.options.len());
-            for key in
-                ["doc", "about", "renderers", "examples", "sweep", "sampling", "exports", "blockwise", "stochastic"]
-            {
+            for key in [
+                "doc",
+                "about",
+                "renderers",
+                "examples",
+                "sweep",
+                "sampling",
+                "exports",
+                "blockwise",
+                "stochastic",
+                "smallest",
+            ] {
                 assert!(!m[key].is_null(), "{} lacks {key}", e.kind);
             }
         }
