@@ -266,3 +266,39 @@ def test_contributing_lists_every_model_of_the_registry():
     assert len(kinds) == len(set(kinds)) and set(kinds) == set(KINDS), (sorted(kinds), sorted(KINDS))
     for kind in KINDS:
         assert list(ROOT.glob(OWN[kind][0])) or list(ROOT.glob(OWN[kind][1])), kind
+
+
+# Strings of the bench that are another thing's name and spell a kind: string -> what it is.
+BENCH_NOT_KINDS = {"sh": "lighting=\"sh\", the SH lighting method (a model ability's name)"}
+
+
+def test_the_bench_names_no_model():
+    # Every model-specific setting of the bench is a registry fact (the models' BENCH settings):
+    # no string of it (docstrings and help included) is a kind or holds one as a word, nor a
+    # label of the registry's settings (examples, sweeps, bench settings), and no name in it is a
+    # model's class or a kind (btfrs.fit.<kind>).
+    path = ROOT / "python" / "btfrs" / "tools" / "bench.py"
+    tree = ast.parse(path.read_text())
+    labels = {lab for info in KINDS.values() for lab in
+              [e[0] for e in info["examples"]] + [s[0] for s in info["sweep"]] + [b["label"] for b in info["bench"]]
+              if lab}
+    classes = {TYPES[k] for k in KINDS}
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str):
+            text = node.value
+            if text in BENCH_NOT_KINDS:
+                continue
+            for kind in KINDS:
+                if re.search(rf"(?<![\w-]){re.escape(kind)}(?![\w-])", text):
+                    found.append(f"bench.py:{node.lineno}: the kind {kind!r} in {text[:60]!r}")
+            for lab in labels:
+                if re.search(rf"(?<![\w-]){re.escape(lab)}(?![\w-])", text):
+                    found.append(f"bench.py:{node.lineno}: the setting {lab!r} in {text[:60]!r}")
+        elif isinstance(node, (ast.Name, ast.Attribute)):
+            name = node.id if isinstance(node, ast.Name) else node.attr
+            if name in classes or name in KINDS:
+                found.append(f"bench.py:{node.lineno}: the name {name}")
+        elif isinstance(node, ast.alias) and node.name in classes:
+            found.append(f"bench.py: imports {node.name}")
+    assert not found, "the bench names models:\n" + "\n".join(found)

@@ -42,6 +42,9 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     /// The settings `btfrs.evaluate` sweeps (its quick sweep takes those marked `quick`); empty:
     /// the [`Model::EXAMPLES`], the first of them quick.
     const SWEEP: &'static [Setting] = &[];
+    /// What the bench measures beyond the examples, by role ([`Bench`]): a new model needs no
+    /// bench code, only the settings it wants measured in each role.
+    const BENCH: &'static [Bench] = &[];
     /// What sampling the fit needs, for `btfrs info`'s advice on a capture.
     const SAMPLING: Sampling;
     /// File formats of other tools the model can be written as (`"ptm"`, `"rti"`); the writers
@@ -196,6 +199,61 @@ impl Setting {
     /// With a note.
     pub const fn note(self, note: &'static str) -> Setting {
         Setting { note, ..self }
+    }
+}
+
+/// What each role of a [`Bench`] setting means to the bench (`python -m btfrs.tools.bench`, whose
+/// module doc says the same): the bench loops over the registry's settings by role and names no
+/// model, so a new model is benched by declaring its settings here, with no bench code.
+pub const BENCH_ROLES: &[(&str, &str)] = &[
+    ("foundation", "timed at each --size in the first table (beside the setting's peer) and in its accuracy table"),
+    ("reference", "the frame every other frame time is compared with (the 3x target), and the single-view summary's"),
+    ("env", "the setting rendered by --env-only (else the reference, else the first example)"),
+    ("models", "a row of the models table beyond the examples (with its peer's rows, if any)"),
+    ("per_material", "a row of the per-material accuracy table (--accuracy)"),
+    ("renderers", "rendered by each of the model's renderers, frame times and the PSNR between them"),
+    ("reach", "searched for the cheapest setting reaching 2% reconstruction error on every material"),
+    ("single_view", "fitted to the single-view RTI captures (--rti-only); a model with none fits its examples"),
+    ("no_single_view", "left out of the single-view captures (the note says why)"),
+    ("summary", "picked out in the single-view summary; the note is a peer tool's published figure"),
+    ("single_view_reference", "the classic setting an against_all model is compared with on single-view captures"),
+    ("against_all", "measured against every other model on accuracy per byte (--KIND-only)"),
+    ("tiles", "the domain of the Wang tile sets (--tiles-only)"),
+    ("big", "timed on a 128^2 x 81 x 81 sample (--KIND-big); the note is the target"),
+    ("out_of_core", "fitted by --out-of-core when --out-of-core-fits is not given"),
+    ("dask", "fitted locally and on a Dask cluster by --dask"),
+];
+
+/// A setting the bench measures and what for ([`BENCH_ROLES`]). `options` is a JSON object; an
+/// option given as a list is a grid, one setting per combination, its `{name}` in `label` filled
+/// in (`"LPCA {clusters}x{components}"`).
+#[derive(Debug, Clone, Copy)]
+pub struct Bench {
+    /// The row's label (a template where `options` holds lists).
+    pub label: &'static str,
+    /// The options, a JSON object.
+    pub options: &'static str,
+    /// What the bench measures it for: names of [`BENCH_ROLES`].
+    pub roles: &'static [&'static str],
+    /// A peer of `btfrs.tools.baselines.PEERS` doing the same work another way (numpy, scipy,
+    /// scikit-learn), timed and compared beside it; `""`: none.
+    pub peer: &'static str,
+    /// A note for its rows: the target it is held to, or a peer tool's published figure.
+    pub note: &'static str,
+}
+
+impl Bench {
+    /// A setting for `roles`.
+    pub const fn new(label: &'static str, options: &'static str, roles: &'static [&'static str]) -> Bench {
+        Bench { label, options, roles, peer: "", note: "" }
+    }
+    /// With a peer in `btfrs.tools.baselines`.
+    pub const fn peer(self, peer: &'static str) -> Bench {
+        Bench { peer, ..self }
+    }
+    /// With a note.
+    pub const fn note(self, note: &'static str) -> Bench {
+        Bench { note, ..self }
     }
 }
 

@@ -3,7 +3,7 @@
 //! demo, the bench, the docs) asks it, so a new model is registered by one line in [`MODELS`]
 //! (see CONTRIBUTING.md), and every fact about a model is read from its entry ([`describe`]).
 
-use crate::model::{DynModel, Mip, Model, Sampling, Setting};
+use crate::model::{Bench, DynModel, Mip, Model, Sampling, Setting, BENCH_ROLES};
 use crate::options::{self, Spec, Values};
 use btfrs_core::{BtfRef, Error, Monitor, NamedArrays, Result};
 use serde_json::{json, Value};
@@ -55,6 +55,8 @@ pub struct Entry {
     pub stochastic: bool,
     /// [`Model::SMALLEST`] (`""`: the first example).
     pub smallest: &'static str,
+    /// [`Model::BENCH`].
+    pub bench: &'static [Bench],
 }
 
 impl Entry {
@@ -68,6 +70,35 @@ impl Entry {
             .enumerate()
             .map(|(i, &(label, options))| Setting { label, options, quick: i == 0, note: "" })
             .collect()
+    }
+
+    /// The bench's settings ([`Model::BENCH`]) with their grids expanded: `(label, options,
+    /// setting)` per combination, in the order written (a grid's options in name order, the
+    /// first varying slowest).
+    pub fn bench_settings(&self) -> Result<Vec<(String, Values, &'static Bench)>> {
+        let mut out = Vec::new();
+        for b in self.bench {
+            let base = options::parse_json(b.options)?;
+            let mut combos: Vec<(String, Values)> = vec![(b.label.to_string(), Values::new())];
+            for (name, v) in &base {
+                let choices = match v {
+                    Value::Array(a) => a.clone(),
+                    other => vec![other.clone()],
+                };
+                combos = combos
+                    .into_iter()
+                    .flat_map(|(label, o)| {
+                        choices.iter().map(move |c| {
+                            let mut o = o.clone();
+                            o.insert(name.clone(), c.clone());
+                            (label.replace(&format!("{{{name}}}"), &c.to_string()), o)
+                        })
+                    })
+                    .collect();
+            }
+            out.extend(combos.into_iter().map(|(label, o)| (label, o, b)));
+        }
+        Ok(out)
     }
 
     /// [`Entry::fit`] with the options written as a JSON object: the registry's own facts (an
@@ -176,6 +207,7 @@ pub const fn entry<M: Model + std::fmt::Debug>() -> Entry {
         finish_blocks: finish_blocks_erased::<M>,
         stochastic: M::STOCHASTIC,
         smallest: if M::SMALLEST.is_empty() { M::EXAMPLES[0].1 } else { M::SMALLEST },
+        bench: M::BENCH,
     }
 }
 
@@ -254,6 +286,9 @@ pub fn describe() -> Value {
                     "blockwise_note": why,
                     "stochastic": e.stochastic,
                     "smallest": fact(e.smallest),
+                    "bench": e.bench_settings().unwrap_or_default().into_iter().map(|(label, o, b)| json!({
+                        "label": label, "options": o, "roles": b.roles, "peer": b.peer, "note": b.note,
+                    })).collect::<Vec<_>>(),
                 })
             })
             .collect(),
@@ -450,6 +485,15 @@ mod tests {
                     .unwrap_or_else(|x| panic!("{} {}: {x}", e.kind, st.label));
             }
             assert!(e.sweep().iter().any(|s| s.quick), "{}: no quick setting", e.kind);
+            // The bench's settings: every combination passes the checks, its label filled in,
+            // every role known.
+            for (label, o, b) in e.bench_settings().unwrap_or_else(|x| panic!("{}: bench: {x}", e.kind)) {
+                assert!(!label.contains('{'), "{}: {label}: a placeholder without its option", e.kind);
+                check_options(e.kind, &o).unwrap_or_else(|x| panic!("{} {label}: {x}", e.kind));
+                for r in b.roles {
+                    assert!(BENCH_ROLES.iter().any(|k| k.0 == *r), "{} {label}: unknown bench role {r}", e.kind);
+                }
+            }
             for (label, o) in e.examples.iter().chain([&("smallest", e.smallest)]) {
                 options::parse_json(o)
                     .and_then(|o| check_options(e.kind, &o))
