@@ -3,7 +3,7 @@
 //! demo, the bench, the docs) asks it, so a new model is registered by one line in [`MODELS`]
 //! (see CONTRIBUTING.md), and every fact about a model is read from its entry ([`describe`]).
 
-use crate::model::{Bench, DynModel, Mip, Model, Sampling, Setting, BENCH_ROLES};
+use crate::model::{Bench, DynModel, Mip, Model, Sampling, Setting};
 use crate::options::{self, Spec, Values};
 use btfrs_core::{BtfRef, Error, Monitor, NamedArrays, Result};
 use serde_json::{json, Value};
@@ -491,7 +491,11 @@ mod tests {
                 assert!(!label.contains('{'), "{}: {label}: a placeholder without its option", e.kind);
                 check_options(e.kind, &o).unwrap_or_else(|x| panic!("{} {label}: {x}", e.kind));
                 for r in b.roles {
-                    assert!(BENCH_ROLES.iter().any(|k| k.0 == *r), "{} {label}: unknown bench role {r}", e.kind);
+                    assert!(
+                        crate::model::BENCH_ROLES.iter().any(|k| k.0 == *r),
+                        "{} {label}: unknown bench role {r}",
+                        e.kind
+                    );
                 }
             }
             for (label, o) in e.examples.iter().chain([&("smallest", e.smallest)]) {
