@@ -16,6 +16,35 @@
 // are fused: each second-layer unit is added into the output as soon as it is computed, so only
 // the first layer's activations are kept in a private array.
 
+// The clearance inputs (decoder.rs, `Shape::clearances`): a direction's elevation above the
+// texel's horizon at its azimuth, the horizon map rebuilt from the texel's 8-bit coordinates in
+// the map's components (relief.rs, `HorizonMap`): `mean[k] + sum_i c_i basis[i][k]` for the two
+// bins around the azimuth, linearly interpolated.
+fn nn_clearance(texel: u32, d: vec3<f32>) -> f32 {
+    let bins = mp.hbins;
+    let m = mp.hcomp;
+    let tau = 6.283185307179586;
+    var phi = atan2(d.y, d.x);
+    if (phi < 0.0) {
+        phi += tau;
+    }
+    let f = phi / tau * f32(bins);
+    let k0 = u32(floor(f)) % bins;
+    let k1 = (k0 + 1u) % bins;
+    let w = f - floor(f);
+    var h0 = load(mp.hbasis + k0);
+    var h1 = load(mp.hbasis + k1);
+    for (var i = 0u; i < m; i++) {
+        let j = texel * m + i;
+        let q = (load_u32(mp.hq + j / 4u) >> ((j & 3u) * 8u)) & 0xffu;
+        let c = load(mp.hscale + m + i) + load(mp.hscale + i) * f32(q);
+        let row = mp.hbasis + (1u + i) * bins;
+        h0 += c * load(row + k0);
+        h1 += c * load(row + k1);
+    }
+    return asin(clamp(d.z, -1.0, 1.0)) - (h0 * (1.0 - w) + h1 * w);
+}
+
 struct ViewQuery {
     v: vec3<f32>,
 };
@@ -95,7 +124,8 @@ fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
     let k = mp.latents;
     let h = mp.hidden;
     // The inputs: decoded latents, then the direction encoding (decoder.rs, Directions::encode),
-    // then the table features: at most 32 latents, 6 coordinates and 3 x 16 features.
+    // then the clearances and the table features: at most 32 latents, 6 coordinates, 2
+    // clearances and 3 x 16 features.
     var inp: array<vec4<f32>, 22>;
     for (var i = 0u; i < k; i++) {
         let j = texel * k + i;
@@ -123,7 +153,19 @@ fn eval_model(texel: u32, vq: ViewQuery, l: vec3<f32>) -> vec3<f32> {
     for (var i = k; i < n; i++) {
         inp[i / 4u][i % 4u] = coords[i - k];
     }
-    // The direction tables' features, after the coordinates.
+    // The clearances above the texel's horizon, after the coordinates: the light's, and for the
+    // BTF encodings the view's first.
+    if (mp.hbins > 0u) {
+        if (mp.directions == 0u) {
+            inp[n / 4u][n % 4u] = nn_clearance(texel, l);
+            n = n + 1u;
+        } else {
+            inp[n / 4u][n % 4u] = nn_clearance(texel, vq.v);
+            inp[(n + 1u) / 4u][(n + 1u) % 4u] = nn_clearance(texel, l);
+            n = n + 2u;
+        }
+    }
+    // The direction tables' features, after the coordinates and clearances.
     let c = mp.features;
     var nt = 0u;
     if (c > 0u) {

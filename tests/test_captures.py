@@ -247,7 +247,7 @@ def test_lp_orientation_y_points_up_the_image(tmp_path):
 
 def test_lp_sixteen_bit_linear_tiff_and_warning_for_non_unit_vectors(tmp_path):
     p = write_lp(tmp_path / "t", bits=16, fmt="tif", scale=1.2)
-    with pytest.warns(UserWarning, match=r"line 4: light vector of length 1\.2000 normalised"):
+    with pytest.warns(UserWarning, match=r"dirs\.lp: 1 light vector normalised \(length 1\.2\) at line 4$"):
         b = io.load(p, linear=True)
     np.testing.assert_allclose(b.lights, RTI_LIGHTS, atol=1e-8)
     red = np.clip(shade(RTI_LIGHTS[3])[..., 0], 0, 1)

@@ -20,7 +20,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "python" / "btfrs"
 #: namespace, which re-exports layers 1-4), 5 the tools and the command line.
 LAYERS: Dict[str, int] = {
     **{f"btfrs.{m}": 1 for m in ("exceptions", "_checks", "_progress", "_native", "directions", "hemimap", "btf",
-                                 "io", "materials", "photometric", "models", "_fitting", "fit", "dask")},
+                                 "io", "materials", "photometric", "calibration", "models", "_fitting", "fit", "dask")},
     **{f"btfrs.{m}": 2 for m in ("environment", "rendering")},
     **{f"btfrs.{m}": 3 for m in ("synth", "graphcut", "tiles", "web")},
     **{f"btfrs.{m}": 4 for m in ("evaluation", "stability", "choosing")},

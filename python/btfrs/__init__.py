@@ -17,8 +17,8 @@ import sys
 import tempfile
 import types
 
-from . import (directions, evaluation, exceptions, fit, graphcut, hemimap, io, materials, photometric, stability, synth,
-               tiles, web)
+from . import (calibration, directions, evaluation, exceptions, fit, graphcut, hemimap, io, materials, photometric,
+               stability, synth, tiles, web)
 from ._native import __version__
 from .btf import Btf, ExpandedBtf
 from .exceptions import (
@@ -37,6 +37,7 @@ from .models import (Bilinear, ErrorReport, Hsh, Lafortune, LafortuneView, Lpca,
                      Svbrdf, model_kinds)
 from .io import load
 from .photometric import NormalMaps, height, normals
+from .calibration import Calibration, calibrate
 from .evaluation import EvaluationReport, evaluate
 from .environment import Environment
 from .rendering import Camera, DirectionalLight, PointLight, Scene, gpu_info, last_timings, render
@@ -122,6 +123,9 @@ __all__ = [
     "normals",
     "height",
     "NormalMaps",
+    "calibration",
+    "calibrate",
+    "Calibration",
     "stability",
     "synth",
     "BtfrsError",

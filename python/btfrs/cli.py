@@ -10,19 +10,22 @@ from __future__ import annotations
 import argparse
 import http.server
 import json
+import math
 import os
 import sys
 import tempfile
 import time
+import warnings
 import webbrowser
-from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, List, NoReturn, Optional, Sequence, Tuple, Union
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from . import __version__, _native, io, materials, photometric, rendering, stability, synth, tiles, web
+from . import __version__, _native, calibration, io, materials, photometric, rendering, stability, synth, tiles, web
 from . import fit as fit_mod
 from . import fit as fitting
+from ._checks import memory_size
 from .btf import Btf
 from .choosing import SceneUse, choose, default_candidates
 from .evaluation import evaluate
@@ -32,8 +35,21 @@ from .rendering import Camera, DirectionalLight, PointLight, Scene, render
 from .tools import baselines, demo
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse whose errors are one line on stderr (``btfrs fit: error: ...``) and exit code 2,
+    like every other refusal of the command line."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {_one_line(message)} (see {self.prog} --help)\n")
+
+
+def _one_line(text: str) -> str:
+    """``text`` on one line (a message spanning lines joined with "; ")."""
+    return "; ".join(line.strip() for line in str(text).splitlines() if line.strip())
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    p = argparse.ArgumentParser(prog="btfrs", description="Fit, synthesize and render BTFs.")
+    p = _Parser(prog="btfrs", description="Fit, synthesize and render BTFs.")
     p.add_argument("--version", action="version", version=f"btfrs {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
     d = sub.add_parser("demo", help="the main job on a built-in material: fit, compare, summarise")
@@ -108,25 +124,124 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     t.add_argument("--seed", type=int, default=5, help="synthesis and tiling seed (default: 5)")
     t.add_argument("--out", default="tiles", help="output folder (default: tiles)")
     _data_commands(sub)
+    _calibrate_args(sub)
     args = p.parse_args(argv)
-
-
     try:
+        _check_values(args)
         if args.command == "demo":
             demo.run(args.out, material=args.material, size=args.size, seed=args.seed, progress=not args.quiet)
         else:
             commands = {"synth": synth_command, "evaluate": evaluate_command, "choose": choose_command,
                         "stability": stability_command, "tiles": tiles_command, "info": info_command,
                         "fit": fit_command, "export": export_command, "render": render_command,
-                        "view": view_command, "normals": normals_command}
+                        "view": view_command, "normals": normals_command,
+                        "calibrate": calibrate_command}
             commands[args.command](args)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
     except (BtfrsError, OSError) as e:
-        print(f"btfrs: error: {e}", file=sys.stderr)
+        print(f"btfrs: error: {_one_line(str(e))}", file=sys.stderr)
         return 2
     return 0
+
+
+# --- values: every option checked for range before any work ----------------------------------
+
+#: The range of every numeric option, by its destination: (flag, low, high, low open, high
+#: open); ``None`` is unbounded. Integers and floats alike; a float must also be finite.
+_RANGES: Dict[str, Tuple[str, Optional[float], Optional[float], bool, bool]] = {
+    "size": ("--size", 8, 1024, False, False),  # the built-in materials' range
+    "seed": ("--seed", 0, 2**64 - 1, False, False),
+    "material_seed": ("--material-seed", 0, 2**64 - 1, False, False),
+    "eval_seed": ("--eval-seed", 0, 2**64 - 1, False, False),
+    "layout_seed": ("--layout-seed", 0, 2**64 - 1, False, False),
+    "textons": ("--textons", 1, None, False, False),
+    "out_size": ("--out-size", 1, None, False, False),
+    "k": ("-k", 1, None, False, False),
+    "neighbourhood": ("--neighbourhood", 0, None, False, False),
+    "levels": ("--levels", 1, None, False, False),
+    "fraction": ("--fraction", 0.0, 1.0, True, True),
+    "fov": ("--fov", 0.0, 180.0, True, True),
+    "image_size": ("--image-size", 1, None, False, False),
+    "uv_scale": ("--uv-scale", 0.0, None, True, False),
+    "tolerance": ("--tolerance", 0.0, None, True, False),
+    "budget_bytes": ("--budget-bytes", 1, None, False, False),
+    "budget_ms": ("--budget-ms", 0.0, None, True, False),
+    "samples": ("--samples", 1, None, False, False),
+    "tile": ("--tile", 1, None, False, False),
+    "edge_height": ("--edge-height", 1, None, False, False),
+    "colors": ("--colors", 1, None, False, False),
+    # A tiling of at most 4096 x 4096 tiles (64 MiB of tile ids).
+    "layout": ("--layout", 1, 4096, False, False),
+    "holdout": ("--holdout", 0.0, 1.0, False, True),
+    "view": ("--view", 0, None, False, False),
+    "port": ("--port", 0, 65535, False, False),
+    "exposure": ("--exposure", 0.0, None, False, False),
+    "camera": ("--camera", None, None, False, False),
+    "light": ("--light", None, None, False, False),
+    "crop": ("--crop", 0, None, False, False),
+}
+
+
+def _check_number(flag: str, v: Any, lo: Optional[float], hi: Optional[float], lo_open: bool, hi_open: bool) -> None:
+    ok = not (isinstance(v, float) and not math.isfinite(v))
+    if ok and lo is not None:
+        ok = v > lo if lo_open else v >= lo
+    if ok and hi is not None:
+        ok = v < hi if hi_open else v <= hi
+    if not ok:
+        def n(x: float) -> str:
+            return f"{x:g}" if isinstance(x, float) else str(x)
+        if lo is not None and hi is not None:
+            rng = f" in {'(' if lo_open else '['}{n(lo)}, {n(hi)}{')' if hi_open else ']'}"
+        elif lo is not None:
+            rng = f" {'>' if lo_open else '>='} {n(lo)}"
+        elif hi is not None:
+            rng = f" {'<' if hi_open else '<='} {n(hi)}"
+        else:
+            rng = ""
+        what = "a finite number" if isinstance(v, float) else "an integer"
+        raise InvalidArgumentError(f"{flag}: expected {what}{rng}, got {v}")
+
+
+def _settle_defaults(args: argparse.Namespace) -> None:
+    """Options whose default depends on what else is given are parsed with ``None``; record
+    which were given (``args.given``) and fill in the defaults (``default_<name>``)."""
+    given = set()
+    for name, default in list(vars(args).items()):
+        if name.startswith("default_") and name != "default_material":
+            dest = name[len("default_"):]
+            if getattr(args, dest, None) is None:
+                setattr(args, dest, default)
+            else:
+                given.add(dest)
+    args.given = given
+
+
+def _check_values(args: argparse.Namespace) -> None:
+    """Every option's value checked against its range before any work, each refusal naming
+    the flag; and the options that only apply to some inputs refused with the others."""
+    _settle_defaults(args)
+    for dest, (flag, lo, hi, lo_open, hi_open) in _RANGES.items():
+        v = getattr(args, dest, None)
+        if v is None or isinstance(v, str):
+            continue
+        for x in (v if isinstance(v, list) else [v]):
+            for y in (x if isinstance(x, list) else [x]):
+                _check_number(flag, y, lo, hi, lo_open, hi_open)
+    crop = getattr(args, "crop", None)
+    if crop is not None and (crop[2] < 1 or crop[3] < 1):
+        raise InvalidArgumentError(f"--crop: expected ROWS and COLS >= 1, got {crop[2]} and {crop[3]}")
+    for flag, vec in (("--light", getattr(args, "light", None)), ("--camera", getattr(args, "camera", None))):
+        for d in (vec or []) if flag == "--light" else ([vec] if vec else []):
+            if not any(d):
+                raise InvalidArgumentError(f"{flag}: expected a non-zero vector, got {' '.join(map(str, d))}")
+    if getattr(args, "max_bytes", None) is not None:
+        args.max_bytes = memory_size("--max-bytes", args.max_bytes)
+    for name in ("views", "lights"):
+        if hasattr(args, name):
+            _indices(name, getattr(args, name))
 
 
 def _facts() -> Dict[str, Dict[str, Any]]:
@@ -158,35 +273,58 @@ def _sample_args(p: argparse.ArgumentParser, material: Optional[str] = None, siz
         p.add_argument("--material", default=None, metavar="NAME",
                        help=f"a built-in material instead of a file (default: {material})" if material
                        else "a built-in material instead of a file")
-        p.add_argument("--size", type=int, default=size, help=f"material texels per side (default: {size})")
-        p.add_argument("--material-seed", type=int, default=seed, help=f"material seed (default: {seed})")
+        p.add_argument("--size", type=int, default=None, help=f"material texels per side (default: {size})")
+        p.add_argument("--material-seed", type=int, default=None, help=f"material seed (default: {seed})")
         if texture:
             p.add_argument("--texture", help="an RGB image (.png or .exr) as the sample instead")
-        p.set_defaults(default_material=material)
+        p.set_defaults(default_material=material, default_size=size, default_material_seed=seed)
     p.add_argument("--directions", help="direction table (.csv or .json) of an image folder")
     p.add_argument("--crop", type=int, nargs=4, metavar=("ROW", "COL", "ROWS", "COLS"),
                    help="keep a rectangle of texels (row 0 at the top)")
     p.add_argument("--views", help="comma-separated view indices to keep")
     p.add_argument("--lights", help="comma-separated light indices to keep")
     p.add_argument("--linear", action="store_true", help="8/16-bit images are linear, not sRGB")
+    p.add_argument("--max-bytes", metavar="SIZE",
+                   help="the most memory a file may take to read, in bytes or as 256MB, 2GiB (default: half "
+                        "the machine's memory); files from strangers beyond it are refused")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
+def _refuse(args: argparse.Namespace, flags: Sequence[Tuple[str, str]], why: str) -> None:
+    """Refuse the first of ``flags`` ((dest, flag)) given on the command line: ``why`` says
+    what it applies to."""
+    for dest, flag in flags:
+        v = getattr(args, dest, None)
+        if dest in getattr(args, "given", ()) or (dest not in ("size", "material_seed") and v not in (None, False)):
+            raise InvalidArgumentError(f"{flag}: {why}")
+
+
+_FILE_ONLY = (("directions", "--directions"), ("linear", "--linear"), ("max_bytes", "--max-bytes"))
+_MATERIAL_ONLY = (("size", "--size"), ("material_seed", "--material-seed"))
+_SELECTION = (("views", "--views"), ("lights", "--lights"), ("crop", "--crop"))
+
+
 def _load_sample(args: argparse.Namespace, progress: bool) -> Tuple[Any, str]:
-    """The input of :func:`_sample_args`: ``(object, name)`` (a Btf for a material)."""
+    """The input of :func:`_sample_args`: ``(object, name)`` (a Btf for a material). Every
+    option is checked against the input given: those that do not apply to it are refused."""
     given = [n for n, v in (("path", args.path), ("--material", getattr(args, "material", None)),
                             ("--texture", getattr(args, "texture", None))) if v]
     if len(given) > 1:
         raise InvalidArgumentError(f"{' and '.join(given)}: give one input, a path or --material"
                                    + (" or --texture" if hasattr(args, "texture") else ""))
     if args.path:
+        _refuse(args, _MATERIAL_ONLY, "only applies to --material")
         return _open(args), os.path.basename(os.path.normpath(args.path))
     if getattr(args, "texture", None):
+        _refuse(args, _MATERIAL_ONLY, "only applies to --material")
+        _refuse(args, _FILE_ONLY + _SELECTION, "does not apply to --texture (an RGB image)")
         return io.load_image(args.texture), os.path.basename(args.texture)
     name = args.material or args.default_material
     if name is None:
         raise InvalidArgumentError("path: expected a capture or btfrs file, or --material NAME")
-    return materials.make(name, size=args.size, seed=args.material_seed, progress=progress), name
+    _refuse(args, _FILE_ONLY, "only applies to a capture or file path, not to --material")
+    btf = materials.make(name, size=args.size, seed=args.material_seed, progress=progress)
+    return io._select_btf(btf, args.crop, _indices("views", args.views), _indices("lights", args.lights)), name
 
 
 def _load_btf(args: argparse.Namespace, progress: bool) -> Tuple[Btf, str]:
@@ -362,19 +500,22 @@ def stability_command(args: argparse.Namespace) -> None:
 def _indices(name: str, text: Optional[str]) -> Optional[List[int]]:
     if text is None:
         return None
-
     try:
-        return [int(t) for t in text.split(",") if t.strip()]
+        out = [int(t) for t in text.split(",") if t.strip()]
     except ValueError:
         raise InvalidArgumentError(f"--{name}: expected comma-separated integers, got {text!r}") from None
+    if not out or any(i < 0 for i in out):
+        raise InvalidArgumentError(f"--{name}: expected comma-separated integers >= 0, got {text!r}")
+    return out
 
 
 def _open(args: argparse.Namespace) -> Any:
     return io.load(args.path, directions=args.directions, crop=args.crop, views=_indices("views", args.views),
-                   lights=_indices("lights", args.lights), linear=args.linear, progress=not args.quiet)
+                   lights=_indices("lights", args.lights), linear=args.linear, progress=not args.quiet,
+                   max_bytes=args.max_bytes)
 
 
-def _data_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
+def _data_commands(sub: "argparse._SubParsersAction[_Parser]") -> None:
     i = sub.add_parser("info", help="what a capture or btfrs file holds: sizes, directions, values, what fits")
     _sample_args(i)
     f = sub.add_parser("fit", help="fit any model to a capture or BTF file and save it")
@@ -383,7 +524,8 @@ def _data_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -
                    help="the model: " + ", ".join(_kinds()))
     _option_args(f)
     f.add_argument("--holdout", type=float, default=0.0,
-                   help="share of (view, light) pairs held out to report the prediction error (default: 0)")
+                   help="share of (view, light) pairs held out to report the prediction error, in [0, 1) "
+                        "(default: 0)")
     f.add_argument("--seed", type=int, default=0, help="seed of the held-out split (default: 0)")
     f.add_argument("--no-robust", action="store_true",
                    help="fit every value as measured (default: outliers such as hot pixels, dust and glints are "
@@ -401,15 +543,17 @@ def _data_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -
                        help=f"write {doc} ({', '.join(able)} models)" + (", into a folder" if folder else ""))
     x.add_argument("--exr", help="write the per-texel coefficient maps as one multi-channel EXR (models)")
     x.add_argument("--stack", help="write a BTF as an image stack + directions.csv into this folder")
-    x.add_argument("--format", choices=["exr", "png"], default="exr", help="image format of --stack (default: exr)")
+    x.add_argument("--format", choices=["exr", "png"], default=None, help="image format of --stack (default: exr)")
+    x.set_defaults(default_format="exr")
     x.add_argument("--view", type=int, default=0, help="view slot written to .ptm / .rti (default: 0)")
     x.add_argument("--web", metavar="FOLDER",
                    help="write the browser viewer with the model as a static folder (any web server hosts it); "
                         "a BTF or capture gets a quick fit first (--model)")
     x.add_argument("--single-file", action="store_true",
                    help="with --web: one self-contained HTML file (data embedded) that opens from disk")
-    x.add_argument("--model", default=_kinds()[0], choices=_kinds(), metavar="MODEL",
+    x.add_argument("--model", default=None, choices=_kinds(), metavar="MODEL",
                    help=f"with --web on a BTF or capture: the model fitted first (default: {_kinds()[0]})")
+    x.set_defaults(default_model=_kinds()[0])
     x.add_argument("--force", action="store_true",
                    help="with --web: replace an existing folder or file; with a folder format: write into a folder "
                    "that holds files")
@@ -429,8 +573,9 @@ def _data_commands(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -
     w = sub.add_parser("view", help="look at a model, BTF, capture or tile set in the browser (WebGPU, served on "
                                     "localhost)")
     _sample_args(w)
-    w.add_argument("--model", default=_kinds()[0], choices=_kinds(), metavar="MODEL",
+    w.add_argument("--model", default=None, choices=_kinds(), metavar="MODEL",
                    help=f"for a BTF or capture: the model fitted first (default: {_kinds()[0]}, the first registered)")
+    w.set_defaults(default_model=_kinds()[0])
     _surface_args(w, "")
     w.add_argument("--port", type=int, default=8000, help="localhost port (default: 8000; another if it is in use)")
     w.add_argument("--no-browser", action="store_true", help="print the address instead of opening a browser")
@@ -523,6 +668,8 @@ def _fit_options(args: argparse.Namespace, kind: str) -> Dict[str, Any]:
         opts = json.loads(args.options)
     except json.JSONDecodeError as e:
         raise InvalidArgumentError(f"--options: not valid JSON ({e})") from None
+    except RecursionError:
+        raise InvalidArgumentError("--options: nested too deeply; expected a JSON object of option values") from None
     if not isinstance(opts, dict):
         raise InvalidArgumentError("--options: expected a JSON object")
     schema = {o["name"]: o for o in model_kinds()[kind]["options"]}
@@ -615,6 +762,12 @@ def export_command(args: argparse.Namespace) -> None:
         raise InvalidArgumentError(f"export: give at least one of {flags}, --exr, --stack, --web")
     if args.single_file and not args.web:
         raise InvalidArgumentError("--single-file: only with --web")
+    if not args.web:
+        for dest in ("model", "coords", "layout", "layout_seed", "uv_scale"):
+            if dest in args.given or (dest == "coords" and args.coords):
+                raise InvalidArgumentError(f"--{dest.replace('_', '-')}: only with --web")
+    if "format" in args.given and not args.stack:
+        raise InvalidArgumentError("--format: only with --stack")
     if args.web:
         if args.single_file:
             _check_output("--web", args.web, args, (".html",))
@@ -664,12 +817,13 @@ def _surface_args(p: argparse.ArgumentParser, prefix: str) -> None:
     p.add_argument("--coords", metavar="FILE.npy",
                    help=prefix + "draw a synthesized texture: a [H, W, 2] uint16 coordinate map into the sample "
                    "(btfrs synth writes coords.npy)")
-    p.add_argument("--layout", type=int, nargs=2, default=[8, 8], metavar=("ROWS", "COLS"),
+    p.add_argument("--layout", type=int, nargs=2, default=None, metavar=("ROWS", "COLS"),
                    help=prefix + "for a tile set (btfrs tiles writes tiles.btfrs): the Wang tiling's size "
                    "(default: 8 8)")
-    p.add_argument("--layout-seed", type=int, default=0, help=prefix + "the tiling's seed (default: 0)")
-    p.add_argument("--uv-scale", type=float, default=1.0,
+    p.add_argument("--layout-seed", type=int, default=None, help=prefix + "the tiling's seed (default: 0)")
+    p.add_argument("--uv-scale", type=float, default=None,
                    help=prefix + "repetitions of the texture across the surface (default: 1)")
+    p.set_defaults(default_layout=[8, 8], default_layout_seed=0, default_uv_scale=1.0)
 
 
 def _viewable(obj: Any, args: argparse.Namespace) -> Tuple[Model, Dict[str, Any]]:
@@ -680,6 +834,15 @@ def _viewable(obj: Any, args: argparse.Namespace) -> Tuple[Model, Dict[str, Any]
         if isinstance(obj, tiles.TileSet):
             raise InvalidArgumentError("--coords: a tile set draws its own tiling (--layout), not a coordinate map")
         surface["coords"] = io.load_array(args.coords)
+    if not isinstance(obj, tiles.TileSet):
+        for dest in ("layout", "layout_seed"):
+            if dest in args.given:
+                raise InvalidArgumentError(f"--{dest.replace('_', '-')}: only applies to a tile set (btfrs tiles "
+                                           f"writes tiles.btfrs); {args.path or 'the input'} holds a "
+                                           f"{type(obj).__name__}")
+    if "model" in args.given and not isinstance(obj, Btf):
+        raise InvalidArgumentError(f"--model: only applies to a BTF or capture (fitted first); "
+                                   f"{args.path or 'the input'} holds a {type(obj).__name__}")
     if isinstance(obj, tiles.TileSet):
         if obj.model is None:
             raise InvalidArgumentError(f"path: {args.path} is a tile set of an image or a raw BTF; the viewer draws "
@@ -775,6 +938,66 @@ def render_command(args: argparse.Namespace) -> None:
                            backend=args.backend, renderer=args.renderer)
     io.save_image(args.out, img, exposure=args.exposure)
     print(f"wrote {args.out} ({args.image_size[0]} x {args.image_size[1]}, mean {float(np.mean(img)):.4f})")
+
+
+def _calibrate_args(sub: "argparse._SubParsersAction[_Parser]") -> None:
+    c = sub.add_parser("calibrate", help="the light directions of photographs with a glossy sphere in the frame: an "
+                                         ".lp file")
+    c.add_argument("photos", nargs="+", metavar="PHOTOS",
+                   help="a folder of photographs (every JPEG, PNG, TIFF, EXR in it, by name), or the photographs")
+    c.add_argument("-o", "--out", required=True, help="the .lp file to write (e.g. PHOTOS/dirs.lp)")
+    c.add_argument("--sphere", type=float, nargs=3, metavar=("CX", "CY", "R"),
+                   help="the sphere's circle in pixels, x right and y down from the image's top-left corner "
+                        "(default: found, as the darkest round region)")
+    g = c.add_mutually_exclusive_group()
+    g.add_argument("--fov", type=float, help="the camera's horizontal field of view in degrees, for a perspective "
+                                             "correction (default: an orthographic camera)")
+    g.add_argument("--focal", type=float, help="the camera's 35 mm-equivalent focal length in mm, for a perspective "
+                                               "correction")
+    c.add_argument("--white", type=int, nargs=4, metavar=("ROW", "COL", "ROWS", "COLS"),
+                   help="a white matte target in the frame: each light's relative intensity, written to --report")
+    c.add_argument("--report", metavar="FILE.json",
+                   help="write everything found as JSON: sphere, camera, per photograph its highlight, light, status "
+                        "and intensity")
+    c.add_argument("--figure", metavar="FILE.png",
+                   help="a picture of the sphere and the highlights on the first photograph, and the lights from above")
+    c.add_argument("--linear", action="store_true", help="8- and 16-bit values are linear (TIFF from RAW), not sRGB")
+    c.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def calibrate_command(args: argparse.Namespace) -> None:
+    """``btfrs calibrate``: find the lights from the sphere, write the .lp (and the report, the
+    picture); photographs left out are named on stderr."""
+    _check_output("-o", args.out, args, (".lp",))
+    if args.report:
+        _check_output("--report", args.report, args, (".json",))
+    if args.figure:
+        _check_output("--figure", args.figure, args, (".png",))
+    if args.white and not args.report:
+        raise InvalidArgumentError("--white: the intensities go into the report; give --report FILE.json too")
+    photos = args.photos[0] if len(args.photos) == 1 and os.path.isdir(args.photos[0]) else list(args.photos)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cal = calibration.calibrate(photos, args.sphere, fov=args.fov, focal=args.focal, white=args.white,
+                                    linear=args.linear, progress=not args.quiet)
+        cal.save(args.out)
+    for w in caught:
+        print(f"btfrs: warning: {w.message}", file=sys.stderr)
+    written = [args.out]
+    if args.report:
+        written.append(cal.save_report(args.report))
+    if args.figure:
+        written.append(cal.figure(args.figure))
+    cx, cy, r = cal.sphere
+    sph = cal.report["sphere"]
+    how = (f"found at ({cx:.1f}, {cy:.1f}), radius {r:.1f} px, outline fitted to {sph['edge_rms_px']:.2f} px rms"
+           if sph["detected"] else f"given at ({cx:.1f}, {cy:.1f}), radius {r:.1f} px")
+    cam = cal.report["camera"]
+    camera = "orthographic" if cam["projection"] == "orthographic" else f"perspective, focal {cam['focal_px']:.0f} px"
+    elev = np.degrees(np.arcsin(np.clip(cal.lights[:, 2], -1, 1)))
+    print(f"calibrated {len(cal.calibrated)} of {len(cal.images)} photographs ({camera} camera; sphere {how}); "
+          f"light elevations {elev.min():.1f} to {elev.max():.1f} degrees")
+    print("wrote " + ", ".join(written))
 
 
 if __name__ == "__main__":  # pragma: no cover

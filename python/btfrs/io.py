@@ -18,6 +18,7 @@ import contextlib
 import itertools
 import json
 import os
+import stat
 import warnings
 from typing import IO, Any, Iterator, List, Optional, Sequence, Tuple, Union
 
@@ -25,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import _native
-from ._checks import real
+from ._checks import memory_size, real
 from ._progress import Progress, callback
 from .btf import Btf
 from .exceptions import FormatError, InvalidArgumentError
@@ -122,6 +123,8 @@ def load_array(path: PathLike) -> NDArray[Any]:
     """A ``.npy`` file written by :func:`save_array` (or ``numpy.save``), read without pickles:
     a file that is not one raises :class:`FormatError` naming it."""
     p = os.fspath(path)
+    if os.path.exists(p):
+        _check_regular(p)  # a FIFO would block np.load
     try:
         a = np.load(p, allow_pickle=False)
     except (ValueError, EOFError) as e:
@@ -137,11 +140,16 @@ def save_text(path: PathLike, text: str) -> None:
         f.write(text)
 
 
-def load_as_format(path: PathLike, cls: type = Model) -> Model:
+def load_as_format(path: PathLike, cls: type = Model, *, max_bytes: Union[int, str, None] = None) -> Model:
     """Read another tool's model file (``.ptm``, ``.rti``: the formats of
     ``_native.model_formats()``, chosen by the extension) as a one-slot model, checking that it
-    is a ``cls``."""
-    m = wrap(_native.import_model(os.fspath(path)))
+    is a ``cls``. ``max_bytes`` (bytes, or a size such as ``"256MB"``) bounds what the reader
+    allocates, as for :func:`load`. Values the reader changed (a roughness clamped to the
+    model's range) are reported as one :class:`UserWarning` per kind."""
+    raw, notes = _native.import_model(os.fspath(path), memory_size("max_bytes", max_bytes))
+    for w in notes:
+        warnings.warn(w, UserWarning, stacklevel=2)
+    m = wrap(raw)
     if not isinstance(m, cls):
         raise FormatError(f"{os.fspath(path)}: holds a {type(m).__name__}, not a {cls.__name__}")
     return m
@@ -187,12 +195,40 @@ def _model_indexes() -> tuple[str, ...]:
     return tuple(dict.fromkeys(f.index for f in _native.model_formats() if f.folder))
 
 
+def _file_kind(path: str) -> Optional[str]:
+    """``None`` for a regular file (links followed), else what it is in words (``"a FIFO"``),
+    without opening it (a FIFO would block)."""
+    mode = os.stat(path).st_mode
+    if stat.S_ISREG(mode):
+        return None
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    return "not a regular file"
+
+
+def _check_regular(path: str) -> None:
+    """A :class:`FormatError` naming ``path`` unless it is a regular file (links followed)."""
+    what = _file_kind(path)
+    if what is not None:
+        raise FormatError(f"{path}: is {what}; expected a regular file")
+
+
 def _model_index(folder: str) -> str:
-    """The index file of the model format folder ``folder``."""
-    names = [n for n in _model_indexes() if os.path.isfile(os.path.join(folder, n))]
+    """The index file of the model format folder ``folder`` (a regular file)."""
+    names = [n for n in _model_indexes() if os.path.exists(os.path.join(folder, n))]
+    if not names:
+        raise FormatError(f"{folder}: holds none of {', '.join(_model_indexes())}")
     if len(names) > 1:
         raise FormatError(f"{folder}: holds {' and '.join(names)}; pass the one to load")
-    return os.path.join(folder, names[0])
+    index = os.path.join(folder, names[0])
+    _check_regular(index)
+    return index
 
 
 def capture_kind(path: PathLike, directions: Optional[PathLike] = None) -> str:
@@ -205,6 +241,9 @@ def capture_kind(path: PathLike, directions: Optional[PathLike] = None) -> str:
     ext = os.path.splitext(p)[1].lower()
     if directions is not None:
         return "table"
+    base = os.path.basename(os.path.normpath(p))
+    if os.path.isdir(p) and (base in _model_indexes() or ext in (".lp", ".btfrs", ".btf") + _model_extensions()):
+        raise FormatError(f"{p}: is a folder; expected a regular file")
     if os.path.isdir(p):
         names = sorted(os.listdir(p))
         lps = [n for n in names if n.lower().endswith(".lp")]
@@ -222,6 +261,7 @@ def capture_kind(path: PathLike, directions: Optional[PathLike] = None) -> str:
         return "ubo2003"
     if not os.path.exists(p):
         raise FileNotFoundError(f"{p}: no such file or folder")
+    _check_regular(p)
     table = {".btfrs": "btfrs", ".btf": "ubo2014", ".lp": "lp", ".zip": "ubo2003"}
     if ext in table:
         return table[ext]
@@ -271,10 +311,27 @@ def _crop(crop: Optional[Sequence[int]]) -> Optional[Tuple[int, int, int, int]]:
     return c
 
 
+def _select_btf(btf: Btf, crop: Optional[Sequence[int]], views: Optional[Sequence[int]],
+                lights: Optional[Sequence[int]]) -> Btf:
+    """``crop``, ``views`` and ``lights`` of :func:`load` applied to a BTF in memory."""
+    if views is None and lights is None and crop is None:
+        return btf
+    obj = btf.select(views=views, lights=lights)
+    if crop is not None:
+        rect = _crop(crop)
+        assert rect is not None
+        r, c, nr, nc = rect
+        if r + nr > obj.height or c + nc > obj.width or nr == 0 or nc == 0:
+            raise InvalidArgumentError(f"crop: {crop!r} lies outside the {obj.height} x {obj.width} BTF")
+        obj = Btf(np.ascontiguousarray(obj.data[r:r + nr, c:c + nc]), obj.views, obj.lights, obj.mask,
+                  check=False, meta=obj.meta)
+    return obj
+
+
 def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optional[Sequence[int]] = None,
          views: Optional[Sequence[int]] = None, lights: Optional[Sequence[int]] = None,
          mmap_to: Optional[PathLike] = None, linear: bool = False, mmap: bool = False, progress: Progress = None,
-         max_bytes: Optional[int] = None, allow_outside: bool = False) -> Any:
+         max_bytes: Union[int, str, None] = None, allow_outside: bool = False) -> Any:
     """Load any file btfrs reads, chosen by its type (:func:`capture_kind`): a measured capture,
     a ``.btfrs`` file (a BTF, a fitted model, a synthesis analysis, a Wang tile set), or another
     tool's model file (``.ptm``, ``.rti``). This is ``btfrs.load``.
@@ -299,28 +356,32 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
     is ever decoded. ``mmap_to="big.btfrs"`` decodes straight into that file (memory-mapped,
     written atomically) and returns it opened with ``mmap=True``, so a capture larger than memory
     loads. ``linear=True`` reads 8/16-bit images as linear (e.g. TIFFs converted from RAW) instead
-    of sRGB. ``progress`` shows or reports decoding progress; Ctrl-C stops it and writes nothing.
-    Light vectors of an ``.lp`` file or a table that are not unit length are normalised with a
-    :class:`UserWarning`.
+    of sRGB (captures only: it is refused for a ``.btfrs`` or model file). ``progress`` shows or reports decoding progress; Ctrl-C stops it and writes nothing.
+    Light vectors of an ``.lp`` file or a table that are not unit length are normalised, and a
+    light at most 0.02 below the horizon (as unit z) is moved onto it, each kind of repair
+    reported in one :class:`UserWarning` per file (how many, the range, the first lines).
 
-    Files from strangers (docs/real-data.md): a capture needing more than ``max_bytes`` bytes
-    (the in-memory BTF, any decoded image, an archive entry; default: half the machine's
-    physical memory), or an image whose decoded size is implausible for its bytes on disk, is
+    Files from strangers (docs/real-data.md): only regular files are read (a folder, FIFO or
+    device where a file is expected is a :class:`~btfrs.exceptions.FormatError` naming it); a
+    capture or model needing more than ``max_bytes`` bytes (a number, or a size such as
+    ``"256MB"`` or ``"2GiB"``: the in-memory BTF or model, any decoded image, an archive entry,
+    an index file's parse; default: half the machine's physical memory), an image whose decoded
+    size is implausible for its bytes on disk, or an index file over its format's cap is
     refused with :class:`~btfrs.exceptions.FormatError` before anything is allocated. Image
     paths in ``.lp`` files and direction tables must stay inside the capture's folder (symlinks
     resolved) unless ``allow_outside=True``.
     """
     p = os.fspath(path)
-    if max_bytes is not None:
-        if isinstance(max_bytes, bool) or not isinstance(max_bytes, (int, np.integer)) or max_bytes <= 0:
-            raise InvalidArgumentError(f"max_bytes: expected a positive integer, got {max_bytes!r}")
-        max_bytes = int(max_bytes)
+    max_bytes = memory_size("max_bytes", max_bytes)
     kind = capture_kind(p, directions)
     given = {k: v for k, v in dict(crop=crop, views=views, lights=lights, mmap_to=mmap_to).items() if v is not None}
     if kind in ("btfrs", "model_file"):
+        if linear:
+            raise InvalidArgumentError(f"linear: only applies to captures of 8/16-bit images ({p} is a "
+                                       f"{'.btfrs file' if kind == 'btfrs' else 'model file'})")
         obj: Any
         if kind == "model_file":
-            obj = load_as_format(_model_index(p) if os.path.isdir(p) else p)
+            obj = load_as_format(_model_index(p) if os.path.isdir(p) else p, max_bytes=max_bytes)
         elif mmap and _native.read_container_header(p)[0] == "btf":
             obj = Btf.load(p, mmap=True)
         else:
@@ -329,15 +390,7 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
             if not isinstance(obj, Btf) or "mmap_to" in given:
                 raise InvalidArgumentError(f"{', '.join(given)}: only apply to measured captures and BTFs"
                                            f" (this file holds a {type(obj).__name__})")
-            obj = obj.select(views=views, lights=lights)
-            if crop is not None:
-                rect = _crop(crop)
-                assert rect is not None
-                r, c, nr, nc = rect
-                if r + nr > obj.height or c + nc > obj.width or nr == 0 or nc == 0:
-                    raise InvalidArgumentError(f"crop: {crop!r} lies outside the {obj.height} x {obj.width} BTF")
-                obj = Btf(np.ascontiguousarray(obj.data[r:r + nr, c:c + nc]), obj.views, obj.lights, obj.mask,
-                          check=False, meta=obj.meta)
+            obj = _select_btf(obj, crop, views, lights)
         return obj
     if kind == "table" and directions is None:
         directions = _default_table(p)

@@ -32,6 +32,11 @@ impl Monitor {
         self.done.store(0, Ordering::Relaxed);
     }
 
+    /// Change the total, keeping the counter (work found shorter or longer than announced).
+    pub fn set_total(&self, total: u64) {
+        self.total.store(total, Ordering::Relaxed);
+    }
+
     /// Add `n` units of finished work.
     #[inline]
     pub fn advance(&self, n: u64) {

@@ -56,6 +56,7 @@ pub mod planes;
 pub mod ptm;
 pub mod rbf;
 pub mod registry;
+pub mod relief;
 pub mod robust;
 pub mod sh;
 mod simd;

@@ -122,6 +122,12 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     fn report(&self) -> serde_json::Value {
         serde_json::Value::Null
     }
+    /// The parameters as a reader uses them, where that differs from what a file stores
+    /// (decoded, unpadded, split by role: a decoder's layers, say); empty for most models. The
+    /// model's own file decodes its arrays, so no other code repeats that decoding.
+    fn unpacked(&self) -> NamedArrays {
+        NamedArrays::new()
+    }
     /// Every shader its renderers use (checked by the shader validation tests).
     fn shaders() -> Vec<crate::gpu::Shader> {
         vec![<Self as GpuLayout>::SHADER]
@@ -405,6 +411,8 @@ pub trait DynModel: Renderable + Send + std::fmt::Debug {
     fn to_arrays(&self) -> NamedArrays;
     /// [`Model::report`].
     fn report(&self) -> serde_json::Value;
+    /// [`Model::unpacked`].
+    fn unpacked(&self) -> NamedArrays;
     /// [`Model::RENDERERS`].
     fn renderers(&self) -> &'static [&'static str];
     /// [`Model::renderer`].
@@ -441,6 +449,9 @@ impl<M: Model + std::fmt::Debug> DynModel for M {
     }
     fn report(&self) -> serde_json::Value {
         Model::report(self)
+    }
+    fn unpacked(&self) -> NamedArrays {
+        Model::unpacked(self)
     }
     fn renderers(&self) -> &'static [&'static str] {
         M::RENDERERS

@@ -26,6 +26,7 @@ use crate::gpu::{GpuLayout, Shader};
 use crate::model::{Mip, Model, ReflectanceModel, Sampling, Setting};
 use crate::options::Spec;
 use crate::planes::Planes;
+use crate::relief::{self, HorizonMap};
 use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
 use decoder::{query_bias, Activation, Decoder, Directions, Shape};
 use std::borrow::Cow;
@@ -67,6 +68,8 @@ pub struct NeuralOptions {
     pub learning_rate: f64,
     /// Fraction of the present pairs kept out for early stopping.
     pub validation: f64,
+    /// Components per texel of the horizon map (0: none; `None`: automatic).
+    pub horizon: Option<usize>,
     /// Seed of every random choice.
     pub seed: u64,
 }
@@ -80,6 +83,8 @@ impl Default for NeuralOptions {
 
 /// Visits per texel of the automatic step count.
 const VISITS: usize = 500;
+/// Components per texel of the horizon map by default.
+pub const HORIZON_COMPONENTS: usize = 8;
 
 impl NeuralOptions {
     /// The checked training setup for `btf`.
@@ -128,6 +133,7 @@ impl NeuralOptions {
         let texels = btf.texels();
         let steps = self.steps.unwrap_or((VISITS * texels / train::BATCH_TEXELS).clamp(1000, 100_000));
         let features = self.features.unwrap_or(if directions == Directions::Light { 0 } else { 16 });
+        let components = self.horizon.unwrap_or(HORIZON_COMPONENTS);
         Ok(train::Setup {
             shape: Shape {
                 latents: self.latents,
@@ -136,6 +142,7 @@ impl NeuralOptions {
                 grid: self.grid,
                 hidden: self.hidden,
                 activation,
+                horizon: if components > 0 { relief::BINS } else { 0 },
             },
             steps,
             learning_rate: self.learning_rate,
@@ -151,30 +158,50 @@ pub struct Neural {
     height: usize,
     width: usize,
     latents: Planes,
+    /// The texels' horizon map (a decoder with clearance inputs reads it).
+    horizon: Option<HorizonMap>,
     decoder: Decoder,
     report: serde_json::Value,
     /// Per texel, the latent columns of layer 1 times its decoded code (`texels x hidden`).
     cache: Vec<f32>,
     /// Layer 2's weights transposed.
     w2t: Vec<f32>,
+    /// Layer 1's clearance columns, `[clearance][hidden]`.
+    clear: Vec<f32>,
 }
 
 impl PartialEq for Neural {
     fn eq(&self, o: &Self) -> bool {
-        (self.height, self.width) == (o.height, o.width) && self.latents == o.latents && self.decoder == o.decoder
+        (self.height, self.width) == (o.height, o.width)
+            && self.latents == o.latents
+            && self.horizon == o.horizon
+            && self.decoder == o.decoder
     }
 }
 
 impl Neural {
-    /// Assemble and check (`what`: the array names for errors).
+    /// Assemble and check: the codes' and the horizon map's texel counts, and a horizon map
+    /// exactly when the decoder reads one.
     pub fn new(
         height: usize,
         width: usize,
         latents: Planes,
+        horizon: Option<HorizonMap>,
         decoder: Decoder,
         report: serde_json::Value,
     ) -> Result<Self> {
         let sh = decoder.shape;
+        match &horizon {
+            Some(m) => ensure_arg!(
+                m.coeffs.texels == height * width && m.bins == sh.horizon,
+                "horizon_q",
+                "expected a horizon map of {height} x {width} texels and {} azimuth bins, got {} texels and {} bins",
+                sh.horizon,
+                m.coeffs.texels,
+                m.bins
+            ),
+            None => ensure_arg!(sh.horizon == 0, "horizon_q", "the decoder reads a horizon map and none is given"),
+        }
         ensure_arg!(
             latents.texels == height * width && latents.k == sh.latents,
             "latents_q",
@@ -189,7 +216,8 @@ impl Neural {
         use rayon::prelude::*;
         cache.par_chunks_mut(h).zip(z.par_chunks(sh.latents)).for_each(|(c, z)| decoder.latent_part(z, c));
         let w2t = decoder.w2t();
-        Ok(Neural { height, width, latents, decoder, report, cache, w2t })
+        let clear = decoder.clearance_columns();
+        Ok(Neural { height, width, latents, horizon, decoder, report, cache, w2t, clear })
     }
 
     /// The decoder.
@@ -202,31 +230,57 @@ impl Neural {
         &self.latents
     }
 
+    /// The texels' horizon map, if the decoder reads one.
+    pub fn horizon(&self) -> Option<&HorizonMap> {
+        self.horizon.as_ref()
+    }
+
     /// (height, width) in texels.
     pub fn size(&self) -> (usize, usize) {
         (self.height, self.width)
     }
 }
 
+/// The view slot a sample's relief is measured in: the one seen most nearly from above.
+fn relief_view(btf: &BtfRef<'_>) -> usize {
+    (0..btf.views.len()).max_by(|&a, &b| btf.views[a][2].total_cmp(&btf.views[b][2])).unwrap_or(0)
+}
+
 /// Fit a neural model to the present pairs of `btf`; `monitor` counts training steps.
 pub fn fit_neural(btf: &BtfRef<'_>, o: &NeuralOptions, monitor: &Monitor) -> Result<Neural> {
     let s = o.setup(btf)?;
-    let t = train::train(btf, &s, monitor)?;
-    let report = serde_json::to_value(&t.report).unwrap_or(serde_json::Value::Null);
-    let mut report = report;
+    let mut extra = serde_json::Map::new();
+    let horizon = if s.shape.horizon > 0 {
+        let view = relief_view(btf);
+        let (height, normals, albedo) = relief::height_map(btf, view, monitor)?;
+        let (scale, score) = relief::choose_scale(btf, view, &height, &normals, &albedo);
+        let components = o.horizon.unwrap_or(HORIZON_COMPONENTS);
+        let map = HorizonMap::build(&height, scale, components, monitor)?;
+        extra.insert("horizon_scale".into(), scale.into());
+        extra.insert("horizon_agreement".into(), score.into());
+        Some(map)
+    } else {
+        None
+    };
+    let t = train::train(btf, &s, horizon.as_ref(), monitor)?;
+    let mut report = serde_json::to_value(&t.report).unwrap_or(serde_json::Value::Null);
     if let serde_json::Value::Object(m) = &mut report {
         m.insert("directions".into(), s.shape.directions.name().into());
         m.insert("activation".into(), s.shape.activation.name().into());
         m.insert("max_steps".into(), s.steps.into());
+        m.insert("horizon".into(), horizon.as_ref().map_or(0, |h| h.components()).into());
+        m.extend(extra);
     }
-    Neural::new(btf.height, btf.width, t.latents, t.decoder, report)
+    Neural::new(btf.height, btf.width, t.latents, horizon, t.decoder, report)
 }
 
-/// A prepared (view, light) pair: the direction part of layer 1 and the output gain.
+/// A prepared (view, light) pair: the direction part of layer 1, the output gain, and where
+/// the clearance directions fall among the horizon bins.
 #[derive(Debug, Clone, Copy)]
 pub struct NeuralQuery {
     bias: [f32; MAX_HIDDEN],
     gain: f32,
+    look: [(usize, usize, f32, f32); 2],
 }
 
 impl ReflectanceModel for Neural {
@@ -238,8 +292,15 @@ impl ReflectanceModel for Neural {
 
     fn query(&self, view: [f64; 3], light: [f64; 3]) -> NeuralQuery {
         let mut bias = [0.0f32; MAX_HIDDEN];
-        query_bias(&self.decoder.shape, &self.decoder.params, view, light, &mut bias);
-        NeuralQuery { bias, gain: self.decoder.shape.directions.gain(light) }
+        let sh = &self.decoder.shape;
+        query_bias(sh, &self.decoder.params, view, light, &mut bias);
+        let mut look = [(0, 0, 0.0, 0.0); 2];
+        if sh.horizon > 0 {
+            for (o, d) in look.iter_mut().zip(sh.clearance_directions(view, light)) {
+                *o = relief::lookup(d, sh.horizon);
+            }
+        }
+        NeuralQuery { bias, gain: sh.directions.gain(light), look }
     }
 
     #[inline]
@@ -249,6 +310,12 @@ impl ReflectanceModel for Neural {
         let mut scratch = [0.0f32; MAX_HIDDEN];
         for ((p, a), b) in pre[..h].iter_mut().zip(&self.cache[t * h..(t + 1) * h]).zip(&q.bias[..h]) {
             *p = a + b;
+        }
+        if let Some(map) = &self.horizon {
+            for (i, col) in self.clear.chunks_exact(h).enumerate() {
+                let s = map.clearance(t, q.look[i]);
+                pre[..h].iter_mut().zip(col).for_each(|(p, w)| *p += s * w);
+            }
         }
         self.decoder.finish(&mut pre[..h], &self.w2t, &mut scratch).map(|x| x * q.gain)
     }
@@ -278,6 +345,16 @@ crate::gpu_params! {
         pub grid: u32,
         /// The power of two the output layer's halves are scaled by.
         pub out_scale: f32,
+        /// Azimuth bins of the horizon map (0: none).
+        pub hbins: u32,
+        /// Its components per texel.
+        pub hcomp: u32,
+        /// Store offset of its mean row then components (`(1 + hcomp) hbins` f32).
+        pub hbasis: u32,
+        /// Store offset of its coordinates' scales then biases (`2 hcomp` f32).
+        pub hscale: u32,
+        /// Store offset of its coordinate bytes, `[texel][component]`, four to a word.
+        pub hq: u32,
     }
     constants = GPU_CONSTANTS;
 }
@@ -289,11 +366,17 @@ impl GpuLayout for Neural {
     fn parts(&self) -> Vec<Cow<'_, [u32]>> {
         // The direction tables first: at the start of the store they lie in the first storage
         // binding, which the shader reads directly (no chunk lookup per feature).
-        vec![
+        let mut parts = vec![
             Cow::Owned(self.decoder.gpu_tables()),
             Cow::Owned(self.latents.scale_bias_words()),
             Cow::Owned(self.latents.words()),
-        ]
+        ];
+        if let Some(m) = &self.horizon {
+            parts.push(Cow::Owned(m.mean.iter().chain(&m.basis).map(|x| x.to_bits()).collect()));
+            parts.push(Cow::Owned(m.coeffs.scale_bias_words()));
+            parts.push(Cow::Owned(m.coeffs.words()));
+        }
+        parts
     }
 
     fn constants(&self) -> Vec<u32> {
@@ -313,6 +396,11 @@ impl GpuLayout for Neural {
             features: sh.features as u32,
             grid: sh.grid as u32,
             out_scale: self.decoder.output_scale(),
+            hbins: self.horizon.as_ref().map_or(0, |m| m.bins as u32),
+            hcomp: self.horizon.as_ref().map_or(0, |m| m.components() as u32),
+            hbasis: offsets.get(3).copied().unwrap_or(0),
+            hscale: offsets.get(4).copied().unwrap_or(0),
+            hq: offsets.get(5).copied().unwrap_or(0),
         }
     }
 }
@@ -366,6 +454,12 @@ and whether training stopped early. Filtered lookups average the codes (`mip = \
         ),
         Spec::positive("learning_rate", 0.005, "Adam's peak learning rate, at most 0.1 (cosine schedule)"),
         Spec::float("validation", 0.05, 0.0, "fraction of the present pairs kept out for early stopping, at most 0.5"),
+        Spec::opt_int(
+            "horizon",
+            0,
+            Some(relief::BINS as i64),
+            "components per texel of the horizon map, whose clearances the decoder reads to place cast shadows (0: none, NeuralRTI's form; null: 8)",
+        ),
         Spec::seed("seed of the PCA start, the initial weights, the minibatches and the validation pairs"),
     ];
     const EXAMPLES: &'static [(&'static str, &'static str)] =
@@ -380,7 +474,7 @@ and whether training stopped early. Filtered lookups average the codes (`mip = \
         one_view: "one view: NeuralRTI's form, the light's (x, y) only",
     };
     const EXPORTS: &'static [&'static str] = &["neuralrti"];
-    const TEXEL_ARRAYS: &'static [&'static str] = &["latents_q"];
+    const TEXEL_ARRAYS: &'static [&'static str] = &["latents_q", "horizon_q"];
     const STOCHASTIC: bool = true;
     const SMALLEST: &'static str = r#"{"latents": 4, "hidden": 16, "steps": 300}"#;
     const BENCH: &'static [crate::model::Bench] = &[crate::model::Bench::new("Neural-8", "{}", &["against_all"])];
@@ -397,19 +491,24 @@ and whether training stopped early. Filtered lookups average the codes (`mip = \
         fit_neural(btf, options, monitor)
     }
 
-    /// The latents with Adam's moments, the PCA start's smallest sample, and scratch.
+    /// The latents with Adam's moments, the PCA start's smallest sample, the relief (height,
+    /// normals, albedo and the horizon map's coordinates), and scratch.
     fn least_memory(btf: &BtfRef<'_>, options: &NeuralOptions) -> u64 {
         let t = btf.texels() as u64;
-        t * options.latents as u64 * 16 + t * 12 * (options.latents as u64).div_ceil(3) + 16_000_000
+        let relief = if options.horizon.unwrap_or(HORIZON_COMPONENTS) > 0 { t * 72 } else { 0 };
+        t * options.latents as u64 * 16 + t * 12 * (options.latents as u64).div_ceil(3) + relief + 16_000_000
     }
 
     fn to_arrays(&self) -> NamedArrays {
         let sh = self.decoder.shape;
         let mut a = NamedArrays::new();
         self.latents.insert_into(&mut a, "latents_", vec![self.height, self.width, sh.latents]);
+        if let Some(m) = &self.horizon {
+            m.insert_into(&mut a, "horizon_", vec![self.height, self.width, m.components()]);
+        }
         a.put(
             "architecture",
-            &[6],
+            &[7],
             vec![
                 sh.latents as i32,
                 sh.hidden as i32,
@@ -417,6 +516,7 @@ and whether training stopped early. Filtered lookups average the codes (`mip = \
                 sh.activation.code(),
                 sh.features as i32,
                 sh.grid as i32,
+                self.horizon.as_ref().map_or(0, |m| m.components() as i32),
             ],
         );
         a.put("decoder", &[self.decoder.params.len()], self.decoder.params.clone());
@@ -424,8 +524,16 @@ and whether training stopped early. Filtered lookups average the codes (`mip = \
     }
 
     fn from_arrays(a: &NamedArrays) -> Result<Self> {
-        let (arch, _) = a.get::<i32>("architecture", &[Some(6)])?;
+        // Files written before horizon maps hold six values (no map).
+        let (arch, ashape) = a.get::<i32>("architecture", &[None])?;
         let bad = |msg: String| Error::format("architecture", msg);
+        if !(ashape[0] == 6 || ashape[0] == 7) {
+            return Err(bad(format!("expected 6 or 7 values, got {}", ashape[0])));
+        }
+        let components = if ashape[0] == 7 { arch[6] } else { 0 };
+        if !(0..=relief::BINS as i32).contains(&components) {
+            return Err(bad(format!("expected 0 to {} horizon components, got {components}", relief::BINS)));
+        }
         let latents = arch[0];
         let hidden = arch[1];
         if !(1..=MAX_LATENTS as i32).contains(&latents) {
@@ -452,6 +560,7 @@ and whether training stopped early. Filtered lookups average the codes (`mip = \
             grid: grid as usize,
             hidden: hidden as usize,
             activation,
+            horizon: 0,
         };
         let (_, qshape) = a.get::<u8>("latents_q", &[None, None, Some(shape.latents)])?;
         let (height, width) = (qshape[0], qshape[1]);
@@ -459,13 +568,22 @@ and whether training stopped early. Filtered lookups average the codes (`mip = \
             return Err(Error::format("latents_q", format!("expected at least one texel, got {height} x {width}")));
         }
         let planes = Planes::from_arrays(a, "latents_", height * width, shape.latents)?;
+        let horizon = match components {
+            0 => None,
+            m => Some(HorizonMap::from_arrays(a, "horizon_", height * width, m as usize)?),
+        };
+        let shape = Shape { horizon: horizon.as_ref().map_or(0, |m| m.bins), ..shape };
         let (params, _) = a.get::<f32>("decoder", &[None])?;
         let decoder = Decoder::new(shape, params.to_vec(), "decoder")?;
-        Neural::new(height, width, planes, decoder, serde_json::Value::Null)
+        Neural::new(height, width, planes, horizon, decoder, serde_json::Value::Null)
     }
 
     fn report(&self) -> serde_json::Value {
         self.report.clone()
+    }
+
+    fn unpacked(&self) -> NamedArrays {
+        self.decoder.unpacked()
     }
 }
 

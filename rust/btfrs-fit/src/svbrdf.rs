@@ -78,8 +78,10 @@ impl Svbrdf {
                 return Err(Error::arg(name, format!("value at flat index {i} is not finite")));
             }
         }
-        if let Some(i) = self.diffuse.iter().chain(&self.specular).position(|&x| !(0.0..=1e6).contains(&x)) {
-            return Err(Error::arg("diffuse", format!("colour value at flat index {i} is outside [0, 1e6]")));
+        for (name, a) in [("diffuse", &self.diffuse), ("specular", &self.specular)] {
+            if let Some(i) = a.iter().position(|&x| !(0.0..=1e6).contains(&x)) {
+                return Err(Error::arg(name, format!("colour value {} at flat index {i} is outside [0, 1e6]", a[i])));
+            }
         }
         if let Some(i) = self.roughness.iter().position(|&a| !((ALPHA_MIN as f32)..=(ALPHA_MAX as f32)).contains(&a)) {
             return Err(Error::arg(

@@ -192,6 +192,17 @@ impl Raw {
         }
     }
 
+    /// The 8-bit samples as RGB bytes (grey replicated, alpha dropped), as stored (no
+    /// transfer applied); `None` for 16-bit or float samples.
+    pub fn rgb8(self) -> Option<Vec<u8>> {
+        let Samples::U8(v, ch) = self.samples else { return None };
+        Some(match ch {
+            3 => v,
+            1 | 2 => v.chunks_exact(ch).flat_map(|p| [p[0]; 3]).collect(),
+            _ => v.chunks_exact(ch).flat_map(|p| [p[0], p[1], p[2]]).collect(),
+        })
+    }
+
     /// Convert to float RGB.
     pub fn into_decoded(self) -> Decoded {
         let rgb = (0..self.width * self.height).flat_map(|p| self.rgb(p)).collect();
@@ -522,19 +533,24 @@ pub fn decode_raw_from<R: BufRead + Seek>(
     raw_from(open_decoder(r, shown, disk, max_bytes)?, shown, transfer)
 }
 
+/// An image file opened as every reader opens a file ([`crate::untrusted::open`]: a regular
+/// file, never blocking on a FIFO), with its bytes on disk.
 fn open_file(path: &std::path::Path) -> Result<(std::io::BufReader<std::fs::File>, String, u64)> {
     let shown = path.display().to_string();
-    let f = std::fs::File::open(path).map_err(|e| Error::io(&shown, e))?;
-    let disk = f.metadata().map_err(|e| Error::io(&shown, e))?.len();
+    let (f, disk) = crate::untrusted::open(path)?;
     Ok((std::io::BufReader::with_capacity(256 << 10, f), shown, disk))
 }
 
 /// Read and decode an image file.
 pub fn read(path: &std::path::Path, transfer: Transfer) -> Result<Decoded> {
+    read_within(path, transfer, crate::capture::default_max_bytes())
+}
+
+/// [`read`] within `max_bytes`.
+pub fn read_within(path: &std::path::Path, transfer: Transfer, max_bytes: u64) -> Result<Decoded> {
     let (f, shown, disk) = open_file(path)?;
     let mut rgb = Vec::new();
-    let (width, height) =
-        decode_place(f, &shown, transfer, disk, crate::capture::default_max_bytes(), Place::New(&mut rgb))?;
+    let (width, height) = decode_place(f, &shown, transfer, disk, max_bytes, Place::New(&mut rgb))?;
     Ok(Decoded { width, height, rgb })
 }
 

@@ -7,6 +7,26 @@ use btfrs_core::{Error, Result};
 use btfrs_fit::DynModel;
 use std::path::Path;
 
+use crate::capture::Limits;
+use crate::untrusted::{self, TextKind};
+
+/// What reading another tool's file gives: the model, and one warning per kind of value the
+/// reader changed ([`crate::untrusted::Repairs`]).
+#[derive(Debug)]
+pub struct Imported {
+    /// The model read.
+    pub model: Box<dyn DynModel>,
+    /// Summary warnings, each naming the file.
+    pub warnings: Vec<String>,
+}
+
+impl Imported {
+    /// A model read without repairs.
+    pub fn model(model: Box<dyn DynModel>) -> Imported {
+        Imported { model, warnings: Vec::new() }
+    }
+}
+
 /// One file format of another tool.
 #[derive(Debug, Clone, Copy)]
 pub struct Format {
@@ -24,8 +44,9 @@ pub struct Format {
     /// Write view slot `view` of a model as this format; returns what the writer chose (the
     /// quantization's scales and biases) as a JSON object.
     pub export: fn(&dyn DynModel, usize, &Path) -> Result<serde_json::Value>,
-    /// Read a file of this format as a one-slot model (view = the normal).
-    pub import: fn(&Path) -> Result<Box<dyn DynModel>>,
+    /// Read a file of this format as a one-slot model (view = the normal), within `limits`
+    /// (`max_bytes`: the most bytes the reader allocates, its index file's parse included).
+    pub import: fn(&Path, &Limits) -> Result<Imported>,
 }
 
 /// Every format, in the order `btfrs.load` tries extensions.
@@ -52,6 +73,17 @@ pub fn lookup(name: &str) -> Result<&'static Format> {
 pub fn of_path(path: &Path) -> Option<&'static Format> {
     let ext = path.extension()?.to_str()?.to_ascii_lowercase();
     FORMATS.iter().find(|f| f.extension == ext)
+}
+
+/// Read `path` as the format its extension names ([`of_path`]) within `limits`. Whatever a
+/// file's values make a model refuse is an [`Error::Format`] naming the file.
+pub fn import(path: &Path, limits: &Limits) -> Result<Imported> {
+    let f = of_path(path).ok_or_else(|| {
+        let list: Vec<String> = FORMATS.iter().map(|f| format!(".{}", f.extension)).collect();
+        Error::arg("path", format!("{}: expected a file ending in {}", path.display(), list.join(" or ")))
+    })?;
+    let shown = path.display().to_string();
+    (f.import)(path, limits).map_err(untrusted::as_format(&shown, "values"))
 }
 
 /// Write view slot `view` of `model` as `format`: an error naming `format` when the model does
@@ -107,21 +139,22 @@ pub(crate) fn concrete<'a, M: 'static>(model: &'a dyn DynModel, what: &str) -> R
 }
 
 /// The index file of a folder format's `path` (the folder, or the index file itself) and its
-/// folder, read as UTF-8 text of at most `max` bytes (a file from a stranger): `(folder, shown
-/// name, text)`. A larger file or invalid UTF-8 is an [`Error::Format`] naming the file.
-pub(crate) fn read_index(path: &Path, index: &str, max: u64) -> Result<(std::path::PathBuf, String, String)> {
+/// folder, read as [`untrusted::read_text`] reads a text of `kind` (a regular file within the
+/// kind's cap and `max_bytes`, UTF-8): `(folder, shown name, text)`.
+pub(crate) fn read_index(
+    path: &Path,
+    index: &str,
+    kind: TextKind,
+    max_bytes: u64,
+) -> Result<(std::path::PathBuf, String, String)> {
     let (dir, file) = if path.is_dir() {
         (path.to_path_buf(), path.join(index))
     } else {
         (path.parent().map(Path::to_path_buf).unwrap_or_default(), path.to_path_buf())
     };
+    let dir = if dir.as_os_str().is_empty() { std::path::PathBuf::from(".") } else { dir };
     let shown = file.display().to_string();
-    let len = std::fs::metadata(&file).map_err(|e| Error::io(&shown, e))?.len();
-    if len > max {
-        return Err(Error::format(&shown, format!("{len} bytes; at most {max} are read")));
-    }
-    let bytes = std::fs::read(&file).map_err(|e| Error::io(&shown, e))?;
-    let text = String::from_utf8(bytes).map_err(|e| Error::format(&shown, format!("not UTF-8: {e}")))?;
+    let text = untrusted::read_text(&file, kind, max_bytes)?;
     Ok((dir, shown, text))
 }
 

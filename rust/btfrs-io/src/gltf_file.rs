@@ -46,9 +46,11 @@ use btfrs_fit::{DynModel, Model};
 use serde_json::{json, Value};
 
 use crate::atomic::write_atomic;
+use crate::capture::Limits;
 use crate::decode::{self, Transfer};
-use crate::formats::{concrete, decode_normals, plain_name, read_index, Format};
+use crate::formats::{concrete, decode_normals, plain_name, read_index, Format, Imported};
 use crate::image::{linear_to_srgb, write_png16};
+use crate::untrusted::{self, Repairs};
 
 /// The format's entry in [`crate::formats::FORMATS`].
 pub const FORMAT: Format = Format {
@@ -63,8 +65,6 @@ pub const FORMAT: Format = Format {
 
 /// The index file.
 pub const INDEX: &str = "material.gltf";
-/// The largest `material.gltf` read (a btfrs one is a few KB).
-const MAX_JSON: u64 = 16 << 20;
 /// glTF's sampler constants.
 const LINEAR: u32 = 9729;
 const LINEAR_MIPMAP_LINEAR: u32 = 9987;
@@ -78,8 +78,9 @@ fn export_model(model: &dyn DynModel, _view: usize, path: &Path) -> Result<Value
     export(concrete::<Svbrdf>(model, "an svbrdf model")?, path)
 }
 
-fn import_model(path: &Path) -> Result<Box<dyn DynModel>> {
-    Ok(Box::new(import(path)?))
+fn import_model(path: &Path, limits: &Limits) -> Result<Imported> {
+    let (m, warnings) = import_within(path, limits)?;
+    Ok(Imported { model: Box::new(m), warnings })
 }
 
 /// The square's buffer: 4 vertices of position, normal, tangent and texture coordinates (f32,
@@ -249,15 +250,15 @@ fn texture_path(doc: &Value, info: &Value, dir: &Path, shown: &str, what: &str) 
         ));
     }
     let file = dir.join(uri);
-    if !file.is_file() {
+    if !untrusted::present(&file) {
         return Err(bad(shown, &format!("images[{s}].uri"), format!("{uri:?} does not exist beside the asset")));
     }
     Ok(file)
 }
 
 /// Read an image of `w x h` pixels (or set them from the first image) as linear RGB.
-fn read_map(path: &Path, transfer: Transfer, size: &mut Option<(usize, usize)>) -> Result<Vec<f32>> {
-    let d = decode::read(path, transfer)?;
+fn read_map(path: &Path, transfer: Transfer, size: &mut Option<(usize, usize)>, max_bytes: u64) -> Result<Vec<f32>> {
+    let d = decode::read_within(path, transfer, max_bytes)?;
     match *size {
         Some((w, h)) if (d.width, d.height) != (w, h) => Err(Error::format(
             path.display().to_string(),
@@ -272,10 +273,20 @@ fn read_map(path: &Path, transfer: Transfer, size: &mut Option<(usize, usize)>) 
 
 /// Read a glTF asset (its folder or `.gltf` file) as an `svbrdf` model: the first material's
 /// base colour, metallic-roughness, normal and specular colour textures with their factors.
+/// A roughness below the model's range (glTF's 0, a mirror) is raised to it with a warning
+/// ([`import_within`] returns it).
 pub fn import(path: &Path) -> Result<Svbrdf> {
-    let (dir, shown, text) = read_index(path, INDEX, MAX_JSON)?;
+    Ok(import_within(path, &Limits::default())?.0)
+}
+
+/// [`import`] within `limits` (see [`crate::untrusted`]), with the warnings about values it
+/// changed.
+pub fn import_within(path: &Path, limits: &Limits) -> Result<(Svbrdf, Vec<String>)> {
+    let (dir, shown, text) = read_index(path, INDEX, untrusted::JSON_INDEX, limits.max_bytes)?;
     let shown = shown.as_str();
-    let doc: Value = serde_json::from_str(&text).map_err(|e| bad(shown, "JSON", e))?;
+    let doc: Value = untrusted::parse_json(&text, shown)?;
+    drop(text);
+    let max_bytes = limits.max_bytes;
     if doc["asset"]["version"].as_str() != Some("2.0") {
         return Err(bad(shown, "asset.version", format!("expected \"2.0\", got {}", doc["asset"]["version"])));
     }
@@ -295,13 +306,39 @@ pub fn import(path: &Path) -> Result<Svbrdf> {
         texture_path(&doc, v, &dir, shown, what)
     };
     let mut size = None;
-    let base = read_map(&need(&pbr["baseColorTexture"], "baseColorTexture")?, Transfer::Srgb, &mut size)?;
-    let mr =
-        read_map(&need(&pbr["metallicRoughnessTexture"], "metallicRoughnessTexture")?, Transfer::Linear, &mut size)?;
-    let nrm = read_map(&need(&mat["normalTexture"], "normalTexture")?, Transfer::Linear, &mut size)?;
-    let sc = read_map(&need(&spec["specularColorTexture"], "specularColorTexture")?, Transfer::Srgb, &mut size)?;
+    let files = [
+        need(&pbr["baseColorTexture"], "baseColorTexture")?,
+        need(&pbr["metallicRoughnessTexture"], "metallicRoughnessTexture")?,
+        need(&mat["normalTexture"], "normalTexture")?,
+        need(&spec["specularColorTexture"], "specularColorTexture")?,
+    ];
+    // The maps' sizes from their headers, and the model's floats within max_bytes, before
+    // any map is decoded.
+    let (w0, h0) = untrusted::image_size(&files[0])?;
+    for f in &files[1..] {
+        let (w, h) = untrusted::image_size(f)?;
+        if (w, h) != (w0, h0) {
+            return Err(Error::format(
+                f.display(),
+                format!("{w} x {h} pixels; the base colour map has {w0} x {h0}, and every map the same"),
+            ));
+        }
+    }
+    untrusted::check_declared(
+        shown,
+        &format!("a {w0} x {h0} svbrdf model (4 maps of 3 floats per texel and their model, 96 bytes per texel)"),
+        u64::from(w0).checked_mul(u64::from(h0)).and_then(|t| t.checked_mul(96)),
+        max_bytes,
+    )?;
+    let base = read_map(&files[0], Transfer::Srgb, &mut size, max_bytes)?;
+    let mr = read_map(&files[1], Transfer::Linear, &mut size, max_bytes)?;
+    let nrm = read_map(&files[2], Transfer::Linear, &mut size, max_bytes)?;
+    let sc = read_map(&files[3], Transfer::Srgb, &mut size, max_bytes)?;
     let base_f = factors(&pbr["baseColorFactor"], &[1.0; 4], shown, "baseColorFactor")?;
     let rough_f = number(&pbr["roughnessFactor"], 1.0, shown, "roughnessFactor")?;
+    if !(0.0..=1.0).contains(&rough_f) {
+        return Err(bad(shown, "roughnessFactor", format!("{rough_f}: expected a number in [0, 1] (glTF 2.0)")));
+    }
     let scale = number(&mat["normalTexture"]["scale"], 1.0, shown, "normalTexture.scale")?;
     let sc_f = factors(&spec["specularColorFactor"], &[1.0; 3], shown, "specularColorFactor")?;
     let s_f = number(&spec["specularFactor"], 1.0, shown, "specularFactor")?;
@@ -311,12 +348,29 @@ pub fn import(path: &Path) -> Result<Svbrdf> {
     let diffuse: Vec<f32> = (0..3 * t).map(|i| (base[i] as f64 * base_f[i % 3]) as f32).collect();
     // glTF clamps the dielectric F0 to 1 before the specular factor.
     let specular: Vec<f32> = (0..3 * t).map(|i| ((f0 * sc_f[i % 3] * sc[i] as f64).min(1.0) * s_f) as f32).collect();
-    let roughness: Vec<f32> =
-        (0..t).map(|i| (rough_f * mr[3 * i + 1] as f64).powi(2).clamp(ALPHA_MIN, ALPHA_MAX) as f32).collect();
+    // glTF's roughness r in [0, 1] is the model's alpha = r^2; below the model's smallest
+    // alpha (a mirror) it is raised to it, and said so when it lies below by more than a
+    // 16-bit map's step (2 r / 65535 in alpha: the export's own ALPHA_MIN rounds to just under).
+    let mut raised = Repairs::new(
+        shown,
+        format!("roughness value(s) of metallicRoughnessTexture below the svbrdf's smallest (alpha {ALPHA_MIN}) raised to it"),
+        "alpha(s)",
+        "pixel(s)",
+    );
+    let roughness: Vec<f32> = (0..t)
+        .map(|i| {
+            let a = (rough_f * mr[3 * i + 1] as f64).powi(2);
+            if a < ALPHA_MIN - 1e-4 {
+                raised.add(i, a);
+            }
+            a.clamp(ALPHA_MIN, ALPHA_MAX) as f32
+        })
+        .collect();
     let normal = decode_normals(&nrm, scale, shown, "normalTexture")?;
     a.put("diffuse", &[h, w, 3], diffuse);
     a.put("specular", &[h, w, 3], specular);
     a.put("roughness", &[h, w], roughness);
     a.put("normal", &[h, w, 3], normal);
-    <Svbrdf as Model>::from_arrays(&a).map_err(|e| bad(shown, "maps", e))
+    let m = <Svbrdf as Model>::from_arrays(&a).map_err(|e| bad(shown, "maps", e))?;
+    Ok((m, raised.warning().into_iter().collect()))
 }

@@ -127,8 +127,7 @@ fn too_large(shown: &str, what: String, need: Option<u64>, len: u64, ratio: u64)
 /// pixel buffer is allocated only once the declared size is known to fit the file.
 pub fn read_png(path: &Path) -> Result<(Vec<f32>, usize, usize)> {
     let shown = &path.display().to_string();
-    let f = std::fs::File::open(path).map_err(|e| Error::io(shown, e))?;
-    let len = f.metadata().map_err(|e| Error::io(shown, e))?.len();
+    let (f, len) = crate::untrusted::open(path)?;
     let most = len.saturating_mul(DEFLATE_MAX_RATIO);
     let mut dec = png::Decoder::new(std::io::BufReader::new(f));
     // Text and ICC chunks are not used; skipping them avoids their (compressed) allocations.
@@ -190,8 +189,24 @@ pub fn write_exr(path: &Path, rgb: &[f32], width: usize, height: usize) -> Resul
 /// length (see [`EXR_MAX_RATIO`]) before the pixels are decoded; a corrupted file is an
 /// [`Error::Format`].
 pub fn read_exr(path: &Path) -> Result<(Vec<f32>, usize, usize)> {
+    read_exr_within(path, crate::capture::default_max_bytes())
+}
+
+/// [`read_exr`] within `max_bytes`: the file itself, and every layer's float RGB pixels.
+pub fn read_exr_within(path: &Path, max_bytes: u64) -> Result<(Vec<f32>, usize, usize)> {
     let shown = &path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|e| Error::io(shown, e))?;
+    let bytes = crate::untrusted::read_bytes(path, max_bytes, "an OpenEXR image within max_bytes")?;
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&bytes), false)
+        .map_err(|e| Error::format(shown, e))?;
+    for h in &meta.headers {
+        let (w, ht) = (h.layer_size.0 as u64, h.layer_size.1 as u64);
+        crate::untrusted::check_declared(
+            shown,
+            &format!("a {w} x {ht} layer as float RGB"),
+            w.checked_mul(ht).and_then(|p| p.checked_mul(12)),
+            max_bytes,
+        )?;
+    }
     read_exr_bytes(&bytes, shown)
 }
 

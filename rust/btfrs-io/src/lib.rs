@@ -15,6 +15,8 @@
 //! * [`ubo2014`]: UBO2014 `.btf` files (Bonn's DFMF binary) read as a capture, and written.
 //! * [`capture`]: what the loaders of measured data share (selection, the capture plan, decoding into a texel-major buffer).
 //! * [`atomic`]: every writer goes through a temporary file and a rename.
+//! * [`untrusted`]: the reading discipline of every reader (regular files only, size caps, UTF-8,
+//!   bounded parses, declared sizes checked before allocation, repairs reported).
 
 pub mod atomic;
 pub mod capture;
@@ -33,3 +35,4 @@ pub mod rti_file;
 pub mod stack;
 pub mod ubo2003;
 pub mod ubo2014;
+pub mod untrusted;

@@ -41,8 +41,10 @@ use btfrs_fit::{DynModel, Model};
 use serde_json::{json, Value};
 
 use crate::atomic::write_atomic;
-use crate::formats::{concrete, decode_normals, plain_name, read_index, Format};
-use crate::image::{read_exr, write_exr, write_exr_channels};
+use crate::capture::Limits;
+use crate::formats::{concrete, decode_normals, plain_name, read_index, Format, Imported};
+use crate::image::{read_exr_within, write_exr, write_exr_channels};
+use crate::untrusted::{self, Repairs};
 
 /// The format's entry in [`crate::formats::FORMATS`].
 pub const FORMAT: Format = Format {
@@ -57,8 +59,6 @@ pub const FORMAT: Format = Format {
 
 /// The index file.
 pub const INDEX: &str = "scene.xml";
-/// The largest `scene.xml` read.
-const MAX_XML: u64 = 4 << 20;
 /// The scene's defaults: a camera above and in front of the square, a light from 40 degrees
 /// off the normal at azimuth 60 degrees (the direction it travels is minus the light's).
 const DEFAULTS: &[(&str, &str)] = &[
@@ -79,8 +79,9 @@ fn export_model(model: &dyn DynModel, _view: usize, path: &Path) -> Result<Value
     export(concrete::<Svbrdf>(model, "an svbrdf model")?, path)
 }
 
-fn import_model(path: &Path) -> Result<Box<dyn DynModel>> {
-    Ok(Box::new(import(path)?))
+fn import_model(path: &Path, limits: &Limits) -> Result<Imported> {
+    let (m, warnings) = import_within(path, limits)?;
+    Ok(Imported { model: Box::new(m), warnings })
 }
 
 /// A `bitmap` texture element named `name` reading `file`.
@@ -208,7 +209,6 @@ fn child<'a, 'i>(
         Some(n) => format!("<{tag} name=\"{n}\">"),
         None => format!("<{tag}>"),
     };
-    let line = |n: roxmltree::Node<'_, '_>| n.document().text_pos_at(n.range().start).row;
     match (found, it.next()) {
         (Some(c), None) => Ok(c),
         (Some(_), Some(other)) => Err(bad(shown, &format!("line {}", line(other)), format!("a second {what}"))),
@@ -246,47 +246,89 @@ fn bsdf<'a, 'i>(node: roxmltree::Node<'a, 'i>, kind: &str, shown: &str) -> Resul
     if b.attribute("type") != Some(kind) {
         return Err(bad(
             shown,
-            &format!("line {}", b.document().text_pos_at(b.range().start).row),
+            &format!("line {}", line(b)),
             format!("expected a {kind} BSDF, got {:?}", b.attribute("type").unwrap_or("")),
         ));
     }
     Ok(b)
 }
 
-/// The EXR map of bitmap texture `name` under `node`: `(rgb, width, height)`.
-fn map(
+/// The line of `node` in its document.
+fn line(node: roxmltree::Node<'_, '_>) -> u32 {
+    node.document().text_pos_at(node.range().start).row
+}
+
+/// The EXR file of bitmap texture `name` under `node`: its path in `dir`.
+fn map_file(
     node: roxmltree::Node<'_, '_>,
     name: &str,
     dir: &Path,
     defaults: &[(String, String)],
     shown: &str,
-) -> Result<(Vec<f32>, usize, usize)> {
+) -> Result<std::path::PathBuf> {
     let tex = child(node, "texture", Some(name), shown)?;
     let file = value(tex, "string", "filename", defaults, shown)?;
     if !plain_name(&file) || !file.to_ascii_lowercase().ends_with(".exr") {
         return Err(bad(shown, name, format!("{file:?}: expected an .exr file name in the scene's folder")));
     }
     let file = dir.join(&file);
-    if !file.is_file() {
+    if !untrusted::present(&file) {
         return Err(bad(shown, name, format!("{file:?} does not exist beside the scene")));
     }
-    read_exr(&file)
+    Ok(file)
+}
+
+/// The map of texture `name` (its file `file`): `(rgb, width, height)`, every value finite
+/// and not negative (an [`Error::Format`] naming the texture, its file and the pixel).
+fn read_map(file: &Path, name: &str, shown: &str, max_bytes: u64) -> Result<(Vec<f32>, usize, usize)> {
+    let (v, w, h) = read_exr_within(file, max_bytes)?;
+    if let Some(i) = v.iter().position(|x| !(x.is_finite() && *x >= 0.0)) {
+        return Err(bad(
+            shown,
+            name,
+            format!(
+                "{}: value {} at pixel {} (channel {}); expected finite values >= 0",
+                file.display(),
+                v[i],
+                i / 3,
+                i % 3
+            ),
+        ));
+    }
+    Ok((v, w, h))
 }
 
 /// Read a Mitsuba scene written by btfrs (its folder or `scene.xml`) as an `svbrdf` model.
+/// A roughness (`alpha`) outside the model's range is clamped to it with a warning
+/// ([`import_within`] returns it); infinities, NaN and negative values are refused.
 pub fn import(path: &Path) -> Result<Svbrdf> {
-    let (dir, shown, text) = read_index(path, INDEX, MAX_XML)?;
+    Ok(import_within(path, &Limits::default())?.0)
+}
+
+/// [`import`] within `limits` (see [`crate::untrusted`]), with the warnings about values it
+/// changed.
+pub fn import_within(path: &Path, limits: &Limits) -> Result<(Svbrdf, Vec<String>)> {
+    let (dir, shown, text) = read_index(path, INDEX, untrusted::XML_INDEX, limits.max_bytes)?;
     let shown = shown.as_str();
-    let doc = roxmltree::Document::parse(&text).map_err(|e| bad(shown, "XML", e))?;
+    let doc = untrusted::parse_xml(&text, shown)?;
     let scene = doc.root_element();
     if scene.tag_name().name() != "scene" {
         return Err(bad(shown, "XML", "the root element is not <scene>"));
     }
-    let defaults: Vec<(String, String)> = scene
-        .children()
-        .filter(|c| c.is_element() && c.tag_name().name() == "default")
-        .filter_map(|c| Some((c.attribute("name")?.to_string(), c.attribute("value")?.to_string())))
-        .collect();
+    let mut defaults: Vec<(String, String)> = Vec::new();
+    for c in scene.children().filter(|c| c.is_element() && c.tag_name().name() == "default") {
+        let (Some(name), Some(v)) = (c.attribute("name"), c.attribute("value")) else {
+            return Err(bad(shown, &format!("line {}", line(c)), "a <default> without a name and a value"));
+        };
+        if defaults.iter().any(|(d, _)| d == name) {
+            return Err(bad(
+                shown,
+                &format!("line {}", line(c)),
+                format!("a second <default name=\"{name}\">; each parameter has one default"),
+            ));
+        }
+        defaults.push((name.to_string(), v.to_string()));
+    }
     let shape = child(scene, "shape", None, shown)?;
     let nm = bsdf(shape, "normalmap", shown)?;
     let blend = bsdf(nm, "blendbsdf", shown)?;
@@ -310,24 +352,69 @@ pub fn import(path: &Path) -> Result<Svbrdf> {
             return Err(bad(shown, key, format!("{v:?}: the svbrdf lobe is roughconductor with {key} {want:?}")));
         }
     }
-    let (nrm, w, h) = map(nm, "normalmap", &dir, &defaults, shown)?;
-    let same = |(v, mw, mh): (Vec<f32>, usize, usize), what: &str| -> Result<Vec<f32>> {
+    let names = ["normalmap", "reflectance", "specular_reflectance", "alpha"];
+    let files = [
+        map_file(nm, names[0], &dir, &defaults, shown)?,
+        map_file(diffuse_node, names[1], &dir, &defaults, shown)?,
+        map_file(conductor, names[2], &dir, &defaults, shown)?,
+        map_file(conductor, names[3], &dir, &defaults, shown)?,
+    ];
+    let max_bytes = limits.max_bytes;
+    let (nrm, w, h) = read_map(&files[0], names[0], shown, max_bytes)?;
+    // The model's floats (and the three maps still to read) within max_bytes before reading them.
+    untrusted::check_declared(
+        shown,
+        &format!("a {w} x {h} svbrdf model (4 maps of 3 floats per texel and their model, 96 bytes per texel)"),
+        (w as u64).checked_mul(h as u64).and_then(|t| t.checked_mul(96)),
+        max_bytes,
+    )?;
+    let same = |i: usize| -> Result<Vec<f32>> {
+        let (v, mw, mh) = read_map(&files[i], names[i], shown, max_bytes)?;
         if (mw, mh) != (w, h) {
-            return Err(bad(shown, what, format!("{mw} x {mh} pixels; the normal map has {w} x {h}")));
+            return Err(bad(shown, names[i], format!("{mw} x {mh} pixels; the normal map has {w} x {h}")));
         }
         Ok(v)
     };
-    let d = same(map(diffuse_node, "reflectance", &dir, &defaults, shown)?, "reflectance")?;
-    let s = same(map(conductor, "specular_reflectance", &dir, &defaults, shown)?, "specular_reflectance")?;
-    let r = same(map(conductor, "alpha", &dir, &defaults, shown)?, "alpha")?;
+    let d = same(1)?;
+    let s = same(2)?;
+    let r = same(3)?;
     let t = w * h;
     let normal = decode_normals(&nrm, 1.0, shown, "normalmap")?;
+    // A roughness outside the model's range is clamped to it, and said so.
+    let mut low = Repairs::new(
+        shown,
+        format!("alpha value(s) below the svbrdf's smallest roughness ({ALPHA_MIN}) raised to it"),
+        "value(s)",
+        "pixel(s)",
+    );
+    let mut high = Repairs::new(
+        shown,
+        format!("alpha value(s) above the svbrdf's largest roughness ({ALPHA_MAX}) lowered to it"),
+        "value(s)",
+        "pixel(s)",
+    );
+    let roughness: Vec<f32> = (0..t)
+        .map(|i| {
+            // Compared as the f32 the model stores: the export writes ALPHA_MIN as f32.
+            let (a, lo, hi) = (r[3 * i], ALPHA_MIN as f32, ALPHA_MAX as f32);
+            if a < lo {
+                low.add(i, f64::from(a));
+            } else if a > hi {
+                high.add(i, f64::from(a));
+            }
+            a.clamp(lo, hi)
+        })
+        .collect();
     let mut a = NamedArrays::new();
     a.put("diffuse", &[h, w, 3], d.iter().map(|&x| (x as f64 * (1.0 - weight)) as f32).collect());
     a.put("specular", &[h, w, 3], s.iter().map(|&x| (x as f64 * weight) as f32).collect());
-    a.put("roughness", &[h, w], (0..t).map(|i| r[3 * i].clamp(ALPHA_MIN as f32, ALPHA_MAX as f32)).collect());
+    a.put("roughness", &[h, w], roughness);
     a.put("normal", &[h, w, 3], normal);
-    <Svbrdf as Model>::from_arrays(&a).map_err(|e| bad(shown, "maps", e))
+    let m = <Svbrdf as Model>::from_arrays(&a).map_err(|e| bad(shown, "maps", e))?;
+    let mut warnings = Vec::new();
+    low.report(&mut warnings);
+    high.report(&mut warnings);
+    Ok((m, warnings))
 }
 
 #[cfg(test)]
@@ -366,6 +453,18 @@ mod tests {
         for (a, b) in back.normal.iter().zip(&m.normal) {
             assert!((a - b).abs() < 2e-7, "{a} {b}");
         }
+    }
+
+    #[test]
+    fn roughness_at_the_ends_of_its_range_reads_back_without_a_warning() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut m = model();
+        m.roughness[0] = ALPHA_MIN as f32;
+        m.roughness[1] = ALPHA_MAX as f32;
+        export(&m, dir.path()).unwrap();
+        let (back, warnings) = import_within(dir.path(), &Limits::default()).unwrap();
+        assert!(warnings.is_empty(), "{warnings:?}");
+        assert_eq!(back.roughness, m.roughness);
     }
 
     #[test]

@@ -20,7 +20,9 @@
 //! as display values, so a linear model looks darker there than btfrs's sRGB renderings.
 
 use crate::atomic::write_atomic;
-use crate::formats::{concrete, Format};
+use crate::capture::Limits;
+use crate::formats::{concrete, read_index, Format, Imported};
+use crate::untrusted;
 use btfrs_core::{Error, Result};
 use btfrs_fit::neural::decoder::{Activation, Decoder, Directions, Shape};
 use btfrs_fit::neural::Neural;
@@ -44,6 +46,8 @@ pub const FORMAT: Format = Format {
 pub const LATENTS: usize = 9;
 /// JPEG quality of the planes OpenLIME loads.
 pub const QUALITY: u8 = 95;
+/// Largest image side accepted from `info.json` (before any plane is read).
+const MAX_SIDE: u64 = 1 << 15;
 
 fn pad4(n: usize) -> usize {
     n.div_ceil(4) * 4
@@ -80,6 +84,12 @@ pub fn export(m: &Neural, path: &Path) -> Result<Value> {
         ))
     } else if sh.features > 0 {
         Some("its decoder reads learned direction tables (fit with features=0)".to_string())
+    } else if sh.horizon > 0 {
+        Some(
+            "its decoder reads each texel's clearance above its horizon map, which OpenLIME does not hold \
+             (fit with horizon=0)"
+                .to_string(),
+        )
     } else if sh.activation != Activation::Elu {
         Some("its activation is ReLU; OpenLIME's decoder applies ELU (fit with activation=\"elu\")".to_string())
     } else if sh.latents > LATENTS {
@@ -183,29 +193,37 @@ pub fn export(m: &Neural, path: &Path) -> Result<Value> {
     Ok(json!({"min": min, "max": max, "files": files}))
 }
 
-fn import_model(path: &Path) -> Result<Box<dyn DynModel>> {
-    Ok(Box::new(import(path)?))
+fn import_model(path: &Path, limits: &Limits) -> Result<Imported> {
+    Ok(Imported::model(Box::new(import_within(path, limits)?)))
 }
 
 /// Read a NeuralRTI folder (or its `info.json`) as a neural model with one view (the normal).
 /// Planes are read from `plane_1.png` (lossless) where present, else `plane_1.jpg`, or the
 /// same numbered from 0 as NeuralRTI names them.
 pub fn import(path: &Path) -> Result<Neural> {
-    let dir = folder(path);
-    let info_path = dir.join("info.json");
-    let shown = info_path.display().to_string();
-    let text = std::fs::read_to_string(&info_path).map_err(|e| Error::io(&shown, e))?;
-    let info: Value = serde_json::from_str(&text).map_err(|e| Error::format(&shown, format!("not valid JSON: {e}")))?;
-    let bad = |what: &str, msg: String| Error::format(&shown, format!("{what}: {msg}"));
+    import_within(path, &Limits::default())
+}
+
+/// [`import`] within `limits` (see [`crate::untrusted`]).
+pub fn import_within(path: &Path, limits: &Limits) -> Result<Neural> {
+    let (dir, shown, text) = read_index(path, "info.json", untrusted::JSON_INDEX, limits.max_bytes)?;
+    let info = untrusted::parse_json(&text, &shown)?;
+    drop(text);
+    from_info(&dir, &shown, &info, limits)
+}
+
+/// The model of a NeuralRTI folder `dir` whose `info.json` (`shown`) holds `info`.
+pub(crate) fn from_info(dir: &Path, shown: &str, info: &Value, limits: &Limits) -> Result<Neural> {
+    let bad = |what: &str, msg: String| Error::format(shown, format!("{what}: {msg}"));
     if info["type"].as_str() != Some("neural") {
         return Err(bad("type", format!("expected \"neural\", got {}", info["type"])));
     }
     let dim = |key: &str| -> Result<usize> {
         info[key]
             .as_u64()
-            .filter(|&v| v > 0 && v <= 1 << 16)
+            .filter(|&v| v > 0 && v <= MAX_SIDE)
             .map(|v| v as usize)
-            .ok_or_else(|| bad(key, format!("expected a positive size, got {}", info[key])))
+            .ok_or_else(|| bad(key, format!("expected a size in 1..={MAX_SIDE}, got {}", info[key])))
     };
     let (width, height) = (dim("width")?, dim("height")?);
     let k = dim("planes")?;
@@ -284,6 +302,7 @@ pub fn import(path: &Path) -> Result<Neural> {
         grid: 2,
         hidden: hp,
         activation: Activation::Elu,
+        horizon: 0,
     };
     let o = shape.offsets();
     let n = shape.inputs();
@@ -306,27 +325,36 @@ pub fn import(path: &Path) -> Result<Neural> {
         }
         p[o.b3 + c] = b[2][r] as f32;
     }
-    let decoder = Decoder::new(shape, p, &shown)?;
-    // Planes: image i's channels (after the swizzle) are latents 3i, 3i+1, 3i+2.
+    let decoder = Decoder::new(shape, p, shown)?;
+    // Planes: image i's channels (after the swizzle) are latents 3i, 3i+1, 3i+2. Their sizes
+    // (headers) and the model's memory are checked before the planes are allocated.
+    let files = (0..k / 3)
+        .map(|img| {
+            untrusted::first_present(
+                [1 + img, img].iter().flat_map(|i| ["png", "jpg"].map(|e| dir.join(format!("plane_{i}.{e}")))),
+            )
+            .ok_or_else(|| bad("planes", format!("no plane_{}.png or .jpg beside it", img + 1)))
+        })
+        .collect::<Result<Vec<_>>>()?;
     let texels = width * height;
+    let need =
+        (texels as u64).checked_mul(k as u64).and_then(|n| n.checked_mul(crate::relight_file::BYTES_PER_PLANE_TEXEL));
+    untrusted::check_declared(
+        shown,
+        &format!(
+            "a {width} x {height} model of {k} latents ({} bytes per latent and texel)",
+            crate::relight_file::BYTES_PER_PLANE_TEXEL
+        ),
+        need,
+        limits.max_bytes,
+    )?;
+    untrusted::check_image_sizes(&files, width, height, "info.json")?;
     let mut q = vec![0u8; texels * k];
-    for img in 0..k / 3 {
-        let file = [1 + img, img]
-            .iter()
-            .flat_map(|i| ["png", "jpg"].map(|e| dir.join(format!("plane_{i}.{e}"))))
-            .find(|p| p.exists())
-            .ok_or_else(|| bad("planes", format!("no plane_{}.png or .jpg beside it", img + 1)))?;
-        let fs = file.display().to_string();
-        let im = image::open(&file).map_err(|e| Error::format(&fs, e))?.to_rgb8();
-        if (im.width() as usize, im.height() as usize) != (width, height) {
-            return Err(Error::format(
-                &fs,
-                format!("expected {width} x {height} pixels, got {} x {}", im.width(), im.height()),
-            ));
-        }
-        for (t, px) in im.pixels().enumerate() {
+    for (img, file) in files.iter().enumerate() {
+        let rgb = untrusted::read_rgb8(file, width, height, limits.max_bytes)?;
+        for (t, px) in rgb.chunks_exact(3).enumerate() {
             for (j, &c) in swizzle.iter().enumerate() {
-                q[t * k + 3 * img + j] = px.0[c];
+                q[t * k + 3 * img + j] = px[c];
             }
         }
     }
@@ -336,5 +364,6 @@ pub fn import(path: &Path) -> Result<Neural> {
     }
     let bias: Vec<f32> = min.iter().map(|&x| x as f32).collect();
     let planes = Planes { texels, k, q, scale, bias };
-    Neural::new(height, width, planes, decoder, json!({"imported": "neuralrti"}))
+    Neural::new(height, width, planes, None, decoder, json!({"imported": "neuralrti"}))
+        .map_err(untrusted::as_format(shown, "planes"))
 }

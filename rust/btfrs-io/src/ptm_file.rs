@@ -121,7 +121,6 @@
 //!   error, found before anything is allocated (the data must hold `width * height` texels).
 //! * A scale and bias whose decoded coefficients overflow `f32` are an error.
 
-use std::fs;
 use std::path::Path;
 
 use btfrs_core::{Error, Result};
@@ -422,7 +421,7 @@ pub fn write_ptm_bytes(path: &Path, b: &PtmBytes) -> Result<()> {
 /// Read a `.ptm` file as the file stores it (see [`read_ptm`] for what is accepted).
 pub fn read_ptm_bytes(path: &Path) -> Result<PtmBytes> {
     let shown = path.display().to_string();
-    let bytes = fs::read(path).map_err(|e| Error::io(&shown, e))?;
+    let bytes = crate::untrusted::read_bytes(path, crate::capture::default_max_bytes(), "a PTM file within max_bytes")?;
     decode_ptm_bytes(&bytes, &shown)
 }
 
@@ -442,7 +441,7 @@ pub fn write_ptm(path: &Path, img: &PtmImage) -> Result<PtmQuantization> {
 /// apart); a file that is not a supported PTM gives [`Error::Format`].
 pub fn read_ptm(path: &Path) -> Result<PtmImage> {
     let shown = path.display().to_string();
-    let bytes = fs::read(path).map_err(|e| Error::io(&shown, e))?;
+    let bytes = crate::untrusted::read_bytes(path, crate::capture::default_max_bytes(), "a PTM file within max_bytes")?;
     decode_ptm(&bytes, &shown)
 }
 
@@ -1000,14 +999,19 @@ fn export_model(model: &dyn btfrs_fit::DynModel, view: usize, path: &Path) -> Re
 }
 
 /// Read a `.ptm` file as a one-slot PTM (view = the normal), its 8-bit planes the file's bytes.
-fn import_model(path: &Path) -> Result<Box<dyn btfrs_fit::DynModel>> {
-    let b = read_ptm_bytes(path)?;
-    Ok(Box::new(btfrs_fit::Ptm::from_slot(b.to_slot())?))
+fn import_model(path: &Path, limits: &crate::capture::Limits) -> Result<crate::formats::Imported> {
+    let shown = path.display().to_string();
+    let bytes = crate::untrusted::read_model_file(path, limits.max_bytes, "a PTM file")?;
+    let b = decode_ptm_bytes(&bytes, &shown)?;
+    drop(bytes);
+    let m = btfrs_fit::Ptm::from_slot(b.to_slot()).map_err(crate::untrusted::as_format(&shown, "coefficients"))?;
+    Ok(crate::formats::Imported::model(Box::new(m)))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::fs;
 
     /// A small deterministic generator (xorshift64*), so the tests need no extra crate.
     struct Rng(u64);

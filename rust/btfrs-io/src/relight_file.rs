@@ -70,7 +70,9 @@ use btfrs_fit::{Bilinear, DynModel, Hsh, Ptm, PtmKind, PtmPlanes, PtmSlot, Rbf};
 use serde_json::{json, Value};
 
 use crate::atomic::write_atomic;
-use crate::formats::concrete;
+use crate::capture::Limits;
+use crate::formats::{concrete, read_index, Imported};
+use crate::untrusted;
 
 /// The format entry.
 pub const FORMAT: crate::formats::Format = crate::formats::Format {
@@ -92,6 +94,9 @@ const PTM_ORDER: [usize; 6] = [5, 3, 4, 0, 2, 1];
 const IMPORT_RESOLUTION: usize = MAX_RESOLUTION;
 /// Largest image side accepted from `info.json` (before any plane is decoded).
 const MAX_SIDE: u64 = 1 << 15;
+/// Bytes a folder's model needs per plane and texel: the plane bytes, their reordered copy and
+/// their float values.
+pub(crate) const BYTES_PER_PLANE_TEXEL: u64 = 6;
 
 /// The folder of `path`: itself, or its parent when it names the `info.json`.
 fn folder(path: &Path) -> PathBuf {
@@ -378,16 +383,14 @@ fn export_pca(m: &LightPca, view: usize, path: &Path, kind: &str) -> Result<Valu
 
 // --- import ----------------------------------------------------------------------------------
 
-fn import_model(path: &Path) -> Result<Box<dyn DynModel>> {
-    let dir = folder(path);
-    let info_path = dir.join("info.json");
-    let shown = info_path.display().to_string();
-    let text = std::fs::read_to_string(&info_path).map_err(|e| Error::io(&shown, e))?;
-    let info: Value = serde_json::from_str(&text).map_err(|e| Error::format(&shown, format!("not valid JSON: {e}")))?;
+fn import_model(path: &Path, limits: &Limits) -> Result<Imported> {
+    let (dir, shown, text) = read_index(path, "info.json", untrusted::JSON_INDEX, limits.max_bytes)?;
+    let info = untrusted::parse_json(&text, &shown)?;
+    drop(text);
     if info["type"].as_str() == Some("neural") {
-        return Ok(Box::new(crate::neuralrti_file::import(&dir)?));
+        return Ok(Imported::model(Box::new(crate::neuralrti_file::from_info(&dir, &shown, &info, limits)?)));
     }
-    import(&dir, &info, &shown)
+    Ok(Imported::model(import(&dir, &info, &shown, limits)?))
 }
 
 /// An `info.json` field error.
@@ -407,34 +410,39 @@ fn numbers(info: &Value, key: &str, shown: &str) -> Result<Vec<f64>> {
 }
 
 /// The folder's planes, texel-major (`nplanes` bytes per texel): `plane_N.png` where present
-/// (btfrs's lossless copies), else `plane_N.jpg`.
-fn read_planes(dir: &Path, width: usize, height: usize, nplanes: usize, shown: &str) -> Result<Vec<u8>> {
+/// (btfrs's lossless copies), else `plane_N.jpg`. Every image's size is read from its header
+/// and checked against `info.json`'s, and the model's memory against `max_bytes`, before the
+/// planes are allocated; each image is decoded within the budget of every image btfrs reads.
+fn read_planes(
+    dir: &Path,
+    width: usize,
+    height: usize,
+    nplanes: usize,
+    shown: &str,
+    max_bytes: u64,
+) -> Result<Vec<u8>> {
+    let files = (0..nplanes.div_ceil(3))
+        .map(|i| {
+            untrusted::first_present(["png", "jpg"].map(|e| dir.join(format!("plane_{i}.{e}"))))
+                .ok_or_else(|| bad(shown, "planes", format!("no plane_{i}.jpg (or .png) beside it")))
+        })
+        .collect::<Result<Vec<_>>>()?;
     let texels = width * height;
+    let need = (texels as u64).checked_mul(nplanes as u64).and_then(|n| n.checked_mul(BYTES_PER_PLANE_TEXEL));
+    untrusted::check_declared(
+        shown,
+        &format!("a {width} x {height} model of {nplanes} planes ({BYTES_PER_PLANE_TEXEL} bytes per plane and texel)"),
+        need,
+        max_bytes,
+    )?;
+    untrusted::check_image_sizes(&files, width, height, "info.json")?;
     let mut q = vec![0u8; texels * nplanes];
-    for i in 0..nplanes.div_ceil(3) {
-        let file = ["png", "jpg"]
-            .map(|e| dir.join(format!("plane_{i}.{e}")))
-            .into_iter()
-            .find(|p| p.exists())
-            .ok_or_else(|| bad(shown, "planes", format!("no plane_{i}.jpg (or .png) beside it")))?;
-        let fs = file.display().to_string();
-        let mut reader = image::ImageReader::open(&file).map_err(|e| Error::io(&fs, e))?;
-        reader = reader.with_guessed_format().map_err(|e| Error::io(&fs, e))?;
-        let mut limits = image::Limits::default();
-        limits.max_image_width = Some(width as u32);
-        limits.max_image_height = Some(height as u32);
-        reader.limits(limits);
-        let im = reader.decode().map_err(|e| Error::format(&fs, e))?.to_rgb8();
-        if (im.width() as usize, im.height() as usize) != (width, height) {
-            return Err(Error::format(
-                &fs,
-                format!("expected {width} x {height} pixels (info.json), got {} x {}", im.width(), im.height()),
-            ));
-        }
-        for (t, px) in im.pixels().enumerate() {
+    for (i, file) in files.iter().enumerate() {
+        let rgb = untrusted::read_rgb8(file, width, height, max_bytes)?;
+        for (t, px) in rgb.chunks_exact(3).enumerate() {
             for c in 0..3 {
                 if 3 * i + c < nplanes {
-                    q[t * nplanes + 3 * i + c] = px.0[c];
+                    q[t * nplanes + 3 * i + c] = px[c];
                 }
             }
         }
@@ -466,7 +474,7 @@ fn reorder(src: &[u8], texels: usize, k_in: usize, from: &[usize]) -> Vec<u8> {
     out
 }
 
-fn import(dir: &Path, info: &Value, shown: &str) -> Result<Box<dyn DynModel>> {
+fn import(dir: &Path, info: &Value, shown: &str, limits: &Limits) -> Result<Box<dyn DynModel>> {
     let dim = |key: &str| -> Result<usize> {
         info[key]
             .as_u64()
@@ -522,7 +530,7 @@ fn import(dir: &Path, info: &Value, shown: &str) -> Result<Box<dyn DynModel>> {
             ))
         }
     }
-    let q = read_planes(dir, width, height, nplanes, shown)?;
+    let q = read_planes(dir, width, height, nplanes, shown, limits.max_bytes)?;
     match combo {
         ("ptm", "rgb") => {
             // btfrs plane c * 6 + ours <- relight plane 3 j + c.
@@ -543,7 +551,7 @@ fn import(dir: &Path, info: &Value, shown: &str) -> Result<Box<dyn DynModel>> {
                 rgb: None,
                 planes: Some(PtmPlanes { coeffs: planes, rgb: None }),
             };
-            Ok(Box::new(Ptm::from_slot(slot)?))
+            Ok(Box::new(Ptm::from_slot(slot).map_err(untrusted::as_format(shown, "planes"))?))
         }
         ("ptm", "lrgb") => {
             let mut from = vec![0; 6];
@@ -568,7 +576,7 @@ fn import(dir: &Path, info: &Value, shown: &str) -> Result<Box<dyn DynModel>> {
                 rgb: Some(rgb_planes.dequantize()),
                 planes: Some(PtmPlanes { coeffs: planes, rgb: Some(rgb_planes) }),
             };
-            Ok(Box::new(Ptm::from_slot(slot)?))
+            Ok(Box::new(Ptm::from_slot(slot).map_err(untrusted::as_format(shown, "planes"))?))
         }
         ("hsh", "rgb") => {
             let n2 = nplanes / 3;
@@ -583,7 +591,7 @@ fn import(dir: &Path, info: &Value, shown: &str) -> Result<Box<dyn DynModel>> {
                 btfrs_planes(reorder(&q, texels, nplanes, &from), texels, nplanes, &pick(&scale), &pick(&bias));
             let order = [1, 2, 3].into_iter().find(|o| o * o == n2).expect("checked above");
             let slot = HshSlot { order, height, width, coeffs: Coeffs::from_planes(planes) };
-            Ok(Box::new(Hsh::from_slot(slot)?))
+            Ok(Box::new(Hsh::from_slot(slot).map_err(untrusted::as_format(shown, "planes"))?))
         }
         _ => {
             let planes = btfrs_planes(q, texels, nplanes, &scale, &bias);
@@ -664,6 +672,10 @@ fn import_pca(
     if raw.len() != (k + 1) * dims * 3 {
         return Err(bad(shown, "basis", format!("expected {} values, got {}", (k + 1) * dims * 3, raw.len())));
     }
+    // relight's basis is bytes: integers 0 to 255.
+    if let Some(i) = raw.iter().position(|&b| !(0.0..=255.0).contains(&b)) {
+        return Err(bad(shown, "basis", format!("value {} at index {i} is outside 0..255", raw[i])));
+    }
     // In btfrs units: the mean / 255, a plane's function (b - 127) / range.
     let basis = |p: usize, d: usize, c: usize| -> f64 {
         let b = raw[(p * dims + d) * 3 + c];
@@ -719,7 +731,7 @@ fn import_pca(
         pooled: Vec::new(),
         fallback_slots: Vec::new(),
     };
-    m.validate()?;
+    m.validate().map_err(untrusted::as_format(shown, "basis"))?;
     Ok(m)
 }
 

@@ -3,9 +3,13 @@
 //! An `.lp` file's first line is the number of images; each further line is
 //! `filename lx ly lz`, the light direction of that photograph with x to the right of the image,
 //! y *up* the image and z towards the camera (the RTIBuilder / relight convention). That is
-//! btfrs's tangent frame, so the vectors are used as they are, normalised (a length off by more
-//! than 1e-3 is reported in `meta.warnings`; `btfrs.io.load` shows them as warnings). The view
-//! is the normal. File names may be absolute, relative to the `.lp` file, or (as written on
+//! btfrs's tangent frame, so the vectors are used as they are, normalised. A light a hair below
+//! the horizon (its unit z at least minus [`crate::untrusted::HORIZON_TOLERANCE`], as a dome's
+//! calibration gives for its lowest ring) is moved onto it (z = 0, renormalised); one further
+//! below is refused, naming its line. Each kind of repair is reported in one summary warning
+//! for the whole file in `meta.warnings` (how many, the range of the lengths or of z, the first
+//! lines; `btfrs.io.load` shows them as warnings). The view is the normal. The file is read as
+//! [`crate::untrusted`] reads a light list (at most [`crate::untrusted::MAX_LP`] bytes, UTF-8). File names may be absolute, relative to the `.lp` file, or (as written on
 //! another machine) a path whose last component is found beside the `.lp` file; names may
 //! contain spaces (the three numbers are read from the end of the line).
 //!
@@ -93,7 +97,9 @@ enum Found {
 fn resolve(dir: &Path, name: &str, allow_outside: bool) -> Found {
     let as_written = dir.join(name); // an absolute `name` replaces `dir`
     let mut outside = None;
-    if as_written.is_file() {
+    // Present, whatever it is: a FIFO or device is refused by name when read, never skipped.
+    let exists = |p: &Path| crate::untrusted::present(p) && !p.is_dir();
+    if exists(&as_written) {
         if allow_outside || crate::stack::inside(dir, &as_written) {
             return Found::At(as_written);
         }
@@ -101,7 +107,7 @@ fn resolve(dir: &Path, name: &str, allow_outside: bool) -> Found {
     }
     let base = name.rsplit(['/', '\\']).next().unwrap_or(name);
     let beside = dir.join(base);
-    if outside.is_none() && !base.is_empty() && beside.is_file() {
+    if outside.is_none() && !base.is_empty() && exists(&beside) {
         if allow_outside || crate::stack::inside(dir, &beside) {
             return Found::At(beside);
         }
@@ -120,11 +126,12 @@ pub fn open_lp(path: &Path, sel: &Selection, transfer: Transfer) -> Result<Image
 /// `limits.allow_outside`, and every decode is bounded (see [`Limits`]).
 pub fn open_lp_limited(path: &Path, sel: &Selection, transfer: Transfer, limits: &Limits) -> Result<ImageStack> {
     let shown = path.display().to_string();
-    let text = crate::stack::read_text(path)?;
+    let text = crate::untrusted::read_text(path, crate::untrusted::LIGHT_LIST, limits.max_bytes)?;
     let entries = parse_lp(&text, &shown)?;
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let dir = if dir.as_os_str().is_empty() { PathBuf::from(".") } else { dir };
     let mut warnings = Vec::new();
+    let mut lights = crate::untrusted::Directions::new(&shown, "light", "line(s)");
     let mut members = Vec::with_capacity(entries.len());
     for e in &entries {
         let line = e.line;
@@ -150,23 +157,24 @@ pub fn open_lp_limited(path: &Path, sel: &Selection, transfer: Transfer, limits:
             }
         };
         let [x, y, z] = e.light;
-        let n = (x * x + y * y + z * z).sqrt();
-        if n.is_nan() || n <= 0.0 || z < 0.0 {
-            return Err(Error::format(
+        let light = lights.unit(line, e.light).ok_or_else(|| {
+            Error::format(
                 &shown,
-                format!("line {}: light ({x}, {y}, {z}) is not a direction above the surface", line),
-            ));
-        }
-        if (n - 1.0).abs() > 1e-3 {
-            warnings.push(format!("{shown}: line {}: light vector of length {n:.4} normalised", line));
-        }
+                format!(
+                    "line {line}: light ({x}, {y}, {z}) is not a direction above the surface (a light at most {} \
+                     below the horizon, as unit z, is read as on it)",
+                    crate::untrusted::HORIZON_TOLERANCE
+                ),
+            )
+        })?;
         members.push(Member {
             name: file.display().to_string(),
             view: [0.0, 0.0, 1.0],
-            light: [x / n, y / n, z / n],
+            light,
             at: format!("line {line}"),
         });
     }
+    lights.report(&mut warnings);
     let meta = serde_json::json!({"format": "rti-lp", "source": shown, "warnings": warnings});
     ImageStack::new_limited(Store::Folder(PathBuf::new()), members, sel, transfer, None, meta, limits)
 }

@@ -47,7 +47,6 @@
 //! bytes after the data are ignored, as the viewers ignore them. Non-finite floats, or a negative
 //! scale, are errors.
 
-use std::fs;
 use std::path::Path;
 
 use btfrs_core::{Error, Result};
@@ -214,7 +213,8 @@ pub fn write_rti(path: &Path, img: &RtiHsh) -> Result<()> {
 /// a supported HSH `.rti` gives [`Error::Format`] naming it.
 pub fn read_rti(path: &Path) -> Result<RtiHsh> {
     let shown = path.display().to_string();
-    let bytes = fs::read(path).map_err(|e| Error::io(&shown, e))?;
+    let bytes =
+        crate::untrusted::read_bytes(path, crate::capture::default_max_bytes(), "an RTI file within max_bytes")?;
     decode_rti(&bytes, &shown)
 }
 
@@ -364,14 +364,20 @@ fn export_model(model: &dyn btfrs_fit::DynModel, view: usize, path: &Path) -> Re
 }
 
 /// Read a `.rti` HSH file as a one-slot HSH model (view = the normal).
-fn import_model(path: &Path) -> Result<Box<dyn btfrs_fit::DynModel>> {
-    let img = read_rti(path)?;
-    Ok(Box::new(btfrs_fit::Hsh::from_slot(img.to_slot()?)?))
+fn import_model(path: &Path, limits: &crate::capture::Limits) -> Result<crate::formats::Imported> {
+    let shown = path.display().to_string();
+    let bytes = crate::untrusted::read_model_file(path, limits.max_bytes, "an RTI file")?;
+    let img = decode_rti(&bytes, &shown)?;
+    drop(bytes);
+    let slot = img.to_slot().map_err(crate::untrusted::as_format(&shown, "coefficients"))?;
+    let m = btfrs_fit::Hsh::from_slot(slot).map_err(crate::untrusted::as_format(&shown, "coefficients"))?;
+    Ok(crate::formats::Imported::model(Box::new(m)))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::fs;
 
     fn image(w: usize, h: usize, terms: usize, seed: u32) -> RtiHsh {
         let data = (0..w * h * 3 * terms)

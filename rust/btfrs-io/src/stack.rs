@@ -45,7 +45,9 @@ impl Store {
                 for e in std::fs::read_dir(d).map_err(|e| Error::io(&shown, e))? {
                     let e = e.map_err(|e| Error::io(&shown, e))?;
                     let name = e.file_name().to_string_lossy().into_owned();
-                    if decode::is_image(&name) && e.path().is_file() {
+                    // Anything but a folder: a FIFO or device named as an image is refused by
+                    // name when it is read, not skipped.
+                    if decode::is_image(&name) && !e.path().is_dir() {
                         v.push(name);
                     }
                 }
@@ -53,7 +55,7 @@ impl Store {
             }
             Store::Zip(z) => {
                 let shown = z.display().to_string();
-                let f = std::fs::File::open(z).map_err(|e| Error::io(&shown, e))?;
+                let (f, _) = crate::untrusted::open(z)?;
                 let zip = zip::ZipArchive::new(f)
                     .map_err(|e| Error::format(&shown, format!("not a readable zip archive: {e}")))?;
                 let mut v = Vec::new();
@@ -266,7 +268,7 @@ impl<'a> ZipReader<'a> {
     fn open(store: &'a Store) -> Result<ZipReader<'a>> {
         let Store::Zip(z) = store else { unreachable!("zip reader of a folder") };
         let shown = z.display().to_string();
-        let f = std::fs::File::open(z).map_err(|e| Error::io(&shown, e))?;
+        let (f, _) = crate::untrusted::open(z)?;
         let zip =
             zip::ZipArchive::new(f).map_err(|e| Error::format(&shown, format!("not a readable zip archive: {e}")))?;
         Ok(ZipReader { store, zip })
@@ -434,24 +436,12 @@ pub fn from_angles(theta_deg: f64, phi_deg: f64) -> [f64; 3] {
 /// * **JSON**: a list of objects with the same keys (or `{"images": [...]}`).
 ///
 /// File names are relative to `folder` (default: the table's folder). Vectors are normalised
-/// (a length off by more than 1e-3 is reported in `meta.warnings`).
+/// and a vector a hair below the horizon is moved onto it, as for `.lp` files
+/// ([`crate::untrusted::Directions`]), each kind of repair reported in one summary warning in
+/// `meta.warnings`. The table is read as [`crate::untrusted`] reads one (at most
+/// [`crate::untrusted::MAX_TABLE`] bytes, UTF-8).
 pub fn open_table(table: &Path, folder: Option<&Path>, sel: &Selection, transfer: Transfer) -> Result<ImageStack> {
     open_table_limited(table, folder, sel, transfer, &Limits::default())
-}
-
-/// A text file of a capture (`.lp`, CSV, JSON) as UTF-8, a leading byte-order mark dropped;
-/// invalid UTF-8 is an [`Error::Format`] naming the file and the line.
-pub fn read_text(path: &Path) -> Result<String> {
-    let shown = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|e| Error::io(&shown, e))?;
-    match String::from_utf8(bytes) {
-        Ok(t) => Ok(t.strip_prefix('\u{feff}').map(String::from).unwrap_or(t)),
-        Err(e) => {
-            let at = e.utf8_error().valid_up_to();
-            let line = e.as_bytes()[..at].iter().filter(|&&b| b == b'\n').count() + 1;
-            Err(Error::format(&shown, format!("line {line}: invalid UTF-8 (byte {at}); expected a UTF-8 text file")))
-        }
-    }
 }
 
 /// Whether the existing `file` lies inside `dir` (or its subfolders), symlinks resolved.
@@ -472,11 +462,12 @@ pub fn open_table_limited(
     limits: &Limits,
 ) -> Result<ImageStack> {
     let shown = table.display().to_string();
-    let text = read_text(table)?;
+    let text = crate::untrusted::read_text(table, crate::untrusted::TABLE, limits.max_bytes)?;
     let is_json = shown.to_ascii_lowercase().ends_with(".json");
     let mut lines: Vec<String> = Vec::new();
     let rows: Vec<serde_json::Map<String, serde_json::Value>> = if is_json {
-        let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| Error::format(&shown, e))?;
+        // One object per image: up to a million images.
+        let v = crate::untrusted::parse_json_within(&text, &shown, 1 << 20)?;
         let list = match v {
             serde_json::Value::Array(a) => a,
             serde_json::Value::Object(mut o) => match o.remove("images") {
@@ -530,6 +521,8 @@ pub fn open_table_limited(
         rows
     };
     let mut warnings = Vec::new();
+    let mut light_dirs = crate::untrusted::Directions::new(&shown, "light", "");
+    let mut view_dirs = crate::untrusted::Directions::new(&shown, "view", "");
     let mut members = Vec::with_capacity(rows.len());
     for (i, r) in rows.iter().enumerate() {
         let line = &lines[i];
@@ -560,17 +553,18 @@ pub fn open_table_limited(
             }
             match (num(vec[0]), num(vec[1]), num(vec[2])) {
                 (Some(x), Some(y), Some(z)) => {
-                    let n = (x * x + y * y + z * z).sqrt();
-                    if !(n > 0.0 && n.is_finite()) || z < 0.0 {
-                        return Err(Error::format(
+                    let dirs = if pre == "light" { &mut light_dirs } else { &mut view_dirs };
+                    let u = dirs.unit(line.as_str(), [x, y, z]).ok_or_else(|| {
+                        Error::format(
                             &shown,
-                            at(&format!("{pre} ({x}, {y}, {z}) is not a direction above the surface")),
-                        ));
-                    }
-                    if (n - 1.0).abs() > 1e-3 {
-                        warnings.push(format!("{shown}: {}", at(&format!("{pre} vector of length {n:.4} normalised"))));
-                    }
-                    Ok(Some([x / n, y / n, z / n]))
+                            at(&format!(
+                                "{pre} ({x}, {y}, {z}) is not a direction above the surface (one at most {} below \
+                                 the horizon, as unit z, is read as on it)",
+                                crate::untrusted::HORIZON_TOLERANCE
+                            )),
+                        )
+                    })?;
+                    Ok(Some(u))
                 }
                 _ => Ok(None),
             }
@@ -586,7 +580,8 @@ pub fn open_table_limited(
     let dir = if dir.as_os_str().is_empty() { PathBuf::from(".") } else { dir };
     for m in &members {
         let p = dir.join(&m.name);
-        if !p.is_file() {
+        // Present, whatever it is: a FIFO or device is refused by name when it is read.
+        if !crate::untrusted::present(&p) || p.is_dir() {
             return Err(Error::format(&shown, format!("{}: names {}, which does not exist", m.at, p.display())));
         }
         if !limits.allow_outside && !inside(&dir, &p) {
@@ -602,6 +597,8 @@ pub fn open_table_limited(
             ));
         }
     }
+    light_dirs.report(&mut warnings);
+    view_dirs.report(&mut warnings);
     let meta = serde_json::json!({"format": "stack", "source": shown, "warnings": warnings});
     ImageStack::new_limited(Store::Folder(dir), members, sel, transfer, None, meta, limits)
 }

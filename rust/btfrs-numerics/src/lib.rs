@@ -10,11 +10,13 @@
 //!   Gram matrix) up to a given size, randomized above.
 //! * [`rpca`]: randomized PCA (Halko et al.'s range finder), streamed through chunks when
 //!   memory is limited; principal coordinates of texels.
+//! * [`poisson`]: surfaces from their slopes (Frankot and Chellappa 1988), periodic or mirrored.
 
 pub mod cls;
 pub mod dense;
 pub mod kmeans;
 pub mod pca;
+pub mod poisson;
 pub mod rpca;
 
 pub use kmeans::{kmeans, KMeans};

@@ -148,14 +148,18 @@ pub fn export_model(
     Ok(detach(py, || formats::export(model.inner.as_ref(), format, view, &path, force))?.to_string())
 }
 
-/// Read a file of another tool's format (by its extension) as a one-slot model.
+/// Read a file of another tool's format (by its extension) as a one-slot model, within
+/// `max_bytes` (default: half the machine's memory): `(model, warnings)`, the warnings naming
+/// values the reader changed.
 #[pyfunction]
-pub fn import_model(py: Python<'_>, path: PathBuf) -> PyResult<PyModel> {
-    let f = formats::of_path(&path).ok_or_else(|| {
-        let list: Vec<String> = formats::FORMATS.iter().map(|f| format!(".{}", f.extension)).collect();
-        arg("path", format!("{}: expected a file ending in {}", path.display(), list.join(" or ")))
-    })?;
-    Ok(PyModel { inner: detach(py, || (f.import)(&path))?, robust: serde_json::Value::Null })
+#[pyo3(signature = (path, max_bytes=None))]
+pub fn import_model(py: Python<'_>, path: PathBuf, max_bytes: Option<u64>) -> PyResult<(PyModel, Vec<String>)> {
+    let limits = btfrs_io::capture::Limits {
+        max_bytes: max_bytes.unwrap_or_else(btfrs_io::capture::default_max_bytes),
+        allow_outside: false,
+    };
+    let got = detach(py, || formats::import(&path, &limits))?;
+    Ok((PyModel { inner: got.model, robust: serde_json::Value::Null }, got.warnings))
 }
 
 /// Write a `[H, W, 3]` float32 linear image as an 8-bit sRGB PNG.

@@ -6,6 +6,7 @@
 
 mod arrays;
 mod blockwise;
+mod calibrate;
 mod core;
 mod errors;
 mod graphcut;
@@ -82,6 +83,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(io::load_capture, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_exr_channels, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_png16, m)?)?;
+    m.add_function(wrap_pyfunction!(calibrate::calibrate_sphere, m)?)?;
+    m.add_function(wrap_pyfunction!(calibrate::write_lp, m)?)?;
     m.add_class::<render::PyScene>()?;
     m.add_class::<render::PyCamera>()?;
     m.add_class::<render::PyGpuModel>()?;

@@ -162,6 +162,11 @@ impl PyModel {
         arrays_dict(py, self.inner.to_arrays())
     }
 
+    /// The parameters as a reader uses them (decoded, by role), by name; empty for most models.
+    fn unpacked<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        arrays_dict(py, self.inner.unpacked())
+    }
+
     /// The model of a subset of texels (row-major indices): dims `(1, len(texels))`, texel `k`
     /// of the result is `texels[k]` of this model (a tile set's BTFel table).
     fn select_texels(&self, py: Python<'_>, texels: Vec<u32>) -> PyResult<Self> {

@@ -10,6 +10,12 @@
 //! highlight boundaries of a BTF's directions (measured: worse than a linear PCA of as many
 //! components); the tables give it a learned basis over each hemisphere, continuous in the
 //! directions, for a few thousand floats.
+//!
+//! With a horizon map ([`Shape::horizon`] azimuth bins per texel, `crate::relief`), the decoder
+//! also reads each direction's **clearance** above the texel's horizon, `elevation(d) -
+//! horizon(azimuth(d))` (the light's; the view's too for a BTF): the relief around the texel
+//! says where a cast shadow's edge falls between the measured lights, which the texel's own
+//! values cannot. The clearances are per (texel, direction) inputs, after the coordinates.
 
 use btfrs_core::{Error, Result};
 
@@ -122,6 +128,18 @@ impl Activation {
             Activation::Relu => x.iter_mut().for_each(|v| *v = v.max(0.0)),
         }
     }
+    /// Applied in place with [`exp_fast`] for ELU: training's form, which vectorizes (a call of
+    /// `expm1` per value was a quarter of a training step); evaluation keeps [`Activation::apply`].
+    #[inline]
+    pub fn apply_fast(self, x: &mut [f32]) {
+        match self {
+            Activation::Elu => x.iter_mut().for_each(|v| {
+                let e = exp_fast(v.min(0.0)) - 1.0;
+                *v = if *v > 0.0 { *v } else { e };
+            }),
+            Activation::Relu => x.iter_mut().for_each(|v| *v = v.max(0.0)),
+        }
+    }
     /// `d act / d x` times `g`, in place in `g`, from the activation's output `y`.
     #[inline]
     pub fn backward(self, y: &[f32], g: &mut [f32]) {
@@ -130,6 +148,24 @@ impl Activation {
             Activation::Relu => g.iter_mut().zip(y).for_each(|(g, &y)| *g *= if y > 0.0 { 1.0 } else { 0.0 }),
         }
     }
+}
+
+/// `exp(x)` to a relative error below 3e-7, branch-free so that loops over it vectorize:
+/// `2^k exp(r)` with `k` the nearest integer to `x / ln 2`, rounded by the float's own rounding
+/// at `1.5 2^23` (whose low mantissa bits then hold `k`: `2^k` is made from them with integer
+/// operations, not a float-to-integer conversion, which does not vectorize), `r = x - k ln 2` in
+/// `[-ln 2 / 2, ln 2 / 2]` (Cody and Waite's two-part `ln 2`), `exp(r)` by its Taylor polynomial
+/// of degree 6 (remainder `r^7 / 7! < 2e-7`).
+#[inline(always)]
+pub fn exp_fast(x: f32) -> f32 {
+    const MAGIC: f32 = 12_582_912.0;
+    let x = x.clamp(-87.0, 88.0);
+    let m = x * std::f32::consts::LOG2_E + MAGIC;
+    let kf = m - MAGIC;
+    let r = x - kf * 0.693_359_4 + kf * 2.121_944_4e-4;
+    let p = 1.0 + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
+    let k = m.to_bits().wrapping_sub(MAGIC.to_bits());
+    p * f32::from_bits(k.wrapping_add(127) << 23)
 }
 
 /// The decoder's shape.
@@ -147,6 +183,8 @@ pub struct Shape {
     pub hidden: usize,
     /// The activation of both hidden layers.
     pub activation: Activation,
+    /// Azimuth bins of the texels' horizon maps (0: none, no clearance inputs).
+    pub horizon: usize,
 }
 
 /// Offsets of each layer's parameters in the flat vector.
@@ -180,9 +218,25 @@ impl Shape {
             self.directions.tables()
         }
     }
-    /// Inputs besides the latents: coordinates, then table features.
+    /// Clearance inputs: the light's above the horizon, and the view's for a BTF encoding (0
+    /// without a horizon map).
+    pub fn clearances(&self) -> usize {
+        match (self.horizon, self.directions) {
+            (0, _) => 0,
+            (_, Directions::Light) => 1,
+            _ => 2,
+        }
+    }
+    /// Inputs besides the latents: coordinates, clearances, then table features.
     pub fn encoding(&self) -> usize {
-        self.directions.dims() + self.tables() * self.features
+        self.directions.dims() + self.clearances() + self.tables() * self.features
+    }
+    /// The directions whose clearances are inputs, in input order.
+    pub fn clearance_directions(&self, v: [f64; 3], l: [f64; 3]) -> [[f64; 3]; 2] {
+        match self.directions {
+            Directions::Light => [l, l],
+            _ => [v, l],
+        }
     }
     /// Inputs of the first layer.
     pub fn inputs(&self) -> usize {
@@ -213,8 +267,9 @@ pub struct Decoder {
     pub params: Vec<f32>,
 }
 
-/// The most inputs besides the latents: 6 coordinates and 3 tables of at most 16 features.
-pub const MAX_ENCODING: usize = 6 + 3 * 16;
+/// The most inputs besides the latents: 6 coordinates, 2 clearances and 3 tables of at most 16
+/// features.
+pub const MAX_ENCODING: usize = 6 + 2 + 3 * 16;
 
 /// Halves as words, two to a word, the first in the low half (an even count).
 fn pack_halves(v: &[u16]) -> Vec<u32> {
@@ -271,10 +326,14 @@ pub fn table_taps(shape: &Shape, v: [f64; 3], l: [f64; 3]) -> [Taps; 3] {
     }
 }
 
-/// The whole encoding (coordinates, then table features) from the taps, into `out`.
+/// The pair's part of the encoding from the taps, into `out`: the coordinates, zeros where the
+/// clearances go (they are the texel's: [`Decoder::eval`] and the model add them), the table
+/// features.
 pub fn encode_with(shape: &Shape, params: &[f32], v: [f64; 3], l: [f64; 3], tp: &[Taps; 3], out: &mut [f32]) {
-    let e = shape.directions.dims();
-    shape.directions.encode(v, l, &mut out[..e]);
+    let d = shape.directions.dims();
+    shape.directions.encode(v, l, &mut out[..d]);
+    let e = d + shape.clearances();
+    out[d..e].fill(0.0);
     let c = shape.features;
     let base = shape.offsets().tables;
     let nodes = shape.grid * shape.grid;
@@ -288,7 +347,8 @@ pub fn encode_with(shape: &Shape, params: &[f32], v: [f64; 3], l: [f64; 3], tp: 
     }
 }
 
-/// The per-query part of the first layer: `b1 + W1[:, latents..] e(v, l)`.
+/// The per-query part of the first layer: `b1 + W1[:, latents..] e(v, l)` (the clearances'
+/// columns excluded: they are per texel).
 pub fn query_bias(shape: &Shape, params: &[f32], v: [f64; 3], l: [f64; 3], out: &mut [f32]) {
     let o = shape.offsets();
     let (n, k, h) = (shape.inputs(), shape.latents, shape.hidden);
@@ -384,6 +444,25 @@ impl Decoder {
         pack_halves(&t)
     }
 
+    /// The decoder as a reader applies it, on the data's scale: `layer{1,2,3}_weight`
+    /// (`[out][in]`, layer 1's inputs the latents, then [`Shape::encoding`]'s coordinates,
+    /// clearances and table features), `layer{1,2,3}_bias`, and `tables` (`[tables][grid][grid][features]`,
+    /// node `(i, j)` at concentric-square point `(i, j) / (grid - 1)`, indexed `[j][i]`).
+    pub fn unpacked(&self) -> btfrs_core::NamedArrays {
+        let sh = &self.shape;
+        let (o, n, h) = (sh.offsets(), sh.inputs(), sh.hidden);
+        let p = &self.params;
+        let mut a = btfrs_core::NamedArrays::new();
+        for (i, (w, b, rows, cols)) in
+            [(o.w1, o.b1, h, n), (o.w2, o.b2, h, h), (o.w3, o.b3, 3, h)].into_iter().enumerate()
+        {
+            a.put(&format!("layer{}_weight", i + 1), &[rows, cols], p[w..w + rows * cols].to_vec());
+            a.put(&format!("layer{}_bias", i + 1), &[rows], p[b..b + rows].to_vec());
+        }
+        a.put("tables", &[sh.tables(), sh.grid, sh.grid, sh.features], p[o.tables..o.len].to_vec());
+        a
+    }
+
     /// `W1[:, ..latents] z`: the per-texel part of the first layer.
     pub fn latent_part(&self, z: &[f32], out: &mut [f32]) {
         let (n, h) = (self.shape.inputs(), self.shape.hidden);
@@ -430,15 +509,30 @@ impl Decoder {
         t
     }
 
-    /// The output for latent `z` at directions `v`, `l`, gain included (no cached parts: the
-    /// reference form).
-    pub fn eval(&self, z: &[f32], v: [f64; 3], l: [f64; 3]) -> [f32; 3] {
+    /// The first layer's columns of the clearance inputs, `[clearance][hidden]`.
+    pub fn clearance_columns(&self) -> Vec<f32> {
+        let sh = &self.shape;
+        let (n, h) = (sh.inputs(), sh.hidden);
+        let first = sh.latents + sh.directions.dims();
+        let w1 = &self.params[sh.offsets().w1..];
+        (0..sh.clearances()).flat_map(|i| (0..h).map(move |j| w1[j * n + first + i])).collect()
+    }
+
+    /// The output for latent `z` and horizon row `horizon` (its `shape.horizon` angles; empty
+    /// without) at directions `v`, `l`, gain included (no cached parts: the reference form).
+    pub fn eval(&self, z: &[f32], horizon: &[f32], v: [f64; 3], l: [f64; 3]) -> [f32; 3] {
         let h = self.shape.hidden;
         let mut pre = vec![0.0f32; h];
         let mut q = vec![0.0f32; h];
         self.latent_part(z, &mut pre);
         query_bias(&self.shape, &self.params, v, l, &mut q);
         pre.iter_mut().zip(&q).for_each(|(a, b)| *a += b);
+        let cols = self.clearance_columns();
+        let dirs = self.shape.clearance_directions(v, l);
+        for (i, col) in cols.chunks(h.max(1)).enumerate() {
+            let s = crate::relief::clearance(horizon, dirs[i]);
+            pre.iter_mut().zip(col).for_each(|(a, w)| *a += w * s);
+        }
         let mut scratch = vec![0.0f32; h];
         let g = self.shape.directions.gain(l);
         self.finish(&mut pre, &self.w2t(), &mut scratch).map(|x| x * g)

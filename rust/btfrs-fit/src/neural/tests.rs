@@ -24,7 +24,7 @@ fn decoded_btf(dec: &Decoder, size: usize, seed: u64) -> (Btf, Vec<f32>) {
         for &v in &views {
             for &l in &lights {
                 // Positive values, as a BTF's: a constant reflectance lifts the decoder's output.
-                let y = dec.eval(&z[t * k..(t + 1) * k], v, l);
+                let y = dec.eval(&z[t * k..(t + 1) * k], &[], v, l);
                 let g = dec.shape.directions.gain(l);
                 data.extend(y.iter().map(|x| x + g));
             }
@@ -36,17 +36,18 @@ fn decoded_btf(dec: &Decoder, size: usize, seed: u64) -> (Btf, Vec<f32>) {
 #[test]
 fn evaluation_with_cached_parts_equals_the_plain_decoder() {
     for directions in [Directions::Light, Directions::Xy, Directions::Half] {
-        let shape = Shape { latents: 5, directions, features: 3, grid: 4, hidden: 12, activation: Activation::Elu };
+        let shape =
+            Shape { latents: 5, directions, features: 3, grid: 4, hidden: 12, activation: Activation::Elu, horizon: 0 };
         let dec = random_decoder(shape, 3, 0.5);
         let z: Vec<f32> = (0..4 * 5).map(|i| (i as f32 * 0.37).sin()).collect();
         let planes = Planes::quantize(&z, 5).unwrap();
         let zq = planes.dequantize();
-        let m = Neural::new(2, 2, planes, dec.clone(), serde_json::Value::Null).unwrap();
+        let m = Neural::new(2, 2, planes, None, dec.clone(), serde_json::Value::Null).unwrap();
         let (v, l) = ([0.3, -0.2, (1.0f64 - 0.13).sqrt()], [-0.5, 0.1, (1.0f64 - 0.26).sqrt()]);
         let q = m.query(v, l);
         for t in 0..4 {
             let a = m.eval(t, &q);
-            let b = dec.eval(&zq[t * 5..(t + 1) * 5], v, l);
+            let b = dec.eval(&zq[t * 5..(t + 1) * 5], &[], v, l);
             for c in 0..3 {
                 assert!((a[c] - b[c]).abs() < 1e-5 * (1.0 + b[c].abs()), "{directions:?} {t} {c}: {a:?} vs {b:?}");
             }
@@ -60,7 +61,8 @@ fn gradients_match_central_differences() {
     // parameter and each latent, against the backward pass; float64 differences of a float32
     // forward, so a step of 1e-2 and a loose tolerance on the larger entries.
     for activation in [Activation::Elu, Activation::Relu] {
-        let shape = Shape { latents: 3, directions: Directions::Half, features: 2, grid: 3, hidden: 6, activation };
+        let shape =
+            Shape { latents: 3, directions: Directions::Half, features: 2, grid: 3, hidden: 6, activation, horizon: 0 };
         let dec = random_decoder(shape, 11, 0.8);
         let (btf, _) = decoded_btf(&random_decoder(shape, 12, 0.8), 2, 5);
         let b = btf.as_ref();
@@ -72,9 +74,9 @@ fn gradients_match_central_differences() {
         let texels = [0usize, 3];
         let z = vec![0.3f32, -0.7, 0.5, -0.2, 0.9, 0.1];
         let norm = (texels.len() * PAIRS * 3) as f32;
-        let g = chunk_grad(&b, &pairs, &dec, &texels, &z, 0.5, norm, 77, true);
+        let g = chunk_grad(&b, &pairs, &dec, &texels, &z, &[], 0.5, norm, 77, true);
         let loss =
-            |d: &Decoder, z: &[f32]| chunk_grad(&b, &pairs, d, &texels, z, 0.5, norm, 77, false).sse / norm as f64;
+            |d: &Decoder, z: &[f32]| chunk_grad(&b, &pairs, d, &texels, z, &[], 0.5, norm, 77, false).sse / norm as f64;
         let h = 1e-2f32;
         let mut checked = 0;
         let scale = g.dec.iter().fold(0.0f32, |m, x| m.max(x.abs()));
@@ -122,6 +124,7 @@ fn training_recovers_data_made_by_a_decoder() {
         grid: 6,
         hidden: 16,
         activation: Activation::Elu,
+        horizon: 0,
     };
     let (btf, _) = decoded_btf(&random_decoder(shape, 21, 0.6), 8, 9);
     let b = btf.as_ref();
@@ -155,11 +158,25 @@ fn a_seed_gives_one_model() {
 
 #[test]
 fn bad_arrays_and_options_are_named() {
-    let shape =
-        Shape { latents: 3, directions: Directions::Xy, features: 2, grid: 4, hidden: 8, activation: Activation::Relu };
+    let shape = Shape {
+        latents: 3,
+        directions: Directions::Xy,
+        features: 2,
+        grid: 4,
+        hidden: 8,
+        activation: Activation::Relu,
+        horizon: 0,
+    };
     let z: Vec<f32> = (0..4 * 3).map(|i| i as f32).collect();
-    let m = Neural::new(2, 2, Planes::quantize(&z, 3).unwrap(), random_decoder(shape, 1, 1.0), serde_json::Value::Null)
-        .unwrap();
+    let m = Neural::new(
+        2,
+        2,
+        Planes::quantize(&z, 3).unwrap(),
+        None,
+        random_decoder(shape, 1, 1.0),
+        serde_json::Value::Null,
+    )
+    .unwrap();
     let a = m.to_arrays();
     assert_eq!(Neural::from_arrays(&a).unwrap(), m);
     let mut short = a.clone();
@@ -214,6 +231,7 @@ fn the_renderers_halves_hold_every_parameter_where_the_shader_reads_it() {
             grid: 4,
             hidden: 12,
             activation: Activation::Elu,
+            horizon: 0,
         },
         Shape {
             latents: 2,
@@ -222,6 +240,7 @@ fn the_renderers_halves_hold_every_parameter_where_the_shader_reads_it() {
             grid: 2,
             hidden: 4,
             activation: Activation::Elu,
+            horizon: 0,
         },
         Shape {
             latents: MAX_LATENTS,
@@ -230,6 +249,7 @@ fn the_renderers_halves_hold_every_parameter_where_the_shader_reads_it() {
             grid: 3,
             hidden: MAX_HIDDEN,
             activation: Activation::Relu,
+            horizon: 0,
         },
     ];
     for (si, sh) in shapes.into_iter().enumerate() {
@@ -275,8 +295,15 @@ fn the_renderers_halves_hold_every_parameter_where_the_shader_reads_it() {
 
 #[test]
 fn decoder_parameters_are_halves_and_the_output_layer_keeps_the_datas_scale() {
-    let sh =
-        Shape { latents: 3, directions: Directions::Xy, features: 2, grid: 3, hidden: 8, activation: Activation::Relu };
+    let sh = Shape {
+        latents: 3,
+        directions: Directions::Xy,
+        features: 2,
+        grid: 3,
+        hidden: 8,
+        activation: Activation::Relu,
+        horizon: 0,
+    };
     let o = sh.offsets();
     let mut rng = Rng::new(5);
     let raw: Vec<f32> = (0..o.len)
@@ -309,4 +336,137 @@ fn decoder_parameters_are_halves_and_the_output_layer_keeps_the_datas_scale() {
     big[o.w2] = 1.0e5;
     let e = Decoder::new(sh, big, "decoder").unwrap_err().to_string();
     assert!(e.contains(&format!("decoder parameter {} (100000)", o.w2)) && e.contains("half precision"), "{e}");
+}
+
+#[test]
+fn fast_exp_is_within_its_stated_error() {
+    // Every 1/64 from -87 to 88, and the elu of training against evaluation's.
+    let mut worst = 0.0f64;
+    let mut x = -87.0f32;
+    while x <= 88.0 {
+        let (a, b) = (super::decoder::exp_fast(x) as f64, (x as f64).exp());
+        worst = worst.max((a - b).abs() / b);
+        x += 1.0 / 64.0;
+    }
+    assert!(worst < 3e-7, "{worst}");
+    let mut v: Vec<f32> = (-400..400).map(|i| i as f32 / 37.0).collect();
+    let mut w = v.clone();
+    Activation::Elu.apply_fast(&mut v);
+    Activation::Elu.apply(&mut w);
+    assert!(v.iter().zip(&w).all(|(a, b)| (a - b).abs() <= 3e-7 * (1.0 + b.abs())));
+}
+
+/// A small random relief's horizon map over `rows x cols` texels.
+fn random_horizons(rows: usize, cols: usize, components: usize, seed: u64) -> crate::relief::HorizonMap {
+    let mut rng = Rng::new(seed);
+    let z = (0..rows * cols).map(|_| (rng.next_f64() * 3.0) as f32).collect();
+    let h = crate::relief::Height { rows, cols, z };
+    crate::relief::HorizonMap::build(&h, 1.0, components, &Monitor::new()).unwrap()
+}
+
+#[test]
+fn evaluation_with_a_horizon_map_equals_the_plain_decoder() {
+    // The cached evaluation (latent part per texel, query part per pair, clearances per texel)
+    // against the reference form fed the texel's rebuilt horizon row.
+    for directions in [Directions::Light, Directions::Half] {
+        let shape = Shape {
+            latents: 4,
+            directions,
+            features: if directions == Directions::Light { 0 } else { 3 },
+            grid: 4,
+            hidden: 12,
+            activation: Activation::Elu,
+            horizon: crate::relief::BINS,
+        };
+        assert_eq!(shape.clearances(), if directions == Directions::Light { 1 } else { 2 });
+        let dec = random_decoder(shape, 4, 0.5);
+        let z: Vec<f32> = (0..9 * 4).map(|i| (i as f32 * 0.41).cos()).collect();
+        let planes = Planes::quantize(&z, 4).unwrap();
+        let zq = planes.dequantize();
+        let map = random_horizons(3, 3, 5, 8);
+        let m = Neural::new(3, 3, planes, Some(map.clone()), dec.clone(), serde_json::Value::Null).unwrap();
+        let mut row = vec![0.0f32; map.bins];
+        for (v, l) in [([0.0, 0.0, 1.0], [0.6, 0.3, 0.74]), ([0.3, -0.2, 0.93], [-0.7, -0.5, 0.51])] {
+            let (v, l) = (unit(v), unit(l));
+            let q = m.query(v, l);
+            for t in 0..9 {
+                map.row(t, &mut row);
+                let a = m.eval(t, &q);
+                let b = dec.eval(&zq[t * 4..(t + 1) * 4], &row, v, l);
+                for c in 0..3 {
+                    assert!((a[c] - b[c]).abs() < 1e-5 * (1.0 + b[c].abs()), "{directions:?} {t}: {a:?} vs {b:?}");
+                }
+            }
+        }
+        // The clearances matter: a row raised far above every light darkens nothing only if
+        // the decoder ignored them.
+        let high = vec![1.5f32; map.bins];
+        let (v, l) = ([0.0, 0.0, 1.0], unit([0.6, 0.3, 0.74]));
+        assert_ne!(dec.eval(&zq[..4], &high, v, l), dec.eval(&zq[..4], &row, v, l));
+        // The arrays round-trip, the map included.
+        assert_eq!(Neural::from_arrays(&m.to_arrays()).unwrap(), m);
+    }
+}
+
+fn unit(d: [f64; 3]) -> [f64; 3] {
+    let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    d.map(|x| x / n)
+}
+
+#[test]
+fn gradients_match_central_differences_with_clearances() {
+    // As above, with horizon rows: the clearance columns of layer 1 get their gradients too.
+    let shape = Shape {
+        latents: 3,
+        directions: Directions::Half,
+        features: 2,
+        grid: 3,
+        hidden: 6,
+        activation: Activation::Elu,
+        horizon: crate::relief::BINS,
+    };
+    let dec = random_decoder(shape, 13, 0.8);
+    let (btf, _) = decoded_btf(&random_decoder(Shape { horizon: 0, ..shape }, 14, 0.8), 2, 6);
+    let b = btf.as_ref();
+    let nl = b.lights.len();
+    let pairs: Vec<Pair> = (0..b.views.len())
+        .flat_map(|v| (0..nl).map(move |l| (v, l)))
+        .map(|(v, l)| Pair::new(&shape, b.views[v], b.lights[l], (v * nl + l) * 3))
+        .collect();
+    let texels = [1usize, 2];
+    let mut rng = Rng::new(3);
+    let hz: Vec<f32> = (0..texels.len() * shape.horizon).map(|_| (rng.next_f64() * 0.8) as f32).collect();
+    let z = vec![0.2f32, -0.5, 0.4, -0.3, 0.8, 0.2];
+    let norm = (texels.len() * PAIRS * 3) as f32;
+    let g = chunk_grad(&b, &pairs, &dec, &texels, &z, &hz, 0.5, norm, 91, true);
+    let loss =
+        |d: &Decoder, z: &[f32]| chunk_grad(&b, &pairs, d, &texels, z, &hz, 0.5, norm, 91, false).sse / norm as f64;
+    let h = 1e-2f32;
+    let scale = g.dec.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+    let ni = shape.inputs();
+    let first = shape.latents + shape.directions.dims();
+    let mut clearance_checked = 0;
+    for i in 0..dec.params.len() {
+        let (mut p, mut m) = (dec.clone(), dec.clone());
+        p.params[i] += h;
+        m.params[i] -= h;
+        let fd = (loss(&p, &z) - loss(&m, &z)) / (2.0 * h as f64);
+        assert!(
+            (fd - g.dec[i] as f64).abs() < 0.02 * scale as f64 + 0.03 * fd.abs(),
+            "param {i}: backward {} vs difference {fd}",
+            g.dec[i]
+        );
+        let col = i % ni;
+        if i < shape.hidden * ni && (first..first + 2).contains(&col) && fd.abs() > 1e-4 {
+            clearance_checked += 1;
+        }
+    }
+    assert!(clearance_checked >= 4, "{clearance_checked}");
+    for i in 0..z.len() {
+        let (mut zp, mut zm) = (z.clone(), z.clone());
+        zp[i] += h;
+        zm[i] -= h;
+        let fd = (loss(&dec, &zp) - loss(&dec, &zm)) / (2.0 * h as f64);
+        assert!((fd - g.dz[i] as f64).abs() < 0.02 * scale as f64 + 0.05 * fd.abs(), "latent {i}: {} vs {fd}", g.dz[i]);
+    }
 }

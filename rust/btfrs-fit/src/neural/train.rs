@@ -22,6 +22,7 @@
 use super::decoder::{table_taps, Decoder, Shape, Taps, MAX_ENCODING};
 use super::dense::{strided, View, GEMM};
 use crate::planes::Planes;
+use crate::relief::HorizonMap;
 use btfrs_core::rng::{mix, Rng};
 use btfrs_core::{BtfRef, Error, Monitor, Result};
 use rayon::prelude::*;
@@ -112,6 +113,9 @@ pub(crate) struct Pair {
     pub(crate) gain: f32,
     /// Its taps in each direction table.
     pub(crate) taps: [Taps; 3],
+    /// Per clearance input (`Shape::clearance_directions`): the horizon bins around the
+    /// direction's azimuth, the second's weight, and its elevation (`crate::relief::lookup`).
+    pub(crate) look: [(u16, u16, f32, f32); 2],
 }
 
 impl Pair {
@@ -119,14 +123,24 @@ impl Pair {
     pub(crate) fn new(shape: &Shape, v: [f64; 3], l: [f64; 3], off: usize) -> Pair {
         let mut raw = [0.0f32; 6];
         shape.directions.encode(v, l, &mut raw);
-        Pair { off, raw, gain: shape.directions.gain(l), taps: table_taps(shape, v, l) }
+        let mut look = [(0u16, 0u16, 0.0f32, 0.0f32); 2];
+        if shape.horizon > 0 {
+            for (o, d) in look.iter_mut().zip(shape.clearance_directions(v, l)) {
+                let (k0, k1, w, el) = crate::relief::lookup(d, shape.horizon);
+                *o = (k0 as u16, k1 as u16, w, el);
+            }
+        }
+        Pair { off, raw, gain: shape.directions.gain(l), taps: table_taps(shape, v, l), look }
     }
 
-    /// The encoding (coordinates, then table features) under `params`, into `out`.
+    /// The pair's part of the encoding under `params`, into `out`: the coordinates, zeros where
+    /// the (per texel) clearances go, the table features.
     #[inline]
     fn encode(&self, shape: &Shape, params: &[f32], out: &mut [f32]) {
-        let e = shape.directions.dims();
-        out[..e].copy_from_slice(&self.raw[..e]);
+        let d = shape.directions.dims();
+        out[..d].copy_from_slice(&self.raw[..d]);
+        let e = d + shape.clearances();
+        out[d..e].fill(0.0);
         let c = shape.features;
         let base = shape.offsets().tables;
         let nodes = shape.grid * shape.grid;
@@ -140,10 +154,17 @@ impl Pair {
         }
     }
 
+    /// Its clearance `i` above a texel's horizon row `hz`.
+    #[inline]
+    fn clearance(&self, i: usize, hz: &[f32]) -> f32 {
+        let (k0, k1, w, el) = self.look[i];
+        el - (hz[k0 as usize] * (1.0 - w) + hz[k1 as usize] * w)
+    }
+
     /// Add the gradient `de` of the encoding to the tables' gradients in `g`.
     #[inline]
     fn scatter(&self, shape: &Shape, de: &[f32], g: &mut [f32]) {
-        let e = shape.directions.dims();
+        let e = shape.directions.dims() + shape.clearances();
         let c = shape.features;
         let base = shape.offsets().tables;
         let nodes = shape.grid * shape.grid;
@@ -330,9 +351,39 @@ pub(crate) struct ChunkGrad {
     pub(crate) sse: f64,
 }
 
-/// Forward and backward over `texels` (their latents `z`, `k` each) at `PAIRS` random training
-/// pairs each; `targets` scaled by `1 / scale`; the loss is the sum of squared errors divided by
-/// `norm`.
+/// `sum a b` over slices of one length, in eight lanes (so it vectorizes).
+#[inline]
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    let mut acc = [0.0f32; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for i in 0..8 {
+            acc[i] += x[i] * y[i];
+        }
+    }
+    let tail: f32 = ra.iter().zip(rb).map(|(x, y)| x * y).sum();
+    acc.iter().sum::<f32>() + tail
+}
+
+/// `count` distinct indices below `n` (all of them, in order, when `count >= n`): Floyd's
+/// sampling.
+fn distinct(rng: &mut Rng, n: usize, count: usize) -> Vec<usize> {
+    if count >= n {
+        return (0..n).collect();
+    }
+    let mut out: Vec<usize> = Vec::with_capacity(count);
+    for j in n - count..n {
+        let t = rng.below(j + 1);
+        out.push(if out.contains(&t) { j } else { t });
+    }
+    out
+}
+
+/// Forward and backward over `texels` (their latents `z`, `k` each, and horizon rows `hz`,
+/// `shape.horizon` each or none) at `PAIRS` random training pairs shared by the chunk (so the
+/// first layer's direction part is computed once per pair, its latent part once per texel);
+/// `targets` scaled by `inv_scale`; the loss is the sum of squared errors divided by `norm`.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn chunk_grad(
     btf: &BtfRef<'_>,
@@ -340,6 +391,80 @@ pub(crate) fn chunk_grad(
     dec: &Decoder,
     texels: &[usize],
     z: &[f32],
+    hz: &[f32],
+    inv_scale: f32,
+    norm: f32,
+    seed: u64,
+    want_dz: bool,
+) -> ChunkGrad {
+    SCRATCH.with_borrow_mut(|sc| chunk_grad_in(sc, btf, pairs, dec, texels, z, hz, inv_scale, norm, seed, want_dz))
+}
+
+/// Buffers of a chunk's step, kept per thread across steps: fresh ones cost a tenth of a step
+/// in allocation and zeroing. Each is overwritten before it is read, but for the sums, which are
+/// cleared.
+#[derive(Default)]
+struct Scratch {
+    enc: Vec<f32>,
+    tgt: Vec<f32>,
+    a: Vec<f32>,
+    q: Vec<f32>,
+    clear: Vec<f32>,
+    h1: Vec<f32>,
+    h2: Vec<f32>,
+    dh2: Vec<f32>,
+    dy: Vec<f32>,
+    dh1: Vec<f32>,
+    da: Vec<f32>,
+    dq: Vec<f32>,
+    dws: Vec<f32>,
+    de: Vec<f32>,
+}
+
+thread_local! {
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::new(Scratch::default());
+}
+
+/// `v` as `len` values (its old contents where it had them: every caller overwrites or clears).
+fn sized(v: &mut Vec<f32>, len: usize) -> &mut [f32] {
+    if v.len() < len {
+        v.resize(len, 0.0);
+    }
+    &mut v[..len]
+}
+
+crate::simd::by_cpu! {
+    /// [`chunk_grad_body`] compiled for the widest vectors the CPU has: the wheel is built for
+    /// the x86-64 baseline (SSE2), and the step's element-wise passes (activations, the output
+    /// layer, the sums over pairs and texels) are most of its work outside the matrix products.
+    #[allow(clippy::too_many_arguments)]
+    fn chunk_grad_in(
+        sc: &mut Scratch,
+        btf: &BtfRef<'_>,
+        pairs: &[Pair],
+        dec: &Decoder,
+        texels: &[usize],
+        z: &[f32],
+        hz: &[f32],
+        inv_scale: f32,
+        norm: f32,
+        seed: u64,
+        want_dz: bool,
+    ) -> ChunkGrad ["avx512f", "avx2"] {
+        chunk_grad_body(sc, btf, pairs, dec, texels, z, hz, inv_scale, norm, seed, want_dz)
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn chunk_grad_body(
+    sc: &mut Scratch,
+    btf: &BtfRef<'_>,
+    pairs: &[Pair],
+    dec: &Decoder,
+    texels: &[usize],
+    z: &[f32],
+    hz: &[f32],
     inv_scale: f32,
     norm: f32,
     seed: u64,
@@ -347,118 +472,167 @@ pub(crate) fn chunk_grad(
 ) -> ChunkGrad {
     let sh = dec.shape;
     let (k, e, h, ni) = (sh.latents, sh.encoding(), sh.hidden, sh.inputs());
+    let (nd, ns, bins) = (sh.directions.dims(), sh.clearances(), sh.horizon);
     let o = sh.offsets();
     let p = &dec.params;
+    let act = sh.activation;
     let c = texels.len();
-    let mut picked: Vec<&Pair> = Vec::with_capacity(c * PAIRS);
-    let n = c * PAIRS;
     let mut rng = Rng::new(seed);
-    // Inputs and targets.
-    let mut enc = vec![0.0f32; n * e];
-    let mut gain = vec![0.0f32; n];
-    let mut tgt = vec![0.0f32; n * 3];
+    let picked: Vec<&Pair> = distinct(&mut rng, pairs.len(), PAIRS).into_iter().map(|i| &pairs[i]).collect();
+    let np = picked.len();
+    let n = c * np;
+    // The pairs' encodings and the targets, sample r = texel (r / np), pair (r % np).
+    let enc = sized(&mut sc.enc, np * e);
+    for (pi, pair) in picked.iter().enumerate() {
+        pair.encode(&sh, p, &mut enc[pi * e..(pi + 1) * e]);
+    }
+    let tgt = sized(&mut sc.tgt, n * 3);
     for (ci, &t) in texels.iter().enumerate() {
         let texel = btf.texel(t);
-        for s in 0..PAIRS {
-            let r = ci * PAIRS + s;
-            let pair = &pairs[rng.below(pairs.len())];
-            pair.encode(&sh, p, &mut enc[r * e..(r + 1) * e]);
-            gain[r] = pair.gain;
+        for (pi, pair) in picked.iter().enumerate() {
+            let r = ci * np + pi;
             for ch in 0..3 {
                 tgt[r * 3 + ch] = texel[pair.off + ch] * inv_scale;
             }
-            picked.push(pair);
         }
     }
-    // Layer 1: the latent part per texel, the direction part per sample.
+    // Layer 1: the latent part per texel (with the bias), the direction part per pair, the
+    // clearances per sample.
     let w1 = &p[o.w1..o.b1];
-    let mut a = vec![0.0f32; c * h];
+    let a = sized(&mut sc.a, c * h);
+    strided(z, View::rows(c, k), w1, View::block_t(k, h, ni), 0.0, a, View::rows(c, h));
+    for row in a.chunks_exact_mut(h) {
+        row.iter_mut().zip(&p[o.b1..o.w2]).for_each(|(x, b)| *x += b);
+    }
+    let q = sized(&mut sc.q, np * h);
+    strided(enc, View::rows(np, e), &w1[k..], View::block_t(e, h, ni), 0.0, q, View::rows(np, h));
+    let ws: Vec<f32> = (0..ns).flat_map(|i| (0..h).map(move |j| w1[j * ni + k + nd + i])).collect();
+    let clear = sized(&mut sc.clear, n * ns);
+    let h1 = sized(&mut sc.h1, n * h);
     for ci in 0..c {
-        for j in 0..h {
-            a[ci * h + j] = (0..k).map(|q| w1[j * ni + q] * z[ci * k + q]).sum::<f32>() + p[o.b1 + j];
+        let hzr = &hz[ci * bins..(ci + 1) * bins];
+        for (pi, pair) in picked.iter().enumerate() {
+            let r = ci * np + pi;
+            let row = &mut h1[r * h..(r + 1) * h];
+            row.iter_mut()
+                .zip(&a[ci * h..(ci + 1) * h])
+                .zip(&q[pi * h..(pi + 1) * h])
+                .for_each(|((x, a), q)| *x = a + q);
+            for i in 0..ns {
+                let s = pair.clearance(i, hzr);
+                clear[r * ns + i] = s;
+                row.iter_mut().zip(&ws[i * h..(i + 1) * h]).for_each(|(x, w)| *x += s * w);
+            }
         }
     }
-    // The direction part of every sample at once: enc [n][e] times the direction columns of
-    // W1 (a block of it, row stride ni) transposed; then each sample's texel part.
-    let mut h1 = vec![0.0f32; n * h];
-    strided(&enc, View::rows(n, e), &w1[k..], View::block_t(e, h, ni), 0.0, &mut h1, View::rows(n, h));
-    for r in 0..n {
-        let ar = &a[(r / PAIRS) * h..(r / PAIRS + 1) * h];
-        h1[r * h..(r + 1) * h].iter_mut().zip(ar).for_each(|(x, a)| *x += a);
-    }
-    sh.activation.apply(&mut h1);
+    act.apply_fast(h1);
     // Layer 2.
-    let mut h2 = vec![0.0f32; n * h];
-    GEMM.abt(n, h, h, &h1, &p[o.w2..o.b2], &mut h2, false);
-    for r in 0..n {
-        h2[r * h..(r + 1) * h].iter_mut().zip(&p[o.b2..o.w3]).for_each(|(x, b)| *x += b);
+    let h2 = sized(&mut sc.h2, n * h);
+    GEMM.abt(n, h, h, h1, &p[o.w2..o.b2], h2, false);
+    for row in h2.chunks_exact_mut(h) {
+        row.iter_mut().zip(&p[o.b2..o.w3]).for_each(|(x, b)| *x += b);
     }
-    sh.activation.apply(&mut h2);
-    // Output and its gradient.
+    act.apply_fast(h2);
+    // Output and its gradient; dy [n][3] for the output layer's weights.
     let w3 = &p[o.w3..o.b3];
     let mut g = vec![0.0f32; o.len];
-    let mut dh2 = vec![0.0f32; n * h];
+    let dh2 = sized(&mut sc.dh2, n * h);
+    let dy = sized(&mut sc.dy, n * 3);
     let mut sse = 0.0f64;
     for r in 0..n {
         let hr = &h2[r * h..(r + 1) * h];
+        let gain = picked[r % np].gain;
+        let mut d3 = [0.0f32; 3];
         for ch in 0..3 {
-            let y = p[o.b3 + ch] + w3[ch * h..(ch + 1) * h].iter().zip(hr).map(|(w, x)| w * x).sum::<f32>();
-            let d = y * gain[r] - tgt[r * 3 + ch];
+            let y = p[o.b3 + ch] + dot(&w3[ch * h..(ch + 1) * h], hr);
+            let d = y * gain - tgt[r * 3 + ch];
             sse += (d as f64) * (d as f64);
-            let dy = 2.0 * d * gain[r] / norm;
-            g[o.b3 + ch] += dy;
-            g[o.w3 + ch * h..o.w3 + (ch + 1) * h].iter_mut().zip(hr).for_each(|(gw, x)| *gw += dy * x);
-            dh2[r * h..(r + 1) * h].iter_mut().zip(&w3[ch * h..(ch + 1) * h]).for_each(|(d2, w)| *d2 += dy * w);
+            d3[ch] = 2.0 * d * gain / norm;
+        }
+        dy[r * 3..r * 3 + 3].copy_from_slice(&d3);
+        let row = &mut dh2[r * h..(r + 1) * h];
+        for (j, x) in row.iter_mut().enumerate() {
+            *x = d3[0] * w3[j] + d3[1] * w3[h + j] + d3[2] * w3[2 * h + j];
         }
     }
-    sh.activation.backward(&h2, &mut dh2);
+    // The output layer's gradients: w3 += dy^T h2, b3 += the sums of dy.
+    GEMM.atb(3, n, h, dy, h2, &mut g[o.w3..o.b3], true);
+    for r in 0..n {
+        for ch in 0..3 {
+            g[o.b3 + ch] += dy[r * 3 + ch];
+        }
+    }
+    act.backward(h2, dh2);
     // Layer 2's gradients.
-    GEMM.atb(h, n, h, &dh2, &h1, &mut g[o.w2..o.b2], true);
-    for r in 0..n {
-        g[o.b2..o.w3].iter_mut().zip(&dh2[r * h..(r + 1) * h]).for_each(|(gb, d)| *gb += d);
+    GEMM.atb(h, n, h, dh2, h1, &mut g[o.w2..o.b2], true);
+    for row in dh2.chunks_exact(h) {
+        g[o.b2..o.w3].iter_mut().zip(row).for_each(|(gb, d)| *gb += d);
     }
-    let mut dh1 = vec![0.0f32; n * h];
-    GEMM.ab(n, h, h, &dh2, &p[o.w2..o.b2], &mut dh1, false);
-    sh.activation.backward(&h1, &mut dh1);
-    // Layer 1's gradients: direction columns per sample, latent columns per texel.
-    // Layer 1's gradients: the direction columns (a block of W1) and their inputs, for every
-    // sample at once; the bias and the latent columns per texel.
-    strided(&dh1, View::transposed(h, n), &enc, View::rows(n, e), 1.0, &mut g[o.w1 + k..], View::block(h, e, ni));
-    let mut da = vec![0.0f32; c * h];
-    for r in 0..n {
-        da[(r / PAIRS) * h..(r / PAIRS + 1) * h].iter_mut().zip(&dh1[r * h..(r + 1) * h]).for_each(|(x, d)| *x += d);
-    }
+    let dh1 = sized(&mut sc.dh1, n * h);
+    GEMM.ab(n, h, h, dh2, &p[o.w2..o.b2], dh1, false);
+    act.backward(h1, dh1);
+    // Layer 1's gradients: summed over pairs for each texel (the latent columns, the bias),
+    // over texels for each pair (the direction columns); the clearances' columns per sample.
+    let da = sized(&mut sc.da, c * h);
+    let dq = sized(&mut sc.dq, np * h);
+    let dws = sized(&mut sc.dws, ns * h);
+    da.fill(0.0);
+    dq.fill(0.0);
+    dws.fill(0.0);
     for ci in 0..c {
-        g[o.b1..o.b1 + h].iter_mut().zip(&da[ci * h..(ci + 1) * h]).for_each(|(x, d)| *x += d);
+        for pi in 0..np {
+            let r = ci * np + pi;
+            let d = &dh1[r * h..(r + 1) * h];
+            da[ci * h..(ci + 1) * h].iter_mut().zip(d).for_each(|(x, d)| *x += d);
+            dq[pi * h..(pi + 1) * h].iter_mut().zip(d).for_each(|(x, d)| *x += d);
+            for i in 0..ns {
+                let s = clear[r * ns + i];
+                dws[i * h..(i + 1) * h].iter_mut().zip(d).for_each(|(x, d)| *x += s * d);
+            }
+        }
+    }
+    for row in da.chunks_exact(h) {
+        g[o.b1..o.w2].iter_mut().zip(row).for_each(|(x, d)| *x += d);
+    }
+    strided(da, View::transposed(h, c), z, View::rows(c, k), 1.0, &mut g[o.w1..], View::block(h, k, ni));
+    strided(dq, View::transposed(h, np), enc, View::rows(np, e), 1.0, &mut g[o.w1 + k..], View::block(h, e, ni));
+    for i in 0..ns {
+        for j in 0..h {
+            g[o.w1 + j * ni + k + nd + i] += dws[i * h + j];
+        }
     }
     if sh.tables() > 0 {
-        let mut de = vec![0.0f32; n * e];
-        strided(&dh1, View::rows(n, h), &w1[k..], View::block(h, e, ni), 0.0, &mut de, View::rows(n, e));
-        for (r, pair) in picked.iter().enumerate() {
-            pair.scatter(&sh, &de[r * e..(r + 1) * e], &mut g);
+        let de = sized(&mut sc.de, np * e);
+        strided(dq, View::rows(np, h), &w1[k..], View::block(h, e, ni), 0.0, de, View::rows(np, e));
+        for (pi, pair) in picked.iter().enumerate() {
+            pair.scatter(&sh, &de[pi * e..(pi + 1) * e], &mut g);
         }
     }
     let mut dz = vec![0.0f32; if want_dz { c * k } else { 0 }];
-    for ci in 0..c {
-        for j in 0..h {
-            let d = da[ci * h + j];
-            for q in 0..k {
-                g[o.w1 + j * ni + q] += d * z[ci * k + q];
-                if want_dz {
-                    dz[ci * k + q] += d * w1[j * ni + q];
-                }
-            }
-        }
+    if want_dz {
+        strided(da, View::rows(c, h), w1, View::block(h, k, ni), 0.0, &mut dz, View::rows(c, k));
     }
     ChunkGrad { dec: g, dz, sse }
 }
 
-/// Relative L2 error over `texels` x `pairs` (values scaled by `inv_scale`).
-fn val_error(btf: &BtfRef<'_>, pairs: &[Pair], dec: &Decoder, z: &[f32], texels: &[usize], inv_scale: f32) -> f64 {
+/// Relative L2 error over `texels` x `pairs` (values scaled by `inv_scale`; codes `z` of every
+/// texel, horizon rows `hz` of `texels` in their order).
+#[allow(clippy::too_many_arguments)]
+fn val_error(
+    btf: &BtfRef<'_>,
+    pairs: &[Pair],
+    dec: &Decoder,
+    z: &[f32],
+    hz: &[f32],
+    texels: &[usize],
+    inv_scale: f32,
+) -> f64 {
     let sh = dec.shape;
     let (k, e, h, ni) = (sh.latents, sh.encoding(), sh.hidden, sh.inputs());
+    let (ns, bins) = (sh.clearances(), sh.horizon);
     let o = sh.offsets();
     let w2t = dec.w2t();
+    let ws = dec.clearance_columns();
     // The direction part of layer 1 per pair.
     let mut qb = vec![0.0f32; pairs.len() * h];
     let mut en = [0.0f32; MAX_ENCODING];
@@ -472,8 +646,10 @@ fn val_error(btf: &BtfRef<'_>, pairs: &[Pair], dec: &Decoder, z: &[f32], texels:
     let gains: Vec<f32> = pairs.iter().map(|p| p.gain).collect();
     let (sse, sgt) = texels
         .par_iter()
-        .map(|&t| {
+        .enumerate()
+        .map(|(ti, &t)| {
             let texel = btf.texel(t);
+            let hzr = &hz[ti * bins..(ti + 1) * bins];
             let mut a = vec![0.0f32; h];
             dec.latent_part(&z[t * k..(t + 1) * k], &mut a);
             let (mut pre, mut scratch) = (vec![0.0f32; h], vec![0.0f32; h]);
@@ -481,6 +657,10 @@ fn val_error(btf: &BtfRef<'_>, pairs: &[Pair], dec: &Decoder, z: &[f32], texels:
             for (pi, pair) in pairs.iter().enumerate() {
                 let off = pair.off;
                 pre.iter_mut().zip(&a).zip(&qb[pi * h..(pi + 1) * h]).for_each(|((x, a), b)| *x = a + b);
+                for i in 0..ns {
+                    let s = pair.clearance(i, hzr);
+                    pre.iter_mut().zip(&ws[i * h..(i + 1) * h]).for_each(|(x, w)| *x += s * w);
+                }
                 let y = dec.finish(&mut pre, &w2t, &mut scratch);
                 for ch in 0..3 {
                     let gt = (texel[off + ch] * inv_scale) as f64;
@@ -531,32 +711,54 @@ impl Batches {
     }
 }
 
-/// The gradients of one step over `texels` (codes from `z`, `k` each), chunk by chunk in
-/// parallel and returned in chunk order; chunk `ci` gets seed `mix(seed + ci)` for its pairs.
+/// The texels' horizon rows as training reads them: rebuilt from the stored map for the texels
+/// of each step (the whole map at 32 bins would be 128 bytes per texel).
+struct Horizons<'a> {
+    map: Option<&'a HorizonMap>,
+    bins: usize,
+}
+
+impl Horizons<'_> {
+    /// The rows of `texels`, `[texel][bin]` (empty without a map).
+    fn rows(&self, texels: &[usize]) -> Vec<f32> {
+        self.map.map_or_else(Vec::new, |m| m.rows(texels))
+    }
+}
+
+/// The gradients of one step over `texels` (codes from `z`, `k` each; horizon rows from `hz`),
+/// chunk by chunk in parallel and returned in chunk order; chunk `ci` gets seed
+/// `mix(seed + ci)` for its pairs.
+#[allow(clippy::type_complexity)]
 fn batch_grads(
     texels: &[usize],
-    z: &[f32],
-    k: usize,
+    (z, k): (&[f32], usize),
+    hz: &Horizons<'_>,
     seed: u64,
-    grad: impl Fn(&[usize], &[f32], u64) -> ChunkGrad + Sync,
+    grad: impl Fn(&[usize], &[f32], &[f32], u64) -> ChunkGrad + Sync,
 ) -> Vec<ChunkGrad> {
     let zb: Vec<f32> = texels.iter().flat_map(|&ti| z[ti * k..(ti + 1) * k].iter().copied()).collect();
+    let bins = hz.bins;
+    let hb = hz.rows(texels);
     texels
         .par_chunks(CHUNK)
-        .zip(zb.par_chunks(CHUNK * k))
         .enumerate()
-        .map(|(ci, (tx, zc))| grad(tx, zc, mix(seed.wrapping_add(ci as u64))))
+        .map(|(ci, tx)| {
+            let zc = &zb[ci * CHUNK * k..ci * CHUNK * k + tx.len() * k];
+            let hc = &hb[ci * CHUNK * bins..ci * CHUNK * bins + tx.len() * bins];
+            grad(tx, zc, hc, mix(seed.wrapping_add(ci as u64)))
+        })
         .collect()
 }
 
-/// Train a neural model on the present pairs of `btf`; `monitor` counts steps.
-pub fn train(btf: &BtfRef<'_>, s: &Setup, monitor: &Monitor) -> Result<Trained> {
+/// Train a neural model on the present pairs of `btf`, with the texels' horizon map when the
+/// decoder reads clearances (the stored one: the rows it rebuilds); `monitor` counts steps.
+pub fn train(btf: &BtfRef<'_>, s: &Setup, horizon: Option<&HorizonMap>, monitor: &Monitor) -> Result<Trained> {
     let pairs = split_pairs(btf, s)?;
     let sh = s.shape;
-    let k = sh.latents;
+    let (k, bins) = (sh.latents, sh.horizon);
     let t = btf.texels();
-    let qat = (s.steps / 10).max(1);
-    monitor.start((s.steps + qat) as u64 + 1);
+    let hz = Horizons { map: horizon, bins };
+    monitor.start((s.steps + (s.steps / 10).max(1)) as u64 + 1);
     let scale = value_scale(btf, &pairs, s.seed);
     let inv_scale = (1.0 / scale) as f32;
     let (mut z, pca_components) = pca_latents(btf, &pairs, k, s.seed, monitor)?;
@@ -578,6 +780,7 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, monitor: &Monitor) -> Result<Trained> 
         idx.truncate(m);
         idx
     };
+    let val_hz = hz.rows(&val_texels);
     let eval_every = (s.steps / 40).clamp(50, 500);
     let mut report = TrainReport { validation_pairs: pairs.val.len(), pca_components, scale, ..Default::default() };
     let mut best: Option<(f64, Vec<f32>, Vec<f32>)> = None;
@@ -589,8 +792,8 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, monitor: &Monitor) -> Result<Trained> 
         monitor.check()?;
         let texels = batches.next(&mut rng);
         let seed = mix(s.seed ^ mix((step * 4096) as u64));
-        let grads = batch_grads(&texels, &z, k, seed, |tx, zc, sd| {
-            chunk_grad(btf, &pairs.train, &dec, tx, zc, inv_scale, norm, sd, true)
+        let grads = batch_grads(&texels, (&z, k), &hz, seed, |tx, zc, hc, sd| {
+            chunk_grad(btf, &pairs.train, &dec, tx, zc, hc, inv_scale, norm, sd, true)
         });
         let mut g = vec![0.0f32; dec.params.len()];
         let mut sse = 0.0;
@@ -636,7 +839,7 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, monitor: &Monitor) -> Result<Trained> 
         step += 1;
         monitor.advance(1);
         if !pairs.val.is_empty() && (step % eval_every == 0 || step == s.steps) {
-            let err = val_error(btf, &pairs.val, &dec, &z, &val_texels, inv_scale);
+            let err = val_error(btf, &pairs.val, &dec, &z, &val_hz, &val_texels, inv_scale);
             if best.as_ref().is_none_or(|(b, _, _)| err < *b) {
                 best = Some((err, dec.params.clone(), z.clone()));
                 report.best_step = step;
@@ -658,7 +861,10 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, monitor: &Monitor) -> Result<Trained> 
     } else {
         report.best_step = step;
     }
-    // Quantization-aware end: the decoder learns the decoded 8-bit latents.
+    // Quantization-aware end: the decoder learns the decoded 8-bit latents, for a tenth of the
+    // steps run (early stopping included; the progress total shrinks to match).
+    let qat = (step / 10).max(1);
+    monitor.set_total((step + qat) as u64 + 1);
     let planes = Planes::quantize(&z, k)?;
     let zq = planes.dequantize();
     let mut adam = Adam::new(dec.params.len());
@@ -667,8 +873,8 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, monitor: &Monitor) -> Result<Trained> 
         monitor.check()?;
         let texels = batches.next(&mut rng);
         let seed = mix(s.seed ^ mix(((s.steps + i) * 4096) as u64));
-        let grads = batch_grads(&texels, &zq, k, seed, |tx, zc, sd| {
-            chunk_grad(btf, &pairs.train, &dec, tx, zc, inv_scale, norm, sd, false)
+        let grads = batch_grads(&texels, (&zq, k), &hz, seed, |tx, zc, hc, sd| {
+            chunk_grad(btf, &pairs.train, &dec, tx, zc, hc, inv_scale, norm, sd, false)
         });
         let mut g = vec![0.0f32; dec.params.len()];
         for cg in &grads {
@@ -683,7 +889,7 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, monitor: &Monitor) -> Result<Trained> 
         monitor.advance(1);
     }
     if !pairs.val.is_empty() {
-        report.validation_error_8bit = Some(val_error(btf, &pairs.val, &dec, &zq, &val_texels, inv_scale));
+        report.validation_error_8bit = Some(val_error(btf, &pairs.val, &dec, &zq, &val_hz, &val_texels, inv_scale));
     }
     // Back to the data's scale: the last layer times the scale.
     let o = sh.offsets();
