@@ -22,6 +22,8 @@
 //!   fitted by Levenberg-Marquardt from photometric-stereo normals; exported to glTF and Mitsuba.
 //! * [`photometric`]: photometric stereo (Woodham 1980), L2 and robust (IRLS): per-texel normals
 //!   and Lambertian albedo of one view slot.
+//! * [`relief`]: a sample's relief for models that draw its cast shadows: the height from
+//!   photometric stereo and the horizon map (Max 1988) the neural decoder reads.
 //! * [`planes`]: 8-bit coefficient planes with per-plane scale and bias (what RTI viewers hold).
 //! * [`eval`]: evaluation ([`ReflectanceModel`], [`Shade`]), what the model contract and its GPU
 //!   half share.
@@ -34,7 +36,8 @@
 //!   each texel in their own pass (PTM, HSH) run too.
 //! * [`driver`]: the fit every caller runs through the registry: the robust screen, then the
 //!   model's fit on the repaired values.
-//! * the general numerics (dense products, CLS, k-means, randomized PCA) are in `btfrs-numerics`.
+//! * the general numerics (dense products, CLS, k-means, exact and randomized PCA, Poisson
+//!   integration) are in `btfrs-numerics`.
 //! * [`blockwise`]: how each fit splits over texel blocks fitted apart (`btfrs.dask`).
 
 pub mod bilinear;
