@@ -47,7 +47,7 @@ from numpy.typing import NDArray
 
 from . import _native
 from ._checks import choice as check_choice
-from ._checks import instance, integer, real, size_hw
+from ._checks import instance, integer, memory_size, real, size_hw
 from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
@@ -362,7 +362,7 @@ def _render_ms(model: Any, use: SceneUse) -> float:
     return best
 
 
-def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: Optional[int] = None,
+def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: Union[int, str, None] = None,
            budget_ms: Optional[float] = None, candidates: Optional[Sequence[Tuple[str, str, Dict[str, Any]]]] = None,
            subsets: Sequence[str] = SUBSETS, samples: int = 256, measure_render: bool = True, seed: int = 0,
            progress: Progress = None) -> Choice:
@@ -374,8 +374,8 @@ def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: 
     btf: the measured sample (every pair present: the reference is its raw interpolation).
     scene: a :class:`SceneUse`.
     tolerance: the largest acceptable weighted relative error (> 0).
-    budget_bytes, budget_ms: optional limits on ``nbytes`` and render ms; a candidate over one is
-        not chosen (render ms are measured only when ``measure_render``).
+    budget_bytes, budget_ms: optional limits on ``nbytes`` (bytes, or a size such as ``"8MiB"``)
+        and render ms; a candidate over one is not chosen (render ms are measured only when ``measure_render``).
     candidates: ``(kind, label, options)`` triples (``kind`` a registered model or ``"raw"``);
         default: :func:`default_candidates` (every registered model at its registry examples,
         plus ``"raw"``).
@@ -395,7 +395,7 @@ def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: 
                                    "this sample has a mask")
     use = instance("scene", scene, SceneUse, "a btfrs.SceneUse")
     tol = real("tolerance", tolerance, min=0.0, min_open=True)
-    bb = None if budget_bytes is None else integer("budget_bytes", budget_bytes, min=1)
+    bb = memory_size("budget_bytes", budget_bytes)
     bm = None if budget_ms is None else real("budget_ms", budget_ms, min=0.0, min_open=True)
     n_samples = integer("samples", samples, min=1)
     rng = np.random.default_rng(check_seed(seed))

@@ -95,7 +95,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                    help="rendered image height then width (default: 256 256)")
     c.add_argument("--uv-scale", type=float, default=1.0, help="repetitions of the sample (default: 1)")
     c.add_argument("--tolerance", type=float, default=0.05, help="largest weighted relative error (default: 0.05)")
-    c.add_argument("--budget-bytes", type=int, help="largest model size in bytes")
+    c.add_argument("--budget-bytes", help="largest model size: bytes, or a size such as 8MiB or 2MB")
     c.add_argument("--budget-ms", type=float, help="largest render time in ms")
     c.add_argument("--samples", type=int, default=256, help="(view, light) pairs scored (default: 256)")
     c.add_argument("--kinds", nargs="+", metavar="KIND",
@@ -166,7 +166,6 @@ _RANGES: Dict[str, Tuple[str, Optional[float], Optional[float], bool, bool]] = {
     "image_size": ("--image-size", 1, None, False, False),
     "uv_scale": ("--uv-scale", 0.0, None, True, False),
     "tolerance": ("--tolerance", 0.0, None, True, False),
-    "budget_bytes": ("--budget-bytes", 1, None, False, False),
     "budget_ms": ("--budget-ms", 0.0, None, True, False),
     "samples": ("--samples", 1, None, False, False),
     "tile": ("--tile", 1, None, False, False),
@@ -239,6 +238,8 @@ def _check_values(args: argparse.Namespace) -> None:
                 raise InvalidArgumentError(f"{flag}: expected a non-zero vector, got {' '.join(map(str, d))}")
     if getattr(args, "max_bytes", None) is not None:
         args.max_bytes = memory_size("--max-bytes", args.max_bytes)
+    if getattr(args, "budget_bytes", None) is not None:
+        args.budget_bytes = memory_size("--budget-bytes", args.budget_bytes)
     for name in ("views", "lights"):
         if hasattr(args, name):
             _indices(name, getattr(args, name))
