@@ -278,3 +278,55 @@ def test_the_documented_choice():
     text = (Path(__file__).resolve().parents[1] / "docs" / "choosing.md").read_text()
     assert "uses 7 of 81 views and 23 of 81 lights, and the choice is LPCA 8 x 4 fitted on those 7 x 23 " \
         "slots, 52,384 bytes" in " ".join(text.split())
+
+
+def dome(n: int, lo: float = 12.0, hi: float = 85.0) -> np.ndarray:
+    el = np.radians(lo + (hi - lo) * np.arange(n) / (n - 1))
+    az = 2.399963 * np.arange(n)
+    return np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], 1)
+
+
+def test_without_a_scene_the_smallest_model_meeting_the_held_out_tolerance():
+    # A single-view capture and the RTI question: which model predicts the lights not
+    # photographed? Each candidate's held-out error is recomputed here in float64 numpy from a
+    # fresh fit on the kept lights; the choice is the smallest that meets the tolerance.
+    cap = btfrs.materials.make("bumps", size=16, seed=3, views=[[0.0, 0.0, 1.0]], lights=dome(30))
+    cands = [("ptm", "PTM-RGB", {"kind": "rgb"}), ("hsh", "HSH-3", {"order": 3}),
+             ("rbf", "RBF-18", {"components": 18}), ("neural", "Neural-8", {"latents": 8, "steps": 400}),
+             ("raw", "raw data", {})]
+    first = btfrs.choose(cap, tolerance=1.0, candidates=cands, holdout=0.2, seed=5)
+    assert len(first.lights_held) == 6 and len(first.lights_used) == 24
+    assert not set(first.lights_held) & set(first.lights_used)
+    kept = cap.select(lights=first.lights_used)
+    held = cap.select(lights=first.lights_held)
+    truth = held.data[:, :, 0].astype(np.float64)
+    errors = {}
+    for c in first.candidates:
+        assert c["fit_s"] is not None and c["fit_s"] >= 0 and c["subset"] == "kept", c
+        if c["kind"] == "raw":
+            continue
+        m = btfrs.fit.fit(c["kind"], kept, **c["options"])
+        pred = np.stack([m.evaluate(held.views[0], held.lights[j]) for j in range(held.n_lights)], 2)
+        errors[c["label"]] = float(np.linalg.norm(pred - truth) / np.linalg.norm(truth))
+        assert c["error"] == pytest.approx(errors[c["label"]], rel=1e-4), c
+    # A tolerance between the errors: the choice is the smallest candidate at or under it.
+    tol = float(np.median(list(errors.values())))
+    pick = btfrs.choose(cap, tolerance=tol, candidates=cands, holdout=0.2, seed=5)
+    meeting = [c for c in pick.candidates if c["error"] is not None and c["error"] <= tol]
+    assert pick.met and pick.nbytes == min(c["nbytes"] for c in meeting)
+    assert pick.error <= tol and np.array_equal(pick.lights_held, first.lights_held)
+    text = pick.explain()
+    assert "held out" in text and f"chosen: {pick.label}" in text and "fitted in" in text
+    with pytest.raises(btfrs.InvalidArgumentError, match="holdout"):
+        btfrs.choose(cap, tolerance=0.1, holdout=1.0)
+    with pytest.raises(btfrs.InvalidArgumentError, match="holdout"):
+        btfrs.choose(cap.select(lights=[0, 1]), tolerance=0.1, holdout=0.2)
+
+
+def test_command_line_without_a_scene(capsys):
+    from btfrs.cli import main
+
+    rc = main(["choose", "--material", "bumps", "--size", "16", "--kinds", "ptm", "hsh", "raw",
+               "--holdout", "0.2", "--tolerance", "0.5", "--quiet"])
+    out = capsys.readouterr().out
+    assert rc == 0 and "held out" in out and "chosen:" in out, out

@@ -32,6 +32,13 @@ lights around them, and a distant surface shows a coarse mip level of the textur
 The choice is the cheapest candidate (bytes, then render ms) within the budgets whose error meets
 the tolerance; if none does, the most accurate one within the budgets, flagged ``met=False``
 (:meth:`Choice.explain` says so).
+
+**Without a scene** (``scene=None``, the RTI question: *which model predicts the lights I did
+not photograph?*), a share ``holdout`` of the measured lights is set aside (drawn with ``seed``),
+every candidate is fitted on the others, and its error is the relative L2 error
+``||pred - measured|| / ||measured||`` over the held-out lights (every view): the smallest
+candidate in bytes that meets the tolerance wins, and each row carries its fit seconds. The raw
+candidate is the training lights' raw interpolation (what a viewer without a model shows).
 """
 
 from __future__ import annotations
@@ -239,6 +246,99 @@ def _slot_weights(dirs: np.ndarray, queries: np.ndarray, weights: np.ndarray) ->
     return np.bincount(idx.reshape(-1), weights=(w * uw[:, None]).reshape(-1), minlength=len(dirs))
 
 
+def _candidates(candidates: Optional[Sequence[Tuple[str, str, Dict[str, Any]]]]) -> List[Tuple[str, str, Dict[str, Any]]]:
+    """The checked ``(kind, label, options)`` triples (default: :func:`default_candidates`)."""
+    if candidates is None:
+        return default_candidates()
+    kinds = model_kinds()
+    if isinstance(candidates, (str, bytes)) or not hasattr(candidates, "__iter__"):
+        raise ArgumentTypeError(f"candidates: expected a list of (kind, label, options), got {candidates!r}")
+    cands = []
+    for k, c in enumerate(candidates):
+        if not (isinstance(c, (tuple, list)) and len(c) == 3 and isinstance(c[1], str) and isinstance(c[2], dict)):
+            raise ArgumentTypeError(f"candidates[{k}]: expected (kind, label, options dict), got {c!r}")
+        cands.append((check_choice(f"candidates[{k}]", c[0], tuple(kinds) + ("raw",)), c[1], dict(c[2])))
+    if not cands:
+        raise InvalidArgumentError("candidates: expected at least one candidate")
+    return cands
+
+
+def _choose_heldout(btf: Btf, tol: float, bb: Optional[int], cands: List[Tuple[str, str, Dict[str, Any]]],
+                    share: float, seed: int, progress: Progress) -> Choice:
+    """:func:`choose` without a scene: each candidate fitted on the lights kept, scored on the
+    lights held out (the module documentation says how)."""
+    n = btf.n_lights
+    held = int(round(share * n))
+    if held < 1 or n - held < 2:
+        raise InvalidArgumentError(f"holdout: {share:g} of {n} lights holds out {held}; expected at least one light "
+                                   "held out and two kept")
+    rng = np.random.default_rng(seed)
+    test_l = np.sort(rng.choice(n, size=held, replace=False))
+    train_l = np.setdiff1d(np.arange(n), test_l)
+    train, test = btf.select(lights=train_l), btf.select(lights=test_l)
+    pairs = [(v, l) for v in range(test.n_views) for l in range(test.n_lights)]
+    truth = [np.asarray(test.data[:, :, v, l, :], dtype=np.float64) for v, l in pairs]
+    energy = sum(float(np.sum(t * t)) for t in truth)
+
+    def score(evaluate: Callable[[NDArray[Any], NDArray[Any]], Any]) -> float:
+        err = 0.0
+        for (v, l), t in zip(pairs, truth):
+            d = np.asarray(evaluate(test.views[v], test.lights[l]), dtype=np.float64) - t
+            err += float(np.sum(d * d))
+        if not math.isfinite(err):
+            return math.inf
+        return math.sqrt(err / energy) if energy > 0 else (0.0 if err == 0 else math.inf)
+
+    cb = callback(progress, f"choose ({len(cands)} candidates, {held} of {n} lights held out)")
+    if cb is not None:
+        cb(0, len(cands))
+    rows: List[Dict[str, Any]] = []
+    for j, (kind, label, options) in enumerate(cands):
+        row: Dict[str, Any] = dict(label=label, kind=kind, options=options, subset="kept", views=train.n_views,
+                                   lights=train.n_lights, error=None, nbytes=None, render_ms=math.nan, fit_s=None,
+                                   status="", model=None)
+        try:
+            t0 = time.perf_counter()
+            if kind == "raw":
+                model: Any = train
+                row["fit_s"] = time.perf_counter() - t0
+                row["nbytes"] = int(train.data.nbytes)
+                row["error"] = score(functools.partial(_raw_image, train))
+            else:
+                model = fit_model(kind, train, **options)
+                row["fit_s"] = time.perf_counter() - t0
+                row["nbytes"] = int(model.nbytes)
+                row["error"] = score(model.evaluate)
+            row["model"] = model
+        except BtfrsError as e:
+            row["status"] = f"failed: {type(e).__name__}: {str(e).splitlines()[0][:80]}"
+        rows.append(row)
+        if cb is not None:
+            cb(j + 1, len(cands))
+    fitted = [r for r in rows if r["model"] is not None]
+    if not fitted:
+        raise DegenerateDataError("candidates: no candidate could be fitted on the lights kept: "
+                                  + "; ".join(f"{r['label']}: {r['status']}" for r in rows))
+    within = [r for r in fitted if bb is None or r["nbytes"] <= bb]
+    ok_rows = [r for r in within if r["error"] <= tol]
+    met = bool(ok_rows)
+    best = (min(ok_rows, key=lambda r: (r["nbytes"], r["error"])) if met
+            else min(within or fitted, key=lambda r: (r["error"], r["nbytes"])))
+    for r in fitted:
+        r["status"] = ("over the byte budget " + str(bb) if bb is not None and r["nbytes"] > bb
+                       else "meets the tolerance" if r["error"] <= tol else "error above tolerance")
+        if not math.isfinite(r["error"]):
+            r["status"] += "; non-finite values at the held-out lights"
+    best["status"] += " (chosen)" if met else " (best available: tolerance not met)"
+    rows.sort(key=lambda r: (1, 0, 0.0) if r["model"] is None else (0, r["nbytes"], r["error"]))
+    return Choice(model=best["model"], kind=best["kind"], label=best["label"], options=best["options"],
+                  subset="kept", error=float(best["error"]), nbytes=int(best["nbytes"]), render_ms=math.nan, met=met,
+                  tolerance=tol, budget_bytes=bb, budget_ms=None,
+                  candidates=[{k: v for k, v in r.items() if k != "model"} for r in rows],
+                  views_used=np.arange(btf.n_views), lights_used=train_l, mip_level=0, samples=len(pairs),
+                  n_views=btf.n_views, n_lights=btf.n_lights, lights_held=test_l)
+
+
 def _raw_image(btf: Btf, view: np.ndarray, light: np.ndarray) -> np.ndarray:
     """The raw measured data interpolated at one (view, light), as the raw renderer does."""
     vi, vw = interp_weights(btf.views, view[None])
@@ -293,6 +393,8 @@ class Choice:
     samples: int
     n_views: int
     n_lights: int
+    #: With ``scene=None``: the lights held out (``lights_used`` are those kept); None otherwise.
+    lights_held: Optional[np.ndarray] = None
 
     def to_dict(self) -> Dict[str, Any]:
         """Everything but the model, as plain Python values (JSON-serialisable)."""
@@ -301,28 +403,45 @@ class Choice:
                     tolerance=self.tolerance, budget_bytes=self.budget_bytes, budget_ms=self.budget_ms,
                     views_used=[int(v) for v in self.views_used], lights_used=[int(v) for v in self.lights_used],
                     mip_level=self.mip_level, samples=self.samples,
+                    lights_held=None if self.lights_held is None else [int(v) for v in self.lights_held],
                     candidates=[{k: v for k, v in c.items() if k != "model"} for c in self.candidates])
 
     def explain(self) -> str:
         """A readable account: what the scene uses, every candidate with its error and costs, and
         why the choice."""
-        lines = [f"scene uses {len(self.views_used)} of {self.n_views} views and {len(self.lights_used)} of "
-                 f"{self.n_lights} lights; mip level {self.mip_level}; error on {self.samples} sampled "
-                 f"(view, light) pairs against the raw data; tolerance {self.tolerance:g}"
+        if self.lights_held is not None:
+            head = (f"fitted on {len(self.lights_used)} of {self.n_lights} lights; error on the {len(self.lights_held)} "
+                    f"held out ({self.samples} (view, light) pairs) against the measured images; "
+                    f"tolerance {self.tolerance:g}")
+        else:
+            head = (f"scene uses {len(self.views_used)} of {self.n_views} views and {len(self.lights_used)} of "
+                    f"{self.n_lights} lights; mip level {self.mip_level}; error on {self.samples} sampled "
+                    f"(view, light) pairs against the raw data; tolerance {self.tolerance:g}")
+        lines = [head
                  + (f", budget {self.budget_bytes} bytes" if self.budget_bytes is not None else "")
                  + (f", budget {self.budget_ms:g} ms" if self.budget_ms is not None else ""),
                  "",
-                 f"  {'candidate':<24} {'fit on':<7} {'slots':>9} {'error':>8} {'bytes':>11} {'render ms':>9}  status"]
+                 f"  {'candidate':<24} {'fit on':<7} {'slots':>9} {'error':>8} {'bytes':>11} {'fit s':>7} {'render ms':>9}  status"]
         for c in self.candidates:
             chosen = "*" if c["label"] == self.label and c["subset"] == self.subset else " "
             err = "-" if c["error"] is None else f"{c['error']:.4f}"
             ms = "-" if c["render_ms"] is None or not math.isfinite(c["render_ms"]) else f"{c['render_ms']:.1f}"
             nb = "-" if c["nbytes"] is None else str(c["nbytes"])
+            fs = "-" if c.get("fit_s") is None else f"{c['fit_s']:.1f}"
             lines.append(f"{chosen} {c['label']:<24} {c['subset']:<7} {c['views']:>4}x{c['lights']:<4} {err:>8} "
-                         f"{nb:>11} {ms:>9}  {c['status']}")
+                         f"{nb:>11} {fs:>7} {ms:>9}  {c['status']}")
         lines.append("")
         ms = f"{self.render_ms:.1f} ms" if math.isfinite(self.render_ms) else "render time not measured"
-        if self.met:
+        if self.lights_held is not None:
+            fit = next((c["fit_s"] for c in self.candidates if c["label"] == self.label), None)
+            took = "" if fit is None else f", fitted in {fit:.1f} s"
+            if self.met:
+                lines.append(f"chosen: {self.label} ({self.nbytes} bytes{took}): the smallest candidate whose held-out "
+                             f"error {self.error:.4f} meets the tolerance {self.tolerance:g}")
+            else:
+                lines.append(f"NOT MET: no candidate within the budget meets the tolerance {self.tolerance:g}; returned "
+                             f"the most accurate, {self.label} (held-out error {self.error:.4f}, {self.nbytes} bytes{took})")
+        elif self.met:
             lines.append(f"chosen: {self.label} on the {self.subset} subset ({self.nbytes} bytes, {ms}): the cheapest "
                          f"candidate whose error {self.error:.4f} meets the tolerance {self.tolerance:g}")
         else:
@@ -362,17 +481,19 @@ def _render_ms(model: Any, use: SceneUse) -> float:
     return best
 
 
-def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: Union[int, str, None] = None,
+def choose(btf: Btf, *, scene: Optional[SceneUse] = None, tolerance: float = 0.05,
+           budget_bytes: Union[int, str, None] = None,
            budget_ms: Optional[float] = None, candidates: Optional[Sequence[Tuple[str, str, Dict[str, Any]]]] = None,
            subsets: Sequence[str] = SUBSETS, samples: int = 256, measure_render: bool = True, seed: int = 0,
-           progress: Progress = None) -> Choice:
+           holdout: float = 0.2, progress: Progress = None) -> Choice:
     """The cheapest model, in bytes and then render ms, whose error on the scene's own direction
     distribution meets ``tolerance`` (see the module documentation for how).
 
     Parameters
     ----------
     btf: the measured sample (every pair present: the reference is its raw interpolation).
-    scene: a :class:`SceneUse`.
+    scene: a :class:`SceneUse`; None scores each candidate on held-out lights instead (see
+        ``holdout``; ``subsets``, ``samples``, ``budget_ms`` and ``measure_render`` do not apply).
     tolerance: the largest acceptable weighted relative error (> 0).
     budget_bytes, budget_ms: optional limits on ``nbytes`` (bytes, or a size such as ``"8MiB"``)
         and render ms; a candidate over one is not chosen (render ms are measured only when ``measure_render``).
@@ -386,16 +507,21 @@ def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: 
         the candidates that can be chosen (error within the tolerance and bytes within the
         budget; when none is, the most accurate ones, until one is within the time budget);
         the others, and all without ``measure_render``, have ``render_ms`` NaN.
-    seed: the seed of the direction sampling.
+    seed: the seed of the direction sampling (with ``scene=None``: of the held-out lights).
+    holdout: with ``scene=None``, the share of the lights held out, in (0, 1) (default 0.2: one
+        in five, the RTI benchmarks' protocol).
     progress: None, True or a callable ``(done, total)`` over the candidates.
     """
     btf = instance("btf", btf, Btf, "a btfrs.Btf")
     if btf.mask is not None and not btf.mask.all():
         raise InvalidArgumentError("btf: choose scores against the raw data, which needs every (view, light) pair; "
                                    "this sample has a mask")
-    use = instance("scene", scene, SceneUse, "a btfrs.SceneUse")
     tol = real("tolerance", tolerance, min=0.0, min_open=True)
     bb = memory_size("budget_bytes", budget_bytes)
+    if scene is None:
+        share = real("holdout", holdout, min=0.0, max=1.0, min_open=True, max_open=True)
+        return _choose_heldout(btf, tol, bb, _candidates(candidates), share, check_seed(seed), progress)
+    use = instance("scene", scene, SceneUse, "a btfrs.SceneUse")
     bm = None if budget_ms is None else real("budget_ms", budget_ms, min=0.0, min_open=True)
     n_samples = integer("samples", samples, min=1)
     rng = np.random.default_rng(check_seed(seed))
@@ -406,19 +532,7 @@ def choose(btf: Btf, *, scene: SceneUse, tolerance: float = 0.05, budget_bytes: 
         raise InvalidArgumentError("subsets: expected at least one of " + ", ".join(SUBSETS))
     if not isinstance(measure_render, (bool, np.bool_)):
         raise ArgumentTypeError(f"measure_render: expected True or False, got {measure_render!r}")
-    kinds = model_kinds()
-    if candidates is None:
-        cands = default_candidates()
-    else:
-        if isinstance(candidates, (str, bytes)) or not hasattr(candidates, "__iter__"):
-            raise ArgumentTypeError(f"candidates: expected a list of (kind, label, options), got {candidates!r}")
-        cands = []
-        for k, c in enumerate(candidates):
-            if not (isinstance(c, (tuple, list)) and len(c) == 3 and isinstance(c[1], str) and isinstance(c[2], dict)):
-                raise ArgumentTypeError(f"candidates[{k}]: expected (kind, label, options dict), got {c!r}")
-            cands.append((check_choice(f"candidates[{k}]", c[0], tuple(kinds) + ("raw",)), c[1], dict(c[2])))
-        if not cands:
-            raise InvalidArgumentError("candidates: expected at least one candidate")
+    cands = _candidates(candidates)
 
     # 1-2. What the scene asks, and which measured slots that touches.
     h, w = btf.shape[0], btf.shape[1]

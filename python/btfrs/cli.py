@@ -86,7 +86,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     e.add_argument("--no-render", action="store_true", help="leave out render ms and scene PSNR")
     e.add_argument("--eval-seed", type=int, default=0, help="seed of the splits and of seeded fits (default: 0)")
     e.add_argument("--out", default="evaluate", help="output folder (default: evaluate)")
-    c = sub.add_parser("choose", help="the cheapest model that meets a tolerance on a scene's own directions")
+    c = sub.add_parser("choose", help="the cheapest model that meets a tolerance on a scene's own directions, or on held-out lights")
     _sample_args(c, material="weave", size=32, seed=1)
     c.add_argument("--scene", choices=["plane", "sphere"], default="plane", help="the surface (default: plane)")
     c.add_argument("--camera", type=float, nargs=3, action="append", metavar=("X", "Y", "Z"),
@@ -106,6 +106,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                    help="only these candidates: registered model kinds and/or raw (default: all)")
     c.add_argument("--no-render", action="store_true", help="do not time the renders")
     c.add_argument("--seed", type=int, default=0, help="sampling seed (default: 0)")
+    c.add_argument("--holdout", type=float, metavar="SHARE",
+                   help="no scene: score each model on this share of the lights held out, e.g. 0.2 for a "
+                        "single-view capture (the scene options then do not apply)")
     st = sub.add_parser("stability", help="every model in the regimes where methods fail: error curves, flags, charts")
     _sample_args(st, material="grooves", size=16, seed=0)
     st.add_argument("--seed", type=int, default=0, help="seed of the regimes: splits, noise, texels (default: 0)")
@@ -480,9 +483,13 @@ def choose_command(args: argparse.Namespace) -> None:
         if unknown:
             raise InvalidArgumentError(f"--kinds: unknown {', '.join(unknown)}; expected some of "
                                        f"{', '.join(sorted({c[0] for c in known}))}")
-    pick = choose(btf, scene=use, tolerance=args.tolerance, budget_bytes=args.budget_bytes, budget_ms=args.budget_ms,
-                  candidates=cands, samples=args.samples, measure_render=not args.no_render, seed=args.seed,
-                  progress=progress)
+    if args.holdout is not None:
+        pick = choose(btf, tolerance=args.tolerance, budget_bytes=args.budget_bytes, candidates=cands,
+                      seed=args.seed, holdout=args.holdout, progress=progress)
+    else:
+        pick = choose(btf, scene=use, tolerance=args.tolerance, budget_bytes=args.budget_bytes,
+                      budget_ms=args.budget_ms, candidates=cands, samples=args.samples,
+                      measure_render=not args.no_render, seed=args.seed, progress=progress)
     print(pick.explain())
 def stability_command(args: argparse.Namespace) -> None:
     """``btfrs stability``: run every model in every regime, write report.json, report.md and

@@ -149,7 +149,16 @@ fn chosen_pairs(btf: &BtfRef<'_>, max_pairs: usize, seed: u64) -> Vec<(usize, us
 
 /// Where [`texel::guard`] looks for a lobe's peak: 24 x 24 directions on a spiral, elevations
 /// 10 to 85 degrees (zenith angles up to 80, as far as gonioreflectometers measure; the UBO
-/// sets reach 75).
+/// sets reach 75), and each of those and of the data's views at its mirror light.
+fn probes(btf: &BtfRef<'_>) -> texel::Probes {
+    let spiral = probe_pairs();
+    let mut views: Vec<[f64; 3]> = spiral.iter().map(|p| p.0).collect();
+    views.dedup();
+    views.extend(btf.views.iter().copied());
+    texel::Probes { pairs: spiral, views }
+}
+
+/// The fixed pairs of [`probes`].
 fn probe_pairs() -> Vec<([f64; 3], [f64; 3])> {
     let dirs: Vec<[f64; 3]> = (0..24)
         .map(|i| {
@@ -216,7 +225,7 @@ pub fn fit_svbrdf(btf: &BtfRef<'_>, o: &SvbrdfOptions, monitor: &Monitor) -> Res
     // Photometric stereo's normals start the fit (robust: highlights are what the lobe adds).
     let starts = start_normals(btf, &pairs);
     let free = o.normals == "fit";
-    let probes = probe_pairs();
+    let probes = probes(btf);
     let n_guarded = std::sync::atomic::AtomicUsize::new(0);
     monitor.start(h as u64);
     let per_texel = nv * nl * 3;

@@ -77,6 +77,9 @@ pub struct TrainReport {
     pub best_step: usize,
     /// Whether early stopping ended training.
     pub stopped_early: bool,
+    /// The step from which the rate fell to zero because validation stopped improving (null:
+    /// the schedule ran its course).
+    pub cooldown_from: Option<usize>,
     /// Pairs kept out for early stopping.
     pub validation_pairs: usize,
     /// Relative error on them with float latents at the kept step (null: none kept out).
@@ -788,7 +791,12 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, horizon: Option<&HorizonMap>, monitor:
     let mut lr = s.learning_rate;
     let norm = (batch * PAIRS * 3) as f32;
     let mut step = 0;
-    while step < s.steps {
+    // When validation stops improving, the rate falls linearly from where it is to zero over
+    // a further fifth of the steps run (the "decay" of a warm-up, stable, decay schedule): a fit
+    // stopped at its plateau with the cosine still near its peak leaves the parameters as noisy
+    // as the steps were large, and measured 0.2-0.3 dB short of the same fit annealed.
+    let mut cool: Option<(usize, usize, f32)> = None;
+    while step < s.steps && cool.is_none_or(|(c0, len, _)| step < c0 + len) {
         monitor.check()?;
         let texels = batches.next(&mut rng);
         let seed = mix(s.seed ^ mix((step * 4096) as u64));
@@ -821,7 +829,10 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, horizon: Option<&HorizonMap>, monitor:
             ztime.fill(0);
             continue;
         }
-        let rate = schedule(lr, step, s.steps);
+        let rate = match cool {
+            Some((c0, len, r0)) => r0 * (1.0 - (step - c0) as f32 / len as f32),
+            None => schedule(lr, step, s.steps),
+        };
         let n = dec.params.len();
         adam.update(&mut dec.params, &g, 0..n, step + 1, rate);
         for (cg, tx) in grads.iter().zip(texels.chunks(CHUNK)) {
@@ -848,7 +859,13 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, horizon: Option<&HorizonMap>, monitor:
                 since_best += 1;
                 if since_best >= PATIENCE {
                     report.stopped_early = true;
-                    break;
+                    if cool.is_some() {
+                        break;
+                    }
+                    let len = (step / 5).max(2 * eval_every).min(s.steps - step.min(s.steps)).max(1);
+                    cool = Some((step, len, schedule(lr, step, s.steps)));
+                    report.cooldown_from = Some(step);
+                    since_best = 0;
                 }
             }
         }

@@ -254,24 +254,65 @@ pub fn fit_texel(obs: &[Obs], start: [f64; 3], free_normal: bool, w: &mut Work) 
 /// of this for Lafortune's lobes; its fit has the same kind of guard).
 pub const GUARD: f64 = 2.0;
 
-/// The largest grey value (mean of the channels) of `lobe` over `probes` (view, light).
-fn peak(lobe: &TexelLobe, probes: &[([f64; 3], [f64; 3])]) -> f64 {
+/// Where [`guard`] looks for a lobe's peak: fixed (view, light) pairs spread over the
+/// hemispheres, and views whose mirror direction about each texel's own normal is probed too
+/// (the peak of a narrow lobe lies there, between any fixed pairs: a glossy texel seen from
+/// above peaks at a light near the zenith that a dome need not have).
+#[derive(Debug, Clone)]
+pub struct Probes {
+    /// Fixed pairs.
+    pub pairs: Vec<([f64; 3], [f64; 3])>,
+    /// Views probed at their mirror light.
+    pub views: Vec<[f64; 3]>,
+}
+
+/// How near the normal, in units of the roughness, a measured pair's half vector must lie for
+/// the lobe's peak to count as seen: one roughness width off the normal, GGX's distribution is
+/// at a quarter of its peak, so a lobe that agrees with that pair peaks at most about four times
+/// its value; two widths off (a sixteenth), a lobe fitted to it may peak at many times every
+/// measured value, and did on a real single-view capture (six times).
+const SEEN: f64 = 1.0;
+
+/// The largest grey value (mean of the channels) of `lobe` over `probes`, and at the views'
+/// mirror lights (where a narrow lobe peaks) unless a pair of `obs` saw its peak (a half vector
+/// within [`SEEN`] roughness widths of the normal): a peak no pair came near is the lobe's
+/// guess, not the data's.
+fn peak(lobe: &TexelLobe, obs: &[Obs], probes: &Probes) -> f64 {
     let n = normal_of(lobe.slopes[0], lobe.slopes[1]);
     let (d, s) = (lobe.rho_d.iter().sum::<f64>() / 3.0, lobe.rho_s.iter().sum::<f64>() / 3.0);
-    probes.iter().fold(0.0f64, |m, &(v, l)| {
+    let value = |v: [f64; 3], l: [f64; 3]| {
         let (bd, bs) = basis_of(geometry(n, v, l), lobe.alpha);
-        m.max(d * bd + s * bs)
+        d * bd + s * bs
+    };
+    let fixed = probes.pairs.iter().fold(0.0f64, |m, &(v, l)| m.max(value(v, l)));
+    let seen = (SEEN * lobe.alpha).min(std::f64::consts::FRAC_PI_2).cos();
+    let near = obs.iter().any(|o| {
+        let h = [o.view[0] + o.light[0], o.view[1] + o.light[1], o.view[2] + o.light[2]];
+        let len = (h[0] * h[0] + h[1] * h[1] + h[2] * h[2]).sqrt();
+        len > 0.0 && (n[0] * h[0] + n[1] * h[1] + n[2] * h[2]) / len >= seen
+    });
+    if near {
+        return fixed;
+    }
+    probes.views.iter().fold(fixed, |m, &v| {
+        let c = 2.0 * (n[0] * v[0] + n[1] * v[1] + n[2] * v[2]);
+        let l = [c * n[0] - v[0], c * n[1] - v[1], c * n[2] - v[2]];
+        if l[2] > 0.0 {
+            m.max(value(v, l))
+        } else {
+            m
+        }
     })
 }
 
-/// Keep `lobe` from extrapolating: when its peak over `probes` exceeds [`GUARD`] times the
+/// The guarded lobe: when the fitted lobe's [`peak`] exceeds [`GUARD`] times the texel's
 /// brightest grey value of `obs`, the smallest roughness (by bisection between the fitted one
 /// and [`ALPHA_MAX`], the colours re-solved for each) whose lobe stays within it; diffuse alone
 /// if none does. Returns the lobe and whether it was guarded.
-pub fn guard(obs: &[Obs], lobe: TexelLobe, probes: &[([f64; 3], [f64; 3])], w: &mut Work) -> (TexelLobe, bool) {
+pub fn guard(obs: &[Obs], lobe: TexelLobe, probes: &Probes, w: &mut Work) -> (TexelLobe, bool) {
     let bright = obs.iter().fold(0.0f64, |m, o| m.max((o.value[0] + o.value[1] + o.value[2]) as f64 / 3.0));
     let limit = GUARD * bright;
-    if peak(&lobe, probes) <= limit {
+    if peak(&lobe, obs, probes) <= limit {
         return (lobe, false);
     }
     let at = |alpha: f64, w: &mut Work| {
@@ -280,7 +321,7 @@ pub fn guard(obs: &[Obs], lobe: TexelLobe, probes: &[([f64; 3], [f64; 3])], w: &
         TexelLobe { rho_d, rho_s, alpha, slopes: lobe.slopes, cost, iters: lobe.iters }
     };
     let top = at(ALPHA_MAX, w);
-    if peak(&top, probes) > limit {
+    if peak(&top, obs, probes) > limit {
         // Diffuse alone: each channel's least-squares factor of n.l.
         let n = normal_of(lobe.slopes[0], lobe.slopes[1]);
         let mut flat = top;
@@ -300,7 +341,7 @@ pub fn guard(obs: &[Obs], lobe: TexelLobe, probes: &[([f64; 3], [f64; 3])], w: &
     for _ in 0..12 {
         let mid = 0.5 * (lo + hi);
         let cand = at(mid.exp(), w);
-        if peak(&cand, probes) <= limit {
+        if peak(&cand, obs, probes) <= limit {
             hi = mid;
             best = cand;
         } else {
