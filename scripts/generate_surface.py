@@ -164,7 +164,9 @@ def fit_module(facts: list[dict]) -> str:
         lines.append('    """' + doc[0])
         lines += [("    " + d) if d else "" for d in doc[1:]]
         lines.append('    """')
-        opts = ", ".join(f"{json.dumps(o['name'])}: {py_name(o['name'])}" for o in m["options"])
+        # Keyed as Python spells them (lambda_): the binding reads the schema's name and names
+        # the caller's in its errors.
+        opts = ", ".join(f"{json.dumps(py_name(o['name']))}: {py_name(o['name'])}" for o in m["options"])
         lines.append(f"    options: dict[str, object] = {{{opts}}}")
         common = ", ".join(py_name(o["name"]) for o in COMMON)
         lines.append(f"    model = fit_kind({json.dumps(m['kind'])}, btf, options, memory_limit, progress, {common})")
@@ -178,7 +180,7 @@ def stub_block(facts: list[dict]) -> str:
     return f"_ModelKind = Literal[{kinds}]\n"
 
 
-# The options every fit takes besides its own (robust fitting): btfrs_fit::robust::OPTIONS.
+# The options every fit takes besides its own (robust fitting): btfrs_fit::driver::OPTIONS.
 COMMON: list[dict] = []
 
 
@@ -220,8 +222,8 @@ def read_facts() -> list[dict]:
     import btfrs  # the built extension and the models' Python classes
     from btfrs.models import class_of
 
-    facts = json.loads(btfrs._native.model_facts())
-    COMMON[:] = json.loads(btfrs._native.fit_options())
+    facts = btfrs._native.model_facts()
+    COMMON[:] = btfrs._native.fit_options()
     for m in facts:
         m["class"] = class_of(m["kind"]).__name__
     return facts

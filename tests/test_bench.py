@@ -41,7 +41,9 @@ def test_accuracy_mode_writes_every_model_on_every_material(tmp_path, capsys):
     res = json.loads(path.read_text())
     rows = res["accuracy_models"]
     assert {r["material"] for r in rows} == set(materials.names())
-    assert [r["model"] for r in rows if r["material"] == "knit"] == ["raw, 3 nearest lights", *bench.ACCURACY_MODELS]
+    per_material = [label for label, *_ in bench.settings("per_material")]
+    assert {"PTM-RGB", "Phong+SRF", "Lafortune-Lum 2"} <= set(per_material)  # what is checked below
+    assert [r["model"] for r in rows if r["material"] == "knit"] == ["raw, 3 nearest lights", *per_material]
     assert os.listdir(path.parent) == ["accuracy.json"]  # no temporary file left behind
     for name in materials.names():
         mine = {r["model"]: r for r in rows if r["material"] == name}
@@ -78,9 +80,9 @@ def test_json_write_is_atomic(tmp_path):
     assert os.listdir(tmp_path) == ["bench.json"]
 
 
-def test_frames_mode_times_every_example_and_renderer_against_ptm_rgb():
-    # The 3x-of-PTM check must cover what the registry lists, not a hand-kept subset: every
-    # example of every model, once per renderer, with PTM-RGB's own ratio exactly 1.
+def test_frames_mode_times_every_example_and_renderer_against_the_reference():
+    # The 3x-of-the-reference check must cover what the registry lists, not a hand-kept subset:
+    # every example of every model, once per renderer, with the reference's own ratio exactly 1.
     from btfrs.models import model_kinds
 
     rows = bench.frames_bench(size=8, repeat=1)
@@ -88,9 +90,48 @@ def test_frames_mode_times_every_example_and_renderer_against_ptm_rgb():
             for r in info["renderers"]]
     assert [(r["kind"], r["model"], r["method"]) for r in rows] == want
     assert all(np.isfinite(r["point_ms"]) and r["point_ms"] > 0 for r in rows)
-    ptm = [r for r in rows if r["model"] == "PTM-RGB"]
-    assert len(ptm) == 1 and ptm[0]["vs_ptm"] == 1.0
+    label, kind, _, _ = bench.reference()
+    assert (label, kind) == ("PTM-RGB", "ptm")  # the registry's reference of the 3x target
+    ref = [r for r in rows if r["model"] == label]
+    assert len(ref) == 1 and ref[0]["vs_reference"] == 1.0
     for r in rows:
-        assert r["vs_ptm"] == pytest.approx(r["point_ms"] / ptm[0]["point_ms"])
+        assert r["vs_reference"] == pytest.approx(r["point_ms"] / ref[0]["point_ms"])
     table = bench.frames_table(rows).splitlines()
     assert len(table) == len(rows) + 1 and "x PTM-RGB" in table[0]
+
+
+def test_every_bench_setting_names_a_known_peer_and_role():
+    # The peers the registry names exist; every role a setting plays has a section that reads it
+    # (the bench asks for it by name), and each single-role section has at least one setting.
+    from btfrs.models import model_kinds
+
+    from pathlib import Path
+
+    source = Path(bench.__file__).read_text()
+    roles = set()
+    for info in model_kinds().values():
+        for b in info["bench"]:
+            assert not b["peer"] or b["peer"] in baselines.PEERS, b
+            roles.update(b["roles"])
+    for role in roles:
+        assert f'"{role}"' in source, f"no bench section reads the role {role!r}"
+    for role in ("foundation", "reference", "per_material", "tiles", "single_view_reference"):
+        assert bench.settings(role), role
+
+
+def test_help_and_the_quickest_mode_run(tmp_path, capsys):
+    # --help lists the modes the registry's facts make (one per against_all or big setting).
+    with pytest.raises(SystemExit) as e:
+        bench.main(["--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    for label, kind, _, _ in bench.settings("against_all") + bench.settings("big"):
+        assert f"--{kind.replace('_', '-')}-" in out
+    # The foundation table at 8^2: every foundation setting timed, its peer beside it.
+    rows = bench.run([8], 1)
+    found = [r for r in rows if r["task"].endswith("fit 8^2")]
+    assert [r["task"] for r in found] == [f"{label} fit 8^2" for label, *_ in bench.settings("foundation")]
+    for r, (_, _, _, b) in zip(found, bench.settings("foundation")):
+        assert r["btfrs_s"] > 0 and (r["numpy_s"] is not None) == bool(b["peer"])
+        if b["peer"]:
+            assert r["note"].startswith("max coeff diff") and float(r["note"].split()[3]) < 1e-2

@@ -227,6 +227,8 @@ def test_bad_arguments_name_themselves():
         btfrs.choose(btf, scene=use, subsets=["all"])
     with pytest.raises(btfrs.InvalidArgumentError, match="budget_bytes"):
         btfrs.choose(btf, scene=use, budget_bytes=0)
+    with pytest.raises(btfrs.InvalidArgumentError, match="budget_bytes.*'8 apples'"):
+        btfrs.choose(btf, scene=use, budget_bytes="8 apples")
     train, _ = btf.split(holdout=0.1, seed=0)
     with pytest.raises(btfrs.InvalidArgumentError, match="btf"):
         btfrs.choose(train, scene=use)
@@ -268,7 +270,9 @@ def test_the_documented_choice():
     lights = [[btfrs.DirectionalLight(btfrs.directions.from_theta_phi(40, a, degrees=True))]
               for a in range(0, 360, 45)]
     use = btfrs.SceneUse(camera=cam, lights=lights, size=(512, 512), scene=btfrs.Scene.plane(2.0), uv_scale=2)
-    pick = btfrs.choose(btf, scene=use, tolerance=0.05, budget_bytes=8 << 20, candidates=FAST, measure_render=False)
+    # The budget as the docs write it: a size string, read as its bytes.
+    pick = btfrs.choose(btf, scene=use, tolerance=0.05, budget_bytes="8MiB", candidates=FAST, measure_render=False)
+    assert pick.budget_bytes == 8 << 20
     assert (pick.label, pick.subset, pick.nbytes, len(pick.views_used), len(pick.lights_used)) == \
         ("LPCA 8x4", "scene", 52384, 7, 23)
     text = (Path(__file__).resolve().parents[1] / "docs" / "choosing.md").read_text()

@@ -7,7 +7,6 @@ except in CI (CI=true), where a missing Mitsuba is a failure, not a silent skip.
 """
 
 import math
-import os
 
 import numpy as np
 import pytest
@@ -16,8 +15,10 @@ import btfrs
 from btfrs.tools import groundtruth as gt
 from btfrs.exceptions import InvalidArgumentError
 
+from conftest import in_ci
+
 if not gt.available():
-    if os.environ.get("CI") == "true":
+    if in_ci():
         raise RuntimeError("CI: Mitsuba 3 (llvm_ad_rgb) must be installed for the ground-truth tests "
                            "(scripts/setup.sh installs it)")
     pytest.skip("Mitsuba 3 with an LLVM variant is not installed", allow_module_level=True)

@@ -151,3 +151,13 @@ def test_importing_btfrs_loads_no_tool_and_no_matplotlib():
     assert [m for m in loaded if m == "btfrs.tools" or m.startswith("btfrs.tools.")] == []
     assert [m for m in loaded if m == "matplotlib" or m.startswith("matplotlib.")] == []
     assert "btfrs.cli" not in loaded
+
+
+def test_the_suite_reads_the_ci_switch_in_one_place():
+    # One meaning of "running in CI" for every test (conftest.in_ci): no test reads CI itself.
+    tests = Path(__file__).resolve().parent
+    found = [f"{p.name}:{n}: {line.strip()}" for p in sorted(tests.glob("*.py")) if p.name not in ("conftest.py", Path(__file__).name)
+             for n, line in enumerate(p.read_text().splitlines(), 1)
+             if ("environ" in line or "getenv" in line) and ('"CI"' in line or "'CI'" in line)]
+    assert not found, "read conftest.in_ci() instead:\n" + "\n".join(found)
+    assert "def in_ci(" in (tests / "conftest.py").read_text()

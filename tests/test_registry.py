@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 import btfrs
-from btfrs.exceptions import InvalidArgumentError
+from btfrs.exceptions import ArgumentTypeError, InvalidArgumentError
 
 ROOT = Path(__file__).resolve().parent.parent
 KINDS = btfrs.model_kinds()
@@ -31,7 +31,7 @@ KINDS = btfrs.model_kinds()
 # a folder of the same name, its shader), plus what the registry cannot say: the file of a format
 # it is written as (relight's web folder holds four kinds and hands NeuralRTI's to its reader),
 # the code of an ability only it has (the SH lighting method), a fit file two models share
-# (lightfit: PTM and HSH; light_pca: RBF and bilinear).
+# (lightfit: PTM and HSH; light_pca and light_bases: RBF and bilinear).
 def _module(kind: str) -> str:
     """The model's module in btfrs-fit, from its Rust type (btfrs_fit::lafortune::per_view::...)."""
     return KINDS[kind]["type"].split("::")[1]
@@ -45,9 +45,11 @@ EXTRA = {
     "neural": ["rust/btfrs-io/src/neuralrti_file.rs", RELIGHT],
     # The renderers' formats hold the svbrdf model's maps and nothing else.
     "svbrdf": ["rust/btfrs-io/src/gltf_file.rs", "rust/btfrs-io/src/mitsuba_file.rs"],
-    "rbf": ["rust/btfrs-fit/src/light_pca.rs", "rust/btfrs-fit/src/light_pca/*", "shaders_wgsl/light_pca.wgsl", RELIGHT],
-    "bilinear": ["rust/btfrs-fit/src/light_pca.rs", "rust/btfrs-fit/src/light_pca/*", "shaders_wgsl/light_pca.wgsl",
-                 RELIGHT],
+    # light_bases.rs: the two by name, for their staged blockwise fit (light_pca names neither).
+    "rbf": ["rust/btfrs-fit/src/light_pca.rs", "rust/btfrs-fit/src/light_pca/*", "rust/btfrs-fit/src/light_bases.rs",
+            "shaders_wgsl/light_pca.wgsl", RELIGHT],
+    "bilinear": ["rust/btfrs-fit/src/light_pca.rs", "rust/btfrs-fit/src/light_pca/*", "rust/btfrs-fit/src/light_bases.rs",
+                 "shaders_wgsl/light_pca.wgsl", RELIGHT],
 }
 OWN = {k: [f"rust/btfrs-fit/src/{_module(k)}.rs", f"rust/btfrs-fit/src/{_module(k)}/*",
            f"shaders_wgsl/{_module(k)}*.wgsl"] + EXTRA.get(k, []) for k in KINDS}
@@ -192,21 +194,47 @@ def test_every_option_out_of_its_range_is_refused_naming_it(kind, small):
             bad.append("no-such-choice" if o["type"] == "choice" else 3)
         elif o["type"] == "bool":
             bad.append(1)
+        py = o["name"] + ("_" if keyword.iskeyword(o["name"]) else "")  # as Python spells it
         for v in bad:
             with pytest.raises(InvalidArgumentError) as e:
-                btfrs.fit.fit(kind, small, **{o["name"]: v})
+                btfrs.fit.fit(kind, small, **{py: v})
             msg = str(e.value)
-            py = o["name"] + ("_" if keyword.iskeyword(o["name"]) else "")  # as Python spells it
             assert msg.startswith(py + ": expected ") and o["allowed"] in msg, msg
-    with pytest.raises(InvalidArgumentError, match="unknown option"):
+            # The same facts as fields, set where the check was made (not read from the message).
+            assert (e.value.argument, e.value.value, e.value.allowed) == (py, v, o["allowed"]), msg
+            # Through the generated function, spelled as Python spells it.
+            with pytest.raises(InvalidArgumentError) as e:
+                getattr(btfrs.fit, kind)(small, **{py: v})
+            assert (e.value.argument, e.value.value, e.value.allowed) == (py, v, o["allowed"]), str(e.value)
+    with pytest.raises(InvalidArgumentError, match="unknown option") as e:
         btfrs.fit.fit(kind, small, no_such_option=1)
-    with pytest.raises(InvalidArgumentError, match="finite"):
+    assert (e.value.argument, e.value.value) == ("no_such_option", 1)
+    with pytest.raises(InvalidArgumentError, match="finite") as e:
         btfrs.fit.fit(kind, small, memory_limit=None, **{"x": float("nan")})
+    assert e.value.argument == "x" and np.isnan(e.value.value) and e.value.allowed == "a finite number"
 
 
 def test_numpy_scalars_are_options_too(small):
-    m = btfrs.fit.hsh(small, order=np.int64(2), lambda_=np.float32(1e-6))
-    assert m.order == 2
+    m = btfrs.fit.hsh(small, order=np.int64(2), lambda_=np.float32(1e-6), bits=np.uint8(32))
+    assert m.order == 2 and m.arrays["coeffs"].dtype == np.float32
+    # A numpy float for an integer option is a type error, as a Python float is.
+    with pytest.raises(ArgumentTypeError) as e:
+        btfrs.fit.hsh(small, order=np.float64(2.0))
+    assert (e.value.argument, e.value.value) == ("order", 2.0)
+    # Values that are no number, string, boolean or None are refused naming the option.
+    with pytest.raises(ArgumentTypeError, match="order: expected a number, a string, a boolean or None, got list"):
+        btfrs.fit.fit("hsh", small, order=[2])
+
+
+def test_errors_keep_their_fields_when_pickled(small):
+    # A Dask worker's error reaches the client pickled: its fields come with it.
+    import pickle
+
+    with pytest.raises(InvalidArgumentError) as e:
+        btfrs.fit.hsh(small, lambda_=-1.0)
+    back = pickle.loads(pickle.dumps(e.value))
+    assert type(back) is type(e.value) and str(back) == str(e.value)
+    assert (back.argument, back.value, back.allowed) == ("lambda_", -1.0, "a number >= 0")
 
 
 def test_every_model_class_is_exported_and_the_cli_lists_every_kind():
@@ -225,3 +253,63 @@ def test_the_readme_and_the_docs_list_every_kind():
     pages = "".join(p.read_text() for p in (ROOT / "docs" / "models").glob("*.md"))
     for kind in KINDS:
         assert f'--8<-- "docs/_generated/{kind}.md"' in pages, f"no docs page includes {kind}'s options"
+
+
+def test_contributing_lists_every_model_of_the_registry():
+    # CONTRIBUTING.md's layout table names the kinds btfrs-fit holds: exactly the registered ones,
+    # and each kind's fit file exists where the table's crate says.
+    text = (ROOT / "CONTRIBUTING.md").read_text()
+    row = next(line for line in text.splitlines() if line.startswith("| `rust/btfrs-fit` |"))
+    listed = re.search(r"\(kinds ([^;]*);", row)
+    assert listed, "the btfrs-fit row lists its models as '(kinds `a`, `b`, ...;'"
+    kinds = re.findall(r"`([a-z_]+)`", listed.group(1))
+    assert len(kinds) == len(set(kinds)) and set(kinds) == set(KINDS), (sorted(kinds), sorted(KINDS))
+    for kind in KINDS:
+        assert list(ROOT.glob(OWN[kind][0])) or list(ROOT.glob(OWN[kind][1])), kind
+
+
+# Strings of the bench that are another thing's name and spell a kind: string -> what it is.
+BENCH_NOT_KINDS = {"sh": "lighting=\"sh\", the SH lighting method (a model ability's name)"}
+
+
+def test_the_bench_names_no_model():
+    # Every model-specific setting of the bench is a registry fact (the models' BENCH settings):
+    # no string of it (docstrings and help included) is a kind or holds one as a word, nor a
+    # label of the registry's settings (examples, sweeps, bench settings), and no name in it is a
+    # model's class or a kind (btfrs.fit.<kind>).
+    path = ROOT / "python" / "btfrs" / "tools" / "bench.py"
+    tree = ast.parse(path.read_text())
+    labels = {lab for info in KINDS.values() for lab in
+              [e[0] for e in info["examples"]] + [s[0] for s in info["sweep"]] + [b["label"] for b in info["bench"]]
+              if lab}
+    classes = {TYPES[k] for k in KINDS}
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str):
+            text = node.value
+            if text in BENCH_NOT_KINDS:
+                continue
+            for kind in KINDS:
+                if re.search(rf"(?<![\w-]){re.escape(kind)}(?![\w-])", text):
+                    found.append(f"bench.py:{node.lineno}: the kind {kind!r} in {text[:60]!r}")
+            for lab in labels:
+                if re.search(rf"(?<![\w-]){re.escape(lab)}(?![\w-])", text):
+                    found.append(f"bench.py:{node.lineno}: the setting {lab!r} in {text[:60]!r}")
+        elif isinstance(node, (ast.Name, ast.Attribute)):
+            name = node.id if isinstance(node, ast.Name) else node.attr
+            if name in classes or name in KINDS:
+                found.append(f"bench.py:{node.lineno}: the name {name}")
+        elif isinstance(node, ast.alias) and node.name in classes:
+            found.append(f"bench.py: imports {node.name}")
+    assert not found, "the bench names models:\n" + "\n".join(found)
+
+
+def test_the_fit_crates_module_list_names_every_module():
+    # btfrs-fit's crate doc is its guide: every public module is named there as a link ([`x`]),
+    # so a new module (a model's file, or a room split off) is described where readers look.
+    text = (ROOT / "rust" / "btfrs-fit" / "src" / "lib.rs").read_text()
+    doc = "\n".join(line for line in text.splitlines() if line.startswith("//!"))
+    modules = re.findall(r"^pub mod (\w+);", text, re.M)
+    assert len(modules) >= len(KINDS), modules  # the reader found the declarations
+    missing = [m for m in modules if f"[`{m}`]" not in doc]
+    assert not missing, f"btfrs-fit's lib.rs doc leaves out {missing}"

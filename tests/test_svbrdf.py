@@ -8,6 +8,8 @@ import pytest
 import btfrs
 from btfrs.exceptions import DegenerateDataError
 
+from conftest import in_ci
+
 
 def spiral(n: int, lo: float, hi: float, turn: float = 0.0) -> np.ndarray:
     el = np.radians(lo + (hi - lo) * np.arange(n) / n)
@@ -96,7 +98,7 @@ def test_the_lobe_is_mitsubas_diffuse_plus_roughconductor():
     try:
         import mitsuba as mi
     except ImportError:
-        if __import__("os").environ.get("CI"):
+        if in_ci():
             raise
         pytest.skip("mitsuba is not installed")
     mi.set_variant("scalar_rgb")

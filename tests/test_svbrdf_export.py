@@ -12,9 +12,10 @@ import pytest
 import btfrs
 from btfrs.exceptions import FormatError, InvalidArgumentError
 
+from conftest import in_ci
 from test_svbrdf import truth_model
 
-IN_CI = bool(os.environ.get("CI"))
+IN_CI = in_ci()
 
 
 def _need(module: str):

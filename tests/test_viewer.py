@@ -27,6 +27,8 @@ import pytest
 import btfrs
 import btfrs.web
 
+from conftest import in_ci
+
 CHROMIUM = "/usr/bin/chromium"
 LAUNCH_ARGS = ["--no-sandbox", "--enable-unsafe-webgpu", "--use-webgpu-adapter=swiftshader"]
 SIZE = 96
@@ -48,7 +50,7 @@ def _missing() -> str:
 
 _why = _missing()
 if _why:
-    if os.environ.get("CI"):
+    if in_ci():
         raise RuntimeError(f"the viewer tests cannot run: {_why}")
     pytest.skip(_why, allow_module_level=True)
 

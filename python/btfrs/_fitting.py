@@ -1,16 +1,15 @@
 """What every ``btfrs.fit.<kind>`` function does: send the options to the registry's fit.
 
 The per-model functions in :mod:`btfrs.fit` are generated from the model registry; this module
-is the hand-written part they share. Options are checked once, in Rust, against the model's
+is the hand-written part they share. The options cross into Rust as they are (a dict of Python
+values, each converted once by the binding) and are checked once, there, against the model's
 schema (``btfrs_fit::options``): an unknown name, a wrong type, a value out of range or not among
-the choices raises :class:`~btfrs.exceptions.InvalidArgumentError` naming the option, the value
-and what is allowed.
+the choices raises :class:`~btfrs.exceptions.InvalidArgumentError` naming the option as the
+caller spelled it (``lambda_``), with its ``argument``, ``value`` and ``allowed`` set.
 """
 
 from __future__ import annotations
 
-import json
-import keyword
 import time
 from typing import Any, Dict, Mapping, Union, cast
 
@@ -23,40 +22,23 @@ from .btf import Btf
 from .exceptions import InvalidArgumentError
 from .models import Model, model_kinds, wrap
 
-__all__ = ["MemoryLimit", "fit", "fit_kind", "options_json"]
+__all__ = ["MemoryLimit", "fit", "fit_kind", "native_options"]
 
 MemoryLimit = Union[None, int, str]
 
 # The options every fit takes besides its own, with their defaults, from their Rust schema.
-ROBUST_DEFAULTS: Dict[str, bool] = {o["name"]: bool(o["default"]) for o in json.loads(_native.fit_options())}
+ROBUST_DEFAULTS: Dict[str, bool] = {o["name"]: bool(o["default"]) for o in _native.fit_options()}
 
 
-def _plain(name: str, v: Any) -> Any:
-    """A JSON value of an option: numpy scalars become Python numbers; NaN and infinities are
-    refused here, since JSON has no spelling for them."""
-    if isinstance(v, np.bool_):
-        return bool(v)
-    if isinstance(v, np.integer):
-        return int(v)
-    if isinstance(v, (float, np.floating)):
-        f = float(v)
-        if not np.isfinite(f):
-            raise InvalidArgumentError(f"{name}: expected a finite number, got {f}")
-        return f
-    return v
-
-
-def options_json(kind: str, options: Mapping[str, Any], memory_limit: MemoryLimit = None) -> str:
-    """The options of a ``kind`` fit as the JSON object its registry entry reads (the names as
-    the schema spells them: ``lambda_`` is ``lambda``)."""
-    o = {k[:-1] if k.endswith("_") else k: _plain(k, v) for k, v in options.items()}
+def native_options(options: Mapping[str, Any], memory_limit: MemoryLimit = None) -> Dict[str, Any]:
+    """The options of a fit as the binding takes them: the caller's names and values as they
+    are (the binding converts each value once, reads ``lambda_`` as the schema's ``lambda`` and
+    names it ``lambda_`` in errors), with the memory limit in bytes."""
+    o = dict(options)
     limit = memory_size("memory_limit", memory_limit)
     if limit is not None:
         o["memory_limit"] = limit
-    try:
-        return json.dumps(o)
-    except TypeError as e:
-        raise InvalidArgumentError(f"options: expected numbers, strings and booleans ({e})") from None
+    return o
 
 
 def fit_kind(kind: str, btf: Btf, options: Mapping[str, Any], memory_limit: MemoryLimit = None,
@@ -67,19 +49,11 @@ def fit_kind(kind: str, btf: Btf, options: Mapping[str, Any], memory_limit: Memo
     b = instance("btf", btf, Btf, "a btfrs.Btf")
     if kind not in model_kinds():
         raise InvalidArgumentError(f"model: unknown model {kind!r}; expected one of {', '.join(model_kinds())}")
-    o = options_json(kind, options, memory_limit)
+    o = native_options(options, memory_limit)
     known = cast("_native._ModelKind", kind)  # checked against the registry above
     t0 = time.perf_counter()
-    try:
-        m = _native.fit_model(known, b.data, b.views, b.lights, b.mask, o, callback(progress, f"{kind} fit"),
-                              flag("robust", robust), flag("exclude_bad_images", exclude_bad_images))
-    except InvalidArgumentError as e:
-        # The schema spells an option that is a Python keyword without its "_" (lambda_).
-        msg = str(e)
-        name = msg.split(":", 1)[0]
-        if keyword.iskeyword(name):
-            raise type(e)(f"{name}_:{msg.split(':', 1)[1]}") from None
-        raise
+    m = _native.fit_model(known, b.data, b.views, b.lights, b.mask, o, callback(progress, f"{kind} fit"),
+                          flag("robust", robust), flag("exclude_bad_images", exclude_bad_images))
     b._check_unchanged(f"{kind} fit")
     return wrap(m, fit_seconds=time.perf_counter() - t0)
 
@@ -102,5 +76,5 @@ def fit(model: str, btf: Btf, /, *, progress: Progress = None, memory_limit: Mem
 def flag(name: str, value: object) -> bool:
     """A boolean argument, checked."""
     if not isinstance(value, (bool, np.bool_)):
-        raise InvalidArgumentError(f"{name}: expected True or False, got {value!r}")
+        raise InvalidArgumentError(f"{name}: expected True or False, got {value!r}", name, value, "True or False")
     return bool(value)

@@ -54,7 +54,7 @@ from numpy.typing import NDArray
 
 from . import _native
 from ._checks import choice as check_choice
-from ._checks import instance, integer, real, size_hw
+from ._checks import instance, integer, memory_size, real, size_hw
 from ._checks import seed as check_seed
 from ._progress import Progress, callback
 from .btf import Btf
@@ -481,7 +481,8 @@ def _render_ms(model: Any, use: SceneUse) -> float:
     return best
 
 
-def choose(btf: Btf, *, scene: Optional[SceneUse] = None, tolerance: float = 0.05, budget_bytes: Optional[int] = None,
+def choose(btf: Btf, *, scene: Optional[SceneUse] = None, tolerance: float = 0.05,
+           budget_bytes: Union[int, str, None] = None,
            budget_ms: Optional[float] = None, candidates: Optional[Sequence[Tuple[str, str, Dict[str, Any]]]] = None,
            subsets: Sequence[str] = SUBSETS, samples: int = 256, measure_render: bool = True, seed: int = 0,
            holdout: float = 0.2, progress: Progress = None) -> Choice:
@@ -494,8 +495,8 @@ def choose(btf: Btf, *, scene: Optional[SceneUse] = None, tolerance: float = 0.0
     scene: a :class:`SceneUse`; None scores each candidate on held-out lights instead (see
         ``holdout``; ``subsets``, ``samples``, ``budget_ms`` and ``measure_render`` do not apply).
     tolerance: the largest acceptable weighted relative error (> 0).
-    budget_bytes, budget_ms: optional limits on ``nbytes`` and render ms; a candidate over one is
-        not chosen (render ms are measured only when ``measure_render``).
+    budget_bytes, budget_ms: optional limits on ``nbytes`` (bytes, or a size such as ``"8MiB"``)
+        and render ms; a candidate over one is not chosen (render ms are measured only when ``measure_render``).
     candidates: ``(kind, label, options)`` triples (``kind`` a registered model or ``"raw"``);
         default: :func:`default_candidates` (every registered model at its registry examples,
         plus ``"raw"``).
@@ -516,7 +517,7 @@ def choose(btf: Btf, *, scene: Optional[SceneUse] = None, tolerance: float = 0.0
         raise InvalidArgumentError("btf: choose scores against the raw data, which needs every (view, light) pair; "
                                    "this sample has a mask")
     tol = real("tolerance", tolerance, min=0.0, min_open=True)
-    bb = None if budget_bytes is None else integer("budget_bytes", budget_bytes, min=1)
+    bb = memory_size("budget_bytes", budget_bytes)
     if scene is None:
         share = real("holdout", holdout, min=0.0, max=1.0, min_open=True, max_open=True)
         return _choose_heldout(btf, tol, bb, _candidates(candidates), share, check_seed(seed), progress)

@@ -451,8 +451,8 @@ def _own(a: Optional[ArrayLike], dtype: Optional[DTypeLike] = None) -> Optional[
 
 def _fit_block(block: NDArray[Any], views: NDArray[np.float64], lights: NDArray[np.float64],
                mask: Optional[NDArray[np.bool_]], kind: _native._ModelKind,
-               options_json: str) -> Tuple[Dict[str, NDArray[Any]], Dict[str, Any], int]:
-    m = _native.fit_model(kind, _own(block, np.float32), _own(views), _own(lights), _own(mask), options_json, None)
+               options: Dict[str, Any]) -> Tuple[Dict[str, NDArray[Any]], Dict[str, Any], int]:
+    m = _native.fit_model(kind, _own(block, np.float32), _own(views), _own(lights), _own(mask), options, None)
     return m.arrays(), m.report(), m.dims[0] * m.dims[1]
 
 
@@ -483,9 +483,9 @@ def _split_clusters(block: NDArray[Any], present: Optional[NDArray[np.intp]], id
 
 
 def _lp_moments(block: NDArray[Any], views: NDArray[np.float64], lights: NDArray[np.float64],
-                mask: Optional[NDArray[np.bool_]], kind: str, options_json: str) -> _native._Moments:
+                mask: Optional[NDArray[np.bool_]], kind: str, options: Dict[str, Any]) -> _native._Moments:
     return _native.light_pca_moments(kind, _own(block, np.float32), _own(views), _own(lights), _own(mask),
-                                     options_json)
+                                     options)
 
 
 def _lp_merge(a: _native._Moments, b: _native._Moments) -> _native._Moments:
@@ -495,12 +495,12 @@ def _lp_merge(a: _native._Moments, b: _native._Moments) -> _native._Moments:
 
 def _lp_project(block: NDArray[Any], views: NDArray[np.float64], lights: NDArray[np.float64],
                 mask: Optional[NDArray[np.bool_]], kind: str, table: NDArray[np.float32],
-                options_json: str) -> NDArray[np.float32]:
+                options: Dict[str, Any]) -> NDArray[np.float32]:
     return _native.light_pca_project(kind, _own(block, np.float32), _own(views), _own(lights), _own(mask),
-                                     _own(table), options_json)
+                                     _own(table), options)
 
 
-def _fit_cluster(index: int, height: int, width: int, options_json: str,
+def _fit_cluster(index: int, height: int, width: int, options: Dict[str, Any],
                  *pieces: NDArray[Any]) -> Tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
     # Pieces come in tile order; the members must be in texel order as the local fit has them.
     rows = [p for p in pieces[0::2] if len(p)]
@@ -508,7 +508,7 @@ def _fit_cluster(index: int, height: int, width: int, options_json: str,
     order = np.argsort(idx, kind="stable")
     x = np.concatenate(rows)[order]
     texels = np.ascontiguousarray(idx[order], dtype=np.uint32)
-    return _native.lpca_fit_cluster(_own(x), texels, height, width, index, options_json)
+    return _native.lpca_fit_cluster(_own(x), texels, height, width, index, options)
 
 
 def _merge_reports(reports: List[Dict[str, Any]], texels: List[int], counts: List[str]) -> Dict[str, Any]:
@@ -558,23 +558,22 @@ def fit(model: str, arr: Union[BtfArray, Btf], /, *, progress: Progress = None, 
     if "memory_limit" in options:
         raise InvalidArgumentError("memory_limit: a Dask fit is bounded by its workers' memory_limit, not by a "
                                    "btfrs limit; for one machine use btfrs.fit." + kind + "(btf, memory_limit=...)")
-    strategy, detail, counts = _native.blockwise_plan(kind)
+    strategy, detail, overrides, counts = _native.blockwise_plan(kind)
     if strategy == "unsupported":
         raise InvalidArgumentError(f"model: the {kind} fit cannot run blockwise on a Dask cluster ({detail}); "
                                    f"fit it out of core with btfrs.fit.{kind}(btfrs.Btf.load(path, mmap=True), "
                                    f"memory_limit=...)")
     robust = flag("robust", options.pop("robust", ROBUST_DEFAULTS["robust"]))
     exclude = flag("exclude_bad_images", options.pop("exclude_bad_images", ROBUST_DEFAULTS["exclude_bad_images"]))
-    options_json = json.dumps(options)
     t0 = time.perf_counter()
     robust_report = None
     if robust or exclude:
         arr, robust_report = _screen(kind, arr, robust, exclude, progress)
     if strategy == "texels":
-        m = _fit_texels(kind, arr, options, json.loads(detail), list(counts), progress)
+        m = _fit_texels(kind, arr, options, overrides, list(counts), progress)
     elif detail in _STAGES:
         # The model's registry entry names the stage protocol its fit follows.
-        m = _STAGES[detail](kind, arr, options, options_json, progress)
+        m = _STAGES[detail](kind, arr, options, progress)
     else:  # pragma: no cover - a model declared staged needs its protocol here
         raise InternalError(f"model: {kind} is declared staged by {detail!r}, a protocol btfrs.dask does not know")
     if robust_report is not None:
@@ -681,9 +680,9 @@ def _blocks(arr: BtfArray) -> List[_Block]:
 def _fit_texels(kind: str, arr: BtfArray, options: Dict[str, Any], overrides: Dict[str, Any], counts: List[str],
                 progress: Progress) -> Model:
     dask, _ = _dask()
-    block_json = json.dumps({**options, **overrides})
+    block = {**options, **overrides}
     blocks = _blocks(arr)
-    tasks = [dask.delayed(_fit_block, pure=True)(b, arr.views, arr.lights, arr.mask, kind, block_json)
+    tasks = [dask.delayed(_fit_block, pure=True)(b, arr.views, arr.lights, arr.mask, kind, block)
              for b, *_ in blocks]
     results = _compute(tasks, callback(progress, f"{kind} blocks"), f"{kind} fit")
     texel_names = set(_native.texel_arrays(kind))
@@ -702,11 +701,11 @@ def _fit_texels(kind: str, arr: BtfArray, options: Dict[str, Any], overrides: Di
                     raise InternalError(f"model: the {kind} array {name!r} differs between texel blocks, so the fit is "
                                         f"not separable as its blockwise contract says; please report it")
             stitched[name] = a
-    native = _native.finish_blocks(kind, stitched, json.dumps(options))
+    native = _native.finish_blocks(kind, stitched, options)
     return wrap(native, report=_merge_reports([r for _, r, _ in results], [n for _, _, n in results], counts))
 
 
-def _fit_mean_brdf(kind: str, arr: BtfArray, options: Dict[str, Any], options_json: str, progress: Progress) -> Model:
+def _fit_mean_brdf(kind: str, arr: BtfArray, options: Dict[str, Any], progress: Progress) -> Model:
     dask, _ = _dask()
     if options:
         raise InvalidArgumentError(f"{next(iter(options))}: unknown option; the srf fit takes none")
@@ -728,14 +727,14 @@ def _fit_mean_brdf(kind: str, arr: BtfArray, options: Dict[str, Any], options_js
     return wrap(native, report={"iterations": int(iterations), "phong_relative": rel(e[0]), "srf_relative": rel(e[1])})
 
 
-def _fit_clustered_pca(kind: str, arr: BtfArray, options: Dict[str, Any], options_json: str, progress: Progress) -> Model:
+def _fit_clustered_pca(kind: str, arr: BtfArray, options: Dict[str, Any], progress: Progress) -> Model:
     dask, _ = _dask()
     h, w = arr.height, arr.width
     present = _present(arr.mask, len(arr.views), len(arr.lights))
     blocks = _blocks(arr)
     index = [_texel_index(r0, c0, nr, nc, w) for _, r0, c0, nr, nc in blocks]
     # 1. The range finder's seeded sample, gathered from the tiles in texel order.
-    pick = _native.lpca_sample(h, w, options_json)
+    pick = _native.lpca_sample(h, w, options)
     if pick is None:
         pick = np.arange(h * w, dtype=np.uint32)
     in_pick = np.zeros(h * w, dtype=bool)
@@ -748,7 +747,7 @@ def _fit_clustered_pca(kind: str, arr: BtfArray, options: Dict[str, Any], option
             where.append(idx[local])
     rows = _compute(parts, callback(progress, "LPCA sample"), "LPCA sample")
     sample = np.concatenate(rows)[np.argsort(np.concatenate(where), kind="stable")]
-    mu, q = _native.lpca_subspace(np.ascontiguousarray(sample), h, w, options_json)
+    mu, q = _native.lpca_subspace(np.ascontiguousarray(sample), h, w, options)
     del sample, rows
     # 2. Every tile projected; the rows put back in texel order.
     mu_d, q_d = dask.delayed(mu), dask.delayed(q)
@@ -760,7 +759,7 @@ def _fit_clustered_pca(kind: str, arr: BtfArray, options: Dict[str, Any], option
     del zs
     # 3. k-means and refinement on the client (on the texel sample's rows when the BTF has more
     #    texels than the `sample` option: the others go to their best cluster).
-    ids, members = _native.lpca_cluster(z, h, w, options_json)
+    ids, members = _native.lpca_cluster(z, h, w, options)
     del z
     k = len(members)
     # 4. One task per cluster over its members' ABRDFs, split from the tiles.
@@ -772,35 +771,35 @@ def _fit_clustered_pca(kind: str, arr: BtfArray, options: Dict[str, Any], option
             mine = idx[ids[idx] == c]
             if len(mine):
                 pieces += [s[c], mine]
-        tasks.append(dask.delayed(_fit_cluster, pure=True)(c, h, w, options_json, *pieces))
+        tasks.append(dask.delayed(_fit_cluster, pure=True)(c, h, w, options, *pieces))
     fits = _compute(tasks, callback(progress, "LPCA clusters"), "LPCA cluster fits")
     # 5. The model.
-    native = _native.lpca_assemble(h, w, arr.views, arr.lights, arr.mask, ids, members, fits, options_json)
+    native = _native.lpca_assemble(h, w, arr.views, arr.lights, arr.mask, ids, members, fits, options)
     return wrap(native)
 
 
-def _fit_light_pca(kind: str, arr: BtfArray, options: Dict[str, Any], options_json: str, progress: Progress) -> Model:
+def _fit_light_pca(kind: str, arr: BtfArray, options: Dict[str, Any], progress: Progress) -> Model:
     dask, _ = _dask()
-    _native.light_pca_check(kind, _own(arr.views), _own(arr.lights), _own(arr.mask), options_json)
+    _native.light_pca_check(kind, _own(arr.views), _own(arr.lights), _own(arr.mask), options)
     blocks = _blocks(arr)
     name = kind
     # 1. Every tile's moments, merged in pairs on the workers.
-    moments = _reduce([dask.delayed(_lp_moments, pure=True)(b, arr.views, arr.lights, arr.mask, kind, options_json)
+    moments = _reduce([dask.delayed(_lp_moments, pure=True)(b, arr.views, arr.lights, arr.mask, kind, options)
                        for b, *_ in blocks], _lp_merge, callback(progress, f"{name} moments"), f"{name} moments")
     # 2. The principal functions on the client.
     table = _native.light_pca_table(kind, (moments[0], _own(moments[1]), _own(moments[2])), _own(arr.views),
-                                    _own(arr.lights), _own(arr.mask), options_json)
+                                    _own(arr.lights), _own(arr.mask), options)
     del moments
     # 3. Every tile projected; the coefficients stitched in texel order.
     table_d = dask.delayed(table)
-    cs = _compute([dask.delayed(_lp_project, pure=True)(b, arr.views, arr.lights, arr.mask, kind, table_d, options_json)
+    cs = _compute([dask.delayed(_lp_project, pure=True)(b, arr.views, arr.lights, arr.mask, kind, table_d, options)
                    for b, *_ in blocks], callback(progress, f"{name} projection"), f"{name} projection")
     coeffs = np.empty((arr.height, arr.width, cs[0].shape[2]), dtype=np.float32)
     for c, (_, r0, c0, nr, nc) in zip(cs, blocks):
         coeffs[r0:r0 + nr, c0:c0 + nc] = c
     del cs
     # 4. Quantized over all texels, as the local fit does.
-    return wrap(_native.light_pca_assemble(kind, arr.views, arr.lights, arr.mask, table, coeffs, options_json))
+    return wrap(_native.light_pca_assemble(kind, arr.views, arr.lights, arr.mask, table, coeffs, options))
 
 
 # The stage protocols of staged fits (a registry entry's ``Blockwise::Staged(protocol)``).

@@ -292,7 +292,8 @@ def chart(report: EvaluationReport, x: str, path: Union[str, "os.PathLike[str]"]
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_ylim(top=top)
-        ax.set_xlabel(_AXIS.get(x, x))
+        rs = report.info.get("render_size")
+        ax.set_xlabel(f"render ms per {rs[0]}x{rs[1]} frame" if x == "render_ms" and rs else _AXIS.get(x, x))
         ax.set_ylabel(_AXIS[y])
         ax.grid(True, which="both", alpha=0.25)
         info = report.info

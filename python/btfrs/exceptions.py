@@ -23,11 +23,23 @@ class                     also a                       raised when
                                                        boundary)
 ========================  ===========================  ==============================================
 
-Every message starts with the argument's name and says what was expected. Missing files raise the
-builtin ``FileNotFoundError``, other I/O failures ``OSError``, Ctrl-C ``KeyboardInterrupt``.
+Every message starts with the argument's name and says what was expected. An
+:class:`InvalidArgumentError` (and so an ``ArgumentTypeError``) also carries its fields apart:
+``argument`` (the name, as the caller spelled it), ``value`` (the value given) and ``allowed`` (what
+is allowed, in words), each ``None`` where the check does not know it::
+
+    try:
+        btfrs.fit.lafortune(btf, lobes=9)
+    except btfrs.exceptions.InvalidArgumentError as e:
+        print(e.argument, e.value, e.allowed)  # lobes 9 an integer from 1 to 7
+
+Missing files raise the builtin ``FileNotFoundError``, other I/O failures ``OSError``, Ctrl-C
+``KeyboardInterrupt``.
 """
 
 from __future__ import annotations
+
+from typing import Any, Optional, Tuple
 
 __all__ = [
     "BtfrsError",
@@ -48,7 +60,20 @@ class BtfrsError(Exception):
 
 
 class InvalidArgumentError(BtfrsError, ValueError):
-    """An argument has the wrong shape, range or value; the message names it."""
+    """An argument has the wrong shape, range or value; the message names it, and the fields
+    ``argument``, ``value`` and ``allowed`` hold the name, the value given and what is allowed
+    where they are known (else ``None``)."""
+
+    def __init__(self, message: str = "", argument: Optional[str] = None, value: Any = None,
+                 allowed: Optional[str] = None) -> None:
+        super().__init__(message)
+        self.argument = argument
+        self.value = value
+        self.allowed = allowed
+
+    def __reduce__(self) -> Tuple[Any, ...]:
+        # Pickled with its fields (a Dask worker's error reaches the client whole).
+        return (type(self), (str(self), self.argument, self.value, self.allowed))
 
 
 class ArgumentTypeError(InvalidArgumentError, TypeError):

@@ -152,7 +152,7 @@ def hsh(
     Hsh
         The fitted model.
     """
-    options: dict[str, object] = {"order": order, "lambda": lambda_, "rcond": rcond, "on_degenerate": on_degenerate, "bits": bits}
+    options: dict[str, object] = {"order": order, "lambda_": lambda_, "rcond": rcond, "on_degenerate": on_degenerate, "bits": bits}
     model = fit_kind("hsh", btf, options, memory_limit, progress, robust, exclude_bad_images)
     assert isinstance(model, Hsh)
     return model

@@ -186,13 +186,13 @@ _IMAGE_EXT = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".exr")
 
 def _model_extensions() -> tuple[str, ...]:
     """The extensions of other tools' model files btfrs reads (``.ptm``, ``.rti``)."""
-    return tuple("." + ext for _, ext, _, _, _ in _native.model_formats())
+    return tuple("." + f.extension for f in _native.model_formats())
 
 
 def _model_indexes() -> tuple[str, ...]:
     """The index files of other tools' model formats written as folders (``info.json``,
     ``material.gltf``, ``scene.xml``)."""
-    return tuple(dict.fromkeys(index for _, _, _, folder, index in _native.model_formats() if folder))
+    return tuple(dict.fromkeys(f.index for f in _native.model_formats() if f.folder))
 
 
 def _file_kind(path: str) -> Optional[str]:

@@ -148,7 +148,7 @@ class Model:
             format = next((f for f in ("relight", "neuralrti") if f in self.exports), None)
         if format is None:
             ext = os.path.splitext(p)[1].lstrip(".").lower()
-            named = [name for name, e, _, _, _ in _native.model_formats() if e == ext and name in self.exports]
+            named = [f.name for f in _native.model_formats() if f.extension == ext and f.name in self.exports]
             format = named[0] if named else ext
         if format not in self.exports:
             can = ", ".join(repr(e) for e in self.exports) or "none"
@@ -620,14 +620,14 @@ def model_kinds() -> Dict[str, Dict[str, Any]]:
     ``type``, ``default``, ``allowed``, ``doc``, and ``min``/``max``/``choices``), ``renderers``
     (the default first), ``examples`` (``(label, options)`` pairs, what the demo and the bench
     fit), ``sweep`` (``(label, options, quick, note)`` of :func:`btfrs.evaluate`), ``sampling``,
-    ``exports`` (other tools' formats), ``mip``, ``blockwise`` and ``scans_values``."""
+    ``exports`` (other tools' formats), ``mip``, ``blockwise``, ``scans_values`` and
+    ``stochastic`` (trained by stochastic gradient descent: another seed gives another model)."""
     global _REGISTRY
     if _REGISTRY is None:
-        facts = json.loads(_native.model_facts())
         _REGISTRY = {}
-        for f in facts:
-            f["examples"] = [(lab, json.loads(o)) for lab, o in f["examples"]]
-            f["sweep"] = [(s["label"], json.loads(s["options"]), bool(s["quick"]), s["note"]) for s in f["sweep"]]
+        for f in _native.model_facts():
+            f["examples"] = [(lab, o) for lab, o in f["examples"]]
+            f["sweep"] = [(s["label"], s["options"], bool(s["quick"]), s["note"]) for s in f["sweep"]]
             _REGISTRY[f.pop("kind")] = f
     return _REGISTRY
 

@@ -315,7 +315,7 @@ def wang(source: Union[Model, Btf, ArrayLike], *, tile: int = 64, edge_height: i
     h, w = feats.shape[:2]
     opts = {"tile": tile, "edge_height": edge_height, "colors": colors, "seed": seed, **options}
     texels, codes, btfels, indices, atlas, rep = _native.wang_synthesize(
-        feats, json.dumps(opts), callback(progress, "wang tiles"))
+        feats, opts, callback(progress, "wang tiles"))
     report = json.loads(rep)
     model = None
     table_values = None

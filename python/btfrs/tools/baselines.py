@@ -7,8 +7,8 @@ ratios and accuracy comparisons are against a fair reference rather than a straw
 from __future__ import annotations
 
 import time
-
-from typing import Any, Dict, List, Tuple
+from dataclasses import dataclass
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -17,7 +17,7 @@ from ..btf import Btf
 
 __all__ = ["ptm_rgb_numpy", "ptm_error", "nearest_lights_interpolation", "interp_weights", "present_pair_weights",
            "raw_interpolation", "crop", "lafortune_scipy", "real_sh", "sh_numpy_lstsq", "sh_error", "lpca_sklearn",
-           "lpca_sklearn_fit"]
+           "lpca_sklearn_fit", "Peer", "PEERS"]
 
 
 def _basis(lights: np.ndarray) -> np.ndarray:
@@ -400,3 +400,76 @@ def evaluation_rows(b: Btf, splits: Dict[str, Tuple[Btf, Btf]], protocols: List[
         row[f"heldout_{p}"] = raw_interpolation(ptr, pte)
     rows.append(row)
     return rows
+
+
+# --- the peers of the bench's settings ----------------------------------------------------------
+
+#: The models table's rows of a peer: ``(train, test, label, options, fit_ours, lm_texels)``, with
+#: ``fit_ours`` btfrs's fit of the same setting (for the rows that compare on the same texels).
+PeerRows = Callable[[Btf, Btf, str, Dict[str, Any], Callable[[Btf], Any], int], List[Dict[str, Any]]]
+
+
+@dataclass(frozen=True)
+class Peer:
+    """Another implementation of a btfrs fit, which a setting of the registry's bench facts names
+    (``peer``): for the foundation table, ``fit`` (timed by the bench beside btfrs's fit) and
+    ``compare`` (a note comparing btfrs's model with its result); for the models table, ``rows``."""
+
+    fit: Optional[Callable[[Btf], Any]] = None
+    compare: Optional[Callable[[Any, Any], str]] = None
+    rows: Optional[PeerRows] = None
+
+
+def _ptm_coeff_note(model: Any, ref: NDArray[np.float64]) -> str:
+    diff = float(np.max(np.abs(model.coeffs - ref)) / np.max(np.abs(ref)))
+    return f"max coeff diff {diff:.1e} (rel. to max)"
+
+
+def _lafortune_rows(train: Btf, test: Btf, label: str, options: Dict[str, Any], fit_ours: Callable[[Btf], Any],
+                    lm_texels: int) -> List[Dict[str, Any]]:
+    """scipy's LM on a window of texels against btfrs on the same window. 64 texels (one row), so
+    that btfrs's per-call setup (the candidate basis, the thread pool) is spread over as many
+    texels as a real fit has, not 8; scipy's side is linear in texels (about 2-4 s here)."""
+    size = train.height
+    lm_texels = min(lm_texels, train.width)
+    w = slice(size // 2, size // 2 + 1), slice(0, lm_texels)
+    tr, te = crop(train, *w), crop(test, *w)
+    t0 = time.perf_counter()
+    ours = fit_ours(tr)
+    ours_s = (time.perf_counter() - t0) / lm_texels
+    rows = []
+    for jac in ("2-point", "analytic"):
+        r = lafortune_scipy(tr, te, lobes=int(options.get("lobes", 2)), jac=jac)
+        rows.append(dict(model=label, way=f"scipy LM ({jac} Jacobian), {lm_texels} texels",
+                         fit_s=r["seconds_per_texel"], per_texel=True, nbytes=None, held_out_rmse=None,
+                         held_out=r["held_out"], reconstruction=r["reconstruction"], render_ms={},
+                         btfrs_same=dict(fit_s=ours_s, held_out=ours.error(te).relative,
+                                         reconstruction=ours.error(tr).relative)))
+    return rows
+
+
+def _lpca_rows(train: Btf, test: Btf, label: str, options: Dict[str, Any], fit_ours: Callable[[Btf], Any],
+               lm_texels: int) -> List[Dict[str, Any]]:
+    """scikit-learn KMeans + PCA at the same (clusters, components)."""
+    r = lpca_sklearn(train, clusters=int(options["clusters"]), components=int(options["components"]),
+                     seed=int(options.get("seed", 0)))
+    return [dict(model=label, way="scikit-learn KMeans + PCA (float32)", fit_s=r["seconds"], nbytes=r["nbytes"],
+                 held_out_rmse=None, held_out=None, reconstruction=r["reconstruction"], render_ms={})]
+
+
+def _sh_rows(train: Btf, test: Btf, label: str, options: Dict[str, Any], fit_ours: Callable[[Btf], Any],
+             lm_texels: int) -> List[Dict[str, Any]]:
+    """numpy least squares for the double SH."""
+    r = sh_numpy_lstsq(train, int(options["view_coeffs"]), int(options["light_coeffs"]))
+    return [dict(model=label, way="numpy lstsq (float64, unquantized)", fit_s=r["seconds"],
+                 nbytes=4 * r["coeffs"].size, held_out_rmse=None, held_out=sh_error(r["coeffs"], test),
+                 reconstruction=sh_error(r["coeffs"], train), render_ms={})]
+
+
+#: The peers by the names the registry's bench settings give them.
+PEERS: Dict[str, Peer] = {
+    "ptm_rgb_numpy": Peer(fit=ptm_rgb_numpy, compare=_ptm_coeff_note),
+    "lafortune_scipy": Peer(rows=_lafortune_rows),
+    "lpca_sklearn": Peer(rows=_lpca_rows),
+    "sh_numpy_lstsq": Peer(rows=_sh_rows),
+}

@@ -7,6 +7,12 @@ with the machine description, to a JSON file. ``--synth-only``, ``--maxflow-only
 ``maximum_flow``; the per-material accuracy table of every model; every light basis on
 single-view RTI captures against bytes). BENCHMARKS.md
 gives the command of each of its tables.
+
+The bench names no model: every model-specific setting is a registry fact, the model's
+``BENCH`` settings (``btfrs.model_kinds()[kind]["bench"]``: label, options, roles, peer, note),
+and each section loops over the settings of its role (``btfrs_fit::model::BENCH_ROLES`` says
+what each role means). A new model is benched by declaring its settings; its peers (the numpy,
+scipy and scikit-learn ways of the same work) are :data:`btfrs.tools.baselines.PEERS`.
 """
 
 from __future__ import annotations
@@ -60,6 +66,26 @@ def best_of(fn: Callable[[], T], repeat: int) -> Tuple[float, T]:
     return min(best, time.perf_counter() - t0), out
 
 
+#: A setting of the registry's bench facts: (label, kind, options, the fact).
+_Setting = Tuple[str, str, Dict[str, Any], Dict[str, Any]]
+
+
+def settings(role: str) -> List[_Setting]:
+    """Every registered setting in ``role`` (``btfrs_fit::model::BENCH_ROLES``), in registry
+    order: ``(label, kind, options, fact)``."""
+    return [(b["label"], kind, dict(b["options"]), b) for kind, info in model_kinds().items()
+            for b in info["bench"] if role in b["roles"]]
+
+
+def reference() -> _Setting:
+    """The setting every frame time is compared with (the registry's ``reference`` role)."""
+    return settings("reference")[0]
+
+
+def _fit(kind: str, options: Dict[str, Any]) -> Callable[[Btf], Any]:
+    return lambda b: fit.fit(kind, b, **options)
+
+
 def _timings() -> rendering.RenderResult:
     """The timings of the render that just ran."""
     t = rendering.last_timings()
@@ -82,19 +108,24 @@ def machine() -> Dict[str, Any]:
 
 
 def run(sizes: Sequence[int], repeat: int) -> List[Any]:
+    """The foundation table: making the material, then every ``foundation`` setting's fit at each
+    size, beside its peer's (timed the same way; the note compares their results)."""
     rows: List[Dict[str, Any]] = []
     for size in sizes:
         t_gen, btf = best_of(lambda: materials.make("knit", size=size, seed=1), repeat)
         rows.append(dict(task=f"material knit {size}^2 x 81 x 81", btfrs_s=t_gen, numpy_s=None,
                          target="64^2 < 5 s", note=f"{btf.nbytes / 2**20:.0f} MiB"))
         train, _ = btf.split(holdout=0.1, seed=0)
-        t_np, ref = best_of(lambda: baselines.ptm_rgb_numpy(train), repeat)
-        t_rgb, ptm = best_of(lambda: fit.ptm(train, kind="rgb"), repeat)
-        diff = float(np.max(np.abs(ptm.coeffs - ref)) / np.max(np.abs(ref)))
-        rows.append(dict(task=f"PTM-RGB fit {size}^2", btfrs_s=t_rgb, numpy_s=t_np, target=">= 3x numpy, 1e-4 rel.",
-                         note=f"max coeff diff {diff:.1e} (rel. to max)"))
-        t_lrgb, _ = best_of(lambda: fit.ptm(train, kind="lrgb"), repeat)
-        rows.append(dict(task=f"PTM-LRGB fit {size}^2", btfrs_s=t_lrgb, numpy_s=None, target="", note=""))
+        for label, kind, opts, b in settings("foundation"):
+            peer = baselines.PEERS[b["peer"]] if b["peer"] else baselines.Peer()
+            t_np: Optional[float] = None
+            ref: Any = None
+            if peer.fit is not None:
+                peer_fit = peer.fit
+                t_np, ref = best_of(lambda: peer_fit(train), repeat)
+            t, m = best_of(lambda: fit.fit(kind, train, **opts), repeat)
+            note = peer.compare(m, ref) if peer.compare is not None else ""
+            rows.append(dict(task=f"{label} fit {size}^2", btfrs_s=t, numpy_s=t_np, target=b["note"], note=note))
         # One pass over the same bytes: the floor a fit "bounded by reading the data once" is held to.
         t_read, _ = best_of(lambda: float(np.add.reduce(train.data, axis=None, dtype=np.float64)), repeat)
         rows.append(dict(task=f"numpy sum over the data {size}^2", btfrs_s=None, numpy_s=t_read, target="", note="read-once floor (numpy)"))
@@ -102,18 +133,19 @@ def run(sizes: Sequence[int], repeat: int) -> List[Any]:
 
 
 def render_bench(repeat: int) -> List[Any]:
-    """ms per frame on this machine's adapter: raw BTF and PTM-RGB, 512^2 and 1024^2, with and
-    without a coordinate map; draw and read-back timed separately (the first, pipeline-compiling
-    frame is not counted)."""
+    """ms per frame on this machine's adapter: raw BTF and the reference setting, 512^2 and
+    1024^2, with and without a coordinate map; draw and read-back timed separately (the first,
+    pipeline-compiling frame is not counted)."""
     btf = materials.make("knit", size=64, seed=1)
-    ptm = fit.ptm(btf, kind="rgb")
+    ref_label, ref_kind, ref_opts, _ = reference()
+    ref = fit.fit(ref_kind, btf, **ref_opts)
     scene = rendering.Scene.sphere()
     cam = rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
     lights = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
     rng = np.random.default_rng(0)
     cmap = rng.integers(0, 64, size=(256, 256, 2)).astype(np.uint16)
     rows: List[Dict[str, Any]] = []
-    for name, model in (("raw", btf), ("PTM-RGB", ptm)):
+    for name, model in (("raw", btf), (ref_label, ref)):
         for size in (512, 1024):
             for coords in (None, cmap):
                 rendering.render(model, scene, cam, lights, size=size, uv_scale=4, coords=coords)  # warm-up
@@ -136,17 +168,17 @@ def render_table(rows: List[Dict[str, Any]]) -> str:
 
 
 def accuracy(size: int) -> List[Any]:
-    """Held-out and reconstruction error of every model on every built-in material, beside the
-    raw-data baseline (3 nearest measured lights of the same view slot)."""
+    """Held-out and reconstruction error of the foundation settings on every built-in material,
+    beside the raw-data baseline (3 nearest measured lights of the same view slot)."""
     rows: List[Dict[str, Any]] = []
     for name in materials.names():
         btf = materials.make(name, size=size, seed=1)
         train, test = btf.split(holdout=0.1, seed=0)
         rel, _ = baselines.nearest_lights_interpolation(train, test)
         rows.append(dict(material=name, model="raw, 3 nearest lights", nbytes=btf.nbytes, reconstruction=None, held_out=rel))
-        for kind in ("rgb", "lrgb"):
-            m = fit.ptm(train, kind=kind)
-            rows.append(dict(material=name, model=f"PTM-{kind.upper()}", nbytes=m.nbytes,
+        for label, kind, opts, _ in settings("foundation"):
+            m = fit.fit(kind, train, **opts)
+            rows.append(dict(material=name, model=label, nbytes=m.nbytes,
                              reconstruction=m.error(train).relative, held_out=m.error(test).relative))
     return rows
 
@@ -181,10 +213,11 @@ def rendering_info() -> str:
 
 def env_bench(size: int = 64, repeat: int = 2) -> List[Any]:
     """Frame times (ms) on this machine's adapter, one model per registered kind (its first
-    example option set) on the knit at ``size``^2: a 512^2 sphere with one point light (nearest),
-    the same with trilinear lookups, and a 640 x 480 sphere under the built-in sky with 64
-    importance-sampled lights; double-SH models also by the SH method (paper 002, section 4:
-    3.2 to 4.5 minutes per 640 x 480 frame). Best of ``repeat`` after a warm-up frame."""
+    ``env`` or ``reference`` setting, else its first example) on the knit at ``size``^2: a 512^2
+    sphere with one point light (nearest), the same with trilinear lookups, and a 640 x 480 sphere
+    under the built-in sky with 64 importance-sampled lights; the models that render under an
+    environment by the SH method (``model.sh_lighting``) also by it (paper 002, section 4: 3.2 to
+    4.5 minutes per 640 x 480 frame). Best of ``repeat`` after a warm-up frame."""
     btf = materials.make("knit", size=size, seed=1)
     env = Environment.sky(sun=[0.3, 0.2, 0.9], turbidity=3)
     scene = rendering.Scene.sphere()
@@ -200,10 +233,9 @@ def env_bench(size: int = 64, repeat: int = 2) -> List[Any]:
         return t
 
     models: List[Tuple[str, Any]] = [("raw BTF", btf)]
+    picks = {kind: (label, opts) for label, kind, opts, _ in settings("reference") + settings("env")}
     for kind, info in model_kinds().items():
-        # PTM-RGB (the reference of the 3x target) and SH 25x25 (the slowest) where listed.
-        pick = {"ptm": "PTM-RGB", "sh": "SH-CLS 25x25"}.get(kind)
-        label, opts = next((e for e in info["examples"] if e[0] == pick), info["examples"][0])
+        label, opts = picks.get(kind, info["examples"][0])
         models.append((label, fit.fit(kind, btf, **opts)))
     rows: List[Dict[str, Any]] = []
     for label, m in models:
@@ -211,21 +243,21 @@ def env_bench(size: int = 64, repeat: int = 2) -> List[Any]:
         r = dict(model=label, kind=getattr(m, "kind", "raw"), point_ms=best(lights=light, size=512, **base),
                  trilinear_ms=best(lights=light, size=512, filter="trilinear", **base),
                  env64_ms=best(environment=env, samples=64, size=(480, 640), **base))
-        if getattr(m, "kind", "") == "sh":
+        if getattr(m, "sh_lighting", False):
             r["env_sh_ms"] = best(environment=env, lighting="sh", size=(480, 640), **base)
         rows.append(r)
         print(f"  {label}: {r}", file=sys.stderr, flush=True)
-    ptm = next(r["point_ms"] for r in rows if r["kind"] == "ptm")
+    ref = next(r["point_ms"] for r in rows if r["model"] == reference()[0])
     for r in rows:
-        r["vs_ptm"] = r["point_ms"] / ptm
+        r["vs_reference"] = r["point_ms"] / ref
     return rows
 
 
 def frames_bench(size: int = 32, repeat: int = 2) -> List[Any]:
-    """The "every model within 3x of PTM-RGB" check over every example option set of every
+    """The "every model within 3x of the reference" check over every example option set of every
     registered model and each of its renderers (``env_bench`` takes one per model): a 512^2
     sphere under one point light on the knit at ``size``^2, best of ``repeat`` after a warm-up
-    frame, as a ratio to PTM-RGB's frame in the same run."""
+    frame, as a ratio to the reference setting's frame in the same run."""
     btf = materials.make("knit", size=size, seed=1)
     scene = rendering.Scene.sphere()
     cam = rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
@@ -246,9 +278,9 @@ def frames_bench(size: int = 32, repeat: int = 2) -> List[Any]:
             m = fit.fit(kind, btf, **opts)
             for method in info["renderers"]:
                 rows.append(dict(model=label, kind=kind, method=method, point_ms=best(m, method)))
-    ptm = next(r["point_ms"] for r in rows if r["model"] == "PTM-RGB")
+    ref = next(r["point_ms"] for r in rows if r["model"] == reference()[0])
     for r in rows:
-        r["vs_ptm"] = r["point_ms"] / ptm
+        r["vs_reference"] = r["point_ms"] / ref
     return rows
 
 
@@ -259,8 +291,8 @@ def viewer_bench(size: int = 64, repeat: int = 3, figures: Optional[str] = None)
     light, best of ``repeat`` after a warm-up frame: the model's pass from its start to the GPU's
     completion in the page (``drawMs``) against the draw in native (``draw_ms``), and the page's
     whole frame with its display pass (``frameMs``); and the time from navigation to the first
-    frame for the PTM's folder served from localhost. With ``figures``, a screenshot of the
-    page (``viewer_knit.png``)."""
+    frame for each model's folder served from localhost. With ``figures``, a screenshot of the
+    page with the reference setting's model (``viewer_knit.png``)."""
     from playwright.sync_api import sync_playwright
 
     class Quiet(http.server.SimpleHTTPRequestHandler):
@@ -302,7 +334,7 @@ def viewer_bench(size: int = 64, repeat: int = 3, figures: Optional[str] = None)
                     page.evaluate("window.btfrsViewer.set({exposure: 1.0})")
                     ms = min(ms, float(page.evaluate("window.btfrsViewer.drawMs")))
                     frame_ms = min(frame_ms, float(page.evaluate("window.btfrsViewer.frameMs")))
-                if figures and kind == "ptm":
+                if figures and kind == reference()[1]:
                     os.makedirs(figures, exist_ok=True)
                     page.screenshot(path=os.path.join(figures, "viewer_knit.png"))
                 page.close()
@@ -334,85 +366,55 @@ def viewer_table(res: Dict[str, Any]) -> str:
 
 
 def frames_table(rows: List[Dict[str, Any]]) -> str:
-    out = [f"{'model':<24} {'renderer':<9} {'512^2 point':>12} {'x PTM-RGB':>10}"]
-    out += [f"{r['model']:<24} {r['method']:<9} {r['point_ms']:>10.1f}ms {r['vs_ptm']:>10.2f}" for r in rows]
+    ref = "x " + reference()[0]
+    out = [f"{'model':<24} {'renderer':<9} {'512^2 point':>12} {ref:>10}"]
+    out += [f"{r['model']:<24} {r['method']:<9} {r['point_ms']:>10.1f}ms {r['vs_reference']:>10.2f}" for r in rows]
     return "\n".join(out)
 
 
 def env_table(rows: List[Dict[str, Any]]) -> str:
-    out = [f"{'model':<22} {'512^2 point':>12} {'x PTM':>6} {'trilinear':>10} {'640x480 env 64':>15} {'SH method':>10}"]
+    ref = "x " + reference()[0]
+    out = [f"{'model':<22} {'512^2 point':>12} {ref:>10} {'trilinear':>10} {'640x480 env 64':>15} {'SH method':>10}"]
     for r in rows:
-        sh = f"{r['env_sh_ms'] / 1e3:>9.2f}s" if "env_sh_ms" in r else f"{'':>10}"
-        out.append(f"{r['model']:<22} {r['point_ms']:>10.0f}ms {r['vs_ptm']:>6.1f} {r['trilinear_ms']:>8.0f}ms "
-                   f"{r['env64_ms'] / 1e3:>14.2f}s {sh}")
+        by_sh = f"{r['env_sh_ms'] / 1e3:>9.2f}s" if "env_sh_ms" in r else f"{'':>10}"
+        out.append(f"{r['model']:<22} {r['point_ms']:>10.0f}ms {r['vs_reference']:>10.1f} {r['trilinear_ms']:>8.0f}ms "
+                   f"{r['env64_ms'] / 1e3:>14.2f}s {by_sh}")
     return "\n".join(out)
 
 
-# The models of the table: every example option set of every registered model (the registry
-# names them; nothing here does), then further points of the parameter sweep as data.
-EXTRA_SETTINGS = [
-    ("Lafortune-Lum 3", "lafortune", dict(kind="lum", lobes=3)),
-    ("SH-CLS 36x25", "sh", dict(light_coeffs=36, view_coeffs=25)),
-    ("SH-LS 25x25 (no CLS)", "sh", dict(light_coeffs=25, view_coeffs=25, cls=False)),
-    ("LPCA 32x2", "lpca", dict(clusters=32, components=2, seed=0)),
-    ("LPCA 32x8", "lpca", dict(clusters=32, components=8, seed=0)),
-]
-
-
-def _settings() -> List[Any]:
-    out = [(label, kind, opts) for kind, info in model_kinds().items() for label, opts in info["examples"]]
-    return [(label, (lambda b, k=kind, o=opts: fit.fit(k, b, **o))) for label, kind, opts in out + EXTRA_SETTINGS]
-
-
-MODEL_SETTINGS = _settings()
+def model_settings() -> List[Tuple[str, str, Dict[str, Any]]]:
+    """The models table's settings: every example option set of every registered model, then the
+    ``models`` settings beyond them (the registry names them all; nothing here does)."""
+    out = [(label, kind, dict(opts)) for kind, info in model_kinds().items() for label, opts in info["examples"]]
+    seen = {label for label, _, _ in out}
+    out += [(label, kind, opts) for label, kind, opts, _ in settings("models") if label not in seen]
+    return out
 
 
 def models_bench(size: int, material: str = "knit", lm_texels: int = 64) -> List[Any]:
     """Every model at several settings on one material: fit seconds, bytes, held-out RMSE and
-    relative error, reconstruction error, render ms (512^2 sphere); then the numpy / scipy /
-    scikit-learn way of the same fits as rows of the same table."""
+    relative error, reconstruction error, render ms (512^2 sphere, each of its renderers); then
+    the rows of each ``models`` setting's peer (:data:`btfrs.tools.baselines.PEERS`: the numpy,
+    scipy or scikit-learn way of the same fit) in the same table."""
     btf = materials.make(material, size=size, seed=1)
     train, test = btf.split(holdout=0.1, seed=0)
     rows: List[Dict[str, Any]] = []
-    fitted = {}
-    for name, make in MODEL_SETTINGS:
+    kinds = model_kinds()
+    for name, kind, opts in model_settings():
         t0 = time.perf_counter()
-        m = make(train)
+        m = fit.fit(kind, train, **opts)
         secs = time.perf_counter() - t0
-        fitted[name] = m
         held, rec = m.error(test), m.error(train)
         ms: Dict[str, float] = {}
-        for method in (("9tap", "3d") if name.startswith("LPCA") else (None,)):
-            ms[method or "default"], _ = _render_ms(m, method)
+        for method in kinds[kind]["renderers"]:
+            ms[method], _ = _render_ms(m, method)
         rows.append(dict(model=name, way="btfrs", fit_s=secs, nbytes=m.nbytes, held_out_rmse=held.rmse,
                          held_out=held.relative, reconstruction=rec.relative, render_ms=ms))
-    # scipy LM on a window of texels, against btfrs on the same window. 64 texels (one row), so
-    # that btfrs's per-call setup (the candidate basis, the thread pool) is spread over as many
-    # texels as a real fit has, not 8; scipy's side is linear in texels (about 2-4 s here).
-    lm_texels = min(lm_texels, size)
-    w = slice(size // 2, size // 2 + 1), slice(0, lm_texels)
-    tr, te = baselines.crop(train, *w), baselines.crop(test, *w)
-    ours_t0 = time.perf_counter()
-    ours = fit.lafortune(tr, kind="lum", lobes=2)
-    ours_s = (time.perf_counter() - ours_t0) / lm_texels
-    for jac in ("2-point", "analytic"):
-        r = baselines.lafortune_scipy(tr, te, lobes=2, jac=jac)
-        rows.append(dict(model="Lafortune-Lum 2", way=f"scipy LM ({jac} Jacobian), {lm_texels} texels",
-                         fit_s=r["seconds_per_texel"], per_texel=True, nbytes=None, held_out_rmse=None,
-                         held_out=r["held_out"], reconstruction=r["reconstruction"], render_ms={},
-                         btfrs_same=dict(fit_s=ours_s, held_out=ours.error(te).relative,
-                                         reconstruction=ours.error(tr).relative)))
-    # scikit-learn KMeans + PCA at the same (clusters, components).
-    for c in (4, 8):
-        r = baselines.lpca_sklearn(train, clusters=32, components=c, seed=0)
-        rows.append(dict(model=f"LPCA 32x{c}", way="scikit-learn KMeans + PCA (float32)", fit_s=r["seconds"],
-                         nbytes=r["nbytes"], held_out_rmse=None, held_out=None, reconstruction=r["reconstruction"],
-                         render_ms={}))
-    # numpy least squares for the double SH.
-    r = baselines.sh_numpy_lstsq(train, 25, 25)
-    rows.append(dict(model="SH-LS 25x25", way="numpy lstsq (float64, unquantized)", fit_s=r["seconds"],
-                     nbytes=4 * r["coeffs"].size, held_out_rmse=None, held_out=baselines.sh_error(r["coeffs"], test),
-                     reconstruction=baselines.sh_error(r["coeffs"], train), render_ms={}))
+    for label, kind, opts, b in settings("models"):
+        if b["peer"]:
+            peer = baselines.PEERS[b["peer"]]
+            assert peer.rows is not None, f"peer {b['peer']} has no rows for the models table"
+            rows += peer.rows(train, test, label, opts, _fit(kind, opts), lm_texels)
     return rows
 
 
@@ -431,77 +433,88 @@ def models_table(rows: List[Dict[str, Any]]) -> str:
     return "\n".join(out)
 
 
-def lpca_render_bench(size: int = 64, repeat: int = 2) -> List[Any]:
-    """Paper 004, Table 1: the 9-tap and the 3D-texture LPCA renderers at 512^2 and 1024^2 for
-    c = 2, 4, 8 (32 clusters), with the PSNR between the two images."""
+def renderers_bench(size: int = 64, repeat: int = 2) -> List[Any]:
+    """Each ``renderers`` setting (the registry's note says which paper table it is) drawn by
+    each of its model's renderers at 512^2 and 1024^2, with the speed-up of the last over the
+    first and the PSNR between their images."""
     btf = materials.make("knit", size=size, seed=1)
     rows: List[Dict[str, Any]] = []
-    for c in (2, 4, 8):
-        m = fit.lpca(btf, clusters=32, components=c, seed=0)
+    kinds = model_kinds()
+    for label, kind, opts, b in settings("renderers"):
+        m = fit.fit(kind, btf, **opts)
+        names = kinds[kind]["renderers"]
         for px in (512, 1024):
-            t9, a = _render_ms(m, "9tap", px, repeat)
-            t3, b = _render_ms(m, "3d", px, repeat)
-            mse = float(np.mean((a.astype(np.float64) - b) ** 2))
-            peak = float(max(a.max(), b.max()))
-            rows.append(dict(components=c, size=px, ms_9tap=t9, ms_3d=t3, speedup=t9 / t3,
-                             psnr=10 * np.log10(peak * peak / mse) if mse > 0 else float("inf")))
+            shots = {r: _render_ms(m, r, px, repeat) for r in names}
+            (t0, a), (t1, c) = shots[names[0]], shots[names[-1]]
+            mse = float(np.mean((a.astype(np.float64) - c) ** 2))
+            peak = float(max(a.max(), c.max()))
+            rows.append(dict(model=label, note=b["note"], size=px, ms={r: t for r, (t, _) in shots.items()},
+                             speedup=t0 / t1, psnr=10 * np.log10(peak * peak / mse) if mse > 0 else float("inf")))
     return rows
 
 
-def lpca_render_table(rows: List[Dict[str, Any]]) -> str:
-    out = [f"{'c':>2} {'size':>5} {'9-tap ms':>9} {'3D ms':>8} {'speed-up':>9} {'PSNR 9-tap vs 3D':>17}"]
+def renderers_table(rows: List[Dict[str, Any]]) -> str:
+    out = []
     for r in rows:
-        out.append(f"{r['components']:>2} {r['size']:>5} {r['ms_9tap']:>9.1f} {r['ms_3d']:>8.1f} {r['speedup']:>8.2f}x "
-                   f"{r['psnr']:>14.1f} dB")
+        first, last = list(r["ms"])[0], list(r["ms"])[-1]
+        times = " ".join(f"{k} {v:8.1f} ms" for k, v in r["ms"].items())
+        out.append(f"{r['model']:<12} {r['size']:>5} {times}  {last} {r['speedup']:5.2f}x faster, "
+                   f"PSNR {first} vs {last} {r['psnr']:5.1f} dB")
     return "\n".join(out)
 
 
-def lpca_sweep(size: int) -> List[Any]:
-    """Which (clusters, components) reaches the paper's 2% reconstruction error on each built-in
-    material, and at what compression (raw at one byte per value over the model's bytes)."""
+#: The reconstruction error the ``reach`` settings are searched for (paper 004).
+REACH = 0.02
+
+
+def reach_sweep(size: int) -> List[Any]:
+    """Which ``reach`` setting of each model reaches :data:`REACH` reconstruction error on each
+    built-in material with the fewest bytes, and at what compression (raw at one byte per value
+    over the model's bytes)."""
     rows: List[Dict[str, Any]] = []
+    grid = settings("reach")
     for name in materials.names():
         btf = materials.make(name, size=size, seed=1)
-        best: Optional[Dict[str, Any]] = None
-        for k in (8, 16, 32, 64):
-            for c in (2, 4, 8, 12, 16):
-                m = fit.lpca(btf, clusters=k, components=c, seed=0)
+        for kind in dict.fromkeys(k for _, k, _, _ in grid):
+            best: Optional[Dict[str, Any]] = None
+            for label, k, opts, _ in grid:
+                if k != kind:
+                    continue
+                m = fit.fit(kind, btf, **opts)
                 e = m.error(btf).relative
-                row = dict(material=name, clusters=k, components=c, reconstruction=e, compression=m.compression,
-                           nbytes=m.nbytes)
+                # Raw at one byte per value (as the measured data is stored) over the model's bytes.
+                row = dict(material=name, kind=kind, model=label, reconstruction=e,
+                           compression=btf.data.size / m.nbytes, nbytes=m.nbytes)
                 rows.append(row)
-                if e <= 0.02 and (best is None or m.nbytes < best["nbytes"]):
+                if e <= REACH and (best is None or m.nbytes < best["nbytes"]):
                     best = row
-        rows.append(dict(material=name, best_2pct=best))
+            rows.append(dict(material=name, kind=kind, best=best))
     return rows
 
 
-def lpca_sweep_table(rows: List[Dict[str, Any]]) -> str:
+def reach_table(rows: List[Dict[str, Any]]) -> str:
     out: List[Any] = []
     for r in rows:
-        if "best_2pct" in r:
-            b = r["best_2pct"]
+        if "best" in r:
+            b = r["best"]
             if b is None:
-                errs = [x for x in rows if x.get("material") == r["material"] and "reconstruction" in x]
+                errs = [x for x in rows if x.get("material") == r["material"] and x.get("kind") == r["kind"]
+                        and "reconstruction" in x]
                 lo = min(errs, key=lambda x: x["reconstruction"])
-                out.append(f"{r['material']:<8} 2% not reached; best {100 * lo['reconstruction']:.2f}% at "
-                           f"{lo['clusters']} x {lo['components']} (1:{lo['compression']:.0f})")
+                out.append(f"{r['material']:<8} {100 * REACH:.0f}% not reached; best {100 * lo['reconstruction']:.2f}% "
+                           f"by {lo['model']} (1:{lo['compression']:.0f})")
             else:
-                out.append(f"{r['material']:<8} 2% reached by {b['clusters']} clusters x {b['components']} components: "
+                out.append(f"{r['material']:<8} {100 * REACH:.0f}% reached by {b['model']}: "
                            f"{100 * b['reconstruction']:.2f}% at 1:{b['compression']:.0f}")
     return "\n".join(out)
 
 
-#: The per-material table: one setting of every model, each at its fit's defaults.
-ACCURACY_MODELS = ("PTM-RGB", "PTM-LRGB", "Phong+SRF", "Lafortune-Lum 2", "SH-CLS 25x25", "LPCA 32x4")
-
-
 def accuracy_models(size: int) -> List[Any]:
-    """Reconstruction and held-out relative error of every model (:data:`ACCURACY_MODELS`) on
-    every built-in material at ``size``^2, beside the raw-data baseline (3 nearest measured lights
-    of the same view slot), with each model's bytes, its size ratio to the float32 BTF, its fit
-    seconds and its fit report (Phong alone for SRF, converged / fell back / failed for Lafortune)."""
-    settings = dict(MODEL_SETTINGS)
+    """Reconstruction and held-out relative error of every ``per_material`` setting on every
+    built-in material at ``size``^2, beside the raw-data baseline (3 nearest measured lights of
+    the same view slot), with each model's bytes, its size ratio to the float32 BTF, its fit
+    seconds and its fit report (a residual fit's base alone, converged / fell back / failed of
+    a per-texel nonlinear fit)."""
     rows: List[Dict[str, Any]] = []
     for name in materials.names():
         btf = materials.make(name, size=size, seed=1)
@@ -509,9 +522,9 @@ def accuracy_models(size: int) -> List[Any]:
         rel, _ = baselines.nearest_lights_interpolation(train, test)
         rows.append(dict(material=name, model="raw, 3 nearest lights", size=size, nbytes=btf.nbytes, ratio=1.0,
                          fit_s=None, reconstruction=None, held_out=rel, report={}))
-        for model in ACCURACY_MODELS:
+        for model, kind, opts, _ in settings("per_material"):
             t0 = time.perf_counter()
-            m = settings[model](train)
+            m = fit.fit(kind, train, **opts)
             secs = time.perf_counter() - t0
             rows.append(dict(material=name, model=model, size=size, nbytes=m.nbytes, ratio=btf.nbytes / m.nbytes,
                              fit_s=secs, reconstruction=m.error(train).relative, held_out=m.error(test).relative,
@@ -540,10 +553,12 @@ def accuracy_models_table(rows: List[Dict[str, Any]]) -> str:
         mine = [r for r in rows if r["material"] == name]
         raw = mine[0]["held_out"]
         below = [r["model"] for r in mine[1:] if r["held_out"] < raw and r["ratio"] >= 10]
-        srf = next(r for r in mine if r["model"] == "Phong+SRF")["report"]
-        srf_ok = "yes" if srf["srf_relative"] < srf["phong_relative"] else "no"
+        # A fit reporting its Phong base alone beside itself: is it below its base?
+        based = "".join(f"; {r['model']} below Phong alone: "
+                        f"{'yes' if r['report']['srf_relative'] < r['report']['phong_relative'] else 'no'}"
+                        for r in mine if "phong_relative" in r["report"] and "srf_relative" in r["report"])
         out.append(f"{name}: held-out below raw interpolation ({100 * raw:.2f}%) at >= 1:10: "
-                   f"{', '.join(below) or 'none'}; Phong+SRF below Phong alone: {srf_ok}")
+                   f"{', '.join(below) or 'none'}{based}")
     return "\n".join(out)
 
 
@@ -554,11 +569,6 @@ RTI_CAPTURES = (("bumps", 160), ("knit", 220), ("grooves", 120))
 RTI_SIZE = 64
 #: The share of the lights held out.
 RTI_HOLDOUT = 0.15
-#: relight's figures on a real 240-light capture (the issue): (basis, held-out relative error, bytes).
-RELIGHT_TARGETS = (("relight RBF, 18 planes", 0.246, 85_000), ("relight bilinear", 0.253, 50_000),
-                   ("relight PTM", 0.349, 26_000), ("btfrs LPCA 8x4 (before)", 0.258, None))
-
-
 def rti_lights(n: int, seed: int = 0, max_theta_deg: float = 80.0) -> np.ndarray:
     """``n`` light directions spread evenly over the hemisphere up to ``max_theta_deg`` (a
     Fibonacci spiral, equal-area in ``z``, with a little seeded jitter, as a dome's lights are
@@ -575,29 +585,16 @@ def rti_lights(n: int, seed: int = 0, max_theta_deg: float = 80.0) -> np.ndarray
 
 def rti_settings() -> List[Any]:
     """``(label, kind, options)`` for the single-view comparison, iterating over the registry:
-    the light bases (PTM, RBF, bilinear, HSH when registered) at several sizes, LPCA and
-    single-view SH at a few, every other model at its examples."""
+    each model's ``single_view`` settings, or its examples where it has none, except the models
+    the registry leaves out (``no_single_view``: their note says why)."""
     out: List[Any] = []
+    mine = settings("single_view")
+    skip = {k for _, k, _, _ in settings("no_single_view")}
     for kind, info in model_kinds().items():
-        if kind == "ptm":
-            out += [("PTM-RGB", kind, {"kind": "rgb"}), ("PTM-LRGB", kind, {"kind": "lrgb"})]
-        elif kind in ("rbf", "bilinear"):
-            name = "RBF" if kind == "rbf" else "Bilinear"
-            out += [(f"{name}-{k}", kind, {"components": k}) for k in (3, 6, 9, 12, 18, 27)]
-            # The other table resolution (RBF's default is 12 nodes per side, bilinear's 8).
-            r = 8 if kind == "rbf" else 12
-            out += [(f"{name}-{k} r{r}", kind, {"components": k, "resolution": r}) for k in (3, 9, 18)]
-            out += [(f"{name}-YCC {k}+{c}", kind, {"components": k, "colour": "ycc", "chroma_components": c})
-                    for k, c in ((9, 3), (12, 3), (18, 4))]
-        elif kind == "lpca":
-            out += [(f"LPCA {k}x{c}", kind, {"clusters": k, "components": c, "seed": 0}) for k, c in
-                    ((4, 4), (8, 4), (8, 8), (16, 4))]
-        elif kind == "sh":
-            out += [(f"SH-CLS 1x{n}", kind, {"light_coeffs": n, "view_coeffs": 1}) for n in (9, 16, 25)]
-        elif kind in ("lafortune", "srf"):
-            continue  # view-dependent models: on one view they are lafortune_view and a Phong fit
-        else:
-            out += [(label, kind, opts) for label, opts in info["examples"]]
+        if kind in skip:
+            continue
+        own = [(label, k, opts) for label, k, opts, _ in mine if k == kind]
+        out += own or [(label, kind, dict(opts)) for label, opts in info["examples"]]
     return out
 
 
@@ -627,38 +624,45 @@ def _best(rows: List[Dict[str, Any]], pred: Callable[[Dict[str, Any]], bool]) ->
     return min(ok, key=lambda r: r["heldout_pairs"]) if ok else None
 
 
+def _labelled(label: str, row: Dict[str, Any]) -> bool:
+    return bool(row["label"] == label)
+
+
 def _within(budget: int, row: Dict[str, Any]) -> bool:
     return bool(row["bytes"] <= budget)
 
 
 def rti_summary(res: List[Dict[str, Any]]) -> str:
     """Per capture: the best model within relight's byte budgets (26, 50, 85 KB) and under
-    100 KB (all models; the RTI bases alone; the others alone), PTM-RGB, RBF-18, Bilinear-18 and
-    LPCA 8x4, each with its ratio to PTM-RGB's held-out error (relight's figures give RBF 0.70 and
-    bilinear 0.72 of its PTM). KB = 1000 bytes, as relight's figures."""
-    lines = [f"{'capture':<28} {'model':<44} {'KB':>7} {'held-out':>9} {'/ PTM':>6}"]
+    100 KB (all models; relight's bases alone, the kinds written in its format; the others
+    alone), the reference setting and each ``summary`` setting, each with its ratio to the
+    reference's held-out error (relight's own figures put its two PCA light bases at 0.70 and
+    0.72 of its biquadratic's); then the peer tool's published figures (the summary settings'
+    notes). KB = 1000 bytes, as relight's figures."""
+    ref_label = reference()[0]
+    summary = settings("summary")
+    relight = {k for k, info in model_kinds().items() if "relight" in info["exports"]}
+    lines = [f"{'capture':<28} {'model':<44} {'KB':>7} {'held-out':>9} {'/ ref':>6}"]
     for c in res:
         rows = c["rows"]
-        ptm = _best(rows, lambda r: r["label"] == "PTM-RGB")
+        ref = _best(rows, lambda r: r["label"] == ref_label)
         picks = [(f"best <= {b // 1000} KB", _best(rows, functools.partial(_within, b)))
                  for b in (26_000, 50_000, 85_000)]
         picks += [("best < 100 KB", _best(rows, lambda r: r["bytes"] < 100_000)),
-                 ("best RTI basis < 100 KB", _best(rows, lambda r: r["bytes"] < 100_000
-                                                   and r["kind"] in ("ptm", "rbf", "bilinear", "hsh"))),
-                 ("best non-RTI < 100 KB", _best(rows, lambda r: r["bytes"] < 100_000
-                                                 and r["kind"] not in ("ptm", "rbf", "bilinear", "hsh"))),
-                 ("", ptm), ("", _best(rows, lambda r: r["label"] == "RBF-18")),
-                 ("", _best(rows, lambda r: r["label"] == "Bilinear-18")),
-                 ("", _best(rows, lambda r: r["label"] == "LPCA 8x4"))]
+                  ("best RTI basis < 100 KB", _best(rows, lambda r: r["bytes"] < 100_000 and r["kind"] in relight)),
+                  ("best non-RTI < 100 KB", _best(rows, lambda r: r["bytes"] < 100_000 and r["kind"] not in relight)),
+                  ("", ref)]
+        picks += [("", _best(rows, functools.partial(_labelled, label)))
+                  for label in dict.fromkeys(label for label, _, _, _ in summary) if label != ref_label]
         for what, r in picks:
             if r is None:
                 continue
-            rel = "" if ptm is None else f"{r['heldout_pairs'] / ptm['heldout_pairs']:.2f}"
+            rel = "" if ref is None else f"{r['heldout_pairs'] / ref['heldout_pairs']:.2f}"
             name = f"{r['label']}" + (f" ({what})" if what else "")
             lines.append(f"{c['capture']:<28} {name:<44} {r['bytes'] / 1000:>7.1f} "
                          f"{100 * r['heldout_pairs']:>8.2f}% {rel:>6}")
-    lines.append("relight on its real 240-light capture (the targets): " + "; ".join(
-        f"{n} {100 * e:.1f}%" + (f" in {b / 1000:.0f} KB" if b else "") for n, e, b in RELIGHT_TARGETS))
+    lines.append("relight on its real 240-light capture (the targets): "
+                 + "; ".join(b["note"] for _, _, _, b in summary if b["note"]))
     return "\n".join(lines)
 
 
@@ -678,8 +682,6 @@ TABLE1 = [(256, 1, 2, 1.9), (256, 3, 2, 2.7), (256, 6, 2, 3.7), (256, 6, 3, 13.6
 SYNTH_TARGETS = {(256, 3, 2): 0.02, (512, 6, 2): 0.1}
 #: The target for the texton analysis of a 64^2 x 81 x 81 sample (seconds).
 ANALYSIS_TARGET_S = 0.5
-#: The target for double SH 25x25 on a 128^2 x 81 x 81 sample (seconds).
-SH_BIG_TARGET_S = 1.0
 
 
 def synth_bench(repeat: int, material: str = "knit", size: int = 64) -> Dict[str, Any]:
@@ -920,19 +922,20 @@ TILES_TARGET_S = 10.0
 
 
 def tiles_bench(repeat: int) -> Dict[str, Any]:
-    """Graph-cut Wang tile sets: synthesis of 16 tiles of 64^2, 128^2 and 256^2 in the
-    SH 16x16 domain (bumps; 81 x 81 directions at 128^2, 25 x 25 at 256^2 to fit in memory), the
-    tiling of a 1024 x 1024 layout, render ms with a tile map and without."""
+    """Graph-cut Wang tile sets: synthesis of 16 tiles of 64^2, 128^2 and 256^2 in the domain of
+    the ``tiles`` setting (bumps; 81 x 81 directions at 128^2, 25 x 25 at 256^2 to fit in
+    memory), the tiling of a 1024 x 1024 layout, render ms with a tile map and without."""
     rows: List[Dict[str, Any]] = []
+    label, kind, opts, _ = settings("tiles")[0]
     b128 = materials.make("bumps", size=128, seed=3)
-    sh128 = fit.sh(b128, light_coeffs=16, view_coeffs=16)
+    m128 = fit.fit(kind, b128, **opts)
     del b128
     d25 = np.ascontiguousarray(dirs.ubo81()[::3][:25])
     b256 = materials.make("bumps", size=256, seed=3, views=d25, lights=d25)
-    sh256 = fit.sh(b256, light_coeffs=16, view_coeffs=16)
+    m256 = fit.fit(kind, b256, **opts)
     del b256
-    for model, tile, edge, sample in [(sh128, 64, 16, "bumps 128^2 x 81 x 81"), (sh256, 128, 32, "bumps 256^2 x 25 x 25"),
-                                      (sh256, 256, 64, "bumps 256^2 x 25 x 25")]:
+    for model, tile, edge, sample in [(m128, 64, 16, "bumps 128^2 x 81 x 81"), (m256, 128, 32, "bumps 256^2 x 25 x 25"),
+                                      (m256, 256, 64, "bumps 256^2 x 25 x 25")]:
         t, ts = best_of(lambda: wang.wang(model, tile=tile, edge_height=edge, colors=2, seed=5, progress=False),
                         repeat if tile <= 64 else 1)
         r = ts.report
@@ -951,13 +954,13 @@ def tiles_bench(repeat: int) -> Dict[str, Any]:
         cases: List[Tuple[str, Dict[str, Any]]] = [("without (uv_scale 8)", dict(uv_scale=8.0)),
                                                    ("tile map 8 x 8", dict(tiles=ts64, layout=lay))]
         for label, kw in cases:
-            m: Any = ts64.model if "tiles" in kw else sh128
+            m: Any = ts64.model if "tiles" in kw else m128
             render(m, scene, cam, lights, size=(512, 512), **kw)
             t, _ = best_of(lambda: render(m, scene, cam, lights, size=(512, 512), **kw), repeat)
             render_rows.append(dict(case=label, ms=1000 * t))
     except TypeError as e:  # a renderer without tile maps
         render_rows.append(dict(case=f"unavailable: {e}", ms=float("nan")))
-    return dict(rows=rows, tiling_1024_s=t_tiling, render=render_rows, table3=TABLE3)
+    return dict(rows=rows, tiling_1024_s=t_tiling, render=render_rows, table3=TABLE3, model=label)
 
 
 def tiles_table(res: Dict[str, Any]) -> str:
@@ -973,7 +976,7 @@ def tiles_table(res: Dict[str, Any]) -> str:
         f"{n} {t}^2 {m} min, {p:.2f}%, {mb:.2f} MB" for n, t, m, p, mb in res["table3"]))
     out.append(f"tiling of a 1024 x 1024 layout: {1000 * res['tiling_1024_s']:.1f} ms")
     for r in res["render"]:
-        out.append(f"render 512^2 cylinder, SH 16x16, {r['case']}: {r['ms']:.1f} ms")
+        out.append(f"render 512^2 cylinder, {res['model']}, {r['case']}: {r['ms']:.1f} ms")
     return "\n".join(out)
 
 
@@ -1080,10 +1083,13 @@ def load_table(rows: List[Dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-OOC_LPCA = {"clusters": 64, "components": 8}
+def out_of_core_fits() -> Dict[str, Dict[str, Any]]:
+    """The kinds ``--out-of-core`` fits by default, with their options: the ``out_of_core``
+    settings."""
+    return {kind: opts for _, kind, opts, _ in settings("out_of_core")}
 
 
-def out_of_core_bench(path: str, size: int, limit: str, kinds: Sequence[str] = ("ptm", "lpca")) -> Dict[str, Any]:
+def out_of_core_bench(path: str, size: int, limit: str, kinds: Optional[Sequence[str]] = None) -> Dict[str, Any]:
     """Fit a memory-mapped BTF larger than memory under ``memory_limit``.
 
     Makes ``knit`` at ``size``^2 x 81 x 81 straight into ``path`` (``materials.make(out=...)``,
@@ -1098,8 +1104,9 @@ def out_of_core_bench(path: str, size: int, limit: str, kinds: Sequence[str] = (
         materials.make("knit", size=size, seed=1, out=path, progress=True)
         made = time.perf_counter() - t0
     rows: List[Dict[str, Any]] = []
-    for kind in kinds:
-        opts = dict(OOC_LPCA if kind == "lpca" else {}, memory_limit=limit)
+    own = out_of_core_fits()
+    for kind in (kinds or list(own)):
+        opts = dict(own.get(kind, {}), memory_limit=limit)
         r = subprocess.run([sys.executable, "-m", "btfrs.tools.memprobe", path, kind, json.dumps(opts)],
                            capture_output=True, text=True, check=True)
         m = json.loads(r.stdout.strip().splitlines()[-1])
@@ -1125,12 +1132,15 @@ def out_of_core_table(res: Dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-DASK_FITS: Tuple[Tuple[str, Dict[str, Any]], ...] = (("ptm", {"kind": "rgb"}), ("lpca", {"clusters": 32, "components": 4}), ("rbf", {"components": 9}),
-             ("bilinear", {"components": 9}))
+def dask_fits() -> List[Tuple[str, Dict[str, Any]]]:
+    """``(kind, options)`` of the ``--dask`` fits: the ``dask`` settings."""
+    return [(kind, opts) for _, kind, opts, _ in settings("dask")]
+
 
 
 def light_basis_steps(m: Any, local: Any) -> float:
-    """How far apart two light-basis fits (RBF, bilinear) are, in 8-bit quantisation steps.
+    """How far apart two fits of a light basis (the models whose stages follow the ``light_pca``
+    protocol) are, in 8-bit quantisation steps.
 
     The principal functions of each view slot are compared up to sign (the table's columns, a
     sign per slot and component), then the decoded coefficients (``bias + scale * q``, signed
@@ -1167,10 +1177,12 @@ def light_basis_steps(m: Any, local: Any) -> float:
 
 
 def _dask_agrees(kind: str, m: Any, local: Any) -> bool:
-    """The cluster fit against the local one: array for array, except the light bases, whose
-    principal functions may have the other sign and whose coefficients, projected in another
-    float order, may round to the neighbouring 8-bit code (:func:`light_basis_steps`)."""
-    if kind not in ("rbf", "bilinear"):
+    """The cluster fit against the local one: array for array, except the light bases (the
+    models whose stages follow the ``light_pca`` protocol), whose principal functions may have
+    the other sign and whose coefficients, projected in another float order, may round to the
+    neighbouring 8-bit code (:func:`light_basis_steps`)."""
+    info = model_kinds()[kind]
+    if (info["blockwise"], info["blockwise_note"]) != ("staged", "light_pca"):
         return all(np.array_equal(m.arrays[k], v) for k, v in local.arrays.items())
     return light_basis_steps(m, local) <= 1.01
 
@@ -1198,7 +1210,8 @@ def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int 
         b = Btf.load(path, mmap=True)
         rows: List[Dict[str, Any]] = []
         local = {}
-        for kind, o in DASK_FITS:
+        fits = dask_fits()
+        for kind, o in fits:
             fit.fit(kind, b, **o)  # warm the page cache
             secs, m = best_of(lambda: fit.fit(kind, b, **o), repeat)
             local[kind] = m
@@ -1213,7 +1226,7 @@ def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int 
                 "        t0 = time.perf_counter(); fit.fit(kind, b, **o); best = min(best, time.perf_counter() - t0)\n"
                 "    out[kind] = best\n"
                 "print(json.dumps(out))")
-        proc = subprocess.run([sys.executable, "-c", code, path, json.dumps(DASK_FITS), str(repeat)], check=True,
+        proc = subprocess.run([sys.executable, "-c", code, path, json.dumps(fits), str(repeat)], check=True,
                            capture_output=True, text=True, env={**os.environ, "RAYON_NUM_THREADS": "1"})
         one = json.loads(proc.stdout.strip().splitlines()[-1])
         for row in rows:
@@ -1223,8 +1236,10 @@ def dask_bench(size: int = 96, chunks: int = 32, workdir: str = "", repeat: int 
                               silence_logs=logging.CRITICAL, env={"RAYON_NUM_THREADS": "1"}) as cluster, \
                     Client(cluster):
                 arr = bd.open(zpath)
-                bd.fit("ptm", bd.from_btf(Btf(b.data[:8, :8].copy(), b.views, b.lights), chunks=8))  # warm the workers
-                for r, (kind, o) in zip(rows, DASK_FITS):
+                warm_kind, warm_opts = fits[0]
+                bd.fit(warm_kind, bd.from_btf(Btf(b.data[:8, :8].copy(), b.views, b.lights), chunks=8),
+                       **warm_opts)  # warm the workers
+                for r, (kind, o) in zip(rows, fits):
                     secs, m = best_of(lambda: bd.fit(kind, arr, **o), repeat)
                     same = _dask_agrees(kind, m, local[kind])
                     r[f"dask{n}_s"], r[f"dask{n}_equal"] = secs, bool(same)
@@ -1251,32 +1266,28 @@ def dask_table(res: Dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-# --- the neural model against every classic model -------------------------------------------
+# --- a model against every other model (the against_all settings) ----------------------------
 
-def _is_neural(row: Dict[str, Any]) -> bool:
-    return bool(row.get("kind") == NEURAL)
-
-
-#: The kind this section measures (the registry's name for it; every other kind is "classic").
-NEURAL = "neural"
+def against_all_kinds() -> List[str]:
+    """The kinds with an ``against_all`` setting: each has a ``--KIND-only`` mode."""
+    return list(dict.fromkeys(kind for _, kind, _, _ in settings("against_all")))
 
 
-def neural_bench(size: int = 64, materials_: Optional[Sequence[str]] = None) -> Dict[str, Any]:
-    """The neural model's targets (BENCHMARKS.md, "Neural model"), in one run:
+def against_all_bench(kind: str, size: int = 64, materials_: Optional[Sequence[str]] = None) -> Dict[str, Any]:
+    """Model ``kind``'s targets against every other registered model (BENCHMARKS.md), in one run:
 
     * per built-in material at ``size``^2 x 81 x 81, :func:`btfrs.evaluation.evaluate` of every
       registered model over its full sweep, 10% held out, both protocols (random pairs, whole
-      directions): the best classic row per protocol, the neural rows, whether a neural row is
-      at most the best classic error in at most 1/20 of its bytes, and whether the default
-      neural model is on the (bytes, held-out error) Pareto front;
+      directions): the best row of the other models per protocol, ``kind``'s rows, whether one of
+      them is at most the best other error in at most 1/20 of its bytes, and whether its
+      ``against_all`` setting is on the (bytes, held-out error) Pareto front;
     * single-view captures (each material seen from above under the 81 UBO lights, 20% of the
-      lights held out): the default neural model (NeuralRTI's form) against RBF-18;
-    * render: a 512^2 sphere, one light, the default neural model against PTM-RGB, and the
-      larger sweep settings."""
+      lights held out): its ``against_all`` setting against the ``single_view_reference`` ones;
+    * render: a 512^2 sphere, one light, every setting of its sweep against the reference."""
     names = list(materials_ or materials.names())
-    info = model_kinds()[NEURAL]
-    default = next(label for label, _, quick, _ in info["sweep"] if quick)
-    out: Dict[str, Any] = {"size": size, "materials": [], "single_view": [], "render": []}
+    info = model_kinds()[kind]
+    default, _, own_opts, _ = next(x for x in settings("against_all") if x[1] == kind)
+    out: Dict[str, Any] = {"kind": kind, "size": size, "materials": [], "single_view": [], "render": []}
     for name in names:
         btf = materials.make(name, size=size, seed=1)
         rep = evaluation.evaluate(btf, "all", holdout="both", fraction=0.1, sweep="full", render=False,
@@ -1286,31 +1297,32 @@ def neural_bench(size: int = 64, materials_: Optional[Sequence[str]] = None) -> 
         res: Dict[str, Any] = {"material": name, "rows": rows}
         for proto in ("heldout_pairs", "heldout_directions"):
             ok = [r for r in rows if r.get(proto) is not None and r.get("bytes")]
-            classic = min((r for r in ok if not _is_neural(r)), key=lambda r: float(r[proto]))
-            neural = [r for r in ok if _is_neural(r)]
-            within = [r for r in neural if r[proto] <= classic[proto] and r["bytes"] * 20 <= classic["bytes"]]
+            other = min((r for r in ok if r.get("kind") != kind), key=lambda r: float(r[proto]))
+            mine = [r for r in ok if r.get("kind") == kind]
+            within = [r for r in mine if r[proto] <= other[proto] and r["bytes"] * 20 <= other["bytes"]]
             front = {r["label"] for r in evaluation.pareto_front(ok, proto, "bytes")}
-            res[proto] = {"best_classic": classic, "neural": neural, "met": [r["label"] for r in within],
+            res[proto] = {"best_other": other, "mine": mine, "met": [r["label"] for r in within],
                           "default_on_front": default in front}
         out["materials"].append(res)
         print(f"  {name}: done", file=sys.stderr)
     ubo = materials.make("knit", size=8, seed=1).lights
+    pair = [(default, kind, own_opts)] + [(label, k, opts) for label, k, opts, _ in settings("single_view_reference")]
     for name in names:
         btf = materials.make(name, size=size, seed=1, views=np.array([[0.0, 0.0, 1.0]]), lights=ubo)
         train, test = btf.split(holdout=0.2, seed=0)
         row: Dict[str, Any] = {"material": name}
-        pair: List[Tuple[str, str, Dict[str, Any]]] = [(default, NEURAL, {}), ("RBF-18", "rbf", {"components": 18})]
-        for label, kind, opts in pair:
+        for label, k, opts in pair:
             t0 = time.perf_counter()
-            m = fit.fit(kind, train, **opts)
+            m = fit.fit(k, train, **opts)
             row[label] = {"bytes": m.nbytes, "fit_s": time.perf_counter() - t0,
                           "heldout": m.error(test).relative, "form": getattr(m, "directions", None)}
         out["single_view"].append(row)
     btf = materials.make("knit", size=size, seed=1)
-    ms, _ = _render_ms(fit.ptm(btf, kind="rgb"))
-    out["render"].append({"label": "PTM-RGB", "ms": ms, "ratio": 1.0})
+    ref_label, ref_kind, ref_opts, _ = reference()
+    ms, _ = _render_ms(fit.fit(ref_kind, btf, **ref_opts))
+    out["render"].append({"label": ref_label, "ms": ms, "ratio": 1.0})
     for label, opts, _, _ in info["sweep"]:
-        m = fit.fit(NEURAL, btf, **opts)
+        m = fit.fit(kind, btf, **opts)
         t, _ = _render_ms(m)
         out["render"].append({"label": label, "ms": t, "ratio": t / ms, "bytes": m.nbytes})
     out["adapter"] = rendering_info()
@@ -1321,38 +1333,45 @@ def _pct(x: float) -> str:
     return f"{100 * x:.2f}%"
 
 
-def neural_table(res: Dict[str, Any]) -> str:
-    pct = _pct
+def against_all_table(res: Dict[str, Any]) -> str:
+    pct, kind = _pct, res["kind"]
     lines = [f"accuracy per byte at {res['size']}^2 x 81 x 81, 10% held out (seed 0):",
-             "| material | protocol | best classic | its bytes | neural rows (error, bytes) | <= its error in <= 1/20 bytes | default on the front |",
+             f"| material | protocol | best other model | its bytes | {kind} rows (error, bytes) | "
+             "<= its error in <= 1/20 bytes | default on the front |",
              "|---|---|---|---|---|---|---|"]
     for m in res["materials"]:
         for proto in ("heldout_pairs", "heldout_directions"):
             r = m[proto]
-            c = r["best_classic"]
-            ns = "; ".join(f"{n['label']} {pct(n[proto])} {n['bytes'] / 1e3:.0f} KB" for n in r["neural"])
+            c = r["best_other"]
+            ns = "; ".join(f"{n['label']} {pct(n[proto])} {n['bytes'] / 1e3:.0f} KB" for n in r["mine"])
             lines.append(f"| {m['material']} | {proto.split('_')[1]} | {c['label']} {pct(c[proto])} | {c['bytes'] / 1e6:.2f} MB | "
                          f"{ns} | {', '.join(r['met']) or 'no'} | {'yes' if r['default_on_front'] else 'no'} |")
-    lines += ["", "single view (81 lights, 20% held out):", "| material | neural | RBF-18 |", "|---|---|---|"]
+    labels = [k for k in (res["single_view"][0] if res["single_view"] else {}) if k != "material"]
+    lines += ["", "single view (81 lights, 20% held out):", "| material | " + " | ".join(labels) + " |",
+              "|---|" + "---|" * len(labels)]
     for r in res["single_view"]:
         cells = []
         for k, v in r.items():
             if k != "material":
                 cells.append(f"{pct(v['heldout'])} in {v['bytes'] / 1e3:.1f} KB ({v['fit_s']:.1f} s)")
         lines.append(f"| {r['material']} | " + " | ".join(cells) + " |")
+    ref = res["render"][0]["label"] if res["render"] else ""
     lines += ["", f"render, 512^2 sphere, one light, {res.get('adapter', '')}:"]
-    lines += [f"  {r['label']:<10} {r['ms']:8.1f} ms  {r['ratio']:5.2f}x PTM-RGB" for r in res["render"]]
+    lines += [f"  {r['label']:<10} {r['ms']:8.1f} ms  {r['ratio']:5.2f}x {ref}" for r in res["render"]]
     return "\n".join(lines)
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m btfrs.tools.bench", description=__doc__)
+    p = argparse.ArgumentParser(prog="python -m btfrs.tools.bench", description=(__doc__ or "").split("\n\n")[0])
     p.add_argument("--size", type=int, action="append", help="material sizes (default: 32 and 64; 32 with --accuracy)")
     p.add_argument("--repeat", type=int, default=3, help="runs per figure; the best is kept (default: 3)")
     p.add_argument("--json", help="where to write the JSON (default: bench.json, or accuracy.json with --accuracy, "
                                   "in the --figures directory or bench-results)")
     p.add_argument("--skip-models", action="store_true", help="only the foundation and renderer figures")
-    p.add_argument("--sh-big", action="store_true", help="also time double SH 25x25 on a 128^2 x 81 x 81 sample")
+    big = settings("big")
+    for label, kind, _, b in big:
+        p.add_argument(f"--{kind.replace('_', '-')}-big", dest=f"big_{kind}", action="store_true",
+                       help=f"also time {label} on a 128^2 x 81 x 81 sample ({b['note']})")
     p.add_argument("--synth-only", action="store_true", help="only the synthesis figures")
     p.add_argument("--robust-only", action="store_true",
                    help="only robust against plain fits of every model: time on clean data, error with 0.1%% hot values")
@@ -1369,33 +1388,39 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                    help="only the single-view RTI captures: every light basis against bytes (charts in docs/rti)")
     p.add_argument("--env-only", action="store_true",
                    help="only the per-model frame times: point light, trilinear, environment")
+    ref_label = reference()[0]
     p.add_argument("--frames-only", action="store_true",
                    help="only the one-light frame of every example of every model and renderer, against "
-                        "PTM-RGB's (the 3x target)")
+                        f"{ref_label}'s (the 3x target)")
+    mitsuba = [k for k, info in model_kinds().items() if "mitsuba" in info["exports"]]
     p.add_argument("--export-check", action="store_true",
-                   help="only the Mitsuba export check: an svbrdf fit of bumps (--size, default 64) exported, "
-                   "rendered by Mitsuba 3 and by btfrs, compared (with --figures: mitsuba_export.png)")
+                   help=f"only the Mitsuba export check: the {' or '.join(mitsuba)} model fitted to bumps (--size, "
+                   "default 64), exported, rendered by Mitsuba 3 and by btfrs, compared (with --figures: "
+                   "mitsuba_export.png)")
     p.add_argument("--ground-truth", action="store_true",
                    help="only the path-traced ground truth (Mitsuba 3): a BTF measured from a heightfield, "
                         "rendered on a plane, against the path trace of the heightfield")
+    ooc = ",".join(out_of_core_fits())
     p.add_argument("--out-of-core", metavar="PATH",
                    help="only the out-of-core fits: make knit at --size (default 640)^2 x 81 x 81 into PATH "
-                        "(32.2 GB at 640) unless it is there, fit PTM and LPCA under --memory-limit")
+                        "(32.2 GB at 640) unless it is there, fit --out-of-core-fits under --memory-limit")
     p.add_argument("--memory-limit", default="2GB", help="the out-of-core fits' memory_limit (default: 2GB)")
-    p.add_argument("--out-of-core-fits", default="ptm,lpca", metavar="KINDS",
-                   help="the models --out-of-core fits, comma-separated (default: ptm,lpca)")
+    p.add_argument("--out-of-core-fits", default=ooc, metavar="KINDS",
+                   help=f"the models --out-of-core fits, comma-separated (default: {ooc})")
     p.add_argument("--dask", action="store_true",
-                   help="only the Dask fits: PTM and LPCA locally and on a LocalCluster of 1 and 2 workers, "
-                        "knit at --size (default 96)^2 x 81 x 81 from zarr (needs btfrs[dask])")
+                   help=f"only the Dask fits: {', '.join(dict.fromkeys(k for k, _ in dask_fits()))} locally and on "
+                        "a LocalCluster of 1 and 2 workers, knit at --size (default 96)^2 x 81 x 81 from zarr "
+                        "(needs btfrs[dask])")
     p.add_argument("--dask-chunks", type=int, default=32, help="the zarr tiles' side in texels (default: 32)")
     p.add_argument("--viewer-only", action="store_true",
                    help="only the browser viewer's frame and load times against the native renderer (needs "
                         "/usr/bin/chromium and playwright); --figures DIR also saves a screenshot")
     p.add_argument("--normals-only", action="store_true",
                    help="only photometric stereo (512^2 x 240 lights by default) against numpy's least squares")
-    p.add_argument("--neural-only", action="store_true",
-                   help="only the neural model's figures: accuracy per byte against every model on every material "
-                        "(both protocols), single-view captures, render time")
+    for kind in against_all_kinds():
+        p.add_argument(f"--{kind.replace('_', '-')}-only", dest=f"only_{kind}", action="store_true",
+                       help=f"only the {kind} model's figures: accuracy per byte against every model on every "
+                            "material (both protocols), single-view captures, render time")
     p.add_argument("--figures", metavar="DIR", help="also write paper 000 Figure 6 style images into DIR")
     a = p.parse_args(argv)
     res: Any  # each mode's results
@@ -1409,7 +1434,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 0
     if a.out_of_core:
         res = out_of_core_bench(a.out_of_core, (a.size or [640])[0], a.memory_limit,
-                                tuple(k.strip() for k in a.out_of_core_fits.split(",") if k.strip()))
+                                [k.strip() for k in a.out_of_core_fits.split(",") if k.strip()])
         print(out_of_core_table(res))
         if a.json is None:
             a.json = os.path.join("bench-results", "out_of_core.json")
@@ -1434,10 +1459,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         mat, size = "bumps", (a.size or [64])[0]
         btf = materials.make(mat, size=size, seed=0)
         t0 = time.perf_counter()
-        model = fit.fit("svbrdf", btf)
+        model = fit.fit(mitsuba[0], btf)
         fit_s = time.perf_counter() - t0
         res = groundtruth.check_export(model, size=192, supersample=4, spp=512)
-        print(f"Mitsuba 3 export: svbrdf fitted to {mat} {size}^2 ({fit_s:.2f} s), exported as a Mitsuba scene and "
+        print(f"Mitsuba 3 export: {mitsuba[0]} fitted to {mat} {size}^2 ({fit_s:.2f} s), exported as a Mitsuba scene and "
               f"rendered by Mitsuba ({res['spp']} spp, box filter) and by btfrs ({res['backend']}, "
               f"{res['supersample']}^2 pixel centres averaged), {res['size']}^2, maps looked up by nearest texel:")
         print("| light | sample | brightness (btfrs / Mitsuba) | PSNR |\n|---|---|---|---|")
@@ -1452,10 +1477,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             path = os.path.join(a.figures, "mitsuba_export.png")
             print(f"wrote {groundtruth.export_figure(res, model.arrays, path, capture=capture)}")
         return _write_check(a.json, "export_check", res)
-    if a.neural_only:
-        res = neural_bench(size=(a.size or [64])[0])
-        print(neural_table(res))
-        return _finish(a, {"machine": machine(), "neural": res})
+    for kind in against_all_kinds():
+        if getattr(a, f"only_{kind}"):
+            res = against_all_bench(kind, size=(a.size or [64])[0])
+            print(against_all_table(res))
+            return _finish(a, {"machine": machine(), kind: res})
     if a.robust_only:
         size, rep = (a.size or [64])[0], max(1, a.repeat)
         res = robust_bench(size=size, repeat=rep)
@@ -1516,7 +1542,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return _finish(a, {"machine": machine(), "load": ld})
     if a.tiles_only:
         res = tiles_bench(max(1, a.repeat))
-        print("graph-cut Wang tile sets, 16 tiles, 2 colours per edge direction, SH 16x16 domain:")
+        print(f"graph-cut Wang tile sets, 16 tiles, 2 colours per edge direction, {settings('tiles')[0][0]} domain:")
         print(tiles_table(res))
         return _finish(a, {"machine": machine(), "tiles": res})
     if a.synth_only:
@@ -1538,16 +1564,18 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         mb = models_bench(max(sizes))
         print(f"\nevery model on knit {max(sizes)}^2 (10% held out), beside the numpy / scipy / scikit-learn way:")
         print(models_table(mb))
-        lr = lpca_render_bench(max(sizes), max(1, a.repeat))
-        print(f"\nLPCA renderers (paper 004 Table 1) on {ren[0]['adapter']}:")
-        print(lpca_render_table(lr))
-        sw = lpca_sweep(min(max(sizes), 32))
-        print(f"\nLPCA reaching 2% reconstruction error ({min(max(sizes), 32)}^2 samples):")
-        print(lpca_sweep_table(sw))
+        lr = renderers_bench(max(sizes), max(1, a.repeat))
+        notes = "; ".join(dict.fromkeys(r["note"] for r in lr if r["note"]))
+        print(f"\nrenderers of one model against each other ({notes}) on {ren[0]['adapter']}:")
+        print(renderers_table(lr))
+        sw = reach_sweep(min(max(sizes), 32))
+        targets = "; ".join(dict.fromkeys(b["note"] for _, _, _, b in settings("reach") if b["note"]))
+        print(f"\nreaching {100 * REACH:.0f}% reconstruction error ({min(max(sizes), 32)}^2 samples; {targets}):")
+        print(reach_table(sw))
         am = accuracy_models(min(max(sizes), 32))
         print(f"\naccuracy of every model at {min(max(sizes), 32)}^2, 10% of the pairs held out (seed 0):")
         print(accuracy_models_table(am))
-        out.update(models=mb, lpca_render=lr, lpca_sweep=sw, accuracy_models=am)
+        out.update(models=mb, renderers=lr, reach=sw, accuracy_models=am)
     res = synth_bench(max(1, a.repeat))
     print(f"\nsynthesis (paper 000 Table 1 settings, 3 levels) on {res['material']} {res['sample']}^2:")
     print(synth_table(res))
@@ -1556,12 +1584,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     print(mf_title)
     print(maxflow_table(mf))
     out["maxflow"] = mf
-    if a.sh_big:
-        big = materials.make("knit", size=128, seed=1)
-        t, _ = best_of(lambda: fit.sh(big, light_coeffs=25, view_coeffs=25), 1)
-        out["sh_big"] = {"task": "double SH 25x25 CLS + 8 bit, 128^2 x 81 x 81", "seconds": t,
-                         "target_s": SH_BIG_TARGET_S}
-        print(f"\ndouble SH 25x25 on 128^2 x 81 x 81: {t:.2f} s (target <= {SH_BIG_TARGET_S} s)")
+    for label, kind, opts, b in big:
+        if getattr(a, f"big_{kind}"):
+            sample = materials.make("knit", size=128, seed=1)
+            t, _ = best_of(lambda: fit.fit(kind, sample, **opts), 1)
+            out[f"{kind}_big"] = {"task": f"{label}, 128^2 x 81 x 81", "seconds": t, "target": b["note"]}
+            print(f"\n{label} on 128^2 x 81 x 81: {t:.2f} s ({b['note']})")
     return _finish(a, out)
 
 

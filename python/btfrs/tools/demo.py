@@ -4,6 +4,13 @@ The demo is a list of steps (:data:`STEPS`) run in order over one :class:`Contex
 adds models, table rows, images or notes. Later features (more models, renders, synthesis,
 charts) add steps here rather than growing one long function. Every file goes through an atomic
 writer (:mod:`btfrs.io`), so an interrupted demo leaves no half-written file.
+
+Two runs: the default shows every family in a few minutes (one setting of every registered
+model, the registry's quick choice; compare, render, environment, synthesis, one Wang tile
+set; the speed-against-accuracy chart from the demo's own fits); ``full=True`` (``btfrs demo
+--full``) fits every example of every model, makes a second tile set to swap in, and runs
+:func:`btfrs.evaluate` over every model's quick sweep with both held-out protocols and the
+numpy / scipy / scikit-learn ways. The demo asks the registry for its models and names none.
 """
 
 from __future__ import annotations
@@ -17,13 +24,13 @@ from typing import Any, Callable, Dict, List, Optional, Tuple, Union
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import __version__, fit, io, materials, rendering, synth, tiles
+from .. import __version__, _native, fit, io, materials, rendering, synth, tiles
 from . import baselines
 from ..btf import Btf
 from ..directions import from_theta_phi
 from ..environment import Environment
-from ..evaluation import evaluate
-from ..models import Ptm, Sh, model_kinds
+from ..evaluation import EvaluationReport, evaluate
+from ..models import model_kinds
 
 __all__ = ["Context", "STEPS", "run"]
 
@@ -36,15 +43,20 @@ class Context:
     seed: int
     progress: bool
     log: Callable[[str], None]
+    # Every example of every model, a second tile set and the full evaluation (btfrs demo --full).
+    full: bool = False
     # The sample and its halves: made by step_material, the first step.
     btf: Btf = field(init=False, repr=False)
     train: Btf = field(init=False, repr=False)
     test: Btf = field(init=False, repr=False)
     models: Dict[str, Any] = field(default_factory=dict)
+    # The frame time of each model's sphere render (the quick chart's render ms).
+    draw_ms: Dict[str, float] = field(default_factory=dict)
     rows: List[Dict[str, Any]] = field(default_factory=list)
     images: List[Tuple[str, str]] = field(default_factory=list)
     notes: List[str] = field(default_factory=list)
     gen_seconds: float = 0.0
+    started: float = field(default_factory=time.perf_counter)
 
 
 def _tile(images: List[NDArray[Any]], scale: int = 4, gap: int = 4) -> NDArray[Any]:
@@ -82,32 +94,58 @@ def step_material(ctx: Context) -> None:
 def step_baseline(ctx: Context) -> None:
     t0 = time.perf_counter()
     rel, rmse = baselines.nearest_lights_interpolation(ctx.train, ctx.test)
-    ctx.rows.append(dict(model="raw data, 3 nearest lights (numpy)", fit_s=time.perf_counter() - t0,
-                         nbytes=ctx.btf.nbytes, reconstruction=None, held_out=rel, rmse=rmse))
+    ctx.rows.append(dict(model="raw data, 3 nearest lights (numpy)", kind="raw", options={},
+                         fit_s=time.perf_counter() - t0, nbytes=ctx.btf.nbytes, reconstruction=None, held_out=rel,
+                         rmse=rmse))
+
+
+def _settings(ctx: Context) -> List[Tuple[str, str, Dict[str, Any]]]:
+    """``(label, kind, options)`` of the demo's fits: every registered model at the first setting
+    of its quick sweep (the registry's quick choice), or, with ``full``, at each of its examples."""
+    out: List[Tuple[str, str, Dict[str, Any]]] = []
+    for kind, info in model_kinds().items():
+        if ctx.full:
+            out += [(label, kind, dict(options)) for label, options in info["examples"]]
+        else:
+            label, options, _, _ = next(s for s in info["sweep"] if s[2])
+            out.append((label, kind, dict(options)))
+    return out
+
+
+def _slug(label: str) -> str:
+    return label.lower().replace(" ", "_").replace("+", "_").replace("-", "_").replace("/", "_")
 
 
 def step_models(ctx: Context) -> None:
-    """Every registered model (:func:`btfrs.model_kinds`) with each of its example option sets,
-    fitted on the same train half: PTM (000), per-texel Lafortune (000), Phong + SRF (003),
-    double SH with CLS (002), Local PCA (004), and whatever is registered next."""
-    for kind, info in model_kinds().items():
-        for label, options in info["examples"]:
-            m = fit.fit(kind, ctx.train, progress=ctx.progress, **options)
-            ctx.models[label] = m
-            held, rec = m.error(ctx.test), m.error(ctx.train)
-            ctx.rows.append(dict(model=label, fit_s=m.fit_seconds, nbytes=m.nbytes, reconstruction=rec.relative,
-                                 held_out=held.relative, rmse=held.rmse))
-            ctx.log(f"{label}: fit {m.fit_seconds:.3f} s, {m.nbytes / 2**20:.2f} MiB, held-out {held}")
-            slug = label.lower().replace(" ", "_").replace("+", "_").replace("-", "_")
-            m.save(ctx.out / f"model_{slug}.btfrs")
-            if isinstance(m, Ptm):
-                m.save_ptm(ctx.out / f"{slug}_top.ptm", view=0)
-            if m.report:
-                shown = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in m.report.items())
+    """Every registered model (:func:`btfrs.model_kinds`), each at the registry's quick setting
+    (with ``full``: each of its example option sets), fitted on the same train half: PTM (000),
+    per-texel Lafortune (000), Phong + SRF (003), double SH with CLS (002), Local PCA (004), and
+    whatever is registered next. Each is saved, and written in the one-file formats of other
+    tools it exports (the view from above)."""
+    one_file = {f.name: f.extension for f in _native.model_formats() if not f.folder}
+    written: List[str] = []
+    for label, kind, options in _settings(ctx):
+        m = fit.fit(kind, ctx.train, progress=ctx.progress, **options)
+        ctx.models[label] = m
+        held, rec = m.error(ctx.test), m.error(ctx.train)
+        ctx.rows.append(dict(model=label, kind=kind, options=options, fit_s=m.fit_seconds, nbytes=m.nbytes,
+                             reconstruction=rec.relative, held_out=held.relative, rmse=held.rmse))
+        ctx.log(f"{label}: fit {m.fit_seconds:.2f} s, {m.nbytes / 2**20:.2f} MiB, held-out {held}")
+        slug = _slug(label)
+        m.save(ctx.out / f"model_{slug}.btfrs")
+        for fmt in m.exports:
+            if fmt in one_file:
+                name = f"{slug}_top.{one_file[fmt]}"
+                m.export(ctx.out / name, format=fmt, view=0)
+                written.append(f"`{name}`")
+        if m.report:
+            shown = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in m.report.items()
+                              if not isinstance(v, (dict, list)))
+            if shown:
                 ctx.notes.append(f"{label} fit report: {shown}.")
-    ctx.notes.append("Every model is saved as `model_*.btfrs` (`btfrs.load`); `ptm_rgb_top.ptm` and "
-                     "`ptm_lrgb_top.ptm` hold the view-from-above slot as PTM_1.2 files (open them in "
-                     "RTIViewer or relight).")
+    ctx.notes.append("Every model is saved as `model_*.btfrs` (`btfrs.load`)"
+                     + (f"; {', '.join(written)} hold the view-from-above slot in other tools' formats (open a "
+                        "`.ptm` or `.rti` in RTIViewer or relight)." if written else "."))
 
 
 def step_compare_images(ctx: Context) -> None:
@@ -154,41 +192,44 @@ def step_render(ctx: Context) -> None:
     io.save_image(ctx.out / "render.png", img, exposure=exposure)
     ctx.images.append(("render.png", f"rendered with wgpu on {rendering.gpu_info()}: rows sphere, plane; columns "
                        + " | ".join(names)))
-    draw = ", ".join(f"{n} {_draw_ms(times[('sphere', n)]):.0f} ms" for n in names)
+    ctx.draw_ms = {n: _draw_ms(times[("sphere", n)]) for n in names}
+    draw = ", ".join(f"{n} {ms:.0f} ms" for n, ms in ctx.draw_ms.items())
     ctx.notes.append(f"Draw time per 320^2 sphere frame: {draw}.")
     ctx.log(f"rendered {len(shots) * len(names)} frames on {rendering.gpu_info()}")
 
 
 def step_environment(ctx: Context) -> None:
     """Environment light (paper 002, section 4): the material on a sphere under the built-in
-    sky, by the sampled method (64 importance-sampled lights, PTM-RGB) and by the SH method
-    (the double-SH model); then a slanted plane with nearest and trilinear lookups."""
+    sky, by the sampled method (64 importance-sampled lights, the first model) and by the SH
+    method (the first model that renders by it: a double-SH expansion); then a slanted plane
+    with nearest and trilinear lookups."""
     env = Environment.sky(sun=[0.3, 0.2, 0.9], turbidity=3)
     sphere, cam = rendering.Scene.sphere(), rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
-    ptm = next(m for n, m in ctx.models.items() if m.kind == "ptm" and getattr(m, "variant", "") == "rgb")
-    sh = next((m for m in ctx.models.values() if isinstance(m, Sh)), None)
+    first, model = next(iter(ctx.models.items()))
+    sh_name, sh = next(((n, m) for n, m in ctx.models.items() if m.sh_lighting), ("", None))
     shots, times = [], []
-    img = rendering.render(ptm, sphere, cam, environment=env, samples=64, seed=ctx.seed, size=(320, 320), uv_scale=4)
+    img = rendering.render(model, sphere, cam, environment=env, samples=64, seed=ctx.seed, size=(320, 320), uv_scale=4)
     shots.append(img)
-    times.append(f"sampled (64 lights, PTM-RGB) {_draw_ms(rendering.last_timings()):.0f} ms")
+    times.append(f"sampled (64 lights, {first}) {_draw_ms(rendering.last_timings()):.0f} ms")
     if sh is not None:
         img = rendering.render(sh, sphere, cam, environment=env, lighting="sh", size=(320, 320), uv_scale=4)
         shots.append(img)
-        times.append(f"SH method (double SH) {_draw_ms(rendering.last_timings()):.0f} ms")
+        times.append(f"SH method ({sh_name}) {_draw_ms(rendering.last_timings()):.0f} ms")
     exposure = 0.9 / max(float(np.percentile(shots[0][shots[0].sum(-1) > 0], 99)), 1e-6)
     io.save_image(ctx.out / "environment.png", _tile(shots, scale=1, gap=6), exposure=exposure)
     ctx.images.append(("environment.png", "the material on a sphere under the built-in Preetham sky (sun at "
-                       "[0.3, 0.2, 0.9], turbidity 3): sampled method (PTM-RGB) | SH method (double SH)"))
+                       f"[0.3, 0.2, 0.9], turbidity 3): sampled method ({first})"
+                       + (f" | SH method ({sh_name})" if sh is not None else "")))
     ctx.notes.append("Environment frames (320^2): " + ", ".join(times) + ".")
     plane = rendering.Scene.plane(8.0)
     pcam = rendering.Camera.look_at([0, -3, 3], [0, 0.5, 0], 50)
     light = [rendering.DirectionalLight([0.4, -0.3, 0.8], 1.0)]
-    row = [rendering.render(ptm, plane, pcam, light, size=(240, 320), uv_scale=24, filter=f)
+    row = [rendering.render(model, plane, pcam, light, size=(240, 320), uv_scale=24, filter=f)
            for f in ("nearest", "trilinear")]
     exposure = 0.9 / max(float(np.percentile(row[0][row[0].sum(-1) > 0], 99)), 1e-6)
     io.save_image(ctx.out / "filtering.png", _tile(row, scale=1, gap=6), exposure=exposure)
-    ctx.images.append(("filtering.png", "a plane seen at 45 degrees, the texture repeated 24 times: nearest "
-                       "lookups (moire) | trilinear lookups over the box-filtered mip pyramid"))
+    ctx.images.append(("filtering.png", f"{first} on a plane seen at 45 degrees, the texture repeated 24 times: "
+                       "nearest lookups (moire) | trilinear lookups over the box-filtered mip pyramid"))
     ctx.log("rendered the environment and filtering frames")
 
 
@@ -207,7 +248,7 @@ def step_materials_overview(ctx: Context) -> None:
 
 def step_synthesis(ctx: Context) -> None:
     """A large BTF synthesized from the sample (paper 000 section 4): texton analysis,
-    hierarchical k-coherence into a 512^2 coordinate map, rendered with the sample's PTM next to
+    hierarchical k-coherence into a 512^2 coordinate map, rendered with the first model next to
     the plainly tiled sample, with the quality measures of both."""
     # Three levels as in the paper when the sample allows 5 x 5 windows at its coarsest level.
     levels = next(L for L in (3, 2, 1) if ((ctx.size >> (L - 1)) - 4) ** 2 - 25 >= 10)
@@ -221,11 +262,11 @@ def step_synthesis(ctx: Context) -> None:
     tiles = synth.tiled((ctx.size, ctx.size), size)
     q, qt = synth.quality(an, cmap), synth.quality(an, tiles)
     big = ctx.btf.expand(cmap)
-    ptm = ctx.models.get("PTM-RGB") or fit.ptm(ctx.btf)
+    first, model = next(iter(ctx.models.items()))
     lights = [rendering.PointLight(position=[1.2, -1.0, 1.5], intensity=3.0)]
     cam = rendering.Camera.look_at([0, -1.6, 2.2], [0, 0, 0], 50)
     scene = rendering.Scene.plane(2.0)
-    shots = [rendering.render(ptm, scene, cam, lights, size=(384, 384), coords=c) for c in (cmap, tiles)]
+    shots = [rendering.render(model, scene, cam, lights, size=(384, 384), coords=c) for c in (cmap, tiles)]
     lit = np.concatenate([x[x.sum(-1) > 0] for x in shots])
     exposure = 0.9 / max(float(np.percentile(lit, 99)), 1e-6)
     io.save_image(ctx.out / "synthesis_render.png", _tile(shots, scale=1, gap=6), exposure=exposure)
@@ -234,7 +275,7 @@ def step_synthesis(ctx: Context) -> None:
     e2 = 0.8 / max(float(np.percentile(flat[0], 99)), 1e-6)
     io.save_image(ctx.out / "synthesis_flat.png", _tile(flat, scale=1, gap=6), exposure=e2)
     ctx.images.append(("synthesis_render.png", f"a {size}^2 BTF synthesized by k-coherence (left) and the plainly "
-                       f"tiled {ctx.size}^2 sample (right) on a plane, rendered with PTM-RGB through the coordinate map"))
+                       f"tiled {ctx.size}^2 sample (right) on a plane, rendered with {first} through the coordinate map"))
     ctx.images.append(("synthesis_flat.png", "the same two maps seen from above, one light at 45 degrees"))
     ctx.notes.append(f"Synthesis: analysis {an.seconds:.2f} s ({an}); k-coherence {size}^2 (k=3, neighbourhood 2, "
                      f"{levels} levels) {t_syn:.3f} s; the expanded BTF holds {big.nbytes / 2**20:.1f} MiB instead of "
@@ -245,60 +286,87 @@ def step_synthesis(ctx: Context) -> None:
 
 
 def step_tiles(ctx: Context) -> None:
-    """Graph-cut Wang tile sets (paper 002): one set of the demo material (SH domain) dressing a
-    sphere and a cylinder, and a second material's set swapped in on the same layout, with no
-    re-synthesis and no re-tiling; the sets' pictures with their edge colours."""
+    """Graph-cut Wang tile sets (paper 002): 16 tiles of the default 64^2 with 16-texel edges, in
+    the domain of the registry's tile-synthesis setting, dressing a sphere and a cylinder; with
+    ``full``, a second material's set swapped in on the same layout, with no re-synthesis and no
+    re-tiling; the sets' pictures with their edge colours."""
     t0 = time.perf_counter()
-    sh_a = fit.sh(ctx.btf, light_coeffs=16, view_coeffs=16)
-    other = "bumps" if ctx.material != "bumps" else "weave"
-    btf_b = materials.make(other, size=ctx.size, seed=3, progress=ctx.progress)
-    sh_b = fit.sh(btf_b, light_coeffs=16, view_coeffs=16)
-    tile = min(32, ctx.size // 2)
-    edge = max(2, (tile // 4) // 2 * 2)
-    set_a = tiles.wang(sh_a, tile=tile, edge_height=edge, colors=2, seed=5, progress=ctx.progress)
-    set_b = tiles.wang(sh_b, tile=tile, edge_height=edge, colors=2, seed=5, progress=ctx.progress)
+    label, kind, opts = next((b["label"], k, dict(b["options"])) for k, info in model_kinds().items()
+                             for b in info["bench"] if "tiles" in b["roles"])
+    tile = min(64, ctx.size)
+    edge = max(2, min(16, (tile // 4) // 2 * 2))
+    sets = [(ctx.material, tiles.wang(fit.fit(kind, ctx.btf, **opts), tile=tile, edge_height=edge, colors=2, seed=5,
+                                      progress=ctx.progress))]
+    if ctx.full:
+        other = "bumps" if ctx.material != "bumps" else "weave"
+        btf_b = materials.make(other, size=ctx.size, seed=3, progress=ctx.progress)
+        sets.append((other, tiles.wang(fit.fit(kind, btf_b, **opts), tile=tile, edge_height=edge, colors=2, seed=5,
+                                       progress=ctx.progress)))
     t_syn = time.perf_counter() - t0
-    set_a.save(ctx.out / "tiles_a.btfrs")
-    set_b.save(ctx.out / "tiles_b.btfrs")
+    for name, ts in sets:
+        ts.save(ctx.out / f"tiles_{name}.btfrs")
+    set_a = sets[0][1]
     layout = set_a.tiling(4, 12, seed=1, wrap=(True, False))  # u runs around: wrap the columns
     io.save_array(ctx.out / "tiles_layout.npy", layout)
     lights = [rendering.PointLight(position=[2.0, -2.5, 3.0], intensity=9.0)]
     cam = rendering.Camera.look_at([0.0, -3.2, 1.6], [0.0, 0.0, 0.0], 40)
-    model_a, model_b = set_a.model, set_b.model
-    assert model_a is not None and model_b is not None  # a set made from a model keeps its BTFel model
-    shots = [(set_a, model_a, rendering.Scene.sphere()), (set_a, model_a, rendering.Scene.cylinder()),
-             (set_b, model_b, rendering.Scene.cylinder())]
-    imgs = [rendering.render(model, scene, cam, lights, size=(320, 320), tiles=ts, layout=layout)
-            for ts, model, scene in shots]
+    shots = [(set_a, rendering.Scene.sphere()), (set_a, rendering.Scene.cylinder())]
+    shots += [(ts, rendering.Scene.cylinder()) for _, ts in sets[1:]]
+    imgs = []
+    for ts, scene in shots:
+        assert ts.model is not None  # a set made from a model keeps its BTFel model
+        imgs.append(rendering.render(ts.model, scene, cam, lights, size=(320, 320), tiles=ts, layout=layout))
     ref = np.concatenate([im[im.sum(-1) > 0] for im in imgs])
     io.save_image(ctx.out / "tiles_render.png", _tile(imgs, scale=1, gap=6),
                   exposure=0.9 / max(float(np.percentile(ref, 99)), 1e-6))
-    pics = [set_a.picture(), set_b.picture()]
-    io.save_image(ctx.out / "tiles.png", _tile(pics, scale=2, gap=8))
+    io.save_image(ctx.out / "tiles.png", _tile([ts.picture() for _, ts in sets], scale=2, gap=8))
+    names = [n for n, _ in sets]
     ctx.images.append(("tiles_render.png", f"Wang tiles (paper 002): the {ctx.material} tile set on a sphere and a "
-                       f"cylinder, then the {other} set on the same 4 x 12 layout"))
-    ctx.images.append(("tiles.png", f"the two tile sets ({ctx.material}, {other}) with their edge colours"))
+                       "cylinder, on a 4 x 12 layout" + (f", then the {names[1]} set on the same layout"
+                                                        if len(names) > 1 else "")))
+    ctx.images.append(("tiles.png", (f"the tile sets ({', '.join(names)}) with their edge colours" if len(names) > 1
+                                     else f"the tile set ({names[0]}) with its edge colours")))
     e = set_a.seam_errors(set_a.tiling(16, 16, seed=2), windows=300)
     ra = set_a.report
-    ctx.notes.append(f"Wang tiles: two sets of 16 tiles of {tile}^2 (edge height {edge}, SH 16x16) in {t_syn:.1f} s "
-                     f"including the fits; {ctx.material}: {100 * ra['referenced']:.1f}% of the texels referenced, "
-                     f"{ra['total_bytes'] / 2**20:.2f} MiB; window error across tile edges {e['edge']:.4f} vs inside "
-                     f"tiles {e['interior']:.4f} (plain tiling of random crops: {e['crops_edge']:.4f} across edges).")
-    ctx.log(f"tiles: 2 sets in {t_syn:.1f} s; seams edge {e['edge']:.4f} / interior {e['interior']:.4f}")
+    ctx.notes.append(f"Wang tiles: {len(sets)} set{'s' if len(sets) > 1 else ''} of 16 tiles of {tile}^2 (edge height "
+                     f"{edge}, {label}) in {t_syn:.1f} s including the fits; {ctx.material}: "
+                     f"{100 * ra['referenced']:.1f}% of the texels referenced, {ra['total_bytes'] / 2**20:.2f} MiB; "
+                     f"window error across tile edges {e['edge']:.4f} vs inside tiles {e['interior']:.4f} (plain "
+                     f"tiling of random crops: {e['crops_edge']:.4f} across edges).")
+    ctx.log(f"tiles: {len(sets)} set(s) of {tile}^2 in {t_syn:.1f} s; seams edge {e['edge']:.4f} / "
+            f"interior {e['interior']:.4f}")
 
 
 def step_evaluate(ctx: Context) -> None:
-    """Speed against accuracy (:func:`btfrs.evaluate`): one or two points per model (the quick
-    sweep) and the numpy / scipy / scikit-learn ways, both held-out protocols, charts in
-    ``evaluate/``. ``btfrs evaluate`` runs the full sweep."""
+    """Speed against accuracy: held-out error against bytes, render ms and fit seconds, the
+    Pareto front dashed, in ``evaluate/``. The quick run charts the demo's own fits (random pairs
+    held out; render ms of its 320^2 sphere frames); with ``full``, :func:`btfrs.evaluate` fits
+    every model's quick sweep again under both held-out protocols beside the numpy / scipy /
+    scikit-learn ways. ``btfrs evaluate`` runs the full sweep."""
     t0 = time.perf_counter()
-    rep = evaluate(ctx.btf, "all", holdout="both", sweep="quick", baselines=baselines.evaluation_rows, baseline_texels=8, seed=0,
-                   material=ctx.material, progress=ctx.progress)
+    if ctx.full:
+        rep = evaluate(ctx.btf, "all", holdout="both", sweep="quick", baselines=baselines.evaluation_rows,
+                       baseline_texels=8, seed=0, material=ctx.material, progress=ctx.progress)
+        what = "quick sweep, both held-out protocols"
+    else:
+        rows = []
+        for r in ctx.rows:
+            base = r["kind"] == "raw"
+            rows.append(dict(label=r["model"].replace(" (numpy)", "") if base else r["model"], kind=r["kind"],
+                             options=r["options"], way="numpy" if base else "btfrs",
+                             fit_s=None if base else r["fit_s"], bytes=r["nbytes"], reconstruction=r["reconstruction"],
+                             heldout_pairs=r["held_out"], heldout=r["held_out"],
+                             render_ms=ctx.draw_ms.get("raw BTF" if base else r["model"]), note=""))
+        rep = EvaluationReport(rows, dict(material=ctx.material, shape=list(ctx.btf.shape), holdout="pairs",
+                                          fraction=0.1, seed=0, sweep="the demo's fits", adapter=rendering.gpu_info(),
+                                          render_size=[320, 320], seconds=0.0,
+                                          notes=["the demo's own fits; render ms of its 320^2 sphere frames"]))
+        what = "the demo's fits, random pairs held out"
     paths = rep.save(ctx.out / "evaluate")
     front = ", ".join(r["label"] + ("" if r["way"] == "btfrs" else f" ({r['way']})") for r in rep.pareto("heldout", "bytes"))
     ctx.images.append(("evaluate/heldout_vs_bytes.png", "held-out error against bytes, render ms (`heldout_vs_render_ms.png`) "
-                       "and fit seconds (`heldout_vs_fit_s.png`), both held-out protocols, Pareto front dashed"))
-    ctx.notes.append(f"Speed against accuracy (quick sweep, {time.perf_counter() - t0:.0f} s; `evaluate/report.md`): "
+                       "and fit seconds (`heldout_vs_fit_s.png`), Pareto front dashed"))
+    ctx.notes.append(f"Speed against accuracy ({what}, {time.perf_counter() - t0:.0f} s; `evaluate/report.md`): "
                      f"the held-out-vs-bytes front is {front}.")
     ctx.log(f"evaluate: {len(rep.rows)} points in {time.perf_counter() - t0:.1f} s; wrote {', '.join(paths)}")
 
@@ -311,6 +379,12 @@ def step_summary(ctx: Context) -> None:
         f"Material **{ctx.material}**, {ctx.size}^2 texels, {ctx.btf.n_views} views x {ctx.btf.n_lights} lights, "
         f"seed {ctx.seed}; generated in {ctx.gen_seconds:.2f} s. Held-out: {ctx.test.pairs} random (view, light) pairs "
         f"(10%, seed 0); every model is fitted on the other {ctx.train.pairs}.",
+        "",
+        (f"The full run (`btfrs demo --full`): every example of every model, two tile sets and `btfrs.evaluate` "
+         f"with both held-out protocols; {time.perf_counter() - ctx.started:.0f} s." if ctx.full else
+         f"The quick run: every model at the registry's quick setting, {time.perf_counter() - ctx.started:.0f} s; "
+         "`btfrs demo --full` fits every example, makes a second tile set and runs `btfrs.evaluate` with both "
+         "held-out protocols (see the README for how long each takes)."),
         "",
         "| model | fit s | size | ratio | reconstruction rel. error | held-out rel. error | held-out RMSE |",
         "|---|---:|---:|---:|---:|---:|---:|",
@@ -326,19 +400,25 @@ def step_summary(ctx: Context) -> None:
     ctx.log(f"wrote {ctx.out / 'summary.md'}")
 
 
-STEPS: List[Callable[[Context], None]] = [step_material, step_baseline, step_models, step_compare_images, step_render, step_environment,
-               step_synthesis,
-               step_tiles, step_materials_overview, step_evaluate, step_summary]
+STEPS: List[Callable[[Context], None]] = [
+    step_material, step_baseline, step_models, step_compare_images, step_render, step_environment, step_synthesis,
+    step_tiles, step_materials_overview, step_evaluate, step_summary]
 
 
 def run(out: Union[str, "os.PathLike[str]"], *, material: str = "knit", size: int = 64, seed: int = 1, progress: bool = True,
-        log: Callable[[str], None] = print) -> Context:
-    """Run every step into folder ``out`` (created if missing); returns the context."""
+        log: Callable[[str], None] = print, full: bool = False) -> Context:
+    """Run every step into folder ``out`` (created if missing); returns the context. ``full``:
+    every example of every model, a second tile set and the full evaluation (module doc)."""
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
-    ctx = Context(out=folder, material=material, size=size, seed=seed, progress=progress, log=log)
+    ctx = Context(out=folder, material=material, size=size, seed=seed, progress=progress, log=log, full=full)
+    log(f"btfrs demo, {'full' if full else 'quick'} run on {material} {size}^2, into {folder}/"
+        + ("" if full else " (btfrs demo --full runs every example and the full evaluation)"))
     for step in STEPS:
         step(ctx)
+    pngs = len(list(folder.glob("*.png"))) + len(list((folder / "evaluate").glob("*.png")))
+    log(f"done in {time.perf_counter() - ctx.started:.0f} s: {len(ctx.models)} models, {pngs} images; "
+        f"start with {folder / 'summary.md'}")
     return ctx
 
 

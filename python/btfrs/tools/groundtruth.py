@@ -41,7 +41,7 @@ from .._checks import seed as check_seed
 from .._progress import Progress, callback
 from ..btf import Btf
 from ..exceptions import BtfrsError, InvalidArgumentError
-from ..models import Model
+from ..models import Model, model_kinds
 from ..rendering import Camera, DirectionalLight, Scene, render
 
 __all__ = ["Heightfield", "available", "measure_btf", "render_geometry", "compare", "check", "table", "figure",
@@ -432,7 +432,7 @@ def _psnr(a: np.ndarray, b: np.ndarray) -> Dict[str, Any]:
 def check_export(model: Any, *, lights: Sequence[Tuple[float, float]] = ((40.0, 60.0), (65.0, 200.0)),
                  size: int = 96, supersample: int = 4, spp: int = 512, seed: int = 0,
                  backend: str = "cpu") -> Dict[str, Any]:
-    """Export ``model`` (an ``svbrdf``) as a Mitsuba scene, render it with Mitsuba 3 and render
+    """Export ``model`` (one whose ``exports`` include ``"mitsuba"``) as a Mitsuba scene, render it with Mitsuba 3 and render
     the model with btfrs on ``Scene.plane(2)`` under the same camera and directional lights
     (``lights``: (theta, phi) in degrees), and compare them: brightness ratio and PSNR per
     light, and the same for the control, the model with its rows mirrored (a wrong texture
@@ -443,14 +443,16 @@ def check_export(model: Any, *, lights: Sequence[Tuple[float, float]] = ((40.0, 
     averages them, so both estimate the same pixel integral and the comparison does not hinge
     on which texel a pixel's centre falls in.
     """
-    if not isinstance(model, Model) or model.kind != "svbrdf":
-        raise InvalidArgumentError(f"model: expected an svbrdf model, got {getattr(model, 'kind', type(model).__name__)!r}")
+    if not isinstance(model, Model) or "mitsuba" not in model.exports:
+        can = [k for k, info in model_kinds().items() if "mitsuba" in info["exports"]]
+        raise InvalidArgumentError(f"model: expected a model that can be written as a Mitsuba scene ({', '.join(can)}), "
+                                   f"got {getattr(model, 'kind', type(model).__name__)!r}")
     size = integer("size", size, min=16, max=2048)
     k = integer("supersample", supersample, min=1, max=16)
     seed = check_seed(seed)
     cam = Camera.look_at([0.0, -2.0, 2.4], [0.0, 0.0, 0.0], 40.0, up=[0.0, 0.0, 1.0])
     plane = Scene.plane(2.0)
-    mirrored = Model.from_arrays({n: np.ascontiguousarray(a[::-1]) for n, a in model.arrays.items()}, kind="svbrdf")
+    mirrored = Model.from_arrays({n: np.ascontiguousarray(a[::-1]) for n, a in model.arrays.items()}, kind=model.kind)
     rows, images = [], {}
     t = {"mitsuba": 0.0, "btfrs": 0.0}
     with tempfile.TemporaryDirectory(prefix="btfrs-mitsuba-") as tmp:

@@ -28,5 +28,5 @@ pub mod split;
 
 pub use arrays::NamedArrays;
 pub use btf::{Btf, BtfRef};
-pub use error::{Error, Result};
+pub use error::{Detail, Error, Result};
 pub use monitor::Monitor;

@@ -20,9 +20,10 @@ fn main() {
     o["steps"] = steps.into();
     o["validation"] = 0.0.into();
     let entry = btfrs_fit::registry::lookup("neural").unwrap();
-    let plain = btfrs_fit::robust::RobustOptions { robust: false, exclude_bad_images: false };
+    let plain = btfrs_fit::driver::RobustOptions { robust: false, exclude_bad_images: false };
     let t = Instant::now();
-    let m = btfrs_fit::robust::fit(entry, &b, &o.to_string(), plain, &Monitor::new()).unwrap();
+    let options = btfrs_fit::options::parse_json(&o.to_string()).unwrap();
+    let m = btfrs_fit::driver::fit(entry, &b, &options, plain, &Monitor::new()).unwrap();
     let s = t.elapsed().as_secs_f64();
     let r = m.0.report();
     println!(

@@ -21,9 +21,10 @@ fn main() {
     let btf = generate(&MaterialSpec::new(Preset::Knit, size, 1), &Monitor::new()).unwrap();
     let b = btf.as_ref();
     let entry = btfrs_fit::registry::lookup("ptm").unwrap();
-    let plain = btfrs_fit::robust::RobustOptions { robust: false, exclude_bad_images: false };
-    let robust = btfrs_fit::robust::RobustOptions { robust: true, exclude_bad_images: false };
-    let fit = |o| btfrs_fit::robust::fit(entry, &b, r#"{"kind": "rgb"}"#, o, &Monitor::new()).unwrap();
+    let plain = btfrs_fit::driver::RobustOptions { robust: false, exclude_bad_images: false };
+    let robust = btfrs_fit::driver::RobustOptions { robust: true, exclude_bad_images: false };
+    let options = btfrs_fit::options::parse_json(r#"{"kind": "rgb"}"#).unwrap();
+    let fit = |o| btfrs_fit::driver::fit(entry, &b, &options, o, &Monitor::new()).unwrap();
     let sampled = sample_texels(b.height, b.width);
     let window = patch_window(b.height, b.width);
     if std::env::var("IMAGES_ONLY").is_ok() {

@@ -28,7 +28,7 @@
 //! table of principal functions, as for [`crate::rbf`].
 
 use crate::light_pca::{self, Colour, LightPca, PcaOptions};
-use crate::model::{average_texels, Mip, Model, Sampling};
+use crate::model::{average_texels, Bench, Mip, Model, Sampling};
 use crate::options::Spec;
 use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
 use nalgebra::DMatrix;
@@ -234,6 +234,28 @@ exactly as for the RBF basis.";
         ("Bilinear-27", r#"{"components": 27}"#),
     ];
     const TEXEL_ARRAYS: &'static [&'static str] = &["coeffs_q"];
+    // The single-view RTI captures: relight's sizes, the other table resolution, the YCC split.
+    const BENCH: &'static [Bench] = &[
+        Bench::new("Bilinear-{components}", r#"{"components": [3, 6, 9, 12, 18, 27]}"#, &["single_view"]),
+        Bench::new("Bilinear-{components} r12", r#"{"components": [3, 9, 18], "resolution": 12}"#, &["single_view"]),
+        Bench::new(
+            "Bilinear-YCC 9+3",
+            r#"{"components": 9, "colour": "ycc", "chroma_components": 3}"#,
+            &["single_view"],
+        ),
+        Bench::new(
+            "Bilinear-YCC 12+3",
+            r#"{"components": 12, "colour": "ycc", "chroma_components": 3}"#,
+            &["single_view"],
+        ),
+        Bench::new(
+            "Bilinear-YCC 18+4",
+            r#"{"components": 18, "colour": "ycc", "chroma_components": 4}"#,
+            &["single_view"],
+        ),
+        Bench::new("Bilinear-18", r#"{"components": 18}"#, &["summary"]).note("relight bilinear 25.3% in 50 KB"),
+        Bench::new("Bilinear-9", r#"{"components": 9}"#, &["dask"]),
+    ];
     const MIP: Mip = Mip::Average;
     type Options = BilinearOptions;
     // Each value checked as the fit reads it (per block of texels; per view slot for the light bases).

@@ -93,9 +93,9 @@ mod tests {
             for e in MODELS {
                 let Blockwise::Texels { overrides, .. } = e.blockwise else { continue };
                 for (label, options) in e.examples {
-                    let mut o: serde_json::Map<String, serde_json::Value> = serde_json::from_str(options).unwrap();
-                    o.extend(serde_json::from_str::<serde_json::Map<_, _>>(overrides).unwrap());
-                    let block = serde_json::Value::Object(o).to_string();
+                    let options = crate::options::parse_json(options).unwrap();
+                    let mut block = options.clone();
+                    block.extend(crate::options::parse_json(overrides).unwrap());
                     let parts: Vec<NamedArrays> = [&top, &bottom]
                         .iter()
                         .map(|x| (e.fit)(x, &block, &Monitor::new()).unwrap().to_arrays())
@@ -111,8 +111,8 @@ mod tests {
                             stitched.insert(name, a.clone());
                         }
                     }
-                    let finished = (lookup(e.kind).unwrap().finish_blocks)(&stitched, options).unwrap();
-                    let local = (e.fit)(&whole, options, &Monitor::new()).unwrap();
+                    let finished = (lookup(e.kind).unwrap().finish_blocks)(&stitched, &options).unwrap();
+                    let local = (e.fit)(&whole, &options, &Monitor::new()).unwrap();
                     assert_eq!(finished.to_arrays(), local.to_arrays(), "{label} masked={masked}");
                     checked += 1;
                 }

@@ -20,7 +20,7 @@
 //! `wgpu_buffer_types.rs`); the tests in btfrs-render parse every generated struct with naga and
 //! compare its member offsets with the Rust ones.
 
-use crate::model::ReflectanceModel;
+use crate::eval::{ReflectanceModel, Shade};
 use std::borrow::Cow;
 
 /// Words in every parameter block (one 64-byte uniform buffer).
@@ -308,8 +308,8 @@ impl<T: GpuLayout> GpuModel for T {
 
 /// A model the renderers can draw: on the GPU through its layout, on the CPU (the reference)
 /// through its own evaluation.
-pub trait Renderable: GpuModel + crate::model::Shade {}
-impl<T: GpuModel + crate::model::Shade> Renderable for T {}
+pub trait Renderable: GpuModel + Shade {}
+impl<T: GpuModel + Shade> Renderable for T {}
 
 #[cfg(test)]
 mod tests {

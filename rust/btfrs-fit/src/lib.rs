@@ -15,24 +15,39 @@
 //! * [`rbf`] and [`bilinear`]: relight's RTI light bases (Gaussian RBF interpolation, a
 //!   bilinear light grid) per view slot, resampled on a light grid and compressed by PCA into
 //!   8-bit planes ([`light_pca`]).
+//! * [`light_bases`]: RBF and bilinear by name, for the blockwise fit of their stages.
 //! * [`neural`]: per-texel latent codes and one decoder MLP, trained on the CPU as an
 //!   auto-decoder (Rainer et al. 2019, NeuMIP 2021; NeuralRTI 2020 for single-view captures).
+//! * [`svbrdf`]: a spatially varying GGX BRDF per texel (diffuse, specular, roughness, normal)
+//!   fitted by Levenberg-Marquardt from photometric-stereo normals; exported to glTF and Mitsuba.
 //! * [`photometric`]: photometric stereo (Woodham 1980), L2 and robust (IRLS): per-texel normals
 //!   and Lambertian albedo of one view slot.
+//! * [`relief`]: a sample's relief for models that draw its cast shadows: the height from
+//!   photometric stereo and the horizon map (Max 1988) the neural decoder reads.
 //! * [`planes`]: 8-bit coefficient planes with per-plane scale and bias (what RTI viewers hold).
-//! * [`model`]: the model contract ([`Model`], [`ReflectanceModel`]): fit, evaluation at any
-//!   (view, light), error against a BTF (parallel, f64 accumulation), named arrays, bytes.
+//! * [`eval`]: evaluation ([`ReflectanceModel`], [`Shade`]), what the model contract and its GPU
+//!   half share.
+//! * [`model`]: the model contract ([`Model`]): fit, evaluation at any (view, light), error
+//!   against a BTF (parallel, f64 accumulation), named arrays, bytes, abilities.
 //! * [`gpu`]: the GPU half of the contract: shader, parameter struct ([`gpu_params!`]), store.
 //! * [`options`]: the option schema each model declares, and the checks made from it.
 //! * [`registry`]: the list of models every consumer iterates over.
-//! * the general numerics (dense products, CLS, k-means, randomized PCA) are in `btfrs-numerics`.
+//! * [`robust`]: the screen for outlying values and bad images, which the models that judge
+//!   each texel in their own pass (PTM, HSH) run too.
+//! * [`driver`]: the fit every caller runs through the registry: the robust screen, then the
+//!   model's fit on the repaired values.
+//! * the general numerics (dense products, CLS, k-means, exact and randomized PCA, Poisson
+//!   integration) are in `btfrs-numerics`.
 //! * [`blockwise`]: how each fit splits over texel blocks fitted apart (`btfrs.dask`).
 
 pub mod bilinear;
 pub mod blockwise;
+pub mod driver;
+pub mod eval;
 pub mod gpu;
 pub mod hsh;
 pub mod lafortune;
+pub mod light_bases;
 pub mod light_pca;
 pub mod lightfit;
 pub mod lpca;
@@ -52,13 +67,14 @@ pub mod srf;
 pub mod svbrdf;
 
 pub use bilinear::{fit_bilinear, Bilinear, BilinearOptions};
+pub use eval::{ReflectanceModel, Shade};
 pub use gpu::{GpuLayout, GpuModel, Renderable};
 pub use hsh::{fit_hsh, hsh_basis, Hsh, HshOptions, HshSlot};
 pub use lafortune::per_view::{fit_lafortune_view, LafortuneView, LafortuneViewOptions, LafortuneViewReport};
 pub use lafortune::{fit_lafortune, FitReport, Lafortune, LafortuneKind, LafortuneOptions};
 pub use light_pca::{Colour, LightPca};
 pub use lpca::{fit_lpca, Lpca, Lpca3d, LpcaOptions, LpcaQuery};
-pub use model::{evaluate_image, model_error, DynModel, Model, RawModel, ReflectanceModel, Shade};
+pub use model::{evaluate_image, model_error, DynModel, Model, RawModel};
 pub use ptm::{fit_ptm, Degenerate, Ptm, PtmKind, PtmOptions, PtmPlanes, PtmSlot};
 pub use rbf::{fit_rbf, Rbf, RbfOptions};
 pub use sh::{fit_sh, quantize, sh_basis, Sh, ShCoeffs, ShOptions};

@@ -60,7 +60,7 @@
 //! equals interpolating the data, and the model answers every (view, light) pair.
 
 use crate::gpu::{pack_u16, words, GpuLayout, Renderable, Shader};
-use crate::model::{unknown_renderer, Mip, Model, ReflectanceModel, Sampling, Setting};
+use crate::model::{unknown_renderer, Bench, Mip, Model, ReflectanceModel, Sampling, Setting};
 use crate::options::Spec;
 use btfrs_core::{directions, ensure_arg, rng::mix, BtfRef, Error, Monitor, NamedArrays, Result};
 use btfrs_numerics::dense::{cols, column_mean, gemm, gram_t, sym_eigen_desc, view, view_t};
@@ -1114,6 +1114,26 @@ texture, section 6).";
         Setting::full("LPCA 32x2", r#"{"clusters": 32, "components": 2}"#),
         Setting::full("LPCA 32x4", r#"{"clusters": 32, "components": 4}"#),
         Setting::full("LPCA 32x8", r#"{"clusters": 32, "components": 8}"#),
+    ];
+    const BENCH: &'static [Bench] = &[
+        Bench::new("LPCA 32x4", r#"{"clusters": 32, "components": 4}"#, &["per_material", "models", "dask"])
+            .peer("lpca_sklearn"),
+        Bench::new("LPCA 32x2", r#"{"clusters": 32, "components": 2, "seed": 0}"#, &["models"]),
+        Bench::new("LPCA 32x8", r#"{"clusters": 32, "components": 8, "seed": 0}"#, &["models"]).peer("lpca_sklearn"),
+        Bench::new("LPCA 32x{components}", r#"{"clusters": 32, "components": [2, 4, 8], "seed": 0}"#, &["renderers"])
+            .note("paper 004, Table 1: the 9-tap and the 3D-texture renderers"),
+        Bench::new(
+            "LPCA {clusters}x{components}",
+            r#"{"clusters": [8, 16, 32, 64], "components": [2, 4, 8, 12, 16], "seed": 0}"#,
+            &["reach"],
+        )
+        .note("paper 004: about 2% at 1:50 to 1:250"),
+        Bench::new("LPCA 4x4", r#"{"clusters": 4, "components": 4, "seed": 0}"#, &["single_view"]),
+        Bench::new("LPCA 8x4", r#"{"clusters": 8, "components": 4, "seed": 0}"#, &["single_view", "summary"])
+            .note("btfrs LPCA 8x4 (before) 25.8%"),
+        Bench::new("LPCA 8x8", r#"{"clusters": 8, "components": 8, "seed": 0}"#, &["single_view"]),
+        Bench::new("LPCA 16x4", r#"{"clusters": 16, "components": 4, "seed": 0}"#, &["single_view"]),
+        Bench::new("LPCA 64x8", r#"{"clusters": 64, "components": 8}"#, &["out_of_core"]),
     ];
     const SAMPLING: Sampling = Sampling::Any {
         note: "any sampling (per-texel ABRDFs, clustered)",

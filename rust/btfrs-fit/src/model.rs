@@ -1,9 +1,8 @@
 //! The contract every fitted model meets, written once per model.
 //!
-//! * [`ReflectanceModel`]: evaluation. A model answers *queries*: one (view, light) pair,
-//!   prepared once (`query`), then evaluated at every texel (`eval`). Splitting the two keeps
-//!   per-pair work (interpolation weights over view slots, basis functions of the light) out of
-//!   the per-texel loop. The CPU reference renderer shades through it ([`Shade`]).
+//! * [`ReflectanceModel`] (in [`crate::eval`], which the GPU half shares): evaluation. A model
+//!   answers *queries*: one (view, light) pair, prepared once (`query`), then evaluated at every
+//!   texel (`eval`). The CPU reference renderer shades through it ([`Shade`]).
 //! * [`Model`]: everything else a model is: its name, its fit options and fit, its named arrays
 //!   for saving ([`btfrs_core::NamedArrays`]), its fit report, the bytes it occupies as stored
 //!   for rendering, and its renderers. Together with [`crate::gpu::GpuLayout`] (the shader and
@@ -11,56 +10,12 @@
 //!   everything that iterates over models (bindings, `btfrs.load`, renderer, demo, bench) goes
 //!   through [`DynModel`], the object-safe form.
 
+pub use crate::eval::{ReflectanceModel, Shade};
 use crate::gpu::{GpuLayout, GpuModel, Renderable};
 use btfrs_core::{metrics::ErrorSums, BtfRef, Error, Monitor, NamedArrays, Result};
 use rayon::prelude::*;
 use serde::de::DeserializeOwned;
 use std::any::Any;
-
-/// A per-texel reflectance model over a `height x width` sample.
-pub trait ReflectanceModel: Sync {
-    /// Everything about one (view, light) pair that does not depend on the texel.
-    type Query: Send + Sync;
-    /// (height, width) in texels.
-    fn dims(&self) -> (usize, usize);
-    /// Prepare a query for unit directions `view` and `light` in the tangent frame.
-    fn query(&self, view: [f64; 3], light: [f64; 3]) -> Self::Query;
-    /// The model's RGB value at texel `t` (row-major index).
-    fn eval(&self, t: usize, q: &Self::Query) -> [f32; 3];
-}
-
-impl<M: ReflectanceModel + ?Sized> ReflectanceModel for &M {
-    type Query = M::Query;
-    fn dims(&self) -> (usize, usize) {
-        (**self).dims()
-    }
-    fn query(&self, view: [f64; 3], light: [f64; 3]) -> M::Query {
-        (**self).query(view, light)
-    }
-    #[inline]
-    fn eval(&self, t: usize, q: &M::Query) -> [f32; 3] {
-        (**self).eval(t, q)
-    }
-}
-
-/// Evaluation of one texel at one (view, light) pair without a prepared query: the object-safe
-/// form of [`ReflectanceModel`] that the CPU reference renderer uses (it prepares a query per
-/// fragment and light anyway).
-pub trait Shade: Sync {
-    /// (height, width) in texels.
-    fn shade_dims(&self) -> (usize, usize);
-    /// The RGB value at texel `t`.
-    fn shade(&self, t: usize, view: [f64; 3], light: [f64; 3]) -> [f32; 3];
-}
-
-impl<M: ReflectanceModel> Shade for M {
-    fn shade_dims(&self) -> (usize, usize) {
-        self.dims()
-    }
-    fn shade(&self, t: usize, view: [f64; 3], light: [f64; 3]) -> [f32; 3] {
-        self.eval(t, &self.query(view, light))
-    }
-}
 
 /// A fitted model: the contract a new model implements once (see CONTRIBUTING.md).
 pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
@@ -79,9 +34,17 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     const OPTIONS: &'static [crate::options::Spec];
     /// Example option sets `(label, JSON)` from small to large: what the demo and the bench fit.
     const EXAMPLES: &'static [(&'static str, &'static str)];
+    /// The cheapest option set (a JSON object) that still runs every stage of the fit: what the
+    /// tests fit where the data are large (the out-of-core checks); `""`: the first of
+    /// [`Model::EXAMPLES`]. A model whose fit time grows with an option the examples leave at
+    /// its default (a trained model's steps) names a smaller one here.
+    const SMALLEST: &'static str = "";
     /// The settings `btfrs.evaluate` sweeps (its quick sweep takes those marked `quick`); empty:
     /// the [`Model::EXAMPLES`], the first of them quick.
     const SWEEP: &'static [Setting] = &[];
+    /// What the bench measures beyond the examples, by role ([`Bench`]): a new model needs no
+    /// bench code, only the settings it wants measured in each role.
+    const BENCH: &'static [Bench] = &[];
     /// What sampling the fit needs, for `btfrs info`'s advice on a capture.
     const SAMPLING: Sampling;
     /// File formats of other tools the model can be written as (`"ptm"`, `"rti"`); the writers
@@ -118,7 +81,7 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     /// Whether [`Model::fit_screened`] runs the robust value screen inside the fit's own pass
     /// (each texel judged and, if need be, repaired as it is read), which needs every texel to
     /// be fitted from its own values alone. The others are screened before the fit, from a
-    /// repaired copy of the data ([`crate::robust::fit`]).
+    /// repaired copy of the data ([`crate::driver::fit`]).
     const SCREENS_TEXELS: bool = false;
     /// [`Model::fit`] with `screen` run on each texel inside the pass; called only when
     /// [`Model::SCREENS_TEXELS`].
@@ -133,6 +96,11 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
             format!("a {} fit does not screen its texels in its own pass", Self::KIND),
         ))
     }
+    /// Whether the fit is stochastic: trained by stochastic gradient descent on minibatches, so
+    /// another `seed` gives another model and another error (not only another rounding). What
+    /// holds of a deterministic fit ("the clean case is the best", equal results under a memory
+    /// limit) holds of such a model within its spread over seeds.
+    const STOCHASTIC: bool = false;
     /// How the fit splits over blocks of texels fitted apart (a Dask cluster's chunks,
     /// `btfrs.dask`): see [`crate::blockwise`]. The default is the safe answer for a new model.
     const BLOCKWISE: crate::blockwise::Blockwise =
@@ -237,6 +205,61 @@ impl Setting {
     /// With a note.
     pub const fn note(self, note: &'static str) -> Setting {
         Setting { note, ..self }
+    }
+}
+
+/// What each role of a [`Bench`] setting means to the bench (`python -m btfrs.tools.bench`, whose
+/// module doc says the same): the bench loops over the registry's settings by role and names no
+/// model, so a new model is benched by declaring its settings here, with no bench code.
+pub const BENCH_ROLES: &[(&str, &str)] = &[
+    ("foundation", "timed at each --size in the first table (beside the setting's peer) and in its accuracy table"),
+    ("reference", "the frame every other frame time is compared with (the 3x target), and the single-view summary's"),
+    ("env", "the setting rendered by --env-only (else the reference, else the first example)"),
+    ("models", "a row of the models table beyond the examples (with its peer's rows, if any)"),
+    ("per_material", "a row of the per-material accuracy table (--accuracy)"),
+    ("renderers", "rendered by each of the model's renderers, frame times and the PSNR between them"),
+    ("reach", "searched for the cheapest setting reaching 2% reconstruction error on every material"),
+    ("single_view", "fitted to the single-view RTI captures (--rti-only); a model with none fits its examples"),
+    ("no_single_view", "left out of the single-view captures (the note says why)"),
+    ("summary", "picked out in the single-view summary; the note is a peer tool's published figure"),
+    ("single_view_reference", "the classic setting an against_all model is compared with on single-view captures"),
+    ("against_all", "measured against every other model on accuracy per byte (--KIND-only)"),
+    ("tiles", "the domain of the Wang tile sets (--tiles-only)"),
+    ("big", "timed on a 128^2 x 81 x 81 sample (--KIND-big); the note is the target"),
+    ("out_of_core", "fitted by --out-of-core when --out-of-core-fits is not given"),
+    ("dask", "fitted locally and on a Dask cluster by --dask"),
+];
+
+/// A setting the bench measures and what for ([`BENCH_ROLES`]). `options` is a JSON object; an
+/// option given as a list is a grid, one setting per combination, its `{name}` in `label` filled
+/// in (`"LPCA {clusters}x{components}"`).
+#[derive(Debug, Clone, Copy)]
+pub struct Bench {
+    /// The row's label (a template where `options` holds lists).
+    pub label: &'static str,
+    /// The options, a JSON object.
+    pub options: &'static str,
+    /// What the bench measures it for: names of [`BENCH_ROLES`].
+    pub roles: &'static [&'static str],
+    /// A peer of `btfrs.tools.baselines.PEERS` doing the same work another way (numpy, scipy,
+    /// scikit-learn), timed and compared beside it; `""`: none.
+    pub peer: &'static str,
+    /// A note for its rows: the target it is held to, or a peer tool's published figure.
+    pub note: &'static str,
+}
+
+impl Bench {
+    /// A setting for `roles`.
+    pub const fn new(label: &'static str, options: &'static str, roles: &'static [&'static str]) -> Bench {
+        Bench { label, options, roles, peer: "", note: "" }
+    }
+    /// With a peer in `btfrs.tools.baselines`.
+    pub const fn peer(self, peer: &'static str) -> Bench {
+        Bench { peer, ..self }
+    }
+    /// With a note.
+    pub const fn note(self, note: &'static str) -> Bench {
+        Bench { note, ..self }
     }
 }
 

@@ -475,6 +475,9 @@ and whether training stopped early. Filtered lookups average the codes (`mip = \
     };
     const EXPORTS: &'static [&'static str] = &["neuralrti"];
     const TEXEL_ARRAYS: &'static [&'static str] = &["latents_q", "horizon_q"];
+    const STOCHASTIC: bool = true;
+    const SMALLEST: &'static str = r#"{"latents": 4, "hidden": 16, "steps": 300}"#;
+    const BENCH: &'static [crate::model::Bench] = &[crate::model::Bench::new("Neural-8", "{}", &["against_all"])];
     // Averaged latents were measured against supersampling (a plane at 40 repeats, bumps 16^2):
     // RMSE 0.086 against nearest lookups' 0.069, worse (the decoder is not linear in its codes);
     // appearance medoids keep every level a real texel's appearance.

@@ -1,8 +1,9 @@
 //! The option schema of a model's fit: every option's name, type, default, allowed values and
 //! one-line doc, written once in the model's file ([`crate::Model::OPTIONS`]).
 //!
-//! Everything else reads it: [`parse`] checks options given as JSON (the Python functions, the
-//! CLI's `--set`, Dask) and fills the defaults before serde builds the model's `Options` struct,
+//! Everything else reads it: [`build`] checks options given as [`Values`] (what the bindings make
+//! of a Python dict: the Python functions, the CLI's `--set`, Dask) and fills the defaults before
+//! serde builds the model's `Options` struct,
 //! so the struct's fields, the defaults and the checks cannot drift apart (the registry test
 //! `every_schema_builds_its_options` fails if a field is missing from either side);
 //! `btfrs.fit.<kind>`'s signature and docstring, `_native.pyi`, the CLI's model list and the docs'
@@ -11,6 +12,21 @@
 use btfrs_core::{Error, Result};
 use serde::de::DeserializeOwned;
 use serde_json::{Map, Value};
+
+/// Options as given, by name: what the bindings convert a Python dict of options to (each value
+/// converted once; no text in between), and what the registry's own facts (a model's examples,
+/// written as JSON objects in its file) are read as ([`parse_json`]).
+pub type Values = Map<String, Value>;
+
+/// Options written as a JSON object: the registry's facts (`Model::EXAMPLES`, `Setting`s,
+/// `Blockwise::Texels` overrides) and the tests.
+pub fn parse_json(json: &str) -> Result<Values> {
+    let v: Value = serde_json::from_str(json).map_err(|e| Error::arg("options", format!("not valid JSON: {e}")))?;
+    match v {
+        Value::Object(map) => Ok(map),
+        _ => Err(Error::arg("options", "expected a JSON object of option names")),
+    }
+}
 
 /// The type, default and allowed values of one option.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -158,10 +174,7 @@ impl Spec {
             _ => false,
         };
         if !typed {
-            return Err(Error::ArgumentType {
-                name: self.name.to_string(),
-                msg: format!("expected {}, got {v}", self.allowed()),
-            });
+            return Err(Error::value(self.name, v.clone(), self.allowed(), true));
         }
         let ok = match (self.kind, v) {
             (Kind::OptInt { .. }, Value::Null) => true,
@@ -185,24 +198,15 @@ impl Spec {
         if ok {
             Ok(())
         } else {
-            Err(Error::arg(self.name, format!("expected {}, got {v}", self.allowed())))
+            Err(Error::value(self.name, v.clone(), self.allowed(), false))
         }
     }
 }
 
-/// Check options given as a JSON object against `schema` (unknown names, types, ranges,
-/// choices: each error names the option, the value and what is allowed), fill the defaults and
-/// build the model's options struct.
-pub fn parse<O: DeserializeOwned>(schema: &[Spec], json: &str) -> Result<O> {
-    let v: Value = serde_json::from_str(json).map_err(|e| Error::arg("options", format!("not valid JSON: {e}")))?;
-    let Value::Object(map) = v else {
-        return Err(Error::arg("options", "expected a JSON object of option names"));
-    };
-    build(schema, map)
-}
-
-/// [`parse`] of an object already parsed.
-pub fn build<O: DeserializeOwned>(schema: &[Spec], mut map: Map<String, Value>) -> Result<O> {
+/// Check options against `schema` (unknown names, types, ranges, choices: each error names the
+/// option, the value and what is allowed), fill the defaults and build the model's options
+/// struct.
+pub fn build<O: DeserializeOwned>(schema: &[Spec], mut map: Values) -> Result<O> {
     check(schema, &map)?;
     for s in schema {
         map.entry(s.name).or_insert_with(|| s.default_value());
@@ -216,7 +220,7 @@ pub fn build<O: DeserializeOwned>(schema: &[Spec], mut map: Map<String, Value>) 
 
 /// Check options against `schema` without building them (the CLI checks `--set` before any
 /// work): unknown names, types, ranges, choices.
-pub fn check(schema: &[Spec], map: &Map<String, Value>) -> Result<()> {
+pub fn check(schema: &[Spec], map: &Values) -> Result<()> {
     for (k, v) in map {
         match schema.iter().find(|s| s.name == k) {
             Some(s) => s.check(v)?,
@@ -227,7 +231,12 @@ pub fn check(schema: &[Spec], map: &Map<String, Value>) -> Result<()> {
                 } else {
                     format!("expected one of {}", names.join(", "))
                 };
-                return Err(Error::arg(k, format!("unknown option; {expected}")));
+                let allowed = if names.is_empty() { "no option".to_string() } else { names.join(", ") };
+                return Err(Error::InvalidArgument {
+                    name: k.clone(),
+                    msg: format!("unknown option; {expected}"),
+                    detail: Some(Box::new(btfrs_core::Detail { value: v.clone(), allowed })),
+                });
             }
         }
     }
@@ -283,15 +292,10 @@ pub fn schema_json(schema: &[Spec]) -> Value {
     Value::Array(items)
 }
 
-/// Options of something that is not a model (a tile set's synthesis, ...) read by serde from a
-/// JSON object, naming the option at fault; models declare a schema instead ([`parse`]).
-pub fn from_serde<O: DeserializeOwned + Default>(json: &str) -> Result<O> {
-    let v: serde_json::Value =
-        serde_json::from_str(json).map_err(|e| Error::arg("options", format!("not valid JSON: {e}")))?;
-    let serde_json::Value::Object(map) = &v else {
-        return Err(Error::arg("options", "expected a JSON object of option names"));
-    };
-    match serde_json::from_value::<O>(v.clone()) {
+/// Options of something that is not a model (a tile set's synthesis, ...) read by serde,
+/// naming the option at fault; models declare a schema instead ([`build`]).
+pub fn from_serde<O: DeserializeOwned + Default>(map: &Values) -> Result<O> {
+    match serde_json::from_value::<O>(Value::Object(map.clone())) {
         Ok(o) => Ok(o),
         Err(whole) => {
             // serde names an unknown field but not the field of a type error: try each option
@@ -337,9 +341,10 @@ mod tests {
     fn defaults_fill_and_values_are_checked_against_the_schema() {
         let d: O = defaults(S);
         assert_eq!(d, O { n: 2, x: 0.5, c: "rgb".into(), k: None, b: true, seed: 0 });
-        let o: O = parse(S, r#"{"n": 7, "k": 3, "seed": 18446744073709551615}"#).unwrap();
+        let parse = |j: &str| parse_json(j).and_then(|m| build::<O>(S, m));
+        let o: O = parse(r#"{"n": 7, "k": 3, "seed": 18446744073709551615}"#).unwrap();
         assert_eq!((o.n, o.k, o.seed), (7, Some(3), u64::MAX));
-        let err = |j: &str| parse::<O>(S, j).unwrap_err().to_string();
+        let err = |j: &str| parse(j).unwrap_err().to_string();
         assert_eq!(err(r#"{"n": 8}"#), "n: expected an integer from 1 to 7, got 8");
         assert_eq!(err(r#"{"n": 2.5}"#), "n: expected an integer from 1 to 7, got 2.5");
         assert_eq!(err(r#"{"n": true}"#), "n: expected an integer from 1 to 7, got true");
@@ -352,9 +357,28 @@ mod tests {
         assert_eq!(err("[1]"), "options: expected a JSON object of option names");
         assert!(err("{").starts_with("options: not valid JSON"));
         assert_eq!(
-            parse::<O>(&[], r#"{"a": 1}"#).unwrap_err().to_string(),
+            build::<O>(&[], parse_json(r#"{"a": 1}"#).unwrap()).unwrap_err().to_string(),
             "a: unknown option; this model takes no options"
         );
+    }
+
+    #[test]
+    fn errors_carry_the_option_the_value_and_what_is_allowed() {
+        // The fields the bindings set on the Python exception, apart from the message.
+        let fields = |j: &str| {
+            let e = parse_json(j).and_then(|m| build::<O>(S, m)).unwrap_err();
+            let wrong_type = matches!(e, Error::ArgumentType { .. });
+            let (name, d) = e.argument().unwrap();
+            let d = d.unwrap();
+            (name.to_string(), d.value.clone(), d.allowed.clone(), wrong_type)
+        };
+        assert_eq!(fields(r#"{"n": 8}"#), ("n".into(), serde_json::json!(8), "an integer from 1 to 7".into(), false));
+        assert_eq!(
+            fields(r#"{"n": 2.5}"#),
+            ("n".into(), serde_json::json!(2.5), "an integer from 1 to 7".into(), true)
+        );
+        assert_eq!(fields(r#"{"c": "xyz"}"#).2, "\"rgb\", \"lrgb\" or \"ycc\"");
+        assert_eq!(fields(r#"{"nn": 1}"#), ("nn".into(), serde_json::json!(1), "n, x, c, k, b, seed".into(), false));
     }
 
     #[test]

@@ -42,7 +42,7 @@ mod slot;
 
 use crate::gpu::{words, GpuLayout, Shader};
 use crate::lightfit::{check_bits, fit_slots, Coeffs, LightBasis, Slot, SlotOptions};
-use crate::model::{average_texels, CoefficientFeatures, Mip, Model, ReflectanceModel, Sampling, Setting};
+use crate::model::{average_texels, Bench, CoefficientFeatures, Mip, Model, ReflectanceModel, Sampling, Setting};
 use crate::options::Spec;
 use crate::planes::Planes;
 use btfrs_core::btf::TexelScan;
@@ -579,6 +579,16 @@ a scale and a bias), so `nbytes` is what a viewer holds and `save_ptm` writes th
         &[("PTM-LRGB", r#"{"kind": "lrgb"}"#), ("PTM-RGB", r#"{"kind": "rgb"}"#)];
     const SWEEP: &'static [Setting] =
         &[Setting::quick("PTM-RGB", r#"{"kind": "rgb"}"#), Setting::full("PTM-LRGB", r#"{"kind": "lrgb"}"#)];
+    const BENCH: &'static [Bench] = &[
+        Bench::new("PTM-RGB", r#"{"kind": "rgb"}"#, &["foundation"])
+            .peer("ptm_rgb_numpy")
+            .note(">= 3x numpy, 1e-4 rel."),
+        Bench::new("PTM-LRGB", r#"{"kind": "lrgb"}"#, &["foundation"]),
+        Bench::new("PTM-RGB", r#"{"kind": "rgb"}"#, &["reference", "per_material", "single_view", "dask"]),
+        Bench::new("PTM-LRGB", r#"{"kind": "lrgb"}"#, &["per_material", "single_view"]),
+        Bench::new("PTM-RGB", r#"{"kind": "rgb"}"#, &["summary"]).note("relight PTM 34.9% in 26 KB"),
+        Bench::new("PTM", "{}", &["out_of_core"]),
+    ];
     const SAMPLING: Sampling = Sampling::PerView { min_lights: 6, why: "biquadratic" };
     const EXPORTS: &'static [&'static str] = &["ptm", "relight"];
     type Options = PtmOptions;

@@ -21,7 +21,7 @@
 //! with duplicate lights (a singular kernel matrix) is an error asking for a positive one.
 
 use crate::light_pca::{self, Colour, LightPca, PcaOptions};
-use crate::model::{average_texels, Mip, Model, Sampling};
+use crate::model::{average_texels, Bench, Mip, Model, Sampling};
 use crate::options::Spec;
 use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
 use nalgebra::DMatrix;
@@ -198,6 +198,17 @@ of a multi-view BTF with fewer than 6 present lights borrows the nearest views' 
         &[("RBF-9", r#"{"components": 9}"#), ("RBF-18", r#"{"components": 18}"#), ("RBF-27", r#"{"components": 27}"#)];
     const SAMPLING: Sampling = Sampling::PerView { min_lights: 3, why: "18 planes" };
     const TEXEL_ARRAYS: &'static [&'static str] = &["coeffs_q"];
+    // The single-view RTI captures: relight's sizes, the other table resolution, the YCC split.
+    const BENCH: &'static [Bench] = &[
+        Bench::new("RBF-{components}", r#"{"components": [3, 6, 9, 12, 18, 27]}"#, &["single_view"]),
+        Bench::new("RBF-{components} r8", r#"{"components": [3, 9, 18], "resolution": 8}"#, &["single_view"]),
+        Bench::new("RBF-YCC 9+3", r#"{"components": 9, "colour": "ycc", "chroma_components": 3}"#, &["single_view"]),
+        Bench::new("RBF-YCC 12+3", r#"{"components": 12, "colour": "ycc", "chroma_components": 3}"#, &["single_view"]),
+        Bench::new("RBF-YCC 18+4", r#"{"components": 18, "colour": "ycc", "chroma_components": 4}"#, &["single_view"]),
+        Bench::new("RBF-18", r#"{"components": 18}"#, &["summary", "single_view_reference"])
+            .note("relight RBF, 18 planes 24.6% in 85 KB"),
+        Bench::new("RBF-9", r#"{"components": 9}"#, &["dask"]),
+    ];
     const MIP: Mip = Mip::Average;
     type Options = RbfOptions;
     // Each value checked as the fit reads it (per block of texels; per view slot for the light bases).

@@ -3,8 +3,8 @@
 //! demo, the bench, the docs) asks it, so a new model is registered by one line in [`MODELS`]
 //! (see CONTRIBUTING.md), and every fact about a model is read from its entry ([`describe`]).
 
-use crate::model::{DynModel, Mip, Model, Sampling, Setting};
-use crate::options::{self, Spec};
+use crate::model::{Bench, DynModel, Mip, Model, Sampling, Setting};
+use crate::options::{self, Spec, Values};
 use btfrs_core::{BtfRef, Error, Monitor, NamedArrays, Result};
 use serde_json::{json, Value};
 
@@ -33,8 +33,8 @@ pub struct Entry {
     pub exports: &'static [&'static str],
     /// [`Model::MIP`].
     pub mip: Mip,
-    /// Fit with options given as a JSON object.
-    pub fit: fn(&BtfRef<'_>, &str, &Monitor) -> Result<Box<dyn DynModel>>,
+    /// Fit with options by name (checked against [`Entry::options`]).
+    pub fit: fn(&BtfRef<'_>, &Values, &Monitor) -> Result<Box<dyn DynModel>>,
     /// [`Model::from_arrays`].
     pub from_arrays: fn(&NamedArrays) -> Result<Box<dyn DynModel>>,
     /// [`Model::shaders`].
@@ -43,14 +43,20 @@ pub struct Entry {
     pub texel_arrays: &'static [&'static str],
     /// [`Model::SCANS_VALUES`]: the fit checks the values itself, in its own pass.
     pub scans_values: bool,
-    /// [`Model::fit_screened`] with options given as a JSON object, for the models that
+    /// [`Model::fit_screened`] with options by name, for the models that
     /// [`Model::SCREENS_TEXELS`].
     pub fit_screened: Option<FitScreened>,
     /// [`Model::BLOCKWISE`].
     pub blockwise: crate::blockwise::Blockwise,
     /// Rebuild from the stitched arrays of a blockwise fit and [`Model::finish_blocks`] with
-    /// options given as a JSON object (those of the whole fit, not the blocks').
-    pub finish_blocks: fn(&NamedArrays, &str) -> Result<Box<dyn DynModel>>,
+    /// options by name (those of the whole fit, not the blocks').
+    pub finish_blocks: fn(&NamedArrays, &Values) -> Result<Box<dyn DynModel>>,
+    /// [`Model::STOCHASTIC`].
+    pub stochastic: bool,
+    /// [`Model::SMALLEST`] (`""`: the first example).
+    pub smallest: &'static str,
+    /// [`Model::BENCH`].
+    pub bench: &'static [Bench],
 }
 
 impl Entry {
@@ -65,16 +71,55 @@ impl Entry {
             .map(|(i, &(label, options))| Setting { label, options, quick: i == 0, note: "" })
             .collect()
     }
+
+    /// The bench's settings ([`Model::BENCH`]) with their grids expanded: `(label, options,
+    /// setting)` per combination, in the order written (a grid's options in name order, the
+    /// first varying slowest).
+    pub fn bench_settings(&self) -> Result<Vec<(String, Values, &'static Bench)>> {
+        let mut out = Vec::new();
+        for b in self.bench {
+            let base = options::parse_json(b.options)?;
+            let mut combos: Vec<(String, Values)> = vec![(b.label.to_string(), Values::new())];
+            for (name, v) in &base {
+                let choices = match v {
+                    Value::Array(a) => a.clone(),
+                    other => vec![other.clone()],
+                };
+                combos = combos
+                    .into_iter()
+                    .flat_map(|(label, o)| {
+                        choices.iter().map(move |c| {
+                            let mut o = o.clone();
+                            o.insert(name.clone(), c.clone());
+                            (label.replace(&format!("{{{name}}}"), &c.to_string()), o)
+                        })
+                    })
+                    .collect();
+            }
+            out.extend(combos.into_iter().map(|(label, o)| (label, o, b)));
+        }
+        Ok(out)
+    }
+
+    /// [`Entry::fit`] with the options written as a JSON object: the registry's own facts (an
+    /// example, a sweep setting) and the tests.
+    pub fn fit_json(&self, btf: &BtfRef<'_>, options: &str, monitor: &Monitor) -> Result<Box<dyn DynModel>> {
+        (self.fit)(btf, &options::parse_json(options)?, monitor)
+    }
 }
 
-fn fit_erased<M: Model + std::fmt::Debug>(btf: &BtfRef<'_>, options: &str, mon: &Monitor) -> Result<Box<dyn DynModel>> {
+fn fit_erased<M: Model + std::fmt::Debug>(
+    btf: &BtfRef<'_>,
+    options: &Values,
+    mon: &Monitor,
+) -> Result<Box<dyn DynModel>> {
     let o = checked_options::<M>(btf, options, mon)?;
     Ok(Box::new(M::fit(btf, &o, mon)?))
 }
 
-/// The model's options from their JSON object, with the memory limit checked against the
-/// least the fit of `btf` needs and set on `mon`.
-fn checked_options<M: Model>(btf: &BtfRef<'_>, options: &str, mon: &Monitor) -> Result<M::Options> {
+/// The model's options, with the memory limit checked against the least the fit of `btf`
+/// needs and set on `mon`.
+fn checked_options<M: Model>(btf: &BtfRef<'_>, options: &Values, mon: &Monitor) -> Result<M::Options> {
     let (map, limit) = take_memory_limit(options)?;
     let o: M::Options = options::build(M::OPTIONS, map)?;
     if let Some(limit) = limit {
@@ -99,28 +144,28 @@ fn checked_options<M: Model>(btf: &BtfRef<'_>, options: &str, mon: &Monitor) -> 
 
 /// The option every fit takes besides its own: `memory_limit`, the anonymous memory in bytes
 /// the fit may allocate besides the model it returns (out-of-core fitting of memory-mapped
-/// BTFs); taken out of the JSON object before the model's options are checked.
-pub(crate) fn take_memory_limit(options: &str) -> Result<(serde_json::Map<String, Value>, Option<u64>)> {
-    let v: Value = serde_json::from_str(options).map_err(|e| Error::arg("options", format!("not valid JSON: {e}")))?;
-    let Value::Object(mut map) = v else {
-        return Err(Error::arg("options", "expected a JSON object of option names"));
-    };
+/// BTFs); taken out of the options before the model's own are checked.
+pub(crate) fn take_memory_limit(options: &Values) -> Result<(Values, Option<u64>)> {
+    let mut map = options.clone();
     let limit = match map.remove("memory_limit") {
         None | Some(Value::Null) => None,
         Some(v) => match v.as_u64() {
             Some(b) if b > 0 => Some(b),
-            _ => return Err(Error::arg("memory_limit", format!("expected a positive number of bytes, got {v}"))),
+            _ => {
+                let wrong_type = !v.is_number();
+                return Err(Error::value("memory_limit", v, "a positive number of bytes", wrong_type));
+            }
         },
     };
     Ok((map, limit))
 }
 
 /// A fit with the value screen inside its pass ([`Entry::fit_screened`]).
-pub type FitScreened = fn(&BtfRef<'_>, &str, &crate::robust::TexelScreen<'_>, &Monitor) -> Result<Box<dyn DynModel>>;
+pub type FitScreened = fn(&BtfRef<'_>, &Values, &crate::robust::TexelScreen<'_>, &Monitor) -> Result<Box<dyn DynModel>>;
 
 fn fit_screened_erased<M: Model + std::fmt::Debug>(
     btf: &BtfRef<'_>,
-    options: &str,
+    options: &Values,
     screen: &crate::robust::TexelScreen<'_>,
     mon: &Monitor,
 ) -> Result<Box<dyn DynModel>> {
@@ -132,7 +177,7 @@ fn from_arrays_erased<M: Model + std::fmt::Debug>(a: &NamedArrays) -> Result<Box
     Ok(Box::new(M::from_arrays(a)?))
 }
 
-fn finish_blocks_erased<M: Model + std::fmt::Debug>(a: &NamedArrays, options: &str) -> Result<Box<dyn DynModel>> {
+fn finish_blocks_erased<M: Model + std::fmt::Debug>(a: &NamedArrays, options: &Values) -> Result<Box<dyn DynModel>> {
     let (map, _) = take_memory_limit(options)?;
     let o: M::Options = options::build(M::OPTIONS, map)?;
     Ok(Box::new(M::from_arrays(a)?.finish_blocks(&o)?))
@@ -160,6 +205,9 @@ pub const fn entry<M: Model + std::fmt::Debug>() -> Entry {
         fit_screened: if M::SCREENS_TEXELS { Some(fit_screened_erased::<M>) } else { None },
         blockwise: M::BLOCKWISE,
         finish_blocks: finish_blocks_erased::<M>,
+        stochastic: M::STOCHASTIC,
+        smallest: if M::SMALLEST.is_empty() { M::EXAMPLES[0].1 } else { M::SMALLEST },
+        bench: M::BENCH,
     }
 }
 
@@ -186,14 +234,14 @@ pub fn lookup(kind: &str) -> Result<&'static Entry> {
     })
 }
 
-/// Fit model `kind` with options as a JSON object (`"{}"` for the defaults).
-pub fn fit(kind: &str, btf: &BtfRef<'_>, options: &str, monitor: &Monitor) -> Result<Box<dyn DynModel>> {
+/// Fit model `kind` with options by name (empty for the defaults).
+pub fn fit(kind: &str, btf: &BtfRef<'_>, options: &Values, monitor: &Monitor) -> Result<Box<dyn DynModel>> {
     (lookup(kind)?.fit)(btf, options, monitor)
 }
 
-/// Check options (a JSON object) for model `kind` as its fit would, without fitting: the CLI
-/// checks `--set` before reading any data.
-pub fn check_options(kind: &str, options: &str) -> Result<()> {
+/// Check options for model `kind` as its fit would, without fitting: the CLI checks `--set`
+/// before reading any data.
+pub fn check_options(kind: &str, options: &Values) -> Result<()> {
     let e = lookup(kind)?;
     let (map, _) = take_memory_limit(options)?;
     options::check(e.options, &map)
@@ -202,6 +250,11 @@ pub fn check_options(kind: &str, options: &str) -> Result<()> {
 /// Rebuild model `kind` from its arrays.
 pub fn from_arrays(kind: &str, arrays: &NamedArrays) -> Result<Box<dyn DynModel>> {
     (lookup(kind)?.from_arrays)(arrays)
+}
+
+/// A JSON object of the registry's own facts as a value (checked by `every_schema_builds_its_options`).
+fn fact(json: &str) -> Value {
+    Value::Object(options::parse_json(json).unwrap_or_default())
 }
 
 /// Every fact of every model as JSON: what the Python API, the CLI and the docs are built from.
@@ -222,8 +275,8 @@ pub fn describe() -> Value {
                     "about": e.about,
                     "options": options::schema_json(e.options),
                     "renderers": e.renderers,
-                    "examples": e.examples.iter().map(|(l, o)| json!([l, o])).collect::<Vec<_>>(),
-                    "sweep": e.sweep().iter().map(|s| json!({"label": s.label, "options": s.options, "quick": s.quick, "note": s.note})).collect::<Vec<_>>(),
+                    "examples": e.examples.iter().map(|(l, o)| json!([l, fact(o)])).collect::<Vec<_>>(),
+                    "sweep": e.sweep().iter().map(|s| json!({"label": s.label, "options": fact(s.options), "quick": s.quick, "note": s.note})).collect::<Vec<_>>(),
                     "sampling": sampling,
                     "exports": e.exports,
                     "mip": e.mip.name(),
@@ -231,6 +284,11 @@ pub fn describe() -> Value {
                     "scans_values": e.scans_values,
                     "blockwise": blockwise,
                     "blockwise_note": why,
+                    "stochastic": e.stochastic,
+                    "smallest": fact(e.smallest),
+                    "bench": e.bench_settings().unwrap_or_default().into_iter().map(|(label, o, b)| json!({
+                        "label": label, "options": o, "roles": b.roles, "peer": b.peer, "note": b.note,
+                    })).collect::<Vec<_>>(),
                 })
             })
             .collect(),
@@ -320,7 +378,7 @@ mod tests {
             d.map(|x| x / n)
         };
         for e in MODELS {
-            let m = (e.fit)(&b, e.examples[0].1, &Monitor::new()).unwrap();
+            let m = e.fit_json(&b, e.examples[0].1, &Monitor::new()).unwrap();
             assert_eq!(m.kind(), e.kind);
             let a = m.to_arrays();
             let r = from_arrays(e.kind, &a).unwrap();
@@ -357,7 +415,7 @@ mod tests {
                 b.mask = Some(&mask);
                 let want = btfrs_core::btf::check_finite("data", &data).unwrap_err().to_string();
                 for (label, options) in e.examples {
-                    let got = (e.fit)(&b, options, &Monitor::new()).unwrap_err().to_string();
+                    let got = e.fit_json(&b, options, &Monitor::new()).unwrap_err().to_string();
                     assert_eq!(got, want, "{label}, non-finite at {at}");
                 }
             }
@@ -371,7 +429,7 @@ mod tests {
         // have one.
         let btf = sample();
         for e in MODELS {
-            let m = (e.fit)(&btf.as_ref(), e.examples[0].1, &Monitor::new()).unwrap();
+            let m = e.fit_json(&btf.as_ref(), e.examples[0].1, &Monitor::new()).unwrap();
             let r = m.renderer(e.renderers[0], 2048).unwrap();
             let words: usize = r.gpu_parts().iter().map(|p| p.len()).sum::<usize>() + r.gpu_constants().len();
             assert_eq!(m.nbytes(), 4 * words + r.gpu_volume().map_or(0, |v| v.texels.len()), "{}", e.kind);
@@ -382,7 +440,10 @@ mod tests {
     fn options_errors_name_the_option_the_value_and_what_is_allowed() {
         let btf = sample();
         let b = btf.as_ref();
-        let err = |kind: &str, o: &str| fit(kind, &b, o, &Monitor::new()).unwrap_err().to_string();
+        let err = |kind: &str, o: &str| {
+            options::parse_json(o).and_then(|o| fit(kind, &b, &o, &Monitor::new())).unwrap_err().to_string()
+        };
+        let check = |kind: &str, o: &str| check_options(kind, &options::parse_json(o).unwrap());
         assert_eq!(err("lafortune", r#"{"lobes": 2.9}"#), "lobes: expected an integer from 1 to 7, got 2.9");
         assert_eq!(err("lpca", r#"{"clusters": -1}"#), "clusters: expected an integer >= 1, got -1");
         assert!(err("ptm", r#"{"knd": "rgb"}"#).starts_with("knd: unknown option; expected one of kind, rcond,"));
@@ -395,11 +456,12 @@ mod tests {
         assert_eq!(err("srf", r#"{"x": 1}"#), "x: unknown option; this model takes no options");
         assert!(err("nope", "{}").contains("unknown model \"nope\""));
         assert_eq!(err("ptm", "[1]"), "options: expected a JSON object of option names");
-        assert!(check_options("rbf", r#"{"width": 0}"#)
-            .unwrap_err()
-            .to_string()
-            .starts_with("width: expected a number > 0"));
-        assert!(check_options("rbf", r#"{"width": 1, "memory_limit": 1000000}"#).is_ok());
+        assert!(check("rbf", r#"{"width": 0}"#).unwrap_err().to_string().starts_with("width: expected a number > 0"));
+        assert!(check("rbf", r#"{"width": 1, "memory_limit": 1000000}"#).is_ok());
+        assert_eq!(
+            check("rbf", r#"{"memory_limit": -3}"#).unwrap_err().to_string(),
+            "memory_limit: expected a positive number of bytes, got -3"
+        );
     }
 
     #[test]
@@ -415,17 +477,34 @@ mod tests {
                 assert!(names.insert(s.name), "{}: option {} twice", e.kind, s.name);
                 assert!(!s.doc.is_empty(), "{}.{}", e.kind, s.name);
                 s.check(&s.default_value()).unwrap_or_else(|x| panic!("{}: default of {}: {x}", e.kind, s.name));
-                check_options(e.kind, &json!({ s.name: s.default_value() }).to_string()).unwrap();
+                check_options(e.kind, &Values::from_iter([(s.name.to_string(), s.default_value())])).unwrap();
             }
             for st in e.sweep() {
-                check_options(e.kind, st.options).unwrap_or_else(|x| panic!("{} {}: {x}", e.kind, st.label));
+                options::parse_json(st.options)
+                    .and_then(|o| check_options(e.kind, &o))
+                    .unwrap_or_else(|x| panic!("{} {}: {x}", e.kind, st.label));
             }
             assert!(e.sweep().iter().any(|s| s.quick), "{}: no quick setting", e.kind);
-            for (label, o) in e.examples {
-                check_options(e.kind, o).unwrap_or_else(|x| panic!("{} {label}: {x}", e.kind));
+            // The bench's settings: every combination passes the checks, its label filled in,
+            // every role known.
+            for (label, o, b) in e.bench_settings().unwrap_or_else(|x| panic!("{}: bench: {x}", e.kind)) {
+                assert!(!label.contains('{'), "{}: {label}: a placeholder without its option", e.kind);
+                check_options(e.kind, &o).unwrap_or_else(|x| panic!("{} {label}: {x}", e.kind));
+                for r in b.roles {
+                    assert!(
+                        crate::model::BENCH_ROLES.iter().any(|k| k.0 == *r),
+                        "{} {label}: unknown bench role {r}",
+                        e.kind
+                    );
+                }
+            }
+            for (label, o) in e.examples.iter().chain([&("smallest", e.smallest)]) {
+                options::parse_json(o)
+                    .and_then(|o| check_options(e.kind, &o))
+                    .unwrap_or_else(|x| panic!("{} {label}: {x}", e.kind));
             }
             // The defaults fit (an error naming the options struct would mean a schema mismatch).
-            if let Err(x) = fit(e.kind, &btf.as_ref(), "{}", &Monitor::new()) {
+            if let Err(x) = fit(e.kind, &btf.as_ref(), &Values::new(), &Monitor::new()) {
                 assert!(!x.to_string().contains("internal"), "{}: {x}", e.kind);
             }
         }
@@ -439,13 +518,25 @@ mod tests {
         for (m, e) in a.iter().zip(MODELS) {
             assert_eq!(m["kind"], e.kind);
             assert_eq!(m["options"].as_array().unwrap().len(), e.options.len());
-            for key in ["doc", "about", "renderers", "examples", "sweep", "sampling", "exports", "blockwise"] {
+            for key in [
+                "doc",
+                "about",
+                "renderers",
+                "examples",
+                "sweep",
+                "sampling",
+                "exports",
+                "blockwise",
+                "stochastic",
+                "smallest",
+            ] {
                 assert!(!m[key].is_null(), "{} lacks {key}", e.kind);
             }
         }
         let ptm = &a[0];
         assert_eq!(ptm["options"][0]["choices"], json!(["rgb", "lrgb"]));
         assert_eq!(ptm["exports"], json!(["ptm", "relight"]));
+        assert_eq!(ptm["examples"][0][1], json!({"kind": "lrgb"}));
     }
 
     #[test]
@@ -454,7 +545,7 @@ mod tests {
         // each rebuild is an error naming some array, never a panic.
         let btf = sample();
         for e in MODELS {
-            let m = (e.fit)(&btf.as_ref(), e.examples[0].1, &Monitor::new()).unwrap();
+            let m = e.fit_json(&btf.as_ref(), e.examples[0].1, &Monitor::new()).unwrap();
             let a = m.to_arrays();
             for (name, arr) in a.iter() {
                 let mut shapes = vec![vec![0; arr.shape.len()]];

@@ -56,7 +56,9 @@ mod quantize;
 pub mod wgsl;
 
 use crate::gpu::{GpuLayout, Shader};
-use crate::model::{average_texels, CoefficientFeatures, Mip, Model, ReflectanceModel, Sampling, Setting, ShExpansion};
+use crate::model::{
+    average_texels, Bench, CoefficientFeatures, Mip, Model, ReflectanceModel, Sampling, Setting, ShExpansion,
+};
 use crate::options::Spec;
 use btfrs_core::btf::TexelScan;
 
@@ -761,6 +763,15 @@ section 4: `btfrs.render(..., environment=env, lighting=\"sh\")`).";
             r#"{"light_coeffs": 25, "view_coeffs": 25, "cls": false, "quantize": false}"#,
         )
         .note(FLOAT_NOTE),
+    ];
+    const BENCH: &'static [Bench] = &[
+        Bench::new("SH-CLS 25x25", r#"{"light_coeffs": 25, "view_coeffs": 25}"#, &["env", "per_material"]),
+        Bench::new("SH-CLS 36x25", r#"{"light_coeffs": 36, "view_coeffs": 25}"#, &["models"]),
+        Bench::new("SH-LS 25x25 (no CLS)", r#"{"light_coeffs": 25, "view_coeffs": 25, "cls": false}"#, &["models"])
+            .peer("sh_numpy_lstsq"),
+        Bench::new("SH-CLS 1x{light_coeffs}", r#"{"light_coeffs": [9, 16, 25], "view_coeffs": 1}"#, &["single_view"]),
+        Bench::new("SH-CLS 16x16", r#"{"light_coeffs": 16, "view_coeffs": 16}"#, &["tiles"]),
+        Bench::new("SH-CLS 25x25", r#"{"light_coeffs": 25, "view_coeffs": 25}"#, &["big"]).note("target <= 1.0 s"),
     ];
     const SAMPLING: Sampling = Sampling::Any { note: "over all pairs", one_view: "view_coeffs=1 for a single view" };
     const MIP: Mip = Mip::Average;

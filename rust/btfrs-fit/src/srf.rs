@@ -22,7 +22,7 @@
 //! (section 5).
 
 use crate::gpu::{words, GpuLayout, Shader};
-use crate::model::{Model, NoOptions, ReflectanceModel, Sampling};
+use crate::model::{Bench, Model, NoOptions, ReflectanceModel, Sampling};
 use crate::options::Spec;
 use btfrs_core::btf::TexelScan;
 use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, NamedArrays, Result};
@@ -558,6 +558,10 @@ every texel (section 5). `model.report` gives the relative error of Phong alone 
 Phong + SRF on the fitted pairs.";
     const OPTIONS: &'static [Spec] = &[];
     const EXAMPLES: &'static [(&'static str, &'static str)] = &[("Phong+SRF", "{}")];
+    const BENCH: &'static [Bench] = &[
+        Bench::new("Phong+SRF", "{}", &["per_material"]),
+        Bench::new("", "{}", &["no_single_view"]).note("its residual spans the views; on one view it is a Phong fit"),
+    ];
     const SAMPLING: Sampling =
         Sampling::Any { note: "over all pairs", one_view: "one view: the lobes see no view dependence" };
     type Options = NoOptions;

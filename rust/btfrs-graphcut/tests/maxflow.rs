@@ -278,7 +278,7 @@ fn small_grids_against_brute_force() {
 
 fn arg_error<T: std::fmt::Debug>(r: btfrs_core::Result<T>) -> (String, String) {
     match r {
-        Err(Error::InvalidArgument { name, msg }) => (name, msg),
+        Err(Error::InvalidArgument { name, msg, .. }) => (name, msg),
         other => panic!("expected an InvalidArgument error, got {other:?}"),
     }
 }

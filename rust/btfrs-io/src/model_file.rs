@@ -95,7 +95,7 @@ mod tests {
         let btf = generate(&MaterialSpec::new(Preset::Weave, 8, 1), &Monitor::new()).unwrap();
         let dir = tempfile::tempdir().unwrap();
         for e in registry::MODELS {
-            let m = (e.fit)(&btf.as_ref(), e.examples[0].1, &Monitor::new()).unwrap();
+            let m = e.fit_json(&btf.as_ref(), e.examples[0].1, &Monitor::new()).unwrap();
             let p = dir.path().join(format!("{}.btfrs", e.kind));
             save_model(&p, m.as_ref(), serde_json::json!({"fit_seconds": 1.5})).unwrap();
             let (r, meta) = load_model(&p).unwrap();

@@ -1405,7 +1405,7 @@ mod tests {
 
     fn arg_error(img: &PtmImage) -> (String, String) {
         match encode_ptm(img) {
-            Err(Error::InvalidArgument { name, msg }) => (name, msg),
+            Err(Error::InvalidArgument { name, msg, .. }) => (name, msg),
             other => panic!("expected an invalid-argument error, got {other:?}"),
         }
     }

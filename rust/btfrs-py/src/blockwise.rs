@@ -4,9 +4,11 @@
 
 use crate::arrays::{borrow, check_shape, dirs};
 use crate::core::BtfArgs;
-use crate::errors::{arg, IntoPy};
+use crate::errors::{arg, to_py, IntoPy};
 use crate::models::{named_arrays, PyModel};
 use crate::run::{detach, guarded};
+use crate::values;
+use btfrs_fit::light_bases::Basis;
 use btfrs_fit::light_pca::staged as lp;
 use btfrs_fit::lpca::{staged, ClusterFit, LpcaOptions};
 use btfrs_fit::{registry, srf};
@@ -39,19 +41,36 @@ fn mask_of<'a>(
     }
 }
 
-/// How model `kind` splits over texel blocks: `("texels", overrides JSON, report counts)`,
-/// `("staged", "", [])` or `("unsupported", reason, [])`.
+/// How model `kind` splits over texel blocks: `(strategy, detail, overrides, counts)`:
+/// `("texels", "", overrides, report counts)`, `("staged", protocol, {}, [])` or
+/// `("unsupported", reason, {}, [])`; `overrides` (a dict) are the options merged into the
+/// user's for the per-block fits.
 #[pyfunction]
-pub fn blockwise_plan(kind: &str) -> PyResult<(&'static str, &'static str, &'static [&'static str])> {
-    Ok(registry::lookup(kind).py()?.blockwise.describe())
+pub fn blockwise_plan<'py>(py: Python<'py>, kind: &str) -> PyResult<BlockwisePlan<'py>> {
+    let (strategy, detail, counts) = registry::lookup(kind).py()?.blockwise.describe();
+    let (detail, overrides) = match strategy {
+        "texels" => ("", btfrs_fit::options::parse_json(detail).py()?),
+        _ => (detail, btfrs_fit::options::Values::new()),
+    };
+    let overrides = values::to_py(py, &serde_json::Value::Object(overrides))?;
+    Ok((strategy, detail, overrides, counts))
 }
+
+/// What [`blockwise_plan`] returns.
+type BlockwisePlan<'py> = (&'static str, &'static str, Bound<'py, PyAny>, &'static [&'static str]);
 
 /// Model `kind` from the stitched arrays of its blocks, finished for the whole fit's options.
 #[pyfunction]
-pub fn finish_blocks(py: Python<'_>, kind: &str, arrays: &Bound<'_, PyDict>, options_json: &str) -> PyResult<PyModel> {
+pub fn finish_blocks(
+    py: Python<'_>,
+    kind: &str,
+    arrays: &Bound<'_, PyDict>,
+    options: &Bound<'_, PyDict>,
+) -> PyResult<PyModel> {
     let entry = registry::lookup(kind).py()?;
     let a = named_arrays(arrays)?;
-    let inner = detach(py, || (entry.finish_blocks)(&a, options_json))?;
+    let o = values::options(Some(options))?;
+    let inner = detach(py, || (entry.finish_blocks)(&a, &o.values).map_err(|e| o.spell(e)))?;
     Ok(PyModel { inner, robust: serde_json::Value::Null })
 }
 
@@ -124,8 +143,9 @@ pub fn srf_residual<'py>(
     Ok((s.into_pyarray(py).reshape(vec![b.height, b.width, 3, 3])?, sums))
 }
 
-fn lpca_options(json: &str) -> PyResult<LpcaOptions> {
-    staged::parse_options(json).py()
+fn lpca_options(options: &Bound<'_, PyDict>) -> PyResult<LpcaOptions> {
+    let o = values::options(Some(options))?;
+    staged::parse_options(&o.values).map_err(|e| to_py(o.spell(e)))
 }
 
 /// `[n, d]` float32 borrowed as a slice with `d`.
@@ -140,9 +160,9 @@ pub fn lpca_sample<'py>(
     py: Python<'py>,
     height: usize,
     width: usize,
-    options_json: &str,
+    options: &Bound<'_, PyDict>,
 ) -> PyResult<Option<Bound<'py, PyArrayDyn<u32>>>> {
-    let o = lpca_options(options_json)?;
+    let o = lpca_options(options)?;
     let pick = detach(py, || staged::sample(height, width, &o))?;
     pick.map(|p| vec1(py, p)).transpose()
 }
@@ -154,9 +174,9 @@ pub fn lpca_subspace<'py>(
     sample: &Bound<'py, PyAny>,
     height: usize,
     width: usize,
-    options_json: &str,
+    options: &Bound<'_, PyDict>,
 ) -> PyResult<(F32Array<'py>, F32Array<'py>)> {
-    let o = lpca_options(options_json)?;
+    let o = lpca_options(options)?;
     let s = borrow::<f32>("sample", sample)?;
     let (x, d) = texel_rows("sample", &s)?;
     let (mu, q) = detach(py, || {
@@ -200,9 +220,9 @@ pub fn lpca_cluster<'py>(
     z: &Bound<'py, PyAny>,
     height: usize,
     width: usize,
-    options_json: &str,
+    options: &Bound<'_, PyDict>,
 ) -> PyResult<(Bound<'py, PyArrayDyn<u32>>, Vec<Bound<'py, PyArrayDyn<u32>>>)> {
-    let o = lpca_options(options_json)?;
+    let o = lpca_options(options)?;
     let z = borrow::<f32>("z", z)?;
     let (x, l) = texel_rows("z", &z)?;
     let zm = DMatrix::from_row_slice(x.len() / l.max(1), l, x);
@@ -222,9 +242,9 @@ pub fn lpca_fit_cluster<'py>(
     height: usize,
     width: usize,
     index: usize,
-    options_json: &str,
+    options: &Bound<'_, PyDict>,
 ) -> PyResult<(Bound<'py, PyArrayDyn<u8>>, F32Array<'py>, F32Array<'py>, F32Array<'py>)> {
-    let o = lpca_options(options_json)?;
+    let o = lpca_options(options)?;
     let m = borrow::<f32>("members", members)?;
     let (x, d) = texel_rows("members", &m)?;
     let n = x.len() / d.max(1);
@@ -245,7 +265,7 @@ pub fn lpca_fit_cluster<'py>(
 
 /// LPCA stage 5: the model from the clusters and their fits (tuples of [`lpca_fit_cluster`]).
 #[pyfunction]
-#[pyo3(signature = (height, width, views, lights, mask, ids, members, fits, options_json))]
+#[pyo3(signature = (height, width, views, lights, mask, ids, members, fits, options))]
 #[allow(clippy::too_many_arguments)]
 pub fn lpca_assemble<'py>(
     py: Python<'py>,
@@ -257,9 +277,9 @@ pub fn lpca_assemble<'py>(
     ids: &Bound<'py, PyAny>,
     members: Vec<Bound<'py, PyAny>>,
     fits: Vec<ClusterFitArgs<'py>>,
-    options_json: &str,
+    options: &Bound<'_, PyDict>,
 ) -> PyResult<PyModel> {
-    let o = lpca_options(options_json)?;
+    let o = lpca_options(options)?;
     let (v, l) = (borrow::<f64>("views", views)?, borrow::<f64>("lights", lights)?);
     let mk = mask.map(|m| borrow::<bool>("mask", m)).transpose()?;
     let (v, l) = (dirs("views", &v)?, dirs("lights", &l)?);
@@ -291,8 +311,9 @@ pub fn lpca_assemble<'py>(
 /// Moments as they cross into Python: `(n, mean [V, d] float64, m2 [V, d, d] float64)`.
 type MomentsArgs<'py> = (u64, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>);
 
-fn basis_of(kind: &str, options_json: &str) -> PyResult<lp::Basis> {
-    lp::Basis::parse(kind, options_json).py()
+fn basis_of(kind: &str, options: &Bound<'_, PyDict>) -> PyResult<Basis> {
+    let o = values::options(Some(options))?;
+    Basis::parse(kind, &o.values).map_err(|e| to_py(o.spell(e)))
 }
 
 fn moments_to_py(py: Python<'_>, m: lp::Moments) -> PyResult<MomentsArgs<'_>> {
@@ -318,7 +339,7 @@ fn moments_from_py(m: &MomentsArgs<'_>) -> PyResult<lp::Moments> {
 /// released), with the view directions.
 fn plan_of<'py>(
     py: Python<'py>,
-    basis: &lp::Basis,
+    basis: &Basis,
     views: &Bound<'py, PyAny>,
     lights: &Bound<'py, PyAny>,
     mask: Option<&Bound<'py, PyAny>>,
@@ -333,7 +354,7 @@ fn plan_of<'py>(
 
 /// RBF / bilinear stage 2 on one block: the moments of its resampled light functions.
 #[pyfunction]
-#[pyo3(signature = (kind, data, views, lights, mask, options_json))]
+#[pyo3(signature = (kind, data, views, lights, mask, options))]
 pub fn light_pca_moments<'py>(
     py: Python<'py>,
     kind: &str,
@@ -341,9 +362,9 @@ pub fn light_pca_moments<'py>(
     views: &Bound<'py, PyAny>,
     lights: &Bound<'py, PyAny>,
     mask: Option<&Bound<'py, PyAny>>,
-    options_json: &str,
+    options: &Bound<'_, PyDict>,
 ) -> PyResult<MomentsArgs<'py>> {
-    let basis = basis_of(kind, options_json)?;
+    let basis = basis_of(kind, options)?;
     let args = BtfArgs::new(data, views, lights, mask)?;
     let b = args.btf()?;
     let m = detach(py, || {
@@ -364,7 +385,7 @@ pub fn light_pca_merge<'py>(py: Python<'py>, a: MomentsArgs<'py>, b: MomentsArgs
 
 /// RBF / bilinear stage 4: the model's table `[V, n, n, R]` float32 from all texels' moments.
 #[pyfunction]
-#[pyo3(signature = (kind, moments, views, lights, mask, options_json))]
+#[pyo3(signature = (kind, moments, views, lights, mask, options))]
 pub fn light_pca_table<'py>(
     py: Python<'py>,
     kind: &str,
@@ -372,9 +393,9 @@ pub fn light_pca_table<'py>(
     views: &Bound<'py, PyAny>,
     lights: &Bound<'py, PyAny>,
     mask: Option<&Bound<'py, PyAny>>,
-    options_json: &str,
+    options: &Bound<'_, PyDict>,
 ) -> PyResult<F32Array<'py>> {
-    let basis = basis_of(kind, options_json)?;
+    let basis = basis_of(kind, options)?;
     let m = moments_from_py(&moments)?;
     let (plan, v) = plan_of(py, &basis, views, lights, mask)?;
     let n_views = v.len();
@@ -389,7 +410,7 @@ pub fn light_pca_table<'py>(
 
 /// RBF / bilinear stage 5 on one block: its coefficients `[h, w, V K]` float32.
 #[pyfunction]
-#[pyo3(signature = (kind, data, views, lights, mask, table, options_json))]
+#[pyo3(signature = (kind, data, views, lights, mask, table, options))]
 #[allow(clippy::too_many_arguments)]
 pub fn light_pca_project<'py>(
     py: Python<'py>,
@@ -399,9 +420,9 @@ pub fn light_pca_project<'py>(
     lights: &Bound<'py, PyAny>,
     mask: Option<&Bound<'py, PyAny>>,
     table: &Bound<'py, PyAny>,
-    options_json: &str,
+    options: &Bound<'_, PyDict>,
 ) -> PyResult<F32Array<'py>> {
-    let basis = basis_of(kind, options_json)?;
+    let basis = basis_of(kind, options)?;
     let args = BtfArgs::new(data, views, lights, mask)?;
     let b = args.btf()?;
     let tab = borrow::<f32>("table", table)?;
@@ -417,7 +438,7 @@ pub fn light_pca_project<'py>(
 
 /// RBF / bilinear stage 6: the model from its table and every texel's coefficients `[H, W, V K]`.
 #[pyfunction]
-#[pyo3(signature = (kind, views, lights, mask, table, coeffs, options_json))]
+#[pyo3(signature = (kind, views, lights, mask, table, coeffs, options))]
 #[allow(clippy::too_many_arguments)]
 pub fn light_pca_assemble<'py>(
     py: Python<'py>,
@@ -427,9 +448,9 @@ pub fn light_pca_assemble<'py>(
     mask: Option<&Bound<'py, PyAny>>,
     table: &Bound<'py, PyAny>,
     coeffs: &Bound<'py, PyAny>,
-    options_json: &str,
+    options: &Bound<'_, PyDict>,
 ) -> PyResult<PyModel> {
-    let basis = basis_of(kind, options_json)?;
+    let basis = basis_of(kind, options)?;
     let (plan, v) = plan_of(py, &basis, views, lights, mask)?;
     let tab: Vec<f32> = borrow::<f32>("table", table)?.as_array().iter().copied().collect();
     let c = borrow::<f32>("coeffs", coeffs)?;
@@ -445,16 +466,16 @@ pub fn light_pca_assemble<'py>(
 
 /// Check RBF / bilinear options and directions for the blockwise fit (before any task is sent).
 #[pyfunction]
-#[pyo3(signature = (kind, views, lights, mask, options_json))]
+#[pyo3(signature = (kind, views, lights, mask, options))]
 pub fn light_pca_check<'py>(
     py: Python<'py>,
     kind: &str,
     views: &Bound<'py, PyAny>,
     lights: &Bound<'py, PyAny>,
     mask: Option<&Bound<'py, PyAny>>,
-    options_json: &str,
+    options: &Bound<'_, PyDict>,
 ) -> PyResult<()> {
-    plan_of(py, &basis_of(kind, options_json)?, views, lights, mask).map(|_| ())
+    plan_of(py, &basis_of(kind, options)?, views, lights, mask).map(|_| ())
 }
 
 /// `robust_images`' answer: the floor, the spreads, the bad images.

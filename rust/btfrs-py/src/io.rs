@@ -95,10 +95,42 @@ pub fn read_container_header(
     Ok((c.kind, c.meta.to_string(), arrays))
 }
 
-/// The file formats of other tools: `[(name, extension, doc, folder, index)]` (btfrs_io::formats).
+/// A file format of another tool (`btfrs_io::formats::Format`), by its fields.
+#[derive(Debug)]
+#[pyclass(name = "ModelFormat", module = "btfrs._native", frozen, get_all)]
+pub struct ModelFormat {
+    /// The format's name (`"ptm"`), as `model.export(format=...)` takes it.
+    pub name: &'static str,
+    /// The file extension, without the dot (`"ptm"`).
+    pub extension: &'static str,
+    /// One line saying what it is.
+    pub doc: &'static str,
+    /// Written as a folder holding an index file (NeuralRTI's `info.json`) rather than one file.
+    pub folder: bool,
+    /// The index file of a folder format (`"info.json"`; empty for a one-file format).
+    pub index: &'static str,
+}
+
+#[pymethods]
+impl ModelFormat {
+    fn __repr__(&self) -> String {
+        format!(
+            "ModelFormat(name={:?}, extension={:?}, folder={}, index={:?})",
+            self.name,
+            self.extension,
+            if self.folder { "True" } else { "False" },
+            self.index
+        )
+    }
+}
+
+/// The file formats of other tools (btfrs_io::formats).
 #[pyfunction]
-pub fn model_formats() -> Vec<(&'static str, &'static str, &'static str, bool, &'static str)> {
-    formats::FORMATS.iter().map(|f| (f.name, f.extension, f.doc, f.folder, f.index)).collect()
+pub fn model_formats() -> Vec<ModelFormat> {
+    formats::FORMATS
+        .iter()
+        .map(|f| ModelFormat { name: f.name, extension: f.extension, doc: f.doc, folder: f.folder, index: f.index })
+        .collect()
 }
 
 /// Write view slot `view` of a model as `format` (one of its registry exports); returns what

@@ -18,6 +18,7 @@ mod render;
 mod run;
 mod synth;
 mod tiles;
+mod values;
 
 use pyo3::prelude::*;
 
@@ -71,6 +72,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(blockwise::light_pca_assemble, m)?)?;
     m.add_function(wrap_pyfunction!(io::save_container, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_container_header, m)?)?;
+    m.add_class::<io::ModelFormat>()?;
     m.add_function(wrap_pyfunction!(io::model_formats, m)?)?;
     m.add_function(wrap_pyfunction!(io::export_model, m)?)?;
     m.add_function(wrap_pyfunction!(io::import_model, m)?)?;

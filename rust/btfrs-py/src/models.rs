@@ -1,14 +1,16 @@
 //! Bindings of the model contract: one Python class (`_native.Model`) over `Box<dyn DynModel>`
 //! and one fit function over the registry, so no binding names a model.
 //!
-//! Options travel as a JSON object (the model's own `Options` parse it and name a bad option);
-//! arrays travel as a dict of numpy arrays converted one for one to the model's
-//! [`NamedArrays`]; reports come back as JSON.
+//! Options travel as a dict converted once to the values the registry checks against the
+//! model's schema ([`crate::values`]); arrays travel as a dict of numpy arrays converted one for
+//! one to the model's [`NamedArrays`]; reports and the registry's facts come back as Python
+//! objects.
 
 use crate::arrays::borrow;
 use crate::core::BtfArgs;
-use crate::errors::{arg, IntoPy};
+use crate::errors::{arg, to_py, IntoPy};
 use crate::run::{detach, monitored};
+use crate::values;
 use btfrs_core::arrays::{ArrayData, NamedArrays};
 use btfrs_fit::registry;
 use btfrs_fit::DynModel;
@@ -34,11 +36,6 @@ pub fn error_dict<'py>(py: Python<'py>, e: btfrs_core::metrics::ErrorSums) -> Py
     d.set_item("psnr", e.psnr())?;
     d.set_item("samples", e.n)?;
     Ok(d)
-}
-
-fn json_to_py<'py>(py: Python<'py>, v: &serde_json::Value) -> PyResult<Bound<'py, PyAny>> {
-    let json = py.import("json")?;
-    json.call_method1("loads", (v.to_string(),))
 }
 
 /// A dict of numpy arrays as named arrays (copied: the model owns its data).
@@ -134,7 +131,7 @@ impl PyModel {
         if !self.robust.is_null() {
             r["robust"] = self.robust.clone();
         }
-        json_to_py(py, &r)
+        values::to_py(py, &r)
     }
 
     /// `[H, W, 3]` image for one view and one light (unit vectors, z >= 0).
@@ -200,23 +197,24 @@ pub fn load_model(py: Python<'_>, path: PathBuf) -> PyResult<(PyModel, String)> 
     Ok((PyModel { inner, robust: serde_json::Value::Null }, meta.to_string()))
 }
 
-/// Every fact of every registered model, as JSON (`btfrs_fit::registry::describe`): what the
-/// Python API, the CLI and the docs are built from.
+/// Every fact of every registered model (`btfrs_fit::registry::describe`), a list of dicts: what
+/// the Python API, the CLI and the docs are built from.
 #[pyfunction]
-pub fn model_facts() -> String {
-    registry::describe().to_string()
+pub fn model_facts(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
+    values::to_py(py, &registry::describe())
 }
 
-/// The options every fit takes besides its own (robust fitting), as the schema JSON.
+/// The options every fit takes besides its own (robust fitting), as their schema: a list of dicts.
 #[pyfunction]
-pub fn fit_options() -> String {
-    btfrs_fit::options::schema_json(btfrs_fit::robust::OPTIONS).to_string()
+pub fn fit_options(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
+    values::to_py(py, &btfrs_fit::options::schema_json(btfrs_fit::driver::OPTIONS))
 }
 
-/// Check fit options (a JSON object) for model `kind` as its fit would, without fitting.
+/// Check fit options (a dict) for model `kind` as its fit would, without fitting.
 #[pyfunction]
-pub fn check_options(kind: &str, options_json: &str) -> PyResult<()> {
-    registry::check_options(kind, options_json).py()
+pub fn check_options(kind: &str, options: &Bound<'_, PyDict>) -> PyResult<()> {
+    let o = values::options(Some(options))?;
+    registry::check_options(kind, &o.values).map_err(|e| to_py(o.spell(e)))
 }
 
 /// The arrays of model `kind` that hold one entry per texel (shape `[H, W, ...]`).
@@ -225,10 +223,10 @@ pub fn texel_arrays(kind: &str) -> PyResult<Vec<&'static str>> {
     Ok(registry::lookup(kind).py()?.texel_arrays.to_vec())
 }
 
-/// Fit model `kind` to a BTF's present pairs with options given as a JSON object; the GIL is
-/// released, progress reported, Ctrl-C honoured.
+/// Fit model `kind` to a BTF's present pairs with its options (a dict by name, `None`: the
+/// defaults); the GIL is released, progress reported, Ctrl-C honoured.
 #[pyfunction]
-#[pyo3(signature = (kind, data, views, lights, mask=None, options_json="{}", progress=None, robust=false, exclude_bad_images=false))]
+#[pyo3(signature = (kind, data, views, lights, mask=None, options=None, progress=None, robust=false, exclude_bad_images=false))]
 #[allow(clippy::too_many_arguments)]
 pub fn fit_model<'py>(
     py: Python<'py>,
@@ -237,13 +235,14 @@ pub fn fit_model<'py>(
     views: &Bound<'py, PyAny>,
     lights: &Bound<'py, PyAny>,
     mask: Option<&Bound<'py, PyAny>>,
-    options_json: &str,
+    options: Option<&Bound<'py, PyDict>>,
     progress: Option<&Bound<'py, PyAny>>,
     robust: bool,
     exclude_bad_images: bool,
 ) -> PyResult<PyModel> {
     let entry = registry::lookup(kind).py()?;
-    let ro = btfrs_fit::robust::RobustOptions { robust, exclude_bad_images };
+    let o = values::options(options)?;
+    let ro = btfrs_fit::driver::RobustOptions { robust, exclude_bad_images };
     let args = BtfArgs::new(data, views, lights, mask)?;
     let b = args.btf()?;
     let (inner, robust) = monitored(py, progress, |mon| {
@@ -253,7 +252,7 @@ pub fn fit_model<'py>(
         if !entry.scans_values {
             btfrs_core::btf::check_finite("data", b.data)?;
         }
-        btfrs_fit::robust::fit(entry, &b, options_json, ro, mon)
+        btfrs_fit::driver::fit(entry, &b, &o.values, ro, mon).map_err(|e| o.spell(e))
     })?;
     Ok(PyModel { inner, robust })
 }

@@ -8,6 +8,7 @@ use crate::run::{detach, monitored};
 use btfrs_wang::{features, seams, table, tiles, tiling, Features, Table, WangOptions};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
 fn features_of(sample: &Bound<'_, PyAny>) -> PyResult<Features> {
     let a = borrow::<f32>("sample", sample)?;
@@ -43,15 +44,16 @@ type Synthesized<'py> = (
 
 /// Synthesize a complete Wang tile set over a `[H, W, D]` feature sample.
 #[pyfunction]
-#[pyo3(signature = (sample, options_json, progress=None))]
+#[pyo3(signature = (sample, options, progress=None))]
 pub fn wang_synthesize<'py>(
     py: Python<'py>,
     sample: &Bound<'py, PyAny>,
-    options_json: &str,
+    options: &Bound<'py, PyDict>,
     progress: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Synthesized<'py>> {
     let f = features_of(sample)?;
-    let opts: WangOptions = btfrs_fit::options::from_serde(options_json).map_err(crate::errors::to_py)?;
+    let o = crate::values::options(Some(options))?;
+    let opts: WangOptions = btfrs_fit::options::from_serde(&o.values).map_err(|e| crate::errors::to_py(o.spell(e)))?;
     let (set, tab) = monitored(py, progress, |mon| {
         let set = tiles::synthesize(&f, &opts, mon)?;
         let tab = Table::new(&set);

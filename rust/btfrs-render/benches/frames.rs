@@ -37,7 +37,7 @@ fn bench(c: &mut Criterion) {
             _ => e.examples[0].0,
         };
         let (label, options) = e.examples.iter().find(|x| x.0 == pick).unwrap_or(&e.examples[0]);
-        fitted.push((label, (e.fit)(&b, options, &Monitor::new()).unwrap(), e.renderers[0]));
+        fitted.push((label, e.fit_json(&b, options, &Monitor::new()).unwrap(), e.renderers[0]));
     }
     let raw = RawModel::new(b).unwrap();
     // (label, renderer, the light coefficients of a double-SH model for the SH method)

@@ -180,7 +180,7 @@ fn every_model_matches_the_cpu_reference_on_every_scene() {
     let mut checked = 0;
     for e in MODELS {
         for (label, options) in e.examples {
-            let m = (e.fit)(&b, options, &Monitor::new()).unwrap();
+            let m = e.fit_json(&b, options, &Monitor::new()).unwrap();
             for method in e.renderers {
                 let r = m.renderer(method, max_3d).unwrap();
                 let p = check(&gpu, label, r.as_ref());
@@ -252,7 +252,7 @@ fn light_bases_in_ycc_match_the_cpu_reference() {
     for kind in ["rbf", "bilinear"] {
         let e = btfrs_fit::registry::lookup(kind).unwrap();
         let options = r#"{"components": 6, "chroma_components": 3, "colour": "ycc"}"#;
-        let m = (e.fit)(&btf.as_ref(), options, &Monitor::new()).unwrap();
+        let m = e.fit_json(&btf.as_ref(), options, &Monitor::new()).unwrap();
         let r = m.renderer(e.renderers[0], 2048).unwrap();
         let p = check(&gpu, kind, r.as_ref());
         eprintln!("{kind} ycc: worst PSNR {p:.1} dB");

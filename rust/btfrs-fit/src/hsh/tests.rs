@@ -231,7 +231,11 @@ fn options_are_checked() {
         let e = fit_hsh(&btf, &o, &Monitor::new()).unwrap_err().to_string();
         assert!(e.contains(want), "{e}");
     }
-    let e = crate::registry::fit("hsh", &btf, r#"{"ordr": 2}"#, &Monitor::new()).unwrap_err().to_string();
+    let e = crate::registry::lookup("hsh")
+        .unwrap()
+        .fit_json(&btf, r#"{"ordr": 2}"#, &Monitor::new())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("ordr"), "{e}");
 }
 

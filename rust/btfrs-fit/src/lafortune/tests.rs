@@ -567,7 +567,7 @@ fn bad_arguments_name_the_argument() {
         (LafortuneOptions { densify: 33, ..Default::default() }, "densify"),
     ] {
         match bad(opts) {
-            Error::InvalidArgument { name: n, msg } => {
+            Error::InvalidArgument { name: n, msg, .. } => {
                 assert_eq!(n, name);
                 assert!(msg.contains("expected"), "{msg}");
             }

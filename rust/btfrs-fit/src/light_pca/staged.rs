@@ -4,8 +4,9 @@
 //! storage order ([`fit_two_passes`]). Each block contributes sufficient statistics, so no
 //! machine holds more than one block and a file is read twice, not once per view slot:
 //!
-//! 1. [`Basis::plan`]: the slots' pairs and resampling operators, a function of the directions,
-//!    mask and options only (every task computes the same one).
+//! 1. [`Plan::new`] (for a model by name: [`crate::light_bases::Basis::plan`]): the slots' pairs
+//!    and resampling operators, a function of the directions, mask and options only (every task
+//!    computes the same one).
 //! 2. [`moments`] per block: per slot, the count, the mean and the centred second moment
 //!    `M2 = sum (s - mean)(s - mean)^T` of the texels' *samples* `s` (the `3 m` values under the
 //!    slot's `m` pairs), accumulated in `f64`. Every group's vector is a linear map `T s` of them
@@ -32,100 +33,14 @@
 //! takes those up to [`super::EXACT_PCA_DIM`] (above, it would need the randomized subspace
 //! iteration as passes over the blocks, which is not built).
 
-use super::{
-    exact_dim, group_planes, put_coeffs, read_slot, write_slot, Colour, LightPca, PcaOptions, Plan, EXACT_PCA_DIM,
-};
-use crate::bilinear::{self, BilinearOptions};
-use crate::model::Model;
-use crate::options;
+use super::{group_planes, put_coeffs, read_slot, write_slot, Colour, LightPca, PcaOptions, Plan};
 use crate::planes::Planes;
-use crate::rbf::{self, RbfOptions};
 use btfrs_core::btf::{advise, stream_blocks, Access, TexelScan};
 use btfrs_core::scratch::Floats;
 use btfrs_core::{ensure_arg, BtfRef, Error, Monitor, Result};
 use btfrs_numerics::dense::{gemm, gram, sym_eigen_desc, view};
 use nalgebra::DMatrix;
 use rayon::prelude::*;
-
-/// Which light-PCA model, with its options.
-#[derive(Debug, Clone, Copy)]
-pub enum Basis {
-    /// [`crate::rbf::Rbf`].
-    Rbf(RbfOptions),
-    /// [`crate::bilinear::Bilinear`].
-    Bilinear(BilinearOptions),
-}
-
-impl Basis {
-    /// Model `kind` (`"rbf"` or `"bilinear"`) with its options (a JSON object, as the fit takes
-    /// them), checked.
-    pub fn parse(kind: &str, options_json: &str) -> Result<Basis> {
-        let b = match kind {
-            "rbf" => Basis::Rbf(options::parse(<rbf::Rbf as Model>::OPTIONS, options_json)?),
-            "bilinear" => Basis::Bilinear(options::parse(<bilinear::Bilinear as Model>::OPTIONS, options_json)?),
-            other => {
-                return Err(Error::arg(
-                    "kind",
-                    format!("expected \"rbf\" or \"bilinear\" (a light-PCA model), got {other:?}"),
-                ))
-            }
-        };
-        b.options()?;
-        Ok(b)
-    }
-
-    /// The model's name.
-    pub fn kind(&self) -> &'static str {
-        match self {
-            Basis::Rbf(_) => "rbf",
-            Basis::Bilinear(_) => "bilinear",
-        }
-    }
-
-    /// The light-PCA options (checked as the fit checks them).
-    pub fn options(&self) -> Result<PcaOptions> {
-        Ok(match self {
-            Basis::Rbf(o) => rbf::prepare(o)?.0,
-            Basis::Bilinear(o) => bilinear::prepare(o, &[])?.0,
-        })
-    }
-
-    /// Stage 1: the plan of every slot for these directions and mask (the local fit's), checked
-    /// against the blockwise limit on the eigenproblems (module doc).
-    pub fn plan(&self, views: &[[f64; 3]], lights: &[[f64; 3]], mask: Option<&[bool]>) -> Result<Plan> {
-        let plan = match self {
-            Basis::Rbf(o) => {
-                let (p, op) = rbf::prepare(o)?;
-                Plan::new(views, lights, mask, p.resolution, &*op, "rbf")?
-            }
-            Basis::Bilinear(o) => {
-                let (p, op) = bilinear::prepare(o, lights)?;
-                Plan::new(views, lights, mask, p.resolution, &*op, "bilinear")?
-            }
-        };
-        let o = self.options()?;
-        let (m, e) = (plan.max_pairs(), exact_dim(&o, plan.max_pairs()));
-        ensure_arg!(
-            e <= EXACT_PCA_DIM,
-            "resolution",
-            "the blockwise {} fit solves an exact {e} x {e} eigenproblem per view slot (the smaller of the values per \
-             vector at resolution {} and 3 x {m} samples), more than the {EXACT_PCA_DIM} it supports: use a lower \
-             resolution or fewer lights per view, or fit it on one machine (btfrs.fit.{}(btf, memory_limit=...))",
-            self.kind(),
-            o.resolution,
-            self.kind()
-        );
-        Ok(plan)
-    }
-
-    /// Wrap the fitted light basis as the model.
-    pub fn model(&self, m: LightPca) -> Box<dyn crate::DynModel> {
-        match self {
-            Basis::Rbf(_) => Box::new(rbf::Rbf(m)),
-            Basis::Bilinear(_) => Box::new(bilinear::Bilinear(m)),
-        }
-    }
-}
 
 /// The moments of a set of texels (stage 2, module doc): per view slot, those of the texels'
 /// samples, `d = 3 m` values for the most pairs `m` a slot has (a slot with fewer leaves the rest
@@ -421,7 +336,11 @@ fn check_block(block: &BtfRef<'_>, plan: &Plan) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bilinear::{self, BilinearOptions};
+    use crate::light_bases::Basis;
     use crate::model::Model;
+    use crate::options::{self, parse_json};
+    use crate::rbf;
     use btfrs_core::materials::{generate, MaterialSpec, Preset};
     use btfrs_core::Monitor;
 
@@ -481,7 +400,7 @@ mod tests {
         let (nv, nl) = (btf.views.len(), btf.lights.len());
         let mask: Vec<bool> = (0..nv * nl).map(|i| (i / nl) % 2 == 0 || i % 3 != 1).collect();
         let b = BtfRef { mask: Some(&mask), ..btf.as_ref() };
-        let basis = Basis::parse("bilinear", r#"{"resolution": 4, "colour": "ycc"}"#).unwrap();
+        let basis = Basis::parse("bilinear", &parse_json(r#"{"resolution": 4, "colour": "ycc"}"#).unwrap()).unwrap();
         let plan = basis.plan(b.views, b.lights, b.mask).unwrap();
         let whole = moments(&b, &plan).unwrap();
         let parts = [moments(&rows(&b, 0, 3), &plan).unwrap(), moments(&rows(&b, 3, 8), &plan).unwrap()];
@@ -541,7 +460,7 @@ mod tests {
             ("bilinear", r#"{"components": 6}"#),
             ("bilinear", r#"{"components": 5, "colour": "ycc", "chroma_components": 2}"#),
         ] {
-            let basis = Basis::parse(kind, json).unwrap();
+            let basis = Basis::parse(kind, &parse_json(json).unwrap()).unwrap();
             let o = basis.options().unwrap();
             let plan = basis.plan(b.views, b.lights, b.mask).unwrap();
             let blocks = [rows(&b, 0, 5), rows(&b, 5, 6), rows(&b, 6, 12)];
@@ -582,7 +501,7 @@ mod tests {
             ("rbf", r#"{"components": 4, "colour": "ycc", "resolution": 6}"#),
             ("rbf", r#"{"components": 5, "resolution": 12}"#),
         ] {
-            let basis = Basis::parse(kind, json).unwrap();
+            let basis = Basis::parse(kind, &parse_json(json).unwrap()).unwrap();
             let o = basis.options().unwrap();
             let plan = || basis.plan(b.views, b.lights, b.mask).unwrap();
             assert!(super::super::two_passes(&o, b.texels(), plan().max_pairs()));
@@ -623,7 +542,8 @@ mod tests {
         data[at] = f32::NAN;
         let b = BtfRef { mask: Some(&mask), data: &data, ..btf.as_ref() };
         let o: BilinearOptions =
-            options::parse(<bilinear::Bilinear as Model>::OPTIONS, r#"{"resolution": 4}"#).unwrap();
+            options::build(<bilinear::Bilinear as Model>::OPTIONS, parse_json(r#"{"resolution": 4}"#).unwrap())
+                .unwrap();
         let e = bilinear::Bilinear::fit(&b, &o, &Monitor::new()).unwrap_err().to_string();
         let want = btfrs_core::btf::check_finite("data", &data).unwrap_err().to_string();
         assert_eq!(e, want);
@@ -631,7 +551,8 @@ mod tests {
 
     #[test]
     fn bad_input_is_refused() {
-        let e = |k: &str, j: &str| Basis::parse(k, j).unwrap_err().to_string();
+        let parse = |k: &str, j: &str| Basis::parse(k, &parse_json(j).unwrap());
+        let e = |k: &str, j: &str| parse(k, j).unwrap_err().to_string();
         assert!(e("ptm", "{}").starts_with("kind: expected \"rbf\" or \"bilinear\""));
         // The blockwise limit is the eigenproblem's size, min(values per vector, 3 x lights).
         let d = btfrs_core::directions::ubo81();
@@ -641,11 +562,11 @@ mod tests {
                 [th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()]
             })
             .collect();
-        let rbf17 = Basis::parse("rbf", r#"{"resolution": 17}"#).unwrap();
+        let rbf17 = parse("rbf", r#"{"resolution": 17}"#).unwrap();
         assert!(rbf17.plan(&d, &d, None).is_ok(), "867 values per vector, but 243 samples");
         let err = rbf17.plan(&d[..1], &many, None).unwrap_err().to_string();
         assert!(err.starts_with("resolution: the blockwise rbf fit solves an exact 867 x 867"), "{err}");
-        assert!(Basis::parse("rbf", r#"{"resolution": 12}"#).unwrap().plan(&d[..1], &many, None).is_ok());
+        assert!(parse("rbf", r#"{"resolution": 12}"#).unwrap().plan(&d[..1], &many, None).is_ok());
         assert!(e("bilinear", r#"{"regularization": -1}"#).starts_with("regularization:"));
         assert!(e("rbf", r#"{"bogus": 1}"#).contains("bogus"));
     }

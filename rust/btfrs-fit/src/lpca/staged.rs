@@ -21,9 +21,9 @@ use btfrs_numerics::rpca;
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 
-/// The options of a staged fit, given as JSON (checked against the LPCA schema).
-pub fn parse_options(json: &str) -> Result<LpcaOptions> {
-    crate::options::parse(<super::Lpca as crate::model::Model>::OPTIONS, json)
+/// The options of a staged fit, by name (checked against the LPCA schema).
+pub fn parse_options(values: &crate::options::Values) -> Result<LpcaOptions> {
+    crate::options::build(<super::Lpca as crate::model::Model>::OPTIONS, values.clone())
 }
 
 /// Stage 1a: the texels whose ABRDFs [`subspace`] needs (`None`: every texel) for a

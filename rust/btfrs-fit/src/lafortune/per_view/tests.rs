@@ -326,8 +326,14 @@ fn options_are_checked() {
     assert!(fit(LafortuneViewOptions { kind: LafortuneKind::Rgb, lobes: 4, ..Default::default() })
         .starts_with("lobes: expected 1 to 3"));
     assert!(fit(LafortuneViewOptions { max_iter: 0, ..Default::default() }).starts_with("max_iter:"));
-    let reg =
-        |o: &str| crate::registry::fit("lafortune_view", &btf, o, &Monitor::new()).map(|_| ()).unwrap_err().to_string();
+    let reg = |o: &str| {
+        crate::registry::lookup("lafortune_view")
+            .unwrap()
+            .fit_json(&btf, o, &Monitor::new())
+            .map(|_| ())
+            .unwrap_err()
+            .to_string()
+    };
     assert!(reg(r#"{"densify": 4}"#).starts_with("densify: unknown option"));
     assert!(reg(r#"{"lobes": 1.5}"#).starts_with("lobes: expected an integer from 1 to 7, got 1.5"));
     // The diffuse texel is fitted, and black texels are all zero, never NaN.
