@@ -74,6 +74,17 @@ def _apply_layers(m, view, light):
     coords = {"light": [l[:2]], "xy": [v[:2], l[:2]], "half": [v[:2], l[:2], h[:2]]}[m.directions]
     dirs = {"light": [l], "xy": [v, l], "half": [v, l, h]}[m.directions]
     enc = list(np.concatenate(coords))
+    hz = m.horizon
+    if hz is not None:
+        clear_dirs = [l] if m.directions == "light" else [v, l]
+        bins = hz.shape[-1]
+        clear = []
+        for d in clear_dirs:
+            f = (np.arctan2(d[1], d[0]) % (2 * np.pi)) / (2 * np.pi) * bins
+            k0 = int(np.floor(f)) % bins
+            w = f - np.floor(f)
+            row = hz[:, :, k0] * (1 - w) + hz[:, :, (k0 + 1) % bins] * w
+            clear.append(np.arcsin(np.clip(d[2], -1, 1)) - row)
     tables = m.tables.astype(np.float64)
     g = tables.shape[1]
     for t in range(tables.shape[0]):
@@ -84,7 +95,12 @@ def _apply_layers(m, view, light):
              + (1 - fx) * fy * tables[t, j + 1, i] + fx * fy * tables[t, j + 1, i + 1])
         enc += list(f)
     z = m.latents.astype(np.float64)
-    x = np.concatenate([z, np.broadcast_to(np.array(enc), z.shape[:2] + (len(enc),))], axis=-1)
+    nd = len(np.concatenate(coords))
+    parts = [z, np.broadcast_to(np.array(enc[:nd]), z.shape[:2] + (nd,))]
+    if hz is not None:
+        parts.append(np.stack(clear, -1).astype(np.float64))
+    parts.append(np.broadcast_to(np.array(enc[nd:]), z.shape[:2] + (len(enc) - nd,)))
+    x = np.concatenate(parts, axis=-1)
     act = (lambda a: np.maximum(a, 0)) if m.activation == "relu" else (lambda a: np.where(a > 0, a, np.expm1(a)))
     (w1, b1), (w2, b2), (w3, b3) = [(w.astype(np.float64), b.astype(np.float64)) for w, b in m.layers]
     y = act(act(x @ w1.T + b1) @ w2.T + b2) @ w3.T + b3
@@ -92,22 +108,25 @@ def _apply_layers(m, view, light):
 
 
 @pytest.mark.parametrize("form", ["half", "xy", "light"])
-def test_layers_and_tables_reproduce_evaluate(form):
+@pytest.mark.parametrize("horizon", [0, 5])
+def test_layers_and_tables_reproduce_evaluate(form, horizon):
     # The published parts must be the whole decoder: every parameter used once, and applied in
-    # numpy they give what the model evaluates, on a multi-view model (with tables) as on
-    # NeuralRTI's single-view form.
+    # numpy they give what the model evaluates, on a multi-view model (with tables) as on the
+    # single-view form, with and without a horizon map (NeuralRTI's form has none).
     if form == "light":
         btf, opts = _capture(size=8), dict(latents=5, hidden=12, steps=150)
     else:
         btf, opts = btfrs.materials.make("knit", size=8, seed=1), dict(latents=6, hidden=12, features=5, directions=form, steps=150)
-    m = btfrs.fit.neural(btf, **opts)
+    m = btfrs.fit.neural(btf, horizon=horizon, **opts)
     assert m.directions == form
+    assert (m.horizon is None) == (horizon == 0)
     used = sum(w.size + b.size for w, b in m.layers) + m.tables.size
     assert used == m.arrays["decoder"].size
     (w1, _), _, _ = m.layers
     tables = {"half": 3, "xy": 2, "light": 0}[form]
     coords = {"half": 6, "xy": 4, "light": 2}[form]
-    assert w1.shape == (12, opts["latents"] + coords + tables * opts.get("features", 0))
+    clear = 0 if horizon == 0 else (1 if form == "light" else 2)
+    assert w1.shape == (12, opts["latents"] + coords + clear + tables * opts.get("features", 0))
     assert m.tables.shape[0] == tables
     for view, light in (([0, 0, 1], [0.3, 0.2, 0.93]), ([0.5, -0.2, 0.84], [-0.6, 0.3, 0.74])):
         if form == "light":

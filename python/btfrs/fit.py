@@ -634,6 +634,7 @@ def neural(
     steps: Optional[int] = None,
     learning_rate: float = 0.005,
     validation: float = 0.05,
+    horizon: Optional[int] = None,
     seed: int = 0,
     robust: bool = True,
     exclude_bad_images: bool = False,
@@ -687,6 +688,10 @@ def neural(
     validation
         Fraction of the present pairs kept out for early stopping, at most 0.5. Allowed: a number >= 0;
         default 0.05.
+    horizon
+        Components per texel of the horizon map, whose clearances the decoder reads to place cast
+        shadows (0: none, NeuralRTI's form; null: 8). Allowed: null or an integer from 0 to 32; default
+        None.
     seed
         Seed of the PCA start, the initial weights, the minibatches and the validation pairs. Allowed: a
         non-negative integer; default 0.
@@ -709,7 +714,7 @@ def neural(
     Neural
         The fitted model.
     """
-    options: dict[str, object] = {"latents": latents, "hidden": hidden, "directions": directions, "activation": activation, "features": features, "grid": grid, "steps": steps, "learning_rate": learning_rate, "validation": validation, "seed": seed}
+    options: dict[str, object] = {"latents": latents, "hidden": hidden, "directions": directions, "activation": activation, "features": features, "grid": grid, "steps": steps, "learning_rate": learning_rate, "validation": validation, "horizon": horizon, "seed": seed}
     model = fit_kind("neural", btf, options, memory_limit, progress, robust, exclude_bad_images)
     assert isinstance(model, Neural)
     return model

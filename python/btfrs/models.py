@@ -537,9 +537,11 @@ class Neural(Model):
     def layers(self) -> List[Tuple[np.ndarray, np.ndarray]]:
         """The decoder's three ``(weight [out, in], bias [out])`` float32 pairs, on the data's
         scale. Layer 1's inputs are the code, then the encoding: the coordinates of
-        :attr:`directions`, then, for each table of :attr:`tables`, its features at the
-        direction (view, light, half vector, as many as the encoding has), looked up
-        bilinearly."""
+        :attr:`directions`; with a horizon map, the clearances (the light's, and for the BTF
+        encodings the view's first: ``asin(d_z)`` minus the texel's :attr:`horizon` at the
+        direction's azimuth, interpolated between bins); then, for each table of :attr:`tables`,
+        its features at the direction (view, light, half vector, as many as the encoding has),
+        looked up bilinearly."""
         u = self._m.unpacked()
         return [(u[f"layer{i}_weight"], u[f"layer{i}_bias"]) for i in (1, 2, 3)]
 
@@ -549,6 +551,18 @@ class Neural(Model):
         half vector; none for NeuralRTI's form), node ``[j, i]`` at point ``(i, j) / (grid -
         1)`` of the elevated concentric square (:func:`btfrs.hemimap.hemisphere_to_square`)."""
         return self._m.unpacked()["tables"]
+
+    @property
+    def horizon(self) -> Optional[np.ndarray]:
+        """``[H, W, bins]`` float32: each texel's horizon, the elevation angle (radians) above
+        which the relief around it does not hide a direction, at ``bins`` azimuths ``2 pi k /
+        bins`` from x towards y, rebuilt from the stored map (``mean + coords @ basis``, the
+        coordinates 8-bit planes); ``None`` for a decoder without one (NeuralRTI's form)."""
+        a = self.arrays
+        if "horizon_q" not in a:
+            return None
+        c = a["horizon_bias"] + a["horizon_scale"] * a["horizon_q"].astype(np.float32)
+        return np.ascontiguousarray(a["horizon_mean"] + c @ a["horizon_basis"], dtype=np.float32)
 
 
 class Svbrdf(Model):

@@ -59,9 +59,12 @@ impl Height {
     }
 }
 
+/// Per-texel vectors (unit normals or RGB albedo), row-major.
+pub type TexelVectors = Vec<[f32; 3]>;
+
 /// The height of view slot `view` of `btf` from its robust photometric-stereo normals, mirrored
-/// at the borders (a capture need not tile).
-pub fn height_map(btf: &BtfRef<'_>, view: usize, monitor: &Monitor) -> Result<(Height, Vec<[f32; 3]>, Vec<[f32; 3]>)> {
+/// at the borders (a capture need not tile), with the normals and albedo it came from.
+pub fn height_map(btf: &BtfRef<'_>, view: usize, monitor: &Monitor) -> Result<(Height, TexelVectors, TexelVectors)> {
     let maps = photometric_stereo(btf, view, Method::Robust, monitor)?;
     let (rows, cols) = (btf.height, btf.width);
     let (p, q): (Vec<f64>, Vec<f64>) = maps
