@@ -940,7 +940,7 @@ def render_command(args: argparse.Namespace) -> None:
     print(f"wrote {args.out} ({args.image_size[0]} x {args.image_size[1]}, mean {float(np.mean(img)):.4f})")
 
 
-def _calibrate_args(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
+def _calibrate_args(sub: "argparse._SubParsersAction[_Parser]") -> None:
     c = sub.add_parser("calibrate", help="the light directions of photographs with a glossy sphere in the frame: an "
                                          ".lp file")
     c.add_argument("photos", nargs="+", metavar="PHOTOS",
