@@ -331,7 +331,6 @@ impl Source for ImageStack {
         let cap = &self.capture;
         cap.check_buffer(out)?;
         let (fh, fw) = self.full;
-        let (nl, abrdf) = (cap.lights.len(), cap.abrdf_len());
         let crop = self.crop;
         let n = self.slots.len();
         if let ([(name, _, _)], true) = (&self.slots[..], (crop.rows, crop.cols) == (fh, fw)) {
@@ -353,7 +352,7 @@ impl Source for ImageStack {
         monitor.start(2 * n as u64);
         let plan = StagePlan::new(monitor.memory_limit(), fh * fw * self.pixel_bytes, (fh, fw))?;
         let (held, spill) = self.decode_all(&plan, monitor)?;
-        self.write_bands(&held, spill.as_ref(), &plan, out, abrdf, nl, monitor)
+        self.write_bands(&held, spill.as_ref(), &plan, out, monitor)
     }
 }
 
@@ -507,10 +506,9 @@ impl ImageStack {
         spill: Option<&Spill>,
         plan: &StagePlan,
         out: &mut [f32],
-        abrdf: usize,
-        nl: usize,
         monitor: &Monitor,
     ) -> Result<()> {
+        let (nl, abrdf) = (self.capture.lights.len(), self.capture.abrdf_len());
         let (_, fw) = self.full;
         let crop = self.crop;
         let spilled_row: usize = held
