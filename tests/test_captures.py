@@ -322,6 +322,88 @@ def test_mmap_to_writes_the_same_btf_and_nothing_on_interrupt(tmp_path):
     # stack::tests::cancelled_stream_leaves_nothing, deterministic where a Ctrl-C is not)
 
 
+def photographs(folder, fmt="png", n=10):
+    """An RTI capture of ``n`` photographs of the relief (the first lights of RTI_LIGHTS, cycled)
+    and its ``.lp``; returns the .lp's path and each photograph's pixels as PIL decodes them."""
+    os.makedirs(folder, exist_ok=True)
+    lines, pixels = [str(n)], []
+    for i in range(n):
+        l = RTI_LIGHTS[i % len(RTI_LIGHTS)]
+        name = f"p{i:02d}.{fmt}"
+        Image.fromarray(to_srgb8(shade(l))).save(os.path.join(folder, name), quality=95, subsampling=0)
+        pixels.append(np.asarray(Image.open(os.path.join(folder, name)).convert("RGB")))
+        lines.append(f"{name} {l[0]:.9f} {l[1]:.9f} {l[2]:.9f}")
+    Path(folder, "dirs.lp").write_text("\n".join(lines) + "\n")
+    return os.path.join(folder, "dirs.lp"), pixels
+
+
+def test_photographs_held_or_spilled_under_memory_limit_load_as_decoded(tmp_path):
+    # Ten 12 x 16 PNGs (576 bytes of samples each): with no limit all wait in memory; 10000 bytes
+    # keep a few and spill the rest to the temporary file; 800 bytes (the least is 768: a third
+    # more than one photograph) spill every one and write the capture a row at a time. Each load,
+    # whole or cropped, in memory or to a memory-mapped file, must hold the values PIL decodes,
+    # turned linear by the sRGB formula in float64, at the texel each pixel belongs to.
+    lp, pixels = photographs(tmp_path / "cap")
+    want = np.stack([srgb8_to_linear(p) for p in pixels], axis=2)[:, :, None]  # [H, W, 1, 10, 3]
+    for crop in (None, (3, 5, 7, 9)):
+        ref = want if crop is None else want[crop[0]:crop[0] + crop[2], crop[1]:crop[1] + crop[3]]
+        for k, limit in enumerate((None, 10000, "800B", 800)):
+            seen = []
+            b = io.load(lp, crop=crop, memory_limit=limit, progress=lambda d, t: seen.append((d, t)))
+            np.testing.assert_allclose(b.data, ref, atol=2e-7, err_msg=f"crop {crop}, memory_limit {limit}")
+            # progress counts each photograph decoded and each written: 20 steps, ending at 20
+            assert seen[-1] == (20, 20) and all(t == 20 for _, t in seen), seen
+            out = tmp_path / f"m{k}{crop is None}.btfrs"
+            m = io.load(lp, crop=crop, memory_limit=limit, mmap_to=out)
+            np.testing.assert_array_equal(np.asarray(m.data), b.data)
+    # JPEG: the streamed load equals the in-memory one bit for bit, and PIL's decode (libjpeg)
+    # within two 8-bit steps, most values exactly (the decoders' inverse DCTs round differently)
+    lp, pixels = photographs(tmp_path / "jpg", fmt="jpg")
+    whole = io.load(lp)
+    spilled = io.load(lp, memory_limit=800)
+    np.testing.assert_array_equal(spilled.data, whole.data)
+    srgb = np.stack(pixels, axis=2)[:, :, None].astype(np.float64)
+    got = np.where(whole.data <= 0.0031308, 12.92 * whole.data, 1.055 * np.power(whole.data, 1 / 2.4) - 0.055) * 255
+    err = np.abs(got - srgb)
+    assert err.max() <= 2.01 and (err > 0.01).mean() < 0.2, (err.max(), (err > 0.01).mean())
+
+
+def test_memory_limit_too_small_or_on_a_btfrs_file_is_a_clear_error(tmp_path):
+    lp, _ = photographs(tmp_path / "cap")
+    with pytest.raises(InvalidArgumentError, match=r"^memory_limit: expected at least 768 bytes to decode 16 x 12 "
+                                                   r"photographs \(576 bytes of samples each\).*got 767$"):
+        io.load(lp, memory_limit=767)
+    with pytest.raises(InvalidArgumentError, match="memory_limit"):
+        io.load(lp, memory_limit="lots")
+    out = tmp_path / "b.btfrs"
+    io.load(lp).save(out)
+    with pytest.raises(InvalidArgumentError, match=r"memory_limit: only apply to measured captures"):
+        io.load(out, memory_limit="1GB")
+
+
+@pytest.mark.parametrize("spill", [None, 800])
+def test_a_bad_photograph_names_the_file_and_writes_nothing(tmp_path, spill):
+    # A photograph of another size, then a JPEG cut short: each refused naming the file, whether
+    # the photographs wait in memory or in the temporary file, and no mmap_to file is left.
+    lp, _ = photographs(tmp_path / "cap", fmt="jpg")
+    good = Path(tmp_path / "cap" / "p06.jpg").read_bytes()
+    Image.fromarray(to_srgb8(shade(RTI_LIGHTS[6]))[:, :15]).save(tmp_path / "cap" / "p06.jpg", quality=95)
+    out = tmp_path / "out.btfrs"
+    with pytest.raises(FormatError, match=r"p06\.jpg.*the image is 12 x 15 pixels; expected 12 x 16 like the first"):
+        io.load(lp, memory_limit=spill, mmap_to=out)
+    assert not out.exists()
+    Path(tmp_path / "cap" / "p06.jpg").write_bytes(good[: len(good) * 2 // 3])
+    with pytest.raises(FormatError, match=r"p06\.jpg.*truncated"):
+        io.load(lp, memory_limit=spill, mmap_to=out)
+    assert not out.exists() and os.listdir(tmp_path) == ["cap"]
+    # the first photograph (whose header fixes the size) cut short: named too
+    Path(tmp_path / "cap" / "p06.jpg").write_bytes(good)
+    first = Path(tmp_path / "cap" / "p00.jpg")
+    first.write_bytes(first.read_bytes()[:300])
+    with pytest.raises(FormatError, match=r"p00\.jpg"):
+        io.load(lp, memory_limit=spill)
+
+
 # --- UBO2014 .btf (DFMF), written here byte by byte from the published layout -------------------
 
 def write_dfmf(path, views, lights_deg, width, height, U, SV, cosine_flag=None, scale=(1, 1, 1)):

@@ -331,7 +331,8 @@ def _select_btf(btf: Btf, crop: Optional[Sequence[int]], views: Optional[Sequenc
 def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optional[Sequence[int]] = None,
          views: Optional[Sequence[int]] = None, lights: Optional[Sequence[int]] = None,
          mmap_to: Optional[PathLike] = None, linear: bool = False, mmap: bool = False, progress: Progress = None,
-         max_bytes: Union[int, str, None] = None, allow_outside: bool = False) -> Any:
+         max_bytes: Union[int, str, None] = None, allow_outside: bool = False,
+         memory_limit: Union[int, str, None] = None) -> Any:
     """Load any file btfrs reads, chosen by its type (:func:`capture_kind`): a measured capture,
     a ``.btfrs`` file (a BTF, a fitted model, a synthesis analysis, a Wang tile set), or another
     tool's model file (``.ptm``, ``.rti``). This is ``btfrs.load``.
@@ -355,8 +356,14 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
     lights (UBO archives: sorted by theta, then phi; ``.lp``: the file's order); only what is kept
     is ever decoded. ``mmap_to="big.btfrs"`` decodes straight into that file (memory-mapped,
     written atomically) and returns it opened with ``mmap=True``, so a capture larger than memory
-    loads. ``linear=True`` reads 8/16-bit images as linear (e.g. TIFFs converted from RAW) instead
-    of sRGB (captures only: it is refused for a ``.btfrs`` or model file). ``progress`` shows or reports decoding progress; Ctrl-C stops it and writes nothing.
+    loads. A capture of several photographs is decoded first (in parallel) and then written
+    into the texel-major BTF once, band by band: the decoded photographs wait in memory up to
+    ``memory_limit`` (bytes, or ``"2GB"``, ``"512MiB"``; default: a quarter of the physical
+    memory) and beyond it in an unlinked temporary file in ``TMPDIR``, so a capture of 60
+    photographs of 24 megapixels (4.3 GB of 8-bit samples) loads under ``memory_limit="2GB"``;
+    a limit below one photograph's samples (and a third more) is an
+    :class:`~btfrs.exceptions.InvalidArgumentError` naming it. ``linear=True`` reads 8/16-bit
+    images as linear (e.g. TIFFs converted from RAW) instead of sRGB (captures only: it is refused for a ``.btfrs`` or model file). ``progress`` shows or reports decoding progress; Ctrl-C stops it and writes nothing.
     Light vectors of an ``.lp`` file or a table that are not unit length are normalised, and a
     light at most 0.02 below the horizon (as unit z) is moved onto it, each kind of repair
     reported in one :class:`UserWarning` per file (how many, the range, the first lines).
@@ -373,8 +380,10 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
     """
     p = os.fspath(path)
     max_bytes = memory_size("max_bytes", max_bytes)
+    limit = memory_size("memory_limit", memory_limit)
     kind = capture_kind(p, directions)
-    given = {k: v for k, v in dict(crop=crop, views=views, lights=lights, mmap_to=mmap_to).items() if v is not None}
+    given = {k: v for k, v in dict(crop=crop, views=views, lights=lights, mmap_to=mmap_to,
+                                   memory_limit=memory_limit).items() if v is not None}
     if kind in ("btfrs", "model_file"):
         if linear:
             raise InvalidArgumentError(f"linear: only applies to captures of 8/16-bit images ({p} is a "
@@ -387,7 +396,7 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
         else:
             obj = load_btfrs(p)
         if given:
-            if not isinstance(obj, Btf) or "mmap_to" in given:
+            if not isinstance(obj, Btf) or "mmap_to" in given or "memory_limit" in given:
                 raise InvalidArgumentError(f"{', '.join(given)}: only apply to measured captures and BTFs"
                                            f" (this file holds a {type(obj).__name__})")
             obj = _select_btf(obj, crop, views, lights)
@@ -402,7 +411,8 @@ def load(path: PathLike, *, directions: Optional[PathLike] = None, crop: Optiona
     data, vdirs, ldirs, mask, meta = _native.load_capture(
         kind, p, None if directions is None else os.fspath(directions), _crop(crop),
         _index_list("views", views), _index_list("lights", lights), bool(linear), out,
-        callback(progress, f"loading {os.path.basename(p.rstrip(os.sep)) or p}"), max_bytes, bool(allow_outside))
+        callback(progress, f"loading {os.path.basename(p.rstrip(os.sep)) or p}"), max_bytes, bool(allow_outside),
+        limit)
     info = json.loads(meta)
     for w in info.get("warnings", []):
         warnings.warn(w, UserWarning, stacklevel=2)

@@ -183,6 +183,74 @@ impl Raw {
         }
     }
 
+    /// Bytes per pixel of the samples (channels x bytes per sample).
+    pub fn pixel_bytes(&self) -> usize {
+        match &self.samples {
+            Samples::U8(_, ch) => *ch,
+            Samples::U16(_, ch) => 2 * ch,
+            Samples::F32(_, ch) => 4 * ch,
+        }
+    }
+
+    /// Write the samples of the `rows x cols` pixels from (`row`, `col`) to `file` at `offset`,
+    /// row by row (one write when the rows are whole); [`Raw::read_rows`] reads rows of them
+    /// back. Returns the bytes written.
+    pub fn write_rect(&self, file: &std::fs::File, offset: u64, rect: crate::capture::Crop) -> std::io::Result<u64> {
+        use std::os::unix::fs::FileExt;
+        let bytes: &[u8] = match &self.samples {
+            Samples::U8(v, _) => v,
+            Samples::U16(v, _) => bytemuck::cast_slice(v),
+            Samples::F32(v, _) => bytemuck::cast_slice(v),
+        };
+        let px = self.pixel_bytes();
+        let row_bytes = rect.cols * px;
+        if rect.cols == self.width {
+            let start = rect.row * self.width * px;
+            file.write_all_at(&bytes[start..start + rect.rows * row_bytes], offset)?;
+        } else {
+            for r in 0..rect.rows {
+                let start = ((rect.row + r) * self.width + rect.col) * px;
+                file.write_all_at(&bytes[start..start + row_bytes], offset + (r * row_bytes) as u64)?;
+            }
+        }
+        Ok((rect.rows * row_bytes) as u64)
+    }
+
+    /// An image of no pixels with this one's sample type, channels and transfer.
+    pub fn like(&self) -> Raw {
+        let samples = match &self.samples {
+            Samples::U8(_, ch) => Samples::U8(Vec::new(), *ch),
+            Samples::U16(_, ch) => Samples::U16(Vec::new(), *ch),
+            Samples::F32(_, ch) => Samples::F32(Vec::new(), *ch),
+        };
+        Raw { width: 0, height: 0, samples, transfer: self.transfer }
+    }
+
+    /// `rows` rows of `cols` pixels written by [`Raw::write_rect`] of an image like this one
+    /// (its sample type and channels), read from `file` at `offset`: a `rows x cols` image.
+    pub fn read_rows(&self, file: &std::fs::File, offset: u64, rows: usize, cols: usize) -> std::io::Result<Raw> {
+        use std::os::unix::fs::FileExt;
+        let n = rows * cols;
+        let samples = match &self.samples {
+            Samples::U8(_, ch) => {
+                let mut v = vec![0u8; n * ch];
+                file.read_exact_at(&mut v, offset)?;
+                Samples::U8(v, *ch)
+            }
+            Samples::U16(_, ch) => {
+                let mut v = vec![0u16; n * ch];
+                file.read_exact_at(bytemuck::cast_slice_mut(&mut v), offset)?;
+                Samples::U16(v, *ch)
+            }
+            Samples::F32(_, ch) => {
+                let mut v = vec![0f32; n * ch];
+                file.read_exact_at(bytemuck::cast_slice_mut(&mut v), offset)?;
+                Samples::F32(v, *ch)
+            }
+        };
+        Ok(Raw { width: cols, height: rows, samples, transfer: self.transfer })
+    }
+
     /// Bytes the samples hold.
     pub fn sample_bytes(&self) -> usize {
         match &self.samples {
@@ -552,6 +620,38 @@ pub fn read_within(path: &std::path::Path, transfer: Transfer, max_bytes: u64) -
     let mut rgb = Vec::new();
     let (width, height) = decode_place(f, &shown, transfer, disk, max_bytes, Place::New(&mut rgb))?;
     Ok(Decoded { width, height, rgb })
+}
+
+/// An image's (width, height, bytes per pixel of the samples [`decode_raw`] would hold) from
+/// its header, after the checks every file passes (complete, a plausible size within
+/// `max_bytes`); no pixel is decoded.
+pub fn probe_from<R: BufRead + Seek>(
+    mut r: R,
+    shown: &str,
+    disk: u64,
+    max_bytes: u64,
+) -> Result<(usize, usize, usize)> {
+    if is_exr(shown) {
+        r.seek(SeekFrom::Start(0)).map_err(io_err(shown))?;
+        let meta = exr::meta::MetaData::read_from_buffered(r, false).map_err(|e| Error::format(shown, e))?;
+        let h = meta.headers.first().ok_or_else(|| Error::format(shown, "an OpenEXR file without a layer"))?;
+        let (w, ht) = (h.layer_size.0, h.layer_size.1);
+        crate::capture::check_image_budget(shown, w as u64, ht as u64, disk, max_bytes)?;
+        return Ok((w, ht, 12));
+    }
+    let dec = open_decoder(r, shown, disk, max_bytes)?;
+    let (w, h) = image::ImageDecoder::dimensions(&dec);
+    let color = image::ImageDecoder::color_type(&dec);
+    let Some((ch, depth)) = layout(color) else {
+        return Err(Error::format(shown, format!("unsupported pixel layout {color:?}")));
+    };
+    Ok((w as usize, h as usize, ch * depth))
+}
+
+/// [`probe_from`] of a file.
+pub fn probe(path: &std::path::Path, max_bytes: u64) -> Result<(usize, usize, usize)> {
+    let (f, shown, disk) = open_file(path)?;
+    probe_from(f, &shown, disk, max_bytes)
 }
 
 /// Read an image file and decode it without converting ([`decode_raw`]).

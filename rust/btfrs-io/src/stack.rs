@@ -117,6 +117,8 @@ pub struct ImageStack {
     crop: Crop,
     transfer: Transfer,
     max_bytes: u64,
+    /// Bytes per pixel of the first image's samples (the others' are expected alike).
+    pixel_bytes: usize,
 }
 
 impl ImageStack {
@@ -214,9 +216,10 @@ impl ImageStack {
         if slots.is_empty() {
             return Err(Error::arg("views", "the selection keeps no image"));
         }
-        // The first selected image fixes the size; every other one is checked as it is decoded.
-        let first = read_member(&store, &slots[0].0, transfer, max_bytes)?;
-        let full = (first.height, first.width);
+        // The first selected image fixes the size (read from its header); every other one is
+        // checked as it is decoded.
+        let (fw, fh, pixel_bytes) = probe_member(&store, &slots[0].0, max_bytes)?;
+        let full = (fh, fw);
         let crop = sel.rect(full.0, full.1)?;
         if let serde_json::Value::Object(o) = &mut meta {
             o.insert("image_size".into(), serde_json::json!([full.0, full.1]));
@@ -239,12 +242,23 @@ impl ImageStack {
             mask: if mask.iter().all(|&m| m) { None } else { Some(mask) },
             meta,
         };
-        Ok(ImageStack { store, slots, capture, full, crop, transfer, max_bytes })
+        Ok(ImageStack { store, slots, capture, full, crop, transfer, max_bytes, pixel_bytes })
     }
 
     /// The store the images come from.
     pub fn store(&self) -> &Store {
         &self.store
+    }
+}
+
+/// A member's (width, height, bytes per pixel of its samples), from its header.
+fn probe_member(store: &Store, name: &str, max_bytes: u64) -> Result<(usize, usize, usize)> {
+    match store {
+        Store::Folder(d) => decode::probe(&d.join(name), max_bytes),
+        Store::Zip(_) => {
+            let (bytes, disk) = ZipReader::open(store)?.read(name, max_bytes)?;
+            decode::probe_from(std::io::Cursor::new(bytes), &store.shown(name), disk, max_bytes)
+        }
     }
 }
 
@@ -317,18 +331,11 @@ impl Source for ImageStack {
         let cap = &self.capture;
         cap.check_buffer(out)?;
         let (fh, fw) = self.full;
-        // The first batch is a few images per thread; the others as many as fit in 256 MB as
-        // their samples (8-bit JPEG, 16-bit PNG, float EXR) turned out to need: the larger the
-        // batch, the more contiguous each texel's run of written values and the fewer passes of
-        // the scatter over the output (measured: 200 JPEGs of 512^2 in one batch scatter in 0.6
-        // of the decode time, in batches of 8 in 0.95 of it).
-        let threads = rayon::current_num_threads().max(1);
-        let mut batch = 4 * threads;
-        monitor.start(self.slots.len() as u64);
-        let (nl, abrdf) = (cap.lights.len(), cap.abrdf_len());
         let crop = self.crop;
+        let n = self.slots.len();
         if let ([(name, _, _)], true) = (&self.slots[..], (crop.rows, crop.cols) == (fh, fw)) {
             // One whole image is laid out in `out` as it is in the file: decoded in place.
+            monitor.start(1);
             let place = decode::Place::Fixed(out, fh, fw);
             match &self.store {
                 Store::Folder(d) => decode::read_place(&d.join(name), self.transfer, self.max_bytes, place)?,
@@ -341,18 +348,99 @@ impl Source for ImageStack {
             monitor.advance(1);
             return Ok(());
         }
+        // Progress in images: each counts once when decoded and once when written into `out`.
+        monitor.start(2 * n as u64);
+        let plan = StagePlan::new(monitor.memory_limit(), fh * fw * self.pixel_bytes, (fh, fw))?;
+        let (held, spill) = self.decode_all(&plan, monitor)?;
+        self.write_bands(&held, spill.as_ref(), &plan, out, monitor)
+    }
+}
+
+/// A decoded photograph waiting to be written into the capture: its samples in memory, or
+/// cropped to the capture's rectangle in the spill file at `offset` (`like` a zero-size image
+/// of its sample type).
+#[derive(Debug)]
+enum Held {
+    Memory(Raw),
+    File { offset: u64, like: Raw },
+}
+
+/// The spill file: unlinked at creation (nothing is left behind, even after a crash), in the
+/// system's temporary directory (`TMPDIR`); `end` is where the next image goes.
+#[derive(Debug)]
+struct Spill {
+    file: std::fs::File,
+    end: u64,
+}
+
+/// An error of the spill file, naming the temporary directory.
+fn spill_err(e: std::io::Error) -> Error {
+    Error::io(format!("{} (temporary file)", std::env::temp_dir().display()), e)
+}
+
+/// How the decoded photographs are staged (see [`ImageStack::decode_into`]).
+#[derive(Debug)]
+struct StagePlan {
+    /// Images decoded at a time.
+    chunk: usize,
+    /// Bytes of decoded samples kept in memory before the rest is spilled.
+    keep: u64,
+    /// Bytes for the rows read back from the spill file per band.
+    band_bytes: u64,
+}
+
+/// The memory the decoded photographs may take when the caller sets no `memory_limit`: a quarter
+/// of the physical memory (half of [`crate::capture::default_max_bytes`]).
+pub fn default_stage_bytes() -> u64 {
+    crate::capture::default_max_bytes() / 2
+}
+
+impl StagePlan {
+    fn new(limit: Option<u64>, per: usize, full: (usize, usize)) -> Result<StagePlan> {
+        let budget = limit.unwrap_or_else(default_stage_bytes);
+        let per = per.max(1) as u64;
+        // Rows read back per band: a quarter of the budget, at most 64 MB (and at least one row
+        // of every spilled image, whatever the budget).
+        let band_bytes = (budget / 4).min(64 << 20);
+        // The least budget leaving one image's samples beside the band.
+        let least = if per.div_ceil(3) * 4 <= 256 << 20 { per.div_ceil(3) * 4 } else { per + (64 << 20) };
+        if budget < least {
+            return Err(Error::arg(
+                "memory_limit",
+                format!(
+                    "expected at least {least} bytes to decode {} x {} photographs ({per} bytes of samples each) one \
+                     at a time, got {budget}",
+                    full.1, full.0
+                ),
+            ));
+        }
+        let threads = rayon::current_num_threads().max(1) as u64;
+        // Large photographs take long enough each that one per thread keeps every thread busy;
+        // small ones go a few per thread, so that an uneven chunk's wait is short.
+        let want = if per >= 16 << 20 { threads } else { 4 * threads };
+        let chunk = ((budget - band_bytes) / per).clamp(1, want);
+        let keep = budget - band_bytes - chunk * per;
+        Ok(StagePlan { chunk: chunk as usize, keep, band_bytes })
+    }
+}
+
+impl ImageStack {
+    /// Decode every photograph (in parallel, [`StagePlan::chunk`] at a time), checking its
+    /// size, and keep its samples: in memory while they fit [`StagePlan::keep`], else cropped
+    /// into the spill file.
+    fn decode_all(&self, plan: &StagePlan, monitor: &Monitor) -> Result<(Vec<Held>, Option<Spill>)> {
+        let (fh, fw) = self.full;
         let mut zip = match &self.store {
             Store::Zip(_) => Some(ZipReader::open(&self.store)?),
             Store::Folder(_) => None,
         };
-
-        let mut next = 0;
-        while next < self.slots.len() {
-            let chunk = &self.slots[next..(next + batch).min(self.slots.len())];
-            next += chunk.len();
+        let mut spill: Option<Spill> = None;
+        let mut kept = 0u64;
+        let mut held = Vec::with_capacity(self.slots.len());
+        let max_bytes = self.max_bytes;
+        for chunk in self.slots.chunks(plan.chunk) {
             monitor.check()?;
             // Archive members are read in order (one reader), then decoded in parallel.
-            let max_bytes = self.max_bytes;
             let bytes: Vec<Option<(Vec<u8>, u64)>> = match &mut zip {
                 Some(z) => chunk.iter().map(|(n, _, _)| z.read(n, max_bytes).map(Some)).collect::<Result<_>>()?,
                 None => vec![None; chunk.len()],
@@ -361,6 +449,9 @@ impl Source for ImageStack {
                 .par_iter()
                 .zip(bytes)
                 .map(|((name, _, _), b)| {
+                    if monitor.is_cancelled() {
+                        return Err(Error::Interrupted);
+                    }
                     let img = match b {
                         Some((b, disk)) => {
                             decode::decode_raw(&b, &self.store.shown(name), self.transfer, disk, max_bytes)?
@@ -376,45 +467,130 @@ impl Source for ImageStack {
                             ),
                         ));
                     }
+                    monitor.advance(1);
                     Ok(img)
                 })
                 .collect::<Result<_>>()?;
-            scatter(out, abrdf, nl, crop, fw, chunk.iter().map(|&(_, v, l)| (v, l)).zip(&images));
-            monitor.advance(chunk.len() as u64);
-            let per_image = images.iter().map(Raw::sample_bytes).max().unwrap_or(1).max(1);
-            batch = ((256usize << 20) / per_image).clamp(threads, 4096);
+            for img in images {
+                let b = img.sample_bytes() as u64;
+                if kept + b <= plan.keep {
+                    kept += b;
+                    held.push(Held::Memory(img));
+                } else {
+                    held.push(self.spill(&mut spill, img)?);
+                }
+            }
+        }
+        Ok((held, spill))
+    }
+
+    /// Write an image's crop into the spill file (made on first use).
+    fn spill(&self, spill: &mut Option<Spill>, img: Raw) -> Result<Held> {
+        let s = match spill {
+            Some(s) => s,
+            None => {
+                let file = tempfile::tempfile_in(std::env::temp_dir()).map_err(spill_err)?;
+                spill.insert(Spill { file, end: 0 })
+            }
+        };
+        let offset = s.end;
+        s.end += img.write_rect(&s.file, offset, self.crop).map_err(spill_err)?;
+        Ok(Held::File { offset, like: img.like() })
+    }
+
+    /// Write the held photographs into `out`, band of texel rows by band: each band's texels are
+    /// written once, with every photograph's value (the spilled ones' rows read back first).
+    fn write_bands(
+        &self,
+        held: &[Held],
+        spill: Option<&Spill>,
+        plan: &StagePlan,
+        out: &mut [f32],
+        monitor: &Monitor,
+    ) -> Result<()> {
+        let (nl, abrdf) = (self.capture.lights.len(), self.capture.abrdf_len());
+        let (_, fw) = self.full;
+        let crop = self.crop;
+        let spilled_row: usize = held
+            .iter()
+            .map(|h| match h {
+                Held::File { like, .. } => crop.cols * like.pixel_bytes(),
+                Held::Memory(_) => 0,
+            })
+            .sum();
+        let out_row = crop.cols * abrdf;
+        // Bands of at most 256 MB of output (the unit of progress and of cancelling) and of what
+        // the plan allows to read back.
+        let rows = (plan.band_bytes as usize / spilled_row.max(1))
+            .min((256usize << 20) / (4 * out_row).max(1))
+            .clamp(1, crop.rows);
+        let n = held.len() as u64;
+        let mut done = 0u64;
+        for r0 in (0..crop.rows).step_by(rows) {
+            monitor.check()?;
+            let r1 = (r0 + rows).min(crop.rows);
+            let back: Vec<Option<Raw>> = held
+                .par_iter()
+                .map(|h| match h {
+                    Held::File { offset, like } => {
+                        let at = offset + (r0 * crop.cols * like.pixel_bytes()) as u64;
+                        let file = &spill.expect("an image was spilled").file;
+                        like.read_rows(file, at, r1 - r0, crop.cols).map(Some).map_err(spill_err)
+                    }
+                    Held::Memory(_) => Ok(None),
+                })
+                .collect::<Result<_>>()?;
+            let images: Vec<Rows<'_>> = held
+                .iter()
+                .zip(&back)
+                .zip(&self.slots)
+                .map(|((h, b), &(_, v, l))| match (h, b) {
+                    (Held::Memory(img), _) => {
+                        Rows { slot: v * nl + l, img, first: (crop.row + r0) * fw + crop.col, stride: fw }
+                    }
+                    (Held::File { .. }, Some(img)) => Rows { slot: v * nl + l, img, first: 0, stride: crop.cols },
+                    (Held::File { .. }, None) => unreachable!("every spilled image is read back"),
+                })
+                .collect();
+            scatter(&mut out[r0 * out_row..r1 * out_row], abrdf, crop.cols, &images);
+            let now = n * r1 as u64 / crop.rows as u64;
+            monitor.advance(now - done);
+            done = now;
         }
         Ok(())
     }
 }
 
+/// Rows of one photograph for [`scatter`]: texel `t` of a band (`t / cols` rows down, `t % cols`
+/// across) is pixel `first + (t / cols) * stride + t % cols` of `img`, written at `slot` (the
+/// (view, light) pair's index) of the texel.
+#[derive(Debug)]
+struct Rows<'a> {
+    slot: usize,
+    img: &'a Raw,
+    first: usize,
+    stride: usize,
+}
+
 /// Texels per block of the scatter (measured best of 16 to 128): a block's slices of the output
-/// (`SCATTER_BLOCK` texels of `abrdf` values) stay in cache while every image of the batch writes its run of pixels into
-/// them, each image's run converted in one loop straight into them ([`Raw::rgb_run`]).
+/// (`SCATTER_BLOCK` texels of `abrdf` values) stay in cache while every image writes its run of
+/// pixels into them, each image's run converted in one loop straight into them ([`Raw::rgb_run`]).
 const SCATTER_BLOCK: usize = 128;
 
-/// Write the images of a batch, each with its `(view, light)` slot, into the texel-major
-/// output (`abrdf` values per texel, `nl` lights), texel `t` being pixel `(crop.row + t /
-/// crop.cols, crop.col + t % crop.cols)` of images `fw` pixels wide. Blocks of texels in
-/// parallel; within a block, image by image, run by run (a run ends at the crop's row end).
-fn scatter<'a>(
-    out: &mut [f32],
-    abrdf: usize,
-    nl: usize,
-    crop: Crop,
-    fw: usize,
-    images: impl Iterator<Item = ((usize, usize), &'a Raw)> + Clone + Send + Sync,
-) {
+/// Write every photograph's pixels into the band `out` of texel-major values (`abrdf` per
+/// texel, `cols` texels a row). Blocks of texels in parallel; within a block, image by image,
+/// run by run (a run ends at a row's end).
+fn scatter(out: &mut [f32], abrdf: usize, cols: usize, images: &[Rows<'_>]) {
     out.par_chunks_mut(abrdf * SCATTER_BLOCK).enumerate().for_each(|(b, block)| {
         let (t0, n) = (b * SCATTER_BLOCK, block.len() / abrdf);
-        for ((v, l), img) in images.clone() {
-            let dst = (v * nl + l) * 3;
+        for im in images {
+            let dst = im.slot * 3;
             let mut i = 0;
             while i < n {
                 let t = t0 + i;
-                let run = (n - i).min(crop.cols - t % crop.cols);
-                let p = (crop.row + t / crop.cols) * fw + crop.col + t % crop.cols;
-                img.rgb_run(p, run, &mut block[i * abrdf + dst..], abrdf);
+                let run = (n - i).min(cols - t % cols);
+                let p = im.first + (t / cols) * im.stride + t % cols;
+                im.img.rgb_run(p, run, &mut block[i * abrdf + dst..], abrdf);
                 i += run;
             }
         }
@@ -645,6 +821,75 @@ mod tests {
         assert_eq!(info.finite, Some(true));
         let bytes = crate::container::read_array(&out, info).unwrap();
         assert_eq!(crate::container::from_bytes::<f32>(&bytes).unwrap(), mem);
+    }
+
+    #[test]
+    fn spilled_photographs_load_as_held_ones() {
+        // Seven 9 x 7 photographs, one of them 16-bit and one grey, loaded whole and cropped:
+        // with no limit (all held in memory), and with limits that spill some or all of them to
+        // the temporary file and write the capture in bands of one row. Every load must equal
+        // the values decoded image by image (`decode::read`), placed by hand.
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = (9u32, 7u32);
+        let mut members = Vec::new();
+        for i in 0..7u32 {
+            let name = format!("i{i}.png");
+            let px = |x: u32, y: u32, c: u32| (x * 29 + y * 17 + c * 71 + i * 13) % 256;
+            match i {
+                3 => image::ImageBuffer::<image::Rgb<u16>, _>::from_fn(w, h, |x, y| {
+                    image::Rgb([0, 1, 2].map(|c| (px(x, y, c) * 257 + c) as u16))
+                })
+                .save(dir.path().join(&name))
+                .unwrap(),
+                5 => image::GrayImage::from_fn(w, h, |x, y| image::Luma([px(x, y, 0) as u8]))
+                    .save(dir.path().join(&name))
+                    .unwrap(),
+                _ => image::RgbImage::from_fn(w, h, |x, y| image::Rgb([0, 1, 2].map(|c| px(x, y, c) as u8)))
+                    .save(dir.path().join(&name))
+                    .unwrap(),
+            }
+            let a = i as f64 * 0.8;
+            let light = [0.6 * a.cos(), 0.6 * a.sin(), 0.8];
+            members.push(Member { name, view: [0.0, 0.0, 1.0], light, at: String::new() });
+        }
+        let decoded: Vec<decode::Decoded> =
+            (0..7).map(|i| decode::read(&dir.path().join(format!("i{i}.png")), Transfer::Srgb).unwrap()).collect();
+        for crop in [None, Some(Crop { row: 2, col: 3, rows: 4, cols: 5 })] {
+            let sel = Selection { crop, ..Selection::default() };
+            let s = ImageStack::new(
+                Store::Folder(dir.path().to_path_buf()),
+                members.clone(),
+                &sel,
+                Transfer::Srgb,
+                None,
+                serde_json::json!({}),
+            )
+            .unwrap();
+            let c = crop.unwrap_or(Crop { row: 0, col: 0, rows: 7, cols: 9 });
+            let mut want = vec![0.0f32; c.rows * c.cols * 7 * 3];
+            for (l, d) in decoded.iter().enumerate() {
+                for t in 0..c.rows * c.cols {
+                    let p = (c.row + t / c.cols) * 9 + c.col + t % c.cols;
+                    want[t * 21 + l * 3..t * 21 + l * 3 + 3].copy_from_slice(&d.rgb[p * 3..p * 3 + 3]);
+                }
+            }
+            // The first image holds 9 x 7 x 3 bytes (189): the least budget is 252 bytes.
+            for (limit, spilled) in [(None, 0..=0), (Some(3000), 1..=6), (Some(300), 7..=7), (Some(252), 7..=7)] {
+                let m = Monitor::new();
+                m.set_memory_limit(limit);
+                let got = capture::load(&s, &m).unwrap();
+                assert_eq!(got, want, "crop {crop:?}, memory_limit {limit:?}");
+                assert_eq!(m.progress(), (14, 14));
+                let plan = StagePlan::new(limit, 9 * 7 * 3, (7, 9)).unwrap();
+                let (held, _) = s.decode_all(&plan, &Monitor::new()).unwrap();
+                let n = held.iter().filter(|h| matches!(h, Held::File { .. })).count();
+                assert!(spilled.contains(&n), "memory_limit {limit:?}: {n} spilled");
+            }
+            let m = Monitor::new();
+            m.set_memory_limit(Some(251));
+            let e = capture::load(&s, &m).unwrap_err().to_string();
+            assert!(e.starts_with("memory_limit: expected at least 252 bytes") && e.contains("9 x 7"), "{e}");
+        }
     }
 
     #[test]

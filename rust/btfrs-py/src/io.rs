@@ -261,9 +261,10 @@ type Loaded<'py> = (
 );
 
 /// Open a measured capture (`kind`: "ubo2003", "lp", "table", "ubo2014") and decode it into
-/// memory, or into the `.btfrs` file `mmap_to`. `crop` is (row, col, rows, cols).
+/// memory, or into the `.btfrs` file `mmap_to`. `crop` is (row, col, rows, cols); `memory_limit`
+/// bounds the decoded photographs held in memory (the rest wait in a temporary file).
 #[pyfunction]
-#[pyo3(signature = (kind, path, table=None, crop=None, views=None, lights=None, linear=false, mmap_to=None, progress=None, max_bytes=None, allow_outside=false))]
+#[pyo3(signature = (kind, path, table=None, crop=None, views=None, lights=None, linear=false, mmap_to=None, progress=None, max_bytes=None, allow_outside=false, memory_limit=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn load_capture<'py>(
     py: Python<'py>,
@@ -278,6 +279,7 @@ pub fn load_capture<'py>(
     progress: Option<Bound<'py, PyAny>>,
     max_bytes: Option<u64>,
     allow_outside: bool,
+    memory_limit: Option<u64>,
 ) -> PyResult<Loaded<'py>> {
     use btfrs_io::capture::{self, Crop, Limits, Selection, Source};
     let limits = Limits { max_bytes: max_bytes.unwrap_or_else(capture::default_max_bytes), allow_outside };
@@ -303,11 +305,15 @@ pub fn load_capture<'py>(
     let cap = source.capture().clone();
     let data = match &mmap_to {
         Some(out) => {
-            crate::run::monitored(py, progress.as_ref(), |m| capture::load_to_file(source.as_ref(), out, m))?;
+            crate::run::monitored(py, progress.as_ref(), |m| {
+                m.set_memory_limit(memory_limit);
+                capture::load_to_file(source.as_ref(), out, m)
+            })?;
             None
         }
         None => {
             let v = crate::run::monitored(py, progress.as_ref(), |m| {
+                m.set_memory_limit(memory_limit);
                 capture::load_within(source.as_ref(), &shown, limits.max_bytes, m)
             })?;
             let shape = [cap.height, cap.width, cap.views.len(), cap.lights.len(), 3];
