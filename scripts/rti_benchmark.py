@@ -51,6 +51,9 @@ METHODS: List[Tuple[str, Optional[str], Dict[str, Any]]] = [
     ("SVBRDF", "svbrdf", {}),
     ("Neural", "neural", {}),
     ("Neural-best", "neural", {"latents": 16}),
+    # What the horizon map (the clearance inputs, shadows and relief) is worth: the defaults
+    # without it, NeuralRTI's inputs.
+    ("Neural-no-horizon", "neural", {"horizon": 0}),
 ]
 
 
@@ -230,7 +233,10 @@ def main(argv: Optional[List[str]] = None) -> int:
         sys.exit("rti_benchmark: no SynthRTI set or .lp capture found")
     os.makedirs(args.out, exist_ok=True)
     store = os.path.join(args.out, "results.json")
-    rows: List[Dict[str, Any]] = json.load(open(store)) if os.path.exists(store) else []
+    rows: List[Dict[str, Any]] = []
+    if os.path.exists(store):
+        with open(store) as f:
+            rows = json.load(f)
     if args.fresh:
         # Only the rows this run will recompute go: the other methods' and sets' stay.
         names = {n for n, _ in sets}
@@ -256,7 +262,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     labels = [m[0] for m in METHODS if any(r["method"] == m[0] for r in rows)]
     write_table(rows, labels, os.path.join(args.out, "table.md"))
     write_chart(rows, labels, os.path.join(args.out, "psnr_vs_bytes.png"))
-    print(open(os.path.join(args.out, "table.md")).read())
+    with open(os.path.join(args.out, "table.md")) as f:
+        print(f.read())
     return 0
 
 

@@ -41,6 +41,11 @@ if ! .venv/bin/python -c "import maturin, numpy, pytest, xdist, scipy, sklearn, 
   log "installing Python packages into .venv"
   .venv/bin/python -m pip install -q --disable-pip-version-check "maturin>=1.7,<2" "numpy>=1.22" "pytest>=7" "pytest-xdist>=3" "scipy>=1.9" "scikit-learn>=1.3" "mypy>=1.10" "matplotlib>=3.5" "pillow>=9"
 fi
+# SSIM for the RTI benchmark script (scripts/rti_benchmark.py) and its test: btfrs[bench].
+if ! .venv/bin/python -c "import skimage" >/dev/null 2>&1; then
+  log "installing scikit-image into .venv"
+  .venv/bin/python -m pip install -q --disable-pip-version-check "scikit-image>=0.21"
+fi
 # The btfrs[dask] extra (btfrs.dask and its LocalCluster tests).
 if ! .venv/bin/python -c "import dask.array, distributed, zarr" >/dev/null 2>&1; then
   log "installing dask, distributed and zarr into .venv"
