@@ -204,10 +204,13 @@ print(json.dumps({"growth": max(peak[0], rss_anon()) - base, "result": n}))
 def test_a_load_holds_its_data_once(tmp_path, images, size, fmt, how):
     # The anonymous memory a fresh interpreter gains while loading an 8-bit image stack (or one
     # image with load_image), against the result (sampled every 2 ms, as the out-of-core tests
-    # do): at most 1.2x. Files are read as streams; a stack of many images converts each image's
-    # samples as it scatters them (a bounded batch of images at a time), and a single image is
-    # decoded into the tail of its own float buffer and widened in place, so neither holds a
-    # second copy. Measured here: 1.06x (PNG), 1.10x (JPEG), 1.02x (load_image).
+    # do): at most 1.2x, plus, for a stack of several images, the photographs' decoded 8-bit
+    # samples. Files are read as streams; a stack's photographs are decoded first and held
+    # (within memory_limit, beyond it in a temporary file) so that the float result is written
+    # once, band by band (a quarter of the result for 8-bit RGB: 3 bytes a texel against 12); a
+    # single image is decoded into the tail of its own float buffer and widened in place. A
+    # second float copy (2x) fails either bound. Measured here: 1.25x (16 PNGs: the result and
+    # their samples), 1.10x (JPEG), 1.02x (load_image).
     import json
     import subprocess
     import sys
@@ -230,4 +233,5 @@ def test_a_load_holds_its_data_once(tmp_path, images, size, fmt, how):
     assert r.returncode == 0, r.stderr
     m = json.loads(r.stdout)
     assert m["result"] == size * size * images * 12
-    assert m["growth"] <= 1.2 * m["result"], f"peak {m['growth'] / m['result']:.2f}x the result ({m})"
+    held = images * size * size * 3 if images > 1 else 0
+    assert m["growth"] <= 1.2 * m["result"] + held, f"peak {m['growth'] / m['result']:.2f}x the result ({m})"

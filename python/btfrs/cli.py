@@ -892,8 +892,8 @@ def _viewable(obj: Any, args: argparse.Namespace) -> Tuple[Model, Dict[str, Any]
     if isinstance(obj, Model):
         return obj, surface
     if isinstance(obj, Btf):
-        # A tiled page of a neural model is NeuralRTI's folder, whose decoder reads no horizon map.
-        opts: Dict[str, Any] = {"horizon": 0} if args.tiles and args.model == "neural" else {}
+        # A tiled page is written in the model's export formats: fit what they can hold.
+        opts: Dict[str, Any] = dict(model_kinds()[args.model]["export_options"]) if args.tiles else {}
         if not args.quiet:
             print(f"fitting a {args.model} model for the viewer (--model to choose another) ...", flush=True)
         return fit_mod.fit(args.model, obj, **opts), surface

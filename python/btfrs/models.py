@@ -620,8 +620,10 @@ def model_kinds() -> Dict[str, Dict[str, Any]]:
     ``type``, ``default``, ``allowed``, ``doc``, and ``min``/``max``/``choices``), ``renderers``
     (the default first), ``examples`` (``(label, options)`` pairs, what the demo and the bench
     fit), ``sweep`` (``(label, options, quick, note)`` of :func:`btfrs.evaluate`), ``sampling``,
-    ``exports`` (other tools' formats), ``mip``, ``blockwise``, ``scans_values`` and
-    ``stochastic`` (trained by stochastic gradient descent: another seed gives another model)."""
+    ``exports`` (other tools' formats), ``mip``, ``blockwise``, ``scans_values``,
+    ``stochastic`` (trained by stochastic gradient descent: another seed gives another model) and
+    ``export_options`` (the options a fit needs for its model to go into every format of
+    ``exports``)."""
     global _REGISTRY
     if _REGISTRY is None:
         _REGISTRY = {}

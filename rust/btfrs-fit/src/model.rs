@@ -101,6 +101,11 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     /// holds of a deterministic fit ("the clean case is the best", equal results under a memory
     /// limit) holds of such a model within its spread over seeds.
     const STOCHASTIC: bool = false;
+    /// Options (a JSON object) a fit needs for its model to be written in every format of
+    /// [`Model::EXPORTS`], where the defaults make a model some of them cannot hold (`"{}"`: the
+    /// defaults export). What a tool that fits in order to export (the CLI's tiled web page)
+    /// passes, so that it names no model.
+    const EXPORT_OPTIONS: &'static str = "{}";
     /// How the fit splits over blocks of texels fitted apart (a Dask cluster's chunks,
     /// `btfrs.dask`): see [`crate::blockwise`]. The default is the safe answer for a new model.
     const BLOCKWISE: crate::blockwise::Blockwise =

@@ -241,27 +241,62 @@ impl Neural {
     }
 }
 
-/// The view slot a sample's relief is measured in: the one seen most nearly from above.
-fn relief_view(btf: &BtfRef<'_>) -> usize {
-    (0..btf.views.len()).max_by(|&a, &b| btf.views[a][2].total_cmp(&btf.views[b][2])).unwrap_or(0)
+/// Present lights a view slot needs for its relief: photometric stereo's minimum is 3, and a
+/// height from so few is mostly noise.
+const RELIEF_MIN_LIGHTS: usize = 6;
+
+/// The view slot a sample's relief is measured in: the one seen most nearly from above among
+/// those with at least [`RELIEF_MIN_LIGHTS`] present lights (a sample trained on grazing pairs
+/// only may have none in its frontal slots); `None` if no slot has that many.
+fn relief_view(btf: &BtfRef<'_>) -> Option<usize> {
+    let nl = btf.lights.len();
+    let present = |v: usize| (0..nl).filter(|&l| btf.mask.is_none_or(|m| m[v * nl + l])).count();
+    (0..btf.views.len())
+        .filter(|&v| present(v) >= RELIEF_MIN_LIGHTS)
+        .max_by(|&a, &b| btf.views[a][2].total_cmp(&btf.views[b][2]))
+}
+
+/// The horizon map of `btf` and the report's entries about it; `Ok(None)` with the reason when
+/// the default (no `horizon` given) meets a sample whose relief cannot be measured, so that the
+/// model fits without clearance inputs instead of failing. A `horizon` asked for explicitly
+/// gets the error.
+fn relief_of(
+    btf: &BtfRef<'_>,
+    o: &NeuralOptions,
+    monitor: &Monitor,
+    extra: &mut serde_json::Map<String, serde_json::Value>,
+) -> Result<Option<HorizonMap>> {
+    let measured = relief_view(btf)
+        .ok_or_else(|| {
+            Error::Degenerate(format!(
+                "no view slot has the {RELIEF_MIN_LIGHTS} present lights the horizon map's photometric stereo needs"
+            ))
+        })
+        .and_then(|view| relief::height_map(btf, view, monitor).map(|h| (view, h)));
+    let (view, (height, normals, albedo)) = match measured {
+        Ok(m) => m,
+        Err(Error::Degenerate(why)) if o.horizon.is_none() => {
+            extra.insert("horizon_skipped".into(), why.into());
+            return Ok(None);
+        }
+        Err(e) => return Err(e),
+    };
+    let (scale, score) = relief::choose_scale(btf, view, &height, &normals, &albedo);
+    let components = o.horizon.unwrap_or(HORIZON_COMPONENTS);
+    let map = HorizonMap::build(&height, scale, components, monitor)?;
+    extra.insert("horizon_scale".into(), scale.into());
+    extra.insert("horizon_agreement".into(), score.into());
+    Ok(Some(map))
 }
 
 /// Fit a neural model to the present pairs of `btf`; `monitor` counts training steps.
 pub fn fit_neural(btf: &BtfRef<'_>, o: &NeuralOptions, monitor: &Monitor) -> Result<Neural> {
-    let s = o.setup(btf)?;
+    let mut s = o.setup(btf)?;
     let mut extra = serde_json::Map::new();
-    let horizon = if s.shape.horizon > 0 {
-        let view = relief_view(btf);
-        let (height, normals, albedo) = relief::height_map(btf, view, monitor)?;
-        let (scale, score) = relief::choose_scale(btf, view, &height, &normals, &albedo);
-        let components = o.horizon.unwrap_or(HORIZON_COMPONENTS);
-        let map = HorizonMap::build(&height, scale, components, monitor)?;
-        extra.insert("horizon_scale".into(), scale.into());
-        extra.insert("horizon_agreement".into(), score.into());
-        Some(map)
-    } else {
-        None
-    };
+    let horizon = if s.shape.horizon > 0 { relief_of(btf, o, monitor, &mut extra)? } else { None };
+    if horizon.is_none() {
+        s.shape.horizon = 0;
+    }
     let t = train::train(btf, &s, horizon.as_ref(), monitor)?;
     let mut report = serde_json::to_value(&t.report).unwrap_or(serde_json::Value::Null);
     if let serde_json::Value::Object(m) = &mut report {
@@ -476,6 +511,8 @@ and whether training stopped early. Filtered lookups average the codes (`mip = \
     const EXPORTS: &'static [&'static str] = &["neuralrti"];
     const TEXEL_ARRAYS: &'static [&'static str] = &["latents_q", "horizon_q"];
     const STOCHASTIC: bool = true;
+    // NeuralRTI's decoder (OpenLIME) has no input for the horizon map's clearances.
+    const EXPORT_OPTIONS: &'static str = r#"{"horizon": 0}"#;
     const SMALLEST: &'static str = r#"{"latents": 4, "hidden": 16, "steps": 300}"#;
     const BENCH: &'static [crate::model::Bench] = &[crate::model::Bench::new("Neural-8", "{}", &["against_all"])];
     // Averaged latents were measured against supersampling (a plane at 40 repeats, bumps 16^2):

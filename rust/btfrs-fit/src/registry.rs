@@ -53,6 +53,8 @@ pub struct Entry {
     pub finish_blocks: fn(&NamedArrays, &Values) -> Result<Box<dyn DynModel>>,
     /// [`Model::STOCHASTIC`].
     pub stochastic: bool,
+    /// [`Model::EXPORT_OPTIONS`].
+    pub export_options: &'static str,
     /// [`Model::SMALLEST`] (`""`: the first example).
     pub smallest: &'static str,
     /// [`Model::BENCH`].
@@ -206,6 +208,7 @@ pub const fn entry<M: Model + std::fmt::Debug>() -> Entry {
         blockwise: M::BLOCKWISE,
         finish_blocks: finish_blocks_erased::<M>,
         stochastic: M::STOCHASTIC,
+        export_options: M::EXPORT_OPTIONS,
         smallest: if M::SMALLEST.is_empty() { M::EXAMPLES[0].1 } else { M::SMALLEST },
         bench: M::BENCH,
     }
@@ -285,6 +288,7 @@ pub fn describe() -> Value {
                     "blockwise": blockwise,
                     "blockwise_note": why,
                     "stochastic": e.stochastic,
+                    "export_options": fact(e.export_options),
                     "smallest": fact(e.smallest),
                     "bench": e.bench_settings().unwrap_or_default().into_iter().map(|(label, o, b)| json!({
                         "label": label, "options": o, "roles": b.roles, "peer": b.peer, "note": b.note,
@@ -528,6 +532,7 @@ mod tests {
                 "exports",
                 "blockwise",
                 "stochastic",
+                "export_options",
                 "smallest",
             ] {
                 assert!(!m[key].is_null(), "{} lacks {key}", e.kind);

@@ -470,3 +470,46 @@ fn gradients_match_central_differences_with_clearances() {
         assert!((fd - g.dz[i] as f64).abs() < 0.02 * scale as f64 + 0.05 * fd.abs(), "latent {i}: {} vs {fd}", g.dz[i]);
     }
 }
+
+#[test]
+fn a_sample_without_a_view_for_its_relief_fits_without_the_horizon_map() {
+    // Grazing pairs only (view and light both at least 45 degrees off the normal): no view slot
+    // keeps the lights photometric stereo needs near the top, as in the stability suite's
+    // grazing regime. The default fits without clearances and says why; a horizon map asked for
+    // explicitly is refused, naming the cause.
+    let btf = btfrs_core::materials::generate(
+        &btfrs_core::materials::MaterialSpec::new(btfrs_core::materials::Preset::Grooves, 8, 0),
+        &Monitor::new(),
+    )
+    .unwrap();
+    let b = btf.as_ref();
+    let nl = b.lights.len();
+    let grazing = |d: [f64; 3]| d[2] <= std::f64::consts::FRAC_PI_4.cos();
+    let mask: Vec<bool> =
+        (0..b.views.len() * nl).map(|i| grazing(b.views[i / nl]) && grazing(b.lights[i % nl])).collect();
+    // The premise: every view slot with at least RELIEF_MIN_LIGHTS present lights is grazing,
+    // and the frontal one has none.
+    assert!(!mask[..nl].iter().any(|&x| x));
+    let masked = BtfRef { mask: Some(&mask), ..b };
+    let o = NeuralOptions { latents: 2, hidden: 8, steps: Some(60), ..Default::default() };
+    match relief_view(&masked) {
+        None => {
+            let m = fit_neural(&masked, &o, &Monitor::new()).unwrap();
+            assert!(m.horizon().is_none() && m.decoder().shape.horizon == 0);
+            let why = m.report["horizon_skipped"].as_str().unwrap();
+            assert!(why.contains("photometric stereo"), "{why}");
+            assert_eq!(m.report["horizon"], 0);
+        }
+        Some(v) => assert!(grazing(masked.views[v]), "relief measured in a non-grazing slot {v}"),
+    }
+    // Explicitly asked for: an error, not a silent model without it.
+    let all_off = vec![false; b.views.len() * nl];
+    let mut few = all_off.clone();
+    few[..4].iter_mut().for_each(|x| *x = true); // view 0, 4 lights
+    let sparse = BtfRef { mask: Some(&few), ..b };
+    let e =
+        fit_neural(&sparse, &NeuralOptions { horizon: Some(8), latents: 2, ..o.clone() }, &Monitor::new()).unwrap_err();
+    assert!(e.to_string().contains("present lights"), "{e}");
+    let m = fit_neural(&sparse, &NeuralOptions { latents: 2, ..o }, &Monitor::new()).unwrap();
+    assert!(m.horizon().is_none() && m.report["horizon_skipped"].is_string());
+}
