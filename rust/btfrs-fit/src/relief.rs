@@ -49,7 +49,9 @@ impl Height {
         if !(r >= 0.0 && c >= 0.0 && r <= (self.rows - 1) as f32 && c <= (self.cols - 1) as f32) {
             return None;
         }
-        let (r0, c0) = (r.floor() as usize, c.floor() as usize);
+        // Both are at least 0 here, so truncation is the floor (without a libm call per sample:
+        // this lookup is the inner loop of the horizon march).
+        let (r0, c0) = (r as usize, c as usize);
         let (r1, c1) = ((r0 + 1).min(self.rows - 1), (c0 + 1).min(self.cols - 1));
         let (fr, fc) = (r - r0 as f32, c - c0 as f32);
         let z = &self.z;
@@ -224,6 +226,8 @@ pub fn choose_scale(
 pub const BINS: usize = 32;
 /// Texels the principal components of a horizon map are computed from, at most.
 const PCA_TEXELS: usize = 65_536;
+/// The largest full horizon map (bytes) built in one piece; 64 MiB is 512^2 texels at 32 bins.
+const WHOLE_MAP_BYTES: usize = 64 << 20;
 
 /// A compact horizon map: per texel the coordinates of its row of [`BINS`] horizon angles in
 /// the map's leading principal components (8-bit planes), `horizon(t, k) = mean[k] + sum_i
@@ -245,11 +249,29 @@ impl HorizonMap {
     /// from the horizons of up to [`PCA_TEXELS`] texels spread over the map, then every texel's
     /// horizons, a block of rows at a time, projected on them (`monitor` counts rows).
     pub fn build(height: &Height, scale: f32, components: usize, monitor: &Monitor) -> Result<HorizonMap> {
+        Self::build_within(height, scale, components, monitor, WHOLE_MAP_BYTES)
+    }
+
+    /// [`HorizonMap::build`], marching the whole map at once when it fits in `whole_bytes`.
+    fn build_within(
+        height: &Height,
+        scale: f32,
+        components: usize,
+        monitor: &Monitor,
+        whole_bytes: usize,
+    ) -> Result<HorizonMap> {
         let (bins, m) = (BINS, components.min(BINS));
         let texels = height.rows * height.cols;
         let stride = texels.div_ceil(PCA_TEXELS).max(1);
         let sample: Vec<usize> = (0..texels).step_by(stride).collect();
-        let hs = horizons_of(height, scale, bins, &sample);
+        // A map that fits in `whole_bytes` is marched once and the sample read from it (a third
+        // of the fit's setup at 320^2 was the sample marched twice); a larger one marches the
+        // sample, then every texel a block at a time.
+        let whole = (texels * bins * 4 <= whole_bytes).then(|| horizons(height, scale, bins));
+        let hs = match &whole {
+            Some(all) => sample.iter().flat_map(|&t| all[t * bins..(t + 1) * bins].iter().copied()).collect(),
+            None => horizons_of(height, scale, bins, &sample),
+        };
         let n = sample.len() as f64;
         let mut mean = vec![0.0f64; bins];
         for row in hs.chunks_exact(bins) {
@@ -281,8 +303,15 @@ impl HorizonMap {
         for r0 in (0..height.rows).step_by(rows_per) {
             monitor.check()?;
             let r1 = (r0 + rows_per).min(height.rows);
-            let block: Vec<usize> = (r0 * height.cols..r1 * height.cols).collect();
-            let hb = horizons_of(height, scale, bins, &block);
+            let marched;
+            let hb: &[f32] = match &whole {
+                Some(all) => &all[r0 * height.cols * bins..r1 * height.cols * bins],
+                None => {
+                    let block: Vec<usize> = (r0 * height.cols..r1 * height.cols).collect();
+                    marched = horizons_of(height, scale, bins, &block);
+                    &marched
+                }
+            };
             coeffs[r0 * height.cols * m..r1 * height.cols * m]
                 .par_chunks_mut(m.max(1))
                 .zip(hb.par_chunks(bins))
@@ -470,6 +499,8 @@ mod map_tests {
             let mut a = NamedArrays::new();
             map.insert_into(&mut a, "horizon_", vec![rows, cols, m]);
             assert_eq!(HorizonMap::from_arrays(&a, "horizon_", rows * cols, m).unwrap(), map);
+            // Marched in blocks (a map too large to hold whole): the same map.
+            assert_eq!(HorizonMap::build_within(&h, 1.0, m, &Monitor::new(), 0).unwrap(), map);
         }
     }
 }
