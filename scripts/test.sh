@@ -60,5 +60,6 @@ stage "mypy --strict"
 stage "pytest"
 # Two workers (pytest-xdist), each test file on one of them, so a module's shared fixture is
 # computed once: the Rust side is parallel already, but much of the suite is Python and numpy.
-.venv/bin/python -m pytest -q -n "${BTFRS_TEST_WORKERS:-2}" --dist loadfile "$@"
+# --durations: the slowest tests and fixtures are in every log, for whoever keeps CI short.
+.venv/bin/python -m pytest -q -n "${BTFRS_TEST_WORKERS:-2}" --dist loadfile --durations=15 "$@"
 stage "done"
