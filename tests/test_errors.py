@@ -63,7 +63,7 @@ _CTRL_C_CHILD = (
     # returned; it must not kill the report.
     "try:\n"
     "    try:\n"
-    "        btfrs.materials.make('knit', size=176, progress=tick)\n"
+    "        btfrs.materials.make('knit', size=128, progress=tick)\n"
     "        returned = time.time()\n"
     "        outcome = 'finished'\n"
     "    except KeyboardInterrupt:\n"
