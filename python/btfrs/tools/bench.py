@@ -253,18 +253,18 @@ def env_bench(size: int = 64, repeat: int = 2) -> List[Any]:
     return rows
 
 
-def frames_bench(size: int = 32, repeat: int = 2) -> List[Any]:
+def frames_bench(size: int = 32, repeat: int = 2, frame: int = 512) -> List[Any]:
     """The "every model within 3x of the reference" check over every example option set of every
-    registered model and each of its renderers (``env_bench`` takes one per model): a 512^2
-    sphere under one point light on the knit at ``size``^2, best of ``repeat`` after a warm-up
-    frame, as a ratio to the reference setting's frame in the same run."""
+    registered model and each of its renderers (``env_bench`` takes one per model): a
+    ``frame``^2 sphere under one point light on the knit at ``size``^2, best of ``repeat`` after
+    a warm-up frame, as a ratio to the reference setting's frame in the same run."""
     btf = materials.make("knit", size=size, seed=1)
     scene = rendering.Scene.sphere()
     cam = rendering.Camera.look_at([0, -3, 2], [0, 0, 0], 40)
     light = [rendering.PointLight([2.0, -2.0, 3.0], 8.0)]
 
     def best(m: Any, method: str) -> float:
-        kw: Dict[str, Any] = dict(size=512, uv_scale=4, renderer=method)
+        kw: Dict[str, Any] = dict(size=frame, uv_scale=4, renderer=method)
         rendering.render(m, scene, cam, light, **kw)
         t = float("inf")
         for _ in range(repeat):
