@@ -185,7 +185,7 @@ def medium(tmp_path_factory):
 def test_a_deterministic_fit_under_a_limit_equals_the_unlimited_one(medium, kind):
     # The fits whose every texel depends on its own values only (the registry's blockwise
     # "texels") do not change their algorithm under a limit: the same arrays, bit for bit, from
-    # the memory-mapped file read in blocks as from the same values in memory.
+    # the memory-mapped file under a limit below half its size as from the same values in memory.
     mapped = btfrs.Btf.load(medium, mmap=True)
     assert mapped.data.nbytes > 2 * memory_size("limit", "24MB")
     opts = OPTIONS[kind]
