@@ -88,53 +88,19 @@ impl FeatureOps for Features {
                 self.data.chunks(d).flat_map(|x| x.iter().zip(&mean).map(|(v, m)| (*v as f64 - m) as f32)).collect();
             return (Features { height: self.height, width: self.width, dim: d, data }, 1.0);
         }
-        // Covariance in f64 over at most 4096 texels (a regular subsample: the components of a
-        // texture are well estimated from a few thousand texels), summed in parallel chunks.
+        // The components from at most 4096 texels (a regular subsample: the components of a
+        // texture are well estimated from a few thousand texels).
         let stride = n.div_ceil(4096).max(1);
         let sub: Vec<f32> = if stride == 1 {
             self.data.clone()
         } else {
             (0..n).step_by(stride).flat_map(|t| self.at(t).iter().copied()).collect()
         };
-        let cov = sub
-            .par_chunks(d * 256)
-            .map(|chunk| {
-                let mut c = vec![0.0f64; d * d];
-                let mut x = vec![0.0f64; d];
-                for v in chunk.chunks(d) {
-                    for ((xi, &vi), mi) in x.iter_mut().zip(v).zip(&mean) {
-                        *xi = vi as f64 - mi;
-                    }
-                    for i in 0..d {
-                        let xi = x[i];
-                        for j in i..d {
-                            c[i * d + j] += xi * x[j];
-                        }
-                    }
-                }
-                c
-            })
-            .reduce(
-                || vec![0.0f64; d * d],
-                |mut a, b| {
-                    a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
-                    a
-                },
-            );
-        let mut m = nalgebra::DMatrix::<f64>::zeros(d, d);
-        for i in 0..d {
-            for j in i..d {
-                m[(i, j)] = cov[i * d + j];
-                m[(j, i)] = cov[i * d + j];
-            }
-        }
-        let eig = m.symmetric_eigen();
-        let mut order: Vec<usize> = (0..d).collect();
-        order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
-        let total: f64 = eig.eigenvalues.iter().map(|v| v.max(0.0)).sum();
-        let kept: f64 = order[..k].iter().map(|&i| eig.eigenvalues[i].max(0.0)).sum();
-        let basis: Vec<Vec<f64>> =
-            order[..k].iter().map(|&i| eig.eigenvectors.column(i).iter().copied().collect()).collect();
+        let (basis, kept, total) = if d <= EXACT_MAX_DIM {
+            exact_components(&sub, &mean, d, k)
+        } else {
+            leading_components(&sub, &mean, d, k)
+        };
         let data: Vec<f32> = self
             .data
             .par_chunks(d)
@@ -150,6 +116,73 @@ impl FeatureOps for Features {
         let frac = if total > 0.0 { kept / total } else { 1.0 };
         (Features { height: self.height, width: self.width, dim: k, data }, frac)
     }
+}
+
+/// Feature dimensions up to which [`FeatureOps::reduced`] solves the whole eigenproblem of the
+/// covariance; above, it finds only the leading components (a coefficient domain has 6-16
+/// values per view slot and channel: a PTM's 1,458, whose full eigenproblem took seconds).
+const EXACT_MAX_DIM: usize = 128;
+
+/// The `k` leading principal directions of the centred rows of `sub` (`d` values each) from
+/// the f64 covariance's full eigenproblem, with the variance they keep and the total (both
+/// unnormalised sums of squares).
+fn exact_components(sub: &[f32], mean: &[f64], d: usize, k: usize) -> (Vec<Vec<f64>>, f64, f64) {
+    let cov = sub
+        .par_chunks(d * 256)
+        .map(|chunk| {
+            let mut c = vec![0.0f64; d * d];
+            let mut x = vec![0.0f64; d];
+            for v in chunk.chunks(d) {
+                for ((xi, &vi), mi) in x.iter_mut().zip(v).zip(mean) {
+                    *xi = vi as f64 - mi;
+                }
+                for i in 0..d {
+                    let xi = x[i];
+                    for j in i..d {
+                        c[i * d + j] += xi * x[j];
+                    }
+                }
+            }
+            c
+        })
+        .reduce(
+            || vec![0.0f64; d * d],
+            |mut a, b| {
+                a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+                a
+            },
+        );
+    let mut m = nalgebra::DMatrix::<f64>::zeros(d, d);
+    for i in 0..d {
+        for j in i..d {
+            m[(i, j)] = cov[i * d + j];
+            m[(j, i)] = cov[i * d + j];
+        }
+    }
+    let eig = m.symmetric_eigen();
+    let mut order: Vec<usize> = (0..d).collect();
+    order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+    let total: f64 = eig.eigenvalues.iter().map(|v| v.max(0.0)).sum();
+    let kept: f64 = order[..k].iter().map(|&i| eig.eigenvalues[i].max(0.0)).sum();
+    let basis = order[..k].iter().map(|&i| eig.eigenvectors.column(i).iter().copied().collect()).collect();
+    (basis, kept, total)
+}
+
+/// The same as [`exact_components`] for many dimensions: the leading directions by randomized
+/// subspace iteration (`btfrs_numerics::rpca::top_directions`, Halko et al. 2011, with a fixed
+/// seed), their variance from the Rayleigh quotients, the total from the sum of squares. A
+/// direction the data do not have (fewer than `k`) is a zero vector, which adds nothing to a
+/// distance.
+fn leading_components(sub: &[f32], mean: &[f64], d: usize, k: usize) -> (Vec<Vec<f64>>, f64, f64) {
+    let ns = sub.len() / d;
+    let xc = nalgebra::DMatrix::<f32>::from_fn(d, ns, |i, j| (sub[j * d + i] as f64 - mean[i]) as f32);
+    let total: f64 = xc.as_slice().par_chunks(d).map(|c| c.iter().map(|&x| x as f64 * x as f64).sum::<f64>()).sum();
+    let q = btfrs_numerics::rpca::top_directions(&xc, k, 0x3a7c_5eed, 0.0);
+    let proj = btfrs_numerics::rpca::Columns::t_times(&xc, &q);
+    let kept: f64 = proj.as_slice().iter().map(|&x| x as f64 * x as f64).sum();
+    let mut basis: Vec<Vec<f64>> = q.column_iter().map(|c| c.iter().map(|&x| x as f64).collect()).collect();
+    basis.resize(k, vec![0.0; d]);
+    (basis, kept, total)
 }
 
 /// Squared Euclidean distance, accumulated in f64.
@@ -238,6 +271,36 @@ mod tests {
         for (a, b) in [(0, 1), (5, 200), (17, 255)] {
             let (d0, d1) = (dist2(f.at(a), f.at(b)), dist2(r.at(a), r.at(b)));
             assert!((d0 - d1).abs() < 1e-4 * d0.max(1e-6), "{d0} vs {d1}");
+        }
+    }
+
+    #[test]
+    fn leading_components_of_many_dimensions_match_the_full_eigenproblem() {
+        // 300 dimensions (above EXACT_MAX_DIM): a decaying spectrum of 20 directions plus noise,
+        // as a coefficient domain has. The randomized leading components must keep the variance
+        // the exact ones keep and span the same subspace (projected distances agree).
+        let (d, n, k) = (300usize, 1200usize, 8usize);
+        assert!(d > EXACT_MAX_DIM);
+        let mut rng = Rng::new(7);
+        let dirs: Vec<Vec<f64>> = (0..20).map(|_| (0..d).map(|_| rng.next_f64() - 0.5).collect()).collect();
+        let mut sub = Vec::with_capacity(n * d);
+        for _ in 0..n {
+            let a: Vec<f64> = (0..20).map(|i| (rng.next_f64() - 0.5) * 0.7f64.powi(i)).collect();
+            for j in 0..d {
+                let noise = 1e-3 * (rng.next_f64() - 0.5);
+                sub.push((2.0 + (0..20).map(|i| a[i] * dirs[i][j]).sum::<f64>() + noise) as f32);
+            }
+        }
+        let mean: Vec<f64> = (0..d).map(|j| (0..n).map(|t| sub[t * d + j] as f64).sum::<f64>() / n as f64).collect();
+        let (eb, ek, et) = exact_components(&sub, &mean, d, k);
+        let (lb, lk, lt) = leading_components(&sub, &mean, d, k);
+        assert!((lt - et).abs() <= 1e-5 * et, "total {lt} vs {et}");
+        assert!((lk / lt - ek / et).abs() <= 1e-4, "kept {} vs {}", lk / lt, ek / et);
+        assert!(ek / et < 0.999, "the test needs variance outside the k components: {}", ek / et);
+        // Each exact direction lies in the randomized subspace (and both bases are orthonormal).
+        for e in &eb {
+            let inside: f64 = lb.iter().map(|l| l.iter().zip(e).map(|(a, b)| a * b).sum::<f64>().powi(2)).sum();
+            assert!(inside > 1.0 - 1e-3, "an exact direction keeps only {inside} of itself in the subspace");
         }
     }
 
