@@ -128,8 +128,8 @@ fn check(gpu: &Gpu, name: &str, model: &dyn Renderable) -> f64 {
                 mesh: &mesh,
                 camera: &cam,
                 lights: &lights,
-                width: 96,
-                height: 80,
+                width: 64,
+                height: 56,
                 uv_scale: [3.0, 2.0],
                 coords: (with_map == 1).then_some((mw, mh, &map[..])),
                 tiles: (with_map == 2).then_some(tiles),
@@ -139,7 +139,7 @@ fn check(gpu: &Gpu, name: &str, model: &dyn Renderable) -> f64 {
             let c = render_cpu(model, &view).unwrap();
             let p = psnr(&g, &c);
             let lit = c.iter().filter(|&&x| x > 0.0).count();
-            assert!(lit > 96 * 80 / 10, "{name} on {scene}: the image is almost empty");
+            assert!(lit > 64 * 56 / 10, "{name} on {scene}: the image is almost empty");
             assert!(p >= 40.0, "{name} on {scene} (map mode {with_map}): GPU vs CPU PSNR {p:.1} dB < 40");
             worst = worst.min(p);
             // Filtered lookups (medoid levels, which every model supports) on the plane: the
