@@ -37,6 +37,28 @@ if [ ! -x .venv/bin/python ]; then
   log "creating .venv with $($PY --version 2>&1)"
   "$PY" -m venv .venv
 fi
+
+# The extension compiles in the background while the packages below download and install
+# (pip and apt mostly wait on the network and the disk): `maturin build` runs the very cargo
+# build that `maturin develop` runs further down, which then finds everything compiled and only
+# installs. The wheel it writes is thrown away; its output is kept for a failure, which the
+# develop step reports again anyway.
+if ! .venv/bin/python -c "import maturin" >/dev/null 2>&1; then
+  log "installing maturin into .venv"
+  .venv/bin/python -m pip install -q --disable-pip-version-check "maturin>=1.7,<2"
+fi
+profile=(--release)
+[ -n "${BTFRS_PROFILE:-}" ] && profile=(--profile "$BTFRS_PROFILE")
+prebuild_dir="$(mktemp -d)"
+.venv/bin/maturin build "${profile[@]}" -i .venv/bin/python -o "$prebuild_dir/wheels" --quiet \
+  >"$prebuild_dir/log" 2>&1 &
+prebuild=$!
+stamp=""
+cleanup() {
+  kill "$prebuild" 2>/dev/null || true
+  rm -rf "$prebuild_dir" ${stamp:+"$stamp"}
+}
+trap cleanup EXIT
 if ! .venv/bin/python -c "import maturin, numpy, pytest, xdist, scipy, sklearn, mypy, matplotlib" >/dev/null 2>&1; then
   log "installing Python packages into .venv"
   .venv/bin/python -m pip install -q --disable-pip-version-check "maturin>=1.7,<2" "numpy>=1.22" "pytest>=7" "pytest-xdist>=3" "scipy>=1.9" "scikit-learn>=1.3" "mypy>=1.10" "matplotlib>=3.5" "pillow>=9"
@@ -92,11 +114,11 @@ log "building the extension (${BTFRS_PROFILE:-release})"
 # for the new one and the tests would run a stale binary. maturin's progress lines are dropped
 # (the `|| true` is grep's: it exits 1 when it passes no line through); with pipefail the
 # pipeline's status is then maturin's.
+if ! wait "$prebuild"; then
+  log "the background build failed; the build below reports why"
+fi
 stamp="$(mktemp)"
-trap 'rm -f "$stamp"' EXIT
 # BTFRS_PROFILE (scripts/test.sh sets "ci", see Cargo.toml) picks another cargo profile.
-profile=(--release)
-[ -n "${BTFRS_PROFILE:-}" ] && profile=(--profile "$BTFRS_PROFILE")
 if ! VIRTUAL_ENV="$PWD/.venv" .venv/bin/maturin develop "${profile[@]}" --quiet 2>&1 \
     | { grep -v "^📦\|^✏️\|^🛠\|^🔗\|^🐍" >&2 || true; }; then
   log "error: building the extension failed (see above)"

@@ -39,23 +39,36 @@ stage "cargo test (workspace; $lint)"
 # the dependencies' features resolve as in the extension's build and its compiled dependencies
 # are reused instead of built a second time (rust/btfrs-py/Cargo.toml).
 cargo test --quiet --profile "$BTFRS_PROFILE" --workspace
-stage "cargo build --benches ($lint)"
-cargo build --quiet --profile "$BTFRS_PROFILE" --workspace --benches
-
-stage "stubtest btfrs._native"
-.venv/bin/python -m mypy.stubtest btfrs._native
-
-stage "mkdocs build --strict (the documentation site)"
-# Not -q: mkdocs 1.6 counts only the warnings it logs, and -q logs none, so --strict -q passes
-# with warnings. The INFO lines are dropped instead (grep's `|| true`: it exits 1 when it passes
-# no line; with pipefail the pipeline's status is then mkdocs's).
-docs_site="$(mktemp -d)"
-NO_MKDOCS_2_WARNING=1 .venv/bin/mkdocs build --strict -d "$docs_site" 2>&1 | { grep -v "^INFO" || true; }
-rm -rf "$docs_site"
-
-# The package's types ([tool.mypy] in pyproject.toml: strict, with the overrides listed there).
-stage "mypy --strict"
-.venv/bin/python -m mypy
+stage "cargo build --benches ($lint), and beside it: stubtest, mkdocs --strict, mypy --strict"
+# The three Python checks run on one core each, one after the other, while cargo compiles the
+# benches; their output is shown after both finish, in order.
+checks_log="$(mktemp)"
+trap 'rm -f "$checks_log"' EXIT
+python_checks() {
+  echo "-- stubtest btfrs._native"
+  .venv/bin/python -m mypy.stubtest btfrs._native
+  # The documentation site. Not -q: mkdocs 1.6 counts only the warnings it logs, and -q logs
+  # none, so --strict -q passes with warnings. The INFO lines are dropped instead (grep's
+  # `|| true`: it exits 1 when it passes no line; with pipefail the pipeline's status is then
+  # mkdocs's).
+  echo "-- mkdocs build --strict (the documentation site)"
+  local docs_site
+  docs_site="$(mktemp -d)"
+  NO_MKDOCS_2_WARNING=1 .venv/bin/mkdocs build --strict -d "$docs_site" 2>&1 | { grep -v "^INFO" || true; }
+  rm -rf "$docs_site"
+  # The package's types ([tool.mypy] in pyproject.toml: strict, with the overrides listed there).
+  echo "-- mypy --strict"
+  .venv/bin/python -m mypy
+}
+( set -euo pipefail; python_checks ) >"$checks_log" 2>&1 &
+checks=$!
+benches=0
+cargo build --quiet --profile "$BTFRS_PROFILE" --workspace --benches || benches=$?
+checks_status=0
+wait "$checks" || checks_status=$?
+cat "$checks_log"
+[ "$benches" -eq 0 ] || { echo "cargo build --benches failed"; exit "$benches"; }
+[ "$checks_status" -eq 0 ] || { echo "a Python check failed (above)"; exit "$checks_status"; }
 
 stage "pytest"
 # Two workers (pytest-xdist), each test file on one of them, so a module's shared fixture is
