@@ -73,6 +73,8 @@ cat "$checks_log"
 stage "pytest"
 # Two workers (pytest-xdist), each test file on one of them, so a module's shared fixture is
 # computed once: the Rust side is parallel already, but much of the suite is Python and numpy.
+# The files are handed out in collection order, which tests/conftest.py starts with the longest
+# (xdist's default order, by test count, left a long file of few tests for the end).
 # --durations: the slowest tests and fixtures are in every log, for whoever keeps CI short.
-.venv/bin/python -m pytest -q -n "${BTFRS_TEST_WORKERS:-2}" --dist loadfile --durations=15 "$@"
+.venv/bin/python -m pytest -q -n "${BTFRS_TEST_WORKERS:-2}" --dist loadfile --no-loadscope-reorder --durations=15 "$@"
 stage "done"

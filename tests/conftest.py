@@ -28,3 +28,18 @@ def biquadratic_data(h, w, views, lights, seed=0):
     basis = np.stack([lx * lx, ly * ly, lx * ly, lx, ly, np.ones_like(lx)], axis=-1)  # [L, 6]
     data = np.einsum("hwvck,lk->hwvlc", coef, basis)
     return data.astype(np.float32), coef
+
+
+# The files whose tests take longest (a fresh-clone CI run's figures: 75-230 s each on one of two
+# workers), longest first. scripts/test.sh gives pytest-xdist whole files in collection order
+# (`--dist loadfile --no-loadscope-reorder`), each worker taking the next file as it finishes
+# one, so these start first and the short files fill the end: otherwise a long file handed out
+# last left one worker running alone for a minute. Any file not listed keeps its place after them.
+LONGEST_FILES = ("test_stability.py", "test_viewer.py", "test_docs.py", "test_out_of_core.py",
+                 "test_cli_readme.py", "test_ground_truth.py", "test_viewer_rti.py", "test_synth.py",
+                 "test_dask.py", "test_environment.py", "test_evaluate.py", "test_tiles.py")
+
+
+def pytest_collection_modifyitems(items):
+    rank = {name: i for i, name in enumerate(LONGEST_FILES)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(LONGEST_FILES)))  # stable: file order kept
