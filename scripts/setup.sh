@@ -38,15 +38,16 @@ if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
 
-# The extension compiles in the background while the packages below download and install
-# (pip and apt mostly wait on the network and the disk): `maturin build` runs the very cargo
-# build that `maturin develop` runs further down, which then finds everything compiled and only
-# installs. The wheel it writes is thrown away; its output is kept for a failure, which the
+# The extension compiles in the background while the packages below download, unpack and
+# install (pip's work is mostly on one core; cargo takes what is left): `maturin build` runs
+# the very cargo build that `maturin develop` runs further down, which then finds everything
+# compiled and only installs. The wheel it writes is thrown away; its output is kept for a failure, which the
 # develop step reports again anyway.
 if ! .venv/bin/python -c "import maturin" >/dev/null 2>&1; then
   log "installing maturin into .venv"
   .venv/bin/python -m pip install -q --disable-pip-version-check "maturin>=1.7,<2"
 fi
+# BTFRS_PROFILE (scripts/test.sh sets "ci", see Cargo.toml) picks another cargo profile.
 profile=(--release)
 [ -n "${BTFRS_PROFILE:-}" ] && profile=(--profile "$BTFRS_PROFILE")
 prebuild_dir="$(mktemp -d)"
@@ -118,7 +119,6 @@ if ! wait "$prebuild"; then
   log "the background build failed; the build below reports why"
 fi
 stamp="$(mktemp)"
-# BTFRS_PROFILE (scripts/test.sh sets "ci", see Cargo.toml) picks another cargo profile.
 if ! VIRTUAL_ENV="$PWD/.venv" .venv/bin/maturin develop "${profile[@]}" --quiet 2>&1 \
     | { grep -v "^📦\|^✏️\|^🛠\|^🔗\|^🐍" >&2 || true; }; then
   log "error: building the extension failed (see above)"

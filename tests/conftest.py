@@ -30,7 +30,7 @@ def biquadratic_data(h, w, views, lights, seed=0):
     return data.astype(np.float32), coef
 
 
-# The files whose tests take longest (a fresh-clone CI run's figures: 75-230 s each on one of two
+# The files whose tests take longest (a fresh-clone CI run's figures: 38-233 s each on one of two
 # workers), longest first. scripts/test.sh gives pytest-xdist whole files in collection order
 # (`--dist loadfile --no-loadscope-reorder`), each worker taking the next file as it finishes
 # one, so these start first and the short files fill the end: otherwise a long file handed out
