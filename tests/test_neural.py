@@ -307,3 +307,25 @@ def test_fits_a_capture_file_and_the_cli_fits_it_too(tmp_path):
     assert main(["fit", str(tmp_path / "stack"), "--directions", table, "--model", "neural", "--quiet",
                  "--set", "steps=200", "--set", "hidden=8", "-o", str(out)]) == 0
     assert btfrs.load(out).directions == "light"
+
+
+def test_a_capture_above_train_texels_trains_on_a_sample_and_encodes_the_rest():
+    # 20^2 texels, a sample of 192 (three runs of 64, spread over the image), with the horizon
+    # map: the encoder gives the other texels their codes. At unseen lights the model must stay
+    # close to the same fit trained on every texel.
+    cap = _capture(size=20)
+    held = list(range(4, 81, 9))
+    train = cap.select(lights=[i for i in range(81) if i not in held])
+    test = cap.select(lights=held)
+    opts = dict(latents=6, hidden=16, steps=500, seed=1)
+    sampled = btfrs.fit.neural(train, train_texels=192, **opts)
+    full = btfrs.fit.neural(train, **opts)
+    r = sampled.report
+    assert r["sample_texels"] == 192 and "sample_texels" not in full.report
+    assert r["horizon"] > 0 and r["encoder"]["reconstruction_steps"] > 0
+    assert r["encoder"]["error"] <= r["encoder"]["error_after_regression"]
+    es, ef = sampled.error(test).relative, full.error(test).relative
+    assert es < 1.25 * ef, (es, ef)
+    assert sampled.latents.shape == (20, 20, 6)
+    with pytest.raises(InvalidArgumentError, match="^train_texels: expected"):
+        btfrs.fit.neural(train, train_texels=0)

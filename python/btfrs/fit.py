@@ -635,6 +635,7 @@ def neural(
     learning_rate: float = 0.005,
     validation: float = 0.05,
     horizon: Optional[int] = None,
+    train_texels: Optional[int] = None,
     seed: int = 0,
     robust: bool = True,
     exclude_bad_images: bool = False,
@@ -656,7 +657,10 @@ def neural(
     kept out; training stops when the error on them stops falling, and keeps the best step. The last
     tenth of the steps trains the decoder on the 8-bit codes, so the stored model is the trained one.
     `model.report` gives the steps, the validation errors (float and 8-bit codes) and whether training
-    stopped early. Filtered lookups average the codes (`mip = "latent"`).
+    stopped early. A capture of more than `train_texels` texels (a camera's megapixels) trains on a
+    sample of them spread over the frame, then gives every texel its code with an encoder trained on the
+    sample (NeuralRTI's), in one pass over the capture. Filtered lookups average the codes (`mip =
+    "latent"`).
 
     Parameters
     ----------
@@ -692,9 +696,13 @@ def neural(
         Components per texel of the horizon map, whose clearances the decoder reads to place cast
         shadows (0: none, NeuralRTI's form; null: 8). Allowed: null or an integer from 0 to 32; default
         None.
+    train_texels
+        Texels the decoder is trained on at most; a capture with more, or whose values exceed
+        memory_limit, trains on a sample of that many spread over the frame and gives the others their
+        codes with an encoder (null: 262144). Allowed: null or an integer >= 1; default None.
     seed
-        Seed of the PCA start, the initial weights, the minibatches and the validation pairs. Allowed: a
-        non-negative integer; default 0.
+        Seed of the PCA start, the initial weights, the minibatches, the validation pairs and the
+        sample. Allowed: a non-negative integer; default 0.
     robust
         Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
         above both their light and their spatial neighbours; false: fit every value as it is. Default
@@ -714,7 +722,7 @@ def neural(
     Neural
         The fitted model.
     """
-    options: dict[str, object] = {"latents": latents, "hidden": hidden, "directions": directions, "activation": activation, "features": features, "grid": grid, "steps": steps, "learning_rate": learning_rate, "validation": validation, "horizon": horizon, "seed": seed}
+    options: dict[str, object] = {"latents": latents, "hidden": hidden, "directions": directions, "activation": activation, "features": features, "grid": grid, "steps": steps, "learning_rate": learning_rate, "validation": validation, "horizon": horizon, "train_texels": train_texels, "seed": seed}
     model = fit_kind("neural", btf, options, memory_limit, progress, robust, exclude_bad_images)
     assert isinstance(model, Neural)
     return model

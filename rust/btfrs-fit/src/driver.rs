@@ -130,7 +130,7 @@ mod tests {
     use crate::robust::screen;
     use crate::robust::tests::lambert;
 
-    /// The fits that screen each texel in their own pass (PTM, HSH) give the model that a fit to
+    /// The fits that screen each texel in their own pass (PTM, HSH, neural) give the model that a fit to
     /// a repaired copy of the whole data gives (the separate screen's flags applied), bit for
     /// bit, and flag the same values; with and without held-out pairs, every path of the pass
     /// (PTM-RGB's texels 8 at a time and the rest of a row, PTM-LRGB's one at a time).
@@ -161,6 +161,9 @@ mod tests {
                 ("ptm", r#"{"kind": "lrgb"}"#),
                 ("hsh", "{}"),
                 ("hsh", r#"{"order": 3, "bits": 32}"#),
+                ("neural", r#"{"latents": 2, "hidden": 8, "steps": 30, "horizon": 0}"#),
+                // On a sample of 64 texels: the sample and every texel encoded are repaired.
+                ("neural", r#"{"latents": 2, "hidden": 8, "steps": 30, "horizon": 0, "train_texels": 64}"#),
             ] {
                 let e = crate::registry::lookup(kind).unwrap();
                 let opts = &crate::options::parse_json(json).unwrap();

@@ -80,8 +80,9 @@ pub trait Model: ReflectanceModel + GpuLayout + Send + Sized + 'static {
     const SCANS_VALUES: bool = false;
     /// Whether [`Model::fit_screened`] runs the robust value screen inside the fit's own pass
     /// (each texel judged and, if need be, repaired as it is read), which needs every texel to
-    /// be fitted from its own values alone. The others are screened before the fit, from a
-    /// repaired copy of the data ([`crate::driver::fit`]).
+    /// be fitted from its own values alone (PTM, HSH) or read once into the fit's own copy
+    /// (the neural fit's training texels, and its encoding pass). The others are screened
+    /// before the fit, from a repaired copy of the data ([`crate::driver::fit`]).
     const SCREENS_TEXELS: bool = false;
     /// [`Model::fit`] with `screen` run on each texel inside the pass; called only when
     /// [`Model::SCREENS_TEXELS`].

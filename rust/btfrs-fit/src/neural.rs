@@ -7,6 +7,7 @@
 //!
 //! * [`decoder`]: the MLP, its direction encodings and activations.
 //! * [`train`]: the auto-decoder training (PCA start, Adam, early stopping, quantization-aware end).
+//! * [`encoder`]: training at camera scale, on a sample of texels, with an encoder for the rest.
 //! * [`dense`]: the matrix products of a training step, crate and hand-written.
 //!
 //! Evaluation splits the first layer in two, as the training does: the latent columns times a
@@ -20,6 +21,7 @@
 
 pub mod decoder;
 pub mod dense;
+pub mod encoder;
 pub mod train;
 
 use crate::gpu::{GpuLayout, Shader};
@@ -37,6 +39,10 @@ pub const MAX_HIDDEN: usize = 64;
 pub const MAX_LATENTS: usize = 32;
 /// The most channels per direction table.
 pub const MAX_FEATURES: usize = 16;
+/// The largest cache of the codes' first-layer parts a model keeps (bytes): 64 floats per texel
+/// would be 6 GB at 24 megapixels, 24 times the codes themselves. Above it each evaluation
+/// computes its texel's part (`latents x hidden` more multiplications, an eighth of the rest).
+pub const CACHE_BYTES: usize = 256 << 20;
 
 /// Vectors of four words the largest decoder's dense layers take as halves
 /// ([`Decoder::gpu_dense`]): rows of `inputs` then `hidden` values padded to vectors of eight.
@@ -70,6 +76,9 @@ pub struct NeuralOptions {
     pub validation: f64,
     /// Components per texel of the horizon map (0: none; `None`: automatic).
     pub horizon: Option<usize>,
+    /// Texels the decoder is trained on at most (`None`: [`TRAIN_TEXELS`]); a capture with more
+    /// trains on a sample of that many and encodes the rest ([`encoder`]).
+    pub train_texels: Option<usize>,
     /// Seed of every random choice.
     pub seed: u64,
 }
@@ -83,6 +92,12 @@ impl Default for NeuralOptions {
 
 /// Visits per texel of the automatic step count.
 const VISITS: usize = 500;
+/// Texels the decoder is trained on at most by default: a capture with more (a camera's
+/// megapixels) trains on a sample of this many texels ([`encoder`]). At 60 lights the sample
+/// is 190 MB of values.
+pub const TRAIN_TEXELS: usize = 262_144;
+/// The most bytes of values a sample holds (a BTF's texels are thousands of values each).
+const SAMPLE_BYTES: usize = 1 << 30;
 /// Components per texel of the horizon map by default.
 pub const HORIZON_COMPONENTS: usize = 8;
 
@@ -162,8 +177,9 @@ pub struct Neural {
     horizon: Option<HorizonMap>,
     decoder: Decoder,
     report: serde_json::Value,
-    /// Per texel, the latent columns of layer 1 times its decoded code (`texels x hidden`).
-    cache: Vec<f32>,
+    /// Per texel, the latent columns of layer 1 times its decoded code (`texels x hidden`), when
+    /// that fits in [`CACHE_BYTES`]; else each evaluation computes its texel's part.
+    cache: Option<Vec<f32>>,
     /// Layer 2's weights transposed.
     w2t: Vec<f32>,
     /// Layer 1's clearance columns, `[clearance][hidden]`.
@@ -190,6 +206,19 @@ impl Neural {
         decoder: Decoder,
         report: serde_json::Value,
     ) -> Result<Self> {
+        Self::with_cache(height, width, latents, horizon, decoder, report, CACHE_BYTES)
+    }
+
+    /// [`Neural::new`] keeping the first-layer cache when it fits in `cache_bytes`.
+    pub(crate) fn with_cache(
+        height: usize,
+        width: usize,
+        latents: Planes,
+        horizon: Option<HorizonMap>,
+        decoder: Decoder,
+        report: serde_json::Value,
+        cache_bytes: usize,
+    ) -> Result<Self> {
         let sh = decoder.shape;
         match &horizon {
             Some(m) => ensure_arg!(
@@ -211,10 +240,13 @@ impl Neural {
             latents.k
         );
         let h = sh.hidden;
-        let mut cache = vec![0.0f32; latents.texels * h];
-        let z = latents.dequantize();
-        use rayon::prelude::*;
-        cache.par_chunks_mut(h).zip(z.par_chunks(sh.latents)).for_each(|(c, z)| decoder.latent_part(z, c));
+        let cache = (latents.texels * h * 4 <= cache_bytes).then(|| {
+            let mut cache = vec![0.0f32; latents.texels * h];
+            let z = latents.dequantize();
+            use rayon::prelude::*;
+            cache.par_chunks_mut(h).zip(z.par_chunks(sh.latents)).for_each(|(c, z)| decoder.latent_part(z, c));
+            cache
+        });
         let w2t = decoder.w2t();
         let clear = decoder.clearance_columns();
         Ok(Neural { height, width, latents, horizon, decoder, report, cache, w2t, clear })
@@ -266,13 +298,36 @@ fn relief_of(
     monitor: &Monitor,
     extra: &mut serde_json::Map<String, serde_json::Value>,
 ) -> Result<Option<HorizonMap>> {
-    let measured = relief_view(btf)
+    relief_in_blocks(btf, o, monitor, extra, relief::coarse_factor(btf.height, btf.width))
+}
+
+/// [`relief_of`] measured on blocks of `factor x factor` texels (1: the texels themselves).
+fn relief_in_blocks(
+    btf: &BtfRef<'_>,
+    o: &NeuralOptions,
+    monitor: &Monitor,
+    extra: &mut serde_json::Map<String, serde_json::Value>,
+    factor: usize,
+) -> Result<Option<HorizonMap>> {
+    // A camera-sized capture's relief is measured on blocks of texels (relief::HORIZON_TEXELS):
+    // their values averaged (grey) in the relief's view slot, then photometric stereo, the
+    // integration, the scale and the horizons on the block grid, each texel taking its block's.
+    let blocks = match relief_view(btf) {
+        Some(view) if factor > 1 => Some(relief::blocks_of(btf, view, factor, monitor)?),
+        _ => None,
+    };
+    let measured_on = match &blocks {
+        Some(b) => Some(BtfRef::new(b.rows, b.cols, &b.views, btf.lights, &b.data, b.mask.as_deref())?),
+        None => None,
+    };
+    let on = measured_on.as_ref().unwrap_or(btf);
+    let measured = (if blocks.is_some() { Some(0) } else { relief_view(btf) })
         .ok_or_else(|| {
             Error::Degenerate(format!(
                 "no view slot has the {RELIEF_MIN_LIGHTS} present lights the horizon map's photometric stereo needs"
             ))
         })
-        .and_then(|view| relief::height_map(btf, view, monitor).map(|h| (view, h)));
+        .and_then(|view| relief::height_map(on, view, monitor).map(|h| (view, h)));
     let (view, (height, normals, albedo)) = match measured {
         Ok(m) => m,
         Err(Error::Degenerate(why)) if o.horizon.is_none() => {
@@ -281,24 +336,68 @@ fn relief_of(
         }
         Err(e) => return Err(e),
     };
-    let (scale, score) = relief::choose_scale(btf, view, &height, &normals, &albedo);
+    let (scale, score) = relief::choose_scale(on, view, &height, 1, &normals, &albedo);
+    // The block averages and the per-texel maps are not needed past here.
+    drop((normals, albedo, blocks));
     let components = o.horizon.unwrap_or(HORIZON_COMPONENTS);
-    let map = HorizonMap::build(&height, scale, components, monitor)?;
+    let mut map = HorizonMap::build_coarse(&height, factor, scale, components, monitor)?;
+    if factor > 1 {
+        map = map.expand(factor, btf.height, btf.width);
+        extra.insert("horizon_block".into(), factor.into());
+    }
     extra.insert("horizon_scale".into(), scale.into());
     extra.insert("horizon_agreement".into(), score.into());
     Ok(Some(map))
 }
 
+/// The texels a fit of `btf` trains its decoder on: `None` for all of them, else a sample's
+/// size. A capture of more than `train_texels` texels (default [`TRAIN_TEXELS`]) or whose values
+/// exceed the memory limit trains on a sample: the auto-decoder reads random texels at every
+/// step, which from a memory-mapped file larger than the memory is a disk seek each.
+fn sample_size(btf: &BtfRef<'_>, o: &NeuralOptions, monitor: &Monitor) -> Option<usize> {
+    let t = btf.texels();
+    let bytes = std::mem::size_of_val(btf.data) as u64;
+    let limited = monitor.memory_limit().is_some_and(|limit| bytes > limit);
+    let cap = o.train_texels.unwrap_or(TRAIN_TEXELS);
+    let by_bytes = (SAMPLE_BYTES / (btf.abrdf_len() * 4).max(1)).max(encoder::RUN);
+    let n = cap.min(by_bytes);
+    if t > n {
+        Some(n.max(encoder::RUN))
+    } else {
+        // Within the count but not the memory: half the texels.
+        (limited && t >= 2 * encoder::RUN).then_some(t / 2)
+    }
+}
+
 /// Fit a neural model to the present pairs of `btf`; `monitor` counts training steps.
 pub fn fit_neural(btf: &BtfRef<'_>, o: &NeuralOptions, monitor: &Monitor) -> Result<Neural> {
+    fit_neural_screened(btf, o, None, monitor)
+}
+
+/// [`fit_neural`] with the robust value `screen`: the texels trained on (all of them, or the
+/// sample) are read through it, and so are those encoded.
+pub fn fit_neural_screened(
+    btf: &BtfRef<'_>,
+    o: &NeuralOptions,
+    screen: Option<&crate::robust::TexelScreen<'_>>,
+    monitor: &Monitor,
+) -> Result<Neural> {
     let mut s = o.setup(btf)?;
     let mut extra = serde_json::Map::new();
     let horizon = if s.shape.horizon > 0 { relief_of(btf, o, monitor, &mut extra)? } else { None };
     if horizon.is_none() {
         s.shape.horizon = 0;
     }
-    let t = train::train(btf, &s, horizon.as_ref(), monitor)?;
-    let mut report = serde_json::to_value(&t.report).unwrap_or(serde_json::Value::Null);
+    let (latents, decoder, mut report) = match sample_size(btf, o, monitor) {
+        None => {
+            let repaired = screen.map(|ts| repaired_copy(btf, ts));
+            let data = repaired.as_deref().unwrap_or(btf.data);
+            let b = BtfRef::new(btf.height, btf.width, btf.views, btf.lights, data, btf.mask)?;
+            let t = train::train(&b, &s, horizon.as_ref(), monitor)?;
+            (t.latents, t.decoder, serde_json::to_value(&t.report).unwrap_or(serde_json::Value::Null))
+        }
+        Some(n) => fit_sampled(btf, &s, horizon.as_ref(), screen, n, monitor)?,
+    };
     if let serde_json::Value::Object(m) = &mut report {
         m.insert("directions".into(), s.shape.directions.name().into());
         m.insert("activation".into(), s.shape.activation.name().into());
@@ -306,7 +405,71 @@ pub fn fit_neural(btf: &BtfRef<'_>, o: &NeuralOptions, monitor: &Monitor) -> Res
         m.insert("horizon".into(), horizon.as_ref().map_or(0, |h| h.components()).into());
         m.extend(extra);
     }
-    Neural::new(btf.height, btf.width, t.latents, horizon, t.decoder, report)
+    Neural::new(btf.height, btf.width, latents, horizon, decoder, report)
+}
+
+/// The values of `btf` with the values `screen` flags replaced: what the robust fit of a model
+/// screened before its fit trains on ([`crate::driver::fit`]).
+fn repaired_copy(btf: &BtfRef<'_>, screen: &crate::robust::TexelScreen<'_>) -> Vec<f32> {
+    use rayon::prelude::*;
+    let n = btf.abrdf_len();
+    let mut d = btf.data.to_vec();
+    d.par_chunks_mut(n).enumerate().for_each(|(t, row)| {
+        if let Some(fixed) = screen.repaired(t, btf.texel(t)) {
+            row.copy_from_slice(&fixed);
+        }
+    });
+    d
+}
+
+/// Steps of an encoder's training (half regression, half reconstruction) for a fit of `steps`.
+fn encoder_steps(steps: usize) -> usize {
+    (steps / 4).clamp(200, 10_000)
+}
+
+/// A fit on a sample of `n` texels ([`encoder`]): the decoder trained on the sample, an encoder
+/// trained on it with the decoder fixed, every texel encoded, the decoder's quantization-aware
+/// end on the sample's 8-bit codes. Returns the codes, the decoder and the report.
+fn fit_sampled(
+    btf: &BtfRef<'_>,
+    s: &train::Setup,
+    horizon: Option<&HorizonMap>,
+    screen: Option<&crate::robust::TexelScreen<'_>>,
+    n: usize,
+    monitor: &Monitor,
+) -> Result<(Planes, Decoder, serde_json::Value)> {
+    use rayon::prelude::*;
+    let sample = encoder::sample_texels(btf.texels(), n, s.seed);
+    let len = btf.abrdf_len();
+    let mut data = vec![0.0f32; sample.len() * len];
+    data.par_chunks_mut(len).zip(sample.par_iter()).for_each(|(row, &t)| {
+        let values = btf.texel(t);
+        match screen.and_then(|ts| ts.repaired(t, values)) {
+            Some(fixed) => row.copy_from_slice(&fixed),
+            None => row.copy_from_slice(values),
+        }
+    });
+    monitor.check()?;
+    let sub = horizon.map(|h| h.select(&sample));
+    let sb = BtfRef::new(1, sample.len(), btf.views, btf.lights, &data, btf.mask)?;
+    let esteps = encoder_steps(s.steps);
+    let st = train::train_float(&sb, s, sub.as_ref(), monitor, esteps as u64)?;
+    let hz = train::Horizons { map: sub.as_ref(), bins: s.shape.horizon };
+    let (enc, ereport) = encoder::train_encoder(&sb, &st, &hz, esteps, s.seed, monitor)?;
+    let bands = btf.texels().div_ceil(1 << 16);
+    let qat = (st.report.steps / 10).max(1);
+    monitor.start((bands + qat) as u64);
+    let z = enc.encode(btf, screen, monitor)?;
+    let planes = Planes::quantize(&z, s.shape.latents)?;
+    drop(z);
+    let zq = planes.select(&sample).dequantize();
+    let (decoder, report) = train::finish(&sb, s, st, sub.as_ref(), &zq, monitor, None)?;
+    let mut report = serde_json::to_value(&report).unwrap_or(serde_json::Value::Null);
+    if let serde_json::Value::Object(m) = &mut report {
+        m.insert("sample_texels".into(), sample.len().into());
+        m.insert("encoder".into(), serde_json::to_value(&ereport).unwrap_or(serde_json::Value::Null));
+    }
+    Ok((planes, decoder, report))
 }
 
 /// A prepared (view, light) pair: the direction part of layer 1, the output gain, and where
@@ -343,8 +506,19 @@ impl ReflectanceModel for Neural {
         let h = self.decoder.shape.hidden;
         let mut pre = [0.0f32; MAX_HIDDEN];
         let mut scratch = [0.0f32; MAX_HIDDEN];
-        for ((p, a), b) in pre[..h].iter_mut().zip(&self.cache[t * h..(t + 1) * h]).zip(&q.bias[..h]) {
-            *p = a + b;
+        match &self.cache {
+            Some(cache) => {
+                for ((p, a), b) in pre[..h].iter_mut().zip(&cache[t * h..(t + 1) * h]).zip(&q.bias[..h]) {
+                    *p = a + b;
+                }
+            }
+            None => {
+                let k = self.latents.k;
+                let mut z = [0.0f32; MAX_LATENTS];
+                z[..k].iter_mut().enumerate().for_each(|(p, x)| *x = self.latents.get(t, p));
+                self.decoder.latent_part(&z[..k], &mut pre[..h]);
+                pre[..h].iter_mut().zip(&q.bias[..h]).for_each(|(p, b)| *p += b);
+            }
         }
         if let Some(map) = &self.horizon {
             for (i, col) in self.clear.chunks_exact(h).enumerate() {
@@ -458,7 +632,10 @@ on minibatches of random texels, each under random present pairs. A fraction `va
 present pairs is kept out; training stops when the error on them stops falling, and keeps the
 best step. The last tenth of the steps trains the decoder on the 8-bit codes, so the stored model
 is the trained one. `model.report` gives the steps, the validation errors (float and 8-bit codes)
-and whether training stopped early. Filtered lookups average the codes (`mip = \"latent\"`).";
+and whether training stopped early. A capture of more than `train_texels` texels (a camera's
+megapixels) trains on a sample of them spread over the frame, then gives every texel its code with
+an encoder trained on the sample (NeuralRTI's), in one pass over the capture. Filtered lookups
+average the codes (`mip = \"latent\"`).";
     const OPTIONS: &'static [Spec] = &[
         Spec::int("latents", 8, 1, Some(MAX_LATENTS as i64), "latent channels per texel (8-bit planes)"),
         Spec::int("hidden", 64, 4, Some(MAX_HIDDEN as i64), "units of each of the decoder's two hidden layers, a multiple of 4"),
@@ -495,7 +672,13 @@ and whether training stopped early. Filtered lookups average the codes (`mip = \
             Some(relief::BINS as i64),
             "components per texel of the horizon map, whose clearances the decoder reads to place cast shadows (0: none, NeuralRTI's form; null: 8)",
         ),
-        Spec::seed("seed of the PCA start, the initial weights, the minibatches and the validation pairs"),
+        Spec::opt_int(
+            "train_texels",
+            1,
+            None,
+            "texels the decoder is trained on at most; a capture with more, or whose values exceed memory_limit, trains on a sample of that many spread over the frame and gives the others their codes with an encoder (null: 262144)",
+        ),
+        Spec::seed("seed of the PCA start, the initial weights, the minibatches, the validation pairs and the sample"),
     ];
     const EXAMPLES: &'static [(&'static str, &'static str)] =
         &[("Neural-8", r#"{"latents": 8}"#), ("Neural-16", r#"{"latents": 16}"#)];
@@ -528,12 +711,40 @@ and whether training stopped early. Filtered lookups average the codes (`mip = \
         fit_neural(btf, options, monitor)
     }
 
+    // The texels trained on are read through the screen, once (a repaired copy of all of them,
+    // or of the sample), and so is every texel the encoder of a sampled fit reads.
+    const SCREENS_TEXELS: bool = true;
+
+    fn fit_screened(
+        btf: &BtfRef<'_>,
+        options: &NeuralOptions,
+        screen: &crate::robust::TexelScreen<'_>,
+        monitor: &Monitor,
+    ) -> Result<Self> {
+        fit_neural_screened(btf, options, Some(screen), monitor)
+    }
+
     /// The latents with Adam's moments, the PCA start's smallest sample, the relief (height,
     /// normals, albedo and the horizon map's coordinates), and scratch.
+    /// A fit on a sample holds the sample's values and its codes' Adam moments, and every
+    /// texel's float code and byte code instead.
     fn least_memory(btf: &BtfRef<'_>, options: &NeuralOptions) -> u64 {
         let t = btf.texels() as u64;
-        let relief = if options.horizon.unwrap_or(HORIZON_COMPONENTS) > 0 { t * 72 } else { 0 };
-        t * options.latents as u64 * 16 + t * 12 * (options.latents as u64).div_ceil(3) + relief + 16_000_000
+        let k = options.latents as u64;
+        // The relief's maps per texel, or per block with the blocks' values (relief::blocks_of).
+        let f = relief::coarse_factor(btf.height, btf.width) as u64;
+        let per_block = 72 + 12 * btf.lights.len() as u64;
+        let relief = match options.horizon.unwrap_or(HORIZON_COMPONENTS) {
+            0 => 0,
+            _ if f > 1 => t.div_ceil(f * f) * per_block,
+            _ => t * 72,
+        };
+        let cap = options.train_texels.unwrap_or(TRAIN_TEXELS) as u64;
+        if t > cap {
+            let n = cap.min((SAMPLE_BYTES / (btf.abrdf_len() * 4).max(1)) as u64);
+            return n * (btf.abrdf_len() as u64 * 4 + k * 16 + 12 * k.div_ceil(3)) + t * k * 5 + relief + 16_000_000;
+        }
+        t * k * 16 + t * 12 * k.div_ceil(3) + relief + 16_000_000
     }
 
     fn to_arrays(&self) -> NamedArrays {

@@ -115,6 +115,13 @@ impl Planes {
         Ok(Planes { texels, k, q, scale, bias })
     }
 
+    /// The planes of `texels` (in that order), with the same scales and biases.
+    pub fn select(&self, texels: &[usize]) -> Planes {
+        let k = self.k;
+        let q = texels.iter().flat_map(|&t| self.q[t * k..(t + 1) * k].iter().copied()).collect();
+        Planes { texels: texels.len(), k, q, scale: self.scale.clone(), bias: self.bias.clone() }
+    }
+
     /// The decoded value of plane `p` at texel `t`.
     #[inline]
     pub fn get(&self, t: usize, p: usize) -> f32 {

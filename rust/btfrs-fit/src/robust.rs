@@ -928,7 +928,8 @@ impl<'a> ValueScreen<'a> {
 }
 
 /// The value screen inside a fit's own pass over the texels, for the models whose texels are
-/// fitted apart (PTM, HSH: [`crate::Model::SCREENS_TEXELS`]). A separate screen reads every
+/// fitted apart (PTM, HSH) or read once into the fit's own copy (neural:
+/// [`crate::Model::SCREENS_TEXELS`]). A separate screen reads every
 /// value once more before the fit (a third of a small PTM fit's time and more); here each
 /// texel is judged while the fit has its values in cache, and a texel with flagged values is
 /// fitted from a repaired copy of its ABRDF, which is what the fit of a repaired copy of the
@@ -963,10 +964,12 @@ impl<'a> TexelScreen<'a> {
         Some(fixed)
     }
 
-    /// Every value flagged, in increasing index (as [`screen_values`] lists them).
+    /// Every value flagged, in increasing index (as [`screen_values`] lists them), each once
+    /// (a fit may read a texel twice: the neural fit's sample, then its encoding pass).
     pub fn into_flags(self) -> Flags {
         let mut f = self.found.into_inner().unwrap_or_else(|e| e.into_inner());
         f.sort_unstable_by_key(|x| x.0);
+        f.dedup_by_key(|x| x.0);
         f
     }
 }

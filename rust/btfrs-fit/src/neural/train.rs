@@ -34,7 +34,7 @@ pub const BATCH_TEXELS: usize = 256;
 /// Pairs per texel per step.
 pub const PAIRS: usize = 16;
 /// Texels per parallel chunk (512 samples).
-const CHUNK: usize = 32;
+pub(crate) const CHUNK: usize = 32;
 /// Evaluations without improvement before training stops.
 const PATIENCE: usize = 6;
 /// Texels the validation error is measured on.
@@ -182,9 +182,9 @@ impl Pair {
 }
 
 /// The present pairs, split into training and validation pairs.
-struct Pairs {
-    train: Vec<Pair>,
-    val: Vec<Pair>,
+pub(crate) struct Pairs {
+    pub(crate) train: Vec<Pair>,
+    pub(crate) val: Vec<Pair>,
 }
 
 fn split_pairs(btf: &BtfRef<'_>, s: &Setup) -> Result<Pairs> {
@@ -222,18 +222,18 @@ fn split_pairs(btf: &BtfRef<'_>, s: &Setup) -> Result<Pairs> {
 
 /// Adam's state for one parameter vector.
 #[derive(Debug, Clone)]
-struct Adam {
+pub(crate) struct Adam {
     m: Vec<f32>,
     v: Vec<f32>,
 }
 
 impl Adam {
-    fn new(n: usize) -> Adam {
+    pub(crate) fn new(n: usize) -> Adam {
         Adam { m: vec![0.0; n], v: vec![0.0; n] }
     }
     /// One update of `x` by gradient `g` at step `t` (1-based) with rate `lr`, on the range `r`.
     #[inline]
-    fn update(&mut self, x: &mut [f32], g: &[f32], r: std::ops::Range<usize>, t: usize, lr: f32) {
+    pub(crate) fn update(&mut self, x: &mut [f32], g: &[f32], r: std::ops::Range<usize>, t: usize, lr: f32) {
         let c1 = 1.0 - BETA1.powi(t as i32);
         let c2 = 1.0 - BETA2.powi(t as i32);
         let step = lr * c2.sqrt() / c1;
@@ -621,7 +621,7 @@ fn chunk_grad_body(
 /// Relative L2 error over `texels` x `pairs` (values scaled by `inv_scale`; codes `z` of every
 /// texel, horizon rows `hz` of `texels` in their order).
 #[allow(clippy::too_many_arguments)]
-fn val_error(
+pub(crate) fn val_error(
     btf: &BtfRef<'_>,
     pairs: &[Pair],
     dec: &Decoder,
@@ -683,7 +683,7 @@ fn val_error(
 
 /// The learning rate at step `i` of `n`: a linear warm-up over the first 2%, then a cosine
 /// from `lr` down to `lr / 20`.
-fn schedule(lr: f64, i: usize, n: usize) -> f32 {
+pub(crate) fn schedule(lr: f64, i: usize, n: usize) -> f32 {
     let warm = (n / 50).max(1);
     if i < warm {
         return (lr * (i + 1) as f64 / warm as f64) as f32;
@@ -693,14 +693,19 @@ fn schedule(lr: f64, i: usize, n: usize) -> f32 {
 }
 
 /// The texels of each step: the next `batch` of a shuffled order, reshuffled when spent.
-struct Batches {
+pub(crate) struct Batches {
     order: Vec<usize>,
     cursor: usize,
     batch: usize,
 }
 
 impl Batches {
-    fn next(&mut self, rng: &mut Rng) -> Vec<usize> {
+    /// Batches of `batch` of the texels below `t` (the first drawn after a shuffle).
+    pub(crate) fn new(t: usize, batch: usize) -> Batches {
+        Batches { order: (0..t).collect(), cursor: t, batch }
+    }
+
+    pub(crate) fn next(&mut self, rng: &mut Rng) -> Vec<usize> {
         let t = self.order.len();
         if self.cursor + self.batch > t {
             for i in (1..t).rev() {
@@ -716,14 +721,14 @@ impl Batches {
 
 /// The texels' horizon rows as training reads them: rebuilt from the stored map for the texels
 /// of each step (the whole map at 32 bins would be 128 bytes per texel).
-struct Horizons<'a> {
-    map: Option<&'a HorizonMap>,
-    bins: usize,
+pub(crate) struct Horizons<'a> {
+    pub(crate) map: Option<&'a HorizonMap>,
+    pub(crate) bins: usize,
 }
 
 impl Horizons<'_> {
     /// The rows of `texels`, `[texel][bin]` (empty without a map).
-    fn rows(&self, texels: &[usize]) -> Vec<f32> {
+    pub(crate) fn rows(&self, texels: &[usize]) -> Vec<f32> {
         self.map.map_or_else(Vec::new, |m| m.rows(texels))
     }
 }
@@ -753,15 +758,56 @@ fn batch_grads(
         .collect()
 }
 
+/// What the float stage of training leaves for what follows: the quantization-aware end
+/// ([`finish`]) and, for a fit on a sample of texels, the encoder of the others
+/// ([`super::encoder`]).
+pub(crate) struct Stage {
+    /// The present pairs, training and validation.
+    pub(crate) pairs: Pairs,
+    /// The decoder, on the values divided by the report's `scale`.
+    pub(crate) dec: Decoder,
+    /// The float codes, `texels x latents`.
+    pub(crate) z: Vec<f32>,
+    /// What happened so far.
+    pub(crate) report: TrainReport,
+    /// The learning rate after any halvings.
+    pub(crate) lr: f64,
+    batches: Batches,
+    rng: Rng,
+    /// The texels the validation error is measured on, and their horizon rows.
+    pub(crate) val_texels: Vec<usize>,
+    pub(crate) val_hz: Vec<f32>,
+    /// One over the values' root mean square.
+    pub(crate) inv_scale: f32,
+    /// The loss's divisor: the values of a step.
+    pub(crate) norm: f32,
+}
+
 /// Train a neural model on the present pairs of `btf`, with the texels' horizon map when the
 /// decoder reads clearances (the stored one: the rows it rebuilds); `monitor` counts steps.
 pub fn train(btf: &BtfRef<'_>, s: &Setup, horizon: Option<&HorizonMap>, monitor: &Monitor) -> Result<Trained> {
+    let st = train_float(btf, s, horizon, monitor, 0)?;
+    let planes = Planes::quantize(&st.z, s.shape.latents)?;
+    let zq = planes.dequantize();
+    let (decoder, report) = finish(btf, s, st, horizon, &zq, monitor, Some(0))?;
+    Ok(Trained { latents: planes, decoder, report })
+}
+
+/// Steps 1 to 3 of the module docs: the codes and the decoder in float, the best parameters by
+/// validation kept. The monitor's total counts `extra` more steps (a sampled fit's encoder).
+pub(crate) fn train_float(
+    btf: &BtfRef<'_>,
+    s: &Setup,
+    horizon: Option<&HorizonMap>,
+    monitor: &Monitor,
+    extra: u64,
+) -> Result<Stage> {
     let pairs = split_pairs(btf, s)?;
     let sh = s.shape;
     let (k, bins) = (sh.latents, sh.horizon);
     let t = btf.texels();
     let hz = Horizons { map: horizon, bins };
-    monitor.start((s.steps + (s.steps / 10).max(1)) as u64 + 1);
+    monitor.start((s.steps + (s.steps / 10).max(1)) as u64 + 1 + extra);
     let scale = value_scale(btf, &pairs, s.seed);
     let inv_scale = (1.0 / scale) as f32;
     let (mut z, pca_components) = pca_latents(btf, &pairs, k, s.seed, monitor)?;
@@ -772,7 +818,7 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, horizon: Option<&HorizonMap>, monitor:
     let mut zadam = Adam::new(t * k);
     let mut ztime = vec![0u32; t];
     let batch = BATCH_TEXELS.min(t);
-    let mut batches = Batches { order: (0..t).collect(), cursor: t, batch };
+    let mut batches = Batches::new(t, batch);
     let mut rng = Rng::new(mix(s.seed ^ 0x0de7));
     let val_texels: Vec<usize> = {
         let mut idx: Vec<usize> = (0..t).collect();
@@ -878,19 +924,42 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, horizon: Option<&HorizonMap>, monitor:
     } else {
         report.best_step = step;
     }
+    Ok(Stage { pairs, dec, z, report, lr, batches, rng, val_texels, val_hz, inv_scale, norm })
+}
+
+/// Step 4 of the module docs: the decoder trained on the 8-bit codes `zq` (decoded, `texels x
+/// latents` of `btf`) for a tenth of the float steps, and brought back to the data's scale.
+/// `extra`: the monitor's total is set to the steps run plus these and `extra` (`None`: left
+/// as the caller set it).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn finish(
+    btf: &BtfRef<'_>,
+    s: &Setup,
+    st: Stage,
+    horizon: Option<&HorizonMap>,
+    zq: &[f32],
+    monitor: &Monitor,
+    extra: Option<u64>,
+) -> Result<(Decoder, TrainReport)> {
+    let Stage { pairs, mut dec, mut report, lr, mut batches, mut rng, val_texels, val_hz, inv_scale, norm, .. } = st;
+    let sh = s.shape;
+    let k = sh.latents;
+    let hz = Horizons { map: horizon, bins: sh.horizon };
+    let scale = report.scale;
+    let step = report.steps;
     // Quantization-aware end: the decoder learns the decoded 8-bit latents, for a tenth of the
     // steps run (early stopping included; the progress total shrinks to match).
     let qat = (step / 10).max(1);
-    monitor.set_total((step + qat) as u64 + 1);
-    let planes = Planes::quantize(&z, k)?;
-    let zq = planes.dequantize();
+    if let Some(extra) = extra {
+        monitor.set_total((step + qat) as u64 + 1 + extra);
+    }
     let mut adam = Adam::new(dec.params.len());
     let qat_lr = (0.2 * lr).min(s.learning_rate);
     for i in 0..qat {
         monitor.check()?;
         let texels = batches.next(&mut rng);
         let seed = mix(s.seed ^ mix(((s.steps + i) * 4096) as u64));
-        let grads = batch_grads(&texels, (&zq, k), &hz, seed, |tx, zc, hc, sd| {
+        let grads = batch_grads(&texels, (zq, k), &hz, seed, |tx, zc, hc, sd| {
             chunk_grad(btf, &pairs.train, &dec, tx, zc, hc, inv_scale, norm, sd, false)
         });
         let mut g = vec![0.0f32; dec.params.len()];
@@ -906,11 +975,11 @@ pub fn train(btf: &BtfRef<'_>, s: &Setup, horizon: Option<&HorizonMap>, monitor:
         monitor.advance(1);
     }
     if !pairs.val.is_empty() {
-        report.validation_error_8bit = Some(val_error(btf, &pairs.val, &dec, &zq, &val_hz, &val_texels, inv_scale));
+        report.validation_error_8bit = Some(val_error(btf, &pairs.val, &dec, zq, &val_hz, &val_texels, inv_scale));
     }
     // Back to the data's scale: the last layer times the scale.
     let o = sh.offsets();
     dec.params[o.w3..o.tables].iter_mut().for_each(|x| *x *= scale as f32);
     let decoder = Decoder::new(sh, dec.params, "decoder")?;
-    Ok(Trained { latents: planes, decoder, report })
+    Ok((decoder, report))
 }
