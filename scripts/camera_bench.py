@@ -155,7 +155,7 @@ def step_fit(path: str, kind: str, memory_limit: str, options: Dict[str, Any], w
     m.update(step="fit", kind=kind, options=options, memory_limit=memory_limit, path=path,
              data_bytes=int(btf.data.nbytes), model_bytes=model_bytes(model),
              gbps=btf.data.nbytes / m["seconds"] / 1e9,
-             report={k: v for k, v in report.items() if isinstance(v, (int, float, bool, str, dict))})
+             report={k: v for k, v in report.items() if isinstance(v, (int, float, bool, str)) or k == "encoder"})
     return m
 
 
