@@ -697,9 +697,9 @@ def neural(
         shadows (0: none, NeuralRTI's form; null: 8). Allowed: null or an integer from 0 to 32; default
         None.
     train_texels
-        Texels the decoder is trained on at most; a capture with more, or whose values exceed
-        memory_limit, trains on a sample of that many spread over the frame and gives the others their
-        codes with an encoder (null: 262144). Allowed: null or an integer >= 1; default None.
+        Texels the decoder is trained on at most; a capture with more trains on a sample of that many
+        spread over the frame and gives the others their codes with an encoder (null: 262144). Allowed:
+        null or an integer >= 1; default None.
     seed
         Seed of the PCA start, the initial weights, the minibatches, the validation pairs and the
         sample. Allowed: a non-negative integer; default 0.

@@ -351,22 +351,19 @@ fn relief_in_blocks(
 }
 
 /// The texels a fit of `btf` trains its decoder on: `None` for all of them, else a sample's
-/// size. A capture of more than `train_texels` texels (default [`TRAIN_TEXELS`]) or whose values
-/// exceed the memory limit trains on a sample: the auto-decoder reads random texels at every
-/// step, which from a memory-mapped file larger than the memory is a disk seek each.
+/// size. A capture of more than `train_texels` texels (default [`TRAIN_TEXELS`]) trains on a
+/// sample: the auto-decoder's steps grow with the texels and each reads random ones, which from
+/// a memory-mapped file larger than the memory is a disk seek each. The sample holds at most
+/// [`SAMPLE_BYTES`] of values, and a quarter of the memory limit.
 fn sample_size(btf: &BtfRef<'_>, o: &NeuralOptions, monitor: &Monitor) -> Option<usize> {
     let t = btf.texels();
-    let bytes = std::mem::size_of_val(btf.data) as u64;
-    let limited = monitor.memory_limit().is_some_and(|limit| bytes > limit);
     let cap = o.train_texels.unwrap_or(TRAIN_TEXELS);
-    let by_bytes = (SAMPLE_BYTES / (btf.abrdf_len() * 4).max(1)).max(encoder::RUN);
-    let n = cap.min(by_bytes);
-    if t > n {
-        Some(n.max(encoder::RUN))
-    } else {
-        // Within the count but not the memory: half the texels.
-        (limited && t >= 2 * encoder::RUN).then_some(t / 2)
+    if t <= cap {
+        return None;
     }
+    let texel_bytes = (btf.abrdf_len() * 4).max(1);
+    let budget = monitor.memory_limit().map_or(SAMPLE_BYTES, |limit| SAMPLE_BYTES.min(limit as usize / 4));
+    Some(cap.min(budget / texel_bytes).max(encoder::RUN))
 }
 
 /// Fit a neural model to the present pairs of `btf`; `monitor` counts training steps.
@@ -390,7 +387,7 @@ pub fn fit_neural_screened(
     }
     let (latents, decoder, mut report) = match sample_size(btf, o, monitor) {
         None => {
-            let repaired = screen.map(|ts| repaired_copy(btf, ts));
+            let repaired = screen.and_then(|ts| repaired_copy(btf, ts));
             let data = repaired.as_deref().unwrap_or(btf.data);
             let b = BtfRef::new(btf.height, btf.width, btf.views, btf.lights, data, btf.mask)?;
             let t = train::train(&b, &s, horizon.as_ref(), monitor)?;
@@ -408,18 +405,22 @@ pub fn fit_neural_screened(
     Neural::new(btf.height, btf.width, latents, horizon, decoder, report)
 }
 
-/// The values of `btf` with the values `screen` flags replaced: what the robust fit of a model
-/// screened before its fit trains on ([`crate::driver::fit`]).
-fn repaired_copy(btf: &BtfRef<'_>, screen: &crate::robust::TexelScreen<'_>) -> Vec<f32> {
+/// The values of `btf` with the values `screen` flags replaced, `None` when none is flagged (the
+/// fit then reads the values in place): what the robust fit of a model screened before its fit
+/// trains on ([`crate::driver::fit`]).
+fn repaired_copy(btf: &BtfRef<'_>, screen: &crate::robust::TexelScreen<'_>) -> Option<Vec<f32>> {
     use rayon::prelude::*;
+    let fixes: Vec<(usize, Vec<f32>)> =
+        (0..btf.texels()).into_par_iter().filter_map(|t| screen.repaired(t, btf.texel(t)).map(|f| (t, f))).collect();
+    if fixes.is_empty() {
+        return None;
+    }
     let n = btf.abrdf_len();
     let mut d = btf.data.to_vec();
-    d.par_chunks_mut(n).enumerate().for_each(|(t, row)| {
-        if let Some(fixed) = screen.repaired(t, btf.texel(t)) {
-            row.copy_from_slice(&fixed);
-        }
-    });
-    d
+    for (t, fixed) in fixes {
+        d[t * n..(t + 1) * n].copy_from_slice(&fixed);
+    }
+    Some(d)
 }
 
 /// Steps of an encoder's training (half regression, half reconstruction) for a fit of `steps`.
@@ -676,7 +677,7 @@ average the codes (`mip = \"latent\"`).";
             "train_texels",
             1,
             None,
-            "texels the decoder is trained on at most; a capture with more, or whose values exceed memory_limit, trains on a sample of that many spread over the frame and gives the others their codes with an encoder (null: 262144)",
+            "texels the decoder is trained on at most; a capture with more trains on a sample of that many spread over the frame and gives the others their codes with an encoder (null: 262144)",
         ),
         Spec::seed("seed of the PCA start, the initial weights, the minibatches, the validation pairs and the sample"),
     ];

@@ -575,21 +575,23 @@ fn a_fit_on_a_sample_encodes_the_texels_it_did_not_train_on() {
 }
 
 #[test]
-fn a_capture_beyond_train_texels_or_the_memory_limit_trains_on_a_sample() {
+fn a_capture_beyond_train_texels_trains_on_a_sample_within_the_memory_limit() {
     let (views, lights) = (vec![[0.0, 0.0, 1.0]], ubo81());
     let data = vec![0.5f32; 10 * 20 * lights.len() * 3];
     let b = BtfRef::new(10, 20, &views, &lights, &data, None).unwrap();
     let o = NeuralOptions::default();
     assert_eq!(sample_size(&b, &o, &Monitor::new()), None);
+    assert_eq!(sample_size(&b, &NeuralOptions { train_texels: Some(200), ..o.clone() }, &Monitor::new()), None);
     assert_eq!(sample_size(&b, &NeuralOptions { train_texels: Some(100), ..o.clone() }, &Monitor::new()), Some(100));
     // Fewer than a run: one run.
     assert_eq!(sample_size(&b, &NeuralOptions { train_texels: Some(10), ..o.clone() }, &Monitor::new()), Some(64));
-    // Values beyond the memory limit: half the texels.
+    // Values beyond the memory limit alone do not make a sample (the fit reads them in place);
+    // a sample holds a quarter of the limit at most.
     let limited = Monitor::new();
-    limited.set_memory_limit(Some((data.len() * 4 - 1) as u64));
-    assert_eq!(sample_size(&b, &o, &limited), Some(100));
-    limited.set_memory_limit(Some((data.len() * 4) as u64));
+    let texel = lights.len() * 3 * 4;
+    limited.set_memory_limit(Some((4 * 80 * texel) as u64));
     assert_eq!(sample_size(&b, &o, &limited), None);
+    assert_eq!(sample_size(&b, &NeuralOptions { train_texels: Some(100), ..o.clone() }, &limited), Some(80));
 }
 
 #[test]
