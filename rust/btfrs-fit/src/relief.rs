@@ -705,18 +705,23 @@ mod reach_tests {
 mod map_tests {
     use super::*;
 
-    #[test]
-    fn compact_map_rebuilds_the_marched_horizons() {
-        // Smooth random relief: with every component kept the rows come back to the 8-bit
-        // step; with few, to a fraction of the horizons' spread; the arrays round-trip.
-        let (rows, cols) = (40, 36);
-        let z: Vec<f32> = (0..rows * cols)
+    /// A smooth relief, features 15 to 40 texels across.
+    fn smooth(rows: usize, cols: usize) -> Height {
+        let z = (0..rows * cols)
             .map(|i| {
                 let (r, c) = ((i / cols) as f32, (i % cols) as f32);
                 3.0 * (r / 5.0).sin() * (c / 7.0).cos() + 2.0 * ((r + c) / 9.0).sin()
             })
             .collect();
-        let h = Height { rows, cols, z };
+        Height { rows, cols, z }
+    }
+
+    #[test]
+    fn compact_map_rebuilds_the_marched_horizons() {
+        // Smooth random relief: with every component kept the rows come back to the 8-bit
+        // step; with few, to a fraction of the horizons' spread; the arrays round-trip.
+        let (rows, cols) = (40, 36);
+        let h = smooth(rows, cols);
         let full = horizons(&h, 1.0, BINS, REACH);
         for (m, tol) in [(BINS, 0.01f32), (8, 0.15)] {
             let map = HorizonMap::build(&h, 1.0, m, &Monitor::new()).unwrap();
@@ -741,13 +746,7 @@ mod map_tests {
         // A smooth relief (features 15 to 40 texels across): the horizons marched on blocks of
         // 2 x 2 texels are those of the texels to a fraction of their spread.
         let (rows, cols) = (41, 36);
-        let z: Vec<f32> = (0..rows * cols)
-            .map(|i| {
-                let (r, c) = ((i / cols) as f32, (i % cols) as f32);
-                3.0 * (r / 5.0).sin() * (c / 7.0).cos() + 2.0 * ((r + c) / 9.0).sin()
-            })
-            .collect();
-        let h = Height { rows, cols, z };
+        let h = smooth(rows, cols);
         let c = h.coarse(2);
         assert_eq!((c.rows, c.cols), (21, 18));
         let block = (h.z[0] + h.z[1] + h.z[cols] + h.z[cols + 1]) / 4.0;

@@ -118,10 +118,10 @@ fn gradients_match_central_differences() {
     }
 }
 
-#[test]
-fn training_recovers_data_made_by_a_decoder() {
-    // A BTF made by a random decoder of the same shape from random codes: the fit must explain
-    // it far better than its mean does, with the 8-bit codes it stores, and on held-out pairs.
+/// Data of `size^2` texels made by a small random decoder (4 latents, 16 hidden units, the
+/// half-vector encoding with tables of 4 features) from random codes, and the options of a fit
+/// of that shape.
+fn small_decoded_fit(size: usize) -> (Btf, NeuralOptions) {
     let shape = Shape {
         latents: 4,
         directions: Directions::Half,
@@ -131,10 +131,18 @@ fn training_recovers_data_made_by_a_decoder() {
         activation: Activation::Elu,
         horizon: 0,
     };
-    let (btf, _) = decoded_btf(&random_decoder(shape, 21, 0.6), 8, 9);
-    let b = btf.as_ref();
+    let (btf, _) = decoded_btf(&random_decoder(shape, 21, 0.6), size, 9);
     let o =
         NeuralOptions { latents: 4, hidden: 16, features: Some(4), grid: 6, steps: Some(1500), ..Default::default() };
+    (btf, o)
+}
+
+#[test]
+fn training_recovers_data_made_by_a_decoder() {
+    // A BTF made by a random decoder of the same shape from random codes: the fit must explain
+    // it far better than its mean does, with the 8-bit codes it stores, and on held-out pairs.
+    let (btf, o) = small_decoded_fit(8);
+    let b = btf.as_ref();
     let m = fit_neural(&b, &o, &Monitor::new()).unwrap();
     let e = crate::model::model_error(&m, &b).unwrap();
     let rel = (e.sse / e.sgt).sqrt();
@@ -524,19 +532,8 @@ fn a_fit_on_a_sample_encodes_the_texels_it_did_not_train_on() {
     // Data made by a decoder from random codes, fitted on a sample of half its texels:
     // the encoder's codes must explain the other texels nearly as well as the sample's, and the
     // whole capture nearly as well as a fit trained on every texel.
-    let shape = Shape {
-        latents: 4,
-        directions: Directions::Half,
-        features: 4,
-        grid: 6,
-        hidden: 16,
-        activation: Activation::Elu,
-        horizon: 0,
-    };
-    let (btf, _) = decoded_btf(&random_decoder(shape, 21, 0.6), 16, 9);
+    let (btf, o) = small_decoded_fit(16);
     let b = btf.as_ref();
-    let o =
-        NeuralOptions { latents: 4, hidden: 16, features: Some(4), grid: 6, steps: Some(1500), ..Default::default() };
     let sampled = fit_neural(&b, &NeuralOptions { train_texels: Some(128), ..o.clone() }, &Monitor::new()).unwrap();
     let r = sampled.report();
     assert_eq!(r["sample_texels"], 128, "{r}");
