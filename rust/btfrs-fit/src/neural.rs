@@ -206,19 +206,6 @@ impl Neural {
         decoder: Decoder,
         report: serde_json::Value,
     ) -> Result<Self> {
-        Self::with_cache(height, width, latents, horizon, decoder, report, CACHE_BYTES)
-    }
-
-    /// [`Neural::new`] keeping the first-layer cache when it fits in `cache_bytes`.
-    pub(crate) fn with_cache(
-        height: usize,
-        width: usize,
-        latents: Planes,
-        horizon: Option<HorizonMap>,
-        decoder: Decoder,
-        report: serde_json::Value,
-        cache_bytes: usize,
-    ) -> Result<Self> {
         let sh = decoder.shape;
         match &horizon {
             Some(m) => ensure_arg!(
@@ -240,7 +227,7 @@ impl Neural {
             latents.k
         );
         let h = sh.hidden;
-        let cache = (latents.texels * h * 4 <= cache_bytes).then(|| {
+        let cache = (latents.texels * h * 4 <= CACHE_BYTES).then(|| {
             let mut cache = vec![0.0f32; latents.texels * h];
             let z = latents.dequantize();
             use rayon::prelude::*;
@@ -250,6 +237,13 @@ impl Neural {
         let w2t = decoder.w2t();
         let clear = decoder.clearance_columns();
         Ok(Neural { height, width, latents, horizon, decoder, report, cache, w2t, clear })
+    }
+
+    /// The model without its first-layer cache, as one above [`CACHE_BYTES`] is built.
+    #[cfg(test)]
+    pub(crate) fn without_cache(mut self) -> Self {
+        self.cache = None;
+        self
     }
 
     /// The decoder.

@@ -43,10 +43,9 @@ fn evaluation_with_cached_parts_equals_the_plain_decoder() {
         let planes = Planes::quantize(&z, 5).unwrap();
         let zq = planes.dequantize();
         // With the cache, and without it (a model too large to keep one: camera captures).
-        for cache_bytes in [usize::MAX, 0] {
-            let m = Neural::with_cache(2, 2, planes.clone(), None, dec.clone(), serde_json::Value::Null, cache_bytes)
-                .unwrap();
-            assert_eq!(m.cache.is_some(), cache_bytes > 0);
+        let cached = Neural::new(2, 2, planes.clone(), None, dec.clone(), serde_json::Value::Null).unwrap();
+        assert!(cached.cache.is_some());
+        for m in [cached.clone(), cached.without_cache()] {
             let (v, l) = ([0.3, -0.2, (1.0f64 - 0.13).sqrt()], [-0.5, 0.1, (1.0f64 - 0.26).sqrt()]);
             let q = m.query(v, l);
             for t in 0..4 {
