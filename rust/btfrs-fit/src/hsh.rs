@@ -198,7 +198,7 @@ pub fn quantize_shared(values: &[f32], k: usize, n2: usize) -> Result<Planes> {
     if k == 0 || !k.is_multiple_of(3 * n2) || !values.len().is_multiple_of(k) {
         return Err(Error::arg("coeffs", format!("{} values are not whole texels of {k} planes", values.len())));
     }
-    if let Some(i) = values.iter().position(|x| !x.is_finite()) {
+    if let Some(i) = btfrs_core::btf::first_non_finite(values) {
         return Err(Error::arg("coeffs", format!("coefficient at flat index {i} is not finite")));
     }
     let groups = k / (3 * n2);

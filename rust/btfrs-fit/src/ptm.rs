@@ -364,7 +364,9 @@ impl Ptm {
         q.par_chunks_mut(kk * 64).zip(self.coeffs.par_chunks(kk * 64)).for_each(|(q, a)| {
             for (q, a) in q.chunks_exact_mut(kk).zip(a.chunks_exact(kk)) {
                 for ((q, &a), &(s, b)) in q.iter_mut().zip(a).zip(&sb) {
-                    *q = (a as f64 * 255.0 / s + b).round().clamp(0.0, 255.0) as u8;
+                    // Half up by truncation of the clamped value (`round` is a library call
+                    // per value on the x86-64 baseline); below zero both give 0.
+                    *q = (a as f64 * 255.0 / s + b + 0.5).clamp(0.0, 255.0) as u8;
                 }
             }
         });

@@ -41,7 +41,7 @@ impl Features {
                 format!("expected {height} x {width} x {dim} = {} values, got {}", height * width * dim, data.len()),
             ));
         }
-        if let Some(i) = data.par_iter().position_first(|v| !v.is_finite()) {
+        if let Some(i) = btfrs_core::btf::first_non_finite(&data) {
             let t = i / dim;
             return Err(Error::arg(
                 "sample",
