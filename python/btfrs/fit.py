@@ -525,7 +525,8 @@ def rbf(
         Ridge on the kernel matrix's unit diagonal (0 with duplicate lights is an error). Allowed: a
         number >= 0; default 0.1.
     seed
-        Seed of the randomized PCA (vectors longer than 768 values only). Allowed: a non-negative
+        Seed of the randomized PCA (vectors longer than 768 values) and of the texel sample whose
+        moments give the principal functions (captures above 262144 texels). Allowed: a non-negative
         integer; default 0.
     robust
         Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far
@@ -595,7 +596,8 @@ def bilinear(
     regularization
         Weight of the second-difference smoothness (relative). Allowed: a number >= 0; default 0.3.
     seed
-        Seed of the randomized PCA (vectors longer than 768 values only). Allowed: a non-negative
+        Seed of the randomized PCA (vectors longer than 768 values) and of the texel sample whose
+        moments give the principal functions (captures above 262144 texels). Allowed: a non-negative
         integer; default 0.
     robust
         Screen the values for outliers (hot pixels, dust, glints) before fitting, replacing those far

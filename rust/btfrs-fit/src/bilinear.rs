@@ -225,7 +225,7 @@ exactly as for the RBF basis.";
         ),
         Spec::int("resolution", 8, 2, Some(light_pca::MAX_RESOLUTION as i64), "light grid nodes per side"),
         Spec::float("regularization", 0.3, 0.0, "weight of the second-difference smoothness (relative)"),
-        Spec::seed("seed of the randomized PCA (vectors longer than 768 values only)"),
+        Spec::seed("seed of the randomized PCA (vectors longer than 768 values) and of the texel sample whose moments give the principal functions (captures above 262144 texels)"),
     ];
     const SAMPLING: Sampling = Sampling::PerView { min_lights: 4, why: "8 x 8 grid" };
     const EXAMPLES: &'static [(&'static str, &'static str)] = &[

@@ -24,6 +24,8 @@
 //!   and Lambertian albedo of one view slot.
 //! * [`relief`]: a sample's relief for models that draw its cast shadows: the height from
 //!   photometric stereo and the horizon map (Max 1988) the neural decoder reads.
+//! * [`runs`]: a sample of texels as short runs spread over the frame, what large captures
+//!   train the neural decoder on and take the light bases' principal functions from.
 //! * [`planes`]: 8-bit coefficient planes with per-plane scale and bias (what RTI viewers hold).
 //! * [`eval`]: evaluation ([`ReflectanceModel`], [`Shade`]), what the model contract and its GPU
 //!   half share.
@@ -61,6 +63,7 @@ pub mod rbf;
 pub mod registry;
 pub mod relief;
 pub mod robust;
+pub mod runs;
 pub mod sh;
 mod simd;
 pub mod srf;

@@ -455,7 +455,8 @@ pub struct FallbackSlot {
 
 /// The least memory limit of [`fit`] on `btf` (bytes, besides the model): it does not stream
 /// below it. In two passes ([`two_passes`]): 16 MB, the moments of every slot and per thread a
-/// product ([`block_memory`]), and a block of [`MIN_BLOCK`] texels; every texel's float
+/// product ([`block_memory`]), a block of [`MIN_BLOCK`] texels, and above
+/// [`staged::MOMENT_TEXELS`] texels 16 MB of sampled values; every texel's float
 /// coefficients too when the limit holds them (4 bytes per stored byte), else they wait for the
 /// quantization in a temporary file ([`btfrs_core::scratch`]). Slot by slot: 16 MB, the float
 /// coefficients, one view slot's samples and its resampled data with their centred copy
@@ -465,7 +466,9 @@ pub fn least_memory(btf: &BtfRef<'_>, opts: &PcaOptions) -> u64 {
     let g = (opts.resolution * opts.resolution) as u64;
     if two_passes(opts, btf.texels(), max_slot_pairs(btf)) {
         let (fixed, per) = block_memory(btf, opts);
-        16_000_000 + fixed + MIN_BLOCK as u64 * per
+        // Above MOMENT_TEXELS, the copy of the sampled values whose moments are summed.
+        let sample = if btf.texels() > staged::MOMENT_TEXELS { staged::SAMPLE_COPY_BYTES as u64 } else { 0 };
+        16_000_000 + fixed + MIN_BLOCK as u64 * per + sample
     } else {
         16_000_000 + coefficient_bytes(btf, opts) + 4 * t * (3 * nl + 6 * g)
     }
@@ -809,7 +812,7 @@ pub fn fit(btf: &BtfRef<'_>, opts: &PcaOptions, op: &Operator<'_>, what: &str, m
     if two_passes(opts, t, plan.max_pairs()) {
         let block = block_texels(btf, opts, monitor.memory_limit());
         let spill = spills(btf, opts, monitor.memory_limit());
-        staged::fit_two_passes(btf, opts, plan, block, spill, monitor)
+        staged::fit_two_passes(btf, opts, plan, block, spill, staged::MOMENT_TEXELS, monitor)
     } else {
         fit_per_slot(btf, opts, plan, monitor)
     }

@@ -192,7 +192,7 @@ of a multi-view BTF with fewer than 6 present lights borrows the nearest views' 
             0.0,
             "ridge on the kernel matrix's unit diagonal (0 with duplicate lights is an error)",
         ),
-        Spec::seed("seed of the randomized PCA (vectors longer than 768 values only)"),
+        Spec::seed("seed of the randomized PCA (vectors longer than 768 values) and of the texel sample whose moments give the principal functions (captures above 262144 texels)"),
     ];
     const EXAMPLES: &'static [(&'static str, &'static str)] =
         &[("RBF-9", r#"{"components": 9}"#), ("RBF-18", r#"{"components": 18}"#), ("RBF-27", r#"{"components": 27}"#)];

@@ -20,14 +20,13 @@
 //! 3. **Encoding.** Every texel of the capture is read once, in storage order, screened for
 //!    outliers when the fit is robust, and encoded.
 //!
-//! The sample is runs of [`RUN`] consecutive texels, one at a random place in each of as many
-//! equal stretches of the texels (so it is spread over the whole frame and read from a
-//! memory-mapped file as short sequential stretches, not as scattered pages).
+//! The sample is [`crate::runs`]: short runs of consecutive texels spread over the frame.
 
 use super::decoder::Activation;
 use super::dense::GEMM;
 use super::train::{chunk_grad, schedule, val_error, Adam, Batches, Horizons, Stage, CHUNK};
 use crate::robust::TexelScreen;
+pub use crate::runs::{sample_texels, RUN};
 use btfrs_core::rng::{mix, Rng};
 use btfrs_core::{BtfRef, Monitor, Result};
 use rayon::prelude::*;
@@ -35,32 +34,12 @@ use rayon::prelude::*;
 /// Training pairs an encoder reads per texel, at most (a random subset beyond: a BTF's
 /// thousands of pairs would make its first layer the cost of the encoding pass).
 pub const INPUT_PAIRS: usize = 128;
-/// Consecutive texels per run of the sample.
-pub const RUN: usize = 64;
 /// Texels per encoder training step.
 const BATCH: usize = 256;
 /// Texels encoded per parallel task of the encoding pass.
 const ENCODE_CHUNK: usize = 256;
 /// Texels per progress step and cancellation check of the encoding pass.
 const ENCODE_BAND: usize = 1 << 16;
-
-/// The texels of a sample of `n` of `t`: runs of [`RUN`] consecutive texels, one at a random
-/// place in each of `n / RUN` equal stretches, in increasing order.
-pub fn sample_texels(t: usize, n: usize, seed: u64) -> Vec<usize> {
-    if n >= t {
-        return (0..t).collect();
-    }
-    let run = RUN.min(n).max(1);
-    let runs = (n / run).max(1);
-    let stretch = t / runs;
-    let mut rng = Rng::new(mix(seed ^ 0x5a3b1e));
-    let mut out = Vec::with_capacity(runs * run);
-    for i in 0..runs {
-        let start = i * stretch + rng.below(stretch - run + 1);
-        out.extend(start..start + run);
-    }
-    out
-}
 
 /// An encoder's parameters: `w1 [hidden][inputs]`, `b1`, `w2 [hidden][hidden]`, `b2`,
 /// `w3 [latents][hidden]`, `b3`.
