@@ -322,7 +322,9 @@ pub(crate) fn fit_two_passes(
     let sampled = t > sample;
     if sampled {
         // 1. The moments of a sample of runs spread over the frame (`crate::runs`), copied a
-        //    few megabytes at a time; the values are checked in the second pass.
+        //    few megabytes at a time; the sample's values checked as they are copied (a bad one
+        //    is named as the caller's scan would, not as a non-finite table), every value in the
+        //    second pass.
         let picked = crate::runs::sample_texels(t, sample, opts.seed);
         let per_copy = (SAMPLE_COPY_BYTES / (4 * full.max(1))).clamp(1, block.max(1));
         let mut buf: Vec<f32> = Vec::with_capacity(per_copy.min(picked.len()) * full);
@@ -332,6 +334,8 @@ pub(crate) fn fit_two_passes(
             for &x in chunk {
                 buf.extend_from_slice(&btf.data[x * full..(x + 1) * full]);
             }
+            scan.check(&buf);
+            scan.finish("data", btf.data)?;
             moments.add(&BtfRef { height: 1, width: chunk.len(), data: &buf, ..*btf }, &plan, None);
         }
     } else {
@@ -644,19 +648,21 @@ mod tests {
 
     #[test]
     fn a_sampled_fit_still_checks_every_value() {
-        // The non-finite value lies outside the sample: the projection pass finds it, with the
-        // caller's scan's error.
+        // A non-finite value outside the sample (the projection pass finds it) and one inside
+        // it (found as it is copied, before the moments): each with the caller's scan's error.
         let btf = generate(&MaterialSpec::new(Preset::Bumps, 32, 3), &Monitor::new()).unwrap();
         let picked = crate::runs::sample_texels(btf.as_ref().texels(), 256, 0);
         let outside = (0..1024).rev().find(|t| !picked.contains(t)).unwrap();
-        let mut data = btf.data.clone();
-        data[outside * btf.as_ref().abrdf_len() + 5] = f32::INFINITY;
-        let b = BtfRef { data: &data, ..btf.as_ref() };
-        let basis = Basis::parse("bilinear", &parse_json(r#"{"resolution": 4, "seed": 0}"#).unwrap()).unwrap();
-        let o = basis.options().unwrap();
-        let plan = basis.plan(b.views, b.lights, b.mask).unwrap();
-        let e = fit_two_passes(&b, &o, plan, 256, false, 256, &Monitor::new()).unwrap_err().to_string();
-        assert_eq!(e, btfrs_core::btf::check_finite("data", &data).unwrap_err().to_string());
+        for (texel, bad) in [(outside, f32::INFINITY), (picked[100], f32::NAN)] {
+            let mut data = btf.data.clone();
+            data[texel * btf.as_ref().abrdf_len() + 5] = bad;
+            let b = BtfRef { data: &data, ..btf.as_ref() };
+            let basis = Basis::parse("bilinear", &parse_json(r#"{"resolution": 4, "seed": 0}"#).unwrap()).unwrap();
+            let o = basis.options().unwrap();
+            let plan = basis.plan(b.views, b.lights, b.mask).unwrap();
+            let e = fit_two_passes(&b, &o, plan, 256, false, 256, &Monitor::new()).unwrap_err().to_string();
+            assert_eq!(e, btfrs_core::btf::check_finite("data", &data).unwrap_err().to_string(), "texel {texel}");
+        }
     }
 
     #[test]
